@@ -1,0 +1,182 @@
+"""The ``spacecal`` command line: a thin shell over one library function per command.
+
+Exit codes: 0 success; 1 a known error, printed as one line (``--debug`` shows the
+traceback); 2 a usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from . import __version__
+from .errors import InvalidInputError, SpacecalError
+
+
+def _cmd_simulate(args) -> None:
+    from .io.recording_csv import metadata_path, write_recording
+    from .sim.recording import simulate
+    from .sim.scenario import load_scenario
+    import dataclasses
+
+    scenario = load_scenario(args.scenario)
+    if args.seed is not None:
+        scenario = dataclasses.replace(scenario, seed=args.seed)
+    simulation = simulate(scenario)
+    path = write_recording(simulation.recording, args.output)
+    rec = simulation.recording
+    print(f"wrote {path} ({len(rec)} samples, {int(rec.visible.sum())} with the marker visible) "
+          f"and {metadata_path(path)}")
+    print(f"scenario {scenario.name}, seed {scenario.seed}; planned motion time "
+          f"{simulation.plan.motion_time_s:.1f} s")
+    for message in simulation.plan.messages:
+        print(f"note: {message}")
+
+
+def _cmd_calibrate(args) -> None:
+    from .estimators import calibrate
+    from .io.recording_csv import read_recording
+    from .io.results_json import write_calibration
+
+    recording = read_recording(args.recording)
+    result = calibrate(recording, args.method)
+    result.source = {"recording": str(Path(args.recording).resolve())}
+    path = write_calibration(result, args.output)
+    counts = result.sample_counts
+    print(f"wrote {path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
+    sphere = result.diagnostics.get("sphere")
+    if sphere:
+        print(f"sphere: radius {sphere['radius_mm']:.2f} mm, fit RMS {sphere['rms_mm']:.3f} mm; "
+              "line straightness RMS: " + ", ".join(
+                  f"{k} {v['straightness_rms_mm']:.3f} mm" for k, v in result.diagnostics["lines"].items()))
+
+
+def _scenario_for_verification(args, calibration):
+    from .io.recording_csv import metadata_path
+    from .sim.scenario import load_scenario, scenario_from_dict
+
+    if args.scenario is not None:
+        return load_scenario(args.scenario)
+    recording = calibration.source.get("recording")
+    meta = metadata_path(recording) if recording else None
+    if meta is None or not meta.is_file():
+        raise InvalidInputError(
+            "no scenario given and the calibration's recording metadata was not found; pass --scenario"
+        )
+    data = json.loads(meta.read_text())
+    if "scenario" not in data:
+        raise InvalidInputError(f"{meta} holds no simulation scenario (real data?); pass --scenario")
+    return scenario_from_dict(data["scenario"])
+
+
+def _cmd_verify(args) -> None:
+    from .io.results_json import read_calibration, write_json
+    from .report.figures import plot_verification_errors
+    from .sim.verification import verify_in_simulation
+
+    calibration = read_calibration(args.calibration)
+    scenario = _scenario_for_verification(args, calibration)
+    if args.points < 1:
+        raise InvalidInputError("--points must be at least 1")
+    result = verify_in_simulation(calibration, scenario, args.points)
+    stats = result.statistics()
+    if args.output:
+        print(f"wrote {write_json(result.to_dict(), args.output)}")
+    if args.figure:
+        print(f"wrote {plot_verification_errors(result.position_error_mm, result.posture_error_deg, args.figure)}")
+    pos, ang = stats["position_mm"], stats["posture_deg"]
+    print(f"verification on {len(result.position_error_mm)} needle poses (scenario {scenario.name}):")
+    print(f"  position error min / mean / max / RMS: {pos['min']:.3f} / {pos['mean']:.3f} / "
+          f"{pos['max']:.3f} / {pos['rms']:.3f} mm   (paper: min 0.87, mean < 1.05 mm)")
+    print(f"  posture error  min / mean / max / RMS: {ang['min']:.3f} / {ang['mean']:.3f} / "
+          f"{ang['max']:.3f} / {ang['rms']:.3f} deg  (paper: min 0.83, mean about 1.1 deg)")
+
+
+def _cmd_demo(args) -> None:
+    from .sim.demo import run_demo
+    from .sim.scenario import load_scenario
+
+    result = run_demo(load_scenario(args.scenario))
+    print(result.table())
+    if args.out:
+        _write_demo_outputs(result, Path(args.out))
+
+
+def _write_demo_outputs(result, output_dir: Path) -> None:
+    from .io.recording_csv import write_recording
+    from .io.results_json import write_calibration, write_json
+    from .report.figures import plot_verification_errors
+
+    recording_path = write_recording(result.simulation.recording, output_dir / "recording.csv")
+    result.calibration.source = {"recording": str(recording_path.resolve())}
+    write_calibration(result.calibration, output_dir / "calibration.json")
+    write_json(result.verification.to_dict(), output_dir / "verification.json")
+    plot_verification_errors(result.verification.position_error_mm, result.verification.posture_error_deg,
+                             output_dir / "verification_errors.png")
+    print(f"\nwrote recording.csv, calibration.json, verification.json, verification_errors.png to {output_dir}")
+
+
+def _cmd_scenario(args) -> None:
+    from .sim.scenario import load_scenario
+
+    print(json.dumps(load_scenario(args.preset).to_dict(), indent=2))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .estimators import METHODS
+
+    parser = argparse.ArgumentParser(
+        prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker.")
+    parser.add_argument("--version", action="version", version=f"spacecal {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = commands.add_parser("simulate", help="simulate the paper's calibration run -> recording CSV")
+    p.add_argument("--scenario", help="scenario JSON file or preset (paper-realistic, paper-white)")
+    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write")
+    p.set_defaults(run=_cmd_simulate)
+
+    p = commands.add_parser("calibrate", help="estimate tracker_from_base from a recording")
+    p.add_argument("recording", help="recording CSV")
+    p.add_argument("--method", default="paper", help=f"estimator: {', '.join(sorted(METHODS))} (default paper)")
+    p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
+    p.set_defaults(run=_cmd_calibrate)
+
+    p = commands.add_parser("verify", help="the paper's verification experiment on the simulated system")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--scenario", help="scenario (default: the one stored with the calibration's recording)")
+    p.add_argument("--points", type=int, default=15, help="number of needle poses (default 15)")
+    p.add_argument("-o", "--output", help="verification JSON to write")
+    p.add_argument("--figure", help="PNG of the error curves (paper Fig. 7)")
+    p.set_defaults(run=_cmd_verify)
+
+    p = commands.add_parser("demo", help="simulate, calibrate and verify; print a summary table")
+    p.add_argument("--scenario", help="scenario JSON file or preset (default paper-realistic)")
+    p.add_argument("--out", help="directory to write the recording, calibration, verification and figure to")
+    p.set_defaults(run=_cmd_demo)
+
+    p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
+    p.add_argument("preset", nargs="?", default="paper-realistic")
+    p.set_defaults(run=_cmd_scenario)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``spacecal`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        args.run(args)
+    except (SpacecalError, OSError) as exc:
+        if args.debug:
+            raise
+        print(f"spacecal: error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,35 @@
+"""The registry of calibration methods, chosen by name."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+from ..errors import UnknownMethodError
+from ..records import CalibrationResult, Recording
+from .paper import calibrate_paper
+
+#: name -> function(recording, **options) -> CalibrationResult
+METHODS: dict[str, Callable[..., CalibrationResult]] = {
+    "paper": calibrate_paper,
+}
+
+
+def calibrate(recording: Recording, method: str = "paper", **options) -> CalibrationResult:
+    """Estimate ``tracker_from_base`` and ``tcp_from_marker`` from a recording.
+
+    Parameters
+    ----------
+    recording : Recording
+    method : str
+        A name from :data:`METHODS`.
+    **options
+        Passed to the method.
+
+    Raises
+    ------
+    UnknownMethodError
+        For a name not in the registry; the message lists the valid ones.
+    """
+    if method not in METHODS:
+        raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(METHODS))}")
+    return METHODS[method](recording, **options)

@@ -1,0 +1,35 @@
+"""The coordinate frames spacecal knows, each defined once.
+
+Transforms are named ``<to>_from_<from>`` (``p_tracker = tracker_from_base @ p_base``);
+see the README's "Frames" section. Code that needs a new frame adds it here.
+"""
+
+from __future__ import annotations
+
+FRAMES: dict[str, str] = {
+    "tracker": "the optical tracker's measurement frame (paper: M); NDI Polaris, volume along -z",
+    "base": "the robot base frame (paper: J), as in the robot's kinematic model",
+    "flange": "the robot's tool flange (last DH frame)",
+    "tcp": "the robot's tool centre point = flange @ configured tool offset (paper: O); "
+    "for the needle guide it is the needle tip",
+    "marker": "the passive 4-sphere marker fixed to the tool (paper: B, 'digital reference frame')",
+    "needle": "the needle tip frame, z along the needle; coincides with tcp in the paper's setup",
+    "image": "CT image space",
+    "reference": "a marker fixed to the patient or phantom",
+}
+
+
+def check_frame(name: str) -> str:
+    """Return ``name`` if it is a known frame, else raise ``ValueError`` listing them."""
+    if name not in FRAMES:
+        from .errors import InvalidInputError
+
+        raise InvalidInputError(
+            f"unknown frame {name!r}; known frames: {', '.join(sorted(FRAMES))}"
+        )
+    return name
+
+
+def transform_name(to_frame: str, from_frame: str) -> str:
+    """The canonical name of the transform mapping ``from_frame`` into ``to_frame``."""
+    return f"{check_frame(to_frame)}_from_{check_frame(from_frame)}"

@@ -1,0 +1,1 @@
+"""Pure numpy/scipy geometry: transforms, rotations, fitting, error metrics."""

@@ -1,0 +1,136 @@
+"""Rigid transforms as 4x4 homogeneous matrices, and conversions between rotation forms.
+
+All functions accept a single transform, shape (4, 4), or a stack, shape (N, 4, 4).
+Translations are in millimetres. Quaternions are ``wxyz`` (scalar first, as NDI reports
+them) unless a name says ``xyzw`` (scipy's order).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def make_transform(rotation, translation_mm) -> np.ndarray:
+    """Build homogeneous transforms from rotations and translations.
+
+    Parameters
+    ----------
+    rotation : array_like, shape (3, 3) or (N, 3, 3)
+    translation_mm : array_like, shape (3,) or (N, 3)
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, 4) or (N, 4, 4)
+    """
+    rotation = np.asarray(rotation, dtype=float)
+    translation_mm = np.asarray(translation_mm, dtype=float)
+    shape = np.broadcast_shapes(rotation.shape[:-2], translation_mm.shape[:-1])
+    out = np.zeros(shape + (4, 4))
+    out[..., :3, :3] = rotation
+    out[..., :3, 3] = translation_mm
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def invert_transform(a_from_b) -> np.ndarray:
+    """Invert rigid transforms exactly (R^T, -R^T t): ``b_from_a = invert_transform(a_from_b)``.
+
+    Parameters
+    ----------
+    a_from_b : array_like, shape (4, 4) or (N, 4, 4)
+    """
+    a_from_b = np.asarray(a_from_b, dtype=float)
+    rotation_t = np.swapaxes(a_from_b[..., :3, :3], -1, -2)
+    translation = -np.einsum("...ij,...j->...i", rotation_t, a_from_b[..., :3, 3])
+    return make_transform(rotation_t, translation)
+
+
+def apply_transform(a_from_b, points_in_b) -> np.ndarray:
+    """Map points given in frame b into frame a.
+
+    Parameters
+    ----------
+    a_from_b : array_like, shape (4, 4) or (N, 4, 4)
+    points_in_b : array_like, shape (3,), (M, 3), or (N, 3) paired with a stack
+
+    Returns
+    -------
+    numpy.ndarray
+        ``points_in_a`` with the broadcast shape of the inputs.
+    """
+    a_from_b = np.asarray(a_from_b, dtype=float)
+    points_in_b = np.asarray(points_in_b, dtype=float)
+    if a_from_b.ndim == 2:
+        return points_in_b @ a_from_b[:3, :3].T + a_from_b[:3, 3]
+    return np.einsum("nij,nj->ni", a_from_b[:, :3, :3], points_in_b) + a_from_b[:, :3, 3]
+
+
+def rotation_part(transform) -> np.ndarray:
+    """The (…, 3, 3) rotation block of transforms."""
+    return np.asarray(transform, dtype=float)[..., :3, :3]
+
+
+def translation_part(transform) -> np.ndarray:
+    """The (…, 3) translation column of transforms, in mm."""
+    return np.asarray(transform, dtype=float)[..., :3, 3]
+
+
+def quaternion_wxyz_to_matrix(quaternion_wxyz) -> np.ndarray:
+    """Rotation matrices from unit quaternions, scalar first.
+
+    Parameters
+    ----------
+    quaternion_wxyz : array_like, shape (4,) or (N, 4)
+        Need not be exactly unit; scipy normalises. Callers that must reject
+        non-unit input check it first (see :mod:`spacecal.io.recording_csv`).
+    """
+    q = np.asarray(quaternion_wxyz, dtype=float)
+    return Rotation.from_quat(np.roll(q, -1, axis=-1)).as_matrix()
+
+
+def matrix_to_quaternion_wxyz(rotation) -> np.ndarray:
+    """Unit quaternions, scalar first and non-negative, from rotation matrices (…, 3, 3)."""
+    q_xyzw = Rotation.from_matrix(np.asarray(rotation, dtype=float)).as_quat(canonical=True)
+    return np.roll(q_xyzw, 1, axis=-1)
+
+
+def rotvec_to_matrix(rotation_vector) -> np.ndarray:
+    """Rotation matrices from rotation vectors (axis times angle in radians), (…, 3)."""
+    return Rotation.from_rotvec(np.asarray(rotation_vector, dtype=float)).as_matrix()
+
+
+def matrix_to_rotvec(rotation) -> np.ndarray:
+    """Rotation vectors (axis times angle in radians) from rotation matrices (…, 3, 3)."""
+    return Rotation.from_matrix(np.asarray(rotation, dtype=float)).as_rotvec()
+
+
+def transform_from_position_quaternion(position_mm, quaternion_wxyz) -> np.ndarray:
+    """Transforms from positions (…, 3) in mm and ``wxyz`` quaternions (…, 4)."""
+    return make_transform(quaternion_wxyz_to_matrix(quaternion_wxyz), position_mm)
+
+
+def transform_to_position_quaternion(transform) -> tuple[np.ndarray, np.ndarray]:
+    """Split transforms into positions (…, 3) in mm and ``wxyz`` quaternions (…, 4)."""
+    return translation_part(transform).copy(), matrix_to_quaternion_wxyz(rotation_part(transform))
+
+
+def axis_angle_transform(axis, angle_rad, translation_mm=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """A transform rotating by ``angle_rad`` about unit ``axis`` (3,), then translating."""
+    axis = np.asarray(axis, dtype=float)
+    axis = axis / np.linalg.norm(axis)
+    angle = np.asarray(angle_rad, dtype=float)
+    return make_transform(rotvec_to_matrix(angle[..., None] * axis), translation_mm)
+
+
+def is_rigid_transform(transform, atol: float = 1e-6) -> bool:
+    """True if every matrix is a proper rigid transform (orthonormal, det +1, last row 0 0 0 1)."""
+    t = np.asarray(transform, dtype=float)
+    if t.shape[-2:] != (4, 4) or not np.all(np.isfinite(t)):
+        return False
+    r = t[..., :3, :3]
+    eye = np.broadcast_to(np.eye(3), r.shape)
+    orthonormal = np.allclose(np.swapaxes(r, -1, -2) @ r, eye, atol=atol)
+    proper = np.allclose(np.linalg.det(r), 1.0, atol=atol)
+    last_row = np.allclose(t[..., 3, :], [0.0, 0.0, 0.0, 1.0], atol=atol)
+    return bool(orthonormal and proper and last_row)

@@ -1,0 +1,1 @@
+"""Reading and writing spacecal's files: recordings (CSV + metadata JSON), calibrations, results."""

@@ -1,0 +1,224 @@
+"""The recording file: CSV, one header row, one row per tracker frame.
+
+Columns (extra columns are allowed and ignored)::
+
+    time_s, segment, q1_rad .. q6_rad,
+    tcp_x_mm, tcp_y_mm, tcp_z_mm, tcp_qw, tcp_qx, tcp_qy, tcp_qz,          base_from_tcp
+    marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy,
+    marker_qz, marker_rms_mm                                               tracker_from_marker
+
+The marker cells are empty when the marker was not seen. Metadata (robot model, TCP in
+flange, tracker, marker geometry) lives next to the CSV in ``<stem>.meta.json``; the
+estimators need none of it.
+"""
+
+from __future__ import annotations
+
+import csv
+import difflib
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidInputError
+from ..geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
+from ..records import Recording
+from ..units import check_lengths_in_mm
+
+JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
+TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
+MARKER_COLUMNS = ["marker_x_mm", "marker_y_mm", "marker_z_mm", "marker_qw", "marker_qx", "marker_qy",
+                  "marker_qz", "marker_rms_mm"]
+COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS + MARKER_COLUMNS
+
+#: Smallest number of samples a recording must hold to be worth calibrating from.
+MIN_SAMPLES = 10
+#: Largest deviation of a quaternion's norm from 1 that is taken for rounding.
+QUATERNION_NORM_TOLERANCE = 1e-3
+
+
+def metadata_path(recording_path: str | Path) -> Path:
+    """``rec.csv`` -> ``rec.meta.json``."""
+    path = Path(recording_path)
+    return path.with_name(path.stem + ".meta.json")
+
+
+def _format(value: float) -> str:
+    return "" if not math.isfinite(value) else repr(float(value))
+
+
+class RecordingWriter:
+    """Append samples to a recording CSV, flushing each row to disk as it is written.
+
+    Acquisition must never lose data: a fault mid-run leaves every row written so far in a
+    readable file. Use as a context manager.
+    """
+
+    def __init__(self, path: str | Path, metadata: dict | None = None):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if metadata is not None:
+            metadata_path(self.path).write_text(json.dumps(metadata, indent=2))
+        self._file = open(self.path, "w", newline="")
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(COLUMNS)
+        self._flush()
+
+    def _flush(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
+    def append(self, time_s: float, segment: str, joints_rad, base_from_tcp, tracker_from_marker=None,
+               marker_rms_mm: float = float("nan"), flush: bool = True) -> None:
+        """Write one sample; ``tracker_from_marker`` None (or NaN) when the marker was not seen."""
+        tcp_position, tcp_quaternion = transform_to_position_quaternion(base_from_tcp)
+        row = [_format(time_s), segment] + [_format(v) for v in joints_rad]
+        row += [_format(v) for v in tcp_position] + [_format(v) for v in tcp_quaternion]
+        if tracker_from_marker is None or not np.all(np.isfinite(tracker_from_marker)):
+            row += [""] * len(MARKER_COLUMNS)
+        else:
+            position, quaternion = transform_to_position_quaternion(tracker_from_marker)
+            row += [_format(v) for v in position] + [_format(v) for v in quaternion] + [_format(marker_rms_mm)]
+        self._writer.writerow(row)
+        if flush:
+            self._flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._flush()
+            self._file.close()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_recording(recording: Recording, path: str | Path) -> Path:
+    """Write a recording and its metadata (``<stem>.meta.json``); returns the CSV path."""
+    with RecordingWriter(path, recording.metadata) as writer:
+        for k in range(len(recording)):
+            writer.append(recording.time_s[k], str(recording.segment[k]), recording.joints_rad[k],
+                          recording.base_from_tcp_stack[k], recording.tracker_from_marker_stack[k],
+                          recording.marker_rms_mm[k], flush=False)
+    return Path(path)
+
+
+def _check_header(header: list[str], path: Path) -> dict[str, int]:
+    names = [h.strip() for h in header]
+    missing = [c for c in COLUMNS if c not in names]
+    if missing:
+        hints = []
+        for column in missing:
+            close = difflib.get_close_matches(column, names, n=1, cutoff=0.6)
+            hints.append(f"{column} (found {close[0]!r}?)" if close else column)
+        raise InvalidInputError(f"{path}: missing column(s): {', '.join(hints)}")
+    return {c: names.index(c) for c in COLUMNS}
+
+
+def _number(cell: str, line: int, column: str, path: Path) -> float:
+    try:
+        value = float(cell)
+    except ValueError:
+        raise InvalidInputError(f"{path}: line {line}, column {column}: {cell!r} is not a number") from None
+    if not math.isfinite(value):
+        raise InvalidInputError(f"{path}: line {line}, column {column}: {cell!r} is not a finite number")
+    return value
+
+
+def _check_quaternions(quaternions: np.ndarray, lines: np.ndarray, what: str, path: Path) -> None:
+    norms = np.linalg.norm(quaternions, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE)
+    if len(bad):
+        k = bad[0]
+        raise InvalidInputError(
+            f"{path}: line {lines[k]}: {what} quaternion has norm {norms[k]:.4f}; quaternions must "
+            f"be unit ({len(bad)} row(s) affected)"
+        )
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read and validate a recording CSV (and its metadata, if present).
+
+    Raises
+    ------
+    InvalidInputError
+        With one line naming the problem: empty file, missing or misspelt columns, NaN or
+        text in numeric cells, partly empty marker cells, non-increasing time, non-unit
+        quaternions, lengths that look like metres, too few samples, no visible sample.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"{path}: no such recording file")
+    with open(path, newline="") as handle:
+        rows = list(csv.reader(handle))
+    rows = [r for r in rows if any(cell.strip() for cell in r)]
+    if not rows:
+        raise InvalidInputError(f"{path}: the recording is empty")
+    index = _check_header(rows[0], path)
+    body = rows[1:]
+    if len(body) < MIN_SAMPLES:
+        raise InvalidInputError(f"{path}: the recording has {len(body)} samples; at least {MIN_SAMPLES} are needed")
+
+    n = len(body)
+    numeric = JOINT_COLUMNS + TCP_COLUMNS
+    values = np.empty((n, len(numeric)))
+    marker = np.full((n, len(MARKER_COLUMNS)), np.nan)
+    time_s = np.empty(n)
+    segment = []
+    lines = np.arange(2, n + 2)
+    for k, row in enumerate(body):
+        line = k + 2
+        if len(row) < len(rows[0]):
+            raise InvalidInputError(f"{path}: line {line} has {len(row)} cells; the header has {len(rows[0])}")
+        time_s[k] = _number(row[index["time_s"]], line, "time_s", path)
+        segment.append(row[index["segment"]].strip())
+        for j, column in enumerate(numeric):
+            values[k, j] = _number(row[index[column]], line, column, path)
+        cells = [row[index[c]].strip() for c in MARKER_COLUMNS]
+        if any(cells):
+            if not all(cells):
+                raise InvalidInputError(
+                    f"{path}: line {line}: marker cells are partly empty; leave all of them empty "
+                    "when the marker was not seen"
+                )
+            marker[k] = [_number(c, line, name, path) for c, name in zip(cells, MARKER_COLUMNS)]
+
+    steps = np.diff(time_s)
+    if np.any(steps <= 0):
+        k = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise InvalidInputError(
+            f"{path}: time_s is not increasing at line {k + 2} ({time_s[k]!r} after {time_s[k - 1]!r})"
+        )
+    joints = values[:, :6]
+    tcp_position, tcp_quaternion = values[:, 6:9], values[:, 9:13]
+    seen = np.isfinite(marker[:, 0])
+    if not seen.any():
+        raise InvalidInputError(f"{path}: the marker was not visible in any of the {n} samples")
+    _check_quaternions(tcp_quaternion, lines, "tcp", path)
+    _check_quaternions(marker[seen, 3:7], lines[seen], "marker", path)
+    check_lengths_in_mm(tcp_position, f"{path}: tcp_x_mm..tcp_z_mm")
+    check_lengths_in_mm(marker[seen, :3], f"{path}: marker_x_mm..marker_z_mm")
+
+    tracker_from_marker = np.full((n, 4, 4), np.nan)
+    tracker_from_marker[seen] = transform_from_position_quaternion(marker[seen, :3], marker[seen, 3:7])
+    metadata = {}
+    meta_file = metadata_path(path)
+    if meta_file.is_file():
+        try:
+            metadata = json.loads(meta_file.read_text())
+        except json.JSONDecodeError as exc:
+            raise InvalidInputError(f"{meta_file}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    return Recording(
+        time_s=time_s,
+        segment=np.array(segment),
+        joints_rad=joints,
+        base_from_tcp_stack=transform_from_position_quaternion(tcp_position, tcp_quaternion),
+        tracker_from_marker_stack=tracker_from_marker,
+        marker_rms_mm=marker[:, 7],
+        metadata=metadata,
+    )

@@ -1,0 +1,1 @@
+"""Descriptions of the devices: robot kinematics, tracker measurement volume, marker geometry."""

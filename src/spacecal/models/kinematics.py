@@ -1,0 +1,322 @@
+"""Forward and inverse kinematics of serial robots in standard DH form (UR family).
+
+Each link i maps frame i-1 to frame i by
+``Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)`` (standard/distal Denavit–Hartenberg),
+the convention Universal Robots publishes its tables in. The chain gives
+``base_from_flange``; the configured tool offset ``flange_from_tcp`` gives
+``base_from_tcp`` (what a UR controller reports as its actual TCP pose).
+
+Lengths are in mm, angles in rad.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from importlib import resources
+
+import numpy as np
+
+from ..errors import InvalidInputError, UnreachableError
+from ..geometry.transforms import invert_transform, matrix_to_rotvec
+
+UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
+N_JOINTS = 6
+
+
+def _load_ur_tables() -> dict:
+    text = resources.files("spacecal.models").joinpath("data/ur_dh.json").read_text()
+    return {k: v for k, v in json.loads(text).items() if not k.startswith("_")}
+
+
+UR_TABLES = _load_ur_tables()
+
+
+@dataclass(frozen=True)
+class RobotModel:
+    """A 6-joint serial robot in standard DH form.
+
+    Attributes
+    ----------
+    name : str
+        Model name, e.g. ``"UR10"``.
+    a_mm, d_mm, alpha_rad, theta_offset_rad : numpy.ndarray, shape (6,)
+        DH link lengths, offsets, twists and joint-zero offsets.
+    flange_from_tcp : numpy.ndarray, shape (4, 4)
+        The tool offset configured on the robot, mm.
+    joint_lower_rad, joint_upper_rad : numpy.ndarray, shape (6,)
+        Joint limits.
+    controller_hz : float
+        Rate at which the controller time-stamps its state.
+    """
+
+    name: str
+    a_mm: np.ndarray
+    d_mm: np.ndarray
+    alpha_rad: np.ndarray
+    theta_offset_rad: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS))
+    flange_from_tcp: np.ndarray = field(default_factory=lambda: np.eye(4))
+    joint_lower_rad: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, -2 * np.pi))
+    joint_upper_rad: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, 2 * np.pi))
+    controller_hz: float = 125.0
+
+    def with_tcp(self, flange_from_tcp) -> "RobotModel":
+        """A copy with another tool offset (4, 4), mm."""
+        return replace(self, flange_from_tcp=np.asarray(flange_from_tcp, dtype=float))
+
+    def with_dh_errors(self, delta_a_mm=0.0, delta_d_mm=0.0, delta_alpha_rad=0.0,
+                       delta_theta_rad=0.0) -> "RobotModel":
+        """A copy whose DH parameters are offset, e.g. a real robot's deviation from nominal."""
+        return replace(
+            self,
+            a_mm=self.a_mm + delta_a_mm,
+            d_mm=self.d_mm + delta_d_mm,
+            alpha_rad=self.alpha_rad + delta_alpha_rad,
+            theta_offset_rad=self.theta_offset_rad + delta_theta_rad,
+        )
+
+    def dh_table(self) -> dict[str, list[float]]:
+        """The DH parameters as plain lists (for result files)."""
+        return {
+            "a_mm": self.a_mm.tolist(),
+            "d_mm": self.d_mm.tolist(),
+            "alpha_rad": self.alpha_rad.tolist(),
+            "theta_offset_rad": self.theta_offset_rad.tolist(),
+        }
+
+
+def ur_model(name: str, flange_from_tcp=None) -> RobotModel:
+    """The nominal model of a Universal Robots arm.
+
+    Parameters
+    ----------
+    name : str
+        One of ``UR3, UR5, UR10, UR3e, UR5e, UR10e, UR16e``.
+    flange_from_tcp : array_like, shape (4, 4), optional
+        Tool offset in the flange frame, mm; identity if omitted.
+    """
+    if name not in UR_TABLES:
+        raise InvalidInputError(f"unknown robot model {name!r}; known: {', '.join(UR_TABLES)}")
+    table = UR_TABLES[name]
+    return RobotModel(
+        name=name,
+        a_mm=np.array(table["a"], dtype=float),
+        d_mm=np.array(table["d"], dtype=float),
+        alpha_rad=UR_ALPHA_RAD.copy(),
+        flange_from_tcp=np.eye(4) if flange_from_tcp is None else np.asarray(flange_from_tcp, float),
+        controller_hz=float(table["controller_hz"]),
+    )
+
+
+def _link_transforms(model: RobotModel, joints_rad: np.ndarray) -> np.ndarray:
+    """Per-link transforms, shape (N, 6, 4, 4), for joint vectors (N, 6)."""
+    theta = joints_rad + model.theta_offset_rad
+    ct, st = np.cos(theta), np.sin(theta)
+    ca, sa = np.cos(model.alpha_rad), np.sin(model.alpha_rad)
+    links = np.zeros(joints_rad.shape[:-1] + (N_JOINTS, 4, 4))
+    links[..., 0, 0] = ct
+    links[..., 0, 1] = -st * ca
+    links[..., 0, 2] = st * sa
+    links[..., 0, 3] = model.a_mm * ct
+    links[..., 1, 0] = st
+    links[..., 1, 1] = ct * ca
+    links[..., 1, 2] = -ct * sa
+    links[..., 1, 3] = model.a_mm * st
+    links[..., 2, 1] = sa
+    links[..., 2, 2] = ca
+    links[..., 2, 3] = model.d_mm
+    links[..., 3, 3] = 1.0
+    return links
+
+
+def _as_joint_array(joints_rad) -> tuple[np.ndarray, bool]:
+    q = np.asarray(joints_rad, dtype=float)
+    single = q.ndim == 1
+    q = np.atleast_2d(q)
+    if q.shape[-1] != N_JOINTS:
+        raise InvalidInputError(f"expected {N_JOINTS} joint angles per row, got shape {q.shape}")
+    return q, single
+
+
+def forward_kinematics(model: RobotModel, joints_rad, to_tcp: bool = True) -> np.ndarray:
+    """``base_from_tcp`` (or ``base_from_flange``) for joint vectors.
+
+    Parameters
+    ----------
+    model : RobotModel
+    joints_rad : array_like, shape (6,) or (N, 6)
+    to_tcp : bool
+        Append the tool offset (default) or stop at the flange.
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, 4) or (N, 4, 4), mm
+    """
+    q, single = _as_joint_array(joints_rad)
+    links = _link_transforms(model, q)
+    pose = links[:, 0]
+    for i in range(1, N_JOINTS):
+        pose = pose @ links[:, i]
+    if to_tcp:
+        pose = pose @ model.flange_from_tcp
+    return pose[0] if single else pose
+
+
+def _pose_error_vector(target, reached) -> np.ndarray:
+    """6-vector (position mm, rotation rad) of the error from reached to target, in base."""
+    dp = target[..., :3, 3] - reached[..., :3, 3]
+    dr = matrix_to_rotvec(target[..., :3, :3] @ np.swapaxes(reached[..., :3, :3], -1, -2))
+    return np.concatenate([dp, dr], axis=-1)
+
+
+def geometric_jacobian(model: RobotModel, joints_rad) -> np.ndarray:
+    """Geometric Jacobian of the TCP in the base frame, shape (N, 6, 6): rows (v mm, w rad)."""
+    q, _ = _as_joint_array(joints_rad)
+    links = _link_transforms(model, q)
+    frames = np.empty((len(q), N_JOINTS + 1, 4, 4))
+    frames[:, 0] = np.eye(4)
+    for i in range(N_JOINTS):
+        frames[:, i + 1] = frames[:, i] @ links[:, i]
+    tcp = frames[:, -1] @ model.flange_from_tcp
+    # Joint i rotates about the z axis of frame i-1 (standard DH).
+    axes = frames[:, :N_JOINTS, :3, 2]
+    origins = frames[:, :N_JOINTS, :3, 3]
+    linear = np.cross(axes, tcp[:, None, :3, 3] - origins)
+    jac = np.concatenate([linear, axes], axis=2)
+    return np.swapaxes(jac, 1, 2)
+
+
+def _newton_polish(model: RobotModel, base_from_tcp, q0, iterations: int = 20, tol_mm=1e-10):
+    """Refine IK solutions (N, 6) on the exact (possibly non-nominal) model by Gauss–Newton."""
+    q = q0.copy()
+    for _ in range(iterations):
+        err = _pose_error_vector(base_from_tcp, forward_kinematics(model, q))
+        if np.max(np.abs(err[:, :3])) < tol_mm and np.max(np.abs(err[:, 3:])) < tol_mm * 1e-3:
+            break
+        jac = geometric_jacobian(model, q)
+        # pinv rather than solve: stays finite at a wrist or elbow singularity.
+        q = q + np.einsum("nij,nj->ni", np.linalg.pinv(jac), err)
+    return q
+
+
+def _wrap_near(angles, reference):
+    """Add multiples of 2 pi to ``angles`` to bring them nearest to ``reference``."""
+    return reference + np.mod(angles - reference + np.pi, 2 * np.pi) - np.pi
+
+
+def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarray:
+    """The 8 closed-form UR branches (Hawkins 2013) for one flange pose: shape (8, 6), NaN rows
+    where a branch does not exist. Exact for the nominal UR geometry; a start for Newton
+    otherwise."""
+    a2, a3 = model.a_mm[1], model.a_mm[2]
+    d1, d4, d5, d6 = model.d_mm[0], model.d_mm[3], model.d_mm[4], model.d_mm[5]
+    t06 = base_from_flange
+    solutions = np.full((8, 6), np.nan)
+    p05 = t06[:3, :3] @ np.array([0.0, 0.0, -d6]) + t06[:3, 3]
+    r05 = np.hypot(p05[0], p05[1])
+    if r05 < abs(d4):
+        return solutions
+    psi = np.arctan2(p05[1], p05[0])
+    phi = np.arccos(np.clip(d4 / r05, -1.0, 1.0))
+    k = 0
+    for s1 in (1, -1):
+        q1 = psi + s1 * phi + np.pi / 2
+        p06 = t06[:3, 3]
+        c5 = (p06[0] * np.sin(q1) - p06[1] * np.cos(q1) - d4) / d6
+        if abs(c5) > 1 + 1e-9:
+            k += 4
+            continue
+        base5 = np.arccos(np.clip(c5, -1.0, 1.0))
+        for s5 in (1, -1):
+            q5 = s5 * base5
+            t60 = invert_transform(t06)
+            x60, y60 = t60[:3, 0], t60[:3, 1]
+            s5v = np.sin(q5)
+            if abs(s5v) < 1e-12:
+                q6 = 0.0  # wrist singularity: q4 and q6 share one axis; pick q6 = 0
+            else:
+                q6 = np.arctan2((-x60[1] * np.sin(q1) + y60[1] * np.cos(q1)) / s5v,
+                                (x60[0] * np.sin(q1) - y60[0] * np.cos(q1)) / s5v)
+            partial = RobotModel(model.name, model.a_mm, model.d_mm, model.alpha_rad,
+                                 model.theta_offset_rad)
+            links = _link_transforms(partial, np.array([[q1, 0, 0, 0, q5, q6]]))[0]
+            t01, t45, t56 = links[0], links[4], links[5]
+            t14 = invert_transform(t01) @ t06 @ invert_transform(t45 @ t56)
+            p13 = t14[:3, :3] @ np.array([0.0, -d4, 0.0]) + t14[:3, 3]
+            r13 = np.hypot(p13[0], p13[1])
+            c3 = (r13**2 - a2**2 - a3**2) / (2 * a2 * a3)
+            for s3 in (1, -1):
+                if abs(c3) > 1 + 1e-9:
+                    k += 1
+                    continue
+                q3 = s3 * np.arccos(np.clip(c3, -1.0, 1.0))
+                q2 = -np.arctan2(p13[1], -p13[0]) + np.arcsin(np.clip(a3 * np.sin(q3) / r13, -1, 1))
+                links23 = _link_transforms(partial, np.array([[0, q2, q3, 0, 0, 0]]))[0]
+                t13 = links23[1] @ links23[2]
+                t34 = invert_transform(t13) @ t14
+                q4 = np.arctan2(t34[1, 0], t34[0, 0])
+                solutions[k] = [q1, q2, q3, q4, q5, q6]
+                k += 1
+    return solutions
+
+
+def inverse_kinematics(model: RobotModel, base_from_tcp, reference_joints_rad=None,
+                       tol_mm: float = 1e-9) -> np.ndarray:
+    """Joint angles reaching ``base_from_tcp``, nearest to a reference configuration.
+
+    The UR closed form (8 branches) gives candidates from the nominal geometry; each is
+    polished by Gauss–Newton on the model's exact parameters (so a model with identified
+    DH corrections is solved exactly too), checked against the joint limits, and the
+    candidate nearest the reference (after 2 pi wrapping into the limits) is returned.
+
+    Parameters
+    ----------
+    model : RobotModel
+    base_from_tcp : array_like, shape (4, 4) or (N, 4, 4), mm
+    reference_joints_rad : array_like, shape (6,) or (N, 6), optional
+        Configuration to stay near (e.g. the current one); zeros if omitted.
+    tol_mm : float
+        Required position accuracy; rotation accuracy is tol_mm * 1e-3 rad.
+
+    Returns
+    -------
+    numpy.ndarray, shape (6,) or (N, 6)
+
+    Raises
+    ------
+    UnreachableError
+        If no branch reaches a pose within the tolerance and the joint limits.
+    """
+    targets = np.asarray(base_from_tcp, dtype=float)
+    single = targets.ndim == 2
+    targets = targets.reshape(-1, 4, 4)
+    if reference_joints_rad is None:
+        reference = np.zeros((len(targets), N_JOINTS))
+    else:
+        reference = np.broadcast_to(np.asarray(reference_joints_rad, float), (len(targets), N_JOINTS))
+    tcp_from_flange = invert_transform(model.flange_from_tcp)
+    result = np.empty((len(targets), N_JOINTS))
+    for n, target in enumerate(targets):
+        candidates = _ur_closed_form(model, target @ tcp_from_flange)
+        candidates = candidates[np.all(np.isfinite(candidates), axis=1)]
+        if len(candidates) == 0:
+            raise UnreachableError(f"pose {n} is outside the {model.name}'s workspace")
+        candidates = _newton_polish(model, np.broadcast_to(target, (len(candidates), 4, 4)), candidates)
+        err = _pose_error_vector(target, forward_kinematics(model, candidates))
+        ok = (np.linalg.norm(err[:, :3], axis=1) < tol_mm) & (np.linalg.norm(err[:, 3:], axis=1) < tol_mm * 1e-3)
+        candidates = _wrap_near(candidates[ok], reference[n])
+        within = np.all((candidates >= model.joint_lower_rad) & (candidates <= model.joint_upper_rad), axis=1)
+        candidates = candidates[within]
+        if len(candidates) == 0:
+            raise UnreachableError(
+                f"pose {n} cannot be reached by the {model.name} within tolerance and joint limits"
+            )
+        best = np.argmin(np.max(np.abs(candidates - reference[n]), axis=1))
+        result[n] = candidates[best]
+    return result[0] if single else result
+
+
+def within_joint_limits(model: RobotModel, joints_rad) -> np.ndarray:
+    """Boolean per row of joints (N, 6): inside the model's limits."""
+    q, _ = _as_joint_array(joints_rad)
+    return np.all((q >= model.joint_lower_rad) & (q <= model.joint_upper_rad), axis=1)

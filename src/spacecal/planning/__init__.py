@@ -1,0 +1,1 @@
+"""Calibration motion planning: the paper's sweeps (§4), time parametrisation, feasibility."""

@@ -1,0 +1,173 @@
+"""Straight-line Cartesian moves (like a UR ``movel``) timed under speed and acceleration limits.
+
+A move interpolates the TCP pose from ``start`` to ``end``: position linearly, orientation
+along the geodesic (slerp). The path parameter s in [0, 1] follows a trapezoidal velocity
+profile whose duration respects the TCP's linear and angular limits and every joint's
+speed limit along the path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import UnreachableError
+from ..geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from ..models.kinematics import RobotModel, forward_kinematics, geometric_jacobian, inverse_kinematics
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """Speed and acceleration limits for calibration motions (conservative defaults).
+
+    Attributes
+    ----------
+    linear_speed_mm_s, linear_accel_mm_s2 : float
+        TCP translation limits.
+    angular_speed_rad_s, angular_accel_rad_s2 : float
+        TCP rotation limits.
+    joint_speed_rad_s : float
+        Limit on every joint's speed.
+    """
+
+    linear_speed_mm_s: float = 100.0
+    linear_accel_mm_s2: float = 400.0
+    angular_speed_rad_s: float = np.radians(45.0)
+    angular_accel_rad_s2: float = np.radians(180.0)
+    joint_speed_rad_s: float = 1.0
+
+
+def interpolate_pose(start_base_from_tcp, end_base_from_tcp, s) -> np.ndarray:
+    """Poses along a straight Cartesian move at path parameters ``s`` (M,) in [0, 1]: (M, 4, 4)."""
+    s = np.atleast_1d(np.asarray(s, dtype=float))
+    delta = matrix_to_rotvec(start_base_from_tcp[:3, :3].T @ end_base_from_tcp[:3, :3])
+    rotation = start_base_from_tcp[:3, :3] @ rotvec_to_matrix(s[:, None] * delta)
+    position = start_base_from_tcp[:3, 3] + s[:, None] * (end_base_from_tcp[:3, 3] - start_base_from_tcp[:3, 3])
+    return make_transform(rotation, position)
+
+
+def trapezoid_duration(distance: float, speed: float, accel: float) -> tuple[float, float]:
+    """Duration and acceleration time of a rest-to-rest trapezoidal move over ``distance``."""
+    if distance <= 0:
+        return 0.0, 0.0
+    if distance >= speed**2 / accel:
+        accel_time = speed / accel
+        return distance / speed + accel_time, accel_time
+    accel_time = np.sqrt(distance / accel)
+    return 2.0 * accel_time, accel_time
+
+
+def trapezoid_progress(t, duration: float, accel_time: float) -> np.ndarray:
+    """Path parameter s(t) in [0, 1] of a trapezoidal profile; t is clipped to [0, duration]."""
+    t = np.clip(np.asarray(t, dtype=float), 0.0, duration)
+    if duration == 0:
+        return np.ones_like(t)
+    peak_rate = 1.0 / (duration - accel_time)
+    accel = peak_rate / accel_time
+    return np.where(
+        t < accel_time,
+        0.5 * accel * t**2,
+        np.where(
+            t > duration - accel_time,
+            1.0 - 0.5 * accel * (duration - t) ** 2,
+            peak_rate * (t - 0.5 * accel_time),
+        ),
+    )
+
+
+def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.ndarray:
+    """Joint angles (M, 6) following a dense pose path continuously from ``start_joints_rad``.
+
+    Each pose is solved by Gauss–Newton from the previous solution, so the arm never
+    jumps between IK branches mid-move (as a UR controller behaves on ``movel``).
+
+    Raises
+    ------
+    UnreachableError
+        If a pose cannot be tracked (workspace edge or singularity).
+    """
+    poses = np.asarray(poses_base_from_tcp, dtype=float)
+    joints = np.empty((len(poses), 6))
+    q = np.asarray(start_joints_rad, dtype=float).copy()
+    for k, target in enumerate(poses):
+        for _ in range(30):
+            reached = forward_kinematics(model, q)
+            dp = target[:3, 3] - reached[:3, 3]
+            dr = matrix_to_rotvec(target[:3, :3] @ reached[:3, :3].T)
+            if np.max(np.abs(dp)) < 1e-9 and np.max(np.abs(dr)) < 1e-12:
+                break
+            jac = geometric_jacobian(model, q)[0]
+            q = q + np.linalg.pinv(jac) @ np.concatenate([dp, dr])
+        else:
+            raise UnreachableError(f"path pose {k} cannot be tracked (workspace edge or singularity)")
+        joints[k] = q
+    return joints
+
+
+@dataclass
+class TimedMove:
+    """A Cartesian move with its timing.
+
+    Attributes
+    ----------
+    label : str
+        Segment label written into recordings (``rot_x``, ``lin_y``, ``transit``...).
+    start, end : numpy.ndarray, shape (4, 4)
+        ``base_from_tcp`` at the ends, mm.
+    duration_s, accel_time_s : float
+    sample_period_s : float
+        How often the tracker is sampled during this move.
+    """
+
+    label: str
+    start: np.ndarray
+    end: np.ndarray
+    duration_s: float
+    accel_time_s: float
+    sample_period_s: float
+
+    def poses_at(self, t_s) -> np.ndarray:
+        """Commanded ``base_from_tcp`` (M, 4, 4) at times (M,) since the move started."""
+        return interpolate_pose(self.start, self.end, trapezoid_progress(t_s, self.duration_s, self.accel_time_s))
+
+
+def time_move(model: RobotModel, label: str, start, end, start_joints_rad, limits: MotionLimits,
+              sample_period_s: float, path_points: int = 41) -> tuple[TimedMove, np.ndarray]:
+    """Time a Cartesian move under ``limits`` and return it with the joint angles at its end.
+
+    The duration is the longest of the linear, angular and joint-speed bounds; the joint
+    bound uses the peak path speed of the trapezoid and max |dq/ds| on a dense path.
+    """
+    start = np.asarray(start, dtype=float)
+    end = np.asarray(end, dtype=float)
+    distance = float(np.linalg.norm(end[:3, 3] - start[:3, 3]))
+    angle = float(np.linalg.norm(matrix_to_rotvec(start[:3, :3].T @ end[:3, :3])))
+    candidates = [
+        trapezoid_duration(distance, limits.linear_speed_mm_s, limits.linear_accel_mm_s2),
+        trapezoid_duration(angle, limits.angular_speed_rad_s, limits.angular_accel_rad_s2),
+    ]
+    duration, accel_time = max(candidates)
+    s = np.linspace(0.0, 1.0, path_points)
+    joints = track_path(model, interpolate_pose(start, end, s), start_joints_rad)
+    if duration > 0:
+        dq_ds = np.max(np.abs(np.diff(joints, axis=0)), axis=0).max() / (s[1] - s[0])
+        peak_rate = 1.0 / (duration - accel_time)
+        joint_speed = dq_ds * peak_rate
+        if joint_speed > limits.joint_speed_rad_s:
+            stretch = joint_speed / limits.joint_speed_rad_s
+            duration, accel_time = duration * stretch, accel_time * stretch
+    move = TimedMove(label, start, end, duration, accel_time, sample_period_s)
+    return move, joints[-1]
+
+
+def reachable_joints(model: RobotModel, poses_base_from_tcp, reference_joints_rad) -> np.ndarray:
+    """Boolean (M,): each pose has an IK solution within the joint limits."""
+    ok = np.zeros(len(poses_base_from_tcp), dtype=bool)
+    for k, pose in enumerate(poses_base_from_tcp):
+        try:
+            inverse_kinematics(model, pose, reference_joints_rad)
+            ok[k] = True
+        except UnreachableError:
+            pass
+    return ok

@@ -1,0 +1,218 @@
+"""The paper's calibration motion (§4): rotations about, and translations along, the TCP axes.
+
+From a home pose the TCP rotates -90 ... +90 degrees about each of its own axes, keeping
+its origin fixed (sampled every 100 ms), then translates 500 mm along each of its axes
+(sampled every 50 ms). Every waypoint is checked for reachability, joint limits and
+predicted marker visibility; a sweep that cannot be done in full is shrunk to the part
+that can, and the plan says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import DegenerateDataError, UnreachableError
+from ..geometry.transforms import axis_angle_transform, make_transform
+from ..models.kinematics import RobotModel, forward_kinematics, within_joint_limits
+from .motion import MotionLimits, TimedMove, time_move, track_path
+from .visibility import VisibilityModel
+
+AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
+
+
+@dataclass(frozen=True)
+class PaperSweepSettings:
+    """Parameters of the paper's sweeps (defaults are the paper's values).
+
+    Attributes
+    ----------
+    rotation_deg : float
+        Rotation each way about each TCP axis (paper: 90, i.e. 180 in all).
+    translation_mm : float
+        Stroke length along each TCP axis, centred on home (paper: 500).
+    rotation_sample_period_s, translation_sample_period_s : float
+        Tracker sampling during the sweeps (paper: 0.1 and 0.05).
+    limits : MotionLimits
+    minimum_rotation_deg, minimum_translation_mm : float
+        A sweep shrunk below these is refused: the estimator could not use it.
+    """
+
+    rotation_deg: float = 90.0
+    translation_mm: float = 500.0
+    rotation_sample_period_s: float = 0.1
+    translation_sample_period_s: float = 0.05
+    limits: MotionLimits = field(default_factory=MotionLimits)
+    minimum_rotation_deg: float = 20.0
+    minimum_translation_mm: float = 100.0
+
+
+@dataclass
+class SweepPlan:
+    """A planned calibration motion.
+
+    Attributes
+    ----------
+    home_joints_rad : numpy.ndarray, shape (6,)
+    home_base_from_tcp : numpy.ndarray, shape (4, 4), mm
+    moves : list of TimedMove
+        In execution order; moves labelled ``transit`` are not sampled.
+    extents : dict
+        Per segment the range actually planned: ``{"rot_x": [lo_deg, hi_deg], "lin_x":
+        [lo_mm, hi_mm], ...}``.
+    messages : list of str
+        What was shrunk and why.
+    """
+
+    home_joints_rad: np.ndarray
+    home_base_from_tcp: np.ndarray
+    moves: list[TimedMove]
+    extents: dict
+    messages: list[str]
+
+    @property
+    def motion_time_s(self) -> float:
+        """Total planned motion time, s."""
+        return float(sum(m.duration_s for m in self.moves))
+
+    def summary(self) -> dict:
+        """Plain-data description for result files and CLI output."""
+        return {
+            "motion_time_s": self.motion_time_s,
+            "extents": self.extents,
+            "messages": self.messages,
+            "moves": [{"label": m.label, "duration_s": m.duration_s} for m in self.moves],
+        }
+
+
+def _feasible_extent(model, home_joints, offsets, make_pose, visibility) -> tuple[float, str]:
+    """Largest |offset| reachable continuously from home along ``offsets`` (0 first).
+
+    Returns the extent and, if it falls short, what stopped it first.
+    """
+    poses = np.array([make_pose(o) for o in offsets])
+    reached = np.zeros(len(poses), dtype=bool)
+    in_limits = np.zeros(len(poses), dtype=bool)
+    q = home_joints
+    for k, pose in enumerate(poses):
+        try:
+            q = track_path(model, pose[None], q)[0]
+        except UnreachableError:
+            break
+        reached[k] = True
+        in_limits[k] = within_joint_limits(model, q[None])[0]
+    seen = visibility.visible(poses) if visibility is not None else np.ones(len(poses), dtype=bool)
+    checks = (("reach", reached), ("joint limits", in_limits), ("marker visibility", seen))
+    ok = reached & in_limits & seen
+    bad = np.flatnonzero(~ok)
+    if len(bad) == 0:
+        return float(abs(offsets[-1])), ""
+    first = bad[0]
+    reason = next(name for name, passed in checks if not passed[first])
+    return (float(abs(offsets[first - 1])) if first > 0 else 0.0), reason
+
+
+def _reasons(why: dict) -> str:
+    parts = [f"{'+' if sign > 0 else '-'} side: {reason}" for sign, reason in why.items() if reason]
+    return "; ".join(parts)
+
+
+def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSettings | None = None,
+                      visibility: VisibilityModel | None = None) -> SweepPlan:
+    """Plan the paper's rotation and translation sweeps from a home configuration.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The controller's kinematic model (with its TCP).
+    home_joints_rad : array_like, shape (6,)
+        Home configuration near the surgical site.
+    settings : PaperSweepSettings, optional
+    visibility : VisibilityModel, optional
+        Predicts where the marker is seen; without it only reachability is checked.
+
+    Returns
+    -------
+    SweepPlan
+
+    Raises
+    ------
+    UnreachableError
+        If the home pose itself is infeasible.
+    DegenerateDataError
+        If a sweep must shrink below the usable minimum.
+    """
+    settings = settings or PaperSweepSettings()
+    home_joints = np.asarray(home_joints_rad, dtype=float)
+    home = forward_kinematics(model, home_joints)
+    if not within_joint_limits(model, home_joints[None])[0]:
+        raise UnreachableError("the home configuration is outside the joint limits")
+    if visibility is not None and not visibility.visible(home[None])[0]:
+        raise UnreachableError("the marker is not visible to the tracker at the home pose")
+
+    extents: dict = {}
+    messages: list[str] = []
+    moves: list[TimedMove] = []
+    q = home_joints
+    limits = settings.limits
+
+    def add(label, start, end, period):
+        nonlocal q
+        move, q = time_move(model, label, start, end, q, limits, period)
+        moves.append(move)
+
+    for name, axis in AXES.items():
+        label = f"rot_{name}"
+        span, why = {}, {}
+        for sign in (1, -1):
+            offsets = sign * np.radians(np.arange(0.0, settings.rotation_deg + 1e-9, 1.0))
+            extent, why[sign] = _feasible_extent(
+                model, home_joints, offsets, lambda a: home @ axis_angle_transform(axis, a), visibility)
+            span[sign] = np.degrees(extent)
+        hi, lo = span[1], span[-1]
+        if min(hi, lo) < settings.rotation_deg:
+            messages.append(
+                f"{label}: shrunk to -{lo:.0f}..+{hi:.0f} deg of the requested "
+                f"+-{settings.rotation_deg:.0f} deg ({_reasons(why)})"
+            )
+        if hi + lo < settings.minimum_rotation_deg:
+            raise DegenerateDataError(
+                f"{label}: only {hi + lo:.0f} deg of rotation is feasible from this home pose "
+                f"(need {settings.minimum_rotation_deg:.0f}); choose another home pose"
+            )
+        extents[label] = [-lo, hi]
+        plus = home @ axis_angle_transform(axis, np.radians(hi))
+        minus = home @ axis_angle_transform(axis, -np.radians(lo))
+        period = settings.rotation_sample_period_s
+        add(label, home, plus, period)
+        add(label, plus, minus, period)
+        add(label, minus, home, period)
+
+    half = settings.translation_mm / 2.0
+    for name, axis in AXES.items():
+        label = f"lin_{name}"
+        span, why = {}, {}
+        for sign in (1, -1):
+            offsets = sign * np.arange(0.0, half + 1e-9, 5.0)
+            span[sign], why[sign] = _feasible_extent(
+                model, home_joints, offsets, lambda d: home @ make_transform(np.eye(3), d * axis), visibility)
+        hi, lo = span[1], span[-1]
+        if min(hi, lo) < half:
+            messages.append(
+                f"{label}: shrunk to -{lo:.0f}..+{hi:.0f} mm of the requested +-{half:.0f} mm "
+                f"({_reasons(why)})"
+            )
+        if hi + lo < settings.minimum_translation_mm:
+            raise DegenerateDataError(
+                f"{label}: only {hi + lo:.0f} mm of travel is feasible from this home pose "
+                f"(need {settings.minimum_translation_mm:.0f}); choose another home pose"
+            )
+        extents[label] = [-lo, hi]
+        start = home @ make_transform(np.eye(3), -lo * axis)
+        end = home @ make_transform(np.eye(3), hi * axis)
+        add("transit", home, start, 0.0)
+        add(label, start, end, settings.translation_sample_period_s)
+        add("transit", end, home, 0.0)
+
+    return SweepPlan(home_joints, home, moves, extents, messages)

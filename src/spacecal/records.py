@@ -1,0 +1,99 @@
+"""Plain data records passed between steps: recordings and calibration results.
+
+They hold numbers and names only; reading and writing them is :mod:`spacecal.io`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Segment labels of the paper's sweeps (paper §4). Other labels are allowed in a recording.
+ROTATION_SEGMENTS = ("rot_x", "rot_y", "rot_z")
+TRANSLATION_SEGMENTS = ("lin_x", "lin_y", "lin_z")
+PAPER_SEGMENTS = ROTATION_SEGMENTS + TRANSLATION_SEGMENTS
+
+CALIBRATION_SCHEMA_VERSION = 1
+
+
+@dataclass
+class Recording:
+    """Paired robot and tracker samples, one per tracker frame.
+
+    Attributes
+    ----------
+    time_s : numpy.ndarray, shape (N,)
+        Tracker frame times, strictly increasing, s.
+    segment : numpy.ndarray of str, shape (N,)
+        Sweep label per sample (``rot_x`` ... ``lin_z``, or any other label).
+    joints_rad : numpy.ndarray, shape (N, 6)
+        Joint angles reported by the robot, rad.
+    base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
+        TCP pose reported by the robot (its own forward kinematics), mm.
+    tracker_from_marker_stack : numpy.ndarray, shape (N, 4, 4)
+        Marker pose reported by the tracker, mm; NaN where the marker was not seen.
+    marker_rms_mm : numpy.ndarray, shape (N,)
+        The tracker's RMS fit error of the marker, mm; NaN where not seen.
+    metadata : dict
+        Robot model, TCP in flange, tracker, marker geometry, and for simulated data the
+        scenario (see the README's "Files" section).
+    """
+
+    time_s: np.ndarray
+    segment: np.ndarray
+    joints_rad: np.ndarray
+    base_from_tcp_stack: np.ndarray
+    tracker_from_marker_stack: np.ndarray
+    marker_rms_mm: np.ndarray
+    metadata: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @property
+    def visible(self) -> np.ndarray:
+        """Boolean (N,): the marker was tracked in that frame."""
+        return np.all(np.isfinite(self.tracker_from_marker_stack[:, :3, 3]), axis=1)
+
+    def select(self, mask) -> "Recording":
+        """A new recording holding only the samples where ``mask`` (N,) is true."""
+        mask = np.asarray(mask)
+        return Recording(
+            time_s=self.time_s[mask],
+            segment=self.segment[mask],
+            joints_rad=self.joints_rad[mask],
+            base_from_tcp_stack=self.base_from_tcp_stack[mask],
+            tracker_from_marker_stack=self.tracker_from_marker_stack[mask],
+            marker_rms_mm=self.marker_rms_mm[mask],
+            metadata=self.metadata,
+        )
+
+
+@dataclass
+class CalibrationResult:
+    """The outcome of a calibration.
+
+    Attributes
+    ----------
+    method : str
+        Registry name of the estimator.
+    tracker_from_base : numpy.ndarray, shape (4, 4)
+        Maps base coordinates into the tracker frame, mm. What navigation needs.
+    tcp_from_marker : numpy.ndarray, shape (4, 4)
+        Pose of the marker on the tool, mm.
+    sample_counts : dict
+        ``{"total", "used", "rejected", "per_segment": {...}}``.
+    diagnostics : dict
+        Method-specific quality figures (see each estimator).
+    source : dict
+        Where the data came from (recording path, robot model).
+    """
+
+    method: str
+    tracker_from_base: np.ndarray
+    tcp_from_marker: np.ndarray
+    sample_counts: dict
+    diagnostics: dict
+    source: dict = field(default_factory=dict)
+    schema_version: int = CALIBRATION_SCHEMA_VERSION

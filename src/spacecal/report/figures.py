@@ -1,0 +1,47 @@
+"""Figures in the style of the paper."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def plot_verification_errors(position_error_mm, posture_error_deg, path: str | Path,
+                             paper_mean_mm: float = 1.05, paper_mean_deg: float = 1.1) -> Path:
+    """The error curves of the paper's Fig. 7: (A) position deviation, (B) posture deviation.
+
+    Parameters
+    ----------
+    position_error_mm, posture_error_deg : array_like, shape (N,)
+        Per verification point.
+    path : str or Path
+        PNG file to write.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    position = np.asarray(position_error_mm)
+    posture = np.asarray(posture_error_deg)
+    points = np.arange(1, len(position) + 1)
+    fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
+    for ax, values, unit, paper, title in (
+        (ax_a, position, "mm", paper_mean_mm, "(A) deviation of position"),
+        (ax_b, posture, "deg", paper_mean_deg, "(B) deviation of posture"),
+    ):
+        ax.plot(points, values, "o-", color="tab:blue", label=f"spacecal (mean {values.mean():.2f} {unit})")
+        ax.axhline(paper, color="tab:red", ls="--", label=f"paper mean {paper} {unit}")
+        ax.set_xlabel("experimental point")
+        ax.set_ylabel(f"error ({unit})")
+        ax.set_title(title)
+        ax.set_xticks(points)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

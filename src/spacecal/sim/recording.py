@@ -1,0 +1,115 @@
+"""Run the paper's calibration motion in the simulated world and record what the devices report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DegenerateDataError
+from ..models.kinematics import forward_kinematics
+from ..planning.motion import MotionLimits, track_path
+from ..planning.paper_sweeps import PaperSweepSettings, SweepPlan, plan_paper_sweeps
+from ..planning.visibility import VisibilityModel
+from ..records import Recording
+from .scenario import Scenario
+from .world import World, build_world
+
+
+@dataclass
+class Simulation:
+    """A simulated calibration run: the world, the plan and the recording."""
+
+    world: World
+    plan: SweepPlan
+    recording: Recording
+
+
+def sweep_settings(scenario: Scenario) -> PaperSweepSettings:
+    """The paper sweep settings a scenario asks for."""
+    return PaperSweepSettings(
+        rotation_deg=scenario.rotation_deg,
+        translation_mm=scenario.translation_mm,
+        rotation_sample_period_s=scenario.rotation_sample_period_s,
+        translation_sample_period_s=scenario.translation_sample_period_s,
+        limits=MotionLimits(linear_speed_mm_s=scenario.linear_speed_mm_s,
+                            angular_speed_rad_s=np.radians(scenario.angular_speed_deg_s)),
+    )
+
+
+def plan_for_world(world: World) -> SweepPlan:
+    """Plan the paper's sweeps in a world, predicting visibility from its layout."""
+    visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
+    return plan_paper_sweeps(world.nominal_model, world.home_joints_rad, sweep_settings(world.scenario), visibility)
+
+
+def recording_metadata(world: World) -> dict:
+    """Metadata written next to a recording (the estimator does not need it)."""
+    s = world.scenario
+    return {
+        "robot": {"model": world.nominal_model.name, "flange_from_tcp": world.nominal_model.flange_from_tcp.tolist(),
+                  "controller_hz": world.nominal_model.controller_hz},
+        "tracker": {"name": world.tracker.name, "rate_hz": world.tracker.rate_hz},
+        "marker": world.marker.to_dict(),
+        "units": {"length": "mm", "angle": "rad", "time": "s"},
+        "source": "spacecal simulator",
+        "scenario": s.to_dict(),
+    }
+
+
+def execute_plan(world: World, plan: SweepPlan) -> Recording:
+    """Move the simulated robot through a plan and sample the tracker.
+
+    The controller follows each Cartesian move with its nominal model (continuous IK); the
+    arm really moves by its true kinematics, with repeatability scatter; the tracker sees
+    the true marker pose through its noise model. Robot states are paired with tracker
+    frames at the frame times.
+    """
+    times, labels, joints = [], [], []
+    clock = 0.0
+    q = plan.home_joints_rad
+    for move in plan.moves:
+        if move.sample_period_s > 0:
+            t_local = np.arange(0.0, move.duration_s, move.sample_period_s)
+            q_move = track_path(world.nominal_model, move.poses_at(t_local), q)
+            times.append(clock + t_local)
+            labels.extend([move.label] * len(t_local))
+            joints.append(q_move)
+            q = q_move[-1]
+        q = track_path(world.nominal_model, move.end[None], q)[0]
+        clock += move.duration_s
+    if not joints:
+        raise DegenerateDataError("the plan has no sampled moves")
+    time_s = np.concatenate(times)
+    joints_rad = np.concatenate(joints)
+    reported = forward_kinematics(world.nominal_model, joints_rad)
+    true_tcp = world.true_base_from_tcp(joints_rad)
+    tracker_from_marker, rms = world.track_marker(world.tracker_from_base @ true_tcp @ world.tcp_from_marker)
+    return Recording(
+        time_s=time_s,
+        segment=np.array(labels),
+        joints_rad=joints_rad,
+        base_from_tcp_stack=reported,
+        tracker_from_marker_stack=tracker_from_marker,
+        marker_rms_mm=rms,
+        metadata=recording_metadata(world),
+    )
+
+
+def simulate(scenario: Scenario) -> Simulation:
+    """Simulate the paper's automatic calibration run (``spacecal simulate``).
+
+    Parameters
+    ----------
+    scenario : Scenario
+
+    Returns
+    -------
+    Simulation
+        ``.recording`` is what ``spacecal calibrate`` reads; ``.world`` holds the truth.
+    """
+    world = build_world(scenario)
+    plan = plan_for_world(world)
+    recording = execute_plan(world, plan)
+    recording.metadata["plan"] = plan.summary()
+    return Simulation(world, plan, recording)

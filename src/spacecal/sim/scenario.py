@@ -1,0 +1,146 @@
+"""Simulation scenarios: every knob of the simulated system, with the paper's values as defaults.
+
+A scenario file is JSON holding any subset of the fields of :class:`Scenario`, plus an
+optional ``"preset"`` naming the starting point. Unknown keys are an error that lists the
+valid ones.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import InvalidInputError
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """The simulated system. Lengths mm, angles deg (these are read by people), times s.
+
+    Tracker (paper §5.1: Polaris Vicra, 0.25 mm RMS, 20 Hz)
+        ``white_noise_rms_mm``: per-sphere white noise, 3-D RMS. ``volumetric_error_rms_mm``:
+        a smooth, spatially correlated error field over the volume, 3-D RMS, with
+        correlation length ``volumetric_length_scale_mm``. ``depth_anisotropy``: ratio of
+        white-noise s.d. along the line of sight to across it. ``dropout_probability``:
+        chance a frame is lost. ``max_view_angle_deg``: marker faces turned further away are
+        not tracked. ``tracker_rate_hz``.
+    Robot (paper: UR10, 0.1 mm repeatability)
+        ``robot_model``; ``tool_offset_mm``: TCP in the flange frame (needle tip);
+        ``dh_length_error_sd_mm`` / ``dh_angle_error_sd_deg``: how far the real arm's DH
+        lengths / twists and joint offsets differ from the nominal model; ``repeatability_mm``
+        (ISO 9283 RP, mean + 3 s.d. of the 3-D scatter).
+    Layout
+        ``home_joints_deg``: home configuration near the site; ``tracker_distance_mm``,
+        ``tracker_azimuth_deg``, ``tracker_elevation_deg``: where the tracker sits relative
+        to the TCP at home (azimuth about base z from base +x; elevation above horizontal);
+        ``marker_offset_mm``: marker origin in the TCP frame.
+    Sweeps (paper §4)
+        ``rotation_deg``, ``translation_mm``, ``rotation_sample_period_s``,
+        ``translation_sample_period_s``, ``linear_speed_mm_s``, ``angular_speed_deg_s``.
+    Verification (paper §5.2)
+        ``verification_targets``: number of needle poses; ``target_cube_mm``: side of the
+        cube around the site they are drawn in; ``target_tilt_deg``: largest tilt from the
+        home orientation.
+    """
+
+    name: str = "paper-realistic"
+    seed: int = 1
+    # tracker
+    white_noise_rms_mm: float = 0.15
+    volumetric_error_rms_mm: float = 0.20
+    volumetric_length_scale_mm: float = 300.0
+    depth_anisotropy: float = 1.0
+    dropout_probability: float = 0.01
+    max_view_angle_deg: float = 70.0
+    tracker_rate_hz: float = 20.0
+    # robot
+    robot_model: str = "UR10"
+    tool_offset_mm: tuple = (0.0, 0.0, 200.0)
+    dh_length_error_sd_mm: float = 0.3
+    dh_angle_error_sd_deg: float = 0.0
+    repeatability_mm: float = 0.1
+    # layout
+    home_joints_deg: tuple = (0.0, -100.0, 110.0, -100.0, -90.0, 0.0)
+    tracker_distance_mm: float = 950.0
+    tracker_azimuth_deg: float = 180.0
+    tracker_elevation_deg: float = 30.0
+    marker_offset_mm: tuple = (60.0, 0.0, -150.0)
+    # sweeps
+    rotation_deg: float = 90.0
+    translation_mm: float = 500.0
+    rotation_sample_period_s: float = 0.1
+    translation_sample_period_s: float = 0.05
+    linear_speed_mm_s: float = 100.0
+    angular_speed_deg_s: float = 45.0
+    # verification
+    verification_targets: int = 15
+    target_cube_mm: float = 100.0
+    target_tilt_deg: float = 20.0
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+
+PRESETS: dict[str, Scenario] = {
+    "paper-realistic": Scenario(),
+    "paper-white": Scenario(
+        name="paper-white",
+        white_noise_rms_mm=0.25,
+        volumetric_error_rms_mm=0.0,
+        dh_length_error_sd_mm=0.0,
+        dh_angle_error_sd_deg=0.0,
+        repeatability_mm=0.0,
+    ),
+}
+
+
+def scenario_from_dict(values: dict) -> Scenario:
+    """Build a scenario from a preset (``values["preset"]``, default paper-realistic) and overrides."""
+    values = dict(values)
+    preset = values.pop("preset", values.get("name", "paper-realistic"))
+    if preset not in PRESETS:
+        raise InvalidInputError(f"unknown scenario preset {preset!r}; presets: {', '.join(PRESETS)}")
+    base = PRESETS[preset]
+    fields = {f.name: f for f in dataclasses.fields(Scenario)}
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise InvalidInputError(
+            f"unknown scenario key(s) {', '.join(unknown)}; valid keys: preset, {', '.join(fields)}"
+        )
+    cleaned = {}
+    for key, value in values.items():
+        default = getattr(base, key)
+        if isinstance(default, tuple):
+            if not isinstance(value, (list, tuple)) or len(value) != len(default):
+                raise InvalidInputError(f"scenario key {key!r} needs a list of {len(default)} numbers")
+            value = tuple(float(v) for v in value)
+        elif isinstance(default, bool) or isinstance(default, str):
+            value = type(default)(value)
+        elif isinstance(default, (int, float)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InvalidInputError(f"scenario key {key!r} needs a number, got {value!r}")
+            value = type(default)(value)
+        cleaned[key] = value
+    return dataclasses.replace(base, **cleaned)
+
+
+def load_scenario(path_or_preset: str | Path | None) -> Scenario:
+    """A scenario from a JSON file path, a preset name, or the default when None."""
+    if path_or_preset is None:
+        return PRESETS["paper-realistic"]
+    if str(path_or_preset) in PRESETS:
+        return PRESETS[str(path_or_preset)]
+    path = Path(path_or_preset)
+    if not path.is_file():
+        raise InvalidInputError(
+            f"scenario {str(path)!r} is neither a file nor a preset ({', '.join(PRESETS)})"
+        )
+    try:
+        values = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InvalidInputError(f"scenario file {path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    if not isinstance(values, dict):
+        raise InvalidInputError(f"scenario file {path} must hold a JSON object")
+    return scenario_from_dict(values)

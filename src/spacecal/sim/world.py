@@ -1,0 +1,206 @@
+"""The simulated world: the ground truth a calibration tries to recover, and how it is measured.
+
+Built deterministically from a scenario's seed, so ``spacecal simulate`` and
+``spacecal verify`` given the same scenario see the same world. Measurement noise draws
+from a separate stream.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..geometry.fitting import fit_rigid
+from ..geometry.transforms import invert_transform, make_transform
+from ..models.kinematics import RobotModel, forward_kinematics, ur_model
+from ..models.marker import MarkerGeometry, ndi_8700339_like
+from ..models.tracker import TrackerModel
+from .scenario import Scenario
+
+#: ISO 9283 repeatability RP = mean + 3 s.d. of the 3-D distance; for isotropic Gaussian
+#: scatter with per-axis s.d. s that is about 1.60 s + 3 * 0.67 s = 3.6 s.
+REPEATABILITY_TO_AXIS_SD = 1.0 / 3.6
+
+
+def look_at_tracker_from_base(camera_in_base, target_in_base) -> np.ndarray:
+    """``tracker_from_base`` for a tracker at ``camera_in_base`` whose -z axis points at the target.
+
+    The tracker's x axis is kept horizontal (perpendicular to base z).
+    """
+    z_axis = np.asarray(camera_in_base, float) - np.asarray(target_in_base, float)
+    z_axis /= np.linalg.norm(z_axis)
+    x_axis = np.cross([0.0, 0.0, 1.0], z_axis)
+    if np.linalg.norm(x_axis) < 1e-9:
+        x_axis = np.array([1.0, 0.0, 0.0])
+    x_axis /= np.linalg.norm(x_axis)
+    y_axis = np.cross(z_axis, x_axis)
+    base_from_tracker = make_transform(np.column_stack([x_axis, y_axis, z_axis]), camera_in_base)
+    return invert_transform(base_from_tracker)
+
+
+@dataclass(frozen=True)
+class VolumetricErrorField:
+    """A smooth, spatially correlated position error field in the tracker frame.
+
+    A sum of random plane-wave modes ``a_k sin(w_k . p + phi_k)`` with wavelengths around
+    the correlation length, rescaled to the requested 3-D RMS over the measurement volume.
+    It models the part of a tracker's error that is fixed in space and does not average
+    away with more samples.
+    """
+
+    amplitudes_mm: np.ndarray  # (K, 3)
+    wave_vectors_per_mm: np.ndarray  # (K, 3)
+    phases_rad: np.ndarray  # (K,)
+
+    def __call__(self, points_in_tracker) -> np.ndarray:
+        """Error vectors (…, 3), mm, at points (…, 3)."""
+        phase = np.asarray(points_in_tracker) @ self.wave_vectors_per_mm.T + self.phases_rad
+        return np.sin(phase) @ self.amplitudes_mm
+
+    @classmethod
+    def random(cls, rng: np.random.Generator, rms_mm: float, length_scale_mm: float,
+               tracker: TrackerModel, modes: int = 12) -> "VolumetricErrorField":
+        directions = rng.normal(size=(modes, 3))
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        wavelengths = length_scale_mm * rng.uniform(1.0, 3.0, size=modes)
+        field = cls(rng.normal(size=(modes, 3)),
+                    directions * (2 * np.pi / wavelengths)[:, None],
+                    rng.uniform(0, 2 * np.pi, size=modes))
+        if rms_mm == 0:
+            return cls(np.zeros((modes, 3)), field.wave_vectors_per_mm, field.phases_rad)
+        probe = _points_in_volume(rng, tracker, 4000)
+        measured_rms = np.sqrt(np.mean(np.sum(field(probe) ** 2, axis=1)))
+        return cls(field.amplitudes_mm * rms_mm / measured_rms, field.wave_vectors_per_mm, field.phases_rad)
+
+
+def _points_in_volume(rng, tracker: TrackerModel, count: int) -> np.ndarray:
+    volume = tracker.volume
+    depth = rng.uniform(volume.near_mm, volume.far_mm, count)
+    scale = depth / volume.far_mm
+    x = rng.uniform(-0.5, 0.5, count) * volume.far_width_mm * scale
+    y = rng.uniform(-0.5, 0.5, count) * volume.far_height_mm * scale
+    return np.column_stack([x, y, -depth])
+
+
+@dataclass
+class World:
+    """Ground truth and measurement models of one simulated set-up.
+
+    Attributes
+    ----------
+    scenario : Scenario
+    nominal_model : RobotModel
+        The controller's kinematic model: what the robot reports and solves IK with.
+    true_model : RobotModel
+        How the arm really moves (nominal plus DH errors).
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The two unknowns of the calibration, mm.
+    tracker : TrackerModel
+    marker : MarkerGeometry
+    error_field : VolumetricErrorField
+    home_joints_rad : numpy.ndarray, shape (6,)
+    site_in_base : numpy.ndarray, shape (3,)
+        The surgical site (TCP position at home), mm.
+    noise_rng : numpy.random.Generator
+        Stream for measurement noise, separate from the one that built the truth.
+    """
+
+    scenario: Scenario
+    nominal_model: RobotModel
+    true_model: RobotModel
+    tracker_from_base: np.ndarray
+    tcp_from_marker: np.ndarray
+    tracker: TrackerModel
+    marker: MarkerGeometry
+    error_field: VolumetricErrorField
+    home_joints_rad: np.ndarray
+    site_in_base: np.ndarray
+    noise_rng: np.random.Generator
+
+    # -- the robot ---------------------------------------------------------------------
+    def true_base_from_tcp(self, joints_rad, jitter: bool = True) -> np.ndarray:
+        """Where the TCP really is (N, 4, 4) for joint angles (N, 6), with repeatability scatter."""
+        poses = forward_kinematics(self.true_model, np.atleast_2d(joints_rad))
+        sd = self.scenario.repeatability_mm * REPEATABILITY_TO_AXIS_SD
+        if jitter and sd > 0:
+            poses = poses.copy()
+            poses[:, :3, 3] += self.noise_rng.normal(scale=sd, size=(len(poses), 3))
+        return poses
+
+    # -- the tracker -------------------------------------------------------------------
+    def measure_spheres(self, tracker_from_marker_true) -> np.ndarray:
+        """Noisy sphere centres (N, K, 3) in the tracker frame for true marker poses (N, 4, 4)."""
+        t = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
+        spheres = np.einsum("nij,kj->nki", t[:, :3, :3], self.marker.spheres_in_marker) + t[:, None, :3, 3]
+        spheres = spheres + self.error_field(spheres)
+        s = self.scenario
+        if s.white_noise_rms_mm > 0:
+            lateral_sd = s.white_noise_rms_mm / np.sqrt(2.0 + s.depth_anisotropy**2)
+            noise = self.noise_rng.normal(scale=lateral_sd, size=spheres.shape)
+            if s.depth_anisotropy != 1.0:
+                sight = spheres / np.linalg.norm(spheres, axis=-1, keepdims=True)
+                along = np.sum(noise * sight, axis=-1, keepdims=True)
+                noise = noise + (s.depth_anisotropy - 1.0) * along * sight
+            spheres = spheres + noise
+        return spheres
+
+    def track_marker(self, tracker_from_marker_true) -> tuple[np.ndarray, np.ndarray]:
+        """What the tracker reports for true marker poses (N, 4, 4).
+
+        Returns
+        -------
+        tracker_from_marker : numpy.ndarray, shape (N, 4, 4)
+            Rigid fit of the marker geometry to the noisy spheres, as the tracker computes
+            it; NaN where the marker is not visible or the frame dropped out.
+        rms_mm : numpy.ndarray, shape (N,)
+            RMS fit error, NaN where not tracked.
+        """
+        truth = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
+        measured, rms = fit_rigid(self.marker.spheres_in_marker, self.measure_spheres(truth))
+        seen = self.tracker.visible(truth, self.marker.spheres_in_marker, self.marker.face_normal_in_marker)
+        seen &= self.noise_rng.random(len(truth)) >= self.scenario.dropout_probability
+        measured[~seen] = np.nan
+        rms = np.where(seen, rms, np.nan)
+        return measured, rms
+
+
+def build_world(scenario: Scenario) -> World:
+    """Construct the ground truth of a scenario (deterministic in ``scenario.seed``)."""
+    truth_rng = np.random.default_rng([scenario.seed, 0])
+    noise_rng = np.random.default_rng([scenario.seed, 1])
+    flange_from_tcp = make_transform(np.eye(3), scenario.tool_offset_mm)
+    nominal = ur_model(scenario.robot_model, flange_from_tcp)
+    angle_sd = np.radians(scenario.dh_angle_error_sd_deg)
+    true_model = nominal.with_dh_errors(
+        delta_a_mm=truth_rng.normal(scale=scenario.dh_length_error_sd_mm, size=6),
+        delta_d_mm=truth_rng.normal(scale=scenario.dh_length_error_sd_mm, size=6),
+        delta_alpha_rad=truth_rng.normal(scale=angle_sd, size=6),
+        delta_theta_rad=truth_rng.normal(scale=angle_sd, size=6),
+    )
+    home_joints = np.radians(np.asarray(scenario.home_joints_deg, float))
+    home = forward_kinematics(nominal, home_joints)
+    site = home[:3, 3].copy()
+    azimuth = np.radians(scenario.tracker_azimuth_deg)
+    elevation = np.radians(scenario.tracker_elevation_deg)
+    direction = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                          np.sin(elevation)])
+    tracker_from_base = look_at_tracker_from_base(site + scenario.tracker_distance_mm * direction, site)
+
+    # The marker sits at a fixed offset from the TCP with its face towards the tracker at home.
+    marker_in_base = home[:3, :3] @ np.asarray(scenario.marker_offset_mm, float) + site
+    camera_in_base = invert_transform(tracker_from_base)[:3, 3]
+    normal = camera_in_base - marker_in_base
+    normal /= np.linalg.norm(normal)
+    up = np.cross(normal, np.cross([0.0, 0.0, 1.0], normal))
+    up /= np.linalg.norm(up)
+    marker = ndi_8700339_like()
+    # marker x = face normal, marker z = the long axis of the sphere pattern, pointing up.
+    base_from_marker = make_transform(np.column_stack([normal, np.cross(up, normal), up]), marker_in_base)
+    tcp_from_marker = invert_transform(home) @ base_from_marker
+
+    tracker = TrackerModel(rate_hz=scenario.tracker_rate_hz, max_view_angle_deg=scenario.max_view_angle_deg)
+    field = VolumetricErrorField.random(truth_rng, scenario.volumetric_error_rms_mm,
+                                        scenario.volumetric_length_scale_mm, tracker)
+    return World(scenario, nominal, true_model, tracker_from_base, tcp_from_marker, tracker, marker,
+                 field, home_joints, site, noise_rng)
