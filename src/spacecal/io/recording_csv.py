@@ -113,8 +113,9 @@ def _check_header(header: list[str], path: Path) -> dict[str, int]:
     missing = [c for c in COLUMNS if c not in names]
     if missing:
         hints = []
+        unrecognised = [n for n in names if n not in COLUMNS]
         for column in missing:
-            close = difflib.get_close_matches(column, names, n=1, cutoff=0.6)
+            close = difflib.get_close_matches(column, unrecognised, n=1, cutoff=0.6)
             hints.append(f"{column} (found {close[0]!r}?)" if close else column)
         raise InvalidInputError(f"{path}: missing column(s): {', '.join(hints)}")
     return {c: names.index(c) for c in COLUMNS}

@@ -1,0 +1,39 @@
+"""Shared, session-scoped simulations: each costs about two seconds, so build them once."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from spacecal.io.recording_csv import write_recording
+from spacecal.sim.recording import simulate
+from spacecal.sim.scenario import PRESETS
+
+#: No noise, no kinematic error, no dropouts: estimators must be exact (to ~1e-9).
+NOISE_FREE = dataclasses.replace(
+    PRESETS["paper-white"], name="noise-free", white_noise_rms_mm=0.0, dropout_probability=0.0
+)
+
+
+@pytest.fixture(scope="session")
+def noise_free_simulation():
+    return simulate(NOISE_FREE)
+
+
+@pytest.fixture(scope="session")
+def white_simulation():
+    return simulate(PRESETS["paper-white"])
+
+
+@pytest.fixture(scope="session")
+def realistic_simulation():
+    return simulate(PRESETS["paper-realistic"])
+
+
+@pytest.fixture(scope="session")
+def recording_file(tmp_path_factory, white_simulation):
+    """A valid recording CSV (and metadata) on disk, simulated from the white-noise preset."""
+    path = tmp_path_factory.mktemp("recording") / "recording.csv"
+    write_recording(white_simulation.recording, path)
+    return path

@@ -1,0 +1,119 @@
+import numpy as np
+import pytest
+
+from spacecal.errors import InvalidInputError
+from spacecal.io.recording_csv import COLUMNS, RecordingWriter, metadata_path, read_recording, write_recording
+
+
+def test_round_trip_is_exact(tmp_path, white_simulation):
+    original = white_simulation.recording
+    path = write_recording(original, tmp_path / "rec.csv")
+    again = read_recording(path)
+    assert np.array_equal(again.time_s, original.time_s)
+    assert list(again.segment) == list(original.segment)
+    assert np.allclose(again.base_from_tcp_stack, original.base_from_tcp_stack, atol=1e-12)
+    seen = original.visible
+    assert np.array_equal(again.visible, seen)
+    assert np.allclose(again.tracker_from_marker_stack[seen], original.tracker_from_marker_stack[seen], atol=1e-12)
+    assert again.metadata["robot"]["model"] == "UR10"
+    assert metadata_path(path).name == "rec.meta.json"
+
+
+def test_header_is_exactly_the_documented_columns(recording_file):
+    header = recording_file.read_text().splitlines()[0].split(",")
+    assert header == COLUMNS
+
+
+def test_extra_columns_are_ignored(tmp_path, recording_file):
+    lines = recording_file.read_text().splitlines()
+    lines = [lines[0] + ",operator_note"] + [line + ",hello" for line in lines[1:]]
+    path = tmp_path / "extra.csv"
+    path.write_text("\n".join(lines) + "\n")
+    assert len(read_recording(path)) == len(lines) - 1
+
+
+def test_each_row_reaches_disk_before_the_next(tmp_path, white_simulation):
+    rec = white_simulation.recording
+    path = tmp_path / "live.csv"
+    writer = RecordingWriter(path)
+    for k in range(12):
+        writer.append(rec.time_s[k], rec.segment[k], rec.joints_rad[k], rec.base_from_tcp_stack[k],
+                      rec.tracker_from_marker_stack[k], rec.marker_rms_mm[k])
+        assert len(path.read_text().splitlines()) == k + 2  # readable while still open
+    assert len(read_recording(path)) == 12  # a reader gets every row even without close()
+    writer.close()
+
+
+def mutate(recording_file, tmp_path, edit):
+    lines = recording_file.read_text().splitlines()
+    header, rows = lines[0].split(","), [line.split(",") for line in lines[1:]]
+    header, rows = edit(header, rows)
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join([",".join(header)] + [",".join(r) for r in rows]) + "\n")
+    return path
+
+
+def col(header, name):
+    return header.index(name)
+
+
+def set_cell(name, value, row=5):
+    def edit(header, rows):
+        rows[row][col(header, name)] = value
+        return header, rows
+    return edit
+
+
+def scale_columns(names, factor):
+    def edit(header, rows):
+        for r in rows:
+            for name in names:
+                if r[col(header, name)]:
+                    r[col(header, name)] = repr(float(r[col(header, name)]) * factor)
+        return header, rows
+    return edit
+
+
+def blank_marker(header, rows):
+    for r in rows:
+        for name in COLUMNS[-8:]:
+            r[col(header, name)] = ""
+    return header, rows
+
+
+def swap_times(header, rows):
+    i = col(header, "time_s")
+    rows[7][i], rows[8][i] = rows[8][i], rows[7][i]
+    return header, rows
+
+
+BAD_INPUTS = {
+    "missing column": (lambda h, r: ([c for c in h if c != "tcp_qz"], [row[:-9] + row[-8:] for row in r]),
+                       "missing column.*tcp_qz"),
+    "misspelt column": (lambda h, r: ([("q3_deg" if c == "q3_rad" else c) for c in h], r),
+                        "missing column.*q3_rad \\(found 'q3_deg'\\?\\)"),
+    "NaN cell": (set_cell("q3_rad", "nan"), "line 7, column q3_rad: 'nan' is not a finite number"),
+    "text cell": (set_cell("tcp_y_mm", "abc"), "line 7, column tcp_y_mm: 'abc' is not a number"),
+    "non-monotonic time": (swap_times, "time_s is not increasing at line 10"),
+    "non-unit quaternion": (set_cell("marker_qw", "1.3"), "line 7: marker quaternion has norm"),
+    "metres": (scale_columns(["tcp_x_mm", "tcp_y_mm", "tcp_z_mm"], 1e-3), "look like metres"),
+    "too few samples": (lambda h, r: (h, r[:4]), "has 4 samples; at least 10"),
+    "all invisible": (blank_marker, "marker was not visible in any"),
+    "partly empty marker": (set_cell("marker_qx", ""), "marker cells are partly empty"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_INPUTS))
+def test_bad_input_names_the_problem(case, recording_file, tmp_path):
+    edit, message = BAD_INPUTS[case]
+    with pytest.raises(InvalidInputError, match=message):
+        read_recording(mutate(recording_file, tmp_path, edit))
+
+
+def test_empty_and_missing_files(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    with pytest.raises(InvalidInputError, match="empty"):
+        read_recording(empty)
+    with pytest.raises(InvalidInputError, match="no such recording"):
+        read_recording(tmp_path / "nope.csv")

@@ -1,0 +1,96 @@
+"""The command line: the whole chain, exit codes, and one readable line for every bad input."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from spacecal.cli import main
+
+from .io.test_recording_csv import BAD_INPUTS, mutate
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_simulate_calibrate_verify_chain(tmp_path, capsys):
+    recording = tmp_path / "rec.csv"
+    code, out, _ = run(capsys, "simulate", "--scenario", "paper-white", "-o", str(recording))
+    assert code == 0 and "planned motion time" in out
+    assert (tmp_path / "rec.meta.json").is_file()
+    calibration = tmp_path / "cal.json"
+    code, out, _ = run(capsys, "calibrate", str(recording), "--method", "paper", "-o", str(calibration))
+    assert code == 0 and "sphere: radius" in out
+    data = json.loads(calibration.read_text())
+    assert data["method"] == "paper" and len(data["tracker_from_base"]) == 4
+    code, out, _ = run(capsys, "verify", str(calibration), "-o", str(tmp_path / "ver.json"),
+                       "--figure", str(tmp_path / "fig7.png"))
+    assert code == 0 and "position error" in out
+    verification = json.loads((tmp_path / "ver.json").read_text())
+    assert len(verification["points"]) == 15
+    # white noise, exact kinematics: the needle lands within a few tenths of a millimetre
+    assert verification["statistics"]["position_mm"]["max"] < 0.3
+    assert (tmp_path / "fig7.png").stat().st_size > 10_000
+
+
+def test_demo_prints_the_summary_and_writes_outputs(tmp_path, capsys):
+    code, out, _ = run(capsys, "demo", "--out", str(tmp_path))
+    assert code == 0
+    for needle in ("planned motion time", "calibration TRE", "verification position error", "0.87 / <1.05"):
+        assert needle in out
+    for name in ("recording.csv", "calibration.json", "verification.json", "verification_errors.png"):
+        assert (tmp_path / name).is_file()
+
+
+@pytest.mark.parametrize("case", sorted(BAD_INPUTS))
+def test_bad_recordings_give_one_line_and_exit_1(case, recording_file, tmp_path, capsys):
+    edit, message = BAD_INPUTS[case]
+    bad = mutate(recording_file, tmp_path, edit)
+    code, out, err = run(capsys, "calibrate", str(bad), "-o", str(tmp_path / "cal.json"))
+    assert code == 1
+    assert len(err.strip().splitlines()) == 1 and err.startswith("spacecal: error:")
+    assert "Traceback" not in err
+    assert not (tmp_path / "cal.json").exists()
+
+
+def test_missing_segment_and_unknown_method(recording_file, tmp_path, capsys):
+    text = recording_file.read_text().replace(",lin_z,", ",static,")
+    bad = tmp_path / "no_lin_z.csv"
+    bad.write_text(text)
+    code, _, err = run(capsys, "calibrate", str(bad), "-o", str(tmp_path / "c.json"))
+    assert code == 1 and "'lin_z' is missing" in err
+    code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "nope", "-o", str(tmp_path / "c.json"))
+    assert code == 1 and "valid methods: paper" in err
+
+
+def test_bad_scenarios(tmp_path, capsys):
+    scenario = tmp_path / "s.json"
+    scenario.write_text(json.dumps({"white_noise_rms": 0.1}))
+    code, _, err = run(capsys, "simulate", "--scenario", str(scenario), "-o", str(tmp_path / "r.csv"))
+    assert code == 1 and "unknown scenario key(s) white_noise_rms" in err
+    code, _, err = run(capsys, "simulate", "--scenario", "no-such", "-o", str(tmp_path / "r.csv"))
+    assert code == 1 and "neither a file nor a preset" in err
+
+
+def test_verify_needs_a_scenario_for_foreign_calibrations(tmp_path, capsys, white_simulation):
+    from spacecal.estimators import calibrate
+    from spacecal.io.results_json import write_calibration
+
+    path = write_calibration(calibrate(white_simulation.recording), tmp_path / "cal.json")
+    code, _, err = run(capsys, "verify", str(path))
+    assert code == 1 and "pass --scenario" in err
+
+
+def test_console_script_exit_codes(tmp_path):
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    result = subprocess.run([sys.executable, "-m", "spacecal.cli", "calibrate", str(empty), "-o", "x.json"],
+                            capture_output=True, text=True)
+    assert result.returncode == 1 and result.stderr.strip().endswith("the recording is empty")
+    assert "Traceback" not in result.stderr
+    usage = subprocess.run([sys.executable, "-m", "spacecal.cli", "calibrate"], capture_output=True, text=True)
+    assert usage.returncode == 2
