@@ -55,6 +55,7 @@ def _cmd_calibrate(args) -> None:
 
 def _scenario_for_verification(args, calibration):
     from .io.recording_csv import metadata_path
+    from .io.results_json import read_json_object
     from .sim.scenario import load_scenario, scenario_from_dict
 
     if args.scenario is not None:
@@ -65,7 +66,7 @@ def _scenario_for_verification(args, calibration):
         raise InvalidInputError(
             "no scenario given and the calibration's recording metadata was not found; pass --scenario"
         )
-    data = json.loads(meta.read_text())
+    data = read_json_object(meta, "recording metadata")
     if "scenario" not in data:
         raise InvalidInputError(f"{meta} holds no simulation scenario (real data?); pass --scenario")
     return scenario_from_dict(data["scenario"])

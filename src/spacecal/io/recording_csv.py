@@ -27,6 +27,7 @@ from ..errors import InvalidInputError
 from ..geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from ..records import Recording
 from ..units import check_lengths_in_mm
+from .results_json import read_json_object
 
 JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
 TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
@@ -207,13 +208,8 @@ def read_recording(path: str | Path) -> Recording:
 
     tracker_from_marker = np.full((n, 4, 4), np.nan)
     tracker_from_marker[seen] = transform_from_position_quaternion(marker[seen, :3], marker[seen, 3:7])
-    metadata = {}
     meta_file = metadata_path(path)
-    if meta_file.is_file():
-        try:
-            metadata = json.loads(meta_file.read_text())
-        except json.JSONDecodeError as exc:
-            raise InvalidInputError(f"{meta_file}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    metadata = read_json_object(meta_file, "recording metadata") if meta_file.is_file() else {}
     return Recording(
         time_s=time_s,
         segment=np.array(segment),

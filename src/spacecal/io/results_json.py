@@ -39,6 +39,20 @@ def write_json(data: dict, path: str | Path) -> Path:
     return path
 
 
+def read_json_object(path: str | Path, what: str) -> dict:
+    """Read a JSON file that must hold an object; one-line errors name the file and ``what`` it is."""
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"{path}: no such {what} file")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InvalidInputError(f"{path}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    if not isinstance(data, dict):
+        raise InvalidInputError(f"{path}: a {what} file holds a JSON object")
+    return data
+
+
 def calibration_to_dict(result: CalibrationResult) -> dict:
     return {
         "schema": "spacecal.calibration",
@@ -75,14 +89,7 @@ def _matrix(data: dict, key: str, path: Path) -> np.ndarray:
 def read_calibration(path: str | Path) -> CalibrationResult:
     """Read and validate a calibration result file."""
     path = Path(path)
-    if not path.is_file():
-        raise InvalidInputError(f"{path}: no such calibration file")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InvalidInputError(f"{path}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
-    if not isinstance(data, dict):
-        raise InvalidInputError(f"{path}: a calibration file holds a JSON object")
+    data = read_json_object(path, "calibration")
     version = data.get("schema_version")
     if version != CALIBRATION_SCHEMA_VERSION:
         raise InvalidInputError(

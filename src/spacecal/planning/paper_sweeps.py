@@ -162,26 +162,27 @@ def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSe
         move, q = time_move(model, label, start, end, q, limits, period)
         moves.append(move)
 
-    for name, axis in AXES.items():
-        label = f"rot_{name}"
+    def sweep_extent(label, requested, step, unit, minimum, make_pose):
+        """Feasible [-lo, +hi] of a sweep about/along one axis, shrunk and reported as needed."""
         span, why = {}, {}
         for sign in (1, -1):
-            offsets = sign * np.radians(np.arange(0.0, settings.rotation_deg + 1e-9, 1.0))
-            extent, why[sign] = _feasible_extent(
-                model, home_joints, offsets, lambda a: home @ axis_angle_transform(axis, a), visibility)
-            span[sign] = np.degrees(extent)
+            offsets = sign * np.arange(0.0, requested + 1e-9, step)
+            span[sign], why[sign] = _feasible_extent(model, home_joints, offsets, make_pose, visibility)
         hi, lo = span[1], span[-1]
-        if min(hi, lo) < settings.rotation_deg:
-            messages.append(
-                f"{label}: shrunk to -{lo:.0f}..+{hi:.0f} deg of the requested "
-                f"+-{settings.rotation_deg:.0f} deg ({_reasons(why)})"
-            )
-        if hi + lo < settings.minimum_rotation_deg:
+        if min(hi, lo) < requested:
+            messages.append(f"{label}: shrunk to -{lo:.0f}..+{hi:.0f} {unit} of the requested "
+                            f"+-{requested:.0f} {unit} ({_reasons(why)})")
+        if hi + lo < minimum:
             raise DegenerateDataError(
-                f"{label}: only {hi + lo:.0f} deg of rotation is feasible from this home pose "
-                f"(need {settings.minimum_rotation_deg:.0f}); choose another home pose"
-            )
+                f"{label}: only {hi + lo:.0f} {unit} of {'rotation' if unit == 'deg' else 'travel'} is "
+                f"feasible from this home pose (need {minimum:.0f}); choose another home pose")
         extents[label] = [-lo, hi]
+        return lo, hi
+
+    for name, axis in AXES.items():
+        label = f"rot_{name}"
+        lo, hi = sweep_extent(label, settings.rotation_deg, 1.0, "deg", settings.minimum_rotation_deg,
+                              lambda a: home @ axis_angle_transform(axis, np.radians(a)))
         plus = home @ axis_angle_transform(axis, np.radians(hi))
         minus = home @ axis_angle_transform(axis, -np.radians(lo))
         period = settings.rotation_sample_period_s
@@ -189,26 +190,10 @@ def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSe
         add(label, plus, minus, period)
         add(label, minus, home, period)
 
-    half = settings.translation_mm / 2.0
     for name, axis in AXES.items():
         label = f"lin_{name}"
-        span, why = {}, {}
-        for sign in (1, -1):
-            offsets = sign * np.arange(0.0, half + 1e-9, 5.0)
-            span[sign], why[sign] = _feasible_extent(
-                model, home_joints, offsets, lambda d: home @ make_transform(np.eye(3), d * axis), visibility)
-        hi, lo = span[1], span[-1]
-        if min(hi, lo) < half:
-            messages.append(
-                f"{label}: shrunk to -{lo:.0f}..+{hi:.0f} mm of the requested +-{half:.0f} mm "
-                f"({_reasons(why)})"
-            )
-        if hi + lo < settings.minimum_translation_mm:
-            raise DegenerateDataError(
-                f"{label}: only {hi + lo:.0f} mm of travel is feasible from this home pose "
-                f"(need {settings.minimum_translation_mm:.0f}); choose another home pose"
-            )
-        extents[label] = [-lo, hi]
+        lo, hi = sweep_extent(label, settings.translation_mm / 2.0, 5.0, "mm", settings.minimum_translation_mm,
+                              lambda d: home @ make_transform(np.eye(3), d * axis))
         start = home @ make_transform(np.eye(3), -lo * axis)
         end = home @ make_transform(np.eye(3), hi * axis)
         add("transit", home, start, 0.0)

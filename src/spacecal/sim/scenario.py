@@ -8,11 +8,11 @@ valid ones.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import InvalidInputError
+from ..io.results_json import read_json_object
 
 
 @dataclass(frozen=True)
@@ -137,10 +137,4 @@ def load_scenario(path_or_preset: str | Path | None) -> Scenario:
         raise InvalidInputError(
             f"scenario {str(path)!r} is neither a file nor a preset ({', '.join(PRESETS)})"
         )
-    try:
-        values = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InvalidInputError(f"scenario file {path} is not valid JSON: {exc.msg} (line {exc.lineno})") from None
-    if not isinstance(values, dict):
-        raise InvalidInputError(f"scenario file {path} must hold a JSON object")
-    return scenario_from_dict(values)
+    return scenario_from_dict(read_json_object(path, "scenario"))
