@@ -38,6 +38,8 @@ class Recording:
     metadata : dict
         Robot model, TCP in flange, tracker, marker geometry, and for simulated data the
         scenario (see the README's "Files" section).
+    spheres_in_tracker : numpy.ndarray, shape (N, K, 3), optional
+        Raw sphere centres when the tracker reports them, mm; NaN where not seen.
     """
 
     time_s: np.ndarray
@@ -47,6 +49,7 @@ class Recording:
     tracker_from_marker_stack: np.ndarray
     marker_rms_mm: np.ndarray
     metadata: dict = field(default_factory=dict)
+    spheres_in_tracker: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.time_s)
@@ -67,6 +70,7 @@ class Recording:
             tracker_from_marker_stack=self.tracker_from_marker_stack[mask],
             marker_rms_mm=self.marker_rms_mm[mask],
             metadata=self.metadata,
+            spheres_in_tracker=None if self.spheres_in_tracker is None else self.spheres_in_tracker[mask],
         )
 
 
@@ -88,6 +92,12 @@ class CalibrationResult:
         Method-specific quality figures (see each estimator).
     source : dict
         Where the data came from (recording path, robot model).
+    covariance : dict, optional
+        ``{"parameters": [12 names], "matrix": 12x12}``: covariance of the perturbation
+        parameters of both transforms (see :mod:`spacecal.estimators.ml`), mm and rad.
+    predicted_tre_mm : dict, optional
+        Predicted RMS target registration error at the surgical site, over a cube around
+        it, and at user targets.
     """
 
     method: str
@@ -96,4 +106,6 @@ class CalibrationResult:
     sample_counts: dict
     diagnostics: dict
     source: dict = field(default_factory=dict)
+    covariance: dict | None = None
+    predicted_tre_mm: dict | None = None
     schema_version: int = CALIBRATION_SCHEMA_VERSION

@@ -6,11 +6,17 @@ from typing import Callable
 
 from ..errors import UnknownMethodError
 from ..records import CalibrationResult, Recording
+from .closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS, hand_eye_method, robot_world_method
+from .likelihood import calibrate_ml, calibrate_robust
 from .paper import calibrate_paper
 
 #: name -> function(recording, **options) -> CalibrationResult
 METHODS: dict[str, Callable[..., CalibrationResult]] = {
     "paper": calibrate_paper,
+    "ml": calibrate_ml,
+    "robust": calibrate_robust,
+    **{name: robot_world_method(name) for name in ROBOT_WORLD_SOLVERS},
+    **{name: hand_eye_method(name) for name in HAND_EYE_SOLVERS},
 }
 
 

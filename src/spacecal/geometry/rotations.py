@@ -77,3 +77,35 @@ def rotation_angle(rotation) -> np.ndarray:
     """
     r = np.asarray(rotation, dtype=float)
     return np.linalg.norm(Rotation.from_matrix(r).as_rotvec(), axis=-1)
+
+
+def skew(vector) -> np.ndarray:
+    """Cross-product matrices [v]x, shape (…, 3, 3), with [v]x w = v x w."""
+    v = np.asarray(vector, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def quaternion_product_matrices(quaternion_wxyz) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right multiplication matrices of ``wxyz`` quaternions, shape (…, 4, 4).
+
+    ``L(p) q = p * q`` and ``R(q) p = p * q`` (Hamilton product).
+    """
+    q = np.asarray(quaternion_wxyz, dtype=float)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    left = np.stack([
+        np.stack([w, -x, -y, -z], -1),
+        np.stack([x, w, -z, y], -1),
+        np.stack([y, z, w, -x], -1),
+        np.stack([z, -y, x, w], -1),
+    ], -2)
+    right = np.stack([
+        np.stack([w, -x, -y, -z], -1),
+        np.stack([x, w, z, -y], -1),
+        np.stack([y, -z, w, x], -1),
+        np.stack([z, y, -x, w], -1),
+    ], -2)
+    return left, right

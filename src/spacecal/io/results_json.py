@@ -66,6 +66,8 @@ def calibration_to_dict(result: CalibrationResult) -> dict:
         "sample_counts": result.sample_counts,
         "diagnostics": result.diagnostics,
         "source": result.source,
+        "covariance": result.covariance,
+        "predicted_tre_mm": result.predicted_tre_mm,
     }
 
 
@@ -102,5 +104,7 @@ def read_calibration(path: str | Path) -> CalibrationResult:
         sample_counts=data.get("sample_counts", {}),
         diagnostics=data.get("diagnostics", {}),
         source=data.get("source", {}),
+        covariance=data.get("covariance"),
+        predicted_tre_mm=data.get("predicted_tre_mm"),
         schema_version=version,
     )

@@ -63,6 +63,8 @@ def trapezoid_progress(t, duration: float, accel_time: float) -> np.ndarray:
     t = np.clip(np.asarray(t, dtype=float), 0.0, duration)
     if duration == 0:
         return np.ones_like(t)
+    if accel_time == 0:  # a hold (start == end) or an instantaneous profile
+        return t / duration
     peak_rate = 1.0 / (duration - accel_time)
     accel = peak_rate / accel_time
     return np.where(
@@ -171,3 +173,41 @@ def reachable_joints(model: RobotModel, poses_base_from_tcp, reference_joints_ra
         except UnreachableError:
             pass
     return ok
+
+
+@dataclass
+class MotionPlan:
+    """A planned calibration motion.
+
+    Attributes
+    ----------
+    home_joints_rad : numpy.ndarray, shape (6,)
+    home_base_from_tcp : numpy.ndarray, shape (4, 4), mm
+    moves : list of TimedMove
+        In execution order; moves with ``sample_period_s == 0`` are not sampled.
+    extents : dict
+        Per segment the range actually planned, e.g. for the paper's sweeps
+        ``{"rot_x": [lo_deg, hi_deg], "lin_x": [lo_mm, hi_mm], ...}``.
+    messages : list of str
+        What was shrunk and why.
+    """
+
+    home_joints_rad: np.ndarray
+    home_base_from_tcp: np.ndarray
+    moves: list[TimedMove]
+    extents: dict
+    messages: list[str]
+
+    @property
+    def motion_time_s(self) -> float:
+        """Total planned motion time, s."""
+        return float(sum(m.duration_s for m in self.moves))
+
+    def summary(self) -> dict:
+        """Plain-data description for result files and CLI output."""
+        return {
+            "motion_time_s": self.motion_time_s,
+            "extents": self.extents,
+            "messages": self.messages,
+            "moves": [{"label": m.label, "duration_s": m.duration_s} for m in self.moves],
+        }

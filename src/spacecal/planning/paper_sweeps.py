@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import DegenerateDataError, UnreachableError
 from ..geometry.transforms import axis_angle_transform, make_transform
 from ..models.kinematics import RobotModel, forward_kinematics, within_joint_limits
-from .motion import MotionLimits, TimedMove, time_move, track_path
+from .motion import MotionLimits, MotionPlan, TimedMove, time_move, track_path
 from .visibility import VisibilityModel
 
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
@@ -46,44 +46,6 @@ class PaperSweepSettings:
     limits: MotionLimits = field(default_factory=MotionLimits)
     minimum_rotation_deg: float = 20.0
     minimum_translation_mm: float = 100.0
-
-
-@dataclass
-class SweepPlan:
-    """A planned calibration motion.
-
-    Attributes
-    ----------
-    home_joints_rad : numpy.ndarray, shape (6,)
-    home_base_from_tcp : numpy.ndarray, shape (4, 4), mm
-    moves : list of TimedMove
-        In execution order; moves labelled ``transit`` are not sampled.
-    extents : dict
-        Per segment the range actually planned: ``{"rot_x": [lo_deg, hi_deg], "lin_x":
-        [lo_mm, hi_mm], ...}``.
-    messages : list of str
-        What was shrunk and why.
-    """
-
-    home_joints_rad: np.ndarray
-    home_base_from_tcp: np.ndarray
-    moves: list[TimedMove]
-    extents: dict
-    messages: list[str]
-
-    @property
-    def motion_time_s(self) -> float:
-        """Total planned motion time, s."""
-        return float(sum(m.duration_s for m in self.moves))
-
-    def summary(self) -> dict:
-        """Plain-data description for result files and CLI output."""
-        return {
-            "motion_time_s": self.motion_time_s,
-            "extents": self.extents,
-            "messages": self.messages,
-            "moves": [{"label": m.label, "duration_s": m.duration_s} for m in self.moves],
-        }
 
 
 def _feasible_extent(model, home_joints, offsets, make_pose, visibility) -> tuple[float, str]:
@@ -119,7 +81,7 @@ def _reasons(why: dict) -> str:
 
 
 def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSettings | None = None,
-                      visibility: VisibilityModel | None = None) -> SweepPlan:
+                      visibility: VisibilityModel | None = None) -> MotionPlan:
     """Plan the paper's rotation and translation sweeps from a home configuration.
 
     Parameters
@@ -134,7 +96,7 @@ def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSe
 
     Returns
     -------
-    SweepPlan
+    MotionPlan
 
     Raises
     ------
@@ -200,4 +162,4 @@ def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSe
         add(label, start, end, settings.translation_sample_period_s)
         add("transit", end, home, 0.0)
 
-    return SweepPlan(home_joints, home, moves, extents, messages)
+    return MotionPlan(home_joints, home, moves, extents, messages)

@@ -6,10 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError
+from ..errors import DegenerateDataError, InvalidInputError
 from ..models.kinematics import forward_kinematics
 from ..planning.motion import MotionLimits, track_path
-from ..planning.paper_sweeps import PaperSweepSettings, SweepPlan, plan_paper_sweeps
+from ..planning.paper_sweeps import MotionPlan, PaperSweepSettings, plan_paper_sweeps
+from ..planning.stations import StationSettings, plan_stations
 from ..planning.visibility import VisibilityModel
 from ..records import Recording
 from .scenario import Scenario
@@ -18,11 +19,18 @@ from .world import World, build_world
 
 @dataclass
 class Simulation:
-    """A simulated calibration run: the world, the plan and the recording."""
+    """A simulated calibration run: the world, the plan, the recording and the truth about it.
+
+    Attributes
+    ----------
+    outlier_kind : numpy.ndarray of str, shape (N,)
+        Per recorded frame: ``""`` or the kind of gross error injected (see the scenario).
+    """
 
     world: World
-    plan: SweepPlan
+    plan: MotionPlan
     recording: Recording
+    outlier_kind: np.ndarray
 
 
 def sweep_settings(scenario: Scenario) -> PaperSweepSettings:
@@ -37,10 +45,19 @@ def sweep_settings(scenario: Scenario) -> PaperSweepSettings:
     )
 
 
-def plan_for_world(world: World) -> SweepPlan:
-    """Plan the paper's sweeps in a world, predicting visibility from its layout."""
+def plan_for_world(world: World) -> MotionPlan:
+    """Plan the scenario's motion in a world, predicting visibility from its layout."""
+    s = world.scenario
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
-    return plan_paper_sweeps(world.nominal_model, world.home_joints_rad, sweep_settings(world.scenario), visibility)
+    if s.motion == "paper":
+        return plan_paper_sweeps(world.nominal_model, world.home_joints_rad, sweep_settings(s), visibility)
+    if s.motion == "stations":
+        settings = StationSettings(count=s.stations, frames_per_station=s.frames_per_station,
+                                   cube_mm=s.station_cube_mm, tilt_deg=s.station_tilt_deg,
+                                   frame_period_s=1.0 / s.tracker_rate_hz, limits=sweep_settings(s).limits)
+        return plan_stations(world.nominal_model, world.home_joints_rad, settings, visibility,
+                             np.random.default_rng([s.seed, 3]))
+    raise InvalidInputError(f"unknown motion {s.motion!r}; valid: paper, stations")
 
 
 def recording_metadata(world: World) -> dict:
@@ -57,13 +74,18 @@ def recording_metadata(world: World) -> dict:
     }
 
 
-def execute_plan(world: World, plan: SweepPlan) -> Recording:
+def execute_plan(world: World, plan: MotionPlan) -> tuple[Recording, np.ndarray]:
     """Move the simulated robot through a plan and sample the tracker.
 
     The controller follows each Cartesian move with its nominal model (continuous IK); the
     arm really moves by its true kinematics, with repeatability scatter; the tracker sees
     the true marker pose through its noise model. Robot states are paired with tracker
     frames at the frame times.
+
+    Returns
+    -------
+    recording : Recording
+    outlier_kind : numpy.ndarray of str, shape (N,)
     """
     times, labels, joints = [], [], []
     clock = 0.0
@@ -84,16 +106,22 @@ def execute_plan(world: World, plan: SweepPlan) -> Recording:
     joints_rad = np.concatenate(joints)
     reported = forward_kinematics(world.nominal_model, joints_rad)
     true_tcp = world.true_base_from_tcp(joints_rad)
-    tracker_from_marker, rms = world.track_marker(world.tracker_from_base @ true_tcp @ world.tcp_from_marker)
-    return Recording(
+    frames = world.track_marker(world.tracker_from_base @ true_tcp @ world.tcp_from_marker)
+    spheres = None
+    if world.scenario.record_spheres:
+        spheres = frames.spheres_in_tracker.copy()
+        spheres[~np.isfinite(frames.rms_mm)] = np.nan
+    recording = Recording(
         time_s=time_s,
         segment=np.array(labels),
         joints_rad=joints_rad,
         base_from_tcp_stack=reported,
-        tracker_from_marker_stack=tracker_from_marker,
-        marker_rms_mm=rms,
+        tracker_from_marker_stack=frames.tracker_from_marker,
+        marker_rms_mm=frames.rms_mm,
         metadata=recording_metadata(world),
+        spheres_in_tracker=spheres,
     )
+    return recording, frames.outlier_kind
 
 
 def simulate(scenario: Scenario) -> Simulation:
@@ -110,6 +138,6 @@ def simulate(scenario: Scenario) -> Simulation:
     """
     world = build_world(scenario)
     plan = plan_for_world(world)
-    recording = execute_plan(world, plan)
+    recording, outlier_kind = execute_plan(world, plan)
     recording.metadata["plan"] = plan.summary()
-    return Simulation(world, plan, recording)
+    return Simulation(world, plan, recording, outlier_kind)

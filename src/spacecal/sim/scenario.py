@@ -24,7 +24,11 @@ class Scenario:
         a smooth, spatially correlated error field over the volume, 3-D RMS, with
         correlation length ``volumetric_length_scale_mm``. ``depth_anisotropy``: ratio of
         white-noise s.d. along the line of sight to across it. ``dropout_probability``:
-        chance a frame is lost. ``max_view_angle_deg``: marker faces turned further away are
+        chance a frame is lost. ``outlier_fraction``: share of frames
+        that are gross errors, a third each of mis-detected spheres (one sphere 3–10 mm off),
+        stale frames (the pose of 2–8 frames earlier) and reflections (the marker 5–30 mm
+        and 1–5 deg off). ``record_spheres``: also record the raw sphere
+        centres. ``max_view_angle_deg``: marker faces turned further away are
         not tracked. ``tracker_rate_hz``.
     Robot (paper: UR10, 0.1 mm repeatability)
         ``robot_model``; ``tool_offset_mm``: TCP in the flange frame (needle tip);
@@ -36,6 +40,10 @@ class Scenario:
         ``tracker_azimuth_deg``, ``tracker_elevation_deg``: where the tracker sits relative
         to the TCP at home (azimuth about base z from base +x; elevation above horizontal);
         ``marker_offset_mm``: marker origin in the TCP frame.
+    Motion
+        ``motion``: ``"paper"`` for the paper's sweeps, ``"stations"`` for ``stations``
+        static poses (``frames_per_station`` frames each) drawn in a ``station_cube_mm`` cube
+        around the site, tilted up to ``station_tilt_deg`` from home.
     Sweeps (paper §4)
         ``rotation_deg``, ``translation_mm``, ``rotation_sample_period_s``,
         ``translation_sample_period_s``, ``linear_speed_mm_s``, ``angular_speed_deg_s``.
@@ -53,6 +61,8 @@ class Scenario:
     volumetric_length_scale_mm: float = 300.0
     depth_anisotropy: float = 1.0
     dropout_probability: float = 0.01
+    outlier_fraction: float = 0.0
+    record_spheres: bool = False
     max_view_angle_deg: float = 70.0
     tracker_rate_hz: float = 20.0
     # robot
@@ -67,6 +77,12 @@ class Scenario:
     tracker_azimuth_deg: float = 180.0
     tracker_elevation_deg: float = 30.0
     marker_offset_mm: tuple = (60.0, 0.0, -150.0)
+    # motion: "paper" (the paper's sweeps) or "stations" (static random poses around the site)
+    motion: str = "paper"
+    stations: int = 50
+    frames_per_station: int = 10
+    station_cube_mm: float = 150.0
+    station_tilt_deg: float = 35.0
     # sweeps
     rotation_deg: float = 90.0
     translation_mm: float = 500.0
@@ -85,6 +101,7 @@ class Scenario:
 
 PRESETS: dict[str, Scenario] = {
     "paper-realistic": Scenario(),
+    "paper-outliers": Scenario(name="paper-outliers", outlier_fraction=0.10),
     "paper-white": Scenario(
         name="paper-white",
         white_noise_rms_mm=0.25,

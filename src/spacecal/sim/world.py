@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.fitting import fit_rigid
-from ..geometry.transforms import invert_transform, make_transform
+from ..geometry.transforms import invert_transform, make_transform, rotvec_to_matrix
 from ..models.kinematics import RobotModel, forward_kinematics, ur_model
 from ..models.marker import MarkerGeometry, ndi_8700339_like
 from ..models.tracker import TrackerModel
@@ -72,6 +72,32 @@ class VolumetricErrorField:
         probe = _points_in_volume(rng, tracker, 4000)
         measured_rms = np.sqrt(np.mean(np.sum(field(probe) ** 2, axis=1)))
         return cls(field.amplitudes_mm * rms_mm / measured_rms, field.wave_vectors_per_mm, field.phases_rad)
+
+
+def _random_directions(rng, count: int) -> np.ndarray:
+    directions = rng.normal(size=(count, 3))
+    return directions / np.linalg.norm(directions, axis=1, keepdims=True)
+
+
+@dataclass
+class TrackedFrames:
+    """What the simulated tracker reports, plus the truth about which frames are outliers.
+
+    Attributes
+    ----------
+    tracker_from_marker : numpy.ndarray, shape (N, 4, 4)
+        NaN where not tracked.
+    rms_mm : numpy.ndarray, shape (N,)
+    spheres_in_tracker : numpy.ndarray, shape (N, K, 3)
+        The measured sphere centres.
+    outlier_kind : numpy.ndarray of str, shape (N,)
+        ``""`` for a good frame, else ``sphere``, ``stale`` or ``reflection``.
+    """
+
+    tracker_from_marker: np.ndarray
+    rms_mm: np.ndarray
+    spheres_in_tracker: np.ndarray
+    outlier_kind: np.ndarray
 
 
 def _points_in_volume(rng, tracker: TrackerModel, count: int) -> np.ndarray:
@@ -145,24 +171,41 @@ class World:
             spheres = spheres + noise
         return spheres
 
-    def track_marker(self, tracker_from_marker_true) -> tuple[np.ndarray, np.ndarray]:
-        """What the tracker reports for true marker poses (N, 4, 4).
+    def track_marker(self, tracker_from_marker_true) -> "TrackedFrames":
+        """What the tracker reports for true marker poses (N, 4, 4), in time order.
 
-        Returns
-        -------
-        tracker_from_marker : numpy.ndarray, shape (N, 4, 4)
-            Rigid fit of the marker geometry to the noisy spheres, as the tracker computes
-            it; NaN where the marker is not visible or the frame dropped out.
-        rms_mm : numpy.ndarray, shape (N,)
-            RMS fit error, NaN where not tracked.
+        The marker pose is a rigid fit of the marker geometry to the noisy spheres, as the
+        tracker computes it. A share ``outlier_fraction`` of frames are gross errors (see
+        :class:`~spacecal.sim.scenario.Scenario`); frames where the marker is not visible,
+        or that drop out, are NaN.
         """
         truth = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
-        measured, rms = fit_rigid(self.marker.spheres_in_marker, self.measure_spheres(truth))
+        n = len(truth)
+        shown = truth.copy()
+        kind = np.full(n, "", dtype=object)
+        outliers = np.flatnonzero(self.noise_rng.random(n) < self.scenario.outlier_fraction)
+        kinds = self.noise_rng.integers(0, 3, len(outliers))
+        stale = outliers[kinds == 1]
+        shown[stale] = truth[np.maximum(stale - self.noise_rng.integers(2, 9, len(stale)), 0)]
+        reflections = outliers[kinds == 2]
+        offsets = _random_directions(self.noise_rng, len(reflections)) * \
+            self.noise_rng.uniform(5.0, 30.0, (len(reflections), 1))
+        tilts = _random_directions(self.noise_rng, len(reflections)) * \
+            np.radians(self.noise_rng.uniform(1.0, 5.0, (len(reflections), 1)))
+        shown[reflections] = make_transform(rotvec_to_matrix(tilts), offsets) @ shown[reflections]
+        spheres = self.measure_spheres(shown)
+        misdetected = outliers[kinds == 0]
+        which = self.noise_rng.integers(0, len(self.marker.spheres_in_marker), len(misdetected))
+        spheres[misdetected, which] += _random_directions(self.noise_rng, len(misdetected)) * \
+            self.noise_rng.uniform(3.0, 10.0, (len(misdetected), 1))
+        kind[misdetected], kind[stale], kind[reflections] = "sphere", "stale", "reflection"
+        measured, rms = fit_rigid(self.marker.spheres_in_marker, spheres)
         seen = self.tracker.visible(truth, self.marker.spheres_in_marker, self.marker.face_normal_in_marker)
-        seen &= self.noise_rng.random(len(truth)) >= self.scenario.dropout_probability
+        seen &= self.noise_rng.random(n) >= self.scenario.dropout_probability
         measured[~seen] = np.nan
         rms = np.where(seen, rms, np.nan)
-        return measured, rms
+        kind[~seen] = ""
+        return TrackedFrames(measured, rms, spheres, kind.astype(str))
 
 
 def build_world(scenario: Scenario) -> World:

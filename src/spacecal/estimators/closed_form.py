@@ -1,0 +1,67 @@
+"""Registry methods wrapping the closed-form solvers (robot-world AX = YB, hand-eye AX = XB)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry.transforms import invert_transform
+from ..records import CalibrationResult, Recording
+from .diagnostics import motion_spread, sample_residuals, tracker_from_base_from_samples
+from .hand_eye import relative_motions, solve_daniilidis, solve_park, solve_tsai
+from .robot_world import solve_dornaika, solve_li, solve_shah
+
+ROBOT_WORLD_SOLVERS = {"shah": solve_shah, "li": solve_li, "dornaika": solve_dornaika}
+HAND_EYE_SOLVERS = {"tsai": solve_tsai, "park": solve_park, "daniilidis": solve_daniilidis}
+
+#: Hand-eye methods use relative motions between this many frames, spread over the recording.
+HAND_EYE_FRAMES = 60
+
+
+def _counts(recording: Recording, used_rows) -> dict:
+    return {"total": len(recording), "used": int(len(used_rows)),
+            "rejected": int(len(recording) - len(used_rows)),
+            "rejected_not_visible": int((~recording.visible).sum())}
+
+
+def closed_form_result(method: str, recording: Recording, tracker_from_base, tcp_from_marker, used_rows,
+                       extra: dict | None = None) -> CalibrationResult:
+    """Package a closed-form estimate with the shared diagnostics."""
+    residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker)
+    diagnostics = {
+        "residual_position_rms_mm": residuals["position_rms_mm"],
+        "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
+        "motion_spread": motion_spread(recording.base_from_tcp_stack[used_rows]),
+        **(extra or {}),
+    }
+    return CalibrationResult(method, tracker_from_base, tcp_from_marker, _counts(recording, used_rows), diagnostics)
+
+
+def robot_world_method(name: str):
+    """A registry function solving AX = YB with the named closed form on all visible frames."""
+    solver = ROBOT_WORLD_SOLVERS[name]
+
+    def calibrate_robot_world(recording: Recording) -> CalibrationResult:
+        rows = np.flatnonzero(recording.visible)
+        tcp_from_marker, base_from_tracker = solver(recording.base_from_tcp_stack[rows],
+                                                    recording.tracker_from_marker_stack[rows])
+        return closed_form_result(name, recording, invert_transform(base_from_tracker), tcp_from_marker, rows)
+
+    calibrate_robot_world.__doc__ = f"AX = YB by {solver.__doc__.splitlines()[0]}"
+    return calibrate_robot_world
+
+
+def hand_eye_method(name: str):
+    """A registry function solving AX = XB from relative motions, then tracker_from_base by averaging."""
+    solver = HAND_EYE_SOLVERS[name]
+
+    def calibrate_hand_eye(recording: Recording) -> CalibrationResult:
+        visible = np.flatnonzero(recording.visible)
+        frames = visible[np.linspace(0, len(visible) - 1, min(HAND_EYE_FRAMES, len(visible))).astype(int)]
+        motions = relative_motions(recording.base_from_tcp_stack[frames], recording.tracker_from_marker_stack[frames])
+        tcp_from_marker = solver(*motions)
+        tracker_from_base = tracker_from_base_from_samples(recording, tcp_from_marker, visible)
+        return closed_form_result(name, recording, tracker_from_base, tcp_from_marker, visible,
+                                  {"hand_eye_motions": len(frames) - 1})
+
+    calibrate_hand_eye.__doc__ = f"AX = XB by {solver.__doc__.splitlines()[0]}"
+    return calibrate_hand_eye

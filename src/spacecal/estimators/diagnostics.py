@@ -1,0 +1,96 @@
+"""Diagnostics every estimator reports: per-sample residuals, motion spread, a verdict."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry.rotations import mean_rotation, rotation_angle
+from ..geometry.transforms import invert_transform, matrix_to_rotvec
+from ..records import Recording
+
+
+def sample_residuals(recording: Recording, tracker_from_base, tcp_from_marker) -> dict:
+    """Residuals of every visible frame: measured vs predicted ``tracker_from_marker``.
+
+    Returns
+    -------
+    dict
+        ``rows`` (indices), ``position_mm`` (marker origin distance), ``rotation_deg``,
+        and their RMS.
+    """
+    rows = np.flatnonzero(recording.visible)
+    predicted = tracker_from_base @ recording.base_from_tcp_stack[rows] @ tcp_from_marker
+    measured = recording.tracker_from_marker_stack[rows]
+    position = np.linalg.norm(predicted[:, :3, 3] - measured[:, :3, 3], axis=1)
+    rotation = np.degrees(rotation_angle(predicted[:, :3, :3] @ np.swapaxes(measured[:, :3, :3], 1, 2)))
+    return {
+        "rows": rows,
+        "position_mm": position,
+        "rotation_deg": rotation,
+        "position_rms_mm": float(np.sqrt(np.mean(position**2))),
+        "rotation_rms_deg": float(np.sqrt(np.mean(rotation**2))),
+    }
+
+
+def motion_spread(base_from_tcp_stack) -> dict:
+    """How much the tool rotated and moved: principal spreads of orientation and position.
+
+    Small second or third rotation spreads mean the tool turned about (nearly) one axis:
+    the marker offset along that axis is then poorly determined.
+    """
+    stack = np.asarray(base_from_tcp_stack)
+    reference = mean_rotation(stack[:, :3, :3])
+    rotvecs = matrix_to_rotvec(stack[:, :3, :3] @ reference.T)
+    rot_spread = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(rotvecs.T)), 0, None))[::-1]
+    positions = stack[:, :3, 3]
+    pos_spread = np.sqrt(np.clip(np.linalg.eigvalsh(np.cov(positions.T)), 0, None))[::-1]
+    return {"rotation_sd_deg": np.degrees(rot_spread).tolist(), "position_sd_mm": pos_spread.tolist()}
+
+
+def residual_table(recording: Recording, residuals: dict, limit: int | None = None) -> list[dict]:
+    """Per-sample residual rows for result files (time, segment, position, rotation)."""
+    rows = residuals["rows"] if limit is None else residuals["rows"][:limit]
+    return [
+        {"row": int(r), "time_s": float(recording.time_s[r]), "segment": str(recording.segment[r]),
+         "position_mm": float(p), "rotation_deg": float(a)}
+        for r, p, a in zip(rows, residuals["position_mm"], residuals["rotation_deg"])
+    ]
+
+
+def verdict(predicted_tre_site_mm: float | None, spread: dict, outlier_fraction: float = 0.0,
+            variance_factor: float | None = None) -> str:
+    """A plain-language judgement of a calibration and what to do about it."""
+    notes = []
+    if predicted_tre_site_mm is not None:
+        if predicted_tre_site_mm <= 0.2:
+            notes.append(f"good: predicted error at the site {predicted_tre_site_mm:.2f} mm")
+        elif predicted_tre_site_mm <= 0.5:
+            notes.append(f"acceptable: predicted error at the site {predicted_tre_site_mm:.2f} mm")
+        else:
+            notes.append(f"poor: predicted error at the site {predicted_tre_site_mm:.2f} mm; record more, "
+                         "and more varied, poses")
+    if spread["rotation_sd_deg"][2] < 5.0:
+        notes.append("the tool rotated about fewer than three axes: add rotations about the missing axis")
+    if outlier_fraction > 0.05:
+        notes.append(f"{outlier_fraction:.0%} of frames were outliers: check for reflections, "
+                     "occlusion or a loose marker")
+    if variance_factor is not None and variance_factor > 4.0:
+        notes.append(f"residuals are {np.sqrt(variance_factor):.1f}x the tracker's noise: systematic error "
+                     "(robot kinematics, tracker volume error, time offset or a loose marker) dominates, and "
+                     "the predicted error is optimistic")
+    return "; ".join(notes) if notes else "no problems detected"
+
+
+def site_in_base(recording: Recording, rows=None) -> np.ndarray:
+    """The surgical site proxy: centroid of the TCP positions of the used samples (3,), mm."""
+    rows = np.flatnonzero(recording.visible) if rows is None else rows
+    return recording.base_from_tcp_stack[rows, :3, 3].mean(axis=0)
+
+
+def tracker_from_base_from_samples(recording: Recording, tcp_from_marker, rows) -> np.ndarray:
+    """Mean of tracker_from_marker_i @ marker_from_tcp @ tcp_from_base_i over rows."""
+    from ..geometry.transforms import make_transform
+
+    each = recording.tracker_from_marker_stack[rows] @ invert_transform(tcp_from_marker) @ \
+        invert_transform(recording.base_from_tcp_stack[rows])
+    return make_transform(mean_rotation(each[:, :3, :3]), each[:, :3, 3].mean(axis=0))

@@ -1,0 +1,202 @@
+"""Registry methods ``ml`` and ``robust``, and the Cramér–Rao bound on target error."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2
+
+from ..errors import DegenerateDataError
+from ..geometry.metrics import cube_grid
+from ..geometry.transforms import invert_transform
+from ..records import CalibrationResult, Recording
+from .diagnostics import motion_spread, residual_table, sample_residuals, site_in_base, verdict
+from .ml import (
+    PARAMETER_NAMES,
+    cauchy_weights,
+    covariance_from_information,
+    frame_errors,
+    information_matrix,
+    levenberg_marquardt,
+    predicted_tre_mm,
+)
+from .observations import Observations, build_observations
+from .robot_world import solve_shah
+
+#: Frames beyond this quantile of the inlier error distribution are outliers.
+OUTLIER_QUANTILE = 0.999
+
+#: Systematic errors (robot kinematics, tracker volume error) make inlier errors heavier-
+#: tailed than Gaussian: in the realistic scenario the largest inlier frame error is about
+#: 3.7x the median. Frames within this factor of the median are never called outliers.
+SYSTEMATIC_TAIL_FACTOR = 4.0
+
+#: Side of the cube around the site over which TRE is summarised, mm.
+CUBE_SIDE_MM = 200.0
+
+
+def tre_summary(tracker_from_base, covariance, site, targets_in_base=None) -> dict:
+    """Predicted TRE at the site, RMS over a 200 mm cube around it, and at given targets."""
+    summary = {
+        "site_in_base_mm": np.asarray(site).tolist(),
+        "site": float(predicted_tre_mm(tracker_from_base, covariance, site[None])[0]),
+        "cube_rms": float(np.sqrt(np.mean(predicted_tre_mm(tracker_from_base, covariance,
+                                                           cube_grid(site, CUBE_SIDE_MM)) ** 2))),
+        "cube_side_mm": CUBE_SIDE_MM,
+    }
+    if targets_in_base is not None:
+        targets = np.atleast_2d(np.asarray(targets_in_base, dtype=float))
+        summary["targets"] = [{"target_in_base_mm": t.tolist(), "tre_mm": float(e)}
+                              for t, e in zip(targets, predicted_tre_mm(tracker_from_base, covariance, targets))]
+    return summary
+
+
+def _initial_estimate(obs: Observations, recording: Recording):
+    tcp_from_marker, base_from_tracker = solve_shah(
+        obs.base_from_tcp_stack, recording.tracker_from_marker_stack[obs.rows])
+    return invert_transform(base_from_tracker), tcp_from_marker
+
+
+def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outlier_rows=()):
+    information = information_matrix(obs, fit_t, fit_x)
+    errors = frame_errors(obs, fit_t, fit_x)
+    dof = max(obs.dof_per_frame * len(obs.rows) - 12, 1)
+    chi_square = float(np.sum(errors**2) * len(obs.spheres_in_marker) / obs.sigma_mm**2)
+    variance_factor = chi_square / dof
+    covariance = covariance_from_information(information) * max(variance_factor, 1.0)
+    site = site_in_base(recording, obs.rows)
+    tre = tre_summary(fit_t, covariance, site, targets_in_base)
+    residuals = sample_residuals(recording, fit_t, fit_x)
+    spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
+    eigenvalues = np.linalg.eigvalsh(information)
+    outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
+    diagnostics = {
+        "noise": {"sigma_per_axis_mm": obs.sigma_mm, "observations": "raw spheres" if obs.dof_per_frame > 6
+                  else "marker poses (model spheres placed by the measured pose)"},
+        "variance_factor": variance_factor,
+        "residual_position_rms_mm": residuals["position_rms_mm"],
+        "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
+        "motion_spread": spread,
+        "conditioning": {"information_eigenvalues": eigenvalues.tolist(),
+                         "condition_number": float(eigenvalues.max() / eigenvalues.min())},
+        "verdict": verdict(tre["site"], spread, outlier_fraction, variance_factor),
+        "per_sample_residuals": residual_table(recording, residuals),
+        **extra,
+    }
+    used = len(obs.rows)
+    counts = {"total": len(recording), "used": used, "rejected": len(recording) - used,
+              "rejected_not_visible": int((~recording.visible).sum()), "rejected_outlier": len(outlier_rows)}
+    return CalibrationResult(
+        method, fit_t, fit_x, counts, diagnostics,
+        covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(),
+                    "note": "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
+                            "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad"},
+        predicted_tre_mm=tre,
+    )
+
+
+def calibrate_ml(recording: Recording, sigma_mm: float | None = None, targets_in_base=None) -> CalibrationResult:
+    """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
+
+    Starts from Shah's closed form, then Levenberg–Marquardt on sphere residuals (see
+    :mod:`spacecal.estimators.ml`). Sweeps and static poses count alike.
+
+    Parameters
+    ----------
+    recording : Recording
+    sigma_mm : float, optional
+        Per-axis sphere noise; estimated from the tracker's RMS fit errors if omitted.
+    targets_in_base : array_like, shape (M, 3), optional
+        Points (mm, base frame) at which to predict the TRE, besides the site.
+    """
+    obs = build_observations(recording, sigma_mm=sigma_mm)
+    start_t, start_x = _initial_estimate(obs, recording)
+    fit = levenberg_marquardt(obs, start_t, start_x)
+    return _package("ml", recording, obs, fit.tracker_from_base, fit.tcp_from_marker, targets_in_base,
+                    {"iterations": fit.iterations, "converged": fit.converged})
+
+
+def ransac_start(obs: Observations, recording: Recording, rng: np.random.Generator, iterations: int = 60,
+                 subset: int = 6, threshold_mm: float | None = None):
+    """Best closed-form (Shah) solution over random frame subsets, by inlier count.
+
+    Returns the transforms, the inlier mask and the threshold used.
+    """
+    threshold = threshold_mm if threshold_mm is not None else max(1.0, 10.0 * obs.sigma_mm)
+    poses = recording.tracker_from_marker_stack[obs.rows]
+    best = (-1, None, None)
+    for _ in range(iterations):
+        pick = rng.choice(len(obs.rows), size=min(subset, len(obs.rows)), replace=False)
+        try:
+            tcp_from_marker, base_from_tracker = solve_shah(obs.base_from_tcp_stack[pick], poses[pick])
+        except DegenerateDataError:
+            continue
+        tracker_from_base = invert_transform(base_from_tracker)
+        inliers = frame_errors(obs, tracker_from_base, tcp_from_marker) < threshold
+        if inliers.sum() > best[0]:
+            best = (int(inliers.sum()), (tracker_from_base, tcp_from_marker), inliers)
+    if best[1] is None:
+        raise DegenerateDataError("no random subset of frames gave a usable closed-form start")
+    return best[1], best[2], threshold
+
+
+def calibrate_robust(recording: Recording, sigma_mm: float | None = None, targets_in_base=None,
+                     seed: int = 0) -> CalibrationResult:
+    """Maximum likelihood that survives bad frames (mis-detected spheres, stale frames, reflections).
+
+    1. RANSAC-style start: Shah's closed form on random 6-frame subsets, the one with most
+       frames within max(1 mm, 10 sigma) wins, refined on its inliers.
+    2. Iteratively reweighted LM with the Cauchy loss on per-frame errors, scaled by a
+       robust (median) estimate of the inlier error.
+    3. Frames beyond both the 99.9 % chi-square bound of that scale (6 degrees of freedom
+       per fitted pose, 3K for raw spheres) and 4x the median frame error are flagged, with
+       their error, and a plain LM on the rest gives the efficient estimate and covariance.
+    """
+    obs = build_observations(recording, sigma_mm=sigma_mm)
+    rng = np.random.default_rng(seed)
+    (start_t, start_x), inliers, threshold = ransac_start(obs, recording, rng)
+    fit = levenberg_marquardt(obs, start_t, start_x, frame_weights=inliers.astype(float))
+    t_cur, x_cur = fit.tracker_from_base, fit.tcp_from_marker
+    # An inlier's squared frame error is sigma^2 chi2(dof) / K: scale the errors by a
+    # robust (median) estimate of sigma, so systematic errors larger than the tracker's
+    # noise do not turn good frames into outliers.
+    dof = obs.dof_per_frame
+    median_ratio = np.sqrt(chi2.median(dof) / dof)
+    for _ in range(5):
+        errors = frame_errors(obs, t_cur, x_cur)
+        scale = np.median(errors) / median_ratio
+        weights = cauchy_weights(errors / scale)
+        fit = levenberg_marquardt(obs, t_cur, x_cur, frame_weights=weights)
+        t_cur, x_cur = fit.tracker_from_base, fit.tcp_from_marker
+    errors = frame_errors(obs, t_cur, x_cur)
+    gaussian_cutoff = np.median(errors) / median_ratio * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dof) / dof)
+    cutoff = max(gaussian_cutoff, SYSTEMATIC_TAIL_FACTOR * np.median(errors))
+    keep = errors <= cutoff
+    outlier_rows = obs.rows[~keep]
+    kept = build_observations(recording, mask=np.isin(np.arange(len(recording)), obs.rows[keep]),
+                              sigma_mm=obs.sigma_mm)
+    final = levenberg_marquardt(kept, t_cur, x_cur)
+    outliers = [{"row": int(r), "time_s": float(recording.time_s[r]), "segment": str(recording.segment[r]),
+                 "error_mm": float(e), "reason": f"frame error {e:.2f} mm > {cutoff:.2f} mm "
+                 "(the larger of the 99.9 % Gaussian bound and 4x the median frame error)"} for r, e in zip(outlier_rows, errors[~keep])]
+    return _package("robust", recording, kept, final.tracker_from_base, final.tcp_from_marker, targets_in_base,
+                    {"outliers": outliers, "ransac_threshold_mm": threshold, "outlier_cutoff_mm": float(cutoff)},
+                    outlier_rows)
+
+
+def tre_lower_bound(recording: Recording, tracker_from_base, tcp_from_marker, sigma_mm: float,
+                    targets_in_base=None) -> dict:
+    """Cramér–Rao lower bound on the RMS TRE for a recording under white sphere noise.
+
+    The Fisher information of the 12 parameters is J^T J / sigma^2 with J evaluated at
+    the given transforms (the truth in simulation, an estimate otherwise); any unbiased
+    estimator's TRE covariance at a point is at least G I^-1 G^T.
+
+    Returns
+    -------
+    dict
+        ``site``, ``cube_rms`` (mm) and per-target bounds as in :func:`tre_summary`.
+    """
+    obs = build_observations(recording, sigma_mm=sigma_mm)
+    covariance = covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
+    site = site_in_base(recording, obs.rows)
+    return tre_summary(tracker_from_base, covariance, site, targets_in_base)

@@ -1,0 +1,98 @@
+"""What the likelihood-based estimators observe: sphere positions in the tracker frame.
+
+A marker pose measured by the tracker is a rigid fit of its spheres; to first order the
+fitted pose carries the same information about the unknowns as the spheres themselves
+(it is the rigid-fit projection of them). So every frame becomes K points: the raw sphere
+centres when the recording has them (optional ``sphere{k}_x_mm`` columns), otherwise the
+marker's model spheres placed by the measured pose. Residuals are then plain 3-D point
+differences with an isotropic per-axis noise sigma, which the tracker's own RMS fit error
+estimates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DegenerateDataError
+from ..models.marker import ndi_8700339_like
+from ..records import Recording
+
+
+@dataclass
+class Observations:
+    """Sphere observations of the visible frames of a recording.
+
+    Attributes
+    ----------
+    rows : numpy.ndarray of int, shape (N,)
+        Indices of the used frames in the recording.
+    base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
+    spheres_in_marker : numpy.ndarray, shape (K, 3), mm
+    spheres_in_tracker : numpy.ndarray, shape (N, K, 3), mm
+    dof_per_frame : int
+        Independent residual components per frame: 6 for fitted poses, 3K for raw spheres.
+    sigma_mm : float
+        Per-axis sphere noise, mm.
+    """
+
+    rows: np.ndarray
+    base_from_tcp_stack: np.ndarray
+    spheres_in_marker: np.ndarray
+    spheres_in_tracker: np.ndarray
+    dof_per_frame: int
+    sigma_mm: float
+
+
+def sphere_noise_from_marker_rms(marker_rms_mm, sphere_count: int) -> float:
+    """Per-axis sphere noise sigma from the tracker's RMS fit errors.
+
+    For K spheres with iid per-axis noise sigma, a rigid fit leaves 3K - 6 degrees of
+    freedom, so E[rms^2] = sigma^2 (3K - 6) / K.
+    """
+    rms = np.asarray(marker_rms_mm, dtype=float)
+    rms = rms[np.isfinite(rms)]
+    if len(rms) == 0 or np.all(rms == 0):
+        return 0.0
+    return float(np.sqrt(np.mean(rms**2) * sphere_count / (3 * sphere_count - 6)))
+
+
+def marker_geometry_of(recording: Recording) -> np.ndarray:
+    """Sphere centres (K, 3) in the marker frame from the metadata, else an 8700339-like marker."""
+    marker = recording.metadata.get("marker", {})
+    if "spheres_in_marker_mm" in marker:
+        return np.asarray(marker["spheres_in_marker_mm"], dtype=float)
+    return ndi_8700339_like().spheres_in_marker
+
+
+def build_observations(recording: Recording, mask=None, sigma_mm: float | None = None,
+                       minimum_sigma_mm: float = 1e-3) -> Observations:
+    """Sphere observations of the visible (and masked-in) frames.
+
+    Parameters
+    ----------
+    recording : Recording
+    mask : array_like of bool, shape (len(recording),), optional
+    sigma_mm : float, optional
+        Per-axis sphere noise; estimated from ``marker_rms_mm`` if omitted (floored at
+        ``minimum_sigma_mm`` so noise-free data stays well-posed).
+    """
+    use = recording.visible.copy()
+    if mask is not None:
+        use &= np.asarray(mask, dtype=bool)
+    rows = np.flatnonzero(use)
+    if len(rows) < 3:
+        raise DegenerateDataError(f"only {len(rows)} frames with the marker visible; at least 3 are needed")
+    spheres = marker_geometry_of(recording)
+    raw = getattr(recording, "spheres_in_tracker", None)
+    if raw is not None and np.all(np.isfinite(raw[rows])):
+        observed, dof = raw[rows], 3 * len(spheres)
+    else:
+        poses = recording.tracker_from_marker_stack[rows]
+        observed = np.einsum("nij,kj->nki", poses[:, :3, :3], spheres) + poses[:, None, :3, 3]
+        dof = 6
+    if sigma_mm is None:
+        sigma_mm = sphere_noise_from_marker_rms(recording.marker_rms_mm[rows], len(spheres))
+    return Observations(rows, recording.base_from_tcp_stack[rows], spheres, observed, dof,
+                        max(float(sigma_mm), minimum_sigma_mm))

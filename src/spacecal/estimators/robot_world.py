@@ -1,0 +1,133 @@
+"""Closed-form robot-world/hand-eye solvers for A_i X = Y B_i.
+
+Mapping to spacecal's frames (CONVENTIONS §2)::
+
+    A_i = base_from_tcp_stack[i]        (robot forward kinematics)
+    X   = tcp_from_marker               (marker on the tool)
+    Y   = base_from_tracker             (the inverse of what navigation needs)
+    B_i = tracker_from_marker_stack[i]  (tracker measurement)
+
+so both sides read ``base_from_marker``. Each solver returns ``(X, Y)``.
+
+* Shah 2013, "Solving the robot-world/hand-eye calibration problem using the Kronecker
+  product", J. Mech. Robot. 5(3): rotation from the dominant singular vectors of
+  sum_i R_Bi (x) R_Ai, translation by linear least squares.
+* Li, Wang, Wu 2010, "Simultaneous robot-world and hand-eye calibration using
+  dual-quaternions and Kronecker product", Int. J. Phys. Sci. 5(10): rotations and
+  translations from one linear system, rotations orthonormalised.
+* Dornaika, Horaud 1998, "Simultaneous robot-world and hand-eye calibration", IEEE TRA
+  14(4), closed-form part: quaternions q_A q_X = q_Y q_B, the 8-vector (q_X, q_Y) from the
+  smallest eigenvector of sum_i C_i^T C_i, C_i = [L(q_A), -R(q_B)].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import DegenerateDataError
+from ..geometry.rotations import nearest_rotation, quaternion_product_matrices
+from ..geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
+
+MIN_POSES = 3
+
+
+def _check(a_stack, b_stack):
+    a = np.asarray(a_stack, dtype=float)
+    b = np.asarray(b_stack, dtype=float)
+    if a.shape != b.shape or a.ndim != 3 or a.shape[1:] != (4, 4):
+        raise DegenerateDataError(f"need matching pose stacks (N, 4, 4); got {a.shape} and {b.shape}")
+    if len(a) < MIN_POSES:
+        raise DegenerateDataError(f"AX = YB needs at least {MIN_POSES} poses, got {len(a)}")
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        raise DegenerateDataError("AX = YB: poses contain NaN (drop the samples where the marker was not seen)")
+    return a, b
+
+
+def _orthonormal_from_vec(vec9) -> np.ndarray:
+    """A rotation from a column-major 9-vector known up to scale (and sign)."""
+    m = np.asarray(vec9).reshape(3, 3, order="F")
+    det = np.linalg.det(m)
+    if abs(det) < 1e-12:
+        raise DegenerateDataError("rotation estimate is singular: the poses do not rotate about enough axes")
+    m = m * np.sign(det) / abs(det) ** (1.0 / 3.0)
+    return nearest_rotation(m)
+
+
+def solve_translations(a_stack, b_stack, rotation_x, rotation_y) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares t_X, t_Y given the rotations: R_Ai t_X - t_Y = R_Y t_Bi - t_Ai."""
+    n = len(a_stack)
+    design = np.zeros((3 * n, 6))
+    design[:, :3] = a_stack[:, :3, :3].reshape(3 * n, 3)
+    design[:, 3:] = -np.tile(np.eye(3), (n, 1))
+    rhs = (b_stack[:, :3, 3] @ rotation_y.T - a_stack[:, :3, 3]).reshape(-1)
+    solution, *_ = np.linalg.lstsq(design, rhs, rcond=None)
+    return solution[:3], solution[3:]
+
+
+def solve_shah(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
+    """Shah 2013 (Kronecker product). See the module docstring for the frame mapping."""
+    a, b = _check(a_stack, b_stack)
+    # vec(R_A R_X R_B^T) = (R_B (x) R_A) vec(R_X) = vec(R_Y): K vec(R_X) = n vec(R_Y)
+    k = np.einsum("nij,nkl->nikjl", b[:, :3, :3], a[:, :3, :3]).reshape(len(a), 9, 9).sum(axis=0)
+    u, _, vt = np.linalg.svd(k)
+    rotation_x = _orthonormal_from_vec(vt[0])
+    rotation_y = _orthonormal_from_vec(u[:, 0])
+    t_x, t_y = solve_translations(a, b, rotation_x, rotation_y)
+    return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
+
+
+def solve_li(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
+    """Li, Wang, Wu 2010 (simultaneous Kronecker system). Frame mapping in the module docstring.
+
+    Unknowns [vec R_X, vec R_Y, t_X, t_Y] (column-major vec) from
+    (I (x) R_A) vec R_X - (R_B^T (x) I) vec R_Y = 0 and
+    R_A t_X - (t_B^T (x) I) vec R_Y - t_Y = -t_A; the rotations are then orthonormalised and
+    the translations re-solved with them.
+    """
+    a, b = _check(a_stack, b_stack)
+    n = len(a)
+    eye3 = np.eye(3)
+    system = np.zeros((12 * n, 24))
+    rhs = np.zeros(12 * n)
+    for i in range(n):
+        ra, rb, ta, tb = a[i, :3, :3], b[i, :3, :3], a[i, :3, 3], b[i, :3, 3]
+        rows = slice(12 * i, 12 * i + 9)
+        system[rows, :9] = np.kron(eye3, ra)
+        system[rows, 9:18] = -np.kron(rb.T, eye3)
+        rows = slice(12 * i + 9, 12 * i + 12)
+        system[rows, 9:18] = -np.kron(tb[None, :], eye3)
+        system[rows, 18:21] = ra
+        system[rows, 21:24] = -eye3
+        rhs[rows] = -ta
+    solution, *_ = np.linalg.lstsq(system, rhs, rcond=None)
+    rotation_x = _orthonormal_from_vec(solution[:9])
+    rotation_y = _orthonormal_from_vec(solution[9:18])
+    t_x, t_y = solve_translations(a, b, rotation_x, rotation_y)
+    return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
+
+
+def solve_dornaika(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
+    """Dornaika–Horaud 1998 closed form (quaternions). Frame mapping in the module docstring.
+
+    q and -q are the same rotation, so q_A q_X = +-q_Y q_B per pose; the signs of q_Bi are
+    made consistent with the Kronecker (Shah) rotations first, then the 8x8 eigenproblem
+    is solved and translations follow by least squares.
+    """
+    a, b = _check(a_stack, b_stack)
+    x0, y0 = solve_shah(a, b)
+    q_a = matrix_to_quaternion_wxyz(a[:, :3, :3])
+    q_b = matrix_to_quaternion_wxyz(b[:, :3, :3])
+    left_a, _ = quaternion_product_matrices(q_a)
+    q_x0 = matrix_to_quaternion_wxyz(x0[:3, :3])
+    q_y0 = matrix_to_quaternion_wxyz(y0[:3, :3])
+    left_y0, _ = quaternion_product_matrices(q_y0)
+    sign = np.sign(np.einsum("ni,ni->n", left_a @ q_x0, q_b @ left_y0.T))
+    q_b = q_b * np.where(sign == 0, 1.0, sign)[:, None]
+    _, right_b = quaternion_product_matrices(q_b)
+    c = np.concatenate([left_a, -right_b], axis=2)  # (n, 4, 8)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->ij", c, c))
+    z = vectors[:, 0]
+    q_x, q_y = z[:4] / np.linalg.norm(z[:4]), z[4:] / np.linalg.norm(z[4:])
+    rotation_x, rotation_y = quaternion_wxyz_to_matrix(q_x), quaternion_wxyz_to_matrix(q_y)
+    t_x, t_y = solve_translations(a, b, rotation_x, rotation_y)
+    return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
