@@ -64,7 +64,7 @@ def test_missing_segment_and_unknown_method(recording_file, tmp_path, capsys):
     code, _, err = run(capsys, "calibrate", str(bad), "-o", str(tmp_path / "c.json"))
     assert code == 1 and "'lin_z' is missing" in err
     code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "nope", "-o", str(tmp_path / "c.json"))
-    assert code == 1 and "valid methods: paper" in err
+    assert code == 1 and "valid methods:" in err and "paper" in err and "robust" in err
 
 
 def test_bad_scenarios(tmp_path, capsys):

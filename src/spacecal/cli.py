@@ -35,22 +35,59 @@ def _cmd_simulate(args) -> None:
         print(f"note: {message}")
 
 
+def _parse_points(texts, option: str):
+    """``["x,y,z", ...]`` -> (M, 3) array, or None."""
+    if not texts:
+        return None
+    points = []
+    for text in texts:
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != 3:
+            raise InvalidInputError(f"{option} takes x,y,z in mm, got {text!r}")
+        points.append(values)
+    return points
+
+
 def _cmd_calibrate(args) -> None:
     from .estimators import calibrate
     from .io.recording_csv import read_recording
     from .io.results_json import write_calibration
 
     recording = read_recording(args.recording)
-    result = calibrate(recording, args.method)
+    options = {}
+    if args.target:
+        options["targets_in_base"] = _parse_points(args.target, "--target")
+    if args.sigma_mm is not None:
+        if not args.sigma_mm > 0:
+            raise InvalidInputError("--sigma-mm must be a positive number of millimetres")
+        options["sigma_mm"] = args.sigma_mm
+    result = calibrate(recording, args.method, **options)
     result.source = {"recording": str(Path(args.recording).resolve())}
     path = write_calibration(result, args.output)
     counts = result.sample_counts
     print(f"wrote {path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
-    sphere = result.diagnostics.get("sphere")
+    diagnostics = result.diagnostics
+    sphere = diagnostics.get("sphere")
     if sphere:
         print(f"sphere: radius {sphere['radius_mm']:.2f} mm, fit RMS {sphere['rms_mm']:.3f} mm; "
               "line straightness RMS: " + ", ".join(
-                  f"{k} {v['straightness_rms_mm']:.3f} mm" for k, v in result.diagnostics["lines"].items()))
+                  f"{k} {v['straightness_rms_mm']:.3f} mm" for k, v in diagnostics["lines"].items()))
+    if "residual_position_rms_mm" in diagnostics:
+        print(f"residuals: marker position RMS {diagnostics['residual_position_rms_mm']:.3f} mm, "
+              f"rotation RMS {diagnostics['residual_rotation_rms_deg']:.3f} deg")
+    if result.predicted_tre_mm:
+        tre = result.predicted_tre_mm
+        print(f"predicted TRE: {tre['site']:.3f} mm at the site, {tre['cube_rms']:.3f} mm RMS over a "
+              f"{tre['cube_side_mm']:.0f} mm cube around it")
+        for target in tre.get("targets", []):
+            print(f"  at {target['target_in_base_mm']}: {target['tre_mm']:.3f} mm")
+    if "outliers" in diagnostics:
+        print(f"outliers: {len(diagnostics['outliers'])} frames flagged (listed in the result file)")
+    if "verdict" in diagnostics:
+        print(f"verdict: {diagnostics['verdict']}")
 
 
 def _scenario_for_verification(args, calibration):
@@ -119,6 +156,48 @@ def _write_demo_outputs(result, output_dir: Path) -> None:
     print(f"\nwrote recording.csv, calibration.json, verification.json, verification_errors.png to {output_dir}")
 
 
+def _cmd_pivot(args) -> None:
+    from .estimators.pivot import pivot_calibration
+    from .io.pose_files import read_matrix_folder
+    from .io.recording_csv import read_recording
+    from .io.results_json import write_json
+
+    source = Path(args.poses)
+    if source.is_dir():
+        names = Path(args.subset).read_text().split() if args.subset else None
+        poses = read_matrix_folder(source, names)
+    else:
+        poses = read_recording(source).tracker_from_marker_stack
+    result = pivot_calibration(poses, args.method)
+    summary = result.to_dict()
+    if args.output:
+        print(f"wrote {write_json(summary, args.output)}")
+    print(f"pivot calibration ({result.method}, {summary['frames']} frames)")
+    print("  tip in marker   (mm): " + ", ".join(f"{v:.3f}" for v in result.tip_in_marker))
+    print("  pivot in tracker (mm): " + ", ".join(f"{v:.3f}" for v in result.pivot_in_tracker))
+    print(f"  residual: RMS {result.rms_mm:.3f} mm (3-D), {result.rms_per_axis_mm:.3f} mm per axis "
+          f"(scikit-surgerycalibration's figure), mean {summary['residual_mean_mm']:.3f}, "
+          f"max {summary['residual_max_mm']:.3f} mm")
+
+
+def _cmd_bound(args) -> None:
+    from .estimators.likelihood import tre_lower_bound
+    from .io.recording_csv import read_recording
+    from .io.results_json import read_calibration
+
+    if not args.sigma_mm > 0:
+        raise InvalidInputError("--sigma-mm must be a positive number of millimetres")
+    recording = read_recording(args.recording)
+    calibration = read_calibration(args.calibration)
+    bound = tre_lower_bound(recording, calibration.tracker_from_base, calibration.tcp_from_marker,
+                            args.sigma_mm, _parse_points(args.target, "--target"))
+    print(f"Cramer-Rao lower bound on TRE for {args.recording} with {args.sigma_mm} mm per-axis sphere noise:")
+    print(f"  {bound['site']:.4f} mm at the site, {bound['cube_rms']:.4f} mm RMS over a "
+          f"{bound['cube_side_mm']:.0f} mm cube around it")
+    for target in bound.get("targets", []):
+        print(f"  at {target['target_in_base_mm']}: {target['tre_mm']:.4f} mm")
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -144,7 +223,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("recording", help="recording CSV")
     p.add_argument("--method", default="paper", help=f"estimator: {', '.join(sorted(METHODS))} (default paper)")
     p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
+    p.add_argument("--target", action="append", metavar="X,Y,Z",
+                   help="point in the base frame (mm) to predict the TRE at (ml, robust); repeatable")
+    p.add_argument("--sigma-mm", type=float,
+                   help="per-axis sphere noise (ml, robust); default: estimated from marker_rms_mm")
     p.set_defaults(run=_cmd_calibrate)
+
+    p = commands.add_parser("pivot", help="pivot calibration of a pointer or needle tip")
+    p.add_argument("poses", help="folder of 4x4 .txt pose files, or a recording CSV")
+    p.add_argument("--method", default="aos", help="aos (algebraic one-step, default) or sphere")
+    p.add_argument("--subset", help="file listing the pose file names to use")
+    p.add_argument("-o", "--output", help="pivot result JSON to write")
+    p.set_defaults(run=_cmd_pivot)
+
+    p = commands.add_parser("bound", help="Cramer-Rao lower bound on TRE for a recording")
+    p.add_argument("recording", help="recording CSV")
+    p.add_argument("--calibration", required=True, help="calibration JSON (where to evaluate the bound)")
+    p.add_argument("--sigma-mm", type=float, required=True, help="per-axis sphere noise, mm")
+    p.add_argument("--target", action="append", metavar="X,Y,Z", help="point in the base frame (mm); repeatable")
+    p.set_defaults(run=_cmd_bound)
 
     p = commands.add_parser("verify", help="the paper's verification experiment on the simulated system")
     p.add_argument("calibration", help="calibration JSON")

@@ -65,7 +65,7 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
     covariance = covariance_from_information(information) * max(variance_factor, 1.0)
     site = site_in_base(recording, obs.rows)
     tre = tre_summary(fit_t, covariance, site, targets_in_base)
-    residuals = sample_residuals(recording, fit_t, fit_x)
+    residuals = sample_residuals(recording, fit_t, fit_x, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     eigenvalues = np.linalg.eigvalsh(information)
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
@@ -79,7 +79,7 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
         "conditioning": {"information_eigenvalues": eigenvalues.tolist(),
                          "condition_number": float(eigenvalues.max() / eigenvalues.min())},
         "verdict": verdict(tre["site"], spread, outlier_fraction, variance_factor),
-        "per_sample_residuals": residual_table(recording, residuals),
+        "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,
     }
     used = len(obs.rows)

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from ..errors import DegenerateDataError
 from ..models.marker import ndi_8700339_like
@@ -49,13 +50,15 @@ def sphere_noise_from_marker_rms(marker_rms_mm, sphere_count: int) -> float:
     """Per-axis sphere noise sigma from the tracker's RMS fit errors.
 
     For K spheres with iid per-axis noise sigma, a rigid fit leaves 3K - 6 degrees of
-    freedom, so E[rms^2] = sigma^2 (3K - 6) / K.
+    freedom: K rms^2 / sigma^2 follows chi-square(3K - 6). We use the median, so frames
+    with a mis-detected sphere (large RMS) do not inflate the estimate:
+    sigma^2 = K median(rms^2) / median(chi-square(3K - 6)).
     """
     rms = np.asarray(marker_rms_mm, dtype=float)
     rms = rms[np.isfinite(rms)]
     if len(rms) == 0 or np.all(rms == 0):
         return 0.0
-    return float(np.sqrt(np.mean(rms**2) * sphere_count / (3 * sphere_count - 6)))
+    return float(np.sqrt(sphere_count * np.median(rms**2) / chi2.median(3 * sphere_count - 6)))
 
 
 def marker_geometry_of(recording: Recording) -> np.ndarray:

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import inspect
 from typing import Callable
 
-from ..errors import UnknownMethodError
+from ..errors import InvalidInputError, UnknownMethodError
 from ..records import CalibrationResult, Recording
 from .closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS, hand_eye_method, robot_world_method
 from .likelihood import calibrate_ml, calibrate_robust
@@ -38,4 +39,10 @@ def calibrate(recording: Recording, method: str = "paper", **options) -> Calibra
     """
     if method not in METHODS:
         raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(METHODS))}")
+    accepted = inspect.signature(METHODS[method]).parameters
+    unexpected = sorted(set(options) - set(accepted))
+    if unexpected:
+        takers = sorted(m for m, f in METHODS.items() if set(unexpected) <= set(inspect.signature(f).parameters))
+        raise InvalidInputError(f"method {method!r} does not take {', '.join(unexpected)}"
+                                + (f" (methods that do: {', '.join(takers)})" if takers else ""))
     return METHODS[method](recording, **options)

@@ -7,7 +7,9 @@ Columns (extra columns are allowed and ignored)::
     marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy,
     marker_qz, marker_rms_mm                                               tracker_from_marker
 
-The marker cells are empty when the marker was not seen. Metadata (robot model, TCP in
+The marker cells are empty when the marker was not seen. Optional raw sphere centres
+follow as ``sphere1_x_mm, sphere1_y_mm, sphere1_z_mm, sphere2_x_mm, ...`` (tracker frame,
+empty when not seen); the likelihood estimators use them when present. Metadata (robot model, TCP in
 flange, tracker, marker geometry) lives next to the CSV in ``<stem>.meta.json``; the
 estimators need none of it.
 """
@@ -41,6 +43,11 @@ MIN_SAMPLES = 10
 QUATERNION_NORM_TOLERANCE = 1e-3
 
 
+def sphere_columns(count: int) -> list[str]:
+    """Names of the optional raw-sphere columns for ``count`` spheres."""
+    return [f"sphere{k}_{axis}_mm" for k in range(1, count + 1) for axis in "xyz"]
+
+
 def metadata_path(recording_path: str | Path) -> Path:
     """``rec.csv`` -> ``rec.meta.json``."""
     path = Path(recording_path)
@@ -58,14 +65,15 @@ class RecordingWriter:
     readable file. Use as a context manager.
     """
 
-    def __init__(self, path: str | Path, metadata: dict | None = None):
+    def __init__(self, path: str | Path, metadata: dict | None = None, sphere_count: int = 0):
         self.path = Path(path)
+        self.sphere_count = sphere_count
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if metadata is not None:
             metadata_path(self.path).write_text(json.dumps(metadata, indent=2))
         self._file = open(self.path, "w", newline="")
         self._writer = csv.writer(self._file)
-        self._writer.writerow(COLUMNS)
+        self._writer.writerow(COLUMNS + sphere_columns(sphere_count))
         self._flush()
 
     def _flush(self) -> None:
@@ -73,8 +81,11 @@ class RecordingWriter:
         os.fsync(self._file.fileno())
 
     def append(self, time_s: float, segment: str, joints_rad, base_from_tcp, tracker_from_marker=None,
-               marker_rms_mm: float = float("nan"), flush: bool = True) -> None:
-        """Write one sample; ``tracker_from_marker`` None (or NaN) when the marker was not seen."""
+               marker_rms_mm: float = float("nan"), spheres_in_tracker=None, flush: bool = True) -> None:
+        """Write one sample; ``tracker_from_marker`` None (or NaN) when the marker was not seen.
+
+        ``spheres_in_tracker`` (K, 3), mm, fills the raw-sphere columns when the writer has them.
+        """
         tcp_position, tcp_quaternion = transform_to_position_quaternion(base_from_tcp)
         row = [_format(time_s), segment] + [_format(v) for v in joints_rad]
         row += [_format(v) for v in tcp_position] + [_format(v) for v in tcp_quaternion]
@@ -83,6 +94,10 @@ class RecordingWriter:
         else:
             position, quaternion = transform_to_position_quaternion(tracker_from_marker)
             row += [_format(v) for v in position] + [_format(v) for v in quaternion] + [_format(marker_rms_mm)]
+        if self.sphere_count:
+            spheres = np.full(3 * self.sphere_count, np.nan) if spheres_in_tracker is None \
+                else np.asarray(spheres_in_tracker, dtype=float).reshape(-1)
+            row += [_format(v) for v in spheres]
         self._writer.writerow(row)
         if flush:
             self._flush()
@@ -101,11 +116,13 @@ class RecordingWriter:
 
 def write_recording(recording: Recording, path: str | Path) -> Path:
     """Write a recording and its metadata (``<stem>.meta.json``); returns the CSV path."""
-    with RecordingWriter(path, recording.metadata) as writer:
+    spheres = recording.spheres_in_tracker
+    count = 0 if spheres is None else spheres.shape[1]
+    with RecordingWriter(path, recording.metadata, count) as writer:
         for k in range(len(recording)):
             writer.append(recording.time_s[k], str(recording.segment[k]), recording.joints_rad[k],
                           recording.base_from_tcp_stack[k], recording.tracker_from_marker_stack[k],
-                          recording.marker_rms_mm[k], flush=False)
+                          recording.marker_rms_mm[k], None if spheres is None else spheres[k], flush=False)
     return Path(path)
 
 
@@ -166,7 +183,13 @@ def read_recording(path: str | Path) -> Recording:
     if len(body) < MIN_SAMPLES:
         raise InvalidInputError(f"{path}: the recording has {len(body)} samples; at least {MIN_SAMPLES} are needed")
 
+    names = [h.strip() for h in rows[0]]
+    sphere_count = 0
+    while all(c in names for c in sphere_columns(sphere_count + 1)[-3:]):
+        sphere_count += 1
+    sphere_index = [names.index(c) for c in sphere_columns(sphere_count)]
     n = len(body)
+    spheres = np.full((n, 3 * sphere_count), np.nan) if sphere_count else None
     numeric = JOINT_COLUMNS + TCP_COLUMNS
     values = np.empty((n, len(numeric)))
     marker = np.full((n, len(MARKER_COLUMNS)), np.nan)
@@ -189,6 +212,8 @@ def read_recording(path: str | Path) -> Recording:
                     "when the marker was not seen"
                 )
             marker[k] = [_number(c, line, name, path) for c, name in zip(cells, MARKER_COLUMNS)]
+            if sphere_count:
+                spheres[k] = [_number(row[i], line, names[i], path) for i in sphere_index]
 
     steps = np.diff(time_s)
     if np.any(steps <= 0):
@@ -218,4 +243,5 @@ def read_recording(path: str | Path) -> Recording:
         tracker_from_marker_stack=tracker_from_marker,
         marker_rms_mm=marker[:, 7],
         metadata=metadata,
+        spheres_in_tracker=None if spheres is None else spheres.reshape(n, sphere_count, 3),
     )

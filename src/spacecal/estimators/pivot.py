@@ -1,0 +1,113 @@
+"""Pivot calibration of a tracked needle or pointer tip, on the same fitting core.
+
+The pointer pivots about its tip in a fixed divot, so for every frame i
+
+    tracker_from_marker_i @ tip_in_marker = pivot_in_tracker.
+
+* ``aos``, algebraic one-step (Yaniv 2015, "Which pivot calibration?", SPIE 9415):
+  [R_i  -I] [tip; pivot] = -t_i, solved by linear least squares.
+* ``sphere``: the marker origin moves on a sphere about the pivot; the geometric sphere
+  fit (:func:`spacecal.geometry.fitting.fit_sphere`) gives the pivot, and the tip in the
+  marker frame is the mean of R_i^T (pivot - t_i).
+
+The residual reported is the ordinary 3-D RMS of |R_i tip + t_i - pivot|.
+scikit-surgerycalibration reports sqrt(mean of the 3N squared components), the per-axis
+RMS, which is the 3-D RMS divided by sqrt(3); we give both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DegenerateDataError, UnknownMethodError
+from ..geometry.fitting import fit_sphere
+from ..geometry.transforms import is_rigid_transform
+
+
+@dataclass
+class PivotResult:
+    """Tip and pivot of a pivot calibration.
+
+    Attributes
+    ----------
+    method : str
+    tip_in_marker : numpy.ndarray, shape (3,), mm
+    pivot_in_tracker : numpy.ndarray, shape (3,), mm
+    residuals_mm : numpy.ndarray, shape (N,)
+        |tracker_from_marker_i @ tip - pivot| per frame.
+    """
+
+    method: str
+    tip_in_marker: np.ndarray
+    pivot_in_tracker: np.ndarray
+    residuals_mm: np.ndarray
+
+    @property
+    def rms_mm(self) -> float:
+        """3-D RMS residual, mm."""
+        return float(np.sqrt(np.mean(self.residuals_mm**2)))
+
+    @property
+    def rms_per_axis_mm(self) -> float:
+        """Per-axis RMS, mm: scikit-surgerycalibration's ``residual`` (3-D RMS / sqrt(3))."""
+        return self.rms_mm / np.sqrt(3.0)
+
+    def to_dict(self) -> dict:
+        return {
+            "schema": "spacecal.pivot", "schema_version": 1, "method": self.method,
+            "tip_in_marker_mm": self.tip_in_marker.tolist(),
+            "pivot_in_tracker_mm": self.pivot_in_tracker.tolist(),
+            "frames": int(len(self.residuals_mm)),
+            "residual_rms_mm": self.rms_mm,
+            "residual_rms_per_axis_mm": self.rms_per_axis_mm,
+            "residual_mean_mm": float(self.residuals_mm.mean()),
+            "residual_max_mm": float(self.residuals_mm.max()),
+        }
+
+
+def _check_poses(tracker_from_marker_stack) -> np.ndarray:
+    poses = np.asarray(tracker_from_marker_stack, dtype=float)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise DegenerateDataError(f"pivot calibration needs poses of shape (N, 4, 4), got {poses.shape}")
+    poses = poses[np.all(np.isfinite(poses.reshape(len(poses), -1)), axis=1)]
+    if len(poses) < 4:
+        raise DegenerateDataError(f"pivot calibration needs at least 4 tracked poses, got {len(poses)}")
+    if not is_rigid_transform(poses, atol=1e-4):
+        raise DegenerateDataError("pivot calibration: some poses are not rigid transforms")
+    return poses
+
+
+def _residuals(poses, tip, pivot):
+    return np.linalg.norm(np.einsum("nij,j->ni", poses[:, :3, :3], tip) + poses[:, :3, 3] - pivot, axis=1)
+
+
+def pivot_algebraic_one_step(tracker_from_marker_stack) -> PivotResult:
+    """Algebraic one-step pivot calibration (Yaniv 2015)."""
+    poses = _check_poses(tracker_from_marker_stack)
+    n = len(poses)
+    design = np.concatenate([poses[:, :3, :3], -np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2).reshape(3 * n, 6)
+    solution, _, rank, _ = np.linalg.lstsq(design, -poses[:, :3, 3].reshape(-1), rcond=None)
+    if rank < 6:
+        raise DegenerateDataError("pivot calibration: the pointer did not rotate about two or more axes")
+    tip, pivot = solution[:3], solution[3:]
+    return PivotResult("aos", tip, pivot, _residuals(poses, tip, pivot))
+
+
+def pivot_sphere_fit(tracker_from_marker_stack) -> PivotResult:
+    """Pivot from the geometric sphere fit of the marker origins; tip by averaging."""
+    poses = _check_poses(tracker_from_marker_stack)
+    pivot = fit_sphere(poses[:, :3, 3]).centre
+    tip = np.mean(np.einsum("nji,nj->ni", poses[:, :3, :3], pivot - poses[:, :3, 3]), axis=0)
+    return PivotResult("sphere", tip, pivot, _residuals(poses, tip, pivot))
+
+
+PIVOT_METHODS = {"aos": pivot_algebraic_one_step, "sphere": pivot_sphere_fit}
+
+
+def pivot_calibration(tracker_from_marker_stack, method: str = "aos") -> PivotResult:
+    """Pivot calibration by a named method (``aos`` or ``sphere``)."""
+    if method not in PIVOT_METHODS:
+        raise UnknownMethodError(f"unknown pivot method {method!r}; valid methods: {', '.join(PIVOT_METHODS)}")
+    return PIVOT_METHODS[method](tracker_from_marker_stack)
