@@ -37,3 +37,25 @@ def recording_file(tmp_path_factory, white_simulation):
     path = tmp_path_factory.mktemp("recording") / "recording.csv"
     write_recording(white_simulation.recording, path)
     return path
+
+
+@pytest.fixture(scope="session")
+def outlier_simulation():
+    return simulate(PRESETS["paper-outliers"])
+
+
+def shared_realdata(name: str):
+    """Path of a real recording in ../shared/realdata (beside the clone), or skip.
+
+    In CI (CI=true) a missing data set is a failure, not a skip: those tests are the ones
+    that compare with other groups' published results.
+    """
+    import os
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1].parent / "shared" / "realdata" / name
+    if not path.exists():
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"real data set {path} is missing")
+        pytest.skip(f"real data set {path} is not here")
+    return path

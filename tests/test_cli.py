@@ -94,3 +94,42 @@ def test_console_script_exit_codes(tmp_path):
     assert "Traceback" not in result.stderr
     usage = subprocess.run([sys.executable, "-m", "spacecal.cli", "calibrate"], capture_output=True, text=True)
     assert usage.returncode == 2
+
+
+def test_ml_writes_covariance_and_predicted_tre(recording_file, tmp_path, capsys):
+    out = tmp_path / "ml.json"
+    code, text, _ = run(capsys, "calibrate", str(recording_file), "--method", "ml", "-o", str(out),
+                        "--target=-573,-164,338")
+    assert code == 0 and "predicted TRE" in text and "verdict: good" in text
+    data = json.loads(out.read_text())
+    assert len(data["covariance"]["matrix"]) == 12 and data["predicted_tre_mm"]["site"] > 0
+    assert data["predicted_tre_mm"]["targets"][0]["target_in_base_mm"] == [-573.0, -164.0, 338.0]
+    code, text, _ = run(capsys, "bound", str(recording_file), "--calibration", str(out), "--sigma-mm", "0.144")
+    assert code == 0 and "Cramer-Rao lower bound" in text
+
+
+@pytest.mark.parametrize("method", ["shah", "li", "dornaika", "tsai", "park", "daniilidis", "robust"])
+def test_every_method_runs_from_the_cli(method, recording_file, tmp_path, capsys):
+    code, text, err = run(capsys, "calibrate", str(recording_file), "--method", method, "-o", str(tmp_path / "c.json"))
+    assert code == 0, err
+    assert json.loads((tmp_path / "c.json").read_text())["method"] == method
+
+
+def test_bad_options_give_one_line(recording_file, tmp_path, capsys):
+    code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "ml", "--target", "1,2",
+                       "-o", str(tmp_path / "c.json"))
+    assert code == 1 and "--target takes x,y,z" in err
+    code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "ml", "--sigma-mm", "-1",
+                       "-o", str(tmp_path / "c.json"))
+    assert code == 1 and "--sigma-mm must be a positive" in err
+    code, _, err = run(capsys, "pivot", str(tmp_path))
+    assert code == 1 and "no .txt pose files" in err
+
+
+def test_pivot_command_on_the_real_recording(capsys, tmp_path):
+    from .conftest import shared_realdata
+
+    folder = shared_realdata("pivot_sksurgery_ndi")
+    code, text, _ = run(capsys, "pivot", str(folder / "PivotCalibration"), "--subset",
+                        str(folder / "subset57_sksurgerycalibration.txt"), "-o", str(tmp_path / "p.json"))
+    assert code == 0 and "-14.473, 394.634, -7.407" in text and "1.761 mm per axis" in text

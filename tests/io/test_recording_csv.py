@@ -117,3 +117,19 @@ def test_empty_and_missing_files(tmp_path):
         read_recording(empty)
     with pytest.raises(InvalidInputError, match="no such recording"):
         read_recording(tmp_path / "nope.csv")
+
+
+def test_raw_sphere_columns_round_trip(tmp_path):
+    import dataclasses
+
+    from spacecal.sim.recording import simulate
+    from spacecal.sim.scenario import PRESETS
+
+    simulation = simulate(dataclasses.replace(PRESETS["paper-white"], record_spheres=True,
+                                              rotation_deg=30.0, translation_mm=200.0))
+    path = write_recording(simulation.recording, tmp_path / "spheres.csv")
+    assert "sphere4_z_mm" in path.read_text().splitlines()[0]
+    again = read_recording(path)
+    seen = simulation.recording.visible
+    assert np.array_equal(again.spheres_in_tracker[seen], simulation.recording.spheres_in_tracker[seen])
+    assert np.all(np.isnan(again.spheres_in_tracker[~seen]))

@@ -31,6 +31,14 @@ class Simulation:
     plan: MotionPlan
     recording: Recording
     outlier_kind: np.ndarray
+    trajectory: "Trajectory"
+
+    def remeasure(self, trial: int) -> tuple[Recording, np.ndarray]:
+        """The same motion in the same world, recorded again with fresh noise (Monte Carlo)."""
+        self.world.noise_rng = np.random.default_rng([self.world.scenario.seed, 1, 1000 + trial])
+        recording, outlier_kind = measure_trajectory(self.world, self.trajectory)
+        recording.metadata["plan"] = self.plan.summary()
+        return recording, outlier_kind
 
 
 def sweep_settings(scenario: Scenario) -> PaperSweepSettings:
@@ -74,18 +82,26 @@ def recording_metadata(world: World) -> dict:
     }
 
 
-def execute_plan(world: World, plan: MotionPlan) -> tuple[Recording, np.ndarray]:
-    """Move the simulated robot through a plan and sample the tracker.
+@dataclass
+class Trajectory:
+    """The sampled motion of a plan: what the robot does, before anything is measured.
 
-    The controller follows each Cartesian move with its nominal model (continuous IK); the
-    arm really moves by its true kinematics, with repeatability scatter; the tracker sees
-    the true marker pose through its noise model. Robot states are paired with tracker
-    frames at the frame times.
+    Attributes
+    ----------
+    time_s : numpy.ndarray, shape (N,)
+    segment : numpy.ndarray of str, shape (N,)
+    joints_rad : numpy.ndarray, shape (N, 6)
+    """
 
-    Returns
-    -------
-    recording : Recording
-    outlier_kind : numpy.ndarray of str, shape (N,)
+    time_s: np.ndarray
+    segment: np.ndarray
+    joints_rad: np.ndarray
+
+
+def sample_plan(world: World, plan: MotionPlan) -> Trajectory:
+    """Joint angles at every tracker sample of a plan.
+
+    The controller follows each Cartesian move with its nominal model (continuous IK).
     """
     times, labels, joints = [], [], []
     clock = 0.0
@@ -102,19 +118,30 @@ def execute_plan(world: World, plan: MotionPlan) -> tuple[Recording, np.ndarray]
         clock += move.duration_s
     if not joints:
         raise DegenerateDataError("the plan has no sampled moves")
-    time_s = np.concatenate(times)
-    joints_rad = np.concatenate(joints)
-    reported = forward_kinematics(world.nominal_model, joints_rad)
-    true_tcp = world.true_base_from_tcp(joints_rad)
+    return Trajectory(np.concatenate(times), np.array(labels), np.concatenate(joints))
+
+
+def measure_trajectory(world: World, trajectory: Trajectory) -> tuple[Recording, np.ndarray]:
+    """Record a trajectory: the arm moves by its true kinematics with repeatability scatter,
+    the tracker sees the true marker pose through its noise model, and robot states are
+    paired with tracker frames at the frame times. Draws from ``world.noise_rng``.
+
+    Returns
+    -------
+    recording : Recording
+    outlier_kind : numpy.ndarray of str, shape (N,)
+    """
+    reported = forward_kinematics(world.nominal_model, trajectory.joints_rad)
+    true_tcp = world.true_base_from_tcp(trajectory.joints_rad)
     frames = world.track_marker(world.tracker_from_base @ true_tcp @ world.tcp_from_marker)
     spheres = None
     if world.scenario.record_spheres:
         spheres = frames.spheres_in_tracker.copy()
         spheres[~np.isfinite(frames.rms_mm)] = np.nan
     recording = Recording(
-        time_s=time_s,
-        segment=np.array(labels),
-        joints_rad=joints_rad,
+        time_s=trajectory.time_s,
+        segment=trajectory.segment,
+        joints_rad=trajectory.joints_rad,
         base_from_tcp_stack=reported,
         tracker_from_marker_stack=frames.tracker_from_marker,
         marker_rms_mm=frames.rms_mm,
@@ -122,6 +149,11 @@ def execute_plan(world: World, plan: MotionPlan) -> tuple[Recording, np.ndarray]
         spheres_in_tracker=spheres,
     )
     return recording, frames.outlier_kind
+
+
+def execute_plan(world: World, plan: MotionPlan) -> tuple[Recording, np.ndarray]:
+    """Move the simulated robot through a plan and record it (see :func:`measure_trajectory`)."""
+    return measure_trajectory(world, sample_plan(world, plan))
 
 
 def simulate(scenario: Scenario) -> Simulation:
@@ -138,6 +170,7 @@ def simulate(scenario: Scenario) -> Simulation:
     """
     world = build_world(scenario)
     plan = plan_for_world(world)
-    recording, outlier_kind = execute_plan(world, plan)
+    trajectory = sample_plan(world, plan)
+    recording, outlier_kind = measure_trajectory(world, trajectory)
     recording.metadata["plan"] = plan.summary()
-    return Simulation(world, plan, recording, outlier_kind)
+    return Simulation(world, plan, recording, outlier_kind, trajectory)

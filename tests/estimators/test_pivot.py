@@ -1,0 +1,66 @@
+"""Pivot calibration, against scikit-surgerycalibration's published results on real NDI data."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from spacecal.errors import DegenerateDataError, UnknownMethodError
+from spacecal.estimators.pivot import pivot_calibration
+from spacecal.geometry.transforms import make_transform
+from spacecal.io.pose_files import read_matrix_folder
+
+from ..conftest import shared_realdata
+
+# ../shared/realdata/pivot_sksurgery_ndi/README.md, tables A and B
+REFERENCE = {
+    ("subset57", "aos"): {"tip": [-14.473229, 394.634445, -7.406559],
+                          "pivot": [-804.741804, -85.474476, -2112.131173], "residual": 1.760678, "rms": 3.049584},
+    ("subset57", "sphere"): {"tip": [-16.792886, 382.776975, -7.256793],
+                             "pivot": [-792.976699, -81.898161, -2110.716614], "residual": 2.345629, "rms": 4.062748},
+    ("full", "aos"): {"tip": [-14.476172, 395.142822, -7.557904],
+                      "pivot": [-805.284736, -85.447793, -2112.066437], "residual": 1.838466, "rms": 3.184317},
+    ("full", "sphere"): {"tip": [-16.653391, 382.309321, -7.278931],
+                         "pivot": [-792.502588, -81.897600, -2110.659920], "residual": 2.489209, "rms": 4.311437},
+}
+
+
+@pytest.fixture(scope="module")
+def pivot_sets():
+    folder = shared_realdata("pivot_sksurgery_ndi")
+    subset = (folder / "subset57_sksurgerycalibration.txt").read_text().split()
+    return {"subset57": read_matrix_folder(folder / "PivotCalibration", subset),
+            "full": read_matrix_folder(folder / "PivotCalibration")}
+
+
+@pytest.mark.parametrize("data,method", sorted(REFERENCE))
+def test_real_pivot_recording_reproduces_the_reference(pivot_sets, data, method):
+    poses = pivot_sets[data]
+    assert len(poses) == {"subset57": 57, "full": 1151}[data]
+    result = pivot_calibration(poses, method)
+    reference = REFERENCE[(data, method)]
+    assert np.allclose(result.tip_in_marker, reference["tip"], atol=0.01)
+    assert np.allclose(result.pivot_in_tracker, reference["pivot"], atol=0.01)
+    # scikit-surgerycalibration's residual is the per-axis RMS = 3-D RMS / sqrt(3)
+    assert result.rms_per_axis_mm == pytest.approx(reference["residual"], abs=1e-4)
+    assert result.rms_mm == pytest.approx(reference["rms"], abs=1e-4)
+
+
+def test_synthetic_pivot_is_exact():
+    tip = np.array([1.0, 2.0, 150.0])
+    pivot = np.array([10.0, -20.0, -1500.0])
+    rotations = Rotation.from_rotvec(np.random.default_rng(0).normal(scale=0.4, size=(30, 3))).as_matrix()
+    poses = make_transform(rotations, pivot - rotations @ tip)
+    for method in ("aos", "sphere"):
+        result = pivot_calibration(poses, method)
+        assert np.allclose(result.tip_in_marker, tip, atol=1e-8)
+        assert np.allclose(result.pivot_in_tracker, pivot, atol=1e-8)
+
+
+def test_degenerate_pivots_are_refused():
+    still = np.tile(np.eye(4), (10, 1, 1))
+    with pytest.raises(DegenerateDataError, match="did not rotate"):
+        pivot_calibration(still, "aos")
+    with pytest.raises(DegenerateDataError, match="at least 4"):
+        pivot_calibration(still[:2], "aos")
+    with pytest.raises(UnknownMethodError, match="aos, sphere"):
+        pivot_calibration(still, "magic")
