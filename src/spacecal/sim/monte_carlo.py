@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import SpacecalError
 from ..estimators import calibrate
 from ..estimators.likelihood import tre_lower_bound
 from .recording import Simulation
@@ -28,6 +29,8 @@ class MonteCarloSummary:
     compute_s : float
         Median compute time of one calibration.
     trials : int
+    failure : str or None
+        The error the method raised on these data, if it could not calibrate.
     """
 
     method: str
@@ -36,6 +39,7 @@ class MonteCarloSummary:
     predicted_tre_rms_mm: float | None
     compute_s: float
     trials: int
+    failure: str | None = None
 
 
 def true_sphere_sigma_mm(simulation: Simulation) -> float:
@@ -56,11 +60,18 @@ def run_monte_carlo(simulation: Simulation, methods, trials: int) -> list[MonteC
     rotations = {m: [] for m in methods}
     predicted = {m: [] for m in methods}
     times = {m: [] for m in methods}
+    failures: dict[str, str] = {}
     for trial in range(trials):
         recording, _ = simulation.remeasure(trial)
         for method in methods:
+            if method in failures:
+                continue
             start = time.perf_counter()
-            result = calibrate(recording, method)
+            try:
+                result = calibrate(recording, method)
+            except SpacecalError as exc:
+                failures[method] = str(exc)
+                continue
             times[method].append(time.perf_counter() - start)
             error = calibration_error(result, simulation.world)
             errors[method].append(error["tre_rms_mm"])
@@ -69,7 +80,8 @@ def run_monte_carlo(simulation: Simulation, methods, trials: int) -> list[MonteC
                 predicted[method].append(result.predicted_tre_mm["cube_rms"])
 
     def rms(values):
-        return float(np.sqrt(np.mean(np.square(values))))
+        return float(np.sqrt(np.mean(np.square(values)))) if values else float("nan")
 
     return [MonteCarloSummary(m, rms(errors[m]), rms(rotations[m]), rms(predicted[m]) if predicted[m] else None,
-                              float(np.median(times[m])), trials) for m in methods]
+                              float(np.median(times[m])) if times[m] else float("nan"), len(errors[m]),
+                              failures.get(m)) for m in methods]
