@@ -50,7 +50,7 @@ def main() -> None:
                     print(f"| {name} | {motion} | {frames} | {summary.method} | fails: {summary.failure[:55]}… "
                           "| | | | | |")
                     continue
-                verification = verify_in_simulation(calibrate(first_trial, summary.method),
+                verification = verify_in_simulation(calibrate(first_trial, summary.method, uncertainty=False),
                                                     simulation.world.scenario).statistics()
                 predicted = f"{summary.predicted_tre_rms_mm:.4f}" if summary.predicted_tre_rms_mm else "–"
                 print(f"| {name} | {motion} | {frames} | {summary.method} | {summary.tre_rms_mm:.4f} | "

@@ -86,3 +86,14 @@ def test_robust_changes_nothing_on_clean_white_data(white_simulation):
 def test_options_a_method_does_not_take_are_refused(white_simulation):
     with pytest.raises(InvalidInputError, match="does not take sigma_mm .methods that do: ml, robust"):
         calibrate(white_simulation.recording, "paper", sigma_mm=0.1)
+
+
+@pytest.mark.parametrize("method", ["paper", "shah", "tsai"])
+def test_methods_without_likelihood_get_bootstrap_uncertainty(method, white_simulation):
+    result = calibrate(white_simulation.recording, method)
+    assert "bootstrap" in result.covariance["note"]
+    assert np.array(result.covariance["matrix"]).shape == (12, 12)
+    error = calibration_error(result, white_simulation.world)["tre_rms_mm"]
+    # one realisation: the true error lies within a few predicted standard errors
+    assert error < 4 * result.predicted_tre_mm["cube_rms"]
+    assert "verdict" in result.diagnostics

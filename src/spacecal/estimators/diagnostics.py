@@ -81,9 +81,10 @@ def verdict(predicted_tre_site_mm: float | None, spread: dict, outlier_fraction:
     if predicted_tre_site_mm is not None:
         if systematic:
             notes.append(f"check: predicted error at the site {predicted_tre_site_mm:.2f} mm is a lower bound, "
-                         f"because residuals are {np.sqrt(variance_factor):.1f}x the tracker's noise: systematic "
-                         "error (robot kinematics, tracker volume error, time offset or a loose marker) dominates; "
-                         "verify on independent targets")
+                         f"because residuals are {np.sqrt(variance_factor):.1f}x the tracker's noise: the model does "
+                         "not fit the data (systematic error such as robot kinematics, tracker volume error, time "
+                         "offset or a loose marker, or an inaccurate estimator: compare with ml); verify on "
+                         "independent targets")
         elif predicted_tre_site_mm <= 0.2:
             notes.append(f"good: predicted error at the site {predicted_tre_site_mm:.2f} mm")
         elif predicted_tre_site_mm <= 0.5:

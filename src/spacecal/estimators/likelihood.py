@@ -56,18 +56,33 @@ def _initial_estimate(obs: Observations, recording: Recording):
     return invert_transform(base_from_tracker), tcp_from_marker
 
 
+def variance_factor_of(obs: Observations, tracker_from_base, tcp_from_marker) -> float:
+    """A posteriori variance factor: chi-square of the sphere residuals over its degrees of freedom."""
+    errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
+    dof = max(obs.dof_per_frame * len(obs.rows) - 12, 1)
+    return float(np.sum(errors**2) * len(obs.spheres_in_marker) / obs.sigma_mm**2) / dof
+
+
 def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outlier_rows=()):
     information = information_matrix(obs, fit_t, fit_x)
-    errors = frame_errors(obs, fit_t, fit_x)
-    dof = max(obs.dof_per_frame * len(obs.rows) - 12, 1)
-    chi_square = float(np.sum(errors**2) * len(obs.spheres_in_marker) / obs.sigma_mm**2)
-    variance_factor = chi_square / dof
+    variance_factor = variance_factor_of(obs, fit_t, fit_x)
     covariance = covariance_from_information(information) * max(variance_factor, 1.0)
+    eigenvalues = np.linalg.eigvalsh(information)
+    extra = {"conditioning": {"information_eigenvalues": eigenvalues.tolist(),
+                              "condition_number": float(eigenvalues.max() / eigenvalues.min())}, **extra}
+    return report_uncertainty(method, recording, obs, fit_t, fit_x, covariance, variance_factor,
+                              targets_in_base, extra, outlier_rows,
+                              "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
+                              "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad")
+
+
+def report_uncertainty(method, recording, obs, fit_t, fit_x, covariance, variance_factor, targets_in_base,
+                       extra, outlier_rows=(), covariance_note="") -> CalibrationResult:
+    """A calibration result with covariance, predicted TRE, residuals, spread and verdict."""
     site = site_in_base(recording, obs.rows)
     tre = tre_summary(fit_t, covariance, site, targets_in_base)
     residuals = sample_residuals(recording, fit_t, fit_x, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
-    eigenvalues = np.linalg.eigvalsh(information)
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
     diagnostics = {
         "noise": {"sigma_per_axis_mm": obs.sigma_mm, "observations": "raw spheres" if obs.dof_per_frame > 6
@@ -76,8 +91,6 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
         "residual_position_rms_mm": residuals["position_rms_mm"],
         "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": spread,
-        "conditioning": {"information_eigenvalues": eigenvalues.tolist(),
-                         "condition_number": float(eigenvalues.max() / eigenvalues.min())},
         "verdict": verdict(tre["site"], spread, outlier_fraction, variance_factor),
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,
@@ -87,9 +100,7 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
               "rejected_not_visible": int((~recording.visible).sum()), "rejected_outlier": len(outlier_rows)}
     return CalibrationResult(
         method, fit_t, fit_x, counts, diagnostics,
-        covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(),
-                    "note": "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
-                            "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad"},
+        covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(), "note": covariance_note},
         predicted_tre_mm=tre,
     )
 

@@ -8,7 +8,9 @@ from typing import Callable
 from ..errors import InvalidInputError, UnknownMethodError
 from ..records import CalibrationResult, Recording
 from .closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS, hand_eye_method, robot_world_method
-from .likelihood import calibrate_ml, calibrate_robust
+from .likelihood import calibrate_ml, calibrate_robust, report_uncertainty, variance_factor_of
+from .observations import build_observations
+from .uncertainty import RESAMPLES, bootstrap_covariance
 from .paper import calibrate_paper
 
 #: name -> function(recording, **options) -> CalibrationResult
@@ -21,7 +23,8 @@ METHODS: dict[str, Callable[..., CalibrationResult]] = {
 }
 
 
-def calibrate(recording: Recording, method: str = "paper", **options) -> CalibrationResult:
+def calibrate(recording: Recording, method: str = "paper", uncertainty: bool = True,
+              **options) -> CalibrationResult:
     """Estimate ``tracker_from_base`` and ``tcp_from_marker`` from a recording.
 
     Parameters
@@ -29,6 +32,9 @@ def calibrate(recording: Recording, method: str = "paper", **options) -> Calibra
     recording : Recording
     method : str
         A name from :data:`METHODS`.
+    uncertainty : bool
+        For methods without a likelihood, add a bootstrap covariance and predicted TRE
+        (50 re-solves); Monte Carlo studies switch it off.
     **options
         Passed to the method.
 
@@ -39,10 +45,39 @@ def calibrate(recording: Recording, method: str = "paper", **options) -> Calibra
     """
     if method not in METHODS:
         raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(METHODS))}")
+    targets = options.pop("targets_in_base", None)
     accepted = inspect.signature(METHODS[method]).parameters
     unexpected = sorted(set(options) - set(accepted))
     if unexpected:
         takers = sorted(m for m, f in METHODS.items() if set(unexpected) <= set(inspect.signature(f).parameters))
         raise InvalidInputError(f"method {method!r} does not take {', '.join(unexpected)}"
                                 + (f" (methods that do: {', '.join(takers)})" if takers else ""))
-    return METHODS[method](recording, **options)
+    if "targets_in_base" in accepted:
+        return METHODS[method](recording, targets_in_base=targets, **options)
+    result = METHODS[method](recording, **options)
+    if not uncertainty:
+        return result
+    return with_bootstrap_uncertainty(result, recording, METHODS[method], targets)
+
+
+def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, solver, targets_in_base=None):
+    """Add covariance (bootstrap over frames), predicted TRE, residuals and a verdict to a
+    result from an estimator without a likelihood; its transforms are unchanged."""
+    def solve(resampled):
+        again = solver(resampled)
+        return again.tracker_from_base, again.tcp_from_marker
+
+    covariance = bootstrap_covariance(recording, solve, result.tracker_from_base, result.tcp_from_marker)
+    if covariance is None:
+        result.diagnostics["uncertainty"] = "bootstrap failed: too few resamples could be solved"
+        return result
+    obs = build_observations(recording)
+    variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
+    reported = report_uncertainty(
+        result.method, recording, obs, result.tracker_from_base, result.tcp_from_marker, covariance,
+        variance_factor, targets_in_base, {},
+        covariance_note=f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad")
+    result.covariance = reported.covariance
+    result.predicted_tre_mm = reported.predicted_tre_mm
+    result.diagnostics = {**reported.diagnostics, **result.diagnostics}
+    return result

@@ -87,18 +87,16 @@ def solve_li(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
     a, b = _check(a_stack, b_stack)
     n = len(a)
     eye3 = np.eye(3)
-    system = np.zeros((12 * n, 24))
-    rhs = np.zeros(12 * n)
-    for i in range(n):
-        ra, rb, ta, tb = a[i, :3, :3], b[i, :3, :3], a[i, :3, 3], b[i, :3, 3]
-        rows = slice(12 * i, 12 * i + 9)
-        system[rows, :9] = np.kron(eye3, ra)
-        system[rows, 9:18] = -np.kron(rb.T, eye3)
-        rows = slice(12 * i + 9, 12 * i + 12)
-        system[rows, 9:18] = -np.kron(tb[None, :], eye3)
-        system[rows, 18:21] = ra
-        system[rows, 21:24] = -eye3
-        rhs[rows] = -ta
+    ra, rb, ta, tb = a[:, :3, :3], b[:, :3, :3], a[:, :3, 3], b[:, :3, 3]
+    system = np.zeros((n, 12, 24))
+    system[:, :9, :9] = np.einsum("ij,nab->niajb", eye3, ra).reshape(n, 9, 9)  # I (x) R_A
+    system[:, :9, 9:18] = -np.einsum("nba,ij->naibj", rb, eye3).reshape(n, 9, 9)  # -(R_B^T (x) I)
+    system[:, 9:, 9:18] = -np.einsum("nb,ij->nibj", tb, eye3).reshape(n, 3, 9)  # -(t_B^T (x) I)
+    system[:, 9:, 18:21] = ra
+    system[:, 9:, 21:24] = -eye3
+    rhs = np.zeros((n, 12))
+    rhs[:, 9:] = -ta
+    system, rhs = system.reshape(12 * n, 24), rhs.reshape(-1)
     solution, *_ = np.linalg.lstsq(system, rhs, rcond=None)
     rotation_x = _orthonormal_from_vec(solution[:9])
     rotation_y = _orthonormal_from_vec(solution[9:18])

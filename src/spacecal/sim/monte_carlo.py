@@ -68,7 +68,7 @@ def run_monte_carlo(simulation: Simulation, methods, trials: int) -> list[MonteC
                 continue
             start = time.perf_counter()
             try:
-                result = calibrate(recording, method)
+                result = calibrate(recording, method, uncertainty=False)
             except SpacecalError as exc:
                 failures[method] = str(exc)
                 continue
