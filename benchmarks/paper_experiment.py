@@ -26,7 +26,7 @@ from spacecal.sim.verification import verify_in_simulation
 def run_case(scenario):
     simulation = simulate(scenario)
     start = time.perf_counter()
-    result = calibrate(simulation.recording, "paper")
+    result = calibrate(simulation.recording, "paper", uncertainty=False)
     compute_s = time.perf_counter() - start
     error = calibration_error(result, simulation.world)
     stats = verify_in_simulation(result, scenario).statistics()

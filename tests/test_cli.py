@@ -40,7 +40,8 @@ def test_simulate_calibrate_verify_chain(tmp_path, capsys):
 def test_demo_prints_the_summary_and_writes_outputs(tmp_path, capsys):
     code, out, _ = run(capsys, "demo", "--out", str(tmp_path))
     assert code == 0
-    for needle in ("planned motion time", "calibration TRE", "verification position error", "0.87 / <1.05"):
+    for needle in ("planned motion time", "paper estimator: TRE", "ML estimator", "verification position error",
+                   "0.87 / <1.05"):
         assert needle in out
     for name in ("recording.csv", "calibration.json", "verification.json", "verification_errors.png"):
         assert (tmp_path / name).is_file()

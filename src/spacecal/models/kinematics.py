@@ -209,7 +209,7 @@ def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarr
     where a branch does not exist. Exact for the nominal UR geometry; a start for Newton
     otherwise."""
     a2, a3 = model.a_mm[1], model.a_mm[2]
-    d1, d4, d5, d6 = model.d_mm[0], model.d_mm[3], model.d_mm[4], model.d_mm[5]
+    d4, d6 = model.d_mm[3], model.d_mm[5]
     t06 = base_from_flange
     solutions = np.full((8, 6), np.nan)
     p05 = t06[:3, :3] @ np.array([0.0, 0.0, -d6]) + t06[:3, 3]
