@@ -134,3 +134,15 @@ def test_pivot_command_on_the_real_recording(capsys, tmp_path):
     code, text, _ = run(capsys, "pivot", str(folder / "PivotCalibration"), "--subset",
                         str(folder / "subset57_sksurgerycalibration.txt"), "-o", str(tmp_path / "p.json"))
     assert code == 0 and "-14.473, 394.634, -7.407" in text and "1.761 mm per axis" in text
+
+
+def test_acquire_dry_run_and_run(tmp_path, capsys):
+    out = tmp_path / "acq.csv"
+    code, text, _ = run(capsys, "acquire", "-o", str(out), "--dry-run", "--scenario", "paper-white")
+    assert code == 0 and "nothing moved" in text and not out.exists()
+    code, text, _ = run(capsys, "acquire", "-o", str(out), "--scenario", "paper-white")
+    assert code == 0 and "18/18 moves" in text
+    code, _, err = run(capsys, "acquire", "-o", str(out), "--scenario", "paper-white")
+    assert code == 1 and "exists" in err
+    code, _, err = run(capsys, "acquire", "-o", str(tmp_path / "b.csv"), "--workspace-box=-600,0,-600,400,0,800")
+    assert code == 1 and "workspace box" in err and not (tmp_path / "b.csv").exists()

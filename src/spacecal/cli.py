@@ -198,6 +198,92 @@ def _cmd_bound(args) -> None:
         print(f"  at {target['target_in_base_mm']}: {target['tre_mm']:.4f} mm")
 
 
+def _sim_devices(args):
+    """The simulated robot and tracker of a scenario, and its world."""
+    from .sim.devices import SimClock, SimulatedRobot, SimulatedTracker
+    from .sim.scenario import load_scenario
+    from .sim.world import build_world
+
+    world = build_world(load_scenario(args.scenario))
+    robot = SimulatedRobot(world, SimClock())
+    return world, robot, SimulatedTracker(world, robot)
+
+
+def _progress_printer(total_moves: int):
+    """A one-line progress display on stderr: bar, move, samples, markers seen."""
+    def show(samples: int, visible: int, move_index: int, label: str) -> None:
+        if samples % 10 and sys.stderr.isatty():
+            return
+        if not sys.stderr.isatty() and samples % 100:
+            return
+        done = (move_index + 1) / total_moves
+        bar = "#" * int(30 * done) + "." * (30 - int(30 * done))
+        end = "\r" if sys.stderr.isatty() else "\n"
+        print(f"[{bar}] move {move_index + 1}/{total_moves} {label:8s} samples {samples} "
+              f"(marker seen {visible})", end=end, file=sys.stderr, flush=True)
+    return show
+
+
+def _check_workspace(plan, box_text: str | None) -> list[str]:
+    """Sampled plan poses outside a base-frame box ``xmin,xmax,ymin,ymax,zmin,zmax`` (mm)."""
+    import numpy as np
+
+    if not box_text:
+        return []
+    try:
+        box = np.array([float(v) for v in box_text.split(",")]).reshape(3, 2)
+    except ValueError:
+        raise InvalidInputError("--workspace-box takes xmin,xmax,ymin,ymax,zmin,zmax in mm") from None
+    problems = []
+    for move in plan.moves:
+        positions = move.poses_at(np.linspace(0.0, move.duration_s, 21))[:, :3, 3]
+        outside = (positions < box[:, 0]) | (positions > box[:, 1])
+        if outside.any():
+            problems.append(f"{move.label} move leaves the workspace box (up to "
+                            f"{np.max(np.maximum(box[:, 0] - positions, positions - box[:, 1])):.0f} mm)")
+    return problems
+
+
+def _cmd_acquire(args) -> None:
+    from .sim.recording import plan_for_world, recording_metadata
+    from .workflows.acquisition import AcquisitionSettings, acquire
+
+    if args.robot != "sim" or args.tracker != "sim":
+        robot, tracker, world = _hardware_devices(args)
+    else:
+        world, robot, tracker = _sim_devices(args)
+    plan = plan_for_world(world) if world is not None else _hardware_plan(args, robot)
+    problems = _check_workspace(plan, args.workspace_box)
+    print(f"plan: {len(plan.moves)} moves, {plan.motion_time_s:.1f} s of motion")
+    for message in plan.messages + problems:
+        print(f"note: {message}")
+    if problems:
+        raise InvalidInputError("the plan leaves the workspace box; nothing was moved")
+    if args.dry_run:
+        print("dry run: plan checked (reach, joint limits, visibility in the model, workspace box); nothing moved")
+        return
+    if args.robot != "sim" and not args.confirm_robot_motion:
+        raise InvalidInputError("moving a real robot needs --confirm-robot-motion (check the workspace is clear)")
+    metadata = recording_metadata(world) if world is not None else _hardware_metadata(args)
+    settings = AcquisitionSettings(linear_speed_mm_s=args.speed_mm_s, linear_accel_mm_s2=args.accel_mm_s2)
+    result = acquire(plan, robot, tracker, args.output, metadata, settings, resume=args.resume,
+                     on_sample=_progress_printer(len(plan.moves)))
+    print(f"\nwrote {result.recording_path}: {result.samples_written} samples, "
+          f"{result.visible_written} with the marker seen; {result.moves_completed}/{result.moves_total} moves")
+
+
+def _hardware_devices(args):
+    raise InvalidInputError("hardware devices are not available in this build; use --robot sim --tracker sim")
+
+
+def _hardware_plan(args, robot):
+    raise InvalidInputError("hardware devices are not available in this build")
+
+
+def _hardware_metadata(args):
+    raise InvalidInputError("hardware devices are not available in this build")
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -255,6 +341,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", help="scenario JSON file or preset (default paper-realistic)")
     p.add_argument("--out", help="directory to write the recording, calibration, verification and figure to")
     p.set_defaults(run=_cmd_demo)
+
+    p = commands.add_parser("acquire", help="run the calibration motion on a robot while sampling the tracker")
+    p.add_argument("--robot", default="sim", help="sim (default) or ur://HOST")
+    p.add_argument("--tracker", default="sim", help="sim (default), ndi://PORT_OR_HOST or igtl://HOST:PORT")
+    p.add_argument("--scenario", help="scenario for the simulated devices (default paper-realistic)")
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write (each sample flushed)")
+    p.add_argument("--dry-run", action="store_true", help="check the plan without moving")
+    p.add_argument("--resume", action="store_true", help="continue a stopped acquisition of the same plan")
+    p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
+    p.add_argument("--speed-mm-s", type=float, default=100.0, help="TCP speed (default 100 mm/s)")
+    p.add_argument("--accel-mm-s2", type=float, default=400.0, help="TCP acceleration (default 400 mm/s^2)")
+    p.add_argument("--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX",
+                   help="base-frame box (mm) the TCP must stay in")
+    p.set_defaults(run=_cmd_acquire)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default="paper-realistic")

@@ -69,7 +69,7 @@ def residual_table(recording: Recording, residuals: dict, outlier_rows=()) -> li
 
 
 def verdict(predicted_tre_site_mm: float | None, spread: dict, outlier_fraction: float = 0.0,
-            variance_factor: float | None = None) -> str:
+            variance_factor: float | None = None, likelihood_based: bool = True) -> str:
     """A plain-language judgement of a calibration and what to do about it.
 
     The headline grades the predicted error at the site, unless the residuals show that
@@ -83,8 +83,8 @@ def verdict(predicted_tre_site_mm: float | None, spread: dict, outlier_fraction:
             notes.append(f"check: predicted error at the site {predicted_tre_site_mm:.2f} mm is a lower bound, "
                          f"because residuals are {np.sqrt(variance_factor):.1f}x the tracker's noise: the model does "
                          "not fit the data (systematic error such as robot kinematics, tracker volume error, time "
-                         "offset or a loose marker, or an inaccurate estimator: compare with ml); verify on "
-                         "independent targets")
+                         "offset or a loose marker" + ("" if likelihood_based else ", or an inaccurate estimator: "
+                                                       "compare with ml") + "); verify on independent targets")
         elif predicted_tre_site_mm <= 0.2:
             notes.append(f"good: predicted error at the site {predicted_tre_site_mm:.2f} mm")
         elif predicted_tre_site_mm <= 0.5:

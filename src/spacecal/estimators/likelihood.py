@@ -91,7 +91,8 @@ def report_uncertainty(method, recording, obs, fit_t, fit_x, covariance, varianc
         "residual_position_rms_mm": residuals["position_rms_mm"],
         "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": spread,
-        "verdict": verdict(tre["site"], spread, outlier_fraction, variance_factor),
+        "verdict": verdict(tre["site"], spread, outlier_fraction, variance_factor,
+                           likelihood_based=method in ("ml", "robust")),
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,
     }

@@ -63,12 +63,32 @@ class RecordingWriter:
 
     Acquisition must never lose data: a fault mid-run leaves every row written so far in a
     readable file. Use as a context manager.
+
+    Parameters
+    ----------
+    path : str or Path
+    metadata : dict, optional
+        Written to ``<stem>.meta.json``.
+    sphere_count : int, optional
+        Raw-sphere columns to add; by default one triple per sphere of the marker in the
+        metadata (0 without one).
+    append : bool
+        Continue an existing file (resume), keeping its header.
     """
 
-    def __init__(self, path: str | Path, metadata: dict | None = None, sphere_count: int = 0):
+    def __init__(self, path: str | Path, metadata: dict | None = None, sphere_count: int | None = None,
+                 append: bool = False):
         self.path = Path(path)
-        self.sphere_count = sphere_count
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        if append:
+            header = self.path.read_text().splitlines()[0].split(",")
+            self.sphere_count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
+            self._file = open(self.path, "a", newline="")
+            self._writer = csv.writer(self._file)
+            return
+        if sphere_count is None:
+            sphere_count = len((metadata or {}).get("marker", {}).get("spheres_in_marker_mm", []))
+        self.sphere_count = sphere_count
         if metadata is not None:
             metadata_path(self.path).write_text(json.dumps(metadata, indent=2))
         self._file = open(self.path, "w", newline="")
@@ -212,7 +232,7 @@ def read_recording(path: str | Path) -> Recording:
                     "when the marker was not seen"
                 )
             marker[k] = [_number(c, line, name, path) for c, name in zip(cells, MARKER_COLUMNS)]
-            if sphere_count:
+            if sphere_count and any(row[i].strip() for i in sphere_index):
                 spheres[k] = [_number(row[i], line, names[i], path) for i in sphere_index]
 
     steps = np.diff(time_s)
