@@ -33,6 +33,28 @@ class SimClock:
         self.now_s = max(self.now_s, time_s)
 
 
+class RealClock(SimClock):
+    """Wall-clock time for running the simulation in real time (behind protocol fakes).
+
+    ``now_s`` counts seconds since construction; ``advance_to`` sleeps until then.
+    """
+
+    def __init__(self):
+        import time
+
+        self._time = time
+        self._start = time.monotonic()
+
+    @property
+    def now_s(self) -> float:
+        return self._time.monotonic() - self._start
+
+    def advance_to(self, time_s: float) -> None:
+        delay = time_s - self.now_s
+        if delay > 0:
+            self._time.sleep(delay)
+
+
 class SimulatedRobot:
     """The world's robot: moves by its true kinematics, reports by its nominal model.
 

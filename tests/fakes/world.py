@@ -1,0 +1,188 @@
+"""A fake world in its own process: one simulated ground truth behind fake devices that speak
+the real wire protocols on loopback, so the real client libraries talk to them unmodified.
+
+    python tests/fakes/world.py --host 127.0.0.12 [--scenario paper-white] [--igtl-port P] [--ndi-port P] [--rtde]
+
+Prints ``READY {json}`` (ports, pty path) on stdout when every server listens. A line
+protocol on the control port injects faults and reads the truth:
+
+    truth                      -> JSON of tracker_from_base, tcp_from_marker, home joints
+    occlude on|off             -> the marker is hidden from the tracker
+    unplug                     -> the tracker stops answering / streaming
+    stale                      -> the tracker keeps repeating its last frame
+    protective_stop | emergency_stop
+    quit
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from spacecal.sim.devices import RealClock, SimulatedRobot  # noqa: E402
+from spacecal.sim.scenario import load_scenario  # noqa: E402
+from spacecal.sim.world import build_world  # noqa: E402
+
+import ndi  # noqa: E402
+
+
+class FakeWorld:
+    """The ground truth and the fault switches every fake device reads."""
+
+    def __init__(self, scenario_name: str):
+        self.world = build_world(load_scenario(scenario_name))
+        self.clock = RealClock()
+        self.robot = SimulatedRobot(self.world, self.clock)
+        self.lock = threading.RLock()
+        self.occluded = False
+        self.unplugged = False
+        self.stale = False
+        self._last_frame = None
+
+    def marker_frame(self):
+        """(time_s, tracker_from_marker or None, rms_mm, spheres or None) now, as the tracker sees it."""
+        with self.lock:
+            if self.stale and self._last_frame is not None:
+                return self._last_frame
+            now = self.clock.now_s
+            truth = self.world.tracker_from_base @ self.robot.true_base_from_tcp() @ self.world.tcp_from_marker
+            tracked = self.world.track_marker(truth[None])
+            pose = tracked.tracker_from_marker[0]
+            seen = bool(np.all(np.isfinite(pose))) and not self.occluded
+            frame = (now, pose if seen else None, float(tracked.rms_mm[0]) if seen else float("nan"),
+                     tracked.spheres_in_tracker[0] if seen else None)
+            self._last_frame = frame
+            return frame
+
+    def truth(self) -> dict:
+        return {"tracker_from_base": self.world.tracker_from_base.tolist(),
+                "tcp_from_marker": self.world.tcp_from_marker.tolist(),
+                "home_joints_rad": self.world.home_joints_rad.tolist(),
+                "scenario": self.world.scenario.to_dict()}
+
+
+def free_port(host: str) -> int:
+    with socket.socket() as probe:
+        probe.bind((host, 0))
+        return probe.getsockname()[1]
+
+
+def serve_control(fake: FakeWorld, host: str, port: int, stop: threading.Event) -> None:
+    server = socket.create_server((host, port))
+    server.settimeout(0.2)
+    while not stop.is_set():
+        try:
+            connection, _ = server.accept()
+        except socket.timeout:
+            continue
+        with connection, connection.makefile("rw") as stream:
+            for line in stream:
+                words = line.split()
+                if not words:
+                    continue
+                command = words[0]
+                reply = "OK"
+                with fake.lock:
+                    if command == "truth":
+                        reply = json.dumps(fake.truth())
+                    elif command == "occlude":
+                        fake.occluded = words[1:] != ["off"]
+                    elif command == "unplug":
+                        fake.unplugged = True
+                        fake.unplug_event.set()
+                    elif command == "stale":
+                        fake.stale = True
+                    elif command in ("protective_stop", "emergency_stop"):
+                        fake.robot._safety = command
+                    elif command == "received":
+                        matrix = getattr(fake, "received", {}).get(words[1])
+                        reply = "NONE" if matrix is None else json.dumps(matrix)
+                    elif command == "quit":
+                        stop.set()
+                    else:
+                        reply = f"ERROR unknown command {command}"
+                stream.write(reply + "\n")
+                stream.flush()
+    server.close()
+
+
+def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float = 20.0) -> None:
+    """A PLUS-Server-like stream of MarkerToTracker TRANSFORMs with TransformStatus metadata.
+
+    The pyigtl server is made on the main thread (it installs signal handlers)."""
+    import pyigtl
+
+    period = 1.0 / rate_hz
+    next_time = time.monotonic()
+    while not stop.is_set():
+        next_time += period
+        time.sleep(max(next_time - time.monotonic(), 0.0))
+        if fake.unplugged:
+            continue
+        stamp, pose, _, _ = fake.marker_frame()
+        message = pyigtl.TransformMessage(np.eye(4) if pose is None else pose, timestamp=stamp,
+                                          device_name="MarkerToTracker")
+        message.header_version = 2
+        message.metadata = {"TransformStatus": "OK" if pose is not None else "INVALID"}
+        server.send_message(message)
+        for received in server.get_latest_messages():
+            fake.received = getattr(fake, "received", {})
+            fake.received[received.device_name] = np.asarray(received.matrix).tolist()
+    server.stop()
+
+
+def ndi_frame_source(fake: FakeWorld, rate_hz: float):
+    """Frames for the NDI fake: frame numbers count at the tracker rate."""
+    def source():
+        stamp, pose, rms, _ = fake.marker_frame()
+        return int(stamp * rate_hz), pose, (0.0 if np.isnan(rms) else rms)
+    return source
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--host", default="127.0.0.1")
+    parser.add_argument("--scenario", default="paper-white")
+    parser.add_argument("--igtl-port", type=int, default=0)
+    parser.add_argument("--ndi-log", action="store_true", help="log NDI commands to stderr")
+    args = parser.parse_args()
+    fake = FakeWorld(args.scenario)
+    stop = threading.Event()
+    control_port = free_port(args.host)
+    igtl_port = args.igtl_port or free_port("127.0.0.1")
+    import pyigtl
+
+    igtl_server = pyigtl.OpenIGTLinkServer(port=igtl_port, local_server=True)
+    unplugged = threading.Event()
+    fake.unplug_event = unplugged
+    rate = fake.world.tracker.rate_hz
+    log = sys.stderr if args.ndi_log else None
+    ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
+    ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
+    ndi_port = free_port(args.host)
+    pty_master, pty_path = ndi.open_pty()
+    threads = [
+        threading.Thread(target=serve_control, args=(fake, args.host, control_port, stop), daemon=True),
+        threading.Thread(target=stream_igtl, args=(fake, igtl_server, stop), daemon=True),
+        threading.Thread(target=ndi.serve_tcp, args=(ndi_tcp, args.host, ndi_port, stop, unplugged), daemon=True),
+        threading.Thread(target=ndi.serve_pty, args=(ndi_serial, pty_master, stop, unplugged), daemon=True),
+    ]
+    for thread in threads:
+        thread.start()
+    time.sleep(0.3)
+    print("READY " + json.dumps({"host": args.host, "control_port": control_port, "igtl_port": igtl_port,
+                                 "ndi_port": ndi_port, "ndi_pty": pty_path}), flush=True)
+    stop.wait()
+
+
+if __name__ == "__main__":
+    main()
