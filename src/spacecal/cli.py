@@ -11,6 +11,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from . import __version__
 from .errors import InvalidInputError, SpacecalError
 
@@ -245,13 +247,26 @@ def _check_workspace(plan, box_text: str | None) -> list[str]:
 
 
 def _cmd_acquire(args) -> None:
-    from .sim.recording import plan_for_world, recording_metadata
-    from .workflows.acquisition import AcquisitionSettings, acquire
-
     if args.robot != "sim" or args.tracker != "sim":
         robot, tracker, world = _hardware_devices(args)
     else:
         world, robot, tracker = _sim_devices(args)
+    try:
+        _run_acquisition(args, robot, tracker, world)
+    finally:
+        for device in (robot, tracker):
+            close = getattr(device, "close", None)
+            if close:
+                try:
+                    close()
+                except OSError:
+                    pass  # closing must not mask the error that stopped the run
+
+
+def _run_acquisition(args, robot, tracker, world) -> None:
+    from .sim.recording import plan_for_world, recording_metadata
+    from .workflows.acquisition import AcquisitionSettings, acquire
+
     plan = plan_for_world(world) if world is not None else _hardware_plan(args, robot)
     problems = _check_workspace(plan, args.workspace_box)
     print(f"plan: {len(plan.moves)} moves, {plan.motion_time_s:.1f} s of motion")
@@ -273,15 +288,87 @@ def _cmd_acquire(args) -> None:
 
 
 def _hardware_devices(args):
-    raise InvalidInputError("hardware devices are not available in this build; use --robot sim --tracker sim")
+    """Open the robot and tracker named by --robot / --tracker (this is where hardware is chosen)."""
+    from .adapters import parse_device_url
+
+    if args.robot == "sim" or args.tracker == "sim":
+        raise InvalidInputError("use --robot sim with --tracker sim, or real devices for both")
+    _, host, _ = parse_device_url(args.robot, ("ur",))
+    scheme, address, port = parse_device_url(args.tracker, ("ndi", "igtl"))
+    if scheme == "ndi":
+        from .adapters.ndi import VEGA_DEFAULT_PORT, NDITracker
+
+        if not args.rom:
+            raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
+        serial = address.startswith("/")
+        tracker = NDITracker(address, None if serial else (port or VEGA_DEFAULT_PORT), args.rom,
+                             rate_hz=args.tracker_rate_hz)
+    else:
+        from .adapters.igtl import IGTLTracker
+
+        tracker = IGTLTracker(address, port or 18944)
+    from .adapters.ur import URRobot
+
+    robot = URRobot(host, control=not args.dry_run)
+    return robot, tracker, None
+
+
+def _hardware_model(args):
+    from .geometry.transforms import make_transform
+    from .models.kinematics import ur_model
+
+    offset = _parse_points([args.tool_offset_mm], "--tool-offset-mm")[0]
+    return ur_model(args.robot_model, make_transform(np.eye(3), offset))
 
 
 def _hardware_plan(args, robot):
-    raise InvalidInputError("hardware devices are not available in this build")
+    """The paper's sweeps from the robot's current configuration (its home)."""
+    from .io.results_json import read_calibration
+    from .models.kinematics import forward_kinematics
+    from .models.marker import ndi_8700339_like
+    from .models.tracker import TrackerModel
+    from .planning.motion import MotionLimits
+    from .planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
+    from .planning.visibility import VisibilityModel
+
+    from .workflows.acquisition import resume_home_joints
+
+    model = _hardware_model(args)
+    state = robot.state()
+    home_joints = resume_home_joints(args.output) if args.resume else None
+    predicted = forward_kinematics(model, state.joints_rad)
+    mismatch = float(np.linalg.norm(predicted[:3, 3] - state.base_from_tcp[:3, 3]))
+    if mismatch > 1.0:
+        raise InvalidInputError(
+            f"--robot-model/--tool-offset-mm put the TCP {mismatch:.1f} mm from where the controller reports it; "
+            "they must match the TCP configured on the robot")
+    visibility = None
+    if args.prior:
+        prior = read_calibration(args.prior)
+        visibility = VisibilityModel(TrackerModel(), ndi_8700339_like(), prior.tracker_from_base,
+                                     prior.tcp_from_marker)
+    settings = PaperSweepSettings(
+        rotation_deg=args.rotation_deg, translation_mm=args.translation_mm,
+        limits=MotionLimits(linear_speed_mm_s=args.speed_mm_s, linear_accel_mm_s2=args.accel_mm_s2,
+                            angular_speed_rad_s=np.radians(args.angular_speed_deg_s)))
+    # On resume the plan is rebuilt from the home it was made from, not from where the robot stopped.
+    plan = plan_paper_sweeps(model, state.joints_rad if home_joints is None else home_joints, settings, visibility)
+    if visibility is None:
+        plan.messages.append("no --prior calibration: marker visibility was not checked")
+    return plan
 
 
 def _hardware_metadata(args):
-    raise InvalidInputError("hardware devices are not available in this build")
+    from .models.marker import ndi_8700339_like
+
+    model = _hardware_model(args)
+    return {
+        "robot": {"model": model.name, "url": args.robot, "flange_from_tcp": model.flange_from_tcp.tolist()},
+        "tracker": {"url": args.tracker, "rate_hz": args.tracker_rate_hz},
+        "marker": ndi_8700339_like().to_dict(),
+        "units": {"length": "mm", "angle": "rad", "time": "s"},
+        "source": "spacecal acquire",
+    }
 
 
 def _cmd_scenario(args) -> None:
@@ -354,6 +441,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--accel-mm-s2", type=float, default=400.0, help="TCP acceleration (default 400 mm/s^2)")
     p.add_argument("--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX",
                    help="base-frame box (mm) the TCP must stay in")
+    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
+    p.add_argument("--tracker-rate-hz", type=float, default=20.0, help="NDI frame rate (Vicra 20, Vega 60)")
+    p.add_argument("--robot-model", default="UR10", help="UR model for planning checks (default UR10)")
+    p.add_argument("--tool-offset-mm", default="0,0,0", help="TCP in the flange frame, as set on the robot")
+    p.add_argument("--prior", help="an earlier calibration, to check marker visibility along the plan")
+    p.add_argument("--rotation-deg", type=float, default=90.0, help="rotation sweep each way (default 90)")
+    p.add_argument("--translation-mm", type=float, default=500.0, help="translation sweep length (default 500)")
+    p.add_argument("--angular-speed-deg-s", type=float, default=45.0, help="TCP rotation speed (default 45)")
     p.set_defaults(run=_cmd_acquire)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")

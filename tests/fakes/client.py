@@ -19,7 +19,7 @@ class WorldProcess:
 
     def __init__(self, *arguments: str, ready_timeout_s: float = 20.0):
         self.process = subprocess.Popen([sys.executable, str(WORLD), *arguments], stdout=subprocess.PIPE,
-                                        text=True)
+                                        stdin=subprocess.PIPE, text=True)
         deadline = time.monotonic() + ready_timeout_s
         line = ""
         while time.monotonic() < deadline:

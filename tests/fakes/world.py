@@ -10,7 +10,8 @@ protocol on the control port injects faults and reads the truth:
     occlude on|off             -> the marker is hidden from the tracker
     unplug                     -> the tracker stops answering / streaming
     stale                      -> the tracker keeps repeating its last frame
-    protective_stop | emergency_stop
+    protective_stop | emergency_stop | clear
+    received NAME              -> the last TRANSFORM a client sent under NAME (JSON), or NONE
     quit
 """
 
@@ -33,6 +34,7 @@ from spacecal.sim.scenario import load_scenario  # noqa: E402
 from spacecal.sim.world import build_world  # noqa: E402
 
 import ndi  # noqa: E402
+import rtde  # noqa: E402
 
 
 class FakeWorld:
@@ -103,6 +105,8 @@ def serve_control(fake: FakeWorld, host: str, port: int, stop: threading.Event) 
                         fake.stale = True
                     elif command in ("protective_stop", "emergency_stop"):
                         fake.robot._safety = command
+                    elif command == "clear":  # the operator unlocks the stop on the pendant
+                        fake.robot._safety = "normal"
                     elif command == "received":
                         matrix = getattr(fake, "received", {}).get(words[1])
                         reply = "NONE" if matrix is None else json.dumps(matrix)
@@ -154,6 +158,7 @@ def main() -> None:
     parser.add_argument("--scenario", default="paper-white")
     parser.add_argument("--igtl-port", type=int, default=0)
     parser.add_argument("--ndi-log", action="store_true", help="log NDI commands to stderr")
+    parser.add_argument("--ur-log", action="store_true", help="log UR controller traffic to stderr")
     args = parser.parse_args()
     fake = FakeWorld(args.scenario)
     stop = threading.Event()
@@ -178,9 +183,12 @@ def main() -> None:
     ]
     for thread in threads:
         thread.start()
+    fake.controller = rtde.start_controller(fake, args.host, stop, sys.stderr if args.ur_log else None)
     time.sleep(0.3)
     print("READY " + json.dumps({"host": args.host, "control_port": control_port, "igtl_port": igtl_port,
                                  "ndi_port": ndi_port, "ndi_pty": pty_path}), flush=True)
+    # Die with the parent: the test process holds our stdin; EOF means it is gone.
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     stop.wait()
 
 

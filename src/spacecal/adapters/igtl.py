@@ -19,6 +19,10 @@ from ..geometry.transforms import is_rigid_transform
 from . import require
 
 
+#: Time given to a server's backlog of old messages on connect before frames are read.
+BACKLOG_DRAIN_S = 0.3
+
+
 class IGTLTracker:
     """A tracker read from an OpenIGTLink TRANSFORM stream (Tracker protocol).
 
@@ -42,7 +46,9 @@ class IGTLTracker:
         if first is None:
             self.close()
             raise DeviceError(f"no {device_name} message from igtl://{host}:{port} within {connect_timeout_s:.0f} s")
-        self._pending = first
+        # A server may flush a backlog of old messages on connect: let it pass, keep the newest.
+        time.sleep(BACKLOG_DRAIN_S)
+        self._pending = self._client.wait_for_message(device_name, timeout=0.0) or first
 
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         deadline = time.monotonic() + timeout_s

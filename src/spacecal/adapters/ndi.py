@@ -131,7 +131,12 @@ class NDITracker:
         return TrackerFrame(frame_number / self.rate_hz, int(frame_number), FRAME_OK, pose, float(rms))
 
     def close(self) -> None:
+        """Stop tracking and close; a device that is already gone is not an error here."""
         try:
             self._ndi.ndiCommand(self._device, "TSTOP:")
-        finally:
+        except OSError:
+            pass
+        try:
             (self._ndi.ndiClose if self.serial else self._ndi.ndiCloseNetwork)(self._device)
+        except OSError:
+            pass

@@ -66,7 +66,9 @@ def variance_factor_of(obs: Observations, tracker_from_base, tcp_from_marker) ->
 def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outlier_rows=()):
     information = information_matrix(obs, fit_t, fit_x)
     variance_factor = variance_factor_of(obs, fit_t, fit_x)
-    covariance = covariance_from_information(information) * max(variance_factor, 1.0)
+    # Without a known tracker noise the residuals alone set the scale (no floor at 1).
+    scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
+    covariance = covariance_from_information(information) * scale
     eigenvalues = np.linalg.eigvalsh(information)
     extra = {"conditioning": {"information_eigenvalues": eigenvalues.tolist(),
                               "condition_number": float(eigenvalues.max() / eigenvalues.min())}, **extra}
@@ -85,13 +87,17 @@ def report_uncertainty(method, recording, obs, fit_t, fit_x, covariance, varianc
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
     diagnostics = {
-        "noise": {"sigma_per_axis_mm": obs.sigma_mm, "observations": "raw spheres" if obs.dof_per_frame > 6
+        "noise": {"sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
+                  "source": "given or the tracker's RMS" if obs.sigma_known else
+                  "unknown (the recording has no marker_rms_mm): covariance scaled by the residuals",
+                  "observations": "raw spheres" if obs.dof_per_frame > 6
                   else "marker poses (model spheres placed by the measured pose)"},
-        "variance_factor": variance_factor,
+        "variance_factor": variance_factor if obs.sigma_known else None,
         "residual_position_rms_mm": residuals["position_rms_mm"],
         "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": spread,
-        "verdict": verdict(tre["site"], spread, outlier_fraction, variance_factor,
+        "verdict": verdict(tre["site"], spread, outlier_fraction,
+                           variance_factor if obs.sigma_known else None,
                            likelihood_based=method in ("ml", "robust")),
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,

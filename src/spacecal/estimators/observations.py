@@ -36,6 +36,9 @@ class Observations:
         Independent residual components per frame: 6 for fitted poses, 3K for raw spheres.
     sigma_mm : float
         Per-axis sphere noise, mm.
+    sigma_known : bool
+        False when the recording carries no tracker RMS and none was given: sigma is then a
+        placeholder, covariances follow from the residuals alone.
     """
 
     rows: np.ndarray
@@ -44,6 +47,7 @@ class Observations:
     spheres_in_tracker: np.ndarray
     dof_per_frame: int
     sigma_mm: float
+    sigma_known: bool = True
 
 
 def sphere_noise_from_marker_rms(marker_rms_mm, sphere_count: int) -> float:
@@ -95,7 +99,12 @@ def build_observations(recording: Recording, mask=None, sigma_mm: float | None =
         poses = recording.tracker_from_marker_stack[rows]
         observed = np.einsum("nij,kj->nki", poses[:, :3, :3], spheres) + poses[:, None, :3, 3]
         dof = 6
+    known = True
     if sigma_mm is None:
-        sigma_mm = sphere_noise_from_marker_rms(recording.marker_rms_mm[rows], len(spheres))
+        rms = recording.marker_rms_mm[rows]
+        if np.isfinite(rms).sum() < 3:
+            sigma_mm, known = 1.0, False
+        else:
+            sigma_mm = sphere_noise_from_marker_rms(rms, len(spheres))
     return Observations(rows, recording.base_from_tcp_stack[rows], spheres, observed, dof,
-                        max(float(sigma_mm), minimum_sigma_mm))
+                        max(float(sigma_mm), minimum_sigma_mm), known)

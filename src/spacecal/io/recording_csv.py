@@ -7,7 +7,8 @@ Columns (extra columns are allowed and ignored)::
     marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy,
     marker_qz, marker_rms_mm                                               tracker_from_marker
 
-The marker cells are empty when the marker was not seen. Optional raw sphere centres
+The marker cells are empty when the marker was not seen (``marker_rms_mm`` alone may be empty
+when the tracker does not report it). Optional raw sphere centres
 follow as ``sphere1_x_mm, sphere1_y_mm, sphere1_z_mm, sphere2_x_mm, ...`` (tracker frame,
 empty when not seen); the likelihood estimators use them when present. Metadata (robot model, TCP in
 flange, tracker, marker geometry) lives next to the CSV in ``<stem>.meta.json``; the
@@ -225,13 +226,16 @@ def read_recording(path: str | Path) -> Recording:
         for j, column in enumerate(numeric):
             values[k, j] = _number(row[index[column]], line, column, path)
         cells = [row[index[c]].strip() for c in MARKER_COLUMNS]
+        pose_cells = cells[:7]  # marker_rms_mm may be empty: some trackers (OpenIGTLink) do not report it
         if any(cells):
-            if not all(cells):
+            if not all(pose_cells):
                 raise InvalidInputError(
                     f"{path}: line {line}: marker cells are partly empty; leave all of them empty "
                     "when the marker was not seen"
                 )
-            marker[k] = [_number(c, line, name, path) for c, name in zip(cells, MARKER_COLUMNS)]
+            marker[k, :7] = [_number(c, line, name, path) for c, name in zip(pose_cells, MARKER_COLUMNS)]
+            if cells[7]:
+                marker[k, 7] = _number(cells[7], line, MARKER_COLUMNS[7], path)
             if sphere_count and any(row[i].strip() for i in sphere_index):
                 spheres[k] = [_number(row[i], line, names[i], path) for i in sphere_index]
 

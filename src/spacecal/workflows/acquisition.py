@@ -24,6 +24,8 @@ from ..planning.motion import MotionPlan
 
 #: A robot state older than this, while moving, counts as stale (UR streams at 125–500 Hz).
 STALE_ROBOT_S = 0.5
+#: ... and only once it has stood still over this many tracker frames.
+STALE_FRAMES = 3
 
 
 @dataclass
@@ -85,7 +87,16 @@ def progress_path(recording_path: str | Path) -> Path:
 
 def _write_progress(path: Path, plan: MotionPlan, completed: int, stopped_because: str | None) -> None:
     path.write_text(json.dumps({"plan": plan_fingerprint(plan), "moves_completed": completed,
-                                "moves_total": len(plan.moves), "stopped_because": stopped_because}, indent=2))
+                                "moves_total": len(plan.moves), "stopped_because": stopped_because,
+                                "home_joints_rad": np.asarray(plan.home_joints_rad).tolist()}, indent=2))
+
+
+def resume_home_joints(recording_path: str | Path) -> np.ndarray | None:
+    """The home configuration a stopped acquisition was planned from (to re-plan it on resume)."""
+    path = progress_path(recording_path)
+    if not path.is_file():
+        return None
+    return np.asarray(json.loads(path.read_text())["home_joints_rad"], dtype=float)
 
 
 def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: str | Path, metadata: dict,
@@ -149,6 +160,7 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
                 robot.move_linear(move.start, settings.linear_speed_mm_s, settings.linear_accel_mm_s2)
             robot.move_linear(move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True)
             last_recorded = -np.inf
+            robot_time, robot_time_seen_at, frames_since_robot_update = None, None, 0
             while True:
                 try:
                     frame = tracker.next_frame(settings.frame_timeout_s)
@@ -157,9 +169,17 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
                 state = robot.state()
                 if state.safety != SAFETY_NORMAL:
                     fail(f"robot {state.safety.replace('_', ' ')}")
-                if state.moving and frame.time_s - state.time_s > settings.stale_robot_s and \
-                        _clocks_comparable(frame.time_s, state.time_s):
-                    fail(f"robot data stale by {frame.time_s - state.time_s:.2f} s")
+                # Stale robot data: its timestamp stands still while the tracker's advances. Each
+                # device is compared only with its own clock, so unrelated clocks are fine.
+                # Several frames are required: two reads a few ms apart may share a robot timestamp
+                # even when one tracker frame arrives late.
+                if state.time_s != robot_time:
+                    robot_time, robot_time_seen_at, frames_since_robot_update = state.time_s, frame.time_s, 0
+                else:
+                    frames_since_robot_update += 1
+                    if state.moving and frames_since_robot_update >= STALE_FRAMES and \
+                            frame.time_s - robot_time_seen_at > settings.stale_robot_s:
+                        fail(f"robot data stale: no new robot state for {frame.time_s - robot_time_seen_at:.2f} s")
                 if move.sample_period_s > 0 and frame.time_s - last_recorded >= move.sample_period_s - 1e-6:
                     seen = frame.status == FRAME_OK
                     writer.append(frame.time_s, move.label, state.joints_rad, state.base_from_tcp,
@@ -183,10 +203,3 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
     finally:
         writer.close()
     return result
-
-
-def _clocks_comparable(tracker_time_s: float, robot_time_s: float) -> bool:
-    """Stale-data detection compares timestamps only when both devices share a clock base
-    (simulation, or hardware whose clocks were aligned); unrelated clocks differ by more
-    than a day."""
-    return abs(tracker_time_s - robot_time_s) < 86400.0
