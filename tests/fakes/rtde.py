@@ -21,7 +21,6 @@ import time
 import numpy as np
 
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
-from spacecal.models.kinematics import forward_kinematics
 
 RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
 CONTROLLER_VERSION = (3, 15, 7, 106331)  # CB3 (the paper's UR10): 125 Hz by default
@@ -164,7 +163,6 @@ class FakeController:
             self.registers["output_int_register_0"] = 2  # the script is stopped; nothing moves
             return
         if command == 1:  # MOVEJ: q[6], speed, acceleration
-            self.robot.move_linear  # noqa: B018 (the simulated robot knows both moves)
             self._start(lambda: self._move_joints(doubles[:6], doubles[6], doubles[7]), asynchronous)
         elif command == 3:  # MOVEL: pose (m, rotation vector), speed m/s, acceleration m/s^2
             pose = make_transform(rotvec_to_matrix(doubles[3:6]), np.array(doubles[:3]) * 1000.0)
