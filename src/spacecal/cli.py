@@ -371,6 +371,37 @@ def _hardware_metadata(args):
     }
 
 
+def _cmd_register_landmarks(args) -> None:
+    from .estimators.landmarks import LandmarkDetectionSettings
+    from .io.plus_config import read_plus_landmarks, read_plus_transform
+    from .io.plus_sequence import read_plus_sequence
+    from .io.results_json import write_json
+    from .workflows.landmark_registration import register_landmarks_from_stylus
+
+    sequence = read_plus_sequence(args.sequence)
+    _, landmarks = read_plus_landmarks(args.config)
+    stylus_from_tip = read_plus_transform(args.config, "StylusTip", "Stylus")
+    settings = None
+    if args.plus_compatible:
+        times = sequence.timestamps_s
+        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(landmarks) for b in landmarks[i + 1:])
+        settings = LandmarkDetectionSettings(acquisition_rate_hz=1.0 / (times[1] - times[0]),
+                                             min_landmark_spacing_mm=spacing, plus_compatible=True)
+    result = register_landmarks_from_stylus(
+        sequence.timestamps_s, sequence.transform(f"{args.reference}ToTracker"),
+        sequence.transform(f"{args.stylus}ToTracker"), stylus_from_tip, landmarks, settings)
+    reg = result.registration
+    if args.output:
+        print(f"wrote {write_json(result.to_dict(), args.output)}")
+    print(f"registered {len(landmarks)} landmarks (detected at " +
+          ", ".join(f"{t - sequence.timestamps_s[0]:.1f}" for t in result.detected_at_s) + " s)")
+    print("reference_from_phantom:")
+    for row in reg.a_from_b:
+        print("  " + "  ".join(f"{v:11.6f}" for v in row))
+    print(f"landmark error: mean {reg.fre_mean_mm:.3f} mm (PLUS's 'Error'), RMS {reg.fre_rms_mm:.3f} mm; "
+          f"per landmark " + ", ".join(f"{v:.2f}" for v in reg.residuals_mm))
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -450,6 +481,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--translation-mm", type=float, default=500.0, help="translation sweep length (default 500)")
     p.add_argument("--angular-speed-deg-s", type=float, default=45.0, help="TCP rotation speed (default 45)")
     p.set_defaults(run=_cmd_acquire)
+
+    p = commands.add_parser("register-landmarks",
+                            help="register a phantom to its reference marker from a tracked-stylus PLUS recording")
+    p.add_argument("sequence", help="PLUS sequence file (.igs.mha) with <Reference>ToTracker and <Stylus>ToTracker")
+    p.add_argument("--config", required=True, help="PLUS device set: StylusTip->Stylus transform and <Landmarks>")
+    p.add_argument("--reference", default="Reference", help="reference tool name (default Reference)")
+    p.add_argument("--stylus", default="Stylus", help="stylus tool name (default Stylus)")
+    p.add_argument("--plus-compatible", action="store_true", help="average landmark frames exactly as PLUS does")
+    p.add_argument("-o", "--output", help="registration JSON to write")
+    p.set_defaults(run=_cmd_register_landmarks)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default="paper-realistic")

@@ -1,0 +1,72 @@
+"""PLUS device-set configuration files: coordinate definitions and phantom landmarks (read),
+and a ``CoordinateDefinitions`` transform for a calibration (write).
+
+PLUS names transforms by ``From``/``To`` frames; ``Matrix`` maps From coordinates into To,
+i.e. our ``to_from_from`` (``From="Base" To="Tracker"`` is ``tracker_from_base``).
+"""
+
+from __future__ import annotations
+
+import datetime
+import xml.etree.ElementTree as ElementTree
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InvalidInputError
+
+
+def _parse(path: str | Path) -> ElementTree.Element:
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"{path}: no such PLUS configuration file")
+    try:
+        return ElementTree.parse(path).getroot()
+    except ElementTree.ParseError as exc:
+        raise InvalidInputError(f"{path}: not valid XML ({exc})") from None
+
+
+def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.ndarray:
+    """The ``From``->``To`` transform of a PLUS configuration, as ``to_from_from`` (4, 4)."""
+    for element in _parse(path).iter("Transform"):
+        if element.get("From") == from_frame and element.get("To") == to_frame:
+            numbers = np.array(element.get("Matrix", "").split(), dtype=float)
+            if numbers.size != 16:
+                raise InvalidInputError(f"{path}: {from_frame}To{to_frame} Matrix does not hold 16 numbers")
+            return numbers.reshape(4, 4)
+    raise InvalidInputError(f"{path}: no {from_frame}To{to_frame} transform in CoordinateDefinitions")
+
+
+def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
+    """Names and positions (M, 3), mm, of the ``<Landmarks>`` of a PLUS phantom definition."""
+    names, positions = [], []
+    for element in _parse(path).iter("Landmark"):
+        names.append(element.get("Name", str(len(names) + 1)))
+        positions.append([float(v) for v in element.get("Position", "").split()])
+    if not positions:
+        raise InvalidInputError(f"{path}: no <Landmark> elements")
+    return names, np.array(positions)
+
+
+def plus_coordinate_definition(a_from_b, from_frame: str, to_frame: str, error_mm: float | None = None,
+                               date: datetime.datetime | None = None) -> str:
+    """A PLUS ``<Transform From=.. To=.. Matrix=.. Error=.. Date=..>`` element as XML text.
+
+    PLUS writes dates as ``mmddyy_HHMMSS``.
+    """
+    matrix = np.asarray(a_from_b, dtype=float)
+    rows = "\n".join("        " + " ".join(f"{v:.10g}" for v in row) for row in matrix)
+    date = date or datetime.datetime.now()
+    error = f' Error="{error_mm:.6g}"' if error_mm is not None else ""
+    return (f'    <Transform From="{from_frame}" To="{to_frame}"\n      Matrix="\n{rows}"\n'
+            f'     {error} Date="{date.strftime("%m%d%y_%H%M%S")}" />')
+
+
+def write_plus_coordinate_definitions(path: str | Path, transforms: list[tuple]) -> Path:
+    """Write ``<CoordinateDefinitions>`` with (a_from_b, from, to, error_mm) entries, to paste into
+    (or include in) a PLUS device-set configuration."""
+    body = "\n".join(plus_coordinate_definition(t, f, to, e) for t, f, to, e in transforms)
+    path = Path(path)
+    path.write_text(f'<PlusConfiguration version="2.1">\n  <CoordinateDefinitions>\n{body}\n'
+                    "  </CoordinateDefinitions>\n</PlusConfiguration>\n")
+    return path

@@ -1,0 +1,96 @@
+"""Register a phantom (or patient image) to a reference marker from a tracked-stylus recording.
+
+The stylus tip is brought into the reference frame frame by frame
+(``reference_from_tip = reference_from_tracker @ tracker_from_stylus @ stylus_from_tip``),
+the landmark touches are detected (:mod:`spacecal.estimators.landmarks`), and the defined
+landmark positions are registered to them (``reference_from_phantom``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DegenerateDataError
+from ..estimators.landmarks import LandmarkDetectionSettings, detect_landmarks
+from ..estimators.registration import PointRegistration, register_points
+from ..geometry.rotations import nearest_rotation
+from ..geometry.transforms import invert_transform, make_transform
+
+
+@dataclass
+class LandmarkRegistrationResult:
+    """A landmark registration and what it was computed from.
+
+    Attributes
+    ----------
+    registration : PointRegistration
+        ``a_from_b`` is ``reference_from_phantom``.
+    detected_in_reference : numpy.ndarray, shape (M, 3), mm
+    detected_at_s : list of float
+        Time of each detection.
+    """
+
+    registration: PointRegistration
+    detected_in_reference: np.ndarray
+    detected_at_s: list
+
+    def to_dict(self) -> dict:
+        reg = self.registration
+        return {
+            "schema": "spacecal.landmark_registration", "schema_version": 1, "units": {"length": "mm"},
+            "reference_from_phantom": reg.a_from_b.tolist(),
+            "landmarks_detected_in_reference_mm": self.detected_in_reference.tolist(),
+            "detected_at_s": self.detected_at_s,
+            "residuals_mm": reg.residuals_mm.tolist(),
+            "fre_rms_mm": reg.fre_rms_mm,
+            "fre_mean_mm": reg.fre_mean_mm,
+            "fle_rms_mm": reg.fle_rms_mm,
+        }
+
+
+def register_landmarks_from_stylus(timestamps_s, tracker_from_reference_stack, tracker_from_stylus_stack,
+                                   stylus_from_tip, landmarks_in_phantom,
+                                   settings: LandmarkDetectionSettings | None = None) -> LandmarkRegistrationResult:
+    """Detect the landmark touches and register the phantom to the reference marker.
+
+    Parameters
+    ----------
+    timestamps_s : array_like, shape (N,)
+        Frames with a repeated timestamp are dropped (as PLUS does).
+    tracker_from_reference_stack, tracker_from_stylus_stack : array_like, shape (N, 4, 4), mm
+    stylus_from_tip : array_like, shape (4, 4)
+        The stylus tip calibration (a pivot calibration's tip, with the tip frame's x axis
+        along the shaft as PLUS defines it).
+    landmarks_in_phantom : array_like, shape (M, 3), mm
+        Defined landmark positions, in the order they are touched.
+    settings : LandmarkDetectionSettings, optional
+        Default: PLUS's, with the rate from the first two frames and the spacing from the
+        landmark definition (as PLUS's own test does).
+    """
+    times = np.asarray(timestamps_s, dtype=float)
+    keep = np.concatenate([[True], np.diff(times) != 0])
+    phantom = np.asarray(landmarks_in_phantom, dtype=float)
+    # Single-precision rotations in tracker files are not quite orthonormal.
+    def rigid(stack):
+        stack = np.asarray(stack, dtype=float)[keep]
+        finite = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
+        out = np.full_like(stack, np.nan)
+        out[finite] = make_transform(nearest_rotation(stack[finite, :3, :3]), stack[finite, :3, 3])
+        return out
+
+    reference_from_tip = invert_transform(rigid(tracker_from_reference_stack)) @ rigid(tracker_from_stylus_stack) \
+        @ np.asarray(stylus_from_tip, dtype=float)
+    if settings is None:
+        kept_times = times[keep]
+        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(phantom) for b in phantom[i + 1:])
+        settings = LandmarkDetectionSettings(acquisition_rate_hz=1.0 / (kept_times[1] - kept_times[0]),
+                                             min_landmark_spacing_mm=spacing)
+    detected, ends = detect_landmarks(reference_from_tip, settings, expected=len(phantom))
+    if len(detected) < len(phantom):
+        raise DegenerateDataError(
+            f"found {len(detected)} landmark touches of the {len(phantom)} defined: hold the tip still in each "
+            "divot and pivot the stylus for at least a second")
+    return LandmarkRegistrationResult(register_points(detected, phantom), detected,
+                                      [float(times[keep][i]) for i in ends])
