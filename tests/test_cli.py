@@ -4,6 +4,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from spacecal.cli import main
@@ -146,3 +147,30 @@ def test_acquire_dry_run_and_run(tmp_path, capsys):
     assert code == 1 and "exists" in err
     code, _, err = run(capsys, "acquire", "-o", str(tmp_path / "b.csv"), "--workspace-box=-600,0,-600,400,0,800")
     assert code == 1 and "workspace box" in err and not (tmp_path / "b.csv").exists()
+
+
+def test_export_to_slicer_and_plus(recording_file, tmp_path, capsys):
+    from spacecal.io.plus_config import read_plus_transform
+    from spacecal.io.slicer import read_slicer_transform
+
+    calibration = tmp_path / "cal.json"
+    assert run(capsys, "calibrate", str(recording_file), "-o", str(calibration))[0] == 0
+    code, out, _ = run(capsys, "export", str(calibration), "--slicer", str(tmp_path / "t.tfm"),
+                       "--plus", str(tmp_path / "t.xml"))
+    assert code == 0
+    expected = np.array(json.loads(calibration.read_text())["tracker_from_base"])
+    assert np.allclose(read_slicer_transform(tmp_path / "t.tfm"), expected, atol=1e-9)
+    assert np.allclose(read_plus_transform(tmp_path / "t.xml", "Base", "Tracker"), expected, atol=1e-6)
+    code, _, err = run(capsys, "export", str(calibration))
+    assert code == 1 and "say where to export" in err
+
+
+def test_register_landmarks_command_on_the_real_plus_recording(capsys, tmp_path):
+    from .conftest import shared_realdata
+
+    folder = shared_realdata("plus_phantom_landmarks")
+    code, out, _ = run(capsys, "register-landmarks", str(folder / "EightLandmarkPointsTrackedForPhantomRegistration.igs.mha"),
+                       "--config", str(folder / "PlusDeviceSet_fCal_Sim_RecordPhantomLandmarks.xml"),
+                       "--plus-compatible", "-o", str(tmp_path / "reg.json"))
+    assert code == 0 and "mean 0.207 mm (PLUS's 'Error')" in out
+    assert json.loads((tmp_path / "reg.json").read_text())["fre_mean_mm"] == pytest.approx(0.207, abs=0.001)

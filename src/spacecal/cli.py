@@ -402,6 +402,40 @@ def _cmd_register_landmarks(args) -> None:
           f"per landmark " + ", ".join(f"{v:.2f}" for v in reg.residuals_mm))
 
 
+def _cmd_export(args) -> None:
+    from .io.plus_config import write_plus_coordinate_definitions
+    from .io.results_json import read_calibration
+    from .io.slicer import write_slicer_transform
+
+    calibration = read_calibration(args.calibration)
+    if not (args.slicer or args.plus or args.igtl):
+        raise InvalidInputError("say where to export: --slicer FILE.tfm, --plus FILE.xml and/or --igtl HOST:PORT")
+    error = (calibration.predicted_tre_mm or {}).get("site")
+    if args.slicer:
+        print(f"wrote {write_slicer_transform(calibration.tracker_from_base, args.slicer)} "
+              "(loads in 3D Slicer as BaseToTracker; its matrix is tracker_from_base)")
+    if args.plus:
+        path = write_plus_coordinate_definitions(args.plus, [(calibration.tracker_from_base, "Base", "Tracker", error),
+                                                             (calibration.tcp_from_marker, "Marker", "TCP", None)])
+        print(f"wrote {path} (PLUS CoordinateDefinitions: BaseToTracker, MarkerToTCP)")
+    if args.igtl:
+        from .adapters import parse_device_url
+        from .adapters.igtl import publish_transform
+
+        _, host, port = parse_device_url("igtl://" + args.igtl, ("igtl",))
+        publish_transform(host, port or 18944, "BaseToTracker", calibration.tracker_from_base)
+        print(f"sent BaseToTracker to igtl://{host}:{port or 18944}")
+
+
+def _cmd_import_plus(args) -> None:
+    from .io.plus_import import recording_from_plus_sequence
+    from .io.recording_csv import write_recording
+
+    recording = recording_from_plus_sequence(args.sequence, args.marker, args.tcp, args.segment)
+    path = write_recording(recording, args.output)
+    print(f"wrote {path}: {len(recording)} frames, {int(recording.visible.sum())} with the marker seen")
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -491,6 +525,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plus-compatible", action="store_true", help="average landmark frames exactly as PLUS does")
     p.add_argument("-o", "--output", help="registration JSON to write")
     p.set_defaults(run=_cmd_register_landmarks)
+
+    p = commands.add_parser("export", help="export a calibration to 3D Slicer, PLUS, or over OpenIGTLink")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--slicer", help="ITK transform file (.tfm) for 3D Slicer")
+    p.add_argument("--plus", help="PLUS CoordinateDefinitions XML")
+    p.add_argument("--igtl", metavar="HOST:PORT", help="send BaseToTracker to an OpenIGTLink server (e.g. Slicer)")
+    p.set_defaults(run=_cmd_export)
+
+    p = commands.add_parser("import-plus", help="turn a PLUS sequence file (.igs.mha) into a recording CSV")
+    p.add_argument("sequence", help="PLUS sequence file")
+    p.add_argument("--marker", default="MarkerToTracker", help="marker transform name (default MarkerToTracker)")
+    p.add_argument("--tcp", default="TCPToBase", help="robot TCP transform name (default TCPToBase)")
+    p.add_argument("--segment", default="static", help="segment label for every frame")
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write")
+    p.set_defaults(run=_cmd_import_plus)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default="paper-realistic")

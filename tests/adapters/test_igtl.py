@@ -51,3 +51,19 @@ def test_publish_calibration_as_base_to_tracker(world):
 def test_no_server_is_a_device_error():
     with pytest.raises(DeviceError, match="no MarkerToTracker message"):
         IGTLTracker("127.0.0.1", 9, connect_timeout_s=0.5)
+
+
+def test_export_command_sends_the_calibration(world, tmp_path, white_simulation):
+    from spacecal.cli import main
+    from spacecal.estimators import calibrate
+    from spacecal.io.results_json import write_calibration
+
+    result = calibrate(white_simulation.recording, "paper", uncertainty=False)
+    path = write_calibration(result, tmp_path / "cal.json")
+    assert main(["export", str(path), "--igtl", f"127.0.0.1:{world.info['igtl_port']}"]) == 0
+    deadline = time.monotonic() + 5
+    received = "NONE"
+    while time.monotonic() < deadline and received == "NONE":
+        received = world.control("received BaseToTracker")
+        time.sleep(0.1)
+    assert np.allclose(np.array(json.loads(received)), result.tracker_from_base, atol=1e-3)

@@ -65,7 +65,10 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
     if not frames:
         raise InvalidInputError(f"{path}: no Seq_Frame fields; not a PLUS sequence file")
     indices = sorted(frames)
-    timestamps = np.array([float(frames[i].get("Timestamp", "nan")) for i in indices])
+    try:
+        timestamps = np.array([float(frames[i].get("Timestamp", "nan")) for i in indices])
+    except ValueError:
+        raise InvalidInputError(f"{path}: a frame timestamp is not a number") from None
     names = sorted({k[:-len("Transform")] for f in frames.values() for k in f if k.endswith("Transform")})
     transforms = {}
     for name in names:
@@ -75,7 +78,10 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
             status = frames[i].get(f"{name}TransformStatus", "OK").upper()
             if values is None or status != "OK":
                 continue
-            numbers = np.array(values.split(), dtype=float)
+            try:
+                numbers = np.array(values.split(), dtype=float)
+            except ValueError:
+                raise InvalidInputError(f"{path}: frame {i} {name}Transform holds text that is not a number") from None
             if numbers.size != 16:
                 raise InvalidInputError(f"{path}: frame {i} {name}Transform has {numbers.size} numbers, not 16")
             stack[row] = numbers.reshape(4, 4)

@@ -7,7 +7,8 @@ Columns (extra columns are allowed and ignored)::
     marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy,
     marker_qz, marker_rms_mm                                               tracker_from_marker
 
-The marker cells are empty when the marker was not seen (``marker_rms_mm`` alone may be empty
+The six joint cells may all be empty when the joints were not recorded (imports). The
+marker cells are empty when the marker was not seen (``marker_rms_mm`` alone may be empty
 when the tracker does not report it). Optional raw sphere centres
 follow as ``sphere1_x_mm, sphere1_y_mm, sphere1_z_mm, sphere2_x_mm, ...`` (tracker frame,
 empty when not seen); the likelihood estimators use them when present. Metadata (robot model, TCP in
@@ -223,7 +224,12 @@ def read_recording(path: str | Path) -> Recording:
             raise InvalidInputError(f"{path}: line {line} has {len(row)} cells; the header has {len(rows[0])}")
         time_s[k] = _number(row[index["time_s"]], line, "time_s", path)
         segment.append(row[index["segment"]].strip())
+        joint_cells = [row[index[c]].strip() for c in JOINT_COLUMNS]
+        if not any(joint_cells):
+            values[k, :6] = np.nan  # joints not recorded (e.g. imported from a tracker-only source)
         for j, column in enumerate(numeric):
+            if j < 6 and not any(joint_cells):
+                continue
             values[k, j] = _number(row[index[column]], line, column, path)
         cells = [row[index[c]].strip() for c in MARKER_COLUMNS]
         pose_cells = cells[:7]  # marker_rms_mm may be empty: some trackers (OpenIGTLink) do not report it
