@@ -17,6 +17,10 @@ from . import __version__
 from .errors import InvalidInputError, SpacecalError
 
 
+class CheckFailed(SpacecalError):
+    """A calibration check did not pass (exit code 1, like any known failure)."""
+
+
 def _cmd_simulate(args) -> None:
     from .io.recording_csv import metadata_path, write_recording
     from .sim.recording import simulate
@@ -436,6 +440,36 @@ def _cmd_import_plus(args) -> None:
     print(f"wrote {path}: {len(recording)} frames, {int(recording.visible.sum())} with the marker seen")
 
 
+def _cmd_check(args) -> None:
+    from .io.recording_csv import read_recording
+    from .io.results_json import read_calibration
+    from .workflows.check import append_history, check_with_recording, check_with_robot
+
+    calibration = read_calibration(args.calibration)
+    if args.recording:
+        result = check_with_recording(calibration, read_recording(args.recording), args.threshold_mm,
+                                      args.threshold_deg)
+    elif args.robot == "sim":
+        from .sim.check import check_joints
+        from .sim.devices import SimClock, SimulatedRobot, SimulatedTracker
+        from .sim.world import build_world
+
+        world = build_world(_scenario_for_verification(args, calibration))
+        robot = SimulatedRobot(world, SimClock())
+        result = check_with_robot(calibration, robot, SimulatedTracker(world, robot), check_joints(world, args.poses),
+                                  args.threshold_mm, args.threshold_deg)
+    else:
+        raise InvalidInputError("check on real hardware: record two or three static poses with "
+                                "'spacecal acquire' and pass them with --recording")
+    history = append_history(args.calibration, result)
+    for pose in result.to_dict()["poses"]:
+        print(f"  {pose['label']:>10}: TCP {pose['tcp_error_mm']:.3f} mm, rotation {pose['rotation_error_deg']:.3f} deg")
+    verdict = "PASS" if result.passed else "FAIL"
+    print(f"{verdict}: thresholds {result.threshold_mm} mm and {result.threshold_deg} deg (history: {history})")
+    if not result.passed:
+        raise CheckFailed("the calibration no longer holds: recalibrate (marker bumped, tracker moved?)")
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -540,6 +574,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--segment", default="static", help="segment label for every frame")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write")
     p.set_defaults(run=_cmd_import_plus)
+
+    p = commands.add_parser("check", help="confirm before surgery that a calibration still holds")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--recording", help="static poses to check against (instead of moving the robot)")
+    p.add_argument("--robot", default="sim", help="sim (default): move the simulated robot")
+    p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
+    p.add_argument("--poses", type=int, default=3, choices=[2, 3], help="number of poses (2 or 3)")
+    p.add_argument("--threshold-mm", type=float, default=1.0, help="largest TCP error that passes (default 1 mm)")
+    p.add_argument("--threshold-deg", type=float, default=1.0, help="largest rotation error that passes")
+    p.set_defaults(run=_cmd_check)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default="paper-realistic")

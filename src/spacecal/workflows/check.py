@@ -1,0 +1,127 @@
+"""Pre-operative calibration check: does the calibration still hold?
+
+At two or three poses the tracked marker is compared with where the calibration predicts it
+(``tracker_from_base @ base_from_tcp @ tcp_from_marker``). The error is reported where it
+matters, at the TCP (the needle tip in the paper's set-up): the distance between the TCP
+origin as the calibration places it and as the tracked marker places it, and the angle
+between the two marker orientations. A bumped marker, a moved tracker or a re-mounted tool
+shows up at once. Each check is appended to a history file next to the calibration.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..devices import FRAME_OK, Robot, Tracker
+from ..errors import DegenerateDataError
+from ..geometry.rotations import mean_rotation, rotation_angle
+from ..geometry.transforms import invert_transform, make_transform
+from ..records import CalibrationResult, Recording
+
+
+@dataclass
+class CheckResult:
+    """Outcome of a calibration check.
+
+    Attributes
+    ----------
+    tcp_error_mm, rotation_error_deg : numpy.ndarray, shape (P,)
+        Per checked pose.
+    threshold_mm, threshold_deg : float
+    labels : list of str
+    """
+
+    tcp_error_mm: np.ndarray
+    rotation_error_deg: np.ndarray
+    threshold_mm: float
+    threshold_deg: float
+    labels: list = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return bool(np.all(self.tcp_error_mm <= self.threshold_mm) and
+                    np.all(self.rotation_error_deg <= self.threshold_deg))
+
+    def to_dict(self) -> dict:
+        return {
+            "checked_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "passed": self.passed, "threshold_mm": self.threshold_mm, "threshold_deg": self.threshold_deg,
+            "poses": [{"label": label, "tcp_error_mm": float(e), "rotation_error_deg": float(a)}
+                      for label, e, a in zip(self.labels, self.tcp_error_mm, self.rotation_error_deg)],
+        }
+
+
+def pose_errors(calibration: CalibrationResult, base_from_tcp, tracker_from_marker) -> tuple[float, float]:
+    """(TCP position error mm, marker rotation error deg) of one pose."""
+    predicted_marker = calibration.tracker_from_base @ base_from_tcp @ calibration.tcp_from_marker
+    predicted_tcp = (calibration.tracker_from_base @ base_from_tcp)[:3, 3]
+    measured_tcp = (tracker_from_marker @ invert_transform(calibration.tcp_from_marker))[:3, 3]
+    angle = np.degrees(rotation_angle(predicted_marker[:3, :3] @ tracker_from_marker[:3, :3].T))
+    return float(np.linalg.norm(predicted_tcp - measured_tcp)), float(angle)
+
+
+def check_with_robot(calibration: CalibrationResult, robot: Robot, tracker: Tracker, joints_list,
+                     threshold_mm: float = 1.0, threshold_deg: float = 1.0, frames_per_pose: int = 10,
+                     speed_rad_s: float = 0.3, accel_rad_s2: float = 0.5) -> CheckResult:
+    """Move to each configuration (P, 6), average ``frames_per_pose`` tracker frames, compare."""
+    errors, angles, labels = [], [], []
+    for k, joints in enumerate(np.asarray(joints_list, dtype=float)):
+        robot.move_joints(joints, speed_rad_s, accel_rad_s2)
+        poses = []
+        while len(poses) < frames_per_pose:
+            frame = tracker.next_frame(1.0)
+            if frame.status == FRAME_OK:
+                poses.append(frame.tracker_from_marker)
+            elif len(poses) == 0 and frame.frame_number > 10 * frames_per_pose:
+                raise DegenerateDataError(f"check pose {k + 1}: the marker is not visible")
+        poses = np.array(poses)
+        measured = make_transform(mean_rotation(poses[:, :3, :3]), poses[:, :3, 3].mean(axis=0))
+        error, angle = pose_errors(calibration, robot.state().base_from_tcp, measured)
+        errors.append(error)
+        angles.append(angle)
+        labels.append(f"pose {k + 1}")
+    return CheckResult(np.array(errors), np.array(angles), threshold_mm, threshold_deg, labels)
+
+
+def check_with_recording(calibration: CalibrationResult, recording: Recording, threshold_mm: float = 1.0,
+                         threshold_deg: float = 1.0) -> CheckResult:
+    """Check against the visible frames of a recording, one result per segment label."""
+    errors, angles, labels = [], [], []
+    for label in dict.fromkeys(recording.segment.tolist()):
+        rows = np.flatnonzero((recording.segment == label) & recording.visible)
+        if len(rows) == 0:
+            continue
+        per_frame = np.array([pose_errors(calibration, recording.base_from_tcp_stack[r],
+                                          recording.tracker_from_marker_stack[r]) for r in rows])
+        errors.append(float(np.median(per_frame[:, 0])))
+        angles.append(float(np.median(per_frame[:, 1])))
+        labels.append(str(label))
+    if not labels:
+        raise DegenerateDataError("the recording has no frame with the marker visible to check against")
+    return CheckResult(np.array(errors), np.array(angles), threshold_mm, threshold_deg, labels)
+
+
+def history_path(calibration_path: str | Path) -> Path:
+    """``cal.json`` -> ``cal.checks.jsonl``."""
+    path = Path(calibration_path)
+    return path.with_name(path.stem + ".checks.jsonl")
+
+
+def append_history(calibration_path: str | Path, result: CheckResult) -> Path:
+    """Append a check to the calibration's history (one JSON object per line)."""
+    path = history_path(calibration_path)
+    with open(path, "a") as handle:
+        handle.write(json.dumps(result.to_dict()) + "\n")
+    return path
+
+
+def read_history(calibration_path: str | Path) -> list[dict]:
+    path = history_path(calibration_path)
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

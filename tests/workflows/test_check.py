@@ -1,0 +1,55 @@
+"""The calibration check passes a calibration that holds and fails one that no longer does."""
+
+import json
+
+import numpy as np
+import pytest
+
+from spacecal.cli import main
+from spacecal.estimators import calibrate
+from spacecal.geometry.transforms import axis_angle_transform, make_transform
+from spacecal.io.results_json import write_calibration
+from spacecal.workflows.check import history_path, read_history
+
+
+@pytest.fixture
+def calibration_file(tmp_path, white_simulation):
+    from spacecal.io.recording_csv import write_recording
+
+    recording = write_recording(white_simulation.recording, tmp_path / "rec.csv")
+    result = calibrate(white_simulation.recording, "ml")
+    result.source = {"recording": str(recording)}
+    return write_calibration(result, tmp_path / "cal.json")
+
+
+def tamper(path, key, change):
+    data = json.loads(path.read_text())
+    data[key] = (change @ np.array(data[key])).tolist() if key == "tracker_from_base" else \
+        (np.array(data[key]) @ change).tolist()
+    out = path.with_name(f"tampered_{key}.json")
+    out.write_text(json.dumps(data))
+    return out
+
+
+def test_good_calibration_passes_and_is_logged(calibration_file, capsys):
+    assert main(["check", str(calibration_file)]) == 0
+    assert "PASS" in capsys.readouterr().out
+    history = read_history(calibration_file)
+    assert len(history) == 1 and history[0]["passed"] and len(history[0]["poses"]) == 3
+    assert history_path(calibration_file).name == "cal.checks.jsonl"
+
+
+@pytest.mark.parametrize("fault,key,change", [
+    ("marker bumped by 1 deg", "tcp_from_marker", axis_angle_transform([0, 1, 0], np.radians(1.0))),
+    ("tracker moved by 2 mm", "tracker_from_base", make_transform(np.eye(3), [2.0, 0.0, 0.0])),
+])
+def test_a_calibration_that_no_longer_holds_fails(calibration_file, capsys, fault, key, change):
+    assert main(["check", str(tamper(calibration_file, key, change)), "--poses", "2"]) == 1
+    captured = capsys.readouterr()
+    assert "FAIL" in captured.out and "no longer holds" in captured.err
+
+
+def test_check_against_a_recording(calibration_file, tmp_path, capsys):
+    assert main(["check", str(calibration_file), "--recording", str(tmp_path / "rec.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "rot_x" in out and "PASS" in out
