@@ -174,3 +174,11 @@ def test_register_landmarks_command_on_the_real_plus_recording(capsys, tmp_path)
                        "--plus-compatible", "-o", str(tmp_path / "reg.json"))
     assert code == 0 and "mean 0.207 mm (PLUS's 'Error')" in out
     assert json.loads((tmp_path / "reg.json").read_text())["fre_mean_mm"] == pytest.approx(0.207, abs=0.001)
+
+
+def test_phantom_command(tmp_path, capsys):
+    code, out, _ = run(capsys, "phantom", "--scenario", "paper-white", "--cases", "3", "-o", str(tmp_path / "p.json"),
+                       "--figure", str(tmp_path / "fig9.png"))
+    assert code == 0 and "entry (mm)" in out and "paper minimum" in out
+    assert len(json.loads((tmp_path / "p.json").read_text())["cases"]) == 3
+    assert (tmp_path / "fig9.png").stat().st_size > 10_000

@@ -470,6 +470,23 @@ def _cmd_check(args) -> None:
         raise CheckFailed("the calibration no longer holds: recalibrate (marker bumped, tracker moved?)")
 
 
+def _cmd_phantom(args) -> None:
+    from .io.results_json import write_json
+    from .report.figures import plot_phantom_errors
+    from .sim.phantom import PhantomSettings, run_phantom_experiment
+    from .sim.scenario import load_scenario
+
+    if args.cases < 1:
+        raise InvalidInputError("--cases must be at least 1")
+    result = run_phantom_experiment(load_scenario(args.scenario), args.method, PhantomSettings(cases=args.cases))
+    print(result.table())
+    print("(measured errors include the second CT's localisation error, as in the paper's experiment)")
+    if args.output:
+        print(f"wrote {write_json(result.to_dict(), args.output)}")
+    if args.figure:
+        print(f"wrote {plot_phantom_errors(result.entry_error_mm, result.target_error_mm, result.direction_error_deg, args.figure)}")
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -584,6 +601,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threshold-mm", type=float, default=1.0, help="largest TCP error that passes (default 1 mm)")
     p.add_argument("--threshold-deg", type=float, default=1.0, help="largest rotation error that passes")
     p.set_defaults(run=_cmd_check)
+
+    p = commands.add_parser("phantom", help="the paper's phantom needle biopsy (§5.3) in simulation")
+    p.add_argument("--scenario", help="scenario JSON file or preset (default paper-realistic)")
+    p.add_argument("--method", default="paper", help="calibration method (default paper)")
+    p.add_argument("--cases", type=int, default=5, help="needle paths (default 5, as in the paper)")
+    p.add_argument("-o", "--output", help="results JSON to write")
+    p.add_argument("--figure", help="PNG of the error curves (paper Fig. 9)")
+    p.set_defaults(run=_cmd_phantom)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default="paper-realistic")

@@ -45,3 +45,32 @@ def plot_verification_errors(position_error_mm, posture_error_deg, path: str | P
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def plot_phantom_errors(entry_error_mm, target_error_mm, direction_error_deg, path: str | Path) -> Path:
+    """The paper's Fig. 9: (A) entry and target position errors, (B) puncture direction error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cases = np.arange(1, len(entry_error_mm) + 1)
+    fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
+    ax_a.plot(cases, entry_error_mm, "o-", label="entry")
+    ax_a.plot(cases, target_error_mm, "s-", label="target (tumour)")
+    ax_a.set_title("(A) position error of entry and target")
+    ax_a.set_ylabel("error (mm)")
+    ax_b.plot(cases, direction_error_deg, "o-", color="tab:green", label="direction")
+    ax_b.set_title("(B) deviation of puncture direction")
+    ax_b.set_ylabel("error (deg)")
+    for ax in (ax_a, ax_b):
+        ax.set_xlabel("case")
+        ax.set_xticks(cases)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
