@@ -182,3 +182,11 @@ def test_phantom_command(tmp_path, capsys):
     assert code == 0 and "entry (mm)" in out and "paper minimum" in out
     assert len(json.loads((tmp_path / "p.json").read_text())["cases"]) == 3
     assert (tmp_path / "fig9.png").stat().st_size > 10_000
+
+
+def test_report_command(recording_file, tmp_path, capsys):
+    calibration = tmp_path / "cal.json"
+    assert run(capsys, "calibrate", str(recording_file), "--method", "ml", "-o", str(calibration))[0] == 0
+    code, out, _ = run(capsys, "report", str(calibration), "-o", str(tmp_path / "r.html"), "--png-dir", str(tmp_path))
+    assert code == 0 and "Sweeps and fits" in out and "Uncertainty" in out
+    assert (tmp_path / "r.html").stat().st_size > 3_000_000 and (tmp_path / "residuals.png").is_file()

@@ -487,6 +487,23 @@ def _cmd_phantom(args) -> None:
         print(f"wrote {plot_phantom_errors(result.entry_error_mm, result.target_error_mm, result.direction_error_deg, args.figure)}")
 
 
+def _cmd_report(args) -> None:
+    from .io.recording_csv import read_recording
+    from .io.results_json import read_calibration, read_json_object
+    from .report.html import Report, write_report
+    from .workflows.check import read_history
+
+    calibration = read_calibration(args.calibration)
+    recording_path = args.recording or calibration.source.get("recording")
+    recording = read_recording(recording_path) if recording_path and Path(recording_path).is_file() else None
+    verification = read_json_object(args.verification, "verification") if args.verification else None
+    report = Report(calibration, recording, verification, read_history(args.calibration))
+    path, titles = write_report(report, args.output, args.png_dir)
+    print(f"wrote {path} ({len(titles)} plots: {', '.join(titles)})")
+    if recording is None:
+        print("note: no recording found (pass --recording) - sweeps and residuals are not shown")
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -609,6 +626,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="results JSON to write")
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 9)")
     p.set_defaults(run=_cmd_phantom)
+
+    p = commands.add_parser("report", help="a self-contained HTML report (works offline) and PNG figures")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--recording", help="recording CSV (default: the calibration's own)")
+    p.add_argument("--verification", help="verification JSON (from spacecal verify -o)")
+    p.add_argument("--png-dir", help="also write PNG figures here")
+    p.add_argument("-o", "--output", required=True, help="HTML file to write")
+    p.set_defaults(run=_cmd_report)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default="paper-realistic")

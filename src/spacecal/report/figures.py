@@ -74,3 +74,22 @@ def plot_phantom_errors(entry_error_mm, target_error_mm, direction_error_deg, pa
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def plot_residuals(time_s, position_residual_mm, path: str | Path) -> Path:
+    """Per-sample marker position residuals over time (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 3.2), constrained_layout=True)
+    ax.plot(time_s, position_residual_mm, ".", ms=3)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("marker position residual (mm)")
+    ax.grid(alpha=0.3)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
