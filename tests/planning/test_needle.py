@@ -60,3 +60,19 @@ def test_phantom_experiment_white_vs_realistic():
     # the robot's kinematic errors dominate the realistic case
     assert realistic.target_error_mm.mean() > 1.5 * white.target_error_mm.mean()
     assert len(realistic.predicted) == 5 and "entry_mm" in realistic.predicted[0]
+
+
+def test_visibility_is_checked_when_a_model_is_given():
+    from spacecal.planning.visibility import VisibilityModel
+    from spacecal.geometry.transforms import invert_transform
+
+    world = build_world(NOISE_FREE)
+    tracker_from_image = world.tracker_from_base @ make_transform(np.eye(3), world.site_in_base + [0, 0, -150.0])
+    seen = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
+    plan_needle([0, 0, 130.0], [0, 0, 80.0], tracker_from_image, world.tracker_from_base, world.nominal_model,
+                world.home_joints_rad, visibility=seen)
+    behind = VisibilityModel(world.tracker, world.marker, invert_transform(world.tracker_from_base),
+                             world.tcp_from_marker)
+    with pytest.raises(UnreachableError, match="not visible"):
+        plan_needle([0, 0, 130.0], [0, 0, 80.0], tracker_from_image, world.tracker_from_base, world.nominal_model,
+                    world.home_joints_rad, visibility=behind)

@@ -24,6 +24,7 @@ import numpy as np
 from ..errors import DegenerateDataError, UnreachableError
 from ..geometry.transforms import apply_transform, invert_transform, make_transform
 from ..models.kinematics import RobotModel, inverse_kinematics
+from .visibility import VisibilityModel
 
 
 def needle_pose(tip_in_frame, direction_in_frame, roll_reference=(1.0, 0.0, 0.0)) -> np.ndarray:
@@ -66,7 +67,7 @@ class NeedlePlan:
 def plan_needle(entry_in_image, target_in_image, tracker_from_image, tracker_from_base, robot_model: RobotModel,
                 reference_joints_rad, standoff_mm: float = 20.0, tcp_from_needle=None,
                 registration_tre_mm=(0.0, 0.0), calibration_tre_mm=(0.0, 0.0),
-                robot_position_sd_mm: float = 0.0) -> NeedlePlan:
+                robot_position_sd_mm: float = 0.0, visibility: VisibilityModel | None = None) -> NeedlePlan:
     """Map an image-space needle path to robot poses and predict how well it will land.
 
     Parameters
@@ -85,13 +86,15 @@ def plan_needle(entry_in_image, target_in_image, tracker_from_image, tracker_fro
         Predicted RMS errors at (entry, target) from each source.
     robot_position_sd_mm : float
         Per-axis s.d. of the robot's positioning at the target.
+    visibility : VisibilityModel, optional
+        If given, the marker must be visible to the tracker at both poses (navigation needs it).
 
     Raises
     ------
     DegenerateDataError
         If entry and target coincide.
     UnreachableError
-        If either pose is outside the robot's reach or joint limits.
+        If either pose is outside the robot's reach or joint limits, or hides the marker.
     """
     entry = np.asarray(entry_in_image, dtype=float)
     target = np.asarray(target_in_image, dtype=float)
@@ -110,6 +113,12 @@ def plan_needle(entry_in_image, target_in_image, tracker_from_image, tracker_fro
         joints_target = inverse_kinematics(robot_model, at_target @ needle_from_tcp, joints_standoff)
     except UnreachableError as exc:
         raise UnreachableError(f"needle path cannot be reached: {exc}") from None
+    if visibility is not None:
+        tcp_poses = np.array([standoff @ needle_from_tcp, at_target @ needle_from_tcp])
+        seen = visibility.visible(tcp_poses)
+        if not seen.all():
+            where = "at the stand-off" if not seen[0] else "at the target"
+            raise UnreachableError(f"needle path: the marker is not visible to the tracker {where}")
     robot_3d = np.sqrt(3.0) * robot_position_sd_mm
     entry_error = float(np.sqrt(registration_tre_mm[0] ** 2 + calibration_tre_mm[0] ** 2 + robot_3d**2))
     target_error = float(np.sqrt(registration_tre_mm[1] ** 2 + calibration_tre_mm[1] ** 2 + robot_3d**2))
