@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import DegenerateDataError, UnreachableError
 from ..geometry.transforms import apply_transform, invert_transform, make_transform
-from ..models.kinematics import RobotModel, inverse_kinematics
+from ..models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
 from .visibility import VisibilityModel
 
 
@@ -105,9 +105,14 @@ def plan_needle(entry_in_image, target_in_image, tracker_from_image, tracker_fro
     direction_in_base = base_from_image[:3, :3] @ ((target - entry) / length)
     entry_in_base = apply_transform(base_from_image, entry)
     target_in_base = apply_transform(base_from_image, target)
-    at_target = needle_pose(target_in_base, direction_in_base)
-    standoff = needle_pose(entry_in_base - standoff_mm * direction_in_base, direction_in_base)
     needle_from_tcp = np.eye(4) if tcp_from_needle is None else invert_transform(tcp_from_needle)
+    # The roll about the needle is free: keep it nearest the tool's current orientation, so the
+    # marker keeps facing the tracker as it did.
+    current = forward_kinematics(robot_model, np.asarray(reference_joints_rad, dtype=float)) @ \
+        invert_transform(needle_from_tcp)
+    roll = current[:3, 0]
+    at_target = needle_pose(target_in_base, direction_in_base, roll)
+    standoff = needle_pose(entry_in_base - standoff_mm * direction_in_base, direction_in_base, roll)
     try:
         joints_standoff = inverse_kinematics(robot_model, standoff @ needle_from_tcp, reference_joints_rad)
         joints_target = inverse_kinematics(robot_model, at_target @ needle_from_tcp, joints_standoff)

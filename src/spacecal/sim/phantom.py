@@ -17,14 +17,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..estimators import calibrate
+from ..errors import UnreachableError
 from ..estimators.registration import register_points
 from ..geometry.metrics import summary_statistics
 from ..geometry.transforms import apply_transform, invert_transform, make_transform
 from ..models.kinematics import forward_kinematics
 from ..planning.needle import plan_needle
+from ..planning.visibility import VisibilityModel
 from .recording import simulate
 from .scenario import Scenario
 from .world import World
+
+#: Attempts to find a feasible needle path per case.
+MAX_PATH_ATTEMPTS = 50
 
 #: The paper's phantom results (§5.3): minimum errors over its five cases.
 PAPER_PHANTOM = {"entry_min_mm": 0.87, "target_min_mm": 0.83, "direction_min_deg": 0.89}
@@ -74,6 +79,7 @@ class PhantomResult:
     predicted: list
     registration_fre_rms_mm: float
     method: str
+    paths_refused: int = 0
 
     def statistics(self) -> dict:
         return {"entry_mm": summary_statistics(self.entry_error_mm),
@@ -82,7 +88,8 @@ class PhantomResult:
 
     def table(self) -> str:
         lines = [f"phantom needle biopsy in simulation (calibration: {self.method}; registration FRE "
-                 f"{self.registration_fre_rms_mm:.2f} mm RMS)",
+                 f"{self.registration_fre_rms_mm:.2f} mm RMS; {self.paths_refused} planned paths refused as "
+                 "unreachable or hiding the marker, and replaced)",
                  "case  entry (mm)  target (mm)  direction (deg)  predicted entry / target / direction",
                  "----  ----------  -----------  ---------------  ------------------------------------"]
         for k, (e, t, d, p) in enumerate(zip(self.entry_error_mm, self.target_error_mm, self.direction_error_deg,
@@ -126,7 +133,7 @@ def run_phantom_experiment(scenario: Scenario, method: str = "paper", settings: 
     head_centre_in_base = world.site_in_base + home[:3, :3] @ np.array([0.0, 0.0, 120.0])
     tracker_from_image = world.tracker_from_base @ make_transform(np.eye(3), head_centre_in_base)
     directions = rng.normal(size=(settings.fiducials, 3))
-    directions[:, 2] = -np.abs(directions[:, 2])  # fiducials on the upper half (towards the robot)
+    directions[:, 2] = np.abs(directions[:, 2])  # fiducials on the upper half (image z is base z: up)
     fiducials_in_image = np.array([_surface_point(radii, d) for d in directions])
 
     # CT localises the fiducials; the pointer touches them in tracker space.
@@ -138,18 +145,31 @@ def run_phantom_experiment(scenario: Scenario, method: str = "paper", settings: 
     tracker_from_image_estimate = registration.a_from_b
 
     calibration_tre = (calibration.predicted_tre_mm or {}).get("site", 0.0)
+    # Planning predicts marker visibility from the calibration just made (what the system knows).
+    visibility = VisibilityModel(world.tracker, world.marker, calibration.tracker_from_base,
+                                 calibration.tcp_from_marker)
     robot_sd = scenario.repeatability_mm / 3.6
     entry_errors, target_errors, direction_errors, predicted = [], [], [], []
+    refused = 0
     for _ in range(settings.cases):
-        top = rng.normal(size=3)
-        top[2] = -abs(top[2]) - 1.5  # entries on the upper surface, within reach of a downward needle
-        entry = _surface_point(radii, top)
-        target = entry * (1.0 - rng.uniform(*settings.depth_mm) / np.linalg.norm(entry))
-        reg_tre = registration.predicted_tre_mm(np.array([entry, target]))
-        plan = plan_needle(entry, target, tracker_from_image_estimate, calibration.tracker_from_base,
-                           world.nominal_model, world.home_joints_rad,
-                           registration_tre_mm=tuple(reg_tre), calibration_tre_mm=(calibration_tre, calibration_tre),
-                           robot_position_sd_mm=robot_sd)
+        # Paths the planner refuses (out of reach, or hiding the marker) are replaced, as a
+        # surgeon would choose another trajectory.
+        for _attempt in range(MAX_PATH_ATTEMPTS):
+            top = rng.normal(size=3)
+            top[2] = abs(top[2]) + 1.5  # entries on the upper surface, within reach of a downward needle
+            entry = _surface_point(radii, top)
+            target = entry * (1.0 - rng.uniform(*settings.depth_mm) / np.linalg.norm(entry))
+            reg_tre = registration.predicted_tre_mm(np.array([entry, target]))
+            try:
+                plan = plan_needle(entry, target, tracker_from_image_estimate, calibration.tracker_from_base,
+                                   world.nominal_model, world.home_joints_rad, registration_tre_mm=tuple(reg_tre),
+                                   calibration_tre_mm=(calibration_tre, calibration_tre),
+                                   robot_position_sd_mm=robot_sd, visibility=visibility)
+                break
+            except UnreachableError:
+                refused += 1
+        else:
+            raise UnreachableError(f"no feasible needle path in {MAX_PATH_ATTEMPTS} attempts")
         reached = world.true_base_from_tcp(plan.joints_target_rad)[0]
         tip_in_image = apply_transform(invert_transform(tracker_from_image) @ world.tracker_from_base, reached[:3, 3])
         axis_in_image = (invert_transform(tracker_from_image) @ world.tracker_from_base)[:3, :3] @ reached[:3, 2]
@@ -164,4 +184,4 @@ def run_phantom_experiment(scenario: Scenario, method: str = "paper", settings: 
         direction_errors.append(np.degrees(np.arccos(np.clip(planned_axis @ seen_axis, -1, 1))))
         predicted.append(plan.predicted_error)
     return PhantomResult(np.array(entry_errors), np.array(target_errors), np.array(direction_errors), predicted,
-                         registration.fre_rms_mm, method)
+                         registration.fre_rms_mm, method, refused)
