@@ -17,6 +17,10 @@ import threading
 import tty
 
 import numpy as np
+try:  # imported as part of the tests package, or as a module of the world process
+    from .net import accept_connections
+except ImportError:
+    from net import accept_connections
 
 from spacecal.geometry.transforms import matrix_to_quaternion_wxyz
 
@@ -214,13 +218,7 @@ def _read_commands(read, write, device: FakeNDI, stop: threading.Event):
 
 def serve_tcp(device: FakeNDI, host: str, port: int, stop: threading.Event, unplugged: threading.Event):
     """Serve one client at a time over TCP; closing the connection is 'unplugging'."""
-    server = socket.create_server((host, port))
-    server.settimeout(0.2)
-    while not stop.is_set():
-        try:
-            connection, _ = server.accept()
-        except socket.timeout:
-            continue
+    for connection in accept_connections(host, port, stop):
         connection.settimeout(0.2)
 
         def read():
@@ -235,7 +233,6 @@ def serve_tcp(device: FakeNDI, host: str, port: int, stop: threading.Event, unpl
 
         _read_commands(read, connection.sendall, device, stop)
         connection.close()
-    server.close()
 
 
 def open_pty() -> tuple[int, str]:

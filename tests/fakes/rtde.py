@@ -19,6 +19,10 @@ import threading
 import time
 
 import numpy as np
+try:  # imported as part of the tests package, or as a module of the world process
+    from .net import accept_connections
+except ImportError:
+    from net import accept_connections
 
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 
@@ -345,15 +349,8 @@ def serve_script_connection(controller: FakeController, connection, stop) -> Non
 
 
 def serve(host: str, port: int, handler, controller: FakeController, stop: threading.Event) -> None:
-    server = socket.create_server((host, port))
-    server.settimeout(0.2)
-    while not stop.is_set():
-        try:
-            connection, _ = server.accept()
-        except socket.timeout:
-            continue
+    for connection in accept_connections(host, port, stop):
         threading.Thread(target=handler, args=(controller, connection, stop), daemon=True).start()
-    server.close()
 
 
 def start_controller(fake_world, host: str, stop: threading.Event, log=None) -> FakeController:

@@ -34,6 +34,7 @@ from spacecal.sim.scenario import load_scenario  # noqa: E402
 from spacecal.sim.world import build_world  # noqa: E402
 
 import ndi  # noqa: E402
+from net import accept_connections  # noqa: E402
 import rtde  # noqa: E402
 
 
@@ -79,13 +80,7 @@ def free_port(host: str) -> int:
 
 
 def serve_control(fake: FakeWorld, host: str, port: int, stop: threading.Event) -> None:
-    server = socket.create_server((host, port))
-    server.settimeout(0.2)
-    while not stop.is_set():
-        try:
-            connection, _ = server.accept()
-        except socket.timeout:
-            continue
+    for connection in accept_connections(host, port, stop):
         with connection, connection.makefile("rw") as stream:
             for line in stream:
                 words = line.split()
@@ -116,7 +111,6 @@ def serve_control(fake: FakeWorld, host: str, port: int, stop: threading.Event) 
                         reply = f"ERROR unknown command {command}"
                 stream.write(reply + "\n")
                 stream.flush()
-    server.close()
 
 
 def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float = 20.0) -> None:

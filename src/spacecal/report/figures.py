@@ -1,10 +1,27 @@
-"""Figures in the style of the paper."""
+"""Figures in the style of the paper (PNG, matplotlib without a display)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    _pyplot().close(fig)
+    return path
 
 
 def plot_verification_errors(position_error_mm, posture_error_deg, path: str | Path,
@@ -18,11 +35,7 @@ def plot_verification_errors(position_error_mm, posture_error_deg, path: str | P
     path : str or Path
         PNG file to write.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     position = np.asarray(position_error_mm)
     posture = np.asarray(posture_error_deg)
     points = np.arange(1, len(position) + 1)
@@ -40,20 +53,12 @@ def plot_verification_errors(position_error_mm, posture_error_deg, path: str | P
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_phantom_errors(entry_error_mm, target_error_mm, direction_error_deg, path: str | Path) -> Path:
     """The paper's Fig. 9: (A) entry and target position errors, (B) puncture direction error."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     cases = np.arange(1, len(entry_error_mm) + 1)
     fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
     ax_a.plot(cases, entry_error_mm, "o-", label="entry")
@@ -69,27 +74,15 @@ def plot_phantom_errors(entry_error_mm, target_error_mm, direction_error_deg, pa
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_residuals(time_s, position_residual_mm, path: str | Path) -> Path:
     """Per-sample marker position residuals over time (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 3.2), constrained_layout=True)
     ax.plot(time_s, position_residual_mm, ".", ms=3)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("marker position residual (mm)")
     ax.grid(alpha=0.3)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
