@@ -6,26 +6,36 @@ so every test runs under a C-level watchdog (faulthandler) that ends a hung run.
 
 import faulthandler
 import itertools
+import os
 
 import pytest
 
 from ..fakes.client import WorldProcess
 
-WATCHDOG_S = 120
-_addresses = itertools.count(20)
+#: Longer than any test's own subprocess timeouts, so those report first; the dump goes to a
+#: file (pytest captures stderr) that .ci/run prints when the suite fails.
+WATCHDOG_S = 400
+WATCHDOG_LOG = os.path.join(os.environ.get("TMPDIR", "/tmp"), "spacecal-watchdog.log")
+#: The UR fake needs fixed ports, so every world gets its own loopback address; the second
+#: octet follows the process id, so concurrent test runs on one machine do not collide.
+_addresses = itertools.count(1)
+_NETWORK = 20 + os.getpid() % 200
 
 
 @pytest.fixture(autouse=True)
-def watchdog():
-    faulthandler.dump_traceback_later(WATCHDOG_S, exit=True)
-    yield
-    faulthandler.cancel_dump_traceback_later()
+def watchdog(request):
+    with open(WATCHDOG_LOG, "w") as log:
+        log.write(f"watchdog armed for {request.node.nodeid}\n")
+        log.flush()
+        faulthandler.dump_traceback_later(WATCHDOG_S, exit=True, file=log)
+        yield
+        faulthandler.cancel_dump_traceback_later()
 
 
 @pytest.fixture
 def world():
     """A fresh fake world per test (faults are sticky), on its own loopback address."""
-    process = WorldProcess("--host", f"127.0.0.{next(_addresses)}")
+    process = WorldProcess("--host", f"127.{_NETWORK}.0.{next(_addresses)}")
     yield process
     process.stop()
 

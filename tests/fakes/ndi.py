@@ -216,9 +216,9 @@ def _read_commands(read, write, device: FakeNDI, stop: threading.Event):
                 return
 
 
-def serve_tcp(device: FakeNDI, host: str, port: int, stop: threading.Event, unplugged: threading.Event):
-    """Serve one client at a time over TCP; closing the connection is 'unplugging'."""
-    for connection in accept_connections(host, port, stop):
+def serve_tcp(device: FakeNDI, server, stop: threading.Event, unplugged: threading.Event):
+    """Serve one client at a time over TCP (a listening socket); closing the connection is 'unplugging'."""
+    for connection in accept_connections(server, stop):
         connection.settimeout(0.2)
 
         def read():

@@ -6,10 +6,15 @@ import socket
 import threading
 
 
-def accept_connections(host: str, port: int, stop: threading.Event):
-    """Yield each client connection to ``host:port`` until ``stop`` is set (polling every 0.2 s)."""
+def listen(host: str, port: int) -> socket.socket:
+    """A listening socket, bound now (so a busy port fails before the world reports READY)."""
     server = socket.create_server((host, port))
     server.settimeout(0.2)
+    return server
+
+
+def accept_connections(server: socket.socket, stop: threading.Event):
+    """Yield each client connection of a listening socket until ``stop`` is set."""
     try:
         while not stop.is_set():
             try:

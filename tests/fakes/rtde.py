@@ -20,9 +20,9 @@ import time
 
 import numpy as np
 try:  # imported as part of the tests package, or as a module of the world process
-    from .net import accept_connections
+    from .net import accept_connections, listen
 except ImportError:
-    from net import accept_connections
+    from net import accept_connections, listen
 
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 
@@ -348,8 +348,8 @@ def serve_script_connection(controller: FakeController, connection, stop) -> Non
     connection.close()
 
 
-def serve(host: str, port: int, handler, controller: FakeController, stop: threading.Event) -> None:
-    for connection in accept_connections(host, port, stop):
+def serve(server, handler, controller: FakeController, stop: threading.Event) -> None:
+    for connection in accept_connections(server, stop):
         threading.Thread(target=handler, args=(controller, connection, stop), daemon=True).start()
 
 
@@ -357,7 +357,8 @@ def start_controller(fake_world, host: str, stop: threading.Event, log=None) -> 
     controller = FakeController(fake_world, log)
     for port, handler in ((RTDE_PORT, serve_rtde_connection), (DASHBOARD_PORT, serve_dashboard_connection),
                           (SCRIPT_PORT, serve_script_connection)):
-        threading.Thread(target=serve, args=(host, port, handler, controller, stop), daemon=True).start()
+        server = listen(host, port)  # bound here: a busy port is an error before READY
+        threading.Thread(target=serve, args=(server, handler, controller, stop), daemon=True).start()
     return controller
 
 

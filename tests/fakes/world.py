@@ -34,7 +34,7 @@ from spacecal.sim.scenario import load_scenario  # noqa: E402
 from spacecal.sim.world import build_world  # noqa: E402
 
 import ndi  # noqa: E402
-from net import accept_connections  # noqa: E402
+from net import accept_connections, listen  # noqa: E402
 import rtde  # noqa: E402
 
 
@@ -79,8 +79,8 @@ def free_port(host: str) -> int:
         return probe.getsockname()[1]
 
 
-def serve_control(fake: FakeWorld, host: str, port: int, stop: threading.Event) -> None:
-    for connection in accept_connections(host, port, stop):
+def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
+    for connection in accept_connections(server, stop):
         with connection, connection.makefile("rw") as stream:
             for line in stream:
                 words = line.split()
@@ -156,7 +156,8 @@ def main() -> None:
     args = parser.parse_args()
     fake = FakeWorld(args.scenario)
     stop = threading.Event()
-    control_port = free_port(args.host)
+    control_server = listen(args.host, 0)
+    control_port = control_server.getsockname()[1]
     igtl_port = args.igtl_port or free_port("127.0.0.1")
     import pyigtl
 
@@ -167,12 +168,13 @@ def main() -> None:
     log = sys.stderr if args.ndi_log else None
     ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
     ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
-    ndi_port = free_port(args.host)
+    ndi_server = listen(args.host, 0)
+    ndi_port = ndi_server.getsockname()[1]
     pty_master, pty_path = ndi.open_pty()
     threads = [
-        threading.Thread(target=serve_control, args=(fake, args.host, control_port, stop), daemon=True),
+        threading.Thread(target=serve_control, args=(fake, control_server, stop), daemon=True),
         threading.Thread(target=stream_igtl, args=(fake, igtl_server, stop), daemon=True),
-        threading.Thread(target=ndi.serve_tcp, args=(ndi_tcp, args.host, ndi_port, stop, unplugged), daemon=True),
+        threading.Thread(target=ndi.serve_tcp, args=(ndi_tcp, ndi_server, stop, unplugged), daemon=True),
         threading.Thread(target=ndi.serve_pty, args=(ndi_serial, pty_master, stop, unplugged), daemon=True),
     ]
     for thread in threads:
