@@ -190,3 +190,15 @@ def test_report_command(recording_file, tmp_path, capsys):
     code, out, _ = run(capsys, "report", str(calibration), "-o", str(tmp_path / "r.html"), "--png-dir", str(tmp_path))
     assert code == 0 and "Sweeps and fits" in out and "Uncertainty" in out
     assert (tmp_path / "r.html").stat().st_size > 3_000_000 and (tmp_path / "residuals.png").is_file()
+
+
+def test_raw_streams_from_the_cli(tmp_path, capsys):
+    code, out, _ = run(capsys, "simulate", "--scenario", "paper-white", "--raw", "--clock-offset-ms", "30",
+                       "-o", str(tmp_path / "rec"))
+    assert code == 0 and "rec.robot.csv" in out
+    code, out, _ = run(capsys, "calibrate", str(tmp_path / "rec.robot.csv"), "--tracker-stream",
+                       str(tmp_path / "rec.tracker.csv"), "--method", "ml", "-o", str(tmp_path / "cal.json"))
+    assert code == 0 and "clock offset estimated: robot clock 30.0" in out
+    code, _, err = run(capsys, "calibrate", str(tmp_path / "rec.robot.csv"), "--tracker-stream",
+                       str(tmp_path / "rec.tracker.csv"), "--time-offset-ms", "soon", "-o", str(tmp_path / "c.json"))
+    assert code == 1 and "--time-offset-ms takes a number" in err

@@ -30,6 +30,16 @@ def _cmd_simulate(args) -> None:
     scenario = load_scenario(args.scenario)
     if args.seed is not None:
         scenario = dataclasses.replace(scenario, seed=args.seed)
+    if args.raw:
+        from .io.raw_streams import write_raw_recording
+        from .sim.recording import simulate_raw
+
+        raw, _ = simulate_raw(scenario, args.clock_offset_ms / 1000.0)
+        stem = str(args.output)[:-4] if str(args.output).endswith(".csv") else str(args.output)
+        robot_path, tracker_path = write_raw_recording(raw, stem)
+        print(f"wrote {robot_path} ({len(raw.robot_time_s)} robot states) and {tracker_path} "
+              f"({len(raw.tracker_time_s)} tracker frames); robot clock {args.clock_offset_ms} ms ahead")
+        return
     simulation = simulate(scenario)
     path = write_recording(simulation.recording, args.output)
     rec = simulation.recording
@@ -62,7 +72,24 @@ def _cmd_calibrate(args) -> None:
     from .io.recording_csv import read_recording
     from .io.results_json import write_calibration
 
-    recording = read_recording(args.recording)
+    offset_note = None
+    if args.tracker_stream:
+        from .estimators.time_offset import estimate_time_offset, pair_streams
+        from .io.raw_streams import read_raw_recording
+
+        raw = read_raw_recording(args.recording, args.tracker_stream)
+        if args.time_offset_ms == "estimate":
+            offset = estimate_time_offset(raw).offset_s
+            offset_note = f"clock offset estimated: robot clock {offset * 1000:.2f} ms ahead of the tracker's"
+        else:
+            try:
+                offset = float(args.time_offset_ms) / 1000.0
+            except ValueError:
+                raise InvalidInputError("--time-offset-ms takes a number or 'estimate'") from None
+            offset_note = f"clock offset given: {offset * 1000:.2f} ms"
+        recording = pair_streams(raw, offset)
+    else:
+        recording = read_recording(args.recording)
     options = {}
     if args.target:
         options["targets_in_base"] = _parse_points(args.target, "--target")
@@ -72,6 +99,9 @@ def _cmd_calibrate(args) -> None:
         options["sigma_mm"] = args.sigma_mm
     result = calibrate(recording, args.method, **options)
     result.source = {"recording": str(Path(args.recording).resolve())}
+    if offset_note:
+        result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
+        print(offset_note)
     path = write_calibration(result, args.output)
     counts = result.sample_counts
     print(f"wrote {path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
@@ -522,12 +552,17 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("simulate", help="simulate the paper's calibration run -> recording CSV")
     p.add_argument("--scenario", help="scenario JSON file or preset (paper-realistic, paper-white)")
     p.add_argument("--seed", type=int, help="override the scenario's seed")
-    p.add_argument("-o", "--output", required=True, help="recording CSV to write")
+    p.add_argument("--raw", action="store_true", help="write the two raw streams (STEM.robot.csv, STEM.tracker.csv)")
+    p.add_argument("--clock-offset-ms", type=float, default=0.0, help="with --raw: robot clock ahead of the tracker's")
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write (with --raw: the stem)")
     p.set_defaults(run=_cmd_simulate)
 
     p = commands.add_parser("calibrate", help="estimate tracker_from_base from a recording")
-    p.add_argument("recording", help="recording CSV")
+    p.add_argument("recording", help="recording CSV (or, with --tracker-stream, the robot stream)")
     p.add_argument("--method", default="paper", help=f"estimator: {', '.join(sorted(METHODS))} (default paper)")
+    p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
+    p.add_argument("--time-offset-ms", default="estimate",
+                   help="with --tracker-stream: robot clock minus tracker clock, or 'estimate' (default)")
     p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
     p.add_argument("--target", action="append", metavar="X,Y,Z",
                    help="point in the base frame (mm) to predict the TRE at (ml, robust); repeatable")

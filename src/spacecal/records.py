@@ -109,3 +109,32 @@ class CalibrationResult:
     covariance: dict | None = None
     predicted_tre_mm: dict | None = None
     schema_version: int = CALIBRATION_SCHEMA_VERSION
+
+
+@dataclass
+class RawRecording:
+    """The two raw streams of an acquisition, each on its own clock.
+
+    Attributes
+    ----------
+    robot_time_s : numpy.ndarray, shape (R,)
+        Controller timestamps (its clock), increasing.
+    robot_segment : numpy.ndarray of str, shape (R,)
+    joints_rad : numpy.ndarray, shape (R, 6)
+    base_from_tcp_stack : numpy.ndarray, shape (R, 4, 4)
+    tracker_time_s : numpy.ndarray, shape (T,)
+        Tracker timestamps (its clock), increasing.
+    tracker_from_marker_stack : numpy.ndarray, shape (T, 4, 4)
+        NaN where the marker was not seen.
+    marker_rms_mm : numpy.ndarray, shape (T,)
+    metadata : dict
+    """
+
+    robot_time_s: np.ndarray
+    robot_segment: np.ndarray
+    joints_rad: np.ndarray
+    base_from_tcp_stack: np.ndarray
+    tracker_time_s: np.ndarray
+    tracker_from_marker_stack: np.ndarray
+    marker_rms_mm: np.ndarray
+    metadata: dict = field(default_factory=dict)

@@ -8,6 +8,7 @@ from typing import Callable
 from ..errors import InvalidInputError, UnknownMethodError
 from ..records import CalibrationResult, Recording
 from .closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS, hand_eye_method, robot_world_method
+from .kinematic import calibrate_kinematic
 from .likelihood import calibrate_ml, calibrate_robust, report_uncertainty, variance_factor_of
 from .observations import build_observations
 from .uncertainty import RESAMPLES, bootstrap_covariance
@@ -18,6 +19,7 @@ METHODS: dict[str, Callable[..., CalibrationResult]] = {
     "paper": calibrate_paper,
     "ml": calibrate_ml,
     "robust": calibrate_robust,
+    "kinematic": calibrate_kinematic,
     **{name: robot_world_method(name) for name in ROBOT_WORLD_SOLVERS},
     **{name: hand_eye_method(name) for name in HAND_EYE_SOLVERS},
 }

@@ -174,3 +174,51 @@ def simulate(scenario: Scenario) -> Simulation:
     recording, outlier_kind = measure_trajectory(world, trajectory)
     recording.metadata["plan"] = plan.summary()
     return Simulation(world, plan, recording, outlier_kind, trajectory)
+
+
+def simulate_raw(scenario: Scenario, clock_offset_s: float = 0.0):
+    """The paper's sweeps recorded as two raw streams on offset clocks.
+
+    The robot stream has the controller's states at its rate (125 Hz for a UR10), stamped on
+    a clock that runs ``clock_offset_s`` ahead of the tracker's; the tracker stream has its
+    frames at its rate (20 Hz), stamped on its own clock.
+
+    Returns
+    -------
+    RawRecording, World
+    """
+    from ..records import RawRecording
+
+    world = build_world(scenario)
+    plan = plan_for_world(world)
+    robot_times, robot_labels, robot_joints = [], [], []
+    tracker_times, tracker_joints = [], []
+    clock, q = 0.0, plan.home_joints_rad
+    tick = 1.0 / world.nominal_model.controller_hz
+    frame = 1.0 / world.tracker.rate_hz
+    for move in plan.moves:
+        if move.sample_period_s > 0:
+            # both devices sample on their own grids of the common (true) time
+            t_robot = np.arange(np.ceil(clock / tick) * tick, clock + move.duration_s, tick) - clock
+            t_frames = np.arange(np.ceil(clock / frame) * frame, clock + move.duration_s, frame) - clock
+            q_robot = track_path(world.nominal_model, move.poses_at(t_robot), q)
+            q_frames = track_path(world.nominal_model, move.poses_at(t_frames), q)
+            robot_times.append(clock + t_robot)
+            robot_labels.extend([move.label] * len(t_robot))
+            robot_joints.append(q_robot)
+            tracker_times.append(clock + t_frames)
+            tracker_joints.append(q_frames)
+            q = q_robot[-1]
+        q = track_path(world.nominal_model, move.end[None], q)[0]
+        clock += move.duration_s
+    robot_joints = np.concatenate(robot_joints)
+    tracker_joints = np.concatenate(tracker_joints)
+    true_tcp = world.true_base_from_tcp(tracker_joints)
+    frames = world.track_marker(world.tracker_from_base @ true_tcp @ world.tcp_from_marker)
+    raw = RawRecording(
+        robot_time_s=np.concatenate(robot_times) + clock_offset_s, robot_segment=np.array(robot_labels),
+        joints_rad=robot_joints, base_from_tcp_stack=forward_kinematics(world.nominal_model, robot_joints),
+        tracker_time_s=np.concatenate(tracker_times), tracker_from_marker_stack=frames.tracker_from_marker,
+        marker_rms_mm=frames.rms_mm, metadata={**recording_metadata(world), "simulated_clock_offset_s": clock_offset_s},
+    )
+    return raw, world

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..geometry.transforms import axis_angle_transform, make_transform
 from ..models.kinematics import forward_kinematics
+from ..estimators.kinematic import calibration_robot_model
 from ..records import CalibrationResult
 from ..workflows.verification import VerificationResult, run_verification
 from .devices import SimulatedLaserTracker, SimulatedRobot
@@ -53,4 +54,6 @@ def verify_in_simulation(calibration: CalibrationResult, scenario: Scenario,
     targets = verification_targets(world, count, np.random.default_rng([scenario.seed, 2, seed]))
     robot = SimulatedRobot(world)
     laser = SimulatedLaserTracker(world, robot)
-    return run_verification(calibration, robot, laser, world.nominal_model, targets, world.home_joints_rad)
+    # IK with the identified kinematic model when the calibration carries one
+    model = calibration_robot_model(calibration, world.nominal_model)
+    return run_verification(calibration, robot, laser, model, targets, world.home_joints_rad)

@@ -1,0 +1,172 @@
+"""Robot kinematic identification jointly with the calibration (registry method ``kinematic``).
+
+The robot's absolute accuracy is limited by how far its true DH parameters differ from the
+nominal model. With the tracker as the measuring instrument, the chain
+
+    sphere_ik_in_tracker = tracker_from_base @ FK(q_i; dh + delta) @ tcp_from_marker @ s_k
+
+is fitted for the 12 pose parameters and corrections ``delta`` to the 24 DH parameters
+(a, d, alpha, theta offset of each joint). Many corrections cannot be told apart from the
+two unknown transforms or from each other (e.g. the first joint's d and theta offset move the
+base, the last joint's move the tool); others are weakly determined by a given motion. So:
+
+1. The DH columns of the Jacobian are scaled (angles by a 1000 mm lever) and projected onto the
+   complement of the 12 pose columns; a column-pivoted QR picks the corrections that add
+   independent information; those with a diagonal below ``rank_tolerance`` of the largest are
+   *unidentifiable* and stay at zero.
+2. The selected corrections and the pose are refined by Gauss–Newton with a zero-mean
+   Gaussian prior on the corrections (``prior_length_sd_mm``, ``prior_angle_sd_rad``).
+
+The result holds the corrected model (used by IK in verification and planning), the
+identified corrections with standard deviations, the rank and the condition number.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.linalg import qr
+
+from ..errors import DegenerateDataError, InvalidInputError
+
+from ..models.kinematics import RobotModel, forward_kinematics, ur_model
+from ..records import CalibrationResult, Recording
+from .likelihood import calibrate_ml, report_uncertainty, variance_factor_of
+from .ml import apply_step, jacobian as pose_jacobian
+from .observations import build_observations
+
+DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
+DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]
+ANGLE_LEVER_MM = 1000.0
+
+
+def robot_model_of(recording: Recording) -> RobotModel:
+    """The nominal robot model named in the recording's metadata (with its TCP)."""
+    robot = recording.metadata.get("robot", {})
+    if "model" not in robot:
+        raise InvalidInputError("kinematic identification needs the robot model in the recording metadata")
+    return ur_model(robot["model"], np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
+
+
+def model_with_corrections(model: RobotModel, delta) -> RobotModel:
+    """``model`` with DH corrections (24,) in the order of :data:`DH_NAMES`."""
+    delta = np.asarray(delta, dtype=float).reshape(4, 6)
+    return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
+
+
+def model_from_dict(table: dict, base: RobotModel) -> RobotModel:
+    """A corrected model stored in a result file (``dh_table`` layout)."""
+    return replace(base, **{field: np.asarray(table[field], dtype=float) for field in DH_FIELDS})
+
+
+def calibration_robot_model(calibration: CalibrationResult, nominal: RobotModel) -> RobotModel:
+    """The model to solve IK with: the identified one if the calibration has it, else ``nominal``."""
+    table = calibration.diagnostics.get("kinematic_model")
+    return nominal if table is None else model_from_dict(table, nominal)
+
+
+def _predict(recording_rows, model, tracker_from_base, tcp_from_marker, spheres, joints):
+    chain = tracker_from_base @ forward_kinematics(model, joints) @ tcp_from_marker
+    return np.einsum("nij,kj->nki", chain[:, :3, :3], spheres) + chain[:, None, :3, 3]
+
+
+def _dh_jacobian(model, tracker_from_base, tcp_from_marker, spheres, joints, step=1e-6) -> np.ndarray:
+    """d(predicted spheres)/d(DH corrections), (N, K, 3, 24), by central differences."""
+    columns = []
+    for index in range(24):
+        delta = np.zeros(24)
+        delta[index] = step
+        plus = _predict(None, model_with_corrections(model, delta), tracker_from_base, tcp_from_marker, spheres, joints)
+        minus = _predict(None, model_with_corrections(model, -delta), tracker_from_base, tcp_from_marker, spheres,
+                         joints)
+        columns.append((plus - minus) / (2 * step))
+    return np.stack(columns, axis=-1)
+
+
+def identifiable_corrections(dh_jacobian, pose_jacobian_, rank_tolerance: float) -> tuple[np.ndarray, float]:
+    """Indices of the DH corrections the data determines beyond the pose, and their condition."""
+    scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
+    dh = dh_jacobian.reshape(-1, 24) / scale
+    pose = pose_jacobian_.reshape(-1, 12)
+    basis, _ = np.linalg.qr(pose)
+    projected = dh - basis @ (basis.T @ dh)
+    _, r, order = qr(projected, mode="economic", pivoting=True)
+    diagonal = np.abs(np.diag(r))
+    keep = diagonal > rank_tolerance * diagonal[0]
+    selected = np.sort(order[keep])
+    singular = np.linalg.svd(projected[:, selected], compute_uv=False)
+    return selected, float(singular[0] / singular[-1])
+
+
+def calibrate_kinematic(recording: Recording, sigma_mm: float | None = None, targets_in_base=None,
+                        prior_length_sd_mm: float = 1.0, prior_angle_sd_rad: float = 0.002,
+                        rank_tolerance: float = 0.02, iterations: int = 15) -> CalibrationResult:
+    """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``.
+
+    Parameters
+    ----------
+    recording : Recording
+        Needs joint angles and the robot model in its metadata.
+    prior_length_sd_mm, prior_angle_sd_rad : float
+        Prior s.d. of the corrections (the spread of real arms around their nominal model).
+    rank_tolerance : float
+        Relative size below which a projected, scaled correction counts as unidentifiable.
+    """
+    model = robot_model_of(recording)
+    start = calibrate_ml(recording, sigma_mm=sigma_mm)
+    obs = build_observations(recording, sigma_mm=sigma_mm)
+    joints = recording.joints_rad[obs.rows]
+    if not np.all(np.isfinite(joints)):
+        raise DegenerateDataError("kinematic identification needs the joint angles of every used frame")
+    spheres = obs.spheres_in_marker
+    t_cur, x_cur = start.tracker_from_base, start.tcp_from_marker
+    delta = np.zeros(24)
+    prior_sd = np.array([prior_length_sd_mm] * 12 + [prior_angle_sd_rad] * 12)
+
+    corrected = model_with_corrections(model, delta)
+    obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
+    j_dh = _dh_jacobian(corrected, t_cur, x_cur, spheres, joints)
+    selected, condition = identifiable_corrections(j_dh, pose_jacobian(obs_model, t_cur, x_cur), rank_tolerance)
+    if len(selected) == 0:
+        raise DegenerateDataError("this motion identifies no kinematic correction: use more varied joint configurations")
+
+    for _ in range(iterations):
+        corrected = model_with_corrections(model, delta)
+        obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
+        predicted = _predict(None, corrected, t_cur, x_cur, spheres, joints)
+        residual = (predicted - obs.spheres_in_tracker).reshape(-1) / obs.sigma_mm
+        j_pose = pose_jacobian(obs_model, t_cur, x_cur).reshape(-1, 12) / obs.sigma_mm
+        j_dh = _dh_jacobian(corrected, t_cur, x_cur, spheres, joints).reshape(-1, 24)[:, selected] / obs.sigma_mm
+        jac = np.hstack([j_pose, j_dh])
+        prior_rows = np.zeros((len(selected), 12 + len(selected)))
+        prior_rows[:, 12:] = np.diag(1.0 / prior_sd[selected])
+        jac_all = np.vstack([jac, prior_rows])
+        res_all = np.concatenate([residual, delta[selected] / prior_sd[selected]])
+        step, *_ = np.linalg.lstsq(jac_all, -res_all, rcond=None)
+        t_cur, x_cur = apply_step(t_cur, x_cur, step[:12])
+        delta[selected] += step[12:]
+        if np.max(np.abs(step[:12])) < 1e-9 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-9:
+            break
+
+    corrected = model_with_corrections(model, delta)
+    obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
+    information = jac_all.T @ jac_all
+    variance_factor = variance_factor_of(obs_model, t_cur, x_cur)
+    scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
+    covariance_all = np.linalg.inv(information) * scale
+    corrections = [{"parameter": DH_NAMES[i], "correction": float(delta[i]),
+                    "sd": float(np.sqrt(covariance_all[12 + k, 12 + k]))} for k, i in enumerate(selected)]
+    extra = {
+        "kinematic_model": {"name": model.name, **corrected.dh_table()},
+        "kinematic_identification": {
+            "identified": corrections,
+            "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(selected.tolist())],
+            "rank": int(len(selected)), "condition_number": condition,
+            "prior_sd": {"length_mm": prior_length_sd_mm, "angle_rad": prior_angle_sd_rad},
+        },
+    }
+    result = report_uncertainty("kinematic", recording, obs_model, t_cur, x_cur, covariance_all[:12, :12],
+                                variance_factor, targets_in_base, extra,
+                                covariance_note="pose block of the joint (pose + DH) covariance; mm, rad")
+    return result
