@@ -202,3 +202,12 @@ def test_raw_streams_from_the_cli(tmp_path, capsys):
     code, _, err = run(capsys, "calibrate", str(tmp_path / "rec.robot.csv"), "--tracker-stream",
                        str(tmp_path / "rec.tracker.csv"), "--time-offset-ms", "soon", "-o", str(tmp_path / "c.json"))
     assert code == 1 and "--time-offset-ms takes a number" in err
+
+
+def test_plan_command(tmp_path, capsys):
+    code, out, _ = run(capsys, "plan", "--budget", "20s", "-o", str(tmp_path / "plan.json"))
+    assert code == 0 and "paper's sweeps" in out
+    data = json.loads((tmp_path / "plan.json").read_text())
+    assert data["motion_time_s"] <= 20.0 and len(data["station_joints_rad"]) >= 3
+    code, _, err = run(capsys, "plan", "--budget", "-5s")
+    assert code == 1 and "must be positive" in err

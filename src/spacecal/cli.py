@@ -534,6 +534,46 @@ def _cmd_report(args) -> None:
         print("note: no recording found (pass --recording) - sweeps and residuals are not shown")
 
 
+def _parse_seconds(text: str) -> float:
+    value = text[:-1] if text.endswith("s") else text
+    try:
+        seconds = float(value)
+    except ValueError:
+        raise InvalidInputError(f"--budget takes seconds, e.g. 30s; got {text!r}") from None
+    if seconds <= 0:
+        raise InvalidInputError("--budget must be positive")
+    return seconds
+
+
+def _cmd_plan(args) -> None:
+    from .io.results_json import write_json
+    from .planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
+    from .planning.visibility import VisibilityModel
+    from .sim.recording import plan_for_world
+    from .sim.scenario import load_scenario
+    from .sim.world import build_world
+
+    world = build_world(load_scenario(args.scenario))
+    visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
+    settings = PlannerSettings(budget_s=_parse_seconds(args.budget), frames_per_station=args.frames_per_station,
+                               sphere_sigma_mm=world.scenario.white_noise_rms_mm / np.sqrt(3) or 0.1)
+    planned = plan_for_site(world.nominal_model, world.home_joints_rad, visibility,
+                            np.random.default_rng([world.scenario.seed, 7]), settings)
+    paper = plan_for_world(world)
+    paper_error = paper_sweep_site_error(world.nominal_model, paper, visibility, settings)
+    print(f"planned: {len(planned.station_joints_rad)} stations, {planned.motion_time_s:.1f} s of motion, "
+          f"predicted tip error at the site {planned.predicted_error_mm:.3f} mm")
+    print(f"paper's sweeps: {paper.motion_time_s:.1f} s of motion, predicted tip error at the site {paper_error:.3f} mm")
+    print("(predicted for a joint fit of the calibration and the robot's DH corrections: spacecal calibrate --method kinematic)")
+    if args.output:
+        data = {"schema": "spacecal.plan", "schema_version": 1, "budget_s": settings.budget_s,
+                "motion_time_s": planned.motion_time_s, "predicted_error_mm": planned.predicted_error_mm,
+                "paper_sweep": {"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
+                "home_joints_rad": world.home_joints_rad.tolist(),
+                "station_joints_rad": planned.station_joints_rad.tolist(), "moves": planned.plan.summary()["moves"]}
+        print(f"wrote {write_json(data, args.output)}")
+
+
 def _cmd_scenario(args) -> None:
     from .sim.scenario import load_scenario
 
@@ -669,6 +709,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--png-dir", help="also write PNG figures here")
     p.add_argument("-o", "--output", required=True, help="HTML file to write")
     p.set_defaults(run=_cmd_report)
+
+    p = commands.add_parser("plan", help="plan a calibration motion for the smallest predicted error at the site")
+    p.add_argument("--budget", default="30s", help="motion time budget, e.g. 30s (default)")
+    p.add_argument("--scenario", help="the (simulated) set-up to plan for (default paper-realistic)")
+    p.add_argument("--frames-per-station", type=int, default=5, help="tracker frames held at each station")
+    p.add_argument("-o", "--output", help="plan JSON to write")
+    p.set_defaults(run=_cmd_plan)
 
     p = commands.add_parser("scenario", help="print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default="paper-realistic")

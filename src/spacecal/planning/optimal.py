@@ -1,0 +1,242 @@
+"""Calibration motions planned for the error they leave at the surgical site.
+
+Candidates are static stations drawn around the site (position in a cube, orientation tilted
+from home), each feasible: reachable within joint limits and with the marker predicted
+visible. The predicted error of a set of stations is the expected error of the needle tip
+at configurations around the site after a joint maximum-likelihood fit of the calibration
+*and* the robot's DH corrections (with their prior): from the Fisher information
+
+    I = sum over stations, frames, spheres of J^T J / sigma^2 + prior^-1,   Sigma = I^-1,
+
+with J the derivative of the predicted sphere positions with respect to the 12 pose and 24 DH
+parameters, and the tip error at a site configuration g^T Sigma g. Stations are added
+greedily by error reduction per second of motion (transit at the speed limits plus the hold
+for the frames) until the time budget is spent; the final plan is timed exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import DegenerateDataError, UnreachableError
+from ..geometry.rotations import rotation_angle
+from ..geometry.transforms import axis_angle_transform, make_transform
+from ..models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
+from .motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
+from .visibility import VisibilityModel
+
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Budget, candidates and noise model of :func:`plan_for_site`.
+
+    Attributes
+    ----------
+    budget_s : float
+        Largest total motion time (transit plus holds).
+    candidates : int
+    cube_mm, tilt_deg : float
+        Where candidate stations are drawn.
+    frames_per_station : int
+    frame_period_s : float
+    sphere_sigma_mm : float
+        Per-axis sphere noise of the tracker.
+    prior_length_sd_mm, prior_angle_sd_rad : float
+        Prior of the DH corrections (as in the kinematic estimator).
+    limits : MotionLimits
+    """
+
+    budget_s: float = 30.0
+    candidates: int = 120
+    cube_mm: float = 250.0
+    tilt_deg: float = 45.0
+    frames_per_station: int = 5
+    frame_period_s: float = 0.05
+    sphere_sigma_mm: float = 0.15
+    prior_length_sd_mm: float = 1.0
+    prior_angle_sd_rad: float = 0.002
+    limits: MotionLimits = MotionLimits()
+
+
+def _dh_model(model: RobotModel, delta) -> RobotModel:
+    delta = np.asarray(delta, dtype=float).reshape(4, 6)
+    return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
+
+
+def _points(model, joints, tracker_from_base, tcp_from_marker, spheres):
+    chain = tracker_from_base @ forward_kinematics(model, joints) @ tcp_from_marker
+    return np.einsum("nij,kj->nki", chain[:, :3, :3], spheres) + chain[:, None, :3, 3]
+
+
+def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, step=1e-6):
+    """d(points in tracker)/d(36 parameters) for configurations (N, 6): shape (N, K, 3, 36).
+
+    Parameters: 6 of tracker_from_base (translation, rotation vector; left), 6 of
+    tcp_from_marker (right), 24 DH corrections; central differences.
+    """
+    def perturbed(index, sign):
+        delta = np.zeros(36)
+        delta[index] = sign * step
+        t = make_transform(axis_angle_transform(delta[3:6], np.linalg.norm(delta[3:6]))[:3, :3]
+                           if np.any(delta[3:6]) else np.eye(3), delta[0:3]) @ tracker_from_base
+        x_rot = axis_angle_transform(delta[9:12], np.linalg.norm(delta[9:12]))[:3, :3] if np.any(delta[9:12]) \
+            else np.eye(3)
+        x = make_transform(tcp_from_marker[:3, :3] @ x_rot, tcp_from_marker[:3, 3] + delta[6:9])
+        return _points(_dh_model(model, delta[12:]), joints, t, x, points_in_marker)
+
+    return np.stack([(perturbed(i, 1) - perturbed(i, -1)) / (2 * step) for i in range(36)], axis=-1)
+
+
+@dataclass
+class SitePlan:
+    """A planned calibration motion and its predicted error."""
+
+    plan: MotionPlan
+    station_joints_rad: np.ndarray
+    predicted_error_mm: float
+    motion_time_s: float
+
+
+def predicted_site_error(information, site_gradients) -> float:
+    """RMS predicted tip error (mm) over site configurations for an information matrix (36, 36)."""
+    # scale to unit diagonal before inverting: the parameters span mm and rad over many decades
+    scale = 1.0 / np.sqrt(np.diag(information))
+    covariance = scale[:, None] * np.linalg.inv(information * np.outer(scale, scale)) * scale[None, :]
+    variances = np.einsum("mia,ab,mib->m", site_gradients, covariance, site_gradients)
+    return float(np.sqrt(np.mean(np.clip(variances, 0.0, None))))
+
+
+def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityModel, rng: np.random.Generator,
+                  settings: PlannerSettings | None = None) -> SitePlan:
+    """Choose stations that minimise the predicted tip error at the site within the time budget.
+
+    Raises
+    ------
+    DegenerateDataError
+        If too few feasible candidates exist or the budget buys fewer than three stations.
+    """
+    s = settings or PlannerSettings()
+    home_joints = np.asarray(home_joints_rad, dtype=float)
+    home = forward_kinematics(model, home_joints)
+    spheres = visibility.marker.spheres_in_marker
+    t_prior, x_prior = visibility.tracker_from_base, visibility.tcp_from_marker
+
+    poses, joints = [], []
+    for _ in range(s.candidates * 10):
+        if len(poses) >= s.candidates:
+            break
+        offset = rng.uniform(-0.5, 0.5, 3) * s.cube_mm
+        tilt = axis_angle_transform(rng.normal(size=3), np.radians(rng.uniform(0, s.tilt_deg)))
+        pose = make_transform(home[:3, :3] @ tilt[:3, :3], home[:3, 3] + offset)
+        if not visibility.visible(pose[None])[0]:
+            continue
+        try:
+            q = inverse_kinematics(model, pose, home_joints)
+        except UnreachableError:
+            continue
+        poses.append(pose)
+        joints.append(q)
+    if len(poses) < 6:
+        raise DegenerateDataError(f"only {len(poses)} feasible stations around the site; widen the cube or tilt")
+    poses, joints = np.array(poses), np.array(joints)
+
+    # information per candidate (frames at a station repeat the same geometry)
+    jac = parameter_jacobian(model, joints, t_prior, x_prior, spheres).reshape(len(joints), -1, 36)
+    info_each = np.einsum("nka,nkb->nab", jac, jac) * s.frames_per_station / s.sphere_sigma_mm**2
+    prior_sd = np.array([1e4] * 12 + [s.prior_length_sd_mm] * 12 + [s.prior_angle_sd_rad] * 12)
+    # site: the needle tip at home and at tilted configurations around it
+    site_joints = np.array([home_joints] + [inverse_kinematics(model, home @ axis_angle_transform(axis, np.radians(15)),
+                                                               home_joints)
+                                            for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])])
+    site_gradients = parameter_jacobian(model, site_joints, t_prior, np.eye(4), np.zeros((1, 3)))[:, 0]
+
+    hold = s.frames_per_station * s.frame_period_s
+
+    def transit_estimate(q_from, q_to, pose_from, pose_to):
+        distance = float(np.linalg.norm(pose_to[:3, 3] - pose_from[:3, 3]))
+        angle = float(rotation_angle(pose_to[:3, :3] @ pose_from[:3, :3].T))
+        joint = float(np.max(np.abs(q_to - q_from)))
+        return max(trapezoid_duration(distance, s.limits.linear_speed_mm_s, s.limits.linear_accel_mm_s2)[0],
+                   trapezoid_duration(angle, s.limits.angular_speed_rad_s, s.limits.angular_accel_rad_s2)[0],
+                   joint / s.limits.joint_speed_rad_s)
+
+    information = np.diag(1.0 / prior_sd**2)
+    chosen: list[int] = []
+    q_last, pose_last, elapsed = home_joints, home, 0.0
+    current = predicted_site_error(information, site_gradients)
+    while True:
+        best, best_score, best_time = None, 0.0, 0.0
+        for index in range(len(joints)):
+            if index in chosen:
+                continue
+            extra = transit_estimate(q_last, joints[index], pose_last, poses[index]) + hold
+            if elapsed + extra + transit_estimate(joints[index], home_joints, poses[index], home) > s.budget_s:
+                continue
+            error = predicted_site_error(information + info_each[index], site_gradients)
+            score = (current - error) / extra
+            if score > best_score:
+                best, best_score, best_time = index, score, extra
+        if best is None:
+            break
+        chosen.append(best)
+        information = information + info_each[best]
+        current = predicted_site_error(information, site_gradients)
+        q_last, pose_last, elapsed = joints[best], poses[best], elapsed + best_time
+    if len(chosen) < 3:
+        raise DegenerateDataError(f"a {s.budget_s:.0f} s budget buys only {len(chosen)} stations; raise it")
+
+    # time the chosen tour exactly; drop stations from the end until it fits the budget
+    while True:
+        plan = _timed_tour(model, home_joints, home, poses[chosen], s, hold)
+        if plan.motion_time_s <= s.budget_s or len(chosen) <= 3:
+            break
+        chosen.pop()
+    information = np.diag(1.0 / prior_sd**2) + info_each[chosen].sum(axis=0)
+    return SitePlan(plan, joints[chosen], predicted_site_error(information, site_gradients), plan.motion_time_s)
+
+
+def _timed_tour(model, home_joints, home, station_poses, s: PlannerSettings, hold: float) -> MotionPlan:
+    moves: list[TimedMove] = []
+    q, pose = home_joints, home
+    for station in station_poses:
+        # the tracker samples during transits too (the paper samples while moving)
+        move, q_end = time_move(model, "transit", pose, station, q, s.limits, s.frame_period_s)
+        moves.append(move)
+        moves.append(TimedMove("station", station, station, hold, 0.0, s.frame_period_s))
+        q, pose = q_end, station
+    move, _ = time_move(model, "transit", pose, home, q, s.limits, 0.0)
+    moves.append(move)
+    return MotionPlan(home_joints, home, moves, {"stations": len(station_poses)}, [])
+
+
+def paper_sweep_site_error(model: RobotModel, plan: MotionPlan, visibility: VisibilityModel,
+                           settings: PlannerSettings | None = None) -> float:
+    """The same predicted site error for an existing plan (e.g. the paper's sweeps), for comparison."""
+    s = settings or PlannerSettings()
+    from .motion import track_path
+
+    joints, q = [], plan.home_joints_rad
+    for move in plan.moves:
+        if move.sample_period_s > 0:
+            t = np.arange(0.0, move.duration_s, move.sample_period_s)
+            path = track_path(model, move.poses_at(t), q)
+            joints.append(path)
+            q = path[-1]
+        q = track_path(model, move.end[None], q)[0]
+    joints = np.concatenate(joints)
+    seen = visibility.visible(forward_kinematics(model, joints))
+    jac = parameter_jacobian(model, joints[seen], visibility.tracker_from_base, visibility.tcp_from_marker,
+                             visibility.marker.spheres_in_marker).reshape(int(seen.sum()), -1, 36)
+    information = np.einsum("nka,nkb->ab", jac, jac) / s.sphere_sigma_mm**2
+    prior_sd = np.array([1e4] * 12 + [s.prior_length_sd_mm] * 12 + [s.prior_angle_sd_rad] * 12)
+    home = plan.home_joints_rad
+    home_pose = forward_kinematics(model, home)
+    site_joints = np.array([home] + [inverse_kinematics(model, home_pose @ axis_angle_transform(axis, np.radians(15)),
+                                                        home)
+                                     for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])])
+    site_gradients = parameter_jacobian(model, site_joints, visibility.tracker_from_base, np.eye(4),
+                                        np.zeros((1, 3)))[:, 0]
+    return predicted_site_error(information + np.diag(1.0 / prior_sd**2), site_gradients)
