@@ -209,5 +209,5 @@ def test_plan_command(tmp_path, capsys):
     assert code == 0 and "paper's sweeps" in out
     data = json.loads((tmp_path / "plan.json").read_text())
     assert data["motion_time_s"] <= 20.0 and len(data["station_joints_rad"]) >= 3
-    code, _, err = run(capsys, "plan", "--budget", "-5s")
+    code, _, err = run(capsys, "plan", "--budget=-5s")
     assert code == 1 and "must be positive" in err
