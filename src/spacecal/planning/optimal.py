@@ -46,6 +46,9 @@ class PlannerSettings:
         Per-axis sphere noise of the tracker.
     prior_length_sd_mm, prior_angle_sd_rad : float
         Prior of the DH corrections (as in the kinematic estimator).
+    pose_prior_mm, pose_prior_rad : float
+        How well the set-up is known before calibrating (it is, roughly: the planner itself
+        needs it to predict visibility); keeps the first greedy steps well conditioned.
     limits : MotionLimits
     """
 
@@ -58,6 +61,8 @@ class PlannerSettings:
     sphere_sigma_mm: float = 0.15
     prior_length_sd_mm: float = 1.0
     prior_angle_sd_rad: float = 0.002
+    pose_prior_mm: float = 50.0
+    pose_prior_rad: float = 0.05
     limits: MotionLimits = MotionLimits()
 
 
@@ -98,6 +103,12 @@ class SitePlan:
     station_joints_rad: np.ndarray
     predicted_error_mm: float
     motion_time_s: float
+
+
+def _prior_sd(s: PlannerSettings) -> np.ndarray:
+    """Prior s.d. of the 36 parameters: pose (translation, rotation, twice), DH lengths, DH angles."""
+    pose = [s.pose_prior_mm] * 3 + [s.pose_prior_rad] * 3
+    return np.array(pose * 2 + [s.prior_length_sd_mm] * 12 + [s.prior_angle_sd_rad] * 12)
 
 
 def predicted_site_error(information, site_gradients) -> float:
@@ -146,7 +157,7 @@ def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityMode
     # information per candidate (frames at a station repeat the same geometry)
     jac = parameter_jacobian(model, joints, t_prior, x_prior, spheres).reshape(len(joints), -1, 36)
     info_each = np.einsum("nka,nkb->nab", jac, jac) * s.frames_per_station / s.sphere_sigma_mm**2
-    prior_sd = np.array([1e4] * 12 + [s.prior_length_sd_mm] * 12 + [s.prior_angle_sd_rad] * 12)
+    prior_sd = _prior_sd(s)
     # site: the needle tip at home and at tilted configurations around it
     site_joints = np.array([home_joints] + [inverse_kinematics(model, home @ axis_angle_transform(axis, np.radians(15)),
                                                                home_joints)
@@ -231,7 +242,7 @@ def paper_sweep_site_error(model: RobotModel, plan: MotionPlan, visibility: Visi
     jac = parameter_jacobian(model, joints[seen], visibility.tracker_from_base, visibility.tcp_from_marker,
                              visibility.marker.spheres_in_marker).reshape(int(seen.sum()), -1, 36)
     information = np.einsum("nka,nkb->ab", jac, jac) / s.sphere_sigma_mm**2
-    prior_sd = np.array([1e4] * 12 + [s.prior_length_sd_mm] * 12 + [s.prior_angle_sd_rad] * 12)
+    prior_sd = _prior_sd(s)
     home = plan.home_joints_rad
     home_pose = forward_kinematics(model, home)
     site_joints = np.array([home] + [inverse_kinematics(model, home_pose @ axis_angle_transform(axis, np.radians(15)),
