@@ -25,6 +25,7 @@ from ..geometry.rotations import rotation_angle
 from ..geometry.transforms import axis_angle_transform, make_transform
 from ..models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
 from .motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
+from .stations import random_station
 from .visibility import VisibilityModel
 
 
@@ -139,9 +140,7 @@ def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityMode
     for _ in range(s.candidates * 10):
         if len(poses) >= s.candidates:
             break
-        offset = rng.uniform(-0.5, 0.5, 3) * s.cube_mm
-        tilt = axis_angle_transform(rng.normal(size=3), np.radians(rng.uniform(0, s.tilt_deg)))
-        pose = make_transform(home[:3, :3] @ tilt[:3, :3], home[:3, 3] + offset)
+        pose = random_station(home, rng, s.cube_mm, s.tilt_deg)
         if not visibility.visible(pose[None])[0]:
             continue
         try:

@@ -43,6 +43,14 @@ class StationSettings:
     limits: MotionLimits = field(default_factory=MotionLimits)
 
 
+def random_station(home_base_from_tcp, rng: np.random.Generator, cube_mm: float, tilt_deg: float) -> np.ndarray:
+    """A TCP pose (4, 4) in a cube of side ``cube_mm`` around home, tilted up to ``tilt_deg``
+    from the home orientation about a random axis."""
+    offset = rng.uniform(-0.5, 0.5, 3) * cube_mm
+    tilt = axis_angle_transform(rng.normal(size=3), np.radians(rng.uniform(0, tilt_deg)))
+    return make_transform(home_base_from_tcp[:3, :3] @ tilt[:3, :3], home_base_from_tcp[:3, 3] + offset)
+
+
 def plan_stations(model: RobotModel, home_joints_rad, settings: StationSettings,
                   visibility: VisibilityModel | None, rng: np.random.Generator,
                   max_attempts_per_station: int = 50) -> MotionPlan:
@@ -59,9 +67,7 @@ def plan_stations(model: RobotModel, home_joints_rad, settings: StationSettings,
     q, current = home_joints, home
     for index in range(settings.count):
         for _ in range(max_attempts_per_station):
-            offset = rng.uniform(-0.5, 0.5, 3) * settings.cube_mm
-            tilt = axis_angle_transform(rng.normal(size=3), np.radians(rng.uniform(0, settings.tilt_deg)))
-            station = make_transform(home[:3, :3] @ tilt[:3, :3], home[:3, 3] + offset)
+            station = random_station(home, rng, settings.cube_mm, settings.tilt_deg)
             if visibility is not None and not visibility.visible(station[None])[0]:
                 continue
             try:
