@@ -42,8 +42,28 @@ def acquire_command(world, kind, output, rom, rotation_deg="45", translation_mm=
             "--rotation-deg", rotation_deg, "--translation-mm", translation_mm, *extra]
 
 
+@pytest.fixture(scope="module")
+def paper_estimator_spread():
+    """The paper estimator's TRE / Cramér–Rao bound for this motion and noise: its 99.5th
+    percentile over 200 noise draws in simulation (same scenario, sweeps and speeds)."""
+    import dataclasses
+
+    from spacecal.estimators import calibrate
+    from spacecal.sim.monte_carlo import cramer_rao_tre_mm
+    from spacecal.sim.recording import simulate
+    from spacecal.sim.scenario import PRESETS
+    from spacecal.sim.truth import calibration_error
+
+    scenario = dataclasses.replace(PRESETS["paper-white"], rotation_deg=45.0, translation_mm=300.0)
+    simulation = simulate(scenario)
+    bound = cramer_rao_tre_mm(simulation)
+    ratios = [calibration_error(calibrate(simulation.remeasure(trial)[0], "paper", uncertainty=False),
+                                simulation.world)["tre_rms_mm"] / bound for trial in range(200)]
+    return float(np.percentile(ratios, 99.5))
+
+
 @pytest.mark.parametrize("kind", ["ndi", "igtl"])
-def test_acquire_and_calibrate_against_the_ground_truth(world, rom_file, tmp_path, kind):
+def test_acquire_and_calibrate_against_the_ground_truth(world, rom_file, tmp_path, kind, paper_estimator_spread):
     recording = tmp_path / "rec.csv"
     run = subprocess.run(acquire_command(world, kind, recording, rom_file), capture_output=True, text=True,
                          timeout=150)
@@ -61,9 +81,10 @@ def test_acquire_and_calibrate_against_the_ground_truth(world, rom_file, tmp_pat
     tre = float(np.sqrt(np.mean(errors**2)))
     # The bound the injected noise allows for exactly this recording (Cramér–Rao, at the truth).
     bound = tre_lower_bound(data, truth["tracker_from_base"], truth["tcp_from_marker"], SPHERE_SIGMA_MM)["cube_rms"]
-    print(f"{kind}: TRE {tre:.4f} mm, bound {bound:.4f} mm")
-    # The paper estimator is about 2x the bound in simulation; real-time pairing adds a little.
-    assert tre < 3.0 * bound
+    print(f"{kind}: TRE {tre:.4f} mm, bound {bound:.4f} mm, allowed {paper_estimator_spread:.2f} x bound")
+    # Through the real clients the error must stay within what the injected noise gives the
+    # paper estimator in simulation (its 99.5th percentile, about 5-6x the bound here).
+    assert tre < paper_estimator_spread * bound
 
 
 def start_fault_after(world, command, delay_s):

@@ -84,7 +84,7 @@ def test_robust_changes_nothing_on_clean_white_data(white_simulation):
 
 
 def test_options_a_method_does_not_take_are_refused(white_simulation):
-    with pytest.raises(InvalidInputError, match="does not take sigma_mm .methods that do: ml, robust"):
+    with pytest.raises(InvalidInputError, match="does not take sigma_mm .methods that do: kinematic, ml, robust"):
         calibrate(white_simulation.recording, "paper", sigma_mm=0.1)
 
 

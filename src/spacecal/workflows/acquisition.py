@@ -40,12 +40,17 @@ class AcquisitionSettings:
         Longest wait for a tracker frame before the tracker counts as lost.
     stale_robot_s : float
         Longest age of the robot state while moving before it counts as stale.
+    move_start_guard_s : float
+        Frames in the first part of each move (robot clock) are not recorded: a tracker that
+        delivers frames late (a streamed OpenIGTLink source) would otherwise label the last
+        frames of one move with the next move's segment.
     """
 
     linear_speed_mm_s: float = 100.0
     linear_accel_mm_s2: float = 400.0
     frame_timeout_s: float = 1.0
     stale_robot_s: float = STALE_ROBOT_S
+    move_start_guard_s: float = 0.1
 
 
 @dataclass
@@ -161,6 +166,7 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
             robot.move_linear(move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True)
             last_recorded = -np.inf
             robot_time, robot_time_seen_at, frames_since_robot_update = None, None, 0
+            move_started_at = None
             while True:
                 try:
                     frame = tracker.next_frame(settings.frame_timeout_s)
@@ -180,7 +186,10 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
                     if state.moving and frames_since_robot_update >= STALE_FRAMES and \
                             frame.time_s - robot_time_seen_at > settings.stale_robot_s:
                         fail(f"robot data stale: no new robot state for {frame.time_s - robot_time_seen_at:.2f} s")
-                if move.sample_period_s > 0 and frame.time_s - last_recorded >= move.sample_period_s - 1e-6:
+                if move_started_at is None:
+                    move_started_at = state.time_s
+                settled = state.time_s - move_started_at >= settings.move_start_guard_s
+                if settled and move.sample_period_s > 0 and frame.time_s - last_recorded >= move.sample_period_s - 1e-6:
                     seen = frame.status == FRAME_OK
                     writer.append(frame.time_s, move.label, state.joints_rad, state.base_from_tcp,
                                   frame.tracker_from_marker if seen else None, frame.rms_mm,
