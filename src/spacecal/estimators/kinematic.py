@@ -30,7 +30,14 @@ from scipy.linalg import qr
 
 from ..errors import DegenerateDataError, InvalidInputError
 
-from ..models.kinematics import RobotModel, forward_kinematics, ur_model
+from ..models.kinematics import (
+    RobotModel,
+    dh_point_jacobian,
+    forward_kinematics,
+    points_in_tracker,
+    ur_model,
+    with_dh_corrections,
+)
 from ..records import CalibrationResult, Recording
 from .likelihood import calibrate_ml, report_uncertainty, variance_factor_of
 from .ml import apply_step, jacobian as pose_jacobian
@@ -49,12 +56,6 @@ def robot_model_of(recording: Recording) -> RobotModel:
     return ur_model(robot["model"], np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
 
 
-def model_with_corrections(model: RobotModel, delta) -> RobotModel:
-    """``model`` with DH corrections (24,) in the order of :data:`DH_NAMES`."""
-    delta = np.asarray(delta, dtype=float).reshape(4, 6)
-    return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
-
-
 def model_from_dict(table: dict, base: RobotModel) -> RobotModel:
     """A corrected model stored in a result file (``dh_table`` layout)."""
     return replace(base, **{field: np.asarray(table[field], dtype=float) for field in DH_FIELDS})
@@ -64,24 +65,6 @@ def calibration_robot_model(calibration: CalibrationResult, nominal: RobotModel)
     """The model to solve IK with: the identified one if the calibration has it, else ``nominal``."""
     table = calibration.diagnostics.get("kinematic_model")
     return nominal if table is None else model_from_dict(table, nominal)
-
-
-def _predict(recording_rows, model, tracker_from_base, tcp_from_marker, spheres, joints):
-    chain = tracker_from_base @ forward_kinematics(model, joints) @ tcp_from_marker
-    return np.einsum("nij,kj->nki", chain[:, :3, :3], spheres) + chain[:, None, :3, 3]
-
-
-def _dh_jacobian(model, tracker_from_base, tcp_from_marker, spheres, joints, step=1e-6) -> np.ndarray:
-    """d(predicted spheres)/d(DH corrections), (N, K, 3, 24), by central differences."""
-    columns = []
-    for index in range(24):
-        delta = np.zeros(24)
-        delta[index] = step
-        plus = _predict(None, model_with_corrections(model, delta), tracker_from_base, tcp_from_marker, spheres, joints)
-        minus = _predict(None, model_with_corrections(model, -delta), tracker_from_base, tcp_from_marker, spheres,
-                         joints)
-        columns.append((plus - minus) / (2 * step))
-    return np.stack(columns, axis=-1)
 
 
 def identifiable_corrections(dh_jacobian, pose_jacobian_, rank_tolerance: float) -> tuple[np.ndarray, float]:
@@ -124,20 +107,20 @@ def calibrate_kinematic(recording: Recording, sigma_mm: float | None = None, tar
     delta = np.zeros(24)
     prior_sd = np.array([prior_length_sd_mm] * 12 + [prior_angle_sd_rad] * 12)
 
-    corrected = model_with_corrections(model, delta)
+    corrected = with_dh_corrections(model, delta)
     obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
-    j_dh = _dh_jacobian(corrected, t_cur, x_cur, spheres, joints)
+    j_dh = dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres)
     selected, condition = identifiable_corrections(j_dh, pose_jacobian(obs_model, t_cur, x_cur), rank_tolerance)
     if len(selected) == 0:
         raise DegenerateDataError("this motion identifies no kinematic correction: use more varied joint configurations")
 
     for _ in range(iterations):
-        corrected = model_with_corrections(model, delta)
+        corrected = with_dh_corrections(model, delta)
         obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
-        predicted = _predict(None, corrected, t_cur, x_cur, spheres, joints)
+        predicted = points_in_tracker(corrected, joints, t_cur, x_cur, spheres)
         residual = (predicted - obs.spheres_in_tracker).reshape(-1) / obs.sigma_mm
         j_pose = pose_jacobian(obs_model, t_cur, x_cur).reshape(-1, 12) / obs.sigma_mm
-        j_dh = _dh_jacobian(corrected, t_cur, x_cur, spheres, joints).reshape(-1, 24)[:, selected] / obs.sigma_mm
+        j_dh = dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres).reshape(-1, 24)[:, selected] / obs.sigma_mm
         jac = np.hstack([j_pose, j_dh])
         prior_rows = np.zeros((len(selected), 12 + len(selected)))
         prior_rows[:, 12:] = np.diag(1.0 / prior_sd[selected])
@@ -149,7 +132,7 @@ def calibrate_kinematic(recording: Recording, sigma_mm: float | None = None, tar
         if np.max(np.abs(step[:12])) < 1e-9 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-9:
             break
 
-    corrected = model_with_corrections(model, delta)
+    corrected = with_dh_corrections(model, delta)
     obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
     information = jac_all.T @ jac_all
     variance_factor = variance_factor_of(obs_model, t_cur, x_cur)

@@ -320,3 +320,33 @@ def within_joint_limits(model: RobotModel, joints_rad) -> np.ndarray:
     """Boolean per row of joints (N, 6): inside the model's limits."""
     q, _ = _as_joint_array(joints_rad)
     return np.all((q >= model.joint_lower_rad) & (q <= model.joint_upper_rad), axis=1)
+
+
+def with_dh_corrections(model: RobotModel, delta) -> RobotModel:
+    """``model`` with DH corrections (24,): a, d, alpha, theta offset of joints 1..6, in that order."""
+    delta = np.asarray(delta, dtype=float).reshape(4, 6)
+    return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
+
+
+def points_in_tracker(model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker) -> np.ndarray:
+    """Marker points (K, 3) seen in the tracker at joint configurations (N, 6): shape (N, K, 3), mm.
+
+    The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
+    """
+    chain = tracker_from_base @ forward_kinematics(model, np.atleast_2d(joints_rad)) @ tcp_from_marker
+    return np.einsum("nij,kj->nki", chain[:, :3, :3], points_in_marker) + chain[:, None, :3, 3]
+
+
+def dh_point_jacobian(model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker,
+                      step: float = 1e-6) -> np.ndarray:
+    """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24)."""
+    columns = []
+    for index in range(24):
+        delta = np.zeros(24)
+        delta[index] = step
+        plus = points_in_tracker(with_dh_corrections(model, delta), joints_rad, tracker_from_base, tcp_from_marker,
+                                 points_in_marker)
+        minus = points_in_tracker(with_dh_corrections(model, -delta), joints_rad, tracker_from_base,
+                                  tcp_from_marker, points_in_marker)
+        columns.append((plus - minus) / (2 * step))
+    return np.stack(columns, axis=-1)

@@ -23,7 +23,13 @@ import numpy as np
 from ..errors import DegenerateDataError, UnreachableError
 from ..geometry.rotations import rotation_angle
 from ..geometry.transforms import axis_angle_transform, make_transform
-from ..models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
+from ..models.kinematics import (
+    RobotModel,
+    dh_point_jacobian,
+    forward_kinematics,
+    inverse_kinematics,
+    points_in_tracker,
+)
 from .motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
 from .stations import random_station
 from .visibility import VisibilityModel
@@ -67,16 +73,6 @@ class PlannerSettings:
     limits: MotionLimits = MotionLimits()
 
 
-def _dh_model(model: RobotModel, delta) -> RobotModel:
-    delta = np.asarray(delta, dtype=float).reshape(4, 6)
-    return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
-
-
-def _points(model, joints, tracker_from_base, tcp_from_marker, spheres):
-    chain = tracker_from_base @ forward_kinematics(model, joints) @ tcp_from_marker
-    return np.einsum("nij,kj->nki", chain[:, :3, :3], spheres) + chain[:, None, :3, 3]
-
-
 def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, step=1e-6):
     """d(points in tracker)/d(36 parameters) for configurations (N, 6): shape (N, K, 3, 36).
 
@@ -84,16 +80,18 @@ def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points
     tcp_from_marker (right), 24 DH corrections; central differences.
     """
     def perturbed(index, sign):
-        delta = np.zeros(36)
+        delta = np.zeros(12)
         delta[index] = sign * step
         t = make_transform(axis_angle_transform(delta[3:6], np.linalg.norm(delta[3:6]))[:3, :3]
                            if np.any(delta[3:6]) else np.eye(3), delta[0:3]) @ tracker_from_base
         x_rot = axis_angle_transform(delta[9:12], np.linalg.norm(delta[9:12]))[:3, :3] if np.any(delta[9:12]) \
             else np.eye(3)
         x = make_transform(tcp_from_marker[:3, :3] @ x_rot, tcp_from_marker[:3, 3] + delta[6:9])
-        return _points(_dh_model(model, delta[12:]), joints, t, x, points_in_marker)
+        return points_in_tracker(model, joints, t, x, points_in_marker)
 
-    return np.stack([(perturbed(i, 1) - perturbed(i, -1)) / (2 * step) for i in range(36)], axis=-1)
+    pose = np.stack([(perturbed(i, 1) - perturbed(i, -1)) / (2 * step) for i in range(12)], axis=-1)
+    dh = dh_point_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, step)
+    return np.concatenate([pose, dh], axis=-1)
 
 
 @dataclass
