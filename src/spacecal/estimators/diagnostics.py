@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry.rotations import mean_rotation, rotation_angle
-from ..geometry.transforms import invert_transform, matrix_to_rotvec
+from ..geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from ..records import Recording
 
 
@@ -108,8 +108,6 @@ def site_in_base(recording: Recording, rows=None) -> np.ndarray:
 
 def tracker_from_base_from_samples(recording: Recording, tcp_from_marker, rows) -> np.ndarray:
     """Mean of tracker_from_marker_i @ marker_from_tcp @ tcp_from_base_i over rows."""
-    from ..geometry.transforms import make_transform
-
     each = recording.tracker_from_marker_stack[rows] @ invert_transform(tcp_from_marker) @ \
         invert_transform(recording.base_from_tcp_stack[rows])
     return make_transform(mean_rotation(each[:, :3, :3]), each[:, :3, 3].mean(axis=0))

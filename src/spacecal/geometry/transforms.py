@@ -134,3 +134,18 @@ def is_rigid_transform(transform, atol: float = 1e-6) -> bool:
     proper = np.allclose(np.linalg.det(r), 1.0, atol=atol)
     last_row = np.allclose(t[..., 3, :], [0.0, 0.0, 0.0, 1.0], atol=atol)
     return bool(orthonormal and proper and last_row)
+
+
+def orthonormalize_transforms(stack) -> np.ndarray:
+    """Transforms (N, 4, 4) with each rotation replaced by its nearest proper rotation.
+
+    Trackers and robots often write single-precision matrices that are not quite
+    orthonormal; rows holding NaN (frames without a valid pose) stay NaN.
+    """
+    from .rotations import nearest_rotation
+
+    stack = np.asarray(stack, dtype=float)
+    out = np.full_like(stack, np.nan)
+    finite = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
+    out[finite] = make_transform(nearest_rotation(stack[finite, :3, :3]), stack[finite, :3, 3])
+    return out

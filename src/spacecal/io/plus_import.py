@@ -13,8 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidInputError
-from ..geometry.rotations import nearest_rotation
-from ..geometry.transforms import make_transform
+from ..geometry.transforms import orthonormalize_transforms
 from ..records import Recording
 from ..units import check_lengths_in_mm
 from .plus_sequence import read_plus_sequence
@@ -31,13 +30,8 @@ def recording_from_plus_sequence(path: str | Path, marker: str = "MarkerToTracke
     if keep.sum() < 3:
         raise InvalidInputError(f"{path}: fewer than 3 frames with a valid {tcp}")
 
-    def rigid(stack):
-        out = np.full_like(stack, np.nan)
-        ok = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
-        out[ok] = make_transform(nearest_rotation(stack[ok, :3, :3]), stack[ok, :3, 3])
-        return out
-
-    tracker_from_marker, base_from_tcp = rigid(tracker_from_marker[keep]), rigid(base_from_tcp[keep])
+    tracker_from_marker = orthonormalize_transforms(tracker_from_marker[keep])
+    base_from_tcp = orthonormalize_transforms(base_from_tcp[keep])
     check_lengths_in_mm(base_from_tcp[:, :3, 3], f"{path}: {tcp} translations")
     n = int(keep.sum())
     return Recording(

@@ -15,8 +15,7 @@ import numpy as np
 from ..errors import DegenerateDataError
 from ..estimators.landmarks import LandmarkDetectionSettings, detect_landmarks
 from ..estimators.registration import PointRegistration, register_points
-from ..geometry.rotations import nearest_rotation
-from ..geometry.transforms import invert_transform, make_transform
+from ..geometry.transforms import invert_transform, orthonormalize_transforms
 
 
 @dataclass
@@ -72,16 +71,10 @@ def register_landmarks_from_stylus(timestamps_s, tracker_from_reference_stack, t
     times = np.asarray(timestamps_s, dtype=float)
     keep = np.concatenate([[True], np.diff(times) != 0])
     phantom = np.asarray(landmarks_in_phantom, dtype=float)
-    # Single-precision rotations in tracker files are not quite orthonormal.
-    def rigid(stack):
-        stack = np.asarray(stack, dtype=float)[keep]
-        finite = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
-        out = np.full_like(stack, np.nan)
-        out[finite] = make_transform(nearest_rotation(stack[finite, :3, :3]), stack[finite, :3, 3])
-        return out
-
-    reference_from_tip = invert_transform(rigid(tracker_from_reference_stack)) @ rigid(tracker_from_stylus_stack) \
-        @ np.asarray(stylus_from_tip, dtype=float)
+    tracker_from_reference = orthonormalize_transforms(np.asarray(tracker_from_reference_stack, dtype=float)[keep])
+    tracker_from_stylus = orthonormalize_transforms(np.asarray(tracker_from_stylus_stack, dtype=float)[keep])
+    reference_from_tip = invert_transform(tracker_from_reference) @ tracker_from_stylus @ \
+        np.asarray(stylus_from_tip, dtype=float)
     if settings is None:
         kept_times = times[keep]
         spacing = min(np.linalg.norm(a - b) for i, a in enumerate(phantom) for b in phantom[i + 1:])
