@@ -53,3 +53,34 @@ def test_check_against_a_recording(calibration_file, tmp_path, capsys):
     assert main(["check", str(calibration_file), "--recording", str(tmp_path / "rec.csv")]) == 0
     out = capsys.readouterr().out
     assert "rot_x" in out and "PASS" in out
+
+
+def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulation):
+    # Real trackers number frames from power-up; one missed frame must not end the check.
+    from dataclasses import replace as replace_frame
+
+    from spacecal.devices import FRAME_MISSING
+    from spacecal.errors import DegenerateDataError
+    from spacecal.sim.check import check_joints
+    from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
+    from spacecal.workflows.check import check_with_robot
+
+    class LongRunning(SimulatedTracker):
+        def __init__(self, *args, hidden_frames):
+            super().__init__(*args)
+            self.hidden_frames = hidden_frames
+
+        def next_frame(self, timeout_s):
+            frame = replace_frame(super().next_frame(timeout_s), frame_number=1_000_000 + self._delivered)
+            if self._delivered <= self.hidden_frames:
+                return replace_frame(frame, status=FRAME_MISSING, tracker_from_marker=None)
+            return frame
+
+    world = white_simulation.world
+    calibration = calibrate(white_simulation.recording, "ml", uncertainty=False)
+    robot = SimulatedRobot(world, SimClock())
+    result = check_with_robot(calibration, robot, LongRunning(world, robot, hidden_frames=1), check_joints(world, 2))
+    assert result.passed
+    robot = SimulatedRobot(world, SimClock())
+    with pytest.raises(DegenerateDataError, match="not visible"):
+        check_with_robot(calibration, robot, LongRunning(world, robot, hidden_frames=10**6), check_joints(world, 2))

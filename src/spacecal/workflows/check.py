@@ -72,12 +72,13 @@ def check_with_robot(calibration: CalibrationResult, robot: Robot, tracker: Trac
     errors, angles, labels = [], [], []
     for k, joints in enumerate(np.asarray(joints_list, dtype=float)):
         robot.move_joints(joints, speed_rad_s, accel_rad_s2)
-        poses = []
+        poses, frames_read = [], 0
         while len(poses) < frames_per_pose:
             frame = tracker.next_frame(1.0)
+            frames_read += 1
             if frame.status == FRAME_OK:
                 poses.append(frame.tracker_from_marker)
-            elif len(poses) == 0 and frame.frame_number > 10 * frames_per_pose:
+            elif frames_read > 10 * frames_per_pose:
                 raise DegenerateDataError(f"check pose {k + 1}: the marker is not visible")
         poses = np.array(poses)
         measured = make_transform(mean_rotation(poses[:, :3, :3]), poses[:, :3, 3].mean(axis=0))
