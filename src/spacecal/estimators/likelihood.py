@@ -12,6 +12,7 @@ from ..records import CalibrationResult, Recording
 from .diagnostics import motion_spread, residual_table, sample_residuals, site_in_base, verdict
 from .ml import (
     PARAMETER_NAMES,
+    Fit,
     cauchy_weights,
     covariance_from_information,
     frame_errors,
@@ -126,11 +127,17 @@ def calibrate_ml(recording: Recording, sigma_mm: float | None = None, targets_in
     targets_in_base : array_like, shape (M, 3), optional
         Points (mm, base frame) at which to predict the TRE, besides the site.
     """
-    obs = build_observations(recording, sigma_mm=sigma_mm)
-    start_t, start_x = _initial_estimate(obs, recording)
-    fit = levenberg_marquardt(obs, start_t, start_x)
+    obs, fit = fit_ml(recording, sigma_mm)
     return _package("ml", recording, obs, fit.tracker_from_base, fit.tcp_from_marker, targets_in_base,
                     {"iterations": fit.iterations, "converged": fit.converged})
+
+
+def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observations, Fit]:
+    """The bare maximum-likelihood fit (Shah start, then Levenberg–Marquardt), without the
+    diagnostics a result carries: for callers that fit many times (clock-offset search)."""
+    obs = build_observations(recording, sigma_mm=sigma_mm)
+    start_t, start_x = _initial_estimate(obs, recording)
+    return obs, levenberg_marquardt(obs, start_t, start_x)
 
 
 def ransac_start(obs: Observations, recording: Recording, rng: np.random.Generator, iterations: int = 60,

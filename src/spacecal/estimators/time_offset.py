@@ -19,8 +19,7 @@ from scipy.optimize import minimize_scalar
 from ..errors import DegenerateDataError
 from ..geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 from ..records import CalibrationResult, RawRecording, Recording
-from .likelihood import calibrate_ml, variance_factor_of
-from .observations import build_observations
+from .likelihood import calibrate_ml, fit_ml, variance_factor_of
 
 
 def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
@@ -61,10 +60,8 @@ class OffsetEstimate:
 
 
 def _fit_cost(raw: RawRecording, offset_s: float) -> float:
-    paired = pair_streams(raw, offset_s)
-    result = calibrate_ml(paired)
-    obs = build_observations(paired)
-    return variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
+    obs, fit = fit_ml(pair_streams(raw, offset_s))
+    return variance_factor_of(obs, fit.tracker_from_base, fit.tcp_from_marker)
 
 
 def estimate_time_offset(raw: RawRecording, search_s: float = 0.2, coarse_step_s: float = 0.005) -> OffsetEstimate:
