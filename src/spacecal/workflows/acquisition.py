@@ -208,7 +208,19 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
     except SpacecalError as exc:
         if isinstance(exc, AcquisitionStopped):
             raise
-        fail(str(exc))
+        fail(_cause(robot, exc))
     finally:
         writer.close()
     return result
+
+
+def _cause(robot: Robot, error: Exception) -> str:
+    """What stopped the run: a safety stop can land while a command is being issued, and the
+    command's own error ("refused") then hides it; the robot's safety state says what happened."""
+    try:
+        safety = robot.state().safety
+    except SpacecalError:
+        return str(error)
+    if safety != SAFETY_NORMAL:
+        return f"robot {safety.replace('_', ' ')} ({error})"
+    return str(error)
