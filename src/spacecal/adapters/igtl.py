@@ -19,6 +19,9 @@ from ..geometry.transforms import is_rigid_transform
 from . import require
 
 
+#: Time the connection stays open after publishing, so the server reads the message.
+PUBLISH_LINGER_S = 0.3
+
 #: Time given to a server's backlog of old messages on connect before frames are read.
 BACKLOG_DRAIN_S = 0.3
 
@@ -104,5 +107,8 @@ def publish_transform(host: str, port: int, name: str, a_from_b, timestamp: floa
                                           device_name=name)
         if not client.send_message(message, wait=True):
             raise DeviceError(f"could not send {name} to igtl://{host}:{port}")
+        # Servers stream to every client: closing at once, with their messages unread, resets the
+        # connection and can drop ours before the server has read it.
+        time.sleep(PUBLISH_LINGER_S)
     finally:
         client.stop()
