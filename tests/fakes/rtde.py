@@ -89,6 +89,21 @@ class FakeController:
         self.lock = threading.RLock()
         self.commands: list[int] = []
 
+    def start_script(self, script: str) -> None:
+        """A (re)uploaded control script starts afresh: nothing pending, ready for a command.
+
+        Without this a resumed client's first command could equal the interrupted client's last
+        one and be taken for a repeat, and the client would wait for ever."""
+        with self.lock:
+            self.script = script
+            self.program_running = True
+            self.last_command = 0
+            self.pending_done = False
+            self.async_running = False
+            self.registers["output_int_register_0"] = 1
+            self.registers["output_int_register_2"] = -1
+            self.registers["input_int_register_0"] = 0
+
     def say(self, text: str) -> None:
         if self.log:
             print(f"ur <- {text}", file=self.log, flush=True)
@@ -331,9 +346,7 @@ def serve_script_connection(controller: FakeController, connection, stop) -> Non
             chunk = connection.recv(65536)
         except socket.timeout:
             if received:
-                controller.script = received.decode(errors="replace")
-                controller.program_running = True
-                controller.registers["output_int_register_0"] = 1
+                controller.start_script(received.decode(errors="replace"))
                 controller.say(f"script uploaded ({len(received)} bytes)")
                 received = b""
             continue
@@ -343,8 +356,7 @@ def serve_script_connection(controller: FakeController, connection, stop) -> Non
             break
         received += chunk
     if received:
-        controller.script = received.decode(errors="replace")
-        controller.program_running = True
+        controller.start_script(received.decode(errors="replace"))
     connection.close()
 
 
