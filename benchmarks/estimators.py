@@ -36,8 +36,10 @@ def main() -> None:
     assert set(ORDER) == set(METHODS), "benchmark out of date with the method registry"
 
     print(f"Methods x scenarios, {args.trials} noise trials each (RMS over trials)\n")
-    print("| scenario | motion | frames | method | TRE RMS (mm) | TRE / bound | rotation error (deg) | "
-          "predicted TRE (mm) | verification mean (mm) | compute (ms) |")
+    print(
+        "| scenario | motion | frames | method | TRE RMS (mm) | TRE / bound | rotation error (deg) | "
+        "predicted TRE (mm) | verification mean (mm) | compute (ms) |"
+    )
     print("|" + "|".join(["---"] * 10) + "|")
     for name in ("paper-white", "paper-realistic", "paper-outliers"):
         for motion in ("paper", "stations"):
@@ -47,29 +49,42 @@ def main() -> None:
             first_trial = simulation.remeasure(0)[0]
             for summary in run_monte_carlo(simulation, ORDER, args.trials):
                 if summary.failure:
-                    print(f"| {name} | {motion} | {frames} | {summary.method} | fails: {summary.failure[:55]}… "
-                          "| | | | | |")
+                    print(
+                        f"| {name} | {motion} | {frames} | {summary.method} | fails: {summary.failure[:55]}… "
+                        "| | | | | |"
+                    )
                     continue
-                verification = verify_in_simulation(calibrate(first_trial, summary.method, uncertainty=False),
-                                                    simulation.world.scenario).statistics()
+                verification = verify_in_simulation(
+                    calibrate(first_trial, summary.method, uncertainty=False), simulation.world.scenario
+                ).statistics()
                 predicted = f"{summary.predicted_tre_rms_mm:.4f}" if summary.predicted_tre_rms_mm else "–"
-                print(f"| {name} | {motion} | {frames} | {summary.method} | {summary.tre_rms_mm:.4f} | "
-                      f"{summary.tre_rms_mm / bound:.2f} | {summary.rotation_rms_deg:.4f} | {predicted} | "
-                      f"{verification['position_mm']['mean']:.3f} | {summary.compute_s * 1000:.1f} |")
+                print(
+                    f"| {name} | {motion} | {frames} | {summary.method} | {summary.tre_rms_mm:.4f} | "
+                    f"{summary.tre_rms_mm / bound:.2f} | {summary.rotation_rms_deg:.4f} | {predicted} | "
+                    f"{verification['position_mm']['mean']:.3f} | {summary.compute_s * 1000:.1f} |"
+                )
 
-    print(f"\nBound check, paper-white, {args.bound_trials} trials (the RMS over trials is then known "
-          f"to about +-{100 / np.sqrt(2 * args.bound_trials):.0f} %):\n")
-    print("| motion | Cramér–Rao bound (mm) | ML TRE RMS (mm) | ratio | ML predicted TRE (mm) | predicted / observed |")
+    print(
+        f"\nBound check, paper-white, {args.bound_trials} trials (the RMS over trials is then known "
+        f"to about +-{100 / np.sqrt(2 * args.bound_trials):.0f} %):\n"
+    )
+    print(
+        "| motion | Cramér–Rao bound (mm) | ML TRE RMS (mm) | ratio | ML predicted TRE (mm) | predicted / observed |"
+    )
     print("|" + "|".join(["---"] * 6) + "|")
     for motion in ("paper", "stations"):
         simulation = simulate(dataclasses.replace(PRESETS["paper-white"], motion=motion))
         bound = cramer_rao_tre_mm(simulation)
         ml = run_monte_carlo(simulation, ["ml"], args.bound_trials)[0]
-        print(f"| {motion} | {bound:.4f} | {ml.tre_rms_mm:.4f} | {ml.tre_rms_mm / bound:.3f} | "
-              f"{ml.predicted_tre_rms_mm:.4f} | {ml.predicted_tre_rms_mm / ml.tre_rms_mm:.3f} |")
-    print(f"\nCramér–Rao bound: white sphere noise of the scenario at the truth "
-          f"({np.sqrt(0.25**2) / np.sqrt(3):.3f} mm per axis in paper-white, "
-          f"{0.15 / np.sqrt(3):.3f} mm in the others).")
+        print(
+            f"| {motion} | {bound:.4f} | {ml.tre_rms_mm:.4f} | {ml.tre_rms_mm / bound:.3f} | "
+            f"{ml.predicted_tre_rms_mm:.4f} | {ml.predicted_tre_rms_mm / ml.tre_rms_mm:.3f} |"
+        )
+    print(
+        f"\nCramér–Rao bound: white sphere noise of the scenario at the truth "
+        f"({np.sqrt(0.25**2) / np.sqrt(3):.3f} mm per axis in paper-white, "
+        f"{0.15 / np.sqrt(3):.3f} mm in the others)."
+    )
 
 
 if __name__ == "__main__":

@@ -54,19 +54,25 @@ def main() -> None:
     parser.add_argument("--scenarios", nargs="+", default=["paper-white", "paper-realistic"])
     args = parser.parse_args()
 
-    header = ("| scenario | TRE RMS (mm) | TRE max (mm) | rotation error (deg) | verification mean "
-              "position (mm) | verification max position (mm) | verification mean posture (deg) | "
-              "motion time (s) | samples | compute (ms) |")
+    header = (
+        "| scenario | TRE RMS (mm) | TRE max (mm) | rotation error (deg) | verification mean "
+        "position (mm) | verification max position (mm) | verification mean posture (deg) | "
+        "motion time (s) | samples | compute (ms) |"
+    )
     print(f"Paper experiment in simulation, {args.seeds} seeds per scenario (mean ± s.d. over seeds)\n")
     print(header)
     print("|" + "|".join(["---"] * 10) + "|")
     for name in args.scenarios:
         rows = [run_case(dataclasses.replace(PRESETS[name], seed=seed)) for seed in range(1, args.seeds + 1)]
         col = {k: [r[k] for r in rows] for k in rows[0]}
-        print(f"| {name} | {fmt(col['tre_rms'], 3)} | {fmt(col['tre_max'], 3)} | {fmt(col['rot'], 4)} | "
-              f"{fmt(col['ver_pos_mean'], 2)} | {fmt(col['ver_pos_max'], 2)} | {fmt(col['ver_ang_mean'], 3)} | "
-              f"{fmt(col['motion_s'], 1)} | {fmt(col['samples'], 0)} | {fmt(col['compute_ms'], 1)} |")
-    print("| paper (real UR10 + Vicra) | – | – | – | < 1.05 (min 0.87) | – | about 1.1 (min 0.83) | about 60 | – | – |")
+        print(
+            f"| {name} | {fmt(col['tre_rms'], 3)} | {fmt(col['tre_max'], 3)} | {fmt(col['rot'], 4)} | "
+            f"{fmt(col['ver_pos_mean'], 2)} | {fmt(col['ver_pos_max'], 2)} | {fmt(col['ver_ang_mean'], 3)} | "
+            f"{fmt(col['motion_s'], 1)} | {fmt(col['samples'], 0)} | {fmt(col['compute_ms'], 1)} |"
+        )
+    print(
+        "| paper (real UR10 + Vicra) | – | – | – | < 1.05 (min 0.87) | – | about 1.1 (min 0.83) | about 60 | – | – |"
+    )
 
 
 if __name__ == "__main__":

@@ -40,7 +40,11 @@ def verification(calibration, scenario, world):
     With identified kinematics part of the base frame moves into the DH corrections, so
     tracker_from_base alone is not comparable with the truth (NaN there)."""
     stats = verify_in_simulation(calibration, scenario).statistics()
-    tre = np.nan if "kinematic_model" in calibration.diagnostics else calibration_error(calibration, world)["tre_rms_mm"]
+    tre = (
+        np.nan
+        if "kinematic_model" in calibration.diagnostics
+        else calibration_error(calibration, world)["tre_rms_mm"]
+    )
     return tre, stats["position_mm"]["mean"], stats["position_mm"]["max"], stats["posture_deg"]["mean"]
 
 
@@ -51,20 +55,31 @@ def run_seed(seed: int) -> dict:
     sweep = plan_for_world(world)
     recording, _ = execute_plan(build_world(scenario), sweep)
     for method in ("paper", "ml", "kinematic"):
-        rows[f"paper sweep | {method}"] = (*verification(calibrate(recording, method, uncertainty=False), scenario, world),
-                                           sweep.motion_time_s)
+        rows[f"paper sweep | {method}"] = (
+            *verification(calibrate(recording, method, uncertainty=False), scenario, world),
+            sweep.motion_time_s,
+        )
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
-    planned = plan_for_site(world.nominal_model, world.home_joints_rad, visibility, np.random.default_rng([seed, 7]))
+    planned = plan_for_site(
+        world.nominal_model, world.home_joints_rad, visibility, np.random.default_rng([seed, 7])
+    )
     recording, _ = execute_plan(build_world(scenario), planned.plan)
     for method in ("ml", "kinematic"):
-        rows[f"planned <=30 s | {method}"] = (*verification(calibrate(recording, method, uncertainty=False), scenario, world),
-                                             planned.motion_time_s)
+        rows[f"planned <=30 s | {method}"] = (
+            *verification(calibrate(recording, method, uncertainty=False), scenario, world),
+            planned.motion_time_s,
+        )
     raw, _ = simulate_raw(scenario, clock_offset_s=0.030)
     rows["30 ms clock offset, naive pairs | ml"] = (
-        *verification(calibrate(pair_streams(raw, 0.0), "ml", uncertainty=False), scenario, world), sweep.motion_time_s)
+        *verification(calibrate(pair_streams(raw, 0.0), "ml", uncertainty=False), scenario, world),
+        sweep.motion_time_s,
+    )
     start = time.perf_counter()
     estimate = estimate_time_offset(raw)
-    rows["30 ms clock offset, estimated | ml"] = (*verification(estimate.calibration, scenario, world), sweep.motion_time_s)
+    rows["30 ms clock offset, estimated | ml"] = (
+        *verification(estimate.calibration, scenario, world),
+        sweep.motion_time_s,
+    )
     rows["_offset"] = (estimate.offset_s * 1000.0, time.perf_counter() - start)
     return rows
 
@@ -74,21 +89,31 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     args = parser.parse_args()
     results = [run_seed(seed) for seed in range(1, args.seeds + 1)]
-    print(f"Realistic scenario, {args.seeds} seeds (mean ± s.d. over seeds; verification: paper §5.2, 15 points)\n")
-    print("| motion | estimator | calibration TRE, 200 mm cube (mm) | verification mean position (mm) | "
-          "verification max position (mm) | verification mean posture (deg) | motion time (s) |")
+    print(
+        f"Realistic scenario, {args.seeds} seeds (mean ± s.d. over seeds; verification: paper §5.2, 15 points)\n"
+    )
+    print(
+        "| motion | estimator | calibration TRE, 200 mm cube (mm) | verification mean position (mm) | "
+        "verification max position (mm) | verification mean posture (deg) | motion time (s) |"
+    )
     print("|---|---|---|---|---|---|---|")
     for key in results[0]:
         if key.startswith("_"):
             continue
         values = np.array([r[key] for r in results])
         motion, method = key.split(" | ")
-        cells = ["–" if np.isnan(values[:, i]).any() else
-                 f"{values[:, i].mean():.3f} ± {values[:, i].std(ddof=1) if len(values) > 1 else 0:.3f}" for i in range(4)]
+        cells = [
+            "–"
+            if np.isnan(values[:, i]).any()
+            else f"{values[:, i].mean():.3f} ± {values[:, i].std(ddof=1) if len(values) > 1 else 0:.3f}"
+            for i in range(4)
+        ]
         print(f"| {motion} | {method} | {' | '.join(cells)} | {values[:, 4].mean():.1f} |")
     offsets = np.array([r["_offset"] for r in results])
-    print(f"\nClock offset 30 ms: estimated {offsets[:, 0].mean():.2f} ± {offsets[:, 0].std(ddof=1) if len(offsets) > 1 else 0:.2f} ms "
-          f"(largest error {np.max(np.abs(offsets[:, 0] - 30.0)):.2f} ms), {offsets[:, 1].mean():.1f} s of compute")
+    print(
+        f"\nClock offset 30 ms: estimated {offsets[:, 0].mean():.2f} ± {offsets[:, 0].std(ddof=1) if len(offsets) > 1 else 0:.2f} ms "
+        f"(largest error {np.max(np.abs(offsets[:, 0] - 30.0)):.2f} ms), {offsets[:, 1].mean():.1f} s of compute"
+    )
 
 
 if __name__ == "__main__":

@@ -28,8 +28,15 @@ def test_simulate_calibrate_verify_chain(tmp_path, capsys):
     assert code == 0 and "sphere: radius" in out
     data = json.loads(calibration.read_text())
     assert data["method"] == "paper" and len(data["tracker_from_base"]) == 4
-    code, out, _ = run(capsys, "verify", str(calibration), "-o", str(tmp_path / "ver.json"),
-                       "--figure", str(tmp_path / "fig7.png"))
+    code, out, _ = run(
+        capsys,
+        "verify",
+        str(calibration),
+        "-o",
+        str(tmp_path / "ver.json"),
+        "--figure",
+        str(tmp_path / "fig7.png"),
+    )
     assert code == 0 and "position error" in out
     verification = json.loads((tmp_path / "ver.json").read_text())
     assert len(verification["points"]) == 15
@@ -41,8 +48,13 @@ def test_simulate_calibrate_verify_chain(tmp_path, capsys):
 def test_demo_prints_the_summary_and_writes_outputs(tmp_path, capsys):
     code, out, _ = run(capsys, "demo", "--out", str(tmp_path))
     assert code == 0
-    for needle in ("planned motion time", "paper estimator: TRE", "ML estimator", "verification position error",
-                   "0.87 / <1.05"):
+    for needle in (
+        "planned motion time",
+        "paper estimator: TRE",
+        "ML estimator",
+        "verification position error",
+        "0.87 / <1.05",
+    ):
         assert needle in out
     for name in ("recording.csv", "calibration.json", "verification.json", "verification_errors.png"):
         assert (tmp_path / name).is_file()
@@ -65,7 +77,9 @@ def test_missing_segment_and_unknown_method(recording_file, tmp_path, capsys):
     bad.write_text(text)
     code, _, err = run(capsys, "calibrate", str(bad), "-o", str(tmp_path / "c.json"))
     assert code == 1 and "'lin_z' is missing" in err
-    code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "nope", "-o", str(tmp_path / "c.json"))
+    code, _, err = run(
+        capsys, "calibrate", str(recording_file), "--method", "nope", "-o", str(tmp_path / "c.json")
+    )
     assert code == 1 and "valid methods:" in err and "paper" in err and "robust" in err
 
 
@@ -90,39 +104,67 @@ def test_verify_needs_a_scenario_for_foreign_calibrations(tmp_path, capsys, whit
 def test_console_script_exit_codes(tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("")
-    result = subprocess.run([sys.executable, "-m", "spacecal.cli", "calibrate", str(empty), "-o", "x.json"],
-                            capture_output=True, text=True)
+    result = subprocess.run(
+        [sys.executable, "-m", "spacecal.cli", "calibrate", str(empty), "-o", "x.json"],
+        capture_output=True,
+        text=True,
+    )
     assert result.returncode == 1 and result.stderr.strip().endswith("the recording is empty")
     assert "Traceback" not in result.stderr
-    usage = subprocess.run([sys.executable, "-m", "spacecal.cli", "calibrate"], capture_output=True, text=True)
+    usage = subprocess.run(
+        [sys.executable, "-m", "spacecal.cli", "calibrate"], capture_output=True, text=True
+    )
     assert usage.returncode == 2
 
 
 def test_ml_writes_covariance_and_predicted_tre(recording_file, tmp_path, capsys):
     out = tmp_path / "ml.json"
-    code, text, _ = run(capsys, "calibrate", str(recording_file), "--method", "ml", "-o", str(out),
-                        "--target=-573,-164,338")
+    code, text, _ = run(
+        capsys, "calibrate", str(recording_file), "--method", "ml", "-o", str(out), "--target=-573,-164,338"
+    )
     assert code == 0 and "predicted TRE" in text and "verdict: good" in text
     data = json.loads(out.read_text())
     assert len(data["covariance"]["matrix"]) == 12 and data["predicted_tre_mm"]["site"] > 0
     assert data["predicted_tre_mm"]["targets"][0]["target_in_base_mm"] == [-573.0, -164.0, 338.0]
-    code, text, _ = run(capsys, "bound", str(recording_file), "--calibration", str(out), "--sigma-mm", "0.144")
+    code, text, _ = run(
+        capsys, "bound", str(recording_file), "--calibration", str(out), "--sigma-mm", "0.144"
+    )
     assert code == 0 and "Cramer-Rao lower bound" in text
 
 
 @pytest.mark.parametrize("method", ["shah", "li", "dornaika", "tsai", "park", "daniilidis", "robust"])
 def test_every_method_runs_from_the_cli(method, recording_file, tmp_path, capsys):
-    code, text, err = run(capsys, "calibrate", str(recording_file), "--method", method, "-o", str(tmp_path / "c.json"))
+    code, text, err = run(
+        capsys, "calibrate", str(recording_file), "--method", method, "-o", str(tmp_path / "c.json")
+    )
     assert code == 0, err
     assert json.loads((tmp_path / "c.json").read_text())["method"] == method
 
 
 def test_bad_options_give_one_line(recording_file, tmp_path, capsys):
-    code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "ml", "--target", "1,2",
-                       "-o", str(tmp_path / "c.json"))
+    code, _, err = run(
+        capsys,
+        "calibrate",
+        str(recording_file),
+        "--method",
+        "ml",
+        "--target",
+        "1,2",
+        "-o",
+        str(tmp_path / "c.json"),
+    )
     assert code == 1 and "--target takes x,y,z" in err
-    code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "ml", "--sigma-mm", "-1",
-                       "-o", str(tmp_path / "c.json"))
+    code, _, err = run(
+        capsys,
+        "calibrate",
+        str(recording_file),
+        "--method",
+        "ml",
+        "--sigma-mm",
+        "-1",
+        "-o",
+        str(tmp_path / "c.json"),
+    )
     assert code == 1 and "--sigma-mm must be a positive" in err
     code, _, err = run(capsys, "pivot", str(tmp_path))
     assert code == 1 and "no .txt pose files" in err
@@ -132,8 +174,15 @@ def test_pivot_command_on_the_real_recording(capsys, tmp_path):
     from .conftest import shared_realdata
 
     folder = shared_realdata("pivot_sksurgery_ndi")
-    code, text, _ = run(capsys, "pivot", str(folder / "PivotCalibration"), "--subset",
-                        str(folder / "subset57_sksurgerycalibration.txt"), "-o", str(tmp_path / "p.json"))
+    code, text, _ = run(
+        capsys,
+        "pivot",
+        str(folder / "PivotCalibration"),
+        "--subset",
+        str(folder / "subset57_sksurgerycalibration.txt"),
+        "-o",
+        str(tmp_path / "p.json"),
+    )
     assert code == 0 and "-14.473, 394.634, -7.407" in text and "1.761 mm per axis" in text
 
 
@@ -145,7 +194,9 @@ def test_acquire_dry_run_and_run(tmp_path, capsys):
     assert code == 0 and "18/18 moves" in text
     code, _, err = run(capsys, "acquire", "-o", str(out), "--scenario", "paper-white")
     assert code == 1 and "exists" in err
-    code, _, err = run(capsys, "acquire", "-o", str(tmp_path / "b.csv"), "--workspace-box=-600,0,-600,400,0,800")
+    code, _, err = run(
+        capsys, "acquire", "-o", str(tmp_path / "b.csv"), "--workspace-box=-600,0,-600,400,0,800"
+    )
     assert code == 1 and "workspace box" in err and not (tmp_path / "b.csv").exists()
 
 
@@ -155,8 +206,15 @@ def test_export_to_slicer_and_plus(recording_file, tmp_path, capsys):
 
     calibration = tmp_path / "cal.json"
     assert run(capsys, "calibrate", str(recording_file), "-o", str(calibration))[0] == 0
-    code, out, _ = run(capsys, "export", str(calibration), "--slicer", str(tmp_path / "t.tfm"),
-                       "--plus", str(tmp_path / "t.xml"))
+    code, out, _ = run(
+        capsys,
+        "export",
+        str(calibration),
+        "--slicer",
+        str(tmp_path / "t.tfm"),
+        "--plus",
+        str(tmp_path / "t.xml"),
+    )
     assert code == 0
     expected = np.array(json.loads(calibration.read_text())["tracker_from_base"])
     assert np.allclose(read_slicer_transform(tmp_path / "t.tfm"), expected, atol=1e-9)
@@ -169,16 +227,33 @@ def test_register_landmarks_command_on_the_real_plus_recording(capsys, tmp_path)
     from .conftest import shared_realdata
 
     folder = shared_realdata("plus_phantom_landmarks")
-    code, out, _ = run(capsys, "register-landmarks", str(folder / "EightLandmarkPointsTrackedForPhantomRegistration.igs.mha"),
-                       "--config", str(folder / "PlusDeviceSet_fCal_Sim_RecordPhantomLandmarks.xml"),
-                       "--plus-compatible", "-o", str(tmp_path / "reg.json"))
+    code, out, _ = run(
+        capsys,
+        "register-landmarks",
+        str(folder / "EightLandmarkPointsTrackedForPhantomRegistration.igs.mha"),
+        "--config",
+        str(folder / "PlusDeviceSet_fCal_Sim_RecordPhantomLandmarks.xml"),
+        "--plus-compatible",
+        "-o",
+        str(tmp_path / "reg.json"),
+    )
     assert code == 0 and "mean 0.207 mm (PLUS's 'Error')" in out
     assert json.loads((tmp_path / "reg.json").read_text())["fre_mean_mm"] == pytest.approx(0.207, abs=0.001)
 
 
 def test_phantom_command(tmp_path, capsys):
-    code, out, _ = run(capsys, "phantom", "--scenario", "paper-white", "--cases", "3", "-o", str(tmp_path / "p.json"),
-                       "--figure", str(tmp_path / "fig9.png"))
+    code, out, _ = run(
+        capsys,
+        "phantom",
+        "--scenario",
+        "paper-white",
+        "--cases",
+        "3",
+        "-o",
+        str(tmp_path / "p.json"),
+        "--figure",
+        str(tmp_path / "fig9.png"),
+    )
     assert code == 0 and "entry (mm)" in out and "paper minimum" in out
     assert len(json.loads((tmp_path / "p.json").read_text())["cases"]) == 3
     assert (tmp_path / "fig9.png").stat().st_size > 10_000
@@ -187,20 +262,49 @@ def test_phantom_command(tmp_path, capsys):
 def test_report_command(recording_file, tmp_path, capsys):
     calibration = tmp_path / "cal.json"
     assert run(capsys, "calibrate", str(recording_file), "--method", "ml", "-o", str(calibration))[0] == 0
-    code, out, _ = run(capsys, "report", str(calibration), "-o", str(tmp_path / "r.html"), "--png-dir", str(tmp_path))
+    code, out, _ = run(
+        capsys, "report", str(calibration), "-o", str(tmp_path / "r.html"), "--png-dir", str(tmp_path)
+    )
     assert code == 0 and "Sweeps and fits" in out and "Uncertainty" in out
     assert (tmp_path / "r.html").stat().st_size > 3_000_000 and (tmp_path / "residuals.png").is_file()
 
 
 def test_raw_streams_from_the_cli(tmp_path, capsys):
-    code, out, _ = run(capsys, "simulate", "--scenario", "paper-white", "--raw", "--clock-offset-ms", "30",
-                       "-o", str(tmp_path / "rec"))
+    code, out, _ = run(
+        capsys,
+        "simulate",
+        "--scenario",
+        "paper-white",
+        "--raw",
+        "--clock-offset-ms",
+        "30",
+        "-o",
+        str(tmp_path / "rec"),
+    )
     assert code == 0 and "rec.robot.csv" in out
-    code, out, _ = run(capsys, "calibrate", str(tmp_path / "rec.robot.csv"), "--tracker-stream",
-                       str(tmp_path / "rec.tracker.csv"), "--method", "ml", "-o", str(tmp_path / "cal.json"))
+    code, out, _ = run(
+        capsys,
+        "calibrate",
+        str(tmp_path / "rec.robot.csv"),
+        "--tracker-stream",
+        str(tmp_path / "rec.tracker.csv"),
+        "--method",
+        "ml",
+        "-o",
+        str(tmp_path / "cal.json"),
+    )
     assert code == 0 and "clock offset estimated: robot clock 30.0" in out
-    code, _, err = run(capsys, "calibrate", str(tmp_path / "rec.robot.csv"), "--tracker-stream",
-                       str(tmp_path / "rec.tracker.csv"), "--time-offset-ms", "soon", "-o", str(tmp_path / "c.json"))
+    code, _, err = run(
+        capsys,
+        "calibrate",
+        str(tmp_path / "rec.robot.csv"),
+        "--tracker-stream",
+        str(tmp_path / "rec.tracker.csv"),
+        "--time-offset-ms",
+        "soon",
+        "-o",
+        str(tmp_path / "c.json"),
+    )
     assert code == 1 and "--time-offset-ms takes a number" in err
 
 

@@ -22,10 +22,11 @@ class CheckFailed(SpacecalError):
 
 
 def _cmd_simulate(args) -> None:
+    import dataclasses
+
     from .io.recording_csv import metadata_path, write_recording
     from .sim.recording import simulate
     from .sim.scenario import load_scenario
-    import dataclasses
 
     scenario = load_scenario(args.scenario)
     if args.seed is not None:
@@ -37,16 +38,22 @@ def _cmd_simulate(args) -> None:
         raw, _ = simulate_raw(scenario, args.clock_offset_ms / 1000.0)
         stem = str(args.output)[:-4] if str(args.output).endswith(".csv") else str(args.output)
         robot_path, tracker_path = write_raw_recording(raw, stem)
-        print(f"wrote {robot_path} ({len(raw.robot_time_s)} robot states) and {tracker_path} "
-              f"({len(raw.tracker_time_s)} tracker frames); robot clock {args.clock_offset_ms} ms ahead")
+        print(
+            f"wrote {robot_path} ({len(raw.robot_time_s)} robot states) and {tracker_path} "
+            f"({len(raw.tracker_time_s)} tracker frames); robot clock {args.clock_offset_ms} ms ahead"
+        )
         return
     simulation = simulate(scenario)
     path = write_recording(simulation.recording, args.output)
     rec = simulation.recording
-    print(f"wrote {path} ({len(rec)} samples, {int(rec.visible.sum())} with the marker visible) "
-          f"and {metadata_path(path)}")
-    print(f"scenario {scenario.name}, seed {scenario.seed}; planned motion time "
-          f"{simulation.plan.motion_time_s:.1f} s")
+    print(
+        f"wrote {path} ({len(rec)} samples, {int(rec.visible.sum())} with the marker visible) "
+        f"and {metadata_path(path)}"
+    )
+    print(
+        f"scenario {scenario.name}, seed {scenario.seed}; planned motion time "
+        f"{simulation.plan.motion_time_s:.1f} s"
+    )
     for message in simulation.plan.messages:
         print(f"note: {message}")
 
@@ -108,16 +115,22 @@ def _cmd_calibrate(args) -> None:
     diagnostics = result.diagnostics
     sphere = diagnostics.get("sphere")
     if sphere:
-        print(f"sphere: radius {sphere['radius_mm']:.2f} mm, fit RMS {sphere['rms_mm']:.3f} mm; "
-              "line straightness RMS: " + ", ".join(
-                  f"{k} {v['straightness_rms_mm']:.3f} mm" for k, v in diagnostics["lines"].items()))
+        print(
+            f"sphere: radius {sphere['radius_mm']:.2f} mm, fit RMS {sphere['rms_mm']:.3f} mm; "
+            "line straightness RMS: "
+            + ", ".join(f"{k} {v['straightness_rms_mm']:.3f} mm" for k, v in diagnostics["lines"].items())
+        )
     if "residual_position_rms_mm" in diagnostics:
-        print(f"residuals: marker position RMS {diagnostics['residual_position_rms_mm']:.3f} mm, "
-              f"rotation RMS {diagnostics['residual_rotation_rms_deg']:.3f} deg")
+        print(
+            f"residuals: marker position RMS {diagnostics['residual_position_rms_mm']:.3f} mm, "
+            f"rotation RMS {diagnostics['residual_rotation_rms_deg']:.3f} deg"
+        )
     if result.predicted_tre_mm:
         tre = result.predicted_tre_mm
-        print(f"predicted TRE: {tre['site']:.3f} mm at the site, {tre['cube_rms']:.3f} mm RMS over a "
-              f"{tre['cube_side_mm']:.0f} mm cube around it")
+        print(
+            f"predicted TRE: {tre['site']:.3f} mm at the site, {tre['cube_rms']:.3f} mm RMS over a "
+            f"{tre['cube_side_mm']:.0f} mm cube around it"
+        )
         for target in tre.get("targets", []):
             print(f"  at {target['target_in_base_mm']}: {target['tre_mm']:.3f} mm")
     if "outliers" in diagnostics:
@@ -159,13 +172,19 @@ def _cmd_verify(args) -> None:
     if args.output:
         print(f"wrote {write_json(result.to_dict(), args.output)}")
     if args.figure:
-        print(f"wrote {plot_verification_errors(result.position_error_mm, result.posture_error_deg, args.figure)}")
+        print(
+            f"wrote {plot_verification_errors(result.position_error_mm, result.posture_error_deg, args.figure)}"
+        )
     pos, ang = stats["position_mm"], stats["posture_deg"]
     print(f"verification on {len(result.position_error_mm)} needle poses (scenario {scenario.name}):")
-    print(f"  position error min / mean / max / RMS: {pos['min']:.3f} / {pos['mean']:.3f} / "
-          f"{pos['max']:.3f} / {pos['rms']:.3f} mm   (paper: min 0.87, mean < 1.05 mm)")
-    print(f"  posture error  min / mean / max / RMS: {ang['min']:.3f} / {ang['mean']:.3f} / "
-          f"{ang['max']:.3f} / {ang['rms']:.3f} deg  (paper: min 0.83, mean about 1.1 deg)")
+    print(
+        f"  position error min / mean / max / RMS: {pos['min']:.3f} / {pos['mean']:.3f} / "
+        f"{pos['max']:.3f} / {pos['rms']:.3f} mm   (paper: min 0.87, mean < 1.05 mm)"
+    )
+    print(
+        f"  posture error  min / mean / max / RMS: {ang['min']:.3f} / {ang['mean']:.3f} / "
+        f"{ang['max']:.3f} / {ang['rms']:.3f} deg  (paper: min 0.83, mean about 1.1 deg)"
+    )
 
 
 def _cmd_demo(args) -> None:
@@ -187,9 +206,14 @@ def _write_demo_outputs(result, output_dir: Path) -> None:
     result.calibration.source = {"recording": str(recording_path.resolve())}
     write_calibration(result.calibration, output_dir / "calibration.json")
     write_json(result.verification.to_dict(), output_dir / "verification.json")
-    plot_verification_errors(result.verification.position_error_mm, result.verification.posture_error_deg,
-                             output_dir / "verification_errors.png")
-    print(f"\nwrote recording.csv, calibration.json, verification.json, verification_errors.png to {output_dir}")
+    plot_verification_errors(
+        result.verification.position_error_mm,
+        result.verification.posture_error_deg,
+        output_dir / "verification_errors.png",
+    )
+    print(
+        f"\nwrote recording.csv, calibration.json, verification.json, verification_errors.png to {output_dir}"
+    )
 
 
 def _cmd_pivot(args) -> None:
@@ -211,9 +235,11 @@ def _cmd_pivot(args) -> None:
     print(f"pivot calibration ({result.method}, {summary['frames']} frames)")
     print("  tip in marker   (mm): " + ", ".join(f"{v:.3f}" for v in result.tip_in_marker))
     print("  pivot in tracker (mm): " + ", ".join(f"{v:.3f}" for v in result.pivot_in_tracker))
-    print(f"  residual: RMS {result.rms_mm:.3f} mm (3-D), {result.rms_per_axis_mm:.3f} mm per axis "
-          f"(scikit-surgerycalibration's figure), mean {summary['residual_mean_mm']:.3f}, "
-          f"max {summary['residual_max_mm']:.3f} mm")
+    print(
+        f"  residual: RMS {result.rms_mm:.3f} mm (3-D), {result.rms_per_axis_mm:.3f} mm per axis "
+        f"(scikit-surgerycalibration's figure), mean {summary['residual_mean_mm']:.3f}, "
+        f"max {summary['residual_max_mm']:.3f} mm"
+    )
 
 
 def _cmd_bound(args) -> None:
@@ -225,11 +251,20 @@ def _cmd_bound(args) -> None:
         raise InvalidInputError("--sigma-mm must be a positive number of millimetres")
     recording = read_recording(args.recording)
     calibration = read_calibration(args.calibration)
-    bound = tre_lower_bound(recording, calibration.tracker_from_base, calibration.tcp_from_marker,
-                            args.sigma_mm, _parse_points(args.target, "--target"))
-    print(f"Cramer-Rao lower bound on TRE for {args.recording} with {args.sigma_mm} mm per-axis sphere noise:")
-    print(f"  {bound['site']:.4f} mm at the site, {bound['cube_rms']:.4f} mm RMS over a "
-          f"{bound['cube_side_mm']:.0f} mm cube around it")
+    bound = tre_lower_bound(
+        recording,
+        calibration.tracker_from_base,
+        calibration.tcp_from_marker,
+        args.sigma_mm,
+        _parse_points(args.target, "--target"),
+    )
+    print(
+        f"Cramer-Rao lower bound on TRE for {args.recording} with {args.sigma_mm} mm per-axis sphere noise:"
+    )
+    print(
+        f"  {bound['site']:.4f} mm at the site, {bound['cube_rms']:.4f} mm RMS over a "
+        f"{bound['cube_side_mm']:.0f} mm cube around it"
+    )
     for target in bound.get("targets", []):
         print(f"  at {target['target_in_base_mm']}: {target['tre_mm']:.4f} mm")
 
@@ -247,6 +282,7 @@ def _sim_devices(args):
 
 def _progress_printer(total_moves: int):
     """A one-line progress display on stderr: bar, move, samples, markers seen."""
+
     def show(samples: int, visible: int, move_index: int, label: str) -> None:
         if samples % 10 and sys.stderr.isatty():
             return
@@ -255,8 +291,14 @@ def _progress_printer(total_moves: int):
         done = (move_index + 1) / total_moves
         bar = "#" * int(30 * done) + "." * (30 - int(30 * done))
         end = "\r" if sys.stderr.isatty() else "\n"
-        print(f"[{bar}] move {move_index + 1}/{total_moves} {label:8s} samples {samples} "
-              f"(marker seen {visible})", end=end, file=sys.stderr, flush=True)
+        print(
+            f"[{bar}] move {move_index + 1}/{total_moves} {label:8s} samples {samples} "
+            f"(marker seen {visible})",
+            end=end,
+            file=sys.stderr,
+            flush=True,
+        )
+
     return show
 
 
@@ -275,8 +317,10 @@ def _check_workspace(plan, box_text: str | None) -> list[str]:
         positions = move.poses_at(np.linspace(0.0, move.duration_s, 21))[:, :3, 3]
         outside = (positions < box[:, 0]) | (positions > box[:, 1])
         if outside.any():
-            problems.append(f"{move.label} move leaves the workspace box (up to "
-                            f"{np.max(np.maximum(box[:, 0] - positions, positions - box[:, 1])):.0f} mm)")
+            problems.append(
+                f"{move.label} move leaves the workspace box (up to "
+                f"{np.max(np.maximum(box[:, 0] - positions, positions - box[:, 1])):.0f} mm)"
+            )
     return problems
 
 
@@ -309,16 +353,30 @@ def _run_acquisition(args, robot, tracker, world) -> None:
     if problems:
         raise InvalidInputError("the plan leaves the workspace box; nothing was moved")
     if args.dry_run:
-        print("dry run: plan checked (reach, joint limits, visibility in the model, workspace box); nothing moved")
+        print(
+            "dry run: plan checked (reach, joint limits, visibility in the model, workspace box); nothing moved"
+        )
         return
     if args.robot != "sim" and not args.confirm_robot_motion:
-        raise InvalidInputError("moving a real robot needs --confirm-robot-motion (check the workspace is clear)")
+        raise InvalidInputError(
+            "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
+        )
     metadata = recording_metadata(world) if world is not None else _hardware_metadata(args)
     settings = AcquisitionSettings(linear_speed_mm_s=args.speed_mm_s, linear_accel_mm_s2=args.accel_mm_s2)
-    result = acquire(plan, robot, tracker, args.output, metadata, settings, resume=args.resume,
-                     on_sample=_progress_printer(len(plan.moves)))
-    print(f"\nwrote {result.recording_path}: {result.samples_written} samples, "
-          f"{result.visible_written} with the marker seen; {result.moves_completed}/{result.moves_total} moves")
+    result = acquire(
+        plan,
+        robot,
+        tracker,
+        args.output,
+        metadata,
+        settings,
+        resume=args.resume,
+        on_sample=_progress_printer(len(plan.moves)),
+    )
+    print(
+        f"\nwrote {result.recording_path}: {result.samples_written} samples, "
+        f"{result.visible_written} with the marker seen; {result.moves_completed}/{result.moves_total} moves"
+    )
 
 
 def _hardware_devices(args):
@@ -335,8 +393,9 @@ def _hardware_devices(args):
         if not args.rom:
             raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
         serial = address.startswith("/")
-        tracker = NDITracker(address, None if serial else (port or VEGA_DEFAULT_PORT), args.rom,
-                             rate_hz=args.tracker_rate_hz)
+        tracker = NDITracker(
+            address, None if serial else (port or VEGA_DEFAULT_PORT), args.rom, rate_hz=args.tracker_rate_hz
+        )
     else:
         from .adapters.igtl import IGTLTracker
 
@@ -364,7 +423,6 @@ def _hardware_plan(args, robot):
     from .planning.motion import MotionLimits
     from .planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
     from .planning.visibility import VisibilityModel
-
     from .workflows.acquisition import resume_home_joints
 
     model = _hardware_model(args)
@@ -375,18 +433,27 @@ def _hardware_plan(args, robot):
     if mismatch > 1.0:
         raise InvalidInputError(
             f"--robot-model/--tool-offset-mm put the TCP {mismatch:.1f} mm from where the controller reports it; "
-            "they must match the TCP configured on the robot")
+            "they must match the TCP configured on the robot"
+        )
     visibility = None
     if args.prior:
         prior = read_calibration(args.prior)
-        visibility = VisibilityModel(TrackerModel(), ndi_8700339_like(), prior.tracker_from_base,
-                                     prior.tcp_from_marker)
+        visibility = VisibilityModel(
+            TrackerModel(), ndi_8700339_like(), prior.tracker_from_base, prior.tcp_from_marker
+        )
     settings = PaperSweepSettings(
-        rotation_deg=args.rotation_deg, translation_mm=args.translation_mm,
-        limits=MotionLimits(linear_speed_mm_s=args.speed_mm_s, linear_accel_mm_s2=args.accel_mm_s2,
-                            angular_speed_rad_s=np.radians(args.angular_speed_deg_s)))
+        rotation_deg=args.rotation_deg,
+        translation_mm=args.translation_mm,
+        limits=MotionLimits(
+            linear_speed_mm_s=args.speed_mm_s,
+            linear_accel_mm_s2=args.accel_mm_s2,
+            angular_speed_rad_s=np.radians(args.angular_speed_deg_s),
+        ),
+    )
     # On resume the plan is rebuilt from the home it was made from, not from where the robot stopped.
-    plan = plan_paper_sweeps(model, state.joints_rad if home_joints is None else home_joints, settings, visibility)
+    plan = plan_paper_sweeps(
+        model, state.joints_rad if home_joints is None else home_joints, settings, visibility
+    )
     if visibility is None:
         plan.messages.append("no --prior calibration: marker visibility was not checked")
     return plan
@@ -418,22 +485,35 @@ def _cmd_register_landmarks(args) -> None:
     settings = None
     if args.plus_compatible:
         times = sequence.timestamps_s
-        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(landmarks) for b in landmarks[i + 1:])
-        settings = LandmarkDetectionSettings(acquisition_rate_hz=1.0 / (times[1] - times[0]),
-                                             min_landmark_spacing_mm=spacing, plus_compatible=True)
+        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(landmarks) for b in landmarks[i + 1 :])
+        settings = LandmarkDetectionSettings(
+            acquisition_rate_hz=1.0 / (times[1] - times[0]),
+            min_landmark_spacing_mm=spacing,
+            plus_compatible=True,
+        )
     result = register_landmarks_from_stylus(
-        sequence.timestamps_s, sequence.transform(f"{args.reference}ToTracker"),
-        sequence.transform(f"{args.stylus}ToTracker"), stylus_from_tip, landmarks, settings)
+        sequence.timestamps_s,
+        sequence.transform(f"{args.reference}ToTracker"),
+        sequence.transform(f"{args.stylus}ToTracker"),
+        stylus_from_tip,
+        landmarks,
+        settings,
+    )
     reg = result.registration
     if args.output:
         print(f"wrote {write_json(result.to_dict(), args.output)}")
-    print(f"registered {len(landmarks)} landmarks (detected at " +
-          ", ".join(f"{t - sequence.timestamps_s[0]:.1f}" for t in result.detected_at_s) + " s)")
+    print(
+        f"registered {len(landmarks)} landmarks (detected at "
+        + ", ".join(f"{t - sequence.timestamps_s[0]:.1f}" for t in result.detected_at_s)
+        + " s)"
+    )
     print("reference_from_phantom:")
     for row in reg.a_from_b:
         print("  " + "  ".join(f"{v:11.6f}" for v in row))
-    print(f"landmark error: mean {reg.fre_mean_mm:.3f} mm (PLUS's 'Error'), RMS {reg.fre_rms_mm:.3f} mm; "
-          f"per landmark " + ", ".join(f"{v:.2f}" for v in reg.residuals_mm))
+    print(
+        f"landmark error: mean {reg.fre_mean_mm:.3f} mm (PLUS's 'Error'), RMS {reg.fre_rms_mm:.3f} mm; "
+        f"per landmark " + ", ".join(f"{v:.2f}" for v in reg.residuals_mm)
+    )
 
 
 def _cmd_export(args) -> None:
@@ -443,14 +523,23 @@ def _cmd_export(args) -> None:
 
     calibration = read_calibration(args.calibration)
     if not (args.slicer or args.plus or args.igtl):
-        raise InvalidInputError("say where to export: --slicer FILE.tfm, --plus FILE.xml and/or --igtl HOST:PORT")
+        raise InvalidInputError(
+            "say where to export: --slicer FILE.tfm, --plus FILE.xml and/or --igtl HOST:PORT"
+        )
     error = (calibration.predicted_tre_mm or {}).get("site")
     if args.slicer:
-        print(f"wrote {write_slicer_transform(calibration.tracker_from_base, args.slicer)} "
-              "(loads in 3D Slicer as BaseToTracker; its matrix is tracker_from_base)")
+        print(
+            f"wrote {write_slicer_transform(calibration.tracker_from_base, args.slicer)} "
+            "(loads in 3D Slicer as BaseToTracker; its matrix is tracker_from_base)"
+        )
     if args.plus:
-        path = write_plus_coordinate_definitions(args.plus, [(calibration.tracker_from_base, "Base", "Tracker", error),
-                                                             (calibration.tcp_from_marker, "Marker", "TCP", None)])
+        path = write_plus_coordinate_definitions(
+            args.plus,
+            [
+                (calibration.tracker_from_base, "Base", "Tracker", error),
+                (calibration.tcp_from_marker, "Marker", "TCP", None),
+            ],
+        )
         print(f"wrote {path} (PLUS CoordinateDefinitions: BaseToTracker, MarkerToTCP)")
     if args.igtl:
         from .adapters import parse_device_url
@@ -477,8 +566,9 @@ def _cmd_check(args) -> None:
 
     calibration = read_calibration(args.calibration)
     if args.recording:
-        result = check_with_recording(calibration, read_recording(args.recording), args.threshold_mm,
-                                      args.threshold_deg)
+        result = check_with_recording(
+            calibration, read_recording(args.recording), args.threshold_mm, args.threshold_deg
+        )
     elif args.robot == "sim":
         from .sim.check import check_joints
         from .sim.devices import SimClock, SimulatedRobot, SimulatedTracker
@@ -486,16 +576,28 @@ def _cmd_check(args) -> None:
 
         world = build_world(_scenario_for_verification(args, calibration))
         robot = SimulatedRobot(world, SimClock())
-        result = check_with_robot(calibration, robot, SimulatedTracker(world, robot), check_joints(world, args.poses),
-                                  args.threshold_mm, args.threshold_deg)
+        result = check_with_robot(
+            calibration,
+            robot,
+            SimulatedTracker(world, robot),
+            check_joints(world, args.poses),
+            args.threshold_mm,
+            args.threshold_deg,
+        )
     else:
-        raise InvalidInputError("check on real hardware: record two or three static poses with "
-                                "'spacecal acquire' and pass them with --recording")
+        raise InvalidInputError(
+            "check on real hardware: record two or three static poses with "
+            "'spacecal acquire' and pass them with --recording"
+        )
     history = append_history(args.calibration, result)
     for pose in result.to_dict()["poses"]:
-        print(f"  {pose['label']:>10}: TCP {pose['tcp_error_mm']:.3f} mm, rotation {pose['rotation_error_deg']:.3f} deg")
+        print(
+            f"  {pose['label']:>10}: TCP {pose['tcp_error_mm']:.3f} mm, rotation {pose['rotation_error_deg']:.3f} deg"
+        )
     verdict = "PASS" if result.passed else "FAIL"
-    print(f"{verdict}: thresholds {result.threshold_mm} mm and {result.threshold_deg} deg (history: {history})")
+    print(
+        f"{verdict}: thresholds {result.threshold_mm} mm and {result.threshold_deg} deg (history: {history})"
+    )
     if not result.passed:
         raise CheckFailed("the calibration no longer holds: recalibrate (marker bumped, tracker moved?)")
 
@@ -508,13 +610,17 @@ def _cmd_phantom(args) -> None:
 
     if args.cases < 1:
         raise InvalidInputError("--cases must be at least 1")
-    result = run_phantom_experiment(load_scenario(args.scenario), args.method, PhantomSettings(cases=args.cases))
+    result = run_phantom_experiment(
+        load_scenario(args.scenario), args.method, PhantomSettings(cases=args.cases)
+    )
     print(result.table())
     print("(measured errors include the second CT's localisation error, as in the paper's experiment)")
     if args.output:
         print(f"wrote {write_json(result.to_dict(), args.output)}")
     if args.figure:
-        print(f"wrote {plot_phantom_errors(result.entry_error_mm, result.target_error_mm, result.direction_error_deg, args.figure)}")
+        print(
+            f"wrote {plot_phantom_errors(result.entry_error_mm, result.target_error_mm, result.direction_error_deg, args.figure)}"
+        )
 
 
 def _cmd_report(args) -> None:
@@ -555,22 +661,42 @@ def _cmd_plan(args) -> None:
 
     world = build_world(load_scenario(args.scenario))
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
-    settings = PlannerSettings(budget_s=_parse_seconds(args.budget), frames_per_station=args.frames_per_station,
-                               sphere_sigma_mm=world.scenario.white_noise_rms_mm / np.sqrt(3) or 0.1)
-    planned = plan_for_site(world.nominal_model, world.home_joints_rad, visibility,
-                            np.random.default_rng([world.scenario.seed, 7]), settings)
+    settings = PlannerSettings(
+        budget_s=_parse_seconds(args.budget),
+        frames_per_station=args.frames_per_station,
+        sphere_sigma_mm=world.scenario.white_noise_rms_mm / np.sqrt(3) or 0.1,
+    )
+    planned = plan_for_site(
+        world.nominal_model,
+        world.home_joints_rad,
+        visibility,
+        np.random.default_rng([world.scenario.seed, 7]),
+        settings,
+    )
     paper = plan_for_world(world)
     paper_error = paper_sweep_site_error(world.nominal_model, paper, visibility, settings)
-    print(f"planned: {len(planned.station_joints_rad)} stations, {planned.motion_time_s:.1f} s of motion, "
-          f"predicted tip error at the site {planned.predicted_error_mm:.3f} mm")
-    print(f"paper's sweeps: {paper.motion_time_s:.1f} s of motion, predicted tip error at the site {paper_error:.3f} mm")
-    print("(predicted for a joint fit of the calibration and the robot's DH corrections: spacecal calibrate --method kinematic)")
+    print(
+        f"planned: {len(planned.station_joints_rad)} stations, {planned.motion_time_s:.1f} s of motion, "
+        f"predicted tip error at the site {planned.predicted_error_mm:.3f} mm"
+    )
+    print(
+        f"paper's sweeps: {paper.motion_time_s:.1f} s of motion, predicted tip error at the site {paper_error:.3f} mm"
+    )
+    print(
+        "(predicted for a joint fit of the calibration and the robot's DH corrections: spacecal calibrate --method kinematic)"
+    )
     if args.output:
-        data = {"schema": "spacecal.plan", "schema_version": 1, "budget_s": settings.budget_s,
-                "motion_time_s": planned.motion_time_s, "predicted_error_mm": planned.predicted_error_mm,
-                "paper_sweep": {"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
-                "home_joints_rad": world.home_joints_rad.tolist(),
-                "station_joints_rad": planned.station_joints_rad.tolist(), "moves": planned.plan.summary()["moves"]}
+        data = {
+            "schema": "spacecal.plan",
+            "schema_version": 1,
+            "budget_s": settings.budget_s,
+            "motion_time_s": planned.motion_time_s,
+            "predicted_error_mm": planned.predicted_error_mm,
+            "paper_sweep": {"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
+            "home_joints_rad": world.home_joints_rad.tolist(),
+            "station_joints_rad": planned.station_joints_rad.tolist(),
+            "moves": planned.plan.summary()["moves"],
+        }
         print(f"wrote {write_json(data, args.output)}")
 
 
@@ -584,7 +710,8 @@ def build_parser() -> argparse.ArgumentParser:
     from .estimators import METHODS
 
     parser = argparse.ArgumentParser(
-        prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker.")
+        prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker."
+    )
     parser.add_argument("--version", action="version", version=f"spacecal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -592,22 +719,38 @@ def build_parser() -> argparse.ArgumentParser:
     p = commands.add_parser("simulate", help="simulate the paper's calibration run -> recording CSV")
     p.add_argument("--scenario", help="scenario JSON file or preset (paper-realistic, paper-white)")
     p.add_argument("--seed", type=int, help="override the scenario's seed")
-    p.add_argument("--raw", action="store_true", help="write the two raw streams (STEM.robot.csv, STEM.tracker.csv)")
-    p.add_argument("--clock-offset-ms", type=float, default=0.0, help="with --raw: robot clock ahead of the tracker's")
+    p.add_argument(
+        "--raw", action="store_true", help="write the two raw streams (STEM.robot.csv, STEM.tracker.csv)"
+    )
+    p.add_argument(
+        "--clock-offset-ms", type=float, default=0.0, help="with --raw: robot clock ahead of the tracker's"
+    )
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (with --raw: the stem)")
     p.set_defaults(run=_cmd_simulate)
 
     p = commands.add_parser("calibrate", help="estimate tracker_from_base from a recording")
     p.add_argument("recording", help="recording CSV (or, with --tracker-stream, the robot stream)")
-    p.add_argument("--method", default="paper", help=f"estimator: {', '.join(sorted(METHODS))} (default paper)")
+    p.add_argument(
+        "--method", default="paper", help=f"estimator: {', '.join(sorted(METHODS))} (default paper)"
+    )
     p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
-    p.add_argument("--time-offset-ms", default="estimate",
-                   help="with --tracker-stream: robot clock minus tracker clock, or 'estimate' (default)")
+    p.add_argument(
+        "--time-offset-ms",
+        default="estimate",
+        help="with --tracker-stream: robot clock minus tracker clock, or 'estimate' (default)",
+    )
     p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
-    p.add_argument("--target", action="append", metavar="X,Y,Z",
-                   help="point in the base frame (mm) to predict the TRE at (ml, robust); repeatable")
-    p.add_argument("--sigma-mm", type=float,
-                   help="per-axis sphere noise (ml, robust); default: estimated from marker_rms_mm")
+    p.add_argument(
+        "--target",
+        action="append",
+        metavar="X,Y,Z",
+        help="point in the base frame (mm) to predict the TRE at (ml, robust); repeatable",
+    )
+    p.add_argument(
+        "--sigma-mm",
+        type=float,
+        help="per-axis sphere noise (ml, robust); default: estimated from marker_rms_mm",
+    )
     p.set_defaults(run=_cmd_calibrate)
 
     p = commands.add_parser("pivot", help="pivot calibration of a pointer or needle tip")
@@ -621,7 +764,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("recording", help="recording CSV")
     p.add_argument("--calibration", required=True, help="calibration JSON (where to evaluate the bound)")
     p.add_argument("--sigma-mm", type=float, required=True, help="per-axis sphere noise, mm")
-    p.add_argument("--target", action="append", metavar="X,Y,Z", help="point in the base frame (mm); repeatable")
+    p.add_argument(
+        "--target", action="append", metavar="X,Y,Z", help="point in the base frame (mm); repeatable"
+    )
     p.set_defaults(run=_cmd_bound)
 
     p = commands.add_parser("verify", help="the paper's verification experiment on the simulated system")
@@ -637,7 +782,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="directory to write the recording, calibration, verification and figure to")
     p.set_defaults(run=_cmd_demo)
 
-    p = commands.add_parser("acquire", help="run the calibration motion on a robot while sampling the tracker")
+    p = commands.add_parser(
+        "acquire", help="run the calibration motion on a robot while sampling the tracker"
+    )
     p.add_argument("--robot", default="sim", help="sim (default) or ur://HOST")
     p.add_argument("--tracker", default="sim", help="sim (default), ndi://PORT_OR_HOST or igtl://HOST:PORT")
     p.add_argument("--scenario", help="scenario for the simulated devices (default paper-realistic)")
@@ -647,25 +794,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
     p.add_argument("--speed-mm-s", type=float, default=100.0, help="TCP speed (default 100 mm/s)")
     p.add_argument("--accel-mm-s2", type=float, default=400.0, help="TCP acceleration (default 400 mm/s^2)")
-    p.add_argument("--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX",
-                   help="base-frame box (mm) the TCP must stay in")
+    p.add_argument(
+        "--workspace-box",
+        metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX",
+        help="base-frame box (mm) the TCP must stay in",
+    )
     p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
     p.add_argument("--tracker-rate-hz", type=float, default=20.0, help="NDI frame rate (Vicra 20, Vega 60)")
     p.add_argument("--robot-model", default="UR10", help="UR model for planning checks (default UR10)")
     p.add_argument("--tool-offset-mm", default="0,0,0", help="TCP in the flange frame, as set on the robot")
     p.add_argument("--prior", help="an earlier calibration, to check marker visibility along the plan")
     p.add_argument("--rotation-deg", type=float, default=90.0, help="rotation sweep each way (default 90)")
-    p.add_argument("--translation-mm", type=float, default=500.0, help="translation sweep length (default 500)")
+    p.add_argument(
+        "--translation-mm", type=float, default=500.0, help="translation sweep length (default 500)"
+    )
     p.add_argument("--angular-speed-deg-s", type=float, default=45.0, help="TCP rotation speed (default 45)")
     p.set_defaults(run=_cmd_acquire)
 
-    p = commands.add_parser("register-landmarks",
-                            help="register a phantom to its reference marker from a tracked-stylus PLUS recording")
-    p.add_argument("sequence", help="PLUS sequence file (.igs.mha) with <Reference>ToTracker and <Stylus>ToTracker")
-    p.add_argument("--config", required=True, help="PLUS device set: StylusTip->Stylus transform and <Landmarks>")
+    p = commands.add_parser(
+        "register-landmarks",
+        help="register a phantom to its reference marker from a tracked-stylus PLUS recording",
+    )
+    p.add_argument(
+        "sequence", help="PLUS sequence file (.igs.mha) with <Reference>ToTracker and <Stylus>ToTracker"
+    )
+    p.add_argument(
+        "--config", required=True, help="PLUS device set: StylusTip->Stylus transform and <Landmarks>"
+    )
     p.add_argument("--reference", default="Reference", help="reference tool name (default Reference)")
     p.add_argument("--stylus", default="Stylus", help="stylus tool name (default Stylus)")
-    p.add_argument("--plus-compatible", action="store_true", help="average landmark frames exactly as PLUS does")
+    p.add_argument(
+        "--plus-compatible", action="store_true", help="average landmark frames exactly as PLUS does"
+    )
     p.add_argument("-o", "--output", help="registration JSON to write")
     p.set_defaults(run=_cmd_register_landmarks)
 
@@ -673,12 +833,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--slicer", help="ITK transform file (.tfm) for 3D Slicer")
     p.add_argument("--plus", help="PLUS CoordinateDefinitions XML")
-    p.add_argument("--igtl", metavar="HOST:PORT", help="send BaseToTracker to an OpenIGTLink server (e.g. Slicer)")
+    p.add_argument(
+        "--igtl", metavar="HOST:PORT", help="send BaseToTracker to an OpenIGTLink server (e.g. Slicer)"
+    )
     p.set_defaults(run=_cmd_export)
 
     p = commands.add_parser("import-plus", help="turn a PLUS sequence file (.igs.mha) into a recording CSV")
     p.add_argument("sequence", help="PLUS sequence file")
-    p.add_argument("--marker", default="MarkerToTracker", help="marker transform name (default MarkerToTracker)")
+    p.add_argument(
+        "--marker", default="MarkerToTracker", help="marker transform name (default MarkerToTracker)"
+    )
     p.add_argument("--tcp", default="TCPToBase", help="robot TCP transform name (default TCPToBase)")
     p.add_argument("--segment", default="static", help="segment label for every frame")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write")
@@ -690,7 +854,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robot", default="sim", help="sim (default): move the simulated robot")
     p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
     p.add_argument("--poses", type=int, default=3, choices=[2, 3], help="number of poses (2 or 3)")
-    p.add_argument("--threshold-mm", type=float, default=1.0, help="largest TCP error that passes (default 1 mm)")
+    p.add_argument(
+        "--threshold-mm", type=float, default=1.0, help="largest TCP error that passes (default 1 mm)"
+    )
     p.add_argument("--threshold-deg", type=float, default=1.0, help="largest rotation error that passes")
     p.set_defaults(run=_cmd_check)
 
@@ -710,7 +876,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="HTML file to write")
     p.set_defaults(run=_cmd_report)
 
-    p = commands.add_parser("plan", help="plan a calibration motion for the smallest predicted error at the site")
+    p = commands.add_parser(
+        "plan", help="plan a calibration motion for the smallest predicted error at the site"
+    )
     p.add_argument("--budget", default="30s", help="motion time budget, e.g. 30s (default)")
     p.add_argument("--scenario", help="the (simulated) set-up to plan for (default paper-realistic)")
     p.add_argument("--frames-per-station", type=int, default=5, help="tracker frames held at each station")

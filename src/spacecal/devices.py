@@ -83,8 +83,9 @@ class Robot(Protocol):
     def move_joints(self, joints_rad: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> None:
         """Move to joint angles (6,) and return when there."""
 
-    def move_linear(self, base_from_tcp: np.ndarray, speed_mm_s: float, accel_mm_s2: float,
-                    asynchronous: bool = False) -> None:
+    def move_linear(
+        self, base_from_tcp: np.ndarray, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
+    ) -> None:
         """Straight-line TCP move to a pose (4, 4), mm; return at once when ``asynchronous``."""
 
     def stop(self) -> None:

@@ -24,9 +24,7 @@ def check_frame(name: str) -> str:
     if name not in FRAMES:
         from .errors import InvalidInputError
 
-        raise InvalidInputError(
-            f"unknown frame {name!r}; known frames: {', '.join(sorted(FRAMES))}"
-        )
+        raise InvalidInputError(f"unknown frame {name!r}; known frames: {', '.join(sorted(FRAMES))}")
     return name
 
 

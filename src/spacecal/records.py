@@ -59,7 +59,7 @@ class Recording:
         """Boolean (N,): the marker was tracked in that frame."""
         return np.all(np.isfinite(self.tracker_from_marker_stack[:, :3, 3]), axis=1)
 
-    def select(self, mask) -> "Recording":
+    def select(self, mask) -> Recording:
         """A new recording holding only the samples where ``mask`` (N,) is true."""
         mask = np.asarray(mask)
         return Recording(

@@ -18,10 +18,10 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 pytest.importorskip("pyigtl")
 
-from spacecal.estimators.likelihood import tre_lower_bound  # noqa: E402
-from spacecal.geometry.metrics import cube_grid, target_registration_errors  # noqa: E402
-from spacecal.io.recording_csv import read_recording  # noqa: E402
-from spacecal.workflows.acquisition import progress_path  # noqa: E402
+from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.geometry.metrics import cube_grid, target_registration_errors
+from spacecal.io.recording_csv import read_recording
+from spacecal.workflows.acquisition import progress_path
 
 SPACECAL = [sys.executable, "-m", "spacecal.cli"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
@@ -37,9 +37,26 @@ def tracker_url(world, kind):
 
 
 def acquire_command(world, kind, output, rom, rotation_deg="45", translation_mm="300", *extra):
-    return [*SPACECAL, "acquire", "--robot", f"ur://{world.info['host']}", "--tracker", tracker_url(world, kind),
-            "--rom", str(rom), "-o", str(output), "--confirm-robot-motion", "--tool-offset-mm", "0,0,200",
-            "--rotation-deg", rotation_deg, "--translation-mm", translation_mm, *extra]
+    return [
+        *SPACECAL,
+        "acquire",
+        "--robot",
+        f"ur://{world.info['host']}",
+        "--tracker",
+        tracker_url(world, kind),
+        "--rom",
+        str(rom),
+        "-o",
+        str(output),
+        "--confirm-robot-motion",
+        "--tool-offset-mm",
+        "0,0,200",
+        "--rotation-deg",
+        rotation_deg,
+        "--translation-mm",
+        translation_mm,
+        *extra,
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -57,21 +74,33 @@ def paper_estimator_spread():
     scenario = dataclasses.replace(PRESETS["paper-white"], rotation_deg=45.0, translation_mm=300.0)
     simulation = simulate(scenario)
     bound = cramer_rao_tre_mm(simulation)
-    ratios = [calibration_error(calibrate(simulation.remeasure(trial)[0], "paper", uncertainty=False),
-                                simulation.world)["tre_rms_mm"] / bound for trial in range(200)]
+    ratios = [
+        calibration_error(
+            calibrate(simulation.remeasure(trial)[0], "paper", uncertainty=False), simulation.world
+        )["tre_rms_mm"]
+        / bound
+        for trial in range(200)
+    ]
     return float(np.percentile(ratios, 99.5))
 
 
 @pytest.mark.parametrize("kind", ["ndi", "igtl"])
-def test_acquire_and_calibrate_against_the_ground_truth(world, rom_file, tmp_path, kind, paper_estimator_spread):
+def test_acquire_and_calibrate_against_the_ground_truth(
+    world, rom_file, tmp_path, kind, paper_estimator_spread
+):
     recording = tmp_path / "rec.csv"
-    run = subprocess.run(acquire_command(world, kind, recording, rom_file), capture_output=True, text=True,
-                         timeout=150)
+    run = subprocess.run(
+        acquire_command(world, kind, recording, rom_file), capture_output=True, text=True, timeout=150
+    )
     assert run.returncode == 0, run.stderr
     assert "18/18 moves" in run.stdout
     calibration = tmp_path / "cal.json"
-    run = subprocess.run([*SPACECAL, "calibrate", str(recording), "--method", "paper", "-o", str(calibration)],
-                         capture_output=True, text=True, timeout=60)
+    run = subprocess.run(
+        [*SPACECAL, "calibrate", str(recording), "--method", "paper", "-o", str(calibration)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert run.returncode == 0, run.stderr
     estimate = np.array(json.loads(calibration.read_text())["tracker_from_base"])
     truth = world.truth()
@@ -80,7 +109,9 @@ def test_acquire_and_calibrate_against_the_ground_truth(world, rom_file, tmp_pat
     errors = target_registration_errors(estimate, truth["tracker_from_base"], cube_grid(site))
     tre = float(np.sqrt(np.mean(errors**2)))
     # The bound the injected noise allows for exactly this recording (Cramér–Rao, at the truth).
-    bound = tre_lower_bound(data, truth["tracker_from_base"], truth["tcp_from_marker"], SPHERE_SIGMA_MM)["cube_rms"]
+    bound = tre_lower_bound(data, truth["tracker_from_base"], truth["tcp_from_marker"], SPHERE_SIGMA_MM)[
+        "cube_rms"
+    ]
     print(f"{kind}: TRE {tre:.4f} mm, bound {bound:.4f} mm, allowed {paper_estimator_spread:.2f} x bound")
     # Through the real clients the error must stay within what the injected noise gives the
     # paper estimator in simulation (its 99.5th percentile, about 5-6x the bound here).
@@ -106,28 +137,44 @@ def test_faults_stop_the_run_and_keep_every_sample(world, rom_file, tmp_path, fa
     kind, command, message = FAULTS[fault]
     recording = tmp_path / "rec.csv"
     start_fault_after(world, command, 4.0)
-    run = subprocess.run(acquire_command(world, kind, recording, rom_file, "15", "120"), capture_output=True,
-                         text=True, timeout=120)
+    run = subprocess.run(
+        acquire_command(world, kind, recording, rom_file, "15", "120"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 1
     last = run.stderr.strip().splitlines()[-1]
-    assert last.startswith("spacecal: error: acquisition stopped") and message in last and "Traceback" not in run.stderr
+    assert (
+        last.startswith("spacecal: error: acquisition stopped")
+        and message in last
+        and "Traceback" not in run.stderr
+    )
     kept = read_recording(recording)  # readable, every row intact
     assert len(kept) > 10 and f"{len(kept)} samples kept" in last
     progress = json.loads(progress_path(recording).read_text())
     assert progress["moves_completed"] < progress["moves_total"]
     if command in ("protective_stop", "emergency_stop"):
         world.control("clear")
-        resumed = subprocess.run(acquire_command(world, kind, recording, rom_file, "15", "120", "--resume"),
-                                 capture_output=True, text=True, timeout=120)
+        resumed = subprocess.run(
+            acquire_command(world, kind, recording, rom_file, "15", "120", "--resume"),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert resumed.returncode == 0, resumed.stderr
         again = read_recording(recording)
-        assert len(again) > len(kept) and np.array_equal(again.time_s[:len(kept)], kept.time_s)
+        assert len(again) > len(kept) and np.array_equal(again.time_s[: len(kept)], kept.time_s)
 
 
 def test_ctrl_c_stops_the_robot_and_keeps_the_data(world, rom_file, tmp_path):
     recording = tmp_path / "rec.csv"
-    process = subprocess.Popen(acquire_command(world, "ndi", recording, rom_file, "15", "120"),
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen(
+        acquire_command(world, "ndi", recording, rom_file, "15", "120"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     time.sleep(5.0)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=60)
@@ -138,14 +185,22 @@ def test_ctrl_c_stops_the_robot_and_keeps_the_data(world, rom_file, tmp_path):
 
 def test_dry_run_moves_nothing(world, rom_file, tmp_path):
     before = world.truth()
-    run = subprocess.run(acquire_command(world, "ndi", tmp_path / "rec.csv", rom_file) + ["--dry-run"],
-                         capture_output=True, text=True, timeout=60)
+    run = subprocess.run(
+        acquire_command(world, "ndi", tmp_path / "rec.csv", rom_file) + ["--dry-run"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert run.returncode == 0 and "nothing moved" in run.stdout
     assert not (tmp_path / "rec.csv").exists()
     assert before is not None
 
 
 def test_moving_a_real_robot_needs_confirmation(world, rom_file, tmp_path):
-    command = [c for c in acquire_command(world, "ndi", tmp_path / "rec.csv", rom_file) if c != "--confirm-robot-motion"]
+    command = [
+        c
+        for c in acquire_command(world, "ndi", tmp_path / "rec.csv", rom_file)
+        if c != "--confirm-robot-motion"
+    ]
     run = subprocess.run(command, capture_output=True, text=True, timeout=60)
     assert run.returncode == 1 and "--confirm-robot-motion" in run.stderr

@@ -8,9 +8,9 @@ import pytest
 
 pytest.importorskip("pyigtl")
 
-from spacecal.adapters.igtl import IGTLTracker, publish_transform  # noqa: E402
-from spacecal.devices import FRAME_MISSING, FRAME_OK  # noqa: E402
-from spacecal.errors import DeviceError  # noqa: E402
+from spacecal.adapters.igtl import IGTLTracker, publish_transform
+from spacecal.devices import FRAME_MISSING, FRAME_OK
+from spacecal.errors import DeviceError
 
 
 def test_marker_to_tracker_stream_with_status(world):

@@ -5,11 +5,11 @@ import pytest
 
 pytest.importorskip("ndicapy")
 
-from spacecal.adapters.ndi import NDITracker  # noqa: E402
-from spacecal.devices import FRAME_MISSING, FRAME_OK  # noqa: E402
-from spacecal.errors import DeviceError, InvalidInputError  # noqa: E402
+from spacecal.adapters.ndi import NDITracker
+from spacecal.devices import FRAME_MISSING, FRAME_OK
+from spacecal.errors import DeviceError, InvalidInputError
 
-from ..fakes.ndi import crc16  # noqa: E402
+from ..fakes.ndi import crc16
 
 
 def test_crc_check_values():
@@ -29,8 +29,11 @@ def marker_position_truth(world):
     from spacecal.sim.world import build_world
 
     sim = build_world(scenario_from_dict(truth["scenario"]))
-    return (truth["tracker_from_base"] @ forward_kinematics(sim.true_model, truth["home_joints_rad"])
-            @ truth["tcp_from_marker"])[:3, 3]
+    return (
+        truth["tracker_from_base"]
+        @ forward_kinematics(sim.true_model, truth["home_joints_rad"])
+        @ truth["tcp_from_marker"]
+    )[:3, 3]
 
 
 @pytest.mark.parametrize("transport", ["tcp", "pty"])
@@ -51,8 +54,10 @@ def test_three_tools_trigger_ndicapi_46_and_are_still_read(world, rom_file):
     tracker = connect(world, "tcp", [rom_file] * 3)
     frame = tracker.next_frame(1.0)
     assert tracker.decode_faults_handled >= 1 and tracker.reply == "bx"
-    assert frame.status == FRAME_OK and np.linalg.norm(frame.tracker_from_marker[:3, 3]
-                                                       - marker_position_truth(world)) < 1.5
+    assert (
+        frame.status == FRAME_OK
+        and np.linalg.norm(frame.tracker_from_marker[:3, 3] - marker_position_truth(world)) < 1.5
+    )
     tracker.close()
 
 

@@ -5,10 +5,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.errors import DegenerateDataError
-from spacecal.geometry.rotations import rotation_angle
-from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
 from spacecal.estimators.hand_eye import relative_motions
+from spacecal.geometry.rotations import rotation_angle
+from spacecal.geometry.transforms import invert_transform, make_transform
 
 ROTATION_NOISE_RAD = 0.002
 TRANSLATION_NOISE_MM = 0.2
@@ -19,7 +19,9 @@ def problem(seed=0, count=20, noisy=False):
     rng = np.random.default_rng(seed)
     x = make_transform(Rotation.random(random_state=seed + 1).as_matrix(), rng.normal(size=3) * 100)
     y = make_transform(Rotation.random(random_state=seed + 2).as_matrix(), rng.normal(size=3) * 1000)
-    a = make_transform(Rotation.random(count, random_state=seed + 3).as_matrix(), rng.normal(size=(count, 3)) * 300)
+    a = make_transform(
+        Rotation.random(count, random_state=seed + 3).as_matrix(), rng.normal(size=(count, 3)) * 300
+    )
     b = invert_transform(y) @ a @ x
     if noisy:
         b[:, :3, 3] += rng.normal(scale=TRANSLATION_NOISE_MM, size=(count, 3))
@@ -76,16 +78,23 @@ def opencv_robot_world(a, b, flag):
     cam = marker, world = tracker, gripper = tcp. Returns (X, Y) in our names."""
     marker_from_tracker, tcp_from_base = invert_transform(b), invert_transform(a)
     r_base2world, t_base2world, r_gripper2cam, t_gripper2cam = cv2.calibrateRobotWorldHandEye(
-        list(marker_from_tracker[:, :3, :3]), list(marker_from_tracker[:, :3, 3]),
-        list(tcp_from_base[:, :3, :3]), list(tcp_from_base[:, :3, 3]), method=flag)
+        list(marker_from_tracker[:, :3, :3]),
+        list(marker_from_tracker[:, :3, 3]),
+        list(tcp_from_base[:, :3, :3]),
+        list(tcp_from_base[:, :3, 3]),
+        method=flag,
+    )
     tracker_from_base = make_transform(r_base2world, t_base2world.ravel())
     marker_from_tcp = make_transform(r_gripper2cam, t_gripper2cam.ravel())
     return invert_transform(marker_from_tcp), invert_transform(tracker_from_base)
 
 
 ROBOT_WORLD_FLAGS = {"shah": "CALIB_ROBOT_WORLD_HAND_EYE_SHAH", "li": "CALIB_ROBOT_WORLD_HAND_EYE_LI"}
-HAND_EYE_FLAGS = {"tsai": "CALIB_HAND_EYE_TSAI", "park": "CALIB_HAND_EYE_PARK",
-                  "daniilidis": "CALIB_HAND_EYE_DANIILIDIS"}
+HAND_EYE_FLAGS = {
+    "tsai": "CALIB_HAND_EYE_TSAI",
+    "park": "CALIB_HAND_EYE_PARK",
+    "daniilidis": "CALIB_HAND_EYE_DANIILIDIS",
+}
 
 
 @pytest.mark.parametrize("name", sorted(ROBOT_WORLD_FLAGS))
@@ -111,8 +120,13 @@ def test_hand_eye_matches_opencv(name):
     for noisy in (False, True):
         a, b, _, y = problem(noisy=noisy)
         tcp_from_base = invert_transform(a)
-        rotation, translation = cv2.calibrateHandEye(list(tcp_from_base[:, :3, :3]), list(tcp_from_base[:, :3, 3]),
-                                                     list(b[:, :3, :3]), list(b[:, :3, 3]), method=flag)
+        rotation, translation = cv2.calibrateHandEye(
+            list(tcp_from_base[:, :3, :3]),
+            list(tcp_from_base[:, :3, 3]),
+            list(b[:, :3, :3]),
+            list(b[:, :3, 3]),
+            method=flag,
+        )
         theirs = make_transform(rotation, translation.ravel())
         ours = HAND_EYE_SOLVERS[name](*relative_motions(tcp_from_base, invert_transform(b)))
         if not noisy:

@@ -64,8 +64,12 @@ def test_verdict_warns_when_systematic_errors_dominate(realistic_simulation):
     assert result.diagnostics["verdict"].startswith("check:")
 
 
-def test_robust_flags_the_injected_outliers_and_keeps_clean_accuracy(outlier_simulation, realistic_simulation):
-    injected = set(np.flatnonzero((outlier_simulation.outlier_kind != "") & outlier_simulation.recording.visible))
+def test_robust_flags_the_injected_outliers_and_keeps_clean_accuracy(
+    outlier_simulation, realistic_simulation
+):
+    injected = set(
+        np.flatnonzero((outlier_simulation.outlier_kind != "") & outlier_simulation.recording.visible)
+    )
     robust = calibrate(outlier_simulation.recording, "robust")
     flagged = {o["row"] for o in robust.diagnostics["outliers"]}
     assert len(flagged & injected) >= 0.9 * len(injected)
@@ -84,7 +88,9 @@ def test_robust_changes_nothing_on_clean_white_data(white_simulation):
 
 
 def test_options_a_method_does_not_take_are_refused(white_simulation):
-    with pytest.raises(InvalidInputError, match="does not take sigma_mm .methods that do: kinematic, ml, robust"):
+    with pytest.raises(
+        InvalidInputError, match="does not take sigma_mm .methods that do: kinematic, ml, robust"
+    ):
         calibrate(white_simulation.recording, "paper", sigma_mm=0.1)
 
 

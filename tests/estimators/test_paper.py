@@ -52,7 +52,9 @@ def test_white_noise_error_is_within_the_injected_noise(white_simulation):
 def test_diagnostics_report_what_the_issue_asks_for(realistic_simulation):
     result = calibrate(realistic_simulation.recording, "paper")
     d = result.diagnostics
-    assert d["sphere"]["radius_mm"] == pytest.approx(np.linalg.norm(realistic_simulation.world.tcp_from_marker[:3, 3]), abs=0.5)
+    assert d["sphere"]["radius_mm"] == pytest.approx(
+        np.linalg.norm(realistic_simulation.world.tcp_from_marker[:3, 3]), abs=0.5
+    )
     assert set(d["rotation_span_deg"]) == {"rot_x", "rot_y", "rot_z"}
     for label, (lo, hi) in realistic_simulation.plan.extents.items():
         if label.startswith("rot"):
@@ -81,8 +83,11 @@ def test_missing_segment_is_named(white_simulation):
 
 def test_too_little_rotation_is_named():
     world = build_world(NOISE_FREE)
-    plan = plan_paper_sweeps(world.nominal_model, world.home_joints_rad,
-                             PaperSweepSettings(rotation_deg=6.0, minimum_rotation_deg=1.0))
+    plan = plan_paper_sweeps(
+        world.nominal_model,
+        world.home_joints_rad,
+        PaperSweepSettings(rotation_deg=6.0, minimum_rotation_deg=1.0),
+    )
     with pytest.raises(DegenerateDataError, match="covers only 12.0 deg of rotation"):
         calibrate(execute_plan(world, plan)[0])
 

@@ -13,14 +13,30 @@ from ..conftest import shared_realdata
 
 # ../shared/realdata/pivot_sksurgery_ndi/README.md, tables A and B
 REFERENCE = {
-    ("subset57", "aos"): {"tip": [-14.473229, 394.634445, -7.406559],
-                          "pivot": [-804.741804, -85.474476, -2112.131173], "residual": 1.760678, "rms": 3.049584},
-    ("subset57", "sphere"): {"tip": [-16.792886, 382.776975, -7.256793],
-                             "pivot": [-792.976699, -81.898161, -2110.716614], "residual": 2.345629, "rms": 4.062748},
-    ("full", "aos"): {"tip": [-14.476172, 395.142822, -7.557904],
-                      "pivot": [-805.284736, -85.447793, -2112.066437], "residual": 1.838466, "rms": 3.184317},
-    ("full", "sphere"): {"tip": [-16.653391, 382.309321, -7.278931],
-                         "pivot": [-792.502588, -81.897600, -2110.659920], "residual": 2.489209, "rms": 4.311437},
+    ("subset57", "aos"): {
+        "tip": [-14.473229, 394.634445, -7.406559],
+        "pivot": [-804.741804, -85.474476, -2112.131173],
+        "residual": 1.760678,
+        "rms": 3.049584,
+    },
+    ("subset57", "sphere"): {
+        "tip": [-16.792886, 382.776975, -7.256793],
+        "pivot": [-792.976699, -81.898161, -2110.716614],
+        "residual": 2.345629,
+        "rms": 4.062748,
+    },
+    ("full", "aos"): {
+        "tip": [-14.476172, 395.142822, -7.557904],
+        "pivot": [-805.284736, -85.447793, -2112.066437],
+        "residual": 1.838466,
+        "rms": 3.184317,
+    },
+    ("full", "sphere"): {
+        "tip": [-16.653391, 382.309321, -7.278931],
+        "pivot": [-792.502588, -81.897600, -2110.659920],
+        "residual": 2.489209,
+        "rms": 4.311437,
+    },
 }
 
 
@@ -28,8 +44,10 @@ REFERENCE = {
 def pivot_sets():
     folder = shared_realdata("pivot_sksurgery_ndi")
     subset = (folder / "subset57_sksurgerycalibration.txt").read_text().split()
-    return {"subset57": read_matrix_folder(folder / "PivotCalibration", subset),
-            "full": read_matrix_folder(folder / "PivotCalibration")}
+    return {
+        "subset57": read_matrix_folder(folder / "PivotCalibration", subset),
+        "full": read_matrix_folder(folder / "PivotCalibration"),
+    }
 
 
 @pytest.mark.parametrize("data,method", sorted(REFERENCE))

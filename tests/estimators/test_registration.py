@@ -5,13 +5,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.errors import DegenerateDataError
+from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.estimators.registration import register_points
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import apply_transform, make_transform
 from spacecal.io.plus_config import read_plus_landmarks, read_plus_transform
 from spacecal.io.plus_sequence import read_plus_sequence
 from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
-from spacecal.estimators.landmarks import LandmarkDetectionSettings
 
 from ..conftest import shared_realdata
 
@@ -33,7 +33,7 @@ def test_fle_and_predicted_tre_match_monte_carlo():
         noisy = FIDUCIALS + rng.normal(scale=fle_rms / np.sqrt(3), size=FIDUCIALS.shape)
         reg = register_points(noisy, FIDUCIALS)
         errors.append(np.linalg.norm(apply_transform(reg.a_from_b, target) - target))
-        fle_estimates.append(reg.fle_rms_mm ** 2)
+        fle_estimates.append(reg.fle_rms_mm**2)
         predicted.append(reg.predicted_tre_mm(target, fle_rms_mm=fle_rms)[0])
     observed = np.sqrt(np.mean(np.square(errors)))
     assert predicted[0] == pytest.approx(observed, rel=0.1)
@@ -49,9 +49,14 @@ def test_degenerate_fiducials():
 
 
 # ../shared/realdata/plus_phantom_landmarks/README.md: PLUS's baseline result
-PLUS_REFERENCE_FROM_PHANTOM = np.array([[-0.00479115, 0.00329566, -0.999983, 22.7064],
-                                        [-0.0127965, 0.999912, 0.00335674, -39.7536],
-                                        [0.999907, 0.0128124, -0.00474856, 25.6504], [0, 0, 0, 1]])
+PLUS_REFERENCE_FROM_PHANTOM = np.array(
+    [
+        [-0.00479115, 0.00329566, -0.999983, 22.7064],
+        [-0.0127965, 0.999912, 0.00335674, -39.7536],
+        [0.999907, 0.0128124, -0.00474856, 25.6504],
+        [0, 0, 0, 1],
+    ]
+)
 PLUS_MEAN_ERROR_MM = 0.198046
 
 
@@ -68,10 +73,17 @@ def register(plus_recording, plus_compatible):
     settings = None
     if plus_compatible:
         times = sequence.timestamps_s
-        settings = LandmarkDetectionSettings(acquisition_rate_hz=1 / (times[1] - times[0]), min_landmark_spacing_mm=15.0,
-                                             plus_compatible=True)
-    return register_landmarks_from_stylus(sequence.timestamps_s, sequence.transform("ReferenceToTracker"),
-                                          sequence.transform("StylusToTracker"), stylus_from_tip, landmarks, settings)
+        settings = LandmarkDetectionSettings(
+            acquisition_rate_hz=1 / (times[1] - times[0]), min_landmark_spacing_mm=15.0, plus_compatible=True
+        )
+    return register_landmarks_from_stylus(
+        sequence.timestamps_s,
+        sequence.transform("ReferenceToTracker"),
+        sequence.transform("StylusToTracker"),
+        stylus_from_tip,
+        landmarks,
+        settings,
+    )
 
 
 def test_real_landmark_recording_lands_within_0_1_mm_of_plus(plus_recording):
@@ -96,5 +108,6 @@ def test_landmark_touches_are_the_eight_dwell_periods(plus_recording):
     result = register(plus_recording, plus_compatible=True)
     start = plus_recording[0].timestamps_s[0]
     # the README's dwell periods (s from the start): 5.7, 12.0, 18.9, 24.7, 35.9, 42.2, 49.0, 56.0
-    assert np.allclose(np.array(result.detected_at_s) - start, [5.7, 12.0, 18.9, 24.7, 35.9, 42.2, 49.0, 56.0],
-                       atol=1.5)
+    assert np.allclose(
+        np.array(result.detected_at_s) - start, [5.7, 12.0, 18.9, 24.7, 35.9, 42.2, 49.0, 56.0], atol=1.5
+    )

@@ -26,7 +26,9 @@ def realistic_stations():
 
 def test_identification_beats_calibration_alone_on_varied_poses(realistic_stations):
     scenario, simulation = realistic_stations
-    alone = verify_in_simulation(calibrate(simulation.recording, "ml", uncertainty=False), scenario).statistics()
+    alone = verify_in_simulation(
+        calibrate(simulation.recording, "ml", uncertainty=False), scenario
+    ).statistics()
     identified = calibrate(simulation.recording, "kinematic", uncertainty=False)
     with_model = verify_in_simulation(identified, scenario).statistics()
     assert with_model["position_mm"]["mean"] < 0.7 * alone["position_mm"]["mean"]
@@ -42,13 +44,16 @@ def test_identification_recovers_length_errors_without_tracker_error():
     simulation = simulate(scenario)
     result = calibrate(simulation.recording, "kinematic", uncertainty=False, prior_length_sd_mm=10.0)
     verification = verify_in_simulation(result, scenario).statistics()
-    alone = verify_in_simulation(calibrate(simulation.recording, "ml", uncertainty=False), scenario).statistics()
+    alone = verify_in_simulation(
+        calibrate(simulation.recording, "ml", uncertainty=False), scenario
+    ).statistics()
     assert verification["position_mm"]["mean"] < 0.8 * alone["position_mm"]["mean"]
 
 
 def test_identification_needs_joints(white_simulation):
-    recording = dataclasses.replace(white_simulation.recording, joints_rad=np.full_like(
-        white_simulation.recording.joints_rad, np.nan))
+    recording = dataclasses.replace(
+        white_simulation.recording, joints_rad=np.full_like(white_simulation.recording.joints_rad, np.nan)
+    )
     with pytest.raises(DegenerateDataError, match="joint angles"):
         calibrate(recording, "kinematic", uncertainty=False)
 
@@ -71,7 +76,9 @@ def test_raw_streams_round_trip(offset_streams, tmp_path):
     raw, _ = offset_streams
     robot_path, tracker_path = write_raw_recording(raw, tmp_path / "rec")
     again = read_raw_recording(robot_path, tracker_path)
-    assert np.array_equal(again.robot_time_s, raw.robot_time_s) and np.array_equal(again.tracker_time_s, raw.tracker_time_s)
+    assert np.array_equal(again.robot_time_s, raw.robot_time_s) and np.array_equal(
+        again.tracker_time_s, raw.tracker_time_s
+    )
     seen = np.isfinite(raw.tracker_from_marker_stack[:, 0, 0])
     assert np.allclose(again.tracker_from_marker_stack[seen], raw.tracker_from_marker_stack[seen], atol=1e-12)
     assert again.metadata["simulated_clock_offset_s"] == 0.030
@@ -85,4 +92,6 @@ def test_pairing_interpolates_the_robot_state(offset_streams):
     query = paired.time_s[k] + 0.030
     upper = np.searchsorted(raw.robot_time_s, query)
     lo, hi = raw.joints_rad[upper - 1], raw.joints_rad[upper]
-    assert np.all(np.minimum(lo, hi) - 1e-12 <= paired.joints_rad[k]) and np.all(paired.joints_rad[k] <= np.maximum(lo, hi) + 1e-12)
+    assert np.all(np.minimum(lo, hi) - 1e-12 <= paired.joints_rad[k]) and np.all(
+        paired.joints_rad[k] <= np.maximum(lo, hi) + 1e-12
+    )

@@ -18,8 +18,9 @@ class WorldProcess:
     """A running fake world (see ``world.py``)."""
 
     def __init__(self, *arguments: str, ready_timeout_s: float = 20.0):
-        self.process = subprocess.Popen([sys.executable, str(WORLD), *arguments], stdout=subprocess.PIPE,
-                                        stdin=subprocess.PIPE, text=True)
+        self.process = subprocess.Popen(
+            [sys.executable, str(WORLD), *arguments], stdout=subprocess.PIPE, stdin=subprocess.PIPE, text=True
+        )
         deadline = time.monotonic() + ready_timeout_s
         line = ""
         while time.monotonic() < deadline:
@@ -29,7 +30,7 @@ class WorldProcess:
         if not line.startswith("READY "):
             self.process.kill()
             raise RuntimeError(f"fake world did not start (last output {line!r})")
-        self.info = json.loads(line[len("READY "):])
+        self.info = json.loads(line[len("READY ") :])
 
     def control(self, command: str) -> str:
         with socket.create_connection((self.info["host"], self.info["control_port"]), timeout=5) as sock:

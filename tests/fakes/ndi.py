@@ -10,13 +10,13 @@ CRC-16: polynomial x^16 + x^15 + x^2 + 1, reflected (0xA001), initial value 0.
 from __future__ import annotations
 
 import os
-import socket
 import struct
 import sys
 import threading
 import tty
 
 import numpy as np
+
 try:  # imported as part of the tests package, or as a module of the world process
     from .net import accept_connections
 except ImportError:
@@ -89,9 +89,11 @@ class FakeNDI:
         return ascii_reply("1")
 
     def cmd_VER(self, args):
-        text = ("Polaris Vicra Control Firmware\nNDI S/N: P6-00042\nCharacterization Date: 01/01/10\n"
-                "Freeze Tag: Polaris Vicra Rev 007.000\nFreeze Date: 01/01/10\n"
-                "(C) Northern Digital Inc.\n")
+        text = (
+            "Polaris Vicra Control Firmware\nNDI S/N: P6-00042\nCharacterization Date: 01/01/10\n"
+            "Freeze Tag: Polaris Vicra Rev 007.000\nFreeze Date: 01/01/10\n"
+            "(C) Northern Digital Inc.\n"
+        )
         return ascii_reply(text)
 
     def cmd_GETINFO(self, args):
@@ -101,9 +103,12 @@ class FakeNDI:
         which = int(args or "00", 16)
         selected = []
         for handle, state in self.handles.items():
-            if which == 0x00 or (which == 0x02 and not state["initialised"]) or \
-                    (which == 0x03 and state["initialised"] and not state["enabled"]) or \
-                    (which == 0x04 and state["enabled"]):
+            if (
+                which == 0x00
+                or (which == 0x02 and not state["initialised"])
+                or (which == 0x03 and state["initialised"] and not state["enabled"])
+                or (which == 0x04 and state["enabled"])
+            ):
                 selected.append(f"{handle:02X}{0x31 if state['enabled'] else 0x01:03X}")
         return ascii_reply(f"{len(selected):02X}" + "".join(selected))
 
@@ -227,7 +232,7 @@ def serve_tcp(device: FakeNDI, server, stop: threading.Event, unplugged: threadi
                     return b""
                 try:
                     return connection.recv(4096)
-                except socket.timeout:
+                except TimeoutError:
                     continue
             return b""
 

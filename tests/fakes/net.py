@@ -19,7 +19,7 @@ def accept_connections(server: socket.socket, stop: threading.Event):
         while not stop.is_set():
             try:
                 connection, _ = server.accept()
-            except socket.timeout:
+            except TimeoutError:
                 continue
             yield connection
     finally:

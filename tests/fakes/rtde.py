@@ -12,13 +12,13 @@ registers: it writes a command id to ``input_int_register_0`` and arguments to
 from __future__ import annotations
 
 import re
-import socket
 import struct
 import sys
 import threading
 import time
 
 import numpy as np
+
 try:  # imported as part of the tests package, or as a module of the world process
     from .net import accept_connections, listen
 except ImportError:
@@ -29,32 +29,87 @@ from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotve
 RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
 CONTROLLER_VERSION = (3, 15, 7, 106331)  # CB3 (the paper's UR10): 125 Hz by default
 
-FORMATS = {"DOUBLE": "d", "UINT32": "I", "INT32": "i", "UINT64": "Q", "UINT8": "B", "BOOL": "?",
-           "VECTOR6D": "6d", "VECTOR3D": "3d", "VECTOR6INT32": "6i", "VECTOR6UINT32": "6I"}
+FORMATS = {
+    "DOUBLE": "d",
+    "UINT32": "I",
+    "INT32": "i",
+    "UINT64": "Q",
+    "UINT8": "B",
+    "BOOL": "?",
+    "VECTOR6D": "6d",
+    "VECTOR3D": "3d",
+    "VECTOR6INT32": "6i",
+    "VECTOR6UINT32": "6I",
+}
 TYPES = {
-    "timestamp": "DOUBLE", "target_q": "VECTOR6D", "target_qd": "VECTOR6D", "target_qdd": "VECTOR6D",
-    "target_current": "VECTOR6D", "target_moment": "VECTOR6D", "actual_q": "VECTOR6D", "actual_qd": "VECTOR6D",
-    "actual_current": "VECTOR6D", "joint_control_output": "VECTOR6D", "actual_TCP_pose": "VECTOR6D",
-    "actual_TCP_speed": "VECTOR6D", "actual_TCP_force": "VECTOR6D", "target_TCP_pose": "VECTOR6D",
-    "target_TCP_speed": "VECTOR6D", "actual_digital_input_bits": "UINT64", "joint_temperatures": "VECTOR6D",
-    "actual_execution_time": "DOUBLE", "robot_mode": "INT32", "joint_mode": "VECTOR6INT32",
-    "safety_mode": "INT32", "safety_status": "INT32", "actual_tool_accelerometer": "VECTOR3D",
-    "speed_scaling": "DOUBLE", "target_speed_fraction": "DOUBLE", "actual_momentum": "DOUBLE",
-    "actual_main_voltage": "DOUBLE", "actual_robot_voltage": "DOUBLE", "actual_robot_current": "DOUBLE",
-    "actual_joint_voltage": "VECTOR6D", "actual_digital_output_bits": "UINT64", "runtime_state": "UINT32",
-    "robot_status_bits": "UINT32", "safety_status_bits": "UINT32", "standard_analog_input0": "DOUBLE",
-    "standard_analog_input1": "DOUBLE", "standard_analog_output0": "DOUBLE", "standard_analog_output1": "DOUBLE",
-    "analog_io_types": "UINT32", "io_current": "DOUBLE", "tool_mode": "UINT32", "tool_analog_input_types": "UINT32",
-    "tool_analog_input0": "DOUBLE", "tool_analog_input1": "DOUBLE", "tool_output_voltage": "INT32",
-    "tool_output_current": "DOUBLE", "tool_temperature": "DOUBLE", "tcp_force_scalar": "DOUBLE",
-    "output_bit_registers0_to_31": "UINT32", "output_bit_registers32_to_63": "UINT32", "payload": "DOUBLE",
-    "payload_cog": "VECTOR3D", "ft_raw_wrench": "VECTOR6D", "euromap67_input_bits": "UINT32",
-    "euromap67_output_bits": "UINT32", "euromap67_24V_voltage": "DOUBLE", "euromap67_24V_current": "DOUBLE",
-    "input_bit_registers0_to_31": "UINT32", "input_bit_registers32_to_63": "UINT32",
-    "standard_digital_output_mask": "UINT8", "standard_digital_output": "UINT8",
-    "configurable_digital_output_mask": "UINT8", "configurable_digital_output": "UINT8",
-    "tool_digital_output_mask": "UINT8", "tool_digital_output": "UINT8", "speed_slider_mask": "UINT32",
-    "speed_slider_fraction": "DOUBLE", "external_force_torque": "VECTOR6D",
+    "timestamp": "DOUBLE",
+    "target_q": "VECTOR6D",
+    "target_qd": "VECTOR6D",
+    "target_qdd": "VECTOR6D",
+    "target_current": "VECTOR6D",
+    "target_moment": "VECTOR6D",
+    "actual_q": "VECTOR6D",
+    "actual_qd": "VECTOR6D",
+    "actual_current": "VECTOR6D",
+    "joint_control_output": "VECTOR6D",
+    "actual_TCP_pose": "VECTOR6D",
+    "actual_TCP_speed": "VECTOR6D",
+    "actual_TCP_force": "VECTOR6D",
+    "target_TCP_pose": "VECTOR6D",
+    "target_TCP_speed": "VECTOR6D",
+    "actual_digital_input_bits": "UINT64",
+    "joint_temperatures": "VECTOR6D",
+    "actual_execution_time": "DOUBLE",
+    "robot_mode": "INT32",
+    "joint_mode": "VECTOR6INT32",
+    "safety_mode": "INT32",
+    "safety_status": "INT32",
+    "actual_tool_accelerometer": "VECTOR3D",
+    "speed_scaling": "DOUBLE",
+    "target_speed_fraction": "DOUBLE",
+    "actual_momentum": "DOUBLE",
+    "actual_main_voltage": "DOUBLE",
+    "actual_robot_voltage": "DOUBLE",
+    "actual_robot_current": "DOUBLE",
+    "actual_joint_voltage": "VECTOR6D",
+    "actual_digital_output_bits": "UINT64",
+    "runtime_state": "UINT32",
+    "robot_status_bits": "UINT32",
+    "safety_status_bits": "UINT32",
+    "standard_analog_input0": "DOUBLE",
+    "standard_analog_input1": "DOUBLE",
+    "standard_analog_output0": "DOUBLE",
+    "standard_analog_output1": "DOUBLE",
+    "analog_io_types": "UINT32",
+    "io_current": "DOUBLE",
+    "tool_mode": "UINT32",
+    "tool_analog_input_types": "UINT32",
+    "tool_analog_input0": "DOUBLE",
+    "tool_analog_input1": "DOUBLE",
+    "tool_output_voltage": "INT32",
+    "tool_output_current": "DOUBLE",
+    "tool_temperature": "DOUBLE",
+    "tcp_force_scalar": "DOUBLE",
+    "output_bit_registers0_to_31": "UINT32",
+    "output_bit_registers32_to_63": "UINT32",
+    "payload": "DOUBLE",
+    "payload_cog": "VECTOR3D",
+    "ft_raw_wrench": "VECTOR6D",
+    "euromap67_input_bits": "UINT32",
+    "euromap67_output_bits": "UINT32",
+    "euromap67_24V_voltage": "DOUBLE",
+    "euromap67_24V_current": "DOUBLE",
+    "input_bit_registers0_to_31": "UINT32",
+    "input_bit_registers32_to_63": "UINT32",
+    "standard_digital_output_mask": "UINT8",
+    "standard_digital_output": "UINT8",
+    "configurable_digital_output_mask": "UINT8",
+    "configurable_digital_output": "UINT8",
+    "tool_digital_output_mask": "UINT8",
+    "tool_digital_output": "UINT8",
+    "speed_slider_mask": "UINT32",
+    "speed_slider_fraction": "DOUBLE",
+    "external_force_torque": "VECTOR6D",
 }
 SAFETY_MODES = {"normal": 1, "protective_stop": 3, "emergency_stop": 7}
 SAFETY_BITS = {"normal": 1 << 0, "protective_stop": 1 << 2, "emergency_stop": 1 << 7}
@@ -158,7 +213,9 @@ class FakeController:
                 self.async_running = False
                 self.registers["output_int_register_2"] = -1
             elif self.async_running:
-                self.registers["output_int_register_2"] = int(self.registers.get("output_int_register_2", 0)) + 1
+                self.registers["output_int_register_2"] = (
+                    int(self.registers.get("output_int_register_2", 0)) + 1
+                )
 
     # -- inputs ------------------------------------------------------------------------
     def on_inputs(self, values: dict) -> None:
@@ -185,8 +242,12 @@ class FakeController:
             self._start(lambda: self._move_joints(doubles[:6], doubles[6], doubles[7]), asynchronous)
         elif command == 3:  # MOVEL: pose (m, rotation vector), speed m/s, acceleration m/s^2
             pose = make_transform(rotvec_to_matrix(doubles[3:6]), np.array(doubles[:3]) * 1000.0)
-            self._start(lambda: self.robot.move_linear(pose, doubles[6] * 1000.0, doubles[7] * 1000.0,
-                                                       asynchronous=True), asynchronous)
+            self._start(
+                lambda: self.robot.move_linear(
+                    pose, doubles[6] * 1000.0, doubles[7] * 1000.0, asynchronous=True
+                ),
+                asynchronous,
+            )
         elif command == 255:  # STOP_SCRIPT
             self.robot.stop()
             self.program_running = False
@@ -201,9 +262,13 @@ class FakeController:
         # a joint move in real time: start it without blocking the server thread
         target = np.asarray(q, dtype=float)
         from spacecal.planning.motion import trapezoid_duration
+
         duration, _ = trapezoid_duration(float(np.max(np.abs(target - self.robot._joints))), speed, accel)
-        self.robot._motion = ("joint", (self.robot._joints.copy(), target, self.robot.clock.now_s, duration),
-                              self.robot.clock.now_s)
+        self.robot._motion = (
+            "joint",
+            (self.robot._joints.copy(), target, self.robot.clock.now_s, duration),
+            self.robot.clock.now_s,
+        )
 
     def _start(self, begin, asynchronous: bool) -> None:
         begin()
@@ -235,8 +300,10 @@ def serve_rtde_connection(controller: FakeController, connection, stop: threadin
         next_time = time.monotonic()
         while not stop.is_set() and streaming.is_set():
             controller.update()
-            values = b"".join(struct.pack(">" + FORMATS[t], *np.atleast_1d(controller.value(n)))
-                              for n, t in zip(output["names"], output["types"]))
+            values = b"".join(
+                struct.pack(">" + FORMATS[t], *np.atleast_1d(controller.value(n)))
+                for n, t in zip(output["names"], output["types"])
+            )
             try:
                 with send_lock:
                     connection.sendall(pack(ord("U"), struct.pack(">B", 1) + values))
@@ -321,8 +388,14 @@ def serve_dashboard_connection(controller: FakeController, connection, stop) -> 
             elif command == "robotmode":
                 reply = "Robotmode: RUNNING"
             elif command == "safetystatus" or command == "safetymode":
-                reply = "Safetystatus: " + {"normal": "NORMAL", "protective_stop": "PROTECTIVE_STOP",
-                                            "emergency_stop": "ROBOT_EMERGENCY_STOP"}[controller.fake.robot._safety]
+                reply = (
+                    "Safetystatus: "
+                    + {
+                        "normal": "NORMAL",
+                        "protective_stop": "PROTECTIVE_STOP",
+                        "emergency_stop": "ROBOT_EMERGENCY_STOP",
+                    }[controller.fake.robot._safety]
+                )
             elif command == "programState":
                 reply = ("PLAYING" if controller.program_running else "STOPPED") + " <unnamed>"
             elif command == "unlock protective stop":
@@ -344,7 +417,7 @@ def serve_script_connection(controller: FakeController, connection, stop) -> Non
     while not stop.is_set():
         try:
             chunk = connection.recv(65536)
-        except socket.timeout:
+        except TimeoutError:
             if received:
                 controller.start_script(received.decode(errors="replace"))
                 controller.say(f"script uploaded ({len(received)} bytes)")
@@ -367,8 +440,11 @@ def serve(server, handler, controller: FakeController, stop: threading.Event) ->
 
 def start_controller(fake_world, host: str, stop: threading.Event, log=None) -> FakeController:
     controller = FakeController(fake_world, log)
-    for port, handler in ((RTDE_PORT, serve_rtde_connection), (DASHBOARD_PORT, serve_dashboard_connection),
-                          (SCRIPT_PORT, serve_script_connection)):
+    for port, handler in (
+        (RTDE_PORT, serve_rtde_connection),
+        (DASHBOARD_PORT, serve_dashboard_connection),
+        (SCRIPT_PORT, serve_script_connection),
+    ):
         server = listen(host, port)  # bound here: a busy port is an error before READY
         threading.Thread(target=serve, args=(server, handler, controller, stop), daemon=True).start()
     return controller

@@ -29,13 +29,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from spacecal.sim.devices import RealClock, SimulatedRobot  # noqa: E402
-from spacecal.sim.scenario import load_scenario  # noqa: E402
-from spacecal.sim.world import build_world  # noqa: E402
+import ndi
+import rtde
+from net import accept_connections, listen
 
-import ndi  # noqa: E402
-from net import accept_connections, listen  # noqa: E402
-import rtde  # noqa: E402
+from spacecal.sim.devices import RealClock, SimulatedRobot
+from spacecal.sim.scenario import load_scenario
+from spacecal.sim.world import build_world
 
 
 class FakeWorld:
@@ -57,20 +57,28 @@ class FakeWorld:
             if self.stale and self._last_frame is not None:
                 return self._last_frame
             now = self.clock.now_s
-            truth = self.world.tracker_from_base @ self.robot.true_base_from_tcp() @ self.world.tcp_from_marker
+            truth = (
+                self.world.tracker_from_base @ self.robot.true_base_from_tcp() @ self.world.tcp_from_marker
+            )
             tracked = self.world.track_marker(truth[None])
             pose = tracked.tracker_from_marker[0]
             seen = bool(np.all(np.isfinite(pose))) and not self.occluded
-            frame = (now, pose if seen else None, float(tracked.rms_mm[0]) if seen else float("nan"),
-                     tracked.spheres_in_tracker[0] if seen else None)
+            frame = (
+                now,
+                pose if seen else None,
+                float(tracked.rms_mm[0]) if seen else float("nan"),
+                tracked.spheres_in_tracker[0] if seen else None,
+            )
             self._last_frame = frame
             return frame
 
     def truth(self) -> dict:
-        return {"tracker_from_base": self.world.tracker_from_base.tolist(),
-                "tcp_from_marker": self.world.tcp_from_marker.tolist(),
-                "home_joints_rad": self.world.home_joints_rad.tolist(),
-                "scenario": self.world.scenario.to_dict()}
+        return {
+            "tracker_from_base": self.world.tracker_from_base.tolist(),
+            "tcp_from_marker": self.world.tcp_from_marker.tolist(),
+            "home_joints_rad": self.world.home_joints_rad.tolist(),
+            "scenario": self.world.scenario.to_dict(),
+        }
 
 
 def free_port(host: str) -> int:
@@ -127,8 +135,9 @@ def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float =
         if fake.unplugged:
             continue
         stamp, pose, _, _ = fake.marker_frame()
-        message = pyigtl.TransformMessage(np.eye(4) if pose is None else pose, timestamp=stamp,
-                                          device_name="MarkerToTracker")
+        message = pyigtl.TransformMessage(
+            np.eye(4) if pose is None else pose, timestamp=stamp, device_name="MarkerToTracker"
+        )
         message.header_version = 2
         message.metadata = {"TransformStatus": "OK" if pose is not None else "INVALID"}
         server.send_message(message)
@@ -140,9 +149,11 @@ def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float =
 
 def ndi_frame_source(fake: FakeWorld, rate_hz: float):
     """Frames for the NDI fake: frame numbers count at the tracker rate."""
+
     def source():
         stamp, pose, rms, _ = fake.marker_frame()
         return int(stamp * rate_hz), pose, (0.0 if np.isnan(rms) else rms)
+
     return source
 
 
@@ -181,8 +192,19 @@ def main() -> None:
         thread.start()
     fake.controller = rtde.start_controller(fake, args.host, stop, sys.stderr if args.ur_log else None)
     time.sleep(0.3)
-    print("READY " + json.dumps({"host": args.host, "control_port": control_port, "igtl_port": igtl_port,
-                                 "ndi_port": ndi_port, "ndi_pty": pty_path}), flush=True)
+    print(
+        "READY "
+        + json.dumps(
+            {
+                "host": args.host,
+                "control_port": control_port,
+                "igtl_port": igtl_port,
+                "ndi_port": ndi_port,
+                "ndi_pty": pty_path,
+            }
+        ),
+        flush=True,
+    )
     # Die with the parent: the test process holds our stdin; EOF means it is gone.
     threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     stop.wait()

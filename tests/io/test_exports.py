@@ -10,7 +10,9 @@ from spacecal.io.plus_import import recording_from_plus_sequence
 from spacecal.io.recording_csv import read_recording, write_recording
 from spacecal.io.slicer import read_slicer_transform, write_slicer_transform
 
-TRACKER_FROM_BASE = make_transform(Rotation.from_rotvec([0.2, -1.1, 0.4]).as_matrix(), [-150.0, 320.0, -1450.0])
+TRACKER_FROM_BASE = make_transform(
+    Rotation.from_rotvec([0.2, -1.1, 0.4]).as_matrix(), [-150.0, 320.0, -1450.0]
+)
 
 
 def test_slicer_file_follows_the_itk_format_and_reads_back(tmp_path):
@@ -39,9 +41,11 @@ def test_slicer_reader_honours_a_centre_of_rotation(tmp_path):
     path = tmp_path / "c.tfm"
     rotation = Rotation.from_rotvec([0, 0, 0.5]).as_matrix()
     centre = np.array([5.0, -3.0, 2.0])
-    path.write_text("#Insight Transform File V1.0\n#Transform 0\nTransform: AffineTransform_double_3_3\n"
-                    f"Parameters: {' '.join(map(str, rotation.ravel()))} 0 0 0\n"
-                    f"FixedParameters: {' '.join(map(str, centre))}\n")
+    path.write_text(
+        "#Insight Transform File V1.0\n#Transform 0\nTransform: AffineTransform_double_3_3\n"
+        f"Parameters: {' '.join(map(str, rotation.ravel()))} 0 0 0\n"
+        f"FixedParameters: {' '.join(map(str, centre))}\n"
+    )
     itk = np.eye(4)
     itk[:3, :3] = rotation
     itk[:3, 3] = centre - rotation @ centre
@@ -64,9 +68,15 @@ def test_plus_sequence_imports_as_a_recording(tmp_path, white_simulation):
     rows = np.flatnonzero(rec.visible)[:20]
     lines = ["ObjectType = Image", "NDims = 3", f"DimSize = 0 0 {len(rows)}"]
     for k, r in enumerate(rows):
-        lines.append(f"Seq_Frame{k:04d}_MarkerToTrackerTransform = " + " ".join(repr(float(v)) for v in rec.tracker_from_marker_stack[r].ravel()))
+        lines.append(
+            f"Seq_Frame{k:04d}_MarkerToTrackerTransform = "
+            + " ".join(repr(float(v)) for v in rec.tracker_from_marker_stack[r].ravel())
+        )
         lines.append(f"Seq_Frame{k:04d}_MarkerToTrackerTransformStatus = OK")
-        lines.append(f"Seq_Frame{k:04d}_TCPToBaseTransform = " + " ".join(repr(float(v)) for v in rec.base_from_tcp_stack[r].ravel()))
+        lines.append(
+            f"Seq_Frame{k:04d}_TCPToBaseTransform = "
+            + " ".join(repr(float(v)) for v in rec.base_from_tcp_stack[r].ravel())
+        )
         lines.append(f"Seq_Frame{k:04d}_Timestamp = {float(rec.time_s[r])!r}")
     lines.append("ElementDataFile = LOCAL")
     sequence = tmp_path / "robot.igs.mha"
@@ -75,4 +85,6 @@ def test_plus_sequence_imports_as_a_recording(tmp_path, white_simulation):
     assert len(imported) == 20 and np.all(np.isnan(imported.joints_rad))
     assert np.allclose(imported.tracker_from_marker_stack, rec.tracker_from_marker_stack[rows], atol=1e-9)
     again = read_recording(write_recording(imported, tmp_path / "imported.csv"))
-    assert np.all(np.isnan(again.joints_rad)) and np.allclose(again.base_from_tcp_stack, imported.base_from_tcp_stack)
+    assert np.all(np.isnan(again.joints_rad)) and np.allclose(
+        again.base_from_tcp_stack, imported.base_from_tcp_stack
+    )

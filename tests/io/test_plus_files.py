@@ -18,7 +18,8 @@ def test_sequence_reader_parses_transforms_and_status(tmp_path):
         "Seq_Frame0000_MarkerToTrackerTransformStatus = OK\nSeq_Frame0000_Timestamp = 1.5\n"
         "Seq_Frame0001_MarkerToTrackerTransform = 1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1\n"
         "Seq_Frame0001_MarkerToTrackerTransformStatus = INVALID\nSeq_Frame0001_Timestamp = 1.6\n"
-        "ElementDataFile = LOCAL\n")
+        "ElementDataFile = LOCAL\n"
+    )
     sequence = read_plus_sequence(path)
     stack = sequence.transform("MarkerToTracker")
     assert np.allclose(stack[0, :3, 3], [10, 20, 30]) and np.all(np.isnan(stack[1]))

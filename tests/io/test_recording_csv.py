@@ -14,7 +14,9 @@ def test_round_trip_is_exact(tmp_path, white_simulation):
     assert np.allclose(again.base_from_tcp_stack, original.base_from_tcp_stack, atol=1e-12)
     seen = original.visible
     assert np.array_equal(again.visible, seen)
-    assert np.allclose(again.tracker_from_marker_stack[seen], original.tracker_from_marker_stack[seen], atol=1e-12)
+    assert np.allclose(
+        again.tracker_from_marker_stack[seen], original.tracker_from_marker_stack[seen], atol=1e-12
+    )
     assert again.metadata["robot"]["model"] == "UR10"
     assert metadata_path(path).name == "rec.meta.json"
 
@@ -37,8 +39,14 @@ def test_each_row_reaches_disk_before_the_next(tmp_path, white_simulation):
     path = tmp_path / "live.csv"
     writer = RecordingWriter(path)
     for k in range(12):
-        writer.append(rec.time_s[k], rec.segment[k], rec.joints_rad[k], rec.base_from_tcp_stack[k],
-                      rec.tracker_from_marker_stack[k], rec.marker_rms_mm[k])
+        writer.append(
+            rec.time_s[k],
+            rec.segment[k],
+            rec.joints_rad[k],
+            rec.base_from_tcp_stack[k],
+            rec.tracker_from_marker_stack[k],
+            rec.marker_rms_mm[k],
+        )
         assert len(path.read_text().splitlines()) == k + 2  # readable while still open
     assert len(read_recording(path)) == 12  # a reader gets every row even without close()
     writer.close()
@@ -61,6 +69,7 @@ def set_cell(name, value, row=5):
     def edit(header, rows):
         rows[row][col(header, name)] = value
         return header, rows
+
     return edit
 
 
@@ -71,6 +80,7 @@ def scale_columns(names, factor):
                 if r[col(header, name)]:
                     r[col(header, name)] = repr(float(r[col(header, name)]) * factor)
         return header, rows
+
     return edit
 
 
@@ -88,10 +98,14 @@ def swap_times(header, rows):
 
 
 BAD_INPUTS = {
-    "missing column": (lambda h, r: ([c for c in h if c != "tcp_qz"], [row[:-9] + row[-8:] for row in r]),
-                       "missing column.*tcp_qz"),
-    "misspelt column": (lambda h, r: ([("q3_deg" if c == "q3_rad" else c) for c in h], r),
-                        "missing column.*q3_rad \\(found 'q3_deg'\\?\\)"),
+    "missing column": (
+        lambda h, r: ([c for c in h if c != "tcp_qz"], [row[:-9] + row[-8:] for row in r]),
+        "missing column.*tcp_qz",
+    ),
+    "misspelt column": (
+        lambda h, r: ([("q3_deg" if c == "q3_rad" else c) for c in h], r),
+        "missing column.*q3_rad \\(found 'q3_deg'\\?\\)",
+    ),
     "NaN cell": (set_cell("q3_rad", "nan"), "line 7, column q3_rad: 'nan' is not a finite number"),
     "text cell": (set_cell("tcp_y_mm", "abc"), "line 7, column tcp_y_mm: 'abc' is not a number"),
     "non-monotonic time": (swap_times, "time_s is not increasing at line 10"),
@@ -125,8 +139,11 @@ def test_raw_sphere_columns_round_trip(tmp_path):
     from spacecal.sim.recording import simulate
     from spacecal.sim.scenario import PRESETS
 
-    simulation = simulate(dataclasses.replace(PRESETS["paper-white"], record_spheres=True,
-                                              rotation_deg=30.0, translation_mm=200.0))
+    simulation = simulate(
+        dataclasses.replace(
+            PRESETS["paper-white"], record_spheres=True, rotation_deg=30.0, translation_mm=200.0
+        )
+    )
     path = write_recording(simulation.recording, tmp_path / "spheres.csv")
     assert "sphere4_z_mm" in path.read_text().splitlines()[0]
     again = read_recording(path)

@@ -38,8 +38,11 @@ def test_inverse_kinematics_round_trip_to_1e_9_mm(name):
 def test_inverse_kinematics_on_a_model_with_dh_errors():
     rng = np.random.default_rng(5)
     model = ur_model("UR10", TOOL).with_dh_errors(
-        rng.normal(scale=0.5, size=6), rng.normal(scale=0.5, size=6),
-        rng.normal(scale=1e-3, size=6), rng.normal(scale=1e-3, size=6))
+        rng.normal(scale=0.5, size=6),
+        rng.normal(scale=0.5, size=6),
+        rng.normal(scale=1e-3, size=6),
+        rng.normal(scale=1e-3, size=6),
+    )
     joints = np.radians([10, -100, 100, -90, -80, 20])
     pose = forward_kinematics(model, joints)
     solved = inverse_kinematics(model, pose, joints)
@@ -63,7 +66,9 @@ def test_unreachable_pose_raises():
 
 def test_joint_limits_are_respected():
     model = ur_model("UR10")
-    narrow = type(model)(**{**model.__dict__, "joint_lower_rad": np.full(6, -0.1), "joint_upper_rad": np.full(6, 0.1)})
+    narrow = type(model)(
+        **{**model.__dict__, "joint_lower_rad": np.full(6, -0.1), "joint_upper_rad": np.full(6, 0.1)}
+    )
     pose = forward_kinematics(model, np.radians([90, -90, 90, -90, -90, 0]))
     with pytest.raises(UnreachableError, match="joint limits"):
         inverse_kinematics(narrow, pose)

@@ -14,10 +14,19 @@ from ..conftest import NOISE_FREE
 
 def test_exact_chain_puts_the_needle_on_the_planned_path():
     world = build_world(NOISE_FREE)
-    tracker_from_image = world.tracker_from_base @ make_transform(np.eye(3), world.site_in_base + [0, 0, -150.0])
+    tracker_from_image = world.tracker_from_base @ make_transform(
+        np.eye(3), world.site_in_base + [0, 0, -150.0]
+    )
     entry, target = np.array([10.0, -5.0, 130.0]), np.array([0.0, 0.0, 80.0])
-    plan = plan_needle(entry, target, tracker_from_image, world.tracker_from_base, world.nominal_model,
-                       world.home_joints_rad, standoff_mm=20.0)
+    plan = plan_needle(
+        entry,
+        target,
+        tracker_from_image,
+        world.tracker_from_base,
+        world.nominal_model,
+        world.home_joints_rad,
+        standoff_mm=20.0,
+    )
     image_from_base = np.linalg.inv(tracker_from_image) @ world.tracker_from_base
     reached = image_from_base @ forward_kinematics(world.true_model, plan.joints_target_rad)
     assert np.allclose(reached[:3, 3], target, atol=1e-6)
@@ -29,9 +38,19 @@ def test_exact_chain_puts_the_needle_on_the_planned_path():
 
 def test_predicted_errors_combine_in_quadrature():
     world = build_world(NOISE_FREE)
-    tracker_from_image = world.tracker_from_base @ make_transform(np.eye(3), world.site_in_base + [0, 0, -150.0])
-    plan = plan_needle([0, 0, 130.0], [0, 0, 30.0], tracker_from_image, world.tracker_from_base, world.nominal_model,
-                       world.home_joints_rad, registration_tre_mm=(0.3, 0.4), calibration_tre_mm=(0.4, 0.3))
+    tracker_from_image = world.tracker_from_base @ make_transform(
+        np.eye(3), world.site_in_base + [0, 0, -150.0]
+    )
+    plan = plan_needle(
+        [0, 0, 130.0],
+        [0, 0, 30.0],
+        tracker_from_image,
+        world.tracker_from_base,
+        world.nominal_model,
+        world.home_joints_rad,
+        registration_tre_mm=(0.3, 0.4),
+        calibration_tre_mm=(0.4, 0.3),
+    )
     assert plan.predicted_error["entry_mm"] == pytest.approx(0.5)
     assert plan.predicted_error["direction_deg"] == pytest.approx(np.degrees(np.sqrt(0.5) / 100.0))
 
@@ -40,11 +59,23 @@ def test_bad_paths_are_refused():
     world = build_world(NOISE_FREE)
     tracker_from_image = world.tracker_from_base
     with pytest.raises(DegenerateDataError, match="coincide"):
-        plan_needle([1, 2, 3], [1, 2, 3], tracker_from_image, world.tracker_from_base, world.nominal_model,
-                    world.home_joints_rad)
+        plan_needle(
+            [1, 2, 3],
+            [1, 2, 3],
+            tracker_from_image,
+            world.tracker_from_base,
+            world.nominal_model,
+            world.home_joints_rad,
+        )
     with pytest.raises(UnreachableError, match="cannot be reached"):
-        plan_needle([5000, 0, 0], [5100, 0, 0], tracker_from_image, world.tracker_from_base, world.nominal_model,
-                    world.home_joints_rad)
+        plan_needle(
+            [5000, 0, 0],
+            [5100, 0, 0],
+            tracker_from_image,
+            world.tracker_from_base,
+            world.nominal_model,
+            world.home_joints_rad,
+        )
 
 
 def test_needle_pose_axes():
@@ -63,16 +94,33 @@ def test_phantom_experiment_white_vs_realistic():
 
 
 def test_visibility_is_checked_when_a_model_is_given():
-    from spacecal.planning.visibility import VisibilityModel
     from spacecal.geometry.transforms import invert_transform
+    from spacecal.planning.visibility import VisibilityModel
 
     world = build_world(NOISE_FREE)
-    tracker_from_image = world.tracker_from_base @ make_transform(np.eye(3), world.site_in_base + [0, 0, -150.0])
+    tracker_from_image = world.tracker_from_base @ make_transform(
+        np.eye(3), world.site_in_base + [0, 0, -150.0]
+    )
     seen = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
-    plan_needle([0, 0, 130.0], [0, 0, 80.0], tracker_from_image, world.tracker_from_base, world.nominal_model,
-                world.home_joints_rad, visibility=seen)
-    behind = VisibilityModel(world.tracker, world.marker, invert_transform(world.tracker_from_base),
-                             world.tcp_from_marker)
+    plan_needle(
+        [0, 0, 130.0],
+        [0, 0, 80.0],
+        tracker_from_image,
+        world.tracker_from_base,
+        world.nominal_model,
+        world.home_joints_rad,
+        visibility=seen,
+    )
+    behind = VisibilityModel(
+        world.tracker, world.marker, invert_transform(world.tracker_from_base), world.tcp_from_marker
+    )
     with pytest.raises(UnreachableError, match="not visible"):
-        plan_needle([0, 0, 130.0], [0, 0, 80.0], tracker_from_image, world.tracker_from_base, world.nominal_model,
-                    world.home_joints_rad, visibility=behind)
+        plan_needle(
+            [0, 0, 130.0],
+            [0, 0, 80.0],
+            tracker_from_image,
+            world.tracker_from_base,
+            world.nominal_model,
+            world.home_joints_rad,
+            visibility=behind,
+        )

@@ -22,10 +22,20 @@ def setting():
 
 def test_budget_is_respected_and_buys_accuracy(setting):
     world, visibility = setting
-    short = plan_for_site(world.nominal_model, world.home_joints_rad, visibility, np.random.default_rng(0),
-                          PlannerSettings(budget_s=12.0))
-    long = plan_for_site(world.nominal_model, world.home_joints_rad, visibility, np.random.default_rng(0),
-                         PlannerSettings(budget_s=30.0))
+    short = plan_for_site(
+        world.nominal_model,
+        world.home_joints_rad,
+        visibility,
+        np.random.default_rng(0),
+        PlannerSettings(budget_s=12.0),
+    )
+    long = plan_for_site(
+        world.nominal_model,
+        world.home_joints_rad,
+        visibility,
+        np.random.default_rng(0),
+        PlannerSettings(budget_s=30.0),
+    )
     assert short.motion_time_s <= 12.0 and long.motion_time_s <= 30.0
     assert long.predicted_error_mm < short.predicted_error_mm
     assert len(long.station_joints_rad) > len(short.station_joints_rad)
@@ -40,6 +50,8 @@ def test_a_30_s_plan_beats_the_paper_sweep_on_verification(setting):
     recording, _ = execute_plan(build_world(scenario), planned.plan)
     ours = verify_in_simulation(calibrate(recording, "kinematic", uncertainty=False), scenario).statistics()
     paper_recording, _ = execute_plan(build_world(scenario), plan_for_world(world))
-    paper = verify_in_simulation(calibrate(paper_recording, "paper", uncertainty=False), scenario).statistics()
+    paper = verify_in_simulation(
+        calibrate(paper_recording, "paper", uncertainty=False), scenario
+    ).statistics()
     assert planned.motion_time_s <= 30.0
     assert ours["position_mm"]["mean"] < 0.8 * paper["position_mm"]["mean"]

@@ -36,13 +36,17 @@ def test_paper_plan_takes_about_a_minute_and_keeps_the_tcp_origin_fixed():
 def test_sweeps_are_shrunk_to_what_the_tracker_sees_and_the_plan_says_so():
     world = build_world(PRESETS["paper-realistic"])
     plan = plan_for_world(world)
-    shrunk = [label for label, (lo, hi) in plan.extents.items()
-              if (label.startswith("rot") and min(-lo, hi) < 90) or (label.startswith("lin") and min(-lo, hi) < 250)]
+    shrunk = [
+        label
+        for label, (lo, hi) in plan.extents.items()
+        if (label.startswith("rot") and min(-lo, hi) < 90) or (label.startswith("lin") and min(-lo, hi) < 250)
+    ]
     assert shrunk, "the default layout is expected to limit some sweeps"
     for label in shrunk:
         assert any(m.startswith(label) and "marker visibility" in m for m in plan.messages)
     # every planned sampled pose is predicted visible
     from spacecal.planning.visibility import VisibilityModel
+
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
     for move in plan.moves:
         if move.label != "transit":
@@ -52,18 +56,22 @@ def test_sweeps_are_shrunk_to_what_the_tracker_sees_and_the_plan_says_so():
 def test_joint_speed_limit_stretches_moves():
     world = build_world(PRESETS["paper-white"])
     fast = plan_paper_sweeps(world.nominal_model, world.home_joints_rad, PaperSweepSettings())
-    slow = plan_paper_sweeps(world.nominal_model, world.home_joints_rad,
-                             PaperSweepSettings(limits=MotionLimits(joint_speed_rad_s=0.1)))
+    slow = plan_paper_sweeps(
+        world.nominal_model,
+        world.home_joints_rad,
+        PaperSweepSettings(limits=MotionLimits(joint_speed_rad_s=0.1)),
+    )
     assert slow.motion_time_s > 1.5 * fast.motion_time_s
 
 
 def test_infeasible_home_and_too_small_sweeps_are_refused():
     world = build_world(PRESETS["paper-white"])
     from spacecal.planning.visibility import VisibilityModel
-    behind = VisibilityModel(world.tracker, world.marker, invert_transform(world.tracker_from_base),
-                             world.tcp_from_marker)
+
+    behind = VisibilityModel(
+        world.tracker, world.marker, invert_transform(world.tracker_from_base), world.tcp_from_marker
+    )
     with pytest.raises(UnreachableError, match="not visible"):
         plan_paper_sweeps(world.nominal_model, world.home_joints_rad, visibility=behind)
     with pytest.raises(DegenerateDataError, match="rotation is feasible"):
-        plan_paper_sweeps(world.nominal_model, world.home_joints_rad,
-                          PaperSweepSettings(rotation_deg=5.0))
+        plan_paper_sweeps(world.nominal_model, world.home_joints_rad, PaperSweepSettings(rotation_deg=5.0))

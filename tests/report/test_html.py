@@ -15,9 +15,18 @@ from spacecal.report.html import Report, write_report
 from spacecal.sim.verification import verify_in_simulation
 from spacecal.workflows.check import CheckResult
 
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--virtual-time-budget=15000", "--dump-dom"]
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--virtual-time-budget=15000",
+    "--dump-dom",
+]
 
 
 def chromium():
@@ -31,8 +40,12 @@ def chromium():
 
 def rendered_dom(path) -> str:
     with tempfile.TemporaryDirectory() as profile:
-        result = subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", path.as_uri()],
-                                capture_output=True, text=True, timeout=120)
+        result = subprocess.run(
+            [chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", path.as_uri()],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
     assert result.returncode == 0, result.stderr[-500:]
     return result.stdout
 
@@ -57,8 +70,9 @@ def full_report(tmp_path_factory, white_simulation):
     folder = tmp_path_factory.mktemp("report")
     calibration = calibrate(white_simulation.recording, "paper")
     verification = verify_in_simulation(calibration, white_simulation.world.scenario).to_dict()
-    history = [CheckResult(np.array([0.3, 0.4]), np.array([0.1, 0.1]), 1.0, 1.0,
-                           ["pose 1", "pose 2"]).to_dict()]
+    history = [
+        CheckResult(np.array([0.3, 0.4]), np.array([0.1, 0.1]), 1.0, 1.0, ["pose 1", "pose 2"]).to_dict()
+    ]
     report = Report(calibration, white_simulation.recording, verification, history)
     path, titles = write_report(report, folder / "report.html", png_dir=folder / "png")
     return path, titles, folder
@@ -82,7 +96,9 @@ def test_report_is_self_contained(full_report):
 
 def test_the_check_catches_a_broken_page(full_report, tmp_path):
     broken = tmp_path / "broken.html"
-    page = full_report[0].read_text().replace("</body>", "<script>thisFunctionDoesNotExist();</script></body>")
+    page = (
+        full_report[0].read_text().replace("</body>", "<script>thisFunctionDoesNotExist();</script></body>")
+    )
     broken.write_text(page.replace('id="plot-2"', 'id="plot-two"'))
     dom = rendered_dom(broken)
     assert "thisFunctionDoesNotExist" in script_errors(dom)

@@ -21,14 +21,18 @@ def test_site_is_in_the_middle_of_the_tracker_volume_and_marker_faces_it():
     site = apply_transform(world.tracker_from_base, world.site_in_base)
     assert world.tracker.volume.contains(site[None])[0]
     home = world.tracker_from_base @ world.true_base_from_tcp(world.home_joints_rad, jitter=False)[0]
-    assert world.tracker.visible((home @ world.tcp_from_marker)[None], world.marker.spheres_in_marker,
-                                 world.marker.face_normal_in_marker)[0]
+    assert world.tracker.visible(
+        (home @ world.tcp_from_marker)[None],
+        world.marker.spheres_in_marker,
+        world.marker.face_normal_in_marker,
+    )[0]
 
 
 @pytest.mark.parametrize("white,volumetric", [(0.25, 0.0), (0.15, 0.2)])
 def test_sphere_errors_have_the_requested_rms(white, volumetric):
-    scenario = dataclasses.replace(PRESETS["paper-realistic"], white_noise_rms_mm=white,
-                                   volumetric_error_rms_mm=volumetric)
+    scenario = dataclasses.replace(
+        PRESETS["paper-realistic"], white_noise_rms_mm=white, volumetric_error_rms_mm=volumetric
+    )
     world = build_world(scenario)
     rng = np.random.default_rng(0)
     poses = np.tile(np.eye(4), (3000, 1, 1))

@@ -32,8 +32,14 @@ def test_complete_run_records_the_paper_sweeps_and_calibrates(tmp_path):
     world, plan, robot = setup()
     path = tmp_path / "rec.csv"
     seen = []
-    result = acquire(plan, robot, SimulatedTracker(world, robot), path, recording_metadata(world),
-                     on_sample=lambda n, v, i, label: seen.append(label))
+    result = acquire(
+        plan,
+        robot,
+        SimulatedTracker(world, robot),
+        path,
+        recording_metadata(world),
+        on_sample=lambda n, v, i, label: seen.append(label),
+    )
     assert result.complete and result.samples_written == len(seen)
     recording = read_recording(path)
     assert set(recording.segment) == {"rot_x", "rot_y", "rot_z", "lin_x", "lin_y", "lin_z"}
@@ -66,15 +72,22 @@ class FrozenRobot(SimulatedRobot):
         state = super().state()
         if self.clock.now_s > 15.0:
             from dataclasses import replace
+
             return replace(state, time_s=15.0)
         return state
 
 
 FAULTS = {
-    "protective stop": (lambda w, r: (r, SimulatedTracker(w, r)), {"protective_stop_at_s": 20.0},
-                        "robot protective stop"),
-    "tracker unplugged": (lambda w, r: (r, SimulatedTracker(w, r, unplug_after_frames=150)), {},
-                          "tracker lost"),
+    "protective stop": (
+        lambda w, r: (r, SimulatedTracker(w, r)),
+        {"protective_stop_at_s": 20.0},
+        "robot protective stop",
+    ),
+    "tracker unplugged": (
+        lambda w, r: (r, SimulatedTracker(w, r, unplug_after_frames=150)),
+        {},
+        "tracker lost",
+    ),
     "Ctrl-C": (lambda w, r: (r, Interrupting(w, r, after=120)), {}, "interrupted by the user"),
 }
 
@@ -92,13 +105,18 @@ def test_faults_stop_the_robot_keep_the_data_and_resume(fault, tmp_path):
     assert len(kept) == stopped.value.result.samples_written > 50
     assert "resume with --resume" in str(stopped.value)
     progress = json.loads(progress_path(path).read_text())
-    assert 0 < progress["moves_completed"] < len(plan.moves) and message.split()[0] in progress["stopped_because"]
+    assert (
+        0 < progress["moves_completed"] < len(plan.moves)
+        and message.split()[0] in progress["stopped_because"]
+    )
     # clear the fault and resume: the plan completes and earlier samples are still there
     robot.protective_stop_at_s, robot._safety = None, "normal"
-    result = acquire(plan, robot, SimulatedTracker(world, robot), path, recording_metadata(world), resume=True)
+    result = acquire(
+        plan, robot, SimulatedTracker(world, robot), path, recording_metadata(world), resume=True
+    )
     assert result.complete
     resumed = read_recording(path)
-    assert len(resumed) > len(kept) and np.array_equal(resumed.time_s[:len(kept)], kept.time_s)
+    assert len(resumed) > len(kept) and np.array_equal(resumed.time_s[: len(kept)], kept.time_s)
     assert set(resumed.segment) == {"rot_x", "rot_y", "rot_z", "lin_x", "lin_y", "lin_z"}
 
 
@@ -106,8 +124,13 @@ def test_stale_robot_stream_is_a_fault(tmp_path):
     world = build_world(PRESETS["paper-white"])
     robot = FrozenRobot(world, SimClock())
     with pytest.raises(AcquisitionStopped, match="robot data stale"):
-        acquire(plan_for_world(world), robot, SimulatedTracker(world, robot), tmp_path / "r.csv",
-                recording_metadata(world))
+        acquire(
+            plan_for_world(world),
+            robot,
+            SimulatedTracker(world, robot),
+            tmp_path / "r.csv",
+            recording_metadata(world),
+        )
     assert robot.commands[-1] == "stop" and len(read_recording(tmp_path / "r.csv")) > 50
 
 

@@ -24,8 +24,11 @@ def calibration_file(tmp_path, white_simulation):
 
 def tamper(path, key, change):
     data = json.loads(path.read_text())
-    data[key] = (change @ np.array(data[key])).tolist() if key == "tracker_from_base" else \
-        (np.array(data[key]) @ change).tolist()
+    data[key] = (
+        (change @ np.array(data[key])).tolist()
+        if key == "tracker_from_base"
+        else (np.array(data[key]) @ change).tolist()
+    )
     out = path.with_name(f"tampered_{key}.json")
     out.write_text(json.dumps(data))
     return out
@@ -39,10 +42,13 @@ def test_good_calibration_passes_and_is_logged(calibration_file, capsys):
     assert history_path(calibration_file).name == "cal.checks.jsonl"
 
 
-@pytest.mark.parametrize("fault,key,change", [
-    ("marker bumped by 1 deg", "tcp_from_marker", axis_angle_transform([0, 1, 0], np.radians(1.0))),
-    ("tracker moved by 2 mm", "tracker_from_base", make_transform(np.eye(3), [2.0, 0.0, 0.0])),
-])
+@pytest.mark.parametrize(
+    "fault,key,change",
+    [
+        ("marker bumped by 1 deg", "tcp_from_marker", axis_angle_transform([0, 1, 0], np.radians(1.0))),
+        ("tracker moved by 2 mm", "tracker_from_base", make_transform(np.eye(3), [2.0, 0.0, 0.0])),
+    ],
+)
 def test_a_calibration_that_no_longer_holds_fails(calibration_file, capsys, fault, key, change):
     assert main(["check", str(tamper(calibration_file, key, change)), "--poses", "2"]) == 1
     captured = capsys.readouterr()
@@ -79,8 +85,12 @@ def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulati
     world = white_simulation.world
     calibration = calibrate(white_simulation.recording, "ml", uncertainty=False)
     robot = SimulatedRobot(world, SimClock())
-    result = check_with_robot(calibration, robot, LongRunning(world, robot, hidden_frames=1), check_joints(world, 2))
+    result = check_with_robot(
+        calibration, robot, LongRunning(world, robot, hidden_frames=1), check_joints(world, 2)
+    )
     assert result.passed
     robot = SimulatedRobot(world, SimClock())
     with pytest.raises(DegenerateDataError, match="not visible"):
-        check_with_robot(calibration, robot, LongRunning(world, robot, hidden_frames=10**6), check_joints(world, 2))
+        check_with_robot(
+            calibration, robot, LongRunning(world, robot, hidden_frames=10**6), check_joints(world, 2)
+        )

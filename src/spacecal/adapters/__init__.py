@@ -32,7 +32,9 @@ def parse_device_url(url: str, schemes: tuple[str, ...]) -> tuple[str, str, int 
     """Split ``scheme://host[:port]`` (or ``ndi:///dev/ttyUSB0``) into scheme, address, port."""
     parsed = urlparse(url)
     if parsed.scheme not in schemes:
-        raise InvalidInputError(f"device {url!r}: expected one of {', '.join(s + '://' for s in schemes)} or sim")
+        raise InvalidInputError(
+            f"device {url!r}: expected one of {', '.join(s + '://' for s in schemes)} or sim"
+        )
     if parsed.path and not parsed.netloc:  # a serial device path
         return parsed.scheme, parsed.path, None
     if not parsed.hostname:

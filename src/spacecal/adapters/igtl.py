@@ -18,7 +18,6 @@ from ..errors import DeviceError, InvalidInputError
 from ..geometry.transforms import is_rigid_transform
 from . import require
 
-
 #: Time the connection stays open after publishing, so the server reads the message.
 PUBLISH_LINGER_S = 0.3
 
@@ -38,8 +37,13 @@ class IGTLTracker:
         How long to wait for the first message before giving up.
     """
 
-    def __init__(self, host: str, port: int = 18944, device_name: str = "MarkerToTracker",
-                 connect_timeout_s: float = 5.0):
+    def __init__(
+        self,
+        host: str,
+        port: int = 18944,
+        device_name: str = "MarkerToTracker",
+        connect_timeout_s: float = 5.0,
+    ):
         pyigtl = require("pyigtl", "igtl")
         self.device_name = device_name
         self._client = pyigtl.OpenIGTLinkClient(host=host, port=port)
@@ -48,7 +52,9 @@ class IGTLTracker:
         first = self._client.wait_for_message(device_name, timeout=connect_timeout_s)
         if first is None:
             self.close()
-            raise DeviceError(f"no {device_name} message from igtl://{host}:{port} within {connect_timeout_s:.0f} s")
+            raise DeviceError(
+                f"no {device_name} message from igtl://{host}:{port} within {connect_timeout_s:.0f} s"
+            )
         # A server may flush a backlog of old messages on connect: let it pass, keep the newest.
         time.sleep(BACKLOG_DRAIN_S)
         self._pending = self._client.wait_for_message(device_name, timeout=0.0) or first
@@ -58,13 +64,17 @@ class IGTLTracker:
         repeated = False
         while True:
             message = self._pending or self._client.wait_for_message(
-                self.device_name, timeout=max(deadline - time.monotonic(), 0.0))
+                self.device_name, timeout=max(deadline - time.monotonic(), 0.0)
+            )
             self._pending = None
             if message is None:
                 if repeated:
-                    raise DeviceError(f"{self.device_name} timestamps stopped advancing for {timeout_s:.1f} s: "
-                                      "stale stream")
-                raise DeviceError(f"no {self.device_name} message for {timeout_s:.1f} s: stream stalled or lost")
+                    raise DeviceError(
+                        f"{self.device_name} timestamps stopped advancing for {timeout_s:.1f} s: stale stream"
+                    )
+                raise DeviceError(
+                    f"no {self.device_name} message for {timeout_s:.1f} s: stream stalled or lost"
+                )
             if message.timestamp > self._last_timestamp:
                 break
             repeated = True
@@ -74,7 +84,8 @@ class IGTLTracker:
         matrix = np.asarray(message.matrix, dtype=float)
         ok = status == "OK" and is_rigid_transform(matrix, atol=1e-4)
         return TrackerFrame(
-            time_s=float(message.timestamp), frame_number=self._frame_number,
+            time_s=float(message.timestamp),
+            frame_number=self._frame_number,
             status=FRAME_OK if ok else FRAME_MISSING,
             tracker_from_marker=matrix if ok else None,
         )
@@ -103,8 +114,9 @@ def publish_transform(host: str, port: int, name: str, a_from_b, timestamp: floa
             if time.monotonic() > deadline:
                 raise DeviceError(f"could not connect to igtl://{host}:{port}")
             time.sleep(0.05)
-        message = pyigtl.TransformMessage(matrix, timestamp=time.time() if timestamp is None else timestamp,
-                                          device_name=name)
+        message = pyigtl.TransformMessage(
+            matrix, timestamp=time.time() if timestamp is None else timestamp, device_name=name
+        )
         if not client.send_message(message, wait=True):
             raise DeviceError(f"could not send {name} to igtl://{host}:{port}")
         # Servers stream to every client: closing at once, with their messages unread, resets the

@@ -103,10 +103,14 @@ class NDITracker:
                 # ndicapi#46: the reply was parsed on the C side; read it with the getters
                 self.decode_faults_handled += 1
             if ndi.ndiGetError(self._device) == ndi.NDI_OKAY:
-                return ndi.ndiGetBXFrame(self._device, self._marker), ndi.ndiGetBXTransform(self._device, self._marker)
+                return ndi.ndiGetBXFrame(self._device, self._marker), ndi.ndiGetBXTransform(
+                    self._device, self._marker
+                )
             self.reply = "tx"  # fall back to the ASCII reply
         self._command("TX:0801")
-        return ndi.ndiGetTXFrame(self._device, self._marker), ndi.ndiGetTXTransform(self._device, self._marker)
+        return ndi.ndiGetTXFrame(self._device, self._marker), ndi.ndiGetTXTransform(
+            self._device, self._marker
+        )
 
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         deadline = time.monotonic() + timeout_s
@@ -126,8 +130,9 @@ class NDITracker:
         if isinstance(transform, str):  # "MISSING" or "DISABLED"
             return TrackerFrame(frame_number / self.rate_hz, int(frame_number), FRAME_MISSING, None)
         q0, qx, qy, qz, tx, ty, tz, rms = transform
-        pose = transform_from_position_quaternion([tx, ty, tz], np.array([q0, qx, qy, qz]) /
-                                                  np.linalg.norm([q0, qx, qy, qz]))
+        pose = transform_from_position_quaternion(
+            [tx, ty, tz], np.array([q0, qx, qy, qz]) / np.linalg.norm([q0, qx, qy, qz])
+        )
         return TrackerFrame(frame_number / self.rate_hz, int(frame_number), FRAME_OK, pose, float(rms))
 
     def close(self) -> None:

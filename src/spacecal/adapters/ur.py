@@ -81,21 +81,32 @@ class URRobot:
         if timestamp != self._last_timestamp:
             self._last_timestamp, self._last_change = timestamp, now
         elif now - self._last_change > self.stale_after_s:
-            raise DeviceError(f"UR state is stale: its timestamp has not advanced for {now - self._last_change:.1f} s")
+            raise DeviceError(
+                f"UR state is stale: its timestamp has not advanced for {now - self._last_change:.1f} s"
+            )
         bits = int(self._receive.getSafetyStatusBits())
-        safety = SAFETY_EMERGENCY_STOP if bits & EMERGENCY_STOP_BITS else \
-            SAFETY_PROTECTIVE_STOP if bits & PROTECTIVE_STOP_BITS else SAFETY_NORMAL
+        safety = (
+            SAFETY_EMERGENCY_STOP
+            if bits & EMERGENCY_STOP_BITS
+            else SAFETY_PROTECTIVE_STOP
+            if bits & PROTECTIVE_STOP_BITS
+            else SAFETY_NORMAL
+        )
         pose = pose_from_ur(self._receive.getActualTCPPose())
         speeds = np.asarray(self._receive.getActualQd(), dtype=float)
         moving = False
         if self._target is not None:
-            arrived = (np.linalg.norm(pose[:3, 3] - self._target[:3, 3]) < ARRIVAL_MM and
-                       rotation_angle(pose[:3, :3] @ self._target[:3, :3].T) < ARRIVAL_RAD and
-                       np.max(np.abs(speeds)) < REST_RAD_S)
+            arrived = (
+                np.linalg.norm(pose[:3, 3] - self._target[:3, 3]) < ARRIVAL_MM
+                and rotation_angle(pose[:3, :3] @ self._target[:3, :3].T) < ARRIVAL_RAD
+                and np.max(np.abs(speeds)) < REST_RAD_S
+            )
             moving = not arrived and safety == SAFETY_NORMAL
             if not moving:
                 self._target = None
-        return RobotState(timestamp, np.asarray(self._receive.getActualQ(), dtype=float), pose, safety, moving)
+        return RobotState(
+            timestamp, np.asarray(self._receive.getActualQ(), dtype=float), pose, safety, moving
+        )
 
     def _require_control(self):
         if self._control is None:
@@ -108,11 +119,17 @@ class URRobot:
         if not self._require_control().moveJ([float(v) for v in joints_rad], speed_rad_s, accel_rad_s2):
             raise DeviceError("the UR controller refused or aborted moveJ")
 
-    def move_linear(self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False) -> None:
+    def move_linear(
+        self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
+    ) -> None:
         control = self._require_control()
         target = np.asarray(base_from_tcp, dtype=float)
-        if not control.moveL(pose_to_ur(target), float(mm_to_metres(speed_mm_s)), float(mm_to_metres(accel_mm_s2)),
-                             asynchronous):
+        if not control.moveL(
+            pose_to_ur(target),
+            float(mm_to_metres(speed_mm_s)),
+            float(mm_to_metres(accel_mm_s2)),
+            asynchronous,
+        ):
             raise DeviceError("the UR controller refused or aborted moveL")
         self._target = target if asynchronous else None
 

@@ -18,13 +18,22 @@ HAND_EYE_FRAMES = 60
 
 
 def _counts(recording: Recording, used_rows) -> dict:
-    return {"total": len(recording), "used": int(len(used_rows)),
-            "rejected": int(len(recording) - len(used_rows)),
-            "rejected_not_visible": int((~recording.visible).sum())}
+    return {
+        "total": len(recording),
+        "used": int(len(used_rows)),
+        "rejected": int(len(recording) - len(used_rows)),
+        "rejected_not_visible": int((~recording.visible).sum()),
+    }
 
 
-def closed_form_result(method: str, recording: Recording, tracker_from_base, tcp_from_marker, used_rows,
-                       extra: dict | None = None) -> CalibrationResult:
+def closed_form_result(
+    method: str,
+    recording: Recording,
+    tracker_from_base,
+    tcp_from_marker,
+    used_rows,
+    extra: dict | None = None,
+) -> CalibrationResult:
     """Package a closed-form estimate with the shared diagnostics."""
     residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker)
     diagnostics = {
@@ -33,7 +42,9 @@ def closed_form_result(method: str, recording: Recording, tracker_from_base, tcp
         "motion_spread": motion_spread(recording.base_from_tcp_stack[used_rows]),
         **(extra or {}),
     }
-    return CalibrationResult(method, tracker_from_base, tcp_from_marker, _counts(recording, used_rows), diagnostics)
+    return CalibrationResult(
+        method, tracker_from_base, tcp_from_marker, _counts(recording, used_rows), diagnostics
+    )
 
 
 def robot_world_method(name: str):
@@ -42,8 +53,9 @@ def robot_world_method(name: str):
 
     def calibrate_robot_world(recording: Recording) -> CalibrationResult:
         rows = np.flatnonzero(recording.visible)
-        tcp_from_marker, base_from_tracker = solver(recording.base_from_tcp_stack[rows],
-                                                    recording.tracker_from_marker_stack[rows])
+        tcp_from_marker, base_from_tracker = solver(
+            recording.base_from_tcp_stack[rows], recording.tracker_from_marker_stack[rows]
+        )
         return closed_form_result(name, recording, invert_transform(base_from_tracker), tcp_from_marker, rows)
 
     calibrate_robot_world.__doc__ = f"AX = YB by {solver.__doc__.splitlines()[0]}"
@@ -57,11 +69,19 @@ def hand_eye_method(name: str):
     def calibrate_hand_eye(recording: Recording) -> CalibrationResult:
         visible = np.flatnonzero(recording.visible)
         frames = visible[np.linspace(0, len(visible) - 1, min(HAND_EYE_FRAMES, len(visible))).astype(int)]
-        motions = relative_motions(recording.base_from_tcp_stack[frames], recording.tracker_from_marker_stack[frames])
+        motions = relative_motions(
+            recording.base_from_tcp_stack[frames], recording.tracker_from_marker_stack[frames]
+        )
         tcp_from_marker = solver(*motions)
         tracker_from_base = tracker_from_base_from_samples(recording, tcp_from_marker, visible)
-        return closed_form_result(name, recording, tracker_from_base, tcp_from_marker, visible,
-                                  {"hand_eye_motions": len(frames) - 1})
+        return closed_form_result(
+            name,
+            recording,
+            tracker_from_base,
+            tcp_from_marker,
+            visible,
+            {"hand_eye_motions": len(frames) - 1},
+        )
 
     calibrate_hand_eye.__doc__ = f"AX = XB by {solver.__doc__.splitlines()[0]}"
     return calibrate_hand_eye

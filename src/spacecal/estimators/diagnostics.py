@@ -8,7 +8,6 @@ from ..geometry.rotations import mean_rotation, rotation_angle
 from ..geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from ..records import Recording
 
-
 #: A posteriori variance factor above which residuals are called systematic: white noise
 #: gives 1 (measured 0.98–1.02 on the white-noise scenario).
 SYSTEMATIC_VARIANCE_FACTOR = 1.5
@@ -62,14 +61,25 @@ def residual_table(recording: Recording, residuals: dict, outlier_rows=()) -> li
     """Per-sample residual rows for result files (time, segment, position, rotation, outlier)."""
     outliers = set(int(r) for r in outlier_rows)
     return [
-        {"row": int(r), "time_s": float(recording.time_s[r]), "segment": str(recording.segment[r]),
-         "position_mm": float(p), "rotation_deg": float(a), "outlier": int(r) in outliers}
+        {
+            "row": int(r),
+            "time_s": float(recording.time_s[r]),
+            "segment": str(recording.segment[r]),
+            "position_mm": float(p),
+            "rotation_deg": float(a),
+            "outlier": int(r) in outliers,
+        }
         for r, p, a in zip(residuals["rows"], residuals["position_mm"], residuals["rotation_deg"])
     ]
 
 
-def verdict(predicted_tre_site_mm: float | None, spread: dict, outlier_fraction: float = 0.0,
-            variance_factor: float | None = None, likelihood_based: bool = True) -> str:
+def verdict(
+    predicted_tre_site_mm: float | None,
+    spread: dict,
+    outlier_fraction: float = 0.0,
+    variance_factor: float | None = None,
+    likelihood_based: bool = True,
+) -> str:
     """A plain-language judgement of a calibration and what to do about it.
 
     The headline grades the predicted error at the site, unless the residuals show that
@@ -80,23 +90,30 @@ def verdict(predicted_tre_site_mm: float | None, spread: dict, outlier_fraction:
     systematic = variance_factor is not None and variance_factor > SYSTEMATIC_VARIANCE_FACTOR
     if predicted_tre_site_mm is not None:
         if systematic:
-            notes.append(f"check: predicted error at the site {predicted_tre_site_mm:.2f} mm is a lower bound, "
-                         f"because residuals are {np.sqrt(variance_factor):.1f}x the tracker's noise: the model does "
-                         "not fit the data (systematic error such as robot kinematics, tracker volume error, time "
-                         "offset or a loose marker" + ("" if likelihood_based else ", or an inaccurate estimator: "
-                                                       "compare with ml") + "); verify on independent targets")
+            notes.append(
+                f"check: predicted error at the site {predicted_tre_site_mm:.2f} mm is a lower bound, "
+                f"because residuals are {np.sqrt(variance_factor):.1f}x the tracker's noise: the model does "
+                "not fit the data (systematic error such as robot kinematics, tracker volume error, time "
+                "offset or a loose marker"
+                + ("" if likelihood_based else ", or an inaccurate estimator: compare with ml")
+                + "); verify on independent targets"
+            )
         elif predicted_tre_site_mm <= 0.2:
             notes.append(f"good: predicted error at the site {predicted_tre_site_mm:.2f} mm")
         elif predicted_tre_site_mm <= 0.5:
             notes.append(f"acceptable: predicted error at the site {predicted_tre_site_mm:.2f} mm")
         else:
-            notes.append(f"poor: predicted error at the site {predicted_tre_site_mm:.2f} mm; record more, "
-                         "and more varied, poses")
+            notes.append(
+                f"poor: predicted error at the site {predicted_tre_site_mm:.2f} mm; record more, "
+                "and more varied, poses"
+            )
     if spread["rotation_sd_deg"][2] < 5.0:
         notes.append("the tool rotated about fewer than three axes: add rotations about the missing axis")
     if outlier_fraction > 0.05:
-        notes.append(f"{outlier_fraction:.0%} of frames were outliers: check for reflections, "
-                     "occlusion or a loose marker")
+        notes.append(
+            f"{outlier_fraction:.0%} of frames were outliers: check for reflections, "
+            "occlusion or a loose marker"
+        )
     return "; ".join(notes) if notes else "no problems detected"
 
 
@@ -108,6 +125,9 @@ def site_in_base(recording: Recording, rows=None) -> np.ndarray:
 
 def tracker_from_base_from_samples(recording: Recording, tcp_from_marker, rows) -> np.ndarray:
     """Mean of tracker_from_marker_i @ marker_from_tcp @ tcp_from_base_i over rows."""
-    each = recording.tracker_from_marker_stack[rows] @ invert_transform(tcp_from_marker) @ \
-        invert_transform(recording.base_from_tcp_stack[rows])
+    each = (
+        recording.tracker_from_marker_stack[rows]
+        @ invert_transform(tcp_from_marker)
+        @ invert_transform(recording.base_from_tcp_stack[rows])
+    )
     return make_transform(mean_rotation(each[:, :3, :3]), each[:, :3, 3].mean(axis=0))

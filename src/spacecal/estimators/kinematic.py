@@ -29,7 +29,6 @@ import numpy as np
 from scipy.linalg import qr
 
 from ..errors import DegenerateDataError, InvalidInputError
-
 from ..models.kinematics import (
     RobotModel,
     dh_point_jacobian,
@@ -40,7 +39,8 @@ from ..models.kinematics import (
 )
 from ..records import CalibrationResult, Recording
 from .likelihood import calibrate_ml, report_uncertainty, variance_factor_of
-from .ml import apply_step, jacobian as pose_jacobian
+from .ml import apply_step
+from .ml import jacobian as pose_jacobian
 from .observations import build_observations
 
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
@@ -82,9 +82,15 @@ def identifiable_corrections(dh_jacobian, pose_jacobian_, rank_tolerance: float)
     return selected, float(singular[0] / singular[-1])
 
 
-def calibrate_kinematic(recording: Recording, sigma_mm: float | None = None, targets_in_base=None,
-                        prior_length_sd_mm: float = 1.0, prior_angle_sd_rad: float = 0.002,
-                        rank_tolerance: float = 0.02, iterations: int = 15) -> CalibrationResult:
+def calibrate_kinematic(
+    recording: Recording,
+    sigma_mm: float | None = None,
+    targets_in_base=None,
+    prior_length_sd_mm: float = 1.0,
+    prior_angle_sd_rad: float = 0.002,
+    rank_tolerance: float = 0.02,
+    iterations: int = 15,
+) -> CalibrationResult:
     """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``.
 
     Parameters
@@ -110,9 +116,13 @@ def calibrate_kinematic(recording: Recording, sigma_mm: float | None = None, tar
     corrected = with_dh_corrections(model, delta)
     obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
     j_dh = dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres)
-    selected, condition = identifiable_corrections(j_dh, pose_jacobian(obs_model, t_cur, x_cur), rank_tolerance)
+    selected, condition = identifiable_corrections(
+        j_dh, pose_jacobian(obs_model, t_cur, x_cur), rank_tolerance
+    )
     if len(selected) == 0:
-        raise DegenerateDataError("this motion identifies no kinematic correction: use more varied joint configurations")
+        raise DegenerateDataError(
+            "this motion identifies no kinematic correction: use more varied joint configurations"
+        )
 
     for _ in range(iterations):
         corrected = with_dh_corrections(model, delta)
@@ -120,7 +130,10 @@ def calibrate_kinematic(recording: Recording, sigma_mm: float | None = None, tar
         predicted = points_in_tracker(corrected, joints, t_cur, x_cur, spheres)
         residual = (predicted - obs.spheres_in_tracker).reshape(-1) / obs.sigma_mm
         j_pose = pose_jacobian(obs_model, t_cur, x_cur).reshape(-1, 12) / obs.sigma_mm
-        j_dh = dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres).reshape(-1, 24)[:, selected] / obs.sigma_mm
+        j_dh = (
+            dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres).reshape(-1, 24)[:, selected]
+            / obs.sigma_mm
+        )
         jac = np.hstack([j_pose, j_dh])
         prior_rows = np.zeros((len(selected), 12 + len(selected)))
         prior_rows[:, 12:] = np.diag(1.0 / prior_sd[selected])
@@ -138,18 +151,34 @@ def calibrate_kinematic(recording: Recording, sigma_mm: float | None = None, tar
     variance_factor = variance_factor_of(obs_model, t_cur, x_cur)
     scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
     covariance_all = np.linalg.inv(information) * scale
-    corrections = [{"parameter": DH_NAMES[i], "correction": float(delta[i]),
-                    "sd": float(np.sqrt(covariance_all[12 + k, 12 + k]))} for k, i in enumerate(selected)]
+    corrections = [
+        {
+            "parameter": DH_NAMES[i],
+            "correction": float(delta[i]),
+            "sd": float(np.sqrt(covariance_all[12 + k, 12 + k])),
+        }
+        for k, i in enumerate(selected)
+    ]
     extra = {
         "kinematic_model": {"name": model.name, **corrected.dh_table()},
         "kinematic_identification": {
             "identified": corrections,
             "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(selected.tolist())],
-            "rank": int(len(selected)), "condition_number": condition,
+            "rank": int(len(selected)),
+            "condition_number": condition,
             "prior_sd": {"length_mm": prior_length_sd_mm, "angle_rad": prior_angle_sd_rad},
         },
     }
-    result = report_uncertainty("kinematic", recording, obs_model, t_cur, x_cur, covariance_all[:12, :12],
-                                variance_factor, targets_in_base, extra,
-                                covariance_note="pose block of the joint (pose + DH) covariance; mm, rad")
+    result = report_uncertainty(
+        "kinematic",
+        recording,
+        obs_model,
+        t_cur,
+        x_cur,
+        covariance_all[:12, :12],
+        variance_factor,
+        targets_in_base,
+        extra,
+        covariance_note="pose block of the joint (pose + DH) covariance; mm, rad",
+    )
     return result

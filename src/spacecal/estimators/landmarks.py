@@ -80,8 +80,9 @@ def _round_half_up(value: float) -> int:
     return int(np.floor(value + 0.5))
 
 
-def detect_landmarks(reference_from_tip_stack, settings: LandmarkDetectionSettings | None = None,
-                     expected: int | None = None) -> tuple[np.ndarray, list[int]]:
+def detect_landmarks(
+    reference_from_tip_stack, settings: LandmarkDetectionSettings | None = None, expected: int | None = None
+) -> tuple[np.ndarray, list[int]]:
     """Landmark positions touched by a pivoting stylus, in the reference frame.
 
     Parameters
@@ -103,7 +104,9 @@ def detect_landmarks(reference_from_tip_stack, settings: LandmarkDetectionSettin
     window = max(_round_half_up(s.acquisition_rate_hz * s.filter_window_s), 1)
     windows_needed = int(s.detection_s / s.filter_window_s + 1e-9)
     if windows_needed < 2:
-        raise DegenerateDataError("landmark detection: the detection time must span at least two filter windows")
+        raise DegenerateDataError(
+            "landmark detection: the detection time must span at least two filter windows"
+        )
     skip = max(_round_half_up(windows_needed * s.skip_fraction), 1)
     if s.plus_compatible:
         first, last = skip, windows_needed  # frames, as PLUS indexes them

@@ -40,20 +40,26 @@ def tre_summary(tracker_from_base, covariance, site, targets_in_base=None) -> di
     summary = {
         "site_in_base_mm": np.asarray(site).tolist(),
         "site": float(predicted_tre_mm(tracker_from_base, covariance, site[None])[0]),
-        "cube_rms": float(np.sqrt(np.mean(predicted_tre_mm(tracker_from_base, covariance,
-                                                           cube_grid(site, CUBE_SIDE_MM)) ** 2))),
+        "cube_rms": float(
+            np.sqrt(
+                np.mean(predicted_tre_mm(tracker_from_base, covariance, cube_grid(site, CUBE_SIDE_MM)) ** 2)
+            )
+        ),
         "cube_side_mm": CUBE_SIDE_MM,
     }
     if targets_in_base is not None:
         targets = np.atleast_2d(np.asarray(targets_in_base, dtype=float))
-        summary["targets"] = [{"target_in_base_mm": t.tolist(), "tre_mm": float(e)}
-                              for t, e in zip(targets, predicted_tre_mm(tracker_from_base, covariance, targets))]
+        summary["targets"] = [
+            {"target_in_base_mm": t.tolist(), "tre_mm": float(e)}
+            for t, e in zip(targets, predicted_tre_mm(tracker_from_base, covariance, targets))
+        ]
     return summary
 
 
 def _initial_estimate(obs: Observations, recording: Recording):
     tcp_from_marker, base_from_tracker = solve_shah(
-        obs.base_from_tcp_stack, recording.tracker_from_marker_stack[obs.rows])
+        obs.base_from_tcp_stack, recording.tracker_from_marker_stack[obs.rows]
+    )
     return invert_transform(base_from_tracker), tcp_from_marker
 
 
@@ -71,16 +77,42 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
     scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
     covariance = covariance_from_information(information) * scale
     eigenvalues = np.linalg.eigvalsh(information)
-    extra = {"conditioning": {"information_eigenvalues": eigenvalues.tolist(),
-                              "condition_number": float(eigenvalues.max() / eigenvalues.min())}, **extra}
-    return report_uncertainty(method, recording, obs, fit_t, fit_x, covariance, variance_factor,
-                              targets_in_base, extra, outlier_rows,
-                              "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
-                              "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad")
+    extra = {
+        "conditioning": {
+            "information_eigenvalues": eigenvalues.tolist(),
+            "condition_number": float(eigenvalues.max() / eigenvalues.min()),
+        },
+        **extra,
+    }
+    return report_uncertainty(
+        method,
+        recording,
+        obs,
+        fit_t,
+        fit_x,
+        covariance,
+        variance_factor,
+        targets_in_base,
+        extra,
+        outlier_rows,
+        "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
+        "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad",
+    )
 
 
-def report_uncertainty(method, recording, obs, fit_t, fit_x, covariance, variance_factor, targets_in_base,
-                       extra, outlier_rows=(), covariance_note="") -> CalibrationResult:
+def report_uncertainty(
+    method,
+    recording,
+    obs,
+    fit_t,
+    fit_x,
+    covariance,
+    variance_factor,
+    targets_in_base,
+    extra,
+    outlier_rows=(),
+    covariance_note="",
+) -> CalibrationResult:
     """A calibration result with covariance, predicted TRE, residuals, spread and verdict."""
     site = site_in_base(recording, obs.rows)
     tre = tre_summary(fit_t, covariance, site, targets_in_base)
@@ -88,32 +120,51 @@ def report_uncertainty(method, recording, obs, fit_t, fit_x, covariance, varianc
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
     diagnostics = {
-        "noise": {"sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
-                  "source": "given or the tracker's RMS" if obs.sigma_known else
-                  "unknown (the recording has no marker_rms_mm): covariance scaled by the residuals",
-                  "observations": "raw spheres" if obs.dof_per_frame > 6
-                  else "marker poses (model spheres placed by the measured pose)"},
+        "noise": {
+            "sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
+            "source": "given or the tracker's RMS"
+            if obs.sigma_known
+            else "unknown (the recording has no marker_rms_mm): covariance scaled by the residuals",
+            "observations": "raw spheres"
+            if obs.dof_per_frame > 6
+            else "marker poses (model spheres placed by the measured pose)",
+        },
         "variance_factor": variance_factor if obs.sigma_known else None,
         "residual_position_rms_mm": residuals["position_rms_mm"],
         "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": spread,
-        "verdict": verdict(tre["site"], spread, outlier_fraction,
-                           variance_factor if obs.sigma_known else None,
-                           likelihood_based=method in ("ml", "robust")),
+        "verdict": verdict(
+            tre["site"],
+            spread,
+            outlier_fraction,
+            variance_factor if obs.sigma_known else None,
+            likelihood_based=method in ("ml", "robust"),
+        ),
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,
     }
     used = len(obs.rows)
-    counts = {"total": len(recording), "used": used, "rejected": len(recording) - used,
-              "rejected_not_visible": int((~recording.visible).sum()), "rejected_outlier": len(outlier_rows)}
+    counts = {
+        "total": len(recording),
+        "used": used,
+        "rejected": len(recording) - used,
+        "rejected_not_visible": int((~recording.visible).sum()),
+        "rejected_outlier": len(outlier_rows),
+    }
     return CalibrationResult(
-        method, fit_t, fit_x, counts, diagnostics,
+        method,
+        fit_t,
+        fit_x,
+        counts,
+        diagnostics,
         covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(), "note": covariance_note},
         predicted_tre_mm=tre,
     )
 
 
-def calibrate_ml(recording: Recording, sigma_mm: float | None = None, targets_in_base=None) -> CalibrationResult:
+def calibrate_ml(
+    recording: Recording, sigma_mm: float | None = None, targets_in_base=None
+) -> CalibrationResult:
     """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
 
     Starts from Shah's closed form, then Levenberg–Marquardt on sphere residuals (see
@@ -128,8 +179,15 @@ def calibrate_ml(recording: Recording, sigma_mm: float | None = None, targets_in
         Points (mm, base frame) at which to predict the TRE, besides the site.
     """
     obs, fit = fit_ml(recording, sigma_mm)
-    return _package("ml", recording, obs, fit.tracker_from_base, fit.tcp_from_marker, targets_in_base,
-                    {"iterations": fit.iterations, "converged": fit.converged})
+    return _package(
+        "ml",
+        recording,
+        obs,
+        fit.tracker_from_base,
+        fit.tcp_from_marker,
+        targets_in_base,
+        {"iterations": fit.iterations, "converged": fit.converged},
+    )
 
 
 def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observations, Fit]:
@@ -140,8 +198,14 @@ def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observa
     return obs, levenberg_marquardt(obs, start_t, start_x)
 
 
-def ransac_start(obs: Observations, recording: Recording, rng: np.random.Generator, iterations: int = 60,
-                 subset: int = 6, threshold_mm: float | None = None):
+def ransac_start(
+    obs: Observations,
+    recording: Recording,
+    rng: np.random.Generator,
+    iterations: int = 60,
+    subset: int = 6,
+    threshold_mm: float | None = None,
+):
     """Best closed-form (Shah) solution over random frame subsets, by inlier count.
 
     Returns the transforms, the inlier mask and the threshold used.
@@ -164,8 +228,9 @@ def ransac_start(obs: Observations, recording: Recording, rng: np.random.Generat
     return best[1], best[2], threshold
 
 
-def calibrate_robust(recording: Recording, sigma_mm: float | None = None, targets_in_base=None,
-                     seed: int = 0) -> CalibrationResult:
+def calibrate_robust(
+    recording: Recording, sigma_mm: float | None = None, targets_in_base=None, seed: int = 0
+) -> CalibrationResult:
     """Maximum likelihood that survives bad frames (mis-detected spheres, stale frames, reflections).
 
     1. RANSAC-style start: Shah's closed form on random 6-frame subsets, the one with most
@@ -197,19 +262,36 @@ def calibrate_robust(recording: Recording, sigma_mm: float | None = None, target
     cutoff = max(gaussian_cutoff, SYSTEMATIC_TAIL_FACTOR * np.median(errors))
     keep = errors <= cutoff
     outlier_rows = obs.rows[~keep]
-    kept = build_observations(recording, mask=np.isin(np.arange(len(recording)), obs.rows[keep]),
-                              sigma_mm=obs.sigma_mm)
+    kept = build_observations(
+        recording, mask=np.isin(np.arange(len(recording)), obs.rows[keep]), sigma_mm=obs.sigma_mm
+    )
     final = levenberg_marquardt(kept, t_cur, x_cur)
-    outliers = [{"row": int(r), "time_s": float(recording.time_s[r]), "segment": str(recording.segment[r]),
-                 "error_mm": float(e), "reason": f"frame error {e:.2f} mm > {cutoff:.2f} mm "
-                 "(the larger of the 99.9 % Gaussian bound and 4x the median frame error)"} for r, e in zip(outlier_rows, errors[~keep])]
-    return _package("robust", recording, kept, final.tracker_from_base, final.tcp_from_marker, targets_in_base,
-                    {"outliers": outliers, "ransac_threshold_mm": threshold, "outlier_cutoff_mm": float(cutoff)},
-                    outlier_rows)
+    outliers = [
+        {
+            "row": int(r),
+            "time_s": float(recording.time_s[r]),
+            "segment": str(recording.segment[r]),
+            "error_mm": float(e),
+            "reason": f"frame error {e:.2f} mm > {cutoff:.2f} mm "
+            "(the larger of the 99.9 % Gaussian bound and 4x the median frame error)",
+        }
+        for r, e in zip(outlier_rows, errors[~keep])
+    ]
+    return _package(
+        "robust",
+        recording,
+        kept,
+        final.tracker_from_base,
+        final.tcp_from_marker,
+        targets_in_base,
+        {"outliers": outliers, "ransac_threshold_mm": threshold, "outlier_cutoff_mm": float(cutoff)},
+        outlier_rows,
+    )
 
 
-def tre_lower_bound(recording: Recording, tracker_from_base, tcp_from_marker, sigma_mm: float,
-                    targets_in_base=None) -> dict:
+def tre_lower_bound(
+    recording: Recording, tracker_from_base, tcp_from_marker, sigma_mm: float, targets_in_base=None
+) -> dict:
     """Cramér–Rao lower bound on the RMS TRE for a recording under white sphere noise.
 
     The Fisher information of the 12 parameters is J^T J / sigma^2 with J evaluated at

@@ -26,15 +26,22 @@ import numpy as np
 
 from ..errors import DegenerateDataError
 from ..geometry.rotations import skew
-from ..geometry.transforms import rotvec_to_matrix
-from ..geometry.transforms import make_transform
+from ..geometry.transforms import make_transform, rotvec_to_matrix
 from .observations import Observations
 
 PARAMETER_NAMES = [
-    "tracker_from_base.v_x_mm", "tracker_from_base.v_y_mm", "tracker_from_base.v_z_mm",
-    "tracker_from_base.w_x_rad", "tracker_from_base.w_y_rad", "tracker_from_base.w_z_rad",
-    "tcp_from_marker.v_x_mm", "tcp_from_marker.v_y_mm", "tcp_from_marker.v_z_mm",
-    "tcp_from_marker.w_x_rad", "tcp_from_marker.w_y_rad", "tcp_from_marker.w_z_rad",
+    "tracker_from_base.v_x_mm",
+    "tracker_from_base.v_y_mm",
+    "tracker_from_base.v_z_mm",
+    "tracker_from_base.w_x_rad",
+    "tracker_from_base.w_y_rad",
+    "tracker_from_base.w_z_rad",
+    "tcp_from_marker.v_x_mm",
+    "tcp_from_marker.v_y_mm",
+    "tcp_from_marker.v_z_mm",
+    "tcp_from_marker.w_x_rad",
+    "tcp_from_marker.w_y_rad",
+    "tcp_from_marker.w_z_rad",
 ]
 
 
@@ -49,9 +56,14 @@ def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarra
     r_t = tracker_from_base[:3, :3]
     r_a = obs.base_from_tcp_stack[:, :3, :3]
     r_x = tcp_from_marker[:3, :3]
-    points_in_base = np.einsum("nij,kj->nki", obs.base_from_tcp_stack[:, :3, :3],
-                               obs.spheres_in_marker @ r_x.T + tcp_from_marker[:3, 3]) \
+    points_in_base = (
+        np.einsum(
+            "nij,kj->nki",
+            obs.base_from_tcp_stack[:, :3, :3],
+            obs.spheres_in_marker @ r_x.T + tcp_from_marker[:3, 3],
+        )
         + obs.base_from_tcp_stack[:, None, :3, 3]
+    )
     rotated = points_in_base @ r_t.T  # R_t p_base
     n, k = rotated.shape[:2]
     jac = np.zeros((n, k, 3, 12))
@@ -66,8 +78,12 @@ def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarra
 
 def apply_step(tracker_from_base, tcp_from_marker, step) -> tuple[np.ndarray, np.ndarray]:
     """Apply a 12-parameter perturbation (see module docstring) to the two transforms."""
-    t_new = make_transform(rotvec_to_matrix(step[3:6]) @ tracker_from_base[:3, :3], tracker_from_base[:3, 3] + step[0:3])
-    x_new = make_transform(tcp_from_marker[:3, :3] @ rotvec_to_matrix(step[9:12]), tcp_from_marker[:3, 3] + step[6:9])
+    t_new = make_transform(
+        rotvec_to_matrix(step[3:6]) @ tracker_from_base[:3, :3], tracker_from_base[:3, 3] + step[0:3]
+    )
+    x_new = make_transform(
+        tcp_from_marker[:3, :3] @ rotvec_to_matrix(step[9:12]), tcp_from_marker[:3, 3] + step[6:9]
+    )
     return t_new, x_new
 
 
@@ -92,8 +108,14 @@ class Fit:
     converged: bool
 
 
-def levenberg_marquardt(obs: Observations, tracker_from_base, tcp_from_marker, frame_weights=None,
-                        max_iterations: int = 50, tolerance: float = 1e-12) -> Fit:
+def levenberg_marquardt(
+    obs: Observations,
+    tracker_from_base,
+    tcp_from_marker,
+    frame_weights=None,
+    max_iterations: int = 50,
+    tolerance: float = 1e-12,
+) -> Fit:
     """Minimise sum_i w_i sum_k |predicted_ik - observed_ik|^2 / sigma^2.
 
     Parameters
@@ -136,8 +158,9 @@ def levenberg_marquardt(obs: Observations, tracker_from_base, tcp_from_marker, f
     return Fit(t_cur, x_cur, max_iterations, False)
 
 
-def information_matrix(obs: Observations, tracker_from_base, tcp_from_marker, sigma_mm=None,
-                       frame_weights=None) -> np.ndarray:
+def information_matrix(
+    obs: Observations, tracker_from_base, tcp_from_marker, sigma_mm=None, frame_weights=None
+) -> np.ndarray:
     """Fisher information (12, 12) of the two transforms under the sphere noise model.
 
     With raw spheres each component is an independent observation. With poses fitted from

@@ -73,8 +73,9 @@ def marker_geometry_of(recording: Recording) -> np.ndarray:
     return ndi_8700339_like().spheres_in_marker
 
 
-def build_observations(recording: Recording, mask=None, sigma_mm: float | None = None,
-                       minimum_sigma_mm: float = 1e-3) -> Observations:
+def build_observations(
+    recording: Recording, mask=None, sigma_mm: float | None = None, minimum_sigma_mm: float = 1e-3
+) -> Observations:
     """Sphere observations of the visible (and masked-in) frames.
 
     Parameters
@@ -106,5 +107,12 @@ def build_observations(recording: Recording, mask=None, sigma_mm: float | None =
             sigma_mm, known = 1.0, False
         else:
             sigma_mm = sphere_noise_from_marker_rms(rms, len(spheres))
-    return Observations(rows, recording.base_from_tcp_stack[rows], spheres, observed, dof,
-                        max(float(sigma_mm), minimum_sigma_mm), known)
+    return Observations(
+        rows,
+        recording.base_from_tcp_stack[rows],
+        spheres,
+        observed,
+        dof,
+        max(float(sigma_mm), minimum_sigma_mm),
+        known,
+    )

@@ -87,7 +87,9 @@ def rotation_span_deg(rotations) -> float:
     return float(np.degrees(angles.max() - angles.min()))
 
 
-def _rotation_origin(recording: Recording, rot_rows: np.ndarray, thresholds: PaperThresholds, diagnostics: dict):
+def _rotation_origin(
+    recording: Recording, rot_rows: np.ndarray, thresholds: PaperThresholds, diagnostics: dict
+):
     """Sphere fit of the marker origin over all rotation sweeps -> TCP origin in tracker and base."""
     spans = {}
     for label in ROTATION_SEGMENTS:
@@ -152,12 +154,19 @@ def _translation_axes(recording: Recording, thresholds: PaperThresholds, diagnos
                 f"{thresholds.max_orientation_drift_deg} deg): translation sweeps must keep it fixed"
             )
         d_tracker, d_base, line = _signed_direction(
-            recording.tracker_from_marker_stack[rows, :3, 3], recording.base_from_tcp_stack[rows, :3, 3],
-            label, thresholds)
+            recording.tracker_from_marker_stack[rows, :3, 3],
+            recording.base_from_tcp_stack[rows, :3, 3],
+            label,
+            thresholds,
+        )
         in_tracker.append(d_tracker)
         in_base.append(d_base)
-        lines[label] = {"straightness_rms_mm": line.rms, "length_mm": line.length,
-                        "direction_in_tracker": d_tracker.tolist(), "samples": int(rows.sum())}
+        lines[label] = {
+            "straightness_rms_mm": line.rms,
+            "length_mm": line.length,
+            "direction_in_tracker": d_tracker.tolist(),
+            "samples": int(rows.sum()),
+        }
     in_tracker, in_base = np.array(in_tracker), np.array(in_base)
     angles = {}
     for i, j in combinations(range(3), 2):
@@ -178,8 +187,11 @@ def _translation_axes(recording: Recording, thresholds: PaperThresholds, diagnos
 def estimate_tcp_from_marker(recording: Recording, tracker_from_base, rows) -> np.ndarray:
     """Average tcp_from_marker = tcp_from_base @ base_from_tracker @ tracker_from_marker over rows."""
     base_from_tracker = invert_transform(tracker_from_base)
-    each = invert_transform(recording.base_from_tcp_stack[rows]) @ base_from_tracker @ \
-        recording.tracker_from_marker_stack[rows]
+    each = (
+        invert_transform(recording.base_from_tcp_stack[rows])
+        @ base_from_tracker
+        @ recording.tracker_from_marker_stack[rows]
+    )
     return make_transform(mean_rotation(each[:, :3, :3]), each[:, :3, 3].mean(axis=0))
 
 
@@ -239,8 +251,10 @@ def calibrate_paper(recording: Recording, thresholds: PaperThresholds | None = N
         "rejected": int(len(recording) - used.sum()),
         "rejected_not_visible": int((in_sweeps & ~recording.visible).sum()),
         "rejected_other_segment": int((~in_sweeps).sum()),
-        "per_segment": {label: int((used & (recording.segment == label)).sum())
-                        for label in ROTATION_SEGMENTS + TRANSLATION_SEGMENTS},
+        "per_segment": {
+            label: int((used & (recording.segment == label)).sum())
+            for label in ROTATION_SEGMENTS + TRANSLATION_SEGMENTS
+        },
     }
     return CalibrationResult(
         method="paper",

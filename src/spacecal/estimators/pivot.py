@@ -56,7 +56,9 @@ class PivotResult:
 
     def to_dict(self) -> dict:
         return {
-            "schema": "spacecal.pivot", "schema_version": 1, "method": self.method,
+            "schema": "spacecal.pivot",
+            "schema_version": 1,
+            "method": self.method,
             "tip_in_marker_mm": self.tip_in_marker.tolist(),
             "pivot_in_tracker_mm": self.pivot_in_tracker.tolist(),
             "frames": int(len(self.residuals_mm)),
@@ -87,7 +89,9 @@ def pivot_algebraic_one_step(tracker_from_marker_stack) -> PivotResult:
     """Algebraic one-step pivot calibration (Yaniv 2015)."""
     poses = _check_poses(tracker_from_marker_stack)
     n = len(poses)
-    design = np.concatenate([poses[:, :3, :3], -np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2).reshape(3 * n, 6)
+    design = np.concatenate([poses[:, :3, :3], -np.broadcast_to(np.eye(3), (n, 3, 3))], axis=2).reshape(
+        3 * n, 6
+    )
     solution, _, rank, _ = np.linalg.lstsq(design, -poses[:, :3, 3].reshape(-1), rcond=None)
     if rank < 6:
         raise DegenerateDataError("pivot calibration: the pointer did not rotate about two or more axes")
@@ -109,5 +113,7 @@ PIVOT_METHODS = {"aos": pivot_algebraic_one_step, "sphere": pivot_sphere_fit}
 def pivot_calibration(tracker_from_marker_stack, method: str = "aos") -> PivotResult:
     """Pivot calibration by a named method (``aos`` or ``sphere``)."""
     if method not in PIVOT_METHODS:
-        raise UnknownMethodError(f"unknown pivot method {method!r}; valid methods: {', '.join(PIVOT_METHODS)}")
+        raise UnknownMethodError(
+            f"unknown pivot method {method!r}; valid methods: {', '.join(PIVOT_METHODS)}"
+        )
     return PIVOT_METHODS[method](tracker_from_marker_stack)

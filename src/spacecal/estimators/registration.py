@@ -52,7 +52,9 @@ class PointRegistration:
 
     def predicted_tre_mm(self, targets_in_b, fle_rms_mm: float | None = None) -> np.ndarray:
         """Fitzpatrick–West–Maurer predicted RMS TRE at targets (M, 3) given in b."""
-        return predicted_tre(self.points_in_b, targets_in_b, self.fle_rms_mm if fle_rms_mm is None else fle_rms_mm)
+        return predicted_tre(
+            self.points_in_b, targets_in_b, self.fle_rms_mm if fle_rms_mm is None else fle_rms_mm
+        )
 
 
 def register_points(points_in_a, points_in_b) -> PointRegistration:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import inspect
-from typing import Callable
+from collections.abc import Callable
 
 from ..errors import InvalidInputError, UnknownMethodError
 from ..records import CalibrationResult, Recording
@@ -11,8 +11,8 @@ from .closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS, hand_eye_method,
 from .kinematic import calibrate_kinematic
 from .likelihood import calibrate_ml, calibrate_robust, report_uncertainty, variance_factor_of
 from .observations import build_observations
-from .uncertainty import RESAMPLES, bootstrap_covariance
 from .paper import calibrate_paper
+from .uncertainty import RESAMPLES, bootstrap_covariance
 
 #: name -> function(recording, **options) -> CalibrationResult
 METHODS: dict[str, Callable[..., CalibrationResult]] = {
@@ -25,8 +25,9 @@ METHODS: dict[str, Callable[..., CalibrationResult]] = {
 }
 
 
-def calibrate(recording: Recording, method: str = "paper", uncertainty: bool = True,
-              **options) -> CalibrationResult:
+def calibrate(
+    recording: Recording, method: str = "paper", uncertainty: bool = True, **options
+) -> CalibrationResult:
     """Estimate ``tracker_from_base`` and ``tcp_from_marker`` from a recording.
 
     Parameters
@@ -51,9 +52,13 @@ def calibrate(recording: Recording, method: str = "paper", uncertainty: bool = T
     accepted = inspect.signature(METHODS[method]).parameters
     unexpected = sorted(set(options) - set(accepted))
     if unexpected:
-        takers = sorted(m for m, f in METHODS.items() if set(unexpected) <= set(inspect.signature(f).parameters))
-        raise InvalidInputError(f"method {method!r} does not take {', '.join(unexpected)}"
-                                + (f" (methods that do: {', '.join(takers)})" if takers else ""))
+        takers = sorted(
+            m for m, f in METHODS.items() if set(unexpected) <= set(inspect.signature(f).parameters)
+        )
+        raise InvalidInputError(
+            f"method {method!r} does not take {', '.join(unexpected)}"
+            + (f" (methods that do: {', '.join(takers)})" if takers else "")
+        )
     if "targets_in_base" in accepted:
         return METHODS[method](recording, targets_in_base=targets, **options)
     result = METHODS[method](recording, **options)
@@ -65,6 +70,7 @@ def calibrate(recording: Recording, method: str = "paper", uncertainty: bool = T
 def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, solver, targets_in_base=None):
     """Add covariance (bootstrap over frames), predicted TRE, residuals and a verdict to a
     result from an estimator without a likelihood; its transforms are unchanged."""
+
     def solve(resampled):
         again = solver(resampled)
         return again.tracker_from_base, again.tcp_from_marker
@@ -76,9 +82,17 @@ def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, 
     obs = build_observations(recording)
     variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
     reported = report_uncertainty(
-        result.method, recording, obs, result.tracker_from_base, result.tcp_from_marker, covariance,
-        variance_factor, targets_in_base, {},
-        covariance_note=f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad")
+        result.method,
+        recording,
+        obs,
+        result.tracker_from_base,
+        result.tcp_from_marker,
+        covariance,
+        variance_factor,
+        targets_in_base,
+        {},
+        covariance_note=f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
+    )
     result.covariance = reported.covariance
     result.predicted_tre_mm = reported.predicted_tre_mm
     result.diagnostics = {**reported.diagnostics, **result.diagnostics}

@@ -39,7 +39,9 @@ def _check(a_stack, b_stack):
     if len(a) < MIN_POSES:
         raise DegenerateDataError(f"AX = YB needs at least {MIN_POSES} poses, got {len(a)}")
     if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
-        raise DegenerateDataError("AX = YB: poses contain NaN (drop the samples where the marker was not seen)")
+        raise DegenerateDataError(
+            "AX = YB: poses contain NaN (drop the samples where the marker was not seen)"
+        )
     return a, b
 
 

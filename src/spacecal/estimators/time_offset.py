@@ -42,9 +42,12 @@ def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
     position = a[:, :3, 3] + weight[:, None] * (b[:, :3, 3] - a[:, :3, 3])
     nearest = np.where(weight < 0.5, lower, upper)
     return Recording(
-        time_s=raw.tracker_time_s[inside], segment=raw.robot_segment[nearest], joints_rad=joints,
+        time_s=raw.tracker_time_s[inside],
+        segment=raw.robot_segment[nearest],
+        joints_rad=joints,
         base_from_tcp_stack=make_transform(rotation, position),
-        tracker_from_marker_stack=raw.tracker_from_marker_stack[inside], marker_rms_mm=raw.marker_rms_mm[inside],
+        tracker_from_marker_stack=raw.tracker_from_marker_stack[inside],
+        marker_rms_mm=raw.marker_rms_mm[inside],
         metadata={**raw.metadata, "paired_with_offset_s": float(offset_s)},
     )
 
@@ -64,7 +67,9 @@ def _fit_cost(raw: RawRecording, offset_s: float) -> float:
     return variance_factor_of(obs, fit.tracker_from_base, fit.tcp_from_marker)
 
 
-def estimate_time_offset(raw: RawRecording, search_s: float = 0.2, coarse_step_s: float = 0.005) -> OffsetEstimate:
+def estimate_time_offset(
+    raw: RawRecording, search_s: float = 0.2, coarse_step_s: float = 0.005
+) -> OffsetEstimate:
     """Estimate the robot–tracker clock offset jointly with the ML calibration.
 
     Raises
@@ -77,13 +82,24 @@ def estimate_time_offset(raw: RawRecording, search_s: float = 0.2, coarse_step_s
     costs = np.array([_fit_cost(raw, o) for o in offsets])
     best = int(np.argmin(costs))
     if best in (0, len(offsets) - 1):
-        raise DegenerateDataError(f"the clock offset lies outside +-{search_s * 1000:.0f} ms: widen the search")
+        raise DegenerateDataError(
+            f"the clock offset lies outside +-{search_s * 1000:.0f} ms: widen the search"
+        )
     if np.ptp(costs) < 1e-6 * costs[best]:
-        raise DegenerateDataError("the robot did not move while sampled: the clock offset cannot be estimated")
-    refined = minimize_scalar(lambda o: _fit_cost(raw, o), bounds=(offsets[best - 1], offsets[best + 1]),
-                              method="bounded", options={"xatol": 1e-5})
+        raise DegenerateDataError(
+            "the robot did not move while sampled: the clock offset cannot be estimated"
+        )
+    refined = minimize_scalar(
+        lambda o: _fit_cost(raw, o),
+        bounds=(offsets[best - 1], offsets[best + 1]),
+        method="bounded",
+        options={"xatol": 1e-5},
+    )
     offset = float(refined.x)
     calibration = calibrate_ml(pair_streams(raw, offset))
-    calibration.diagnostics["time_offset"] = {"offset_s": offset, "search_s": search_s,
-                                             "definition": "robot clock minus tracker clock"}
+    calibration.diagnostics["time_offset"] = {
+        "offset_s": offset,
+        "search_s": search_s,
+        "definition": "robot clock minus tracker clock",
+    }
     return OffsetEstimate(offset, calibration, offsets, costs)

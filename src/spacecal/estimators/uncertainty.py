@@ -10,7 +10,7 @@ then says.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -24,16 +24,24 @@ RESAMPLES = 50
 
 def perturbation(reference_t, reference_x, tracker_from_base, tcp_from_marker) -> np.ndarray:
     """The 12 parameters taking the reference transforms to the given ones (see ml.apply_step)."""
-    return np.concatenate([
-        tracker_from_base[:3, 3] - reference_t[:3, 3],
-        matrix_to_rotvec(tracker_from_base[:3, :3] @ reference_t[:3, :3].T),
-        tcp_from_marker[:3, 3] - reference_x[:3, 3],
-        matrix_to_rotvec(reference_x[:3, :3].T @ tcp_from_marker[:3, :3]),
-    ])
+    return np.concatenate(
+        [
+            tracker_from_base[:3, 3] - reference_t[:3, 3],
+            matrix_to_rotvec(tracker_from_base[:3, :3] @ reference_t[:3, :3].T),
+            tcp_from_marker[:3, 3] - reference_x[:3, 3],
+            matrix_to_rotvec(reference_x[:3, :3].T @ tcp_from_marker[:3, :3]),
+        ]
+    )
 
 
-def bootstrap_covariance(recording: Recording, solve: Callable[[Recording], tuple[np.ndarray, np.ndarray]],
-                         reference_t, reference_x, resamples: int = RESAMPLES, seed: int = 0) -> np.ndarray | None:
+def bootstrap_covariance(
+    recording: Recording,
+    solve: Callable[[Recording], tuple[np.ndarray, np.ndarray]],
+    reference_t,
+    reference_x,
+    resamples: int = RESAMPLES,
+    seed: int = 0,
+) -> np.ndarray | None:
     """Covariance (12, 12) of ``solve`` over frame resamples, or None if too few resamples solve.
 
     Parameters

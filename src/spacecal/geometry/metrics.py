@@ -10,9 +10,7 @@ from .transforms import apply_transform, rotation_part, translation_part
 
 def position_error(desired_transform, reached_transform) -> np.ndarray:
     """|ΔP| = |P_d - P_r| in mm, for transforms of shape (…, 4, 4) in one frame."""
-    return np.linalg.norm(
-        translation_part(desired_transform) - translation_part(reached_transform), axis=-1
-    )
+    return np.linalg.norm(translation_part(desired_transform) - translation_part(reached_transform), axis=-1)
 
 
 def posture_error_rad(desired_transform, reached_transform) -> np.ndarray:

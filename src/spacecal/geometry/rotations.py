@@ -96,16 +96,22 @@ def quaternion_product_matrices(quaternion_wxyz) -> tuple[np.ndarray, np.ndarray
     """
     q = np.asarray(quaternion_wxyz, dtype=float)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    left = np.stack([
-        np.stack([w, -x, -y, -z], -1),
-        np.stack([x, w, -z, y], -1),
-        np.stack([y, z, w, -x], -1),
-        np.stack([z, -y, x, w], -1),
-    ], -2)
-    right = np.stack([
-        np.stack([w, -x, -y, -z], -1),
-        np.stack([x, w, z, -y], -1),
-        np.stack([y, -z, w, x], -1),
-        np.stack([z, y, -x, w], -1),
-    ], -2)
+    left = np.stack(
+        [
+            np.stack([w, -x, -y, -z], -1),
+            np.stack([x, w, -z, y], -1),
+            np.stack([y, z, w, -x], -1),
+            np.stack([z, -y, x, w], -1),
+        ],
+        -2,
+    )
+    right = np.stack(
+        [
+            np.stack([w, -x, -y, -z], -1),
+            np.stack([x, w, z, -y], -1),
+            np.stack([y, -z, w, x], -1),
+            np.stack([z, y, -x, w], -1),
+        ],
+        -2,
+    )
     return left, right

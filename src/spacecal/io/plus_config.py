@@ -48,8 +48,13 @@ def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
     return names, np.array(positions)
 
 
-def plus_coordinate_definition(a_from_b, from_frame: str, to_frame: str, error_mm: float | None = None,
-                               date: datetime.datetime | None = None) -> str:
+def plus_coordinate_definition(
+    a_from_b,
+    from_frame: str,
+    to_frame: str,
+    error_mm: float | None = None,
+    date: datetime.datetime | None = None,
+) -> str:
     """A PLUS ``<Transform From=.. To=.. Matrix=.. Error=.. Date=..>`` element as XML text.
 
     PLUS writes dates as ``mmddyy_HHMMSS``.
@@ -58,8 +63,10 @@ def plus_coordinate_definition(a_from_b, from_frame: str, to_frame: str, error_m
     rows = "\n".join("        " + " ".join(f"{v:.10g}" for v in row) for row in matrix)
     date = date or datetime.datetime.now()
     error = f' Error="{error_mm:.6g}"' if error_mm is not None else ""
-    return (f'    <Transform From="{from_frame}" To="{to_frame}"\n      Matrix="\n{rows}"\n'
-            f'     {error} Date="{date.strftime("%m%d%y_%H%M%S")}" />')
+    return (
+        f'    <Transform From="{from_frame}" To="{to_frame}"\n      Matrix="\n{rows}"\n'
+        f'     {error} Date="{date.strftime("%m%d%y_%H%M%S")}" />'
+    )
 
 
 def write_plus_coordinate_definitions(path: str | Path, transforms: list[tuple]) -> Path:
@@ -67,6 +74,8 @@ def write_plus_coordinate_definitions(path: str | Path, transforms: list[tuple])
     (or include in) a PLUS device-set configuration."""
     body = "\n".join(plus_coordinate_definition(t, f, to, e) for t, f, to, e in transforms)
     path = Path(path)
-    path.write_text(f'<PlusConfiguration version="2.1">\n  <CoordinateDefinitions>\n{body}\n'
-                    "  </CoordinateDefinitions>\n</PlusConfiguration>\n")
+    path.write_text(
+        f'<PlusConfiguration version="2.1">\n  <CoordinateDefinitions>\n{body}\n'
+        "  </CoordinateDefinitions>\n</PlusConfiguration>\n"
+    )
     return path

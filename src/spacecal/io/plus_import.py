@@ -19,8 +19,9 @@ from ..units import check_lengths_in_mm
 from .plus_sequence import read_plus_sequence
 
 
-def recording_from_plus_sequence(path: str | Path, marker: str = "MarkerToTracker", tcp: str = "TCPToBase",
-                                 segment: str = "static") -> Recording:
+def recording_from_plus_sequence(
+    path: str | Path, marker: str = "MarkerToTracker", tcp: str = "TCPToBase", segment: str = "static"
+) -> Recording:
     """A recording from a PLUS sequence (frames where the TCP pose is invalid are dropped)."""
     sequence = read_plus_sequence(path)
     tracker_from_marker = sequence.transform(marker)
@@ -35,9 +36,15 @@ def recording_from_plus_sequence(path: str | Path, marker: str = "MarkerToTracke
     check_lengths_in_mm(base_from_tcp[:, :3, 3], f"{path}: {tcp} translations")
     n = int(keep.sum())
     return Recording(
-        time_s=sequence.timestamps_s[keep], segment=np.full(n, segment), joints_rad=np.full((n, 6), np.nan),
-        base_from_tcp_stack=base_from_tcp, tracker_from_marker_stack=tracker_from_marker,
+        time_s=sequence.timestamps_s[keep],
+        segment=np.full(n, segment),
+        joints_rad=np.full((n, 6), np.nan),
+        base_from_tcp_stack=base_from_tcp,
+        tracker_from_marker_stack=tracker_from_marker,
         marker_rms_mm=np.full(n, np.nan),
-        metadata={"source": f"PLUS sequence {Path(path).name}", "plus_transforms": {"marker": marker, "tcp": tcp},
-                  "units": {"length": "mm", "angle": "rad", "time": "s"}},
+        metadata={
+            "source": f"PLUS sequence {Path(path).name}",
+            "plus_transforms": {"marker": marker, "tcp": tcp},
+            "units": {"length": "mm", "angle": "rad", "time": "s"},
+        },
     )

@@ -40,7 +40,9 @@ class PlusSequence:
     def transform(self, name: str) -> np.ndarray:
         """The (N, 4, 4) stack of ``name`` (PLUS naming, e.g. ``StylusToTracker``)."""
         if name not in self.transforms:
-            raise InvalidInputError(f"the sequence has no {name}; it has {', '.join(sorted(self.transforms))}")
+            raise InvalidInputError(
+                f"the sequence has no {name}; it has {', '.join(sorted(self.transforms))}"
+            )
         return self.transforms[name]
 
 
@@ -69,7 +71,7 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
         timestamps = np.array([float(frames[i].get("Timestamp", "nan")) for i in indices])
     except ValueError:
         raise InvalidInputError(f"{path}: a frame timestamp is not a number") from None
-    names = sorted({k[:-len("Transform")] for f in frames.values() for k in f if k.endswith("Transform")})
+    names = sorted({k[: -len("Transform")] for f in frames.values() for k in f if k.endswith("Transform")})
     transforms = {}
     for name in names:
         stack = np.full((len(indices), 4, 4), np.nan)
@@ -81,9 +83,13 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
             try:
                 numbers = np.array(values.split(), dtype=float)
             except ValueError:
-                raise InvalidInputError(f"{path}: frame {i} {name}Transform holds text that is not a number") from None
+                raise InvalidInputError(
+                    f"{path}: frame {i} {name}Transform holds text that is not a number"
+                ) from None
             if numbers.size != 16:
-                raise InvalidInputError(f"{path}: frame {i} {name}Transform has {numbers.size} numbers, not 16")
+                raise InvalidInputError(
+                    f"{path}: frame {i} {name}Transform has {numbers.size} numbers, not 16"
+                )
             stack[row] = numbers.reshape(4, 4)
         transforms[name] = stack
     return PlusSequence(timestamps, transforms, header)

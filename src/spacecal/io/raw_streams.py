@@ -35,8 +35,11 @@ TRACKER_COLUMNS = ["time_s"] + MARKER_COLUMNS
 def stream_paths(stem: str | Path) -> tuple[Path, Path, Path]:
     """(robot CSV, tracker CSV, metadata JSON) of a raw recording stem."""
     stem = Path(stem)
-    return (stem.with_name(stem.name + ".robot.csv"), stem.with_name(stem.name + ".tracker.csv"),
-            stem.with_name(stem.name + ".meta.json"))
+    return (
+        stem.with_name(stem.name + ".robot.csv"),
+        stem.with_name(stem.name + ".tracker.csv"),
+        stem.with_name(stem.name + ".meta.json"),
+    )
 
 
 def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path]:
@@ -49,9 +52,12 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
         writer.writerow(ROBOT_COLUMNS)
         positions, quaternions = transform_to_position_quaternion(raw.base_from_tcp_stack)
         for k in range(len(raw.robot_time_s)):
-            writer.writerow([_format(raw.robot_time_s[k]), raw.robot_segment[k]] +
-                            [_format(v) for v in raw.joints_rad[k]] + [_format(v) for v in positions[k]] +
-                            [_format(v) for v in quaternions[k]])
+            writer.writerow(
+                [_format(raw.robot_time_s[k]), raw.robot_segment[k]]
+                + [_format(v) for v in raw.joints_rad[k]]
+                + [_format(v) for v in positions[k]]
+                + [_format(v) for v in quaternions[k]]
+            )
     with open(tracker_path, "w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(TRACKER_COLUMNS)
@@ -59,8 +65,11 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
             pose = raw.tracker_from_marker_stack[k]
             if np.all(np.isfinite(pose)):
                 position, quaternion = transform_to_position_quaternion(pose)
-                cells = [_format(v) for v in position] + [_format(v) for v in quaternion] + \
-                    [_format(raw.marker_rms_mm[k])]
+                cells = (
+                    [_format(v) for v in position]
+                    + [_format(v) for v in quaternion]
+                    + [_format(raw.marker_rms_mm[k])]
+                )
             else:
                 cells = [""] * len(MARKER_COLUMNS)
             writer.writerow([_format(raw.tracker_time_s[k])] + cells)
@@ -94,7 +103,9 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     robot_path, tracker_path = Path(robot_path), Path(tracker_path)
     rows, index = _rows(robot_path, ROBOT_COLUMNS)
     numeric = ["time_s"] + JOINT_COLUMNS + TCP_COLUMNS
-    values = np.array([[_number(r[index[c]], k + 2, c, robot_path) for c in numeric] for k, r in enumerate(rows)])
+    values = np.array(
+        [[_number(r[index[c]], k + 2, c, robot_path) for c in numeric] for k, r in enumerate(rows)]
+    )
     segments = np.array([r[index["segment"]].strip() for r in rows])
     _increasing(values[:, 0], robot_path)
     lines = np.arange(2, len(rows) + 2)
@@ -108,7 +119,9 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     for k, r in enumerate(rows):
         cells = [r[index[c]].strip() for c in MARKER_COLUMNS]
         if any(cells[:7]):
-            marker[k, :7] = [_number(c, k + 2, name, tracker_path) for c, name in zip(cells[:7], MARKER_COLUMNS)]
+            marker[k, :7] = [
+                _number(c, k + 2, name, tracker_path) for c, name in zip(cells[:7], MARKER_COLUMNS)
+            ]
             if cells[7]:
                 marker[k, 7] = _number(cells[7], k + 2, MARKER_COLUMNS[7], tracker_path)
     seen = np.isfinite(marker[:, 0])
@@ -120,6 +133,13 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     tracker_from_marker[seen] = transform_from_position_quaternion(marker[seen, :3], marker[seen, 3:7])
     meta = robot_path.with_name(robot_path.name.replace(".robot.csv", ".meta.json"))
     metadata = read_json_object(meta, "recording metadata") if meta.is_file() else {}
-    return RawRecording(values[:, 0], segments, values[:, 1:7],
-                        transform_from_position_quaternion(values[:, 7:10], values[:, 10:14]),
-                        times, tracker_from_marker, marker[:, 7], metadata)
+    return RawRecording(
+        values[:, 0],
+        segments,
+        values[:, 1:7],
+        transform_from_position_quaternion(values[:, 7:10], values[:, 10:14]),
+        times,
+        tracker_from_marker,
+        marker[:, 7],
+        metadata,
+    )

@@ -35,8 +35,16 @@ from .results_json import read_json_object
 
 JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
 TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
-MARKER_COLUMNS = ["marker_x_mm", "marker_y_mm", "marker_z_mm", "marker_qw", "marker_qx", "marker_qy",
-                  "marker_qz", "marker_rms_mm"]
+MARKER_COLUMNS = [
+    "marker_x_mm",
+    "marker_y_mm",
+    "marker_z_mm",
+    "marker_qw",
+    "marker_qx",
+    "marker_qy",
+    "marker_qz",
+    "marker_rms_mm",
+]
 COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS + MARKER_COLUMNS
 
 #: Smallest number of samples a recording must hold to be worth calibrating from.
@@ -78,8 +86,13 @@ class RecordingWriter:
         Continue an existing file (resume), keeping its header.
     """
 
-    def __init__(self, path: str | Path, metadata: dict | None = None, sphere_count: int | None = None,
-                 append: bool = False):
+    def __init__(
+        self,
+        path: str | Path,
+        metadata: dict | None = None,
+        sphere_count: int | None = None,
+        append: bool = False,
+    ):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if append:
@@ -102,8 +115,17 @@ class RecordingWriter:
         self._file.flush()
         os.fsync(self._file.fileno())
 
-    def append(self, time_s: float, segment: str, joints_rad, base_from_tcp, tracker_from_marker=None,
-               marker_rms_mm: float = float("nan"), spheres_in_tracker=None, flush: bool = True) -> None:
+    def append(
+        self,
+        time_s: float,
+        segment: str,
+        joints_rad,
+        base_from_tcp,
+        tracker_from_marker=None,
+        marker_rms_mm: float = float("nan"),
+        spheres_in_tracker=None,
+        flush: bool = True,
+    ) -> None:
         """Write one sample; ``tracker_from_marker`` None (or NaN) when the marker was not seen.
 
         ``spheres_in_tracker`` (K, 3), mm, fills the raw-sphere columns when the writer has them.
@@ -115,10 +137,15 @@ class RecordingWriter:
             row += [""] * len(MARKER_COLUMNS)
         else:
             position, quaternion = transform_to_position_quaternion(tracker_from_marker)
-            row += [_format(v) for v in position] + [_format(v) for v in quaternion] + [_format(marker_rms_mm)]
+            row += (
+                [_format(v) for v in position] + [_format(v) for v in quaternion] + [_format(marker_rms_mm)]
+            )
         if self.sphere_count:
-            spheres = np.full(3 * self.sphere_count, np.nan) if spheres_in_tracker is None \
+            spheres = (
+                np.full(3 * self.sphere_count, np.nan)
+                if spheres_in_tracker is None
                 else np.asarray(spheres_in_tracker, dtype=float).reshape(-1)
+            )
             row += [_format(v) for v in spheres]
         self._writer.writerow(row)
         if flush:
@@ -129,7 +156,7 @@ class RecordingWriter:
             self._flush()
             self._file.close()
 
-    def __enter__(self) -> "RecordingWriter":
+    def __enter__(self) -> RecordingWriter:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -142,9 +169,16 @@ def write_recording(recording: Recording, path: str | Path) -> Path:
     count = 0 if spheres is None else spheres.shape[1]
     with RecordingWriter(path, recording.metadata, count) as writer:
         for k in range(len(recording)):
-            writer.append(recording.time_s[k], str(recording.segment[k]), recording.joints_rad[k],
-                          recording.base_from_tcp_stack[k], recording.tracker_from_marker_stack[k],
-                          recording.marker_rms_mm[k], None if spheres is None else spheres[k], flush=False)
+            writer.append(
+                recording.time_s[k],
+                str(recording.segment[k]),
+                recording.joints_rad[k],
+                recording.base_from_tcp_stack[k],
+                recording.tracker_from_marker_stack[k],
+                recording.marker_rms_mm[k],
+                None if spheres is None else spheres[k],
+                flush=False,
+            )
     return Path(path)
 
 
@@ -203,7 +237,9 @@ def read_recording(path: str | Path) -> Recording:
     index = _check_header(rows[0], path)
     body = rows[1:]
     if len(body) < MIN_SAMPLES:
-        raise InvalidInputError(f"{path}: the recording has {len(body)} samples; at least {MIN_SAMPLES} are needed")
+        raise InvalidInputError(
+            f"{path}: the recording has {len(body)} samples; at least {MIN_SAMPLES} are needed"
+        )
 
     names = [h.strip() for h in rows[0]]
     sphere_count = 0
@@ -221,7 +257,9 @@ def read_recording(path: str | Path) -> Recording:
     for k, row in enumerate(body):
         line = k + 2
         if len(row) < len(rows[0]):
-            raise InvalidInputError(f"{path}: line {line} has {len(row)} cells; the header has {len(rows[0])}")
+            raise InvalidInputError(
+                f"{path}: line {line} has {len(row)} cells; the header has {len(rows[0])}"
+            )
         time_s[k] = _number(row[index["time_s"]], line, "time_s", path)
         segment.append(row[index["segment"]].strip())
         joint_cells = [row[index[c]].strip() for c in JOINT_COLUMNS]

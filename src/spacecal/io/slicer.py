@@ -45,8 +45,10 @@ def write_slicer_transform(parent_from_child, path: str | Path) -> Path:
     itk = RAS_FROM_LPS @ invert_transform(matrix) @ RAS_FROM_LPS  # resampling, LPS
     parameters = list(itk[:3, :3].ravel()) + list(itk[:3, 3])
     path = Path(path)
-    path.write_text(f"{HEADER}\n#Transform 0\nTransform: {TRANSFORM_TYPE}\n"
-                    f"Parameters: {' '.join(repr(float(v)) for v in parameters)}\nFixedParameters: 0 0 0\n")
+    path.write_text(
+        f"{HEADER}\n#Transform 0\nTransform: {TRANSFORM_TYPE}\n"
+        f"Parameters: {' '.join(repr(float(v)) for v in parameters)}\nFixedParameters: 0 0 0\n"
+    )
     return path
 
 

@@ -60,12 +60,13 @@ class RobotModel:
     joint_upper_rad: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, 2 * np.pi))
     controller_hz: float = 125.0
 
-    def with_tcp(self, flange_from_tcp) -> "RobotModel":
+    def with_tcp(self, flange_from_tcp) -> RobotModel:
         """A copy with another tool offset (4, 4), mm."""
         return replace(self, flange_from_tcp=np.asarray(flange_from_tcp, dtype=float))
 
-    def with_dh_errors(self, delta_a_mm=0.0, delta_d_mm=0.0, delta_alpha_rad=0.0,
-                       delta_theta_rad=0.0) -> "RobotModel":
+    def with_dh_errors(
+        self, delta_a_mm=0.0, delta_d_mm=0.0, delta_alpha_rad=0.0, delta_theta_rad=0.0
+    ) -> RobotModel:
         """A copy whose DH parameters are offset, e.g. a real robot's deviation from nominal."""
         return replace(
             self,
@@ -235,10 +236,11 @@ def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarr
             if abs(s5v) < 1e-12:
                 q6 = 0.0  # wrist singularity: q4 and q6 share one axis; pick q6 = 0
             else:
-                q6 = np.arctan2((-x60[1] * np.sin(q1) + y60[1] * np.cos(q1)) / s5v,
-                                (x60[0] * np.sin(q1) - y60[0] * np.cos(q1)) / s5v)
-            partial = RobotModel(model.name, model.a_mm, model.d_mm, model.alpha_rad,
-                                 model.theta_offset_rad)
+                q6 = np.arctan2(
+                    (-x60[1] * np.sin(q1) + y60[1] * np.cos(q1)) / s5v,
+                    (x60[0] * np.sin(q1) - y60[0] * np.cos(q1)) / s5v,
+                )
+            partial = RobotModel(model.name, model.a_mm, model.d_mm, model.alpha_rad, model.theta_offset_rad)
             links = _link_transforms(partial, np.array([[q1, 0, 0, 0, q5, q6]]))[0]
             t01, t45, t56 = links[0], links[4], links[5]
             t14 = invert_transform(t01) @ t06 @ invert_transform(t45 @ t56)
@@ -260,8 +262,9 @@ def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarr
     return solutions
 
 
-def inverse_kinematics(model: RobotModel, base_from_tcp, reference_joints_rad=None,
-                       tol_mm: float = 1e-9) -> np.ndarray:
+def inverse_kinematics(
+    model: RobotModel, base_from_tcp, reference_joints_rad=None, tol_mm: float = 1e-9
+) -> np.ndarray:
     """Joint angles reaching ``base_from_tcp``, nearest to a reference configuration.
 
     The UR closed form (8 branches) gives candidates from the nominal geometry; each is
@@ -303,7 +306,9 @@ def inverse_kinematics(model: RobotModel, base_from_tcp, reference_joints_rad=No
             raise UnreachableError(f"pose {n} is outside the {model.name}'s workspace")
         candidates = _newton_polish(model, np.broadcast_to(target, (len(candidates), 4, 4)), candidates)
         err = _pose_error_vector(target, forward_kinematics(model, candidates))
-        ok = (np.linalg.norm(err[:, :3], axis=1) < tol_mm) & (np.linalg.norm(err[:, 3:], axis=1) < tol_mm * 1e-3)
+        ok = (np.linalg.norm(err[:, :3], axis=1) < tol_mm) & (
+            np.linalg.norm(err[:, 3:], axis=1) < tol_mm * 1e-3
+        )
         candidates = _wrap_near(candidates[ok], reference[n])
         within = np.all((candidates >= model.joint_lower_rad) & (candidates <= model.joint_upper_rad), axis=1)
         candidates = candidates[within]
@@ -328,7 +333,9 @@ def with_dh_corrections(model: RobotModel, delta) -> RobotModel:
     return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
 
 
-def points_in_tracker(model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker) -> np.ndarray:
+def points_in_tracker(
+    model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker
+) -> np.ndarray:
     """Marker points (K, 3) seen in the tracker at joint configurations (N, 6): shape (N, K, 3), mm.
 
     The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
@@ -337,16 +344,27 @@ def points_in_tracker(model: RobotModel, joints_rad, tracker_from_base, tcp_from
     return np.einsum("nij,kj->nki", chain[:, :3, :3], points_in_marker) + chain[:, None, :3, 3]
 
 
-def dh_point_jacobian(model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker,
-                      step: float = 1e-6) -> np.ndarray:
+def dh_point_jacobian(
+    model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker, step: float = 1e-6
+) -> np.ndarray:
     """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24)."""
     columns = []
     for index in range(24):
         delta = np.zeros(24)
         delta[index] = step
-        plus = points_in_tracker(with_dh_corrections(model, delta), joints_rad, tracker_from_base, tcp_from_marker,
-                                 points_in_marker)
-        minus = points_in_tracker(with_dh_corrections(model, -delta), joints_rad, tracker_from_base,
-                                  tcp_from_marker, points_in_marker)
+        plus = points_in_tracker(
+            with_dh_corrections(model, delta),
+            joints_rad,
+            tracker_from_base,
+            tcp_from_marker,
+            points_in_marker,
+        )
+        minus = points_in_tracker(
+            with_dh_corrections(model, -delta),
+            joints_rad,
+            tracker_from_base,
+            tcp_from_marker,
+            points_in_marker,
+        )
         columns.append((plus - minus) / (2 * step))
     return np.stack(columns, axis=-1)

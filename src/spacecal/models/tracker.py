@@ -84,8 +84,7 @@ class TrackerModel:
     rate_hz: float = 20.0
     max_view_angle_deg: float = 70.0
 
-    def visible(self, tracker_from_marker, sphere_positions_in_marker,
-                face_normal_in_marker) -> np.ndarray:
+    def visible(self, tracker_from_marker, sphere_positions_in_marker, face_normal_in_marker) -> np.ndarray:
         """Boolean (N,): the marker is tracked (all spheres in the volume and facing the sensor).
 
         Parameters

@@ -43,7 +43,9 @@ def interpolate_pose(start_base_from_tcp, end_base_from_tcp, s) -> np.ndarray:
     s = np.atleast_1d(np.asarray(s, dtype=float))
     delta = matrix_to_rotvec(start_base_from_tcp[:3, :3].T @ end_base_from_tcp[:3, :3])
     rotation = start_base_from_tcp[:3, :3] @ rotvec_to_matrix(s[:, None] * delta)
-    position = start_base_from_tcp[:3, 3] + s[:, None] * (end_base_from_tcp[:3, 3] - start_base_from_tcp[:3, 3])
+    position = start_base_from_tcp[:3, 3] + s[:, None] * (
+        end_base_from_tcp[:3, 3] - start_base_from_tcp[:3, 3]
+    )
     return make_transform(rotation, position)
 
 
@@ -131,11 +133,21 @@ class TimedMove:
 
     def poses_at(self, t_s) -> np.ndarray:
         """Commanded ``base_from_tcp`` (M, 4, 4) at times (M,) since the move started."""
-        return interpolate_pose(self.start, self.end, trapezoid_progress(t_s, self.duration_s, self.accel_time_s))
+        return interpolate_pose(
+            self.start, self.end, trapezoid_progress(t_s, self.duration_s, self.accel_time_s)
+        )
 
 
-def time_move(model: RobotModel, label: str, start, end, start_joints_rad, limits: MotionLimits,
-              sample_period_s: float, path_points: int = 41) -> tuple[TimedMove, np.ndarray]:
+def time_move(
+    model: RobotModel,
+    label: str,
+    start,
+    end,
+    start_joints_rad,
+    limits: MotionLimits,
+    sample_period_s: float,
+    path_points: int = 41,
+) -> tuple[TimedMove, np.ndarray]:
     """Time a Cartesian move under ``limits`` and return it with the joint angles at its end.
 
     The duration is the longest of the linear, angular and joint-speed bounds; the joint

@@ -64,10 +64,20 @@ class NeedlePlan:
     predicted_error: dict
 
 
-def plan_needle(entry_in_image, target_in_image, tracker_from_image, tracker_from_base, robot_model: RobotModel,
-                reference_joints_rad, standoff_mm: float = 20.0, tcp_from_needle=None,
-                registration_tre_mm=(0.0, 0.0), calibration_tre_mm=(0.0, 0.0),
-                robot_position_sd_mm: float = 0.0, visibility: VisibilityModel | None = None) -> NeedlePlan:
+def plan_needle(
+    entry_in_image,
+    target_in_image,
+    tracker_from_image,
+    tracker_from_base,
+    robot_model: RobotModel,
+    reference_joints_rad,
+    standoff_mm: float = 20.0,
+    tcp_from_needle=None,
+    registration_tre_mm=(0.0, 0.0),
+    calibration_tre_mm=(0.0, 0.0),
+    robot_position_sd_mm: float = 0.0,
+    visibility: VisibilityModel | None = None,
+) -> NeedlePlan:
     """Map an image-space needle path to robot poses and predict how well it will land.
 
     Parameters
@@ -108,8 +118,9 @@ def plan_needle(entry_in_image, target_in_image, tracker_from_image, tracker_fro
     needle_from_tcp = np.eye(4) if tcp_from_needle is None else invert_transform(tcp_from_needle)
     # The roll about the needle is free: keep it nearest the tool's current orientation, so the
     # marker keeps facing the tracker as it did.
-    current = forward_kinematics(robot_model, np.asarray(reference_joints_rad, dtype=float)) @ \
-        invert_transform(needle_from_tcp)
+    current = forward_kinematics(
+        robot_model, np.asarray(reference_joints_rad, dtype=float)
+    ) @ invert_transform(needle_from_tcp)
     roll = current[:3, 0]
     at_target = needle_pose(target_in_base, direction_in_base, roll)
     standoff = needle_pose(entry_in_base - standoff_mm * direction_in_base, direction_in_base, roll)
@@ -128,7 +139,14 @@ def plan_needle(entry_in_image, target_in_image, tracker_from_image, tracker_fro
     entry_error = float(np.sqrt(registration_tre_mm[0] ** 2 + calibration_tre_mm[0] ** 2 + robot_3d**2))
     target_error = float(np.sqrt(registration_tre_mm[1] ** 2 + calibration_tre_mm[1] ** 2 + robot_3d**2))
     direction = float(np.degrees(np.sqrt(entry_error**2 + target_error**2) / length))
-    predicted = {"entry_mm": entry_error, "target_mm": target_error, "direction_deg": direction,
-                 "contributions": {"registration_mm": list(registration_tre_mm),
-                                   "calibration_mm": list(calibration_tre_mm), "robot_mm": robot_3d}}
+    predicted = {
+        "entry_mm": entry_error,
+        "target_mm": target_error,
+        "direction_deg": direction,
+        "contributions": {
+            "registration_mm": list(registration_tre_mm),
+            "calibration_mm": list(calibration_tre_mm),
+            "robot_mm": robot_3d,
+        },
+    }
     return NeedlePlan(standoff, at_target, joints_standoff, joints_target, length, predicted)

@@ -35,7 +35,6 @@ from .stations import random_station
 from .visibility import VisibilityModel
 
 
-
 @dataclass(frozen=True)
 class PlannerSettings:
     """Budget, candidates and noise model of :func:`plan_for_site`.
@@ -79,13 +78,24 @@ def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points
     Parameters: 6 of tracker_from_base (translation, rotation vector; left), 6 of
     tcp_from_marker (right), 24 DH corrections; central differences.
     """
+
     def perturbed(index, sign):
         delta = np.zeros(12)
         delta[index] = sign * step
-        t = make_transform(axis_angle_transform(delta[3:6], np.linalg.norm(delta[3:6]))[:3, :3]
-                           if np.any(delta[3:6]) else np.eye(3), delta[0:3]) @ tracker_from_base
-        x_rot = axis_angle_transform(delta[9:12], np.linalg.norm(delta[9:12]))[:3, :3] if np.any(delta[9:12]) \
+        t = (
+            make_transform(
+                axis_angle_transform(delta[3:6], np.linalg.norm(delta[3:6]))[:3, :3]
+                if np.any(delta[3:6])
+                else np.eye(3),
+                delta[0:3],
+            )
+            @ tracker_from_base
+        )
+        x_rot = (
+            axis_angle_transform(delta[9:12], np.linalg.norm(delta[9:12]))[:3, :3]
+            if np.any(delta[9:12])
             else np.eye(3)
+        )
         x = make_transform(tcp_from_marker[:3, :3] @ x_rot, tcp_from_marker[:3, 3] + delta[6:9])
         return points_in_tracker(model, joints, t, x, points_in_marker)
 
@@ -119,8 +129,13 @@ def predicted_site_error(information, site_gradients) -> float:
     return float(np.sqrt(np.mean(np.clip(variances, 0.0, None))))
 
 
-def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityModel, rng: np.random.Generator,
-                  settings: PlannerSettings | None = None) -> SitePlan:
+def plan_for_site(
+    model: RobotModel,
+    home_joints_rad,
+    visibility: VisibilityModel,
+    rng: np.random.Generator,
+    settings: PlannerSettings | None = None,
+) -> SitePlan:
     """Choose stations that minimise the predicted tip error at the site within the time budget.
 
     Raises
@@ -148,7 +163,9 @@ def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityMode
         poses.append(pose)
         joints.append(q)
     if len(poses) < 6:
-        raise DegenerateDataError(f"only {len(poses)} feasible stations around the site; widen the cube or tilt")
+        raise DegenerateDataError(
+            f"only {len(poses)} feasible stations around the site; widen the cube or tilt"
+        )
     poses, joints = np.array(poses), np.array(joints)
 
     # information per candidate (frames at a station repeat the same geometry)
@@ -156,9 +173,13 @@ def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityMode
     info_each = np.einsum("nka,nkb->nab", jac, jac) * s.frames_per_station / s.sphere_sigma_mm**2
     prior_sd = _prior_sd(s)
     # site: the needle tip at home and at tilted configurations around it
-    site_joints = np.array([home_joints] + [inverse_kinematics(model, home @ axis_angle_transform(axis, np.radians(15)),
-                                                               home_joints)
-                                            for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])])
+    site_joints = np.array(
+        [home_joints]
+        + [
+            inverse_kinematics(model, home @ axis_angle_transform(axis, np.radians(15)), home_joints)
+            for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])
+        ]
+    )
     site_gradients = parameter_jacobian(model, site_joints, t_prior, np.eye(4), np.zeros((1, 3)))[:, 0]
 
     hold = s.frames_per_station * s.frame_period_s
@@ -167,9 +188,11 @@ def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityMode
         distance = float(np.linalg.norm(pose_to[:3, 3] - pose_from[:3, 3]))
         angle = float(rotation_angle(pose_to[:3, :3] @ pose_from[:3, :3].T))
         joint = float(np.max(np.abs(q_to - q_from)))
-        return max(trapezoid_duration(distance, s.limits.linear_speed_mm_s, s.limits.linear_accel_mm_s2)[0],
-                   trapezoid_duration(angle, s.limits.angular_speed_rad_s, s.limits.angular_accel_rad_s2)[0],
-                   joint / s.limits.joint_speed_rad_s)
+        return max(
+            trapezoid_duration(distance, s.limits.linear_speed_mm_s, s.limits.linear_accel_mm_s2)[0],
+            trapezoid_duration(angle, s.limits.angular_speed_rad_s, s.limits.angular_accel_rad_s2)[0],
+            joint / s.limits.joint_speed_rad_s,
+        )
 
     information = np.diag(1.0 / prior_sd**2)
     chosen: list[int] = []
@@ -181,7 +204,10 @@ def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityMode
             if index in chosen:
                 continue
             extra = transit_estimate(q_last, joints[index], pose_last, poses[index]) + hold
-            if elapsed + extra + transit_estimate(joints[index], home_joints, poses[index], home) > s.budget_s:
+            if (
+                elapsed + extra + transit_estimate(joints[index], home_joints, poses[index], home)
+                > s.budget_s
+            ):
                 continue
             error = predicted_site_error(information + info_each[index], site_gradients)
             score = (current - error) / extra
@@ -203,7 +229,9 @@ def plan_for_site(model: RobotModel, home_joints_rad, visibility: VisibilityMode
             break
         chosen.pop()
     information = np.diag(1.0 / prior_sd**2) + info_each[chosen].sum(axis=0)
-    return SitePlan(plan, joints[chosen], predicted_site_error(information, site_gradients), plan.motion_time_s)
+    return SitePlan(
+        plan, joints[chosen], predicted_site_error(information, site_gradients), plan.motion_time_s
+    )
 
 
 def _timed_tour(model, home_joints, home, station_poses, s: PlannerSettings, hold: float) -> MotionPlan:
@@ -220,8 +248,9 @@ def _timed_tour(model, home_joints, home, station_poses, s: PlannerSettings, hol
     return MotionPlan(home_joints, home, moves, {"stations": len(station_poses)}, [])
 
 
-def paper_sweep_site_error(model: RobotModel, plan: MotionPlan, visibility: VisibilityModel,
-                           settings: PlannerSettings | None = None) -> float:
+def paper_sweep_site_error(
+    model: RobotModel, plan: MotionPlan, visibility: VisibilityModel, settings: PlannerSettings | None = None
+) -> float:
     """The same predicted site error for an existing plan (e.g. the paper's sweeps), for comparison."""
     s = settings or PlannerSettings()
     from .motion import track_path
@@ -236,15 +265,25 @@ def paper_sweep_site_error(model: RobotModel, plan: MotionPlan, visibility: Visi
         q = track_path(model, move.end[None], q)[0]
     joints = np.concatenate(joints)
     seen = visibility.visible(forward_kinematics(model, joints))
-    jac = parameter_jacobian(model, joints[seen], visibility.tracker_from_base, visibility.tcp_from_marker,
-                             visibility.marker.spheres_in_marker).reshape(int(seen.sum()), -1, 36)
+    jac = parameter_jacobian(
+        model,
+        joints[seen],
+        visibility.tracker_from_base,
+        visibility.tcp_from_marker,
+        visibility.marker.spheres_in_marker,
+    ).reshape(int(seen.sum()), -1, 36)
     information = np.einsum("nka,nkb->ab", jac, jac) / s.sphere_sigma_mm**2
     prior_sd = _prior_sd(s)
     home = plan.home_joints_rad
     home_pose = forward_kinematics(model, home)
-    site_joints = np.array([home] + [inverse_kinematics(model, home_pose @ axis_angle_transform(axis, np.radians(15)),
-                                                        home)
-                                     for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])])
-    site_gradients = parameter_jacobian(model, site_joints, visibility.tracker_from_base, np.eye(4),
-                                        np.zeros((1, 3)))[:, 0]
+    site_joints = np.array(
+        [home]
+        + [
+            inverse_kinematics(model, home_pose @ axis_angle_transform(axis, np.radians(15)), home)
+            for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])
+        ]
+    )
+    site_gradients = parameter_jacobian(
+        model, site_joints, visibility.tracker_from_base, np.eye(4), np.zeros((1, 3))
+    )[:, 0]
     return predicted_site_error(information + np.diag(1.0 / prior_sd**2), site_gradients)

@@ -80,8 +80,12 @@ def _reasons(why: dict) -> str:
     return "; ".join(parts)
 
 
-def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSettings | None = None,
-                      visibility: VisibilityModel | None = None) -> MotionPlan:
+def plan_paper_sweeps(
+    model: RobotModel,
+    home_joints_rad,
+    settings: PaperSweepSettings | None = None,
+    visibility: VisibilityModel | None = None,
+) -> MotionPlan:
     """Plan the paper's rotation and translation sweeps from a home configuration.
 
     Parameters
@@ -132,19 +136,28 @@ def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSe
             span[sign], why[sign] = _feasible_extent(model, home_joints, offsets, make_pose, visibility)
         hi, lo = span[1], span[-1]
         if min(hi, lo) < requested:
-            messages.append(f"{label}: shrunk to -{lo:.0f}..+{hi:.0f} {unit} of the requested "
-                            f"+-{requested:.0f} {unit} ({_reasons(why)})")
+            messages.append(
+                f"{label}: shrunk to -{lo:.0f}..+{hi:.0f} {unit} of the requested "
+                f"+-{requested:.0f} {unit} ({_reasons(why)})"
+            )
         if hi + lo < minimum:
             raise DegenerateDataError(
                 f"{label}: only {hi + lo:.0f} {unit} of {'rotation' if unit == 'deg' else 'travel'} is "
-                f"feasible from this home pose (need {minimum:.0f}); choose another home pose")
+                f"feasible from this home pose (need {minimum:.0f}); choose another home pose"
+            )
         extents[label] = [-lo, hi]
         return lo, hi
 
     for name, axis in AXES.items():
         label = f"rot_{name}"
-        lo, hi = sweep_extent(label, settings.rotation_deg, 1.0, "deg", settings.minimum_rotation_deg,
-                              lambda a: home @ axis_angle_transform(axis, np.radians(a)))
+        lo, hi = sweep_extent(
+            label,
+            settings.rotation_deg,
+            1.0,
+            "deg",
+            settings.minimum_rotation_deg,
+            lambda a: home @ axis_angle_transform(axis, np.radians(a)),
+        )
         plus = home @ axis_angle_transform(axis, np.radians(hi))
         minus = home @ axis_angle_transform(axis, -np.radians(lo))
         period = settings.rotation_sample_period_s
@@ -154,8 +167,14 @@ def plan_paper_sweeps(model: RobotModel, home_joints_rad, settings: PaperSweepSe
 
     for name, axis in AXES.items():
         label = f"lin_{name}"
-        lo, hi = sweep_extent(label, settings.translation_mm / 2.0, 5.0, "mm", settings.minimum_translation_mm,
-                              lambda d: home @ make_transform(np.eye(3), d * axis))
+        lo, hi = sweep_extent(
+            label,
+            settings.translation_mm / 2.0,
+            5.0,
+            "mm",
+            settings.minimum_translation_mm,
+            lambda d: home @ make_transform(np.eye(3), d * axis),
+        )
         start = home @ make_transform(np.eye(3), -lo * axis)
         end = home @ make_transform(np.eye(3), hi * axis)
         add("transit", home, start, 0.0)

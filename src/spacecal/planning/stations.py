@@ -43,7 +43,9 @@ class StationSettings:
     limits: MotionLimits = field(default_factory=MotionLimits)
 
 
-def random_station(home_base_from_tcp, rng: np.random.Generator, cube_mm: float, tilt_deg: float) -> np.ndarray:
+def random_station(
+    home_base_from_tcp, rng: np.random.Generator, cube_mm: float, tilt_deg: float
+) -> np.ndarray:
     """A TCP pose (4, 4) in a cube of side ``cube_mm`` around home, tilted up to ``tilt_deg``
     from the home orientation about a random axis."""
     offset = rng.uniform(-0.5, 0.5, 3) * cube_mm
@@ -51,9 +53,14 @@ def random_station(home_base_from_tcp, rng: np.random.Generator, cube_mm: float,
     return make_transform(home_base_from_tcp[:3, :3] @ tilt[:3, :3], home_base_from_tcp[:3, 3] + offset)
 
 
-def plan_stations(model: RobotModel, home_joints_rad, settings: StationSettings,
-                  visibility: VisibilityModel | None, rng: np.random.Generator,
-                  max_attempts_per_station: int = 50) -> MotionPlan:
+def plan_stations(
+    model: RobotModel,
+    home_joints_rad,
+    settings: StationSettings,
+    visibility: VisibilityModel | None,
+    rng: np.random.Generator,
+    max_attempts_per_station: int = 50,
+) -> MotionPlan:
     """Plan ``settings.count`` feasible stations, visited in turn from home and back.
 
     Raises
@@ -77,8 +84,10 @@ def plan_stations(model: RobotModel, home_joints_rad, settings: StationSettings,
             if within_joint_limits(model, track_path(model, station[None], q)).all():
                 break
         else:
-            raise DegenerateDataError(f"could not find a feasible station {index + 1} in "
-                                      f"{max_attempts_per_station} attempts; widen the cube or lower the tilt")
+            raise DegenerateDataError(
+                f"could not find a feasible station {index + 1} in "
+                f"{max_attempts_per_station} attempts; widen the cube or lower the tilt"
+            )
         moves.append(move)
         hold = settings.frames_per_station * settings.frame_period_s
         moves.append(TimedMove("station", station, station, hold, 0.0, settings.frame_period_s))

@@ -33,5 +33,6 @@ class VisibilityModel:
     def visible(self, base_from_tcp_stack) -> np.ndarray:
         """Boolean (N,): predicted visibility at TCP poses (N, 4, 4)."""
         tracker_from_marker = self.tracker_from_base @ np.asarray(base_from_tcp_stack) @ self.tcp_from_marker
-        return self.tracker.visible(tracker_from_marker, self.marker.spheres_in_marker,
-                                    self.marker.face_normal_in_marker)
+        return self.tracker.visible(
+            tracker_from_marker, self.marker.spheres_in_marker, self.marker.face_normal_in_marker
+        )

@@ -24,8 +24,13 @@ def _save(fig, path: str | Path) -> Path:
     return path
 
 
-def plot_verification_errors(position_error_mm, posture_error_deg, path: str | Path,
-                             paper_mean_mm: float = 1.05, paper_mean_deg: float = 1.1) -> Path:
+def plot_verification_errors(
+    position_error_mm,
+    posture_error_deg,
+    path: str | Path,
+    paper_mean_mm: float = 1.05,
+    paper_mean_deg: float = 1.1,
+) -> Path:
     """The error curves of the paper's Fig. 7: (A) position deviation, (B) posture deviation.
 
     Parameters

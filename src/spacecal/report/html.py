@@ -50,39 +50,74 @@ def _sweep_figure(report: Report):
     for label in dict.fromkeys(recording.segment.tolist()):
         rows = (recording.segment == label) & visible
         points = recording.tracker_from_marker_stack[rows, :3, 3]
-        figure.add_trace(go.Scatter3d(x=points[:, 0], y=points[:, 1], z=points[:, 2], mode="markers",
-                                      marker={"size": 2}, name=str(label)))
+        figure.add_trace(
+            go.Scatter3d(
+                x=points[:, 0],
+                y=points[:, 1],
+                z=points[:, 2],
+                mode="markers",
+                marker={"size": 2},
+                name=str(label),
+            )
+        )
         if str(label).startswith("lin_") and len(points) > 1:
-            direction = np.asarray(calibration.diagnostics.get("lines", {}).get(label, {}).get(
-                "direction_in_tracker", np.linalg.svd(points - points.mean(0))[2][0]))
+            direction = np.asarray(
+                calibration.diagnostics.get("lines", {})
+                .get(label, {})
+                .get("direction_in_tracker", np.linalg.svd(points - points.mean(0))[2][0])
+            )
             along = (points - points.mean(0)) @ direction
             ends = points.mean(0) + np.outer([along.min(), along.max()], direction)
-            figure.add_trace(go.Scatter3d(x=ends[:, 0], y=ends[:, 1], z=ends[:, 2], mode="lines",
-                                          line={"width": 5}, name=f"{label} fit"))
+            figure.add_trace(
+                go.Scatter3d(
+                    x=ends[:, 0],
+                    y=ends[:, 1],
+                    z=ends[:, 2],
+                    mode="lines",
+                    line={"width": 5},
+                    name=f"{label} fit",
+                )
+            )
     sphere = calibration.diagnostics.get("sphere")
     if sphere:
         u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
         c, r = np.asarray(sphere["centre_in_tracker_mm"]), sphere["radius_mm"]
-        figure.add_trace(go.Surface(x=c[0] + r * np.cos(u) * np.sin(v), y=c[1] + r * np.sin(u) * np.sin(v),
-                                    z=c[2] + r * np.cos(v), opacity=0.15, showscale=False, name="fitted sphere"))
-    figure.update_layout(title="Calibration sweeps: marker origin in the tracker frame (mm)", height=600,
-                         scene={"aspectmode": "data"})
+        figure.add_trace(
+            go.Surface(
+                x=c[0] + r * np.cos(u) * np.sin(v),
+                y=c[1] + r * np.sin(u) * np.sin(v),
+                z=c[2] + r * np.cos(v),
+                opacity=0.15,
+                showscale=False,
+                name="fitted sphere",
+            )
+        )
+    figure.update_layout(
+        title="Calibration sweeps: marker origin in the tracker frame (mm)",
+        height=600,
+        scene={"aspectmode": "data"},
+    )
     return figure
 
 
 def _residual_figure(report: Report):
     import plotly.graph_objects as go
 
-    residuals = sample_residuals(report.recording, report.calibration.tracker_from_base,
-                                 report.calibration.tcp_from_marker)
+    residuals = sample_residuals(
+        report.recording, report.calibration.tracker_from_base, report.calibration.tcp_from_marker
+    )
     times = report.recording.time_s[residuals["rows"]]
     figure = go.Figure()
     figure.add_trace(go.Scatter(x=times, y=residuals["position_mm"], mode="markers", name="position (mm)"))
-    figure.add_trace(go.Scatter(x=times, y=residuals["rotation_deg"], mode="markers", name="rotation (deg)",
-                                yaxis="y2"))
-    figure.update_layout(title="Per-sample residuals: measured vs predicted marker pose", xaxis_title="time (s)",
-                         yaxis_title="position residual (mm)",
-                         yaxis2={"title": "rotation residual (deg)", "overlaying": "y", "side": "right"})
+    figure.add_trace(
+        go.Scatter(x=times, y=residuals["rotation_deg"], mode="markers", name="rotation (deg)", yaxis="y2")
+    )
+    figure.update_layout(
+        title="Per-sample residuals: measured vs predicted marker pose",
+        xaxis_title="time (s)",
+        yaxis_title="position residual (mm)",
+        yaxis2={"title": "rotation residual (deg)", "overlaying": "y", "side": "right"},
+    )
     return figure
 
 
@@ -92,16 +127,29 @@ def _verification_figure(verification: dict):
 
     points = verification["points"]
     index = list(range(1, len(points) + 1))
-    figure = make_subplots(rows=1, cols=2, subplot_titles=("(A) deviation of position (mm)",
-                                                           "(B) deviation of posture (deg)"))
-    figure.add_trace(go.Scatter(x=index, y=[p["position_error_mm"] for p in points], mode="lines+markers",
-                                name="position"), row=1, col=1)
-    figure.add_trace(go.Scatter(x=index, y=[p["posture_error_deg"] for p in points], mode="lines+markers",
-                                name="posture"), row=1, col=2)
+    figure = make_subplots(
+        rows=1, cols=2, subplot_titles=("(A) deviation of position (mm)", "(B) deviation of posture (deg)")
+    )
+    figure.add_trace(
+        go.Scatter(
+            x=index, y=[p["position_error_mm"] for p in points], mode="lines+markers", name="position"
+        ),
+        row=1,
+        col=1,
+    )
+    figure.add_trace(
+        go.Scatter(x=index, y=[p["posture_error_deg"] for p in points], mode="lines+markers", name="posture"),
+        row=1,
+        col=2,
+    )
     paper = verification.get("paper", {})
     if paper:
-        figure.add_hline(y=paper["position_mean_mm"], line_dash="dash", row=1, col=1, annotation_text="paper mean")
-        figure.add_hline(y=paper["posture_mean_deg"], line_dash="dash", row=1, col=2, annotation_text="paper mean")
+        figure.add_hline(
+            y=paper["position_mean_mm"], line_dash="dash", row=1, col=1, annotation_text="paper mean"
+        )
+        figure.add_hline(
+            y=paper["posture_mean_deg"], line_dash="dash", row=1, col=2, annotation_text="paper mean"
+        )
     figure.update_layout(title="Verification experiment (paper Fig. 7)")
     return figure
 
@@ -116,8 +164,10 @@ def _uncertainty_figure(calibration: CalibrationResult):
     labels = [n.replace("_rad", " (deg)").replace("_mm", " (mm)") for n in names]
     figure = go.Figure(go.Bar(x=labels, y=shown))
     tre = calibration.predicted_tre_mm or {}
-    figure.update_layout(title=f"Uncertainty: parameter s.d.; predicted TRE {tre.get('site', float('nan')):.3f} mm "
-                               f"at the site, {tre.get('cube_rms', float('nan')):.3f} mm over the cube")
+    figure.update_layout(
+        title=f"Uncertainty: parameter s.d.; predicted TRE {tre.get('site', float('nan')):.3f} mm "
+        f"at the site, {tre.get('cube_rms', float('nan')):.3f} mm over the cube"
+    )
     return figure
 
 
@@ -155,21 +205,29 @@ def build_report_html(report: Report) -> tuple[str, list[str]]:
         add("Uncertainty", _uncertainty_figure(calibration))
     if report.check_history:
         add("Check history", _check_figure(report.check_history))
-    summary = {"method": calibration.method, "sample_counts": calibration.sample_counts,
-               "predicted_tre_mm": calibration.predicted_tre_mm,
-               "verdict": calibration.diagnostics.get("verdict"),
-               "tracker_from_base": np.round(calibration.tracker_from_base, 6).tolist()}
+    summary = {
+        "method": calibration.method,
+        "sample_counts": calibration.sample_counts,
+        "predicted_tre_mm": calibration.predicted_tre_mm,
+        "verdict": calibration.diagnostics.get("verdict"),
+        "tracker_from_base": np.round(calibration.tracker_from_base, 6).tolist(),
+    }
     from plotly.offline import get_plotlyjs
 
     plotly_js = f'<script type="text/javascript">{get_plotlyjs()}</script>'  # embedded: works offline
-    page = (f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>spacecal report</title></head>\n<body>\n"
-            f"{ERROR_BANNER}\n{plotly_js}\n<h1>spacecal calibration report</h1>\n"
-            f"<pre id='summary' style='white-space:pre-wrap'>{html.escape(json.dumps(summary, indent=2))}</pre>\n"
-            + "\n".join(sections) + "\n</body></html>\n")
+    page = (
+        f"<!DOCTYPE html>\n<html><head><meta charset='utf-8'><title>spacecal report</title></head>\n<body>\n"
+        f"{ERROR_BANNER}\n{plotly_js}\n<h1>spacecal calibration report</h1>\n"
+        f"<pre id='summary' style='white-space:pre-wrap'>{html.escape(json.dumps(summary, indent=2))}</pre>\n"
+        + "\n".join(sections)
+        + "\n</body></html>\n"
+    )
     return page, titles
 
 
-def write_report(report: Report, path: str | Path, png_dir: str | Path | None = None) -> tuple[Path, list[str]]:
+def write_report(
+    report: Report, path: str | Path, png_dir: str | Path | None = None
+) -> tuple[Path, list[str]]:
     """Write the HTML report (and, with ``png_dir``, PNG figures); returns the path and plot titles."""
     page, titles = build_report_html(report)
     path = Path(path)
@@ -179,13 +237,20 @@ def write_report(report: Report, path: str | Path, png_dir: str | Path | None = 
         from .figures import plot_verification_errors
 
         points = report.verification["points"]
-        plot_verification_errors([p["position_error_mm"] for p in points], [p["posture_error_deg"] for p in points],
-                                 Path(png_dir) / "verification_errors.png")
+        plot_verification_errors(
+            [p["position_error_mm"] for p in points],
+            [p["posture_error_deg"] for p in points],
+            Path(png_dir) / "verification_errors.png",
+        )
     if png_dir is not None and report.recording is not None:
         from .figures import plot_residuals
 
-        residuals = sample_residuals(report.recording, report.calibration.tracker_from_base,
-                                     report.calibration.tcp_from_marker)
-        plot_residuals(report.recording.time_s[residuals["rows"]], residuals["position_mm"],
-                       Path(png_dir) / "residuals.png")
+        residuals = sample_residuals(
+            report.recording, report.calibration.tracker_from_base, report.calibration.tcp_from_marker
+        )
+        plot_residuals(
+            report.recording.time_s[residuals["rows"]],
+            residuals["position_mm"],
+            Path(png_dir) / "residuals.png",
+        )
     return path, titles

@@ -39,25 +39,40 @@ class DemoResult:
             ("planned motion time", f"{plan.motion_time_s:.1f} s", "about 1 min"),
             ("samples (visible / total)", f"{int(rec.visible.sum())} / {len(rec)}", ""),
             ("samples used by the estimator", f"{self.calibration.sample_counts['used']}", ""),
-            ("paper estimator: TRE, 200 mm cube (RMS / max)",
-             f"{err['tre_rms_mm']:.3f} / {err['tre_max_mm']:.3f} mm", ""),
+            (
+                "paper estimator: TRE, 200 mm cube (RMS / max)",
+                f"{err['tre_rms_mm']:.3f} / {err['tre_max_mm']:.3f} mm",
+                "",
+            ),
             ("paper estimator: rotation error", f"{err['rotation_error_deg']:.4f} deg", ""),
-            ("ML estimator, same data: TRE (RMS / max)",
-             f"{self.ml_calibration_error['tre_rms_mm']:.3f} / {self.ml_calibration_error['tre_max_mm']:.3f} mm", ""),
-            ("ML estimator: predicted TRE, verdict",
-             f"{self.ml_calibration.predicted_tre_mm['cube_rms']:.3f} mm, "
-             f"{self.ml_calibration.diagnostics['verdict'].split(':')[0]}", ""),
-            (f"verification position error, {len(self.verification.position_error_mm)} points (min / mean / max)",
-             f"{pos['min']:.2f} / {pos['mean']:.2f} / {pos['max']:.2f} mm",
-             f"{p['position_min_mm']} / <{p['position_mean_mm']} / - mm"),
-            ("verification posture error (min / mean / max)",
-             f"{ang['min']:.2f} / {ang['mean']:.2f} / {ang['max']:.2f} deg",
-             f"{p['posture_min_deg']} / ~{p['posture_mean_deg']} / - deg"),
+            (
+                "ML estimator, same data: TRE (RMS / max)",
+                f"{self.ml_calibration_error['tre_rms_mm']:.3f} / {self.ml_calibration_error['tre_max_mm']:.3f} mm",
+                "",
+            ),
+            (
+                "ML estimator: predicted TRE, verdict",
+                f"{self.ml_calibration.predicted_tre_mm['cube_rms']:.3f} mm, "
+                f"{self.ml_calibration.diagnostics['verdict'].split(':')[0]}",
+                "",
+            ),
+            (
+                f"verification position error, {len(self.verification.position_error_mm)} points (min / mean / max)",
+                f"{pos['min']:.2f} / {pos['mean']:.2f} / {pos['max']:.2f} mm",
+                f"{p['position_min_mm']} / <{p['position_mean_mm']} / - mm",
+            ),
+            (
+                "verification posture error (min / mean / max)",
+                f"{ang['min']:.2f} / {ang['mean']:.2f} / {ang['max']:.2f} deg",
+                f"{p['posture_min_deg']} / ~{p['posture_mean_deg']} / - deg",
+            ),
             ("paper estimator compute time", f"{self.compute_time_s * 1000:.0f} ms", ""),
         ]
         width = [max(len(r[i]) for r in rows + [("quantity", "spacecal", "paper")]) for i in range(3)]
-        lines = [f"{'quantity':<{width[0]}}  {'spacecal':<{width[1]}}  paper",
-                 f"{'-' * width[0]}  {'-' * width[1]}  {'-' * width[2]}"]
+        lines = [
+            f"{'quantity':<{width[0]}}  {'spacecal':<{width[1]}}  paper",
+            f"{'-' * width[0]}  {'-' * width[1]}  {'-' * width[2]}",
+        ]
         lines += [f"{a:<{width[0]}}  {b:<{width[1]}}  {c}" for a, b, c in rows]
         if plan.messages:
             lines.append("")
@@ -83,5 +98,12 @@ def run_demo(scenario: Scenario | None = None) -> DemoResult:
     compute_time = time.perf_counter() - start
     verification = verify_in_simulation(calibration, scenario)
     ml = calibrate(simulation.recording, "ml")
-    return DemoResult(simulation, calibration, calibration_error(calibration, simulation.world),
-                      verification, compute_time, ml, calibration_error(ml, simulation.world))
+    return DemoResult(
+        simulation,
+        calibration,
+        calibration_error(calibration, simulation.world),
+        verification,
+        compute_time,
+        ml,
+        calibration_error(ml, simulation.world),
+    )

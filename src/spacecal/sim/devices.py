@@ -68,8 +68,13 @@ class SimulatedRobot:
         Fault injection: the controller enters a protective stop at this simulated time.
     """
 
-    def __init__(self, world: World, clock: SimClock | None = None, joints_rad=None,
-                 protective_stop_at_s: float | None = None):
+    def __init__(
+        self,
+        world: World,
+        clock: SimClock | None = None,
+        joints_rad=None,
+        protective_stop_at_s: float | None = None,
+    ):
         self.world = world
         self.clock = clock or SimClock()
         self._joints = np.array(world.home_joints_rad if joints_rad is None else joints_rad, dtype=float)
@@ -95,7 +100,9 @@ class SimulatedRobot:
         kind, move, start = self._motion
         elapsed = min(now - start, move.duration_s if kind == "linear" else move[3])
         if kind == "linear":
-            self._joints = track_path(self.world.nominal_model, move.poses_at(np.array([elapsed])), self._joints)[0]
+            self._joints = track_path(
+                self.world.nominal_model, move.poses_at(np.array([elapsed])), self._joints
+            )[0]
             done = now - start >= move.duration_s
         else:
             q0, q1, _, duration = move
@@ -121,14 +128,17 @@ class SimulatedRobot:
             moving=self._motion is not None,
         )
 
-    def move_linear(self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False) -> None:
+    def move_linear(
+        self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
+    ) -> None:
         self._update()
         self._require_normal()
         self.commands.append("movel")
         start_pose = forward_kinematics(self.world.nominal_model, self._joints)
         limits = MotionLimits(linear_speed_mm_s=speed_mm_s, linear_accel_mm_s2=accel_mm_s2)
-        move, _ = time_move(self.world.nominal_model, "move", start_pose, np.asarray(base_from_tcp), self._joints,
-                            limits, 0.0)
+        move, _ = time_move(
+            self.world.nominal_model, "move", start_pose, np.asarray(base_from_tcp), self._joints, limits, 0.0
+        )
         self._motion = ("linear", move, self.clock.now_s)
         if not asynchronous:
             self.clock.advance_to(self.clock.now_s + move.duration_s)
@@ -139,7 +149,9 @@ class SimulatedRobot:
         self._require_normal()
         self.commands.append("movej")
         target = np.asarray(joints_rad, dtype=float)
-        duration, _ = trapezoid_duration(float(np.max(np.abs(target - self._joints))), speed_rad_s, accel_rad_s2)
+        duration, _ = trapezoid_duration(
+            float(np.max(np.abs(target - self._joints))), speed_rad_s, accel_rad_s2
+        )
         self._motion = ("joint", (self._joints.copy(), target, self.clock.now_s, duration), self.clock.now_s)
         self.clock.advance_to(self.clock.now_s + duration)
         self._update()

@@ -50,8 +50,9 @@ def true_sphere_sigma_mm(simulation: Simulation) -> float:
 def cramer_rao_tre_mm(simulation: Simulation) -> float:
     """Cramér–Rao bound on the cube RMS TRE at the truth, for the simulation's recording."""
     world = simulation.world
-    return tre_lower_bound(simulation.recording, world.tracker_from_base, world.tcp_from_marker,
-                           true_sphere_sigma_mm(simulation))["cube_rms"]
+    return tre_lower_bound(
+        simulation.recording, world.tracker_from_base, world.tcp_from_marker, true_sphere_sigma_mm(simulation)
+    )["cube_rms"]
 
 
 def run_monte_carlo(simulation: Simulation, methods, trials: int) -> list[MonteCarloSummary]:
@@ -82,6 +83,15 @@ def run_monte_carlo(simulation: Simulation, methods, trials: int) -> list[MonteC
     def rms(values):
         return float(np.sqrt(np.mean(np.square(values)))) if values else float("nan")
 
-    return [MonteCarloSummary(m, rms(errors[m]), rms(rotations[m]), rms(predicted[m]) if predicted[m] else None,
-                              float(np.median(times[m])) if times[m] else float("nan"), len(errors[m]),
-                              failures.get(m)) for m in methods]
+    return [
+        MonteCarloSummary(
+            m,
+            rms(errors[m]),
+            rms(rotations[m]),
+            rms(predicted[m]) if predicted[m] else None,
+            float(np.median(times[m])) if times[m] else float("nan"),
+            len(errors[m]),
+            failures.get(m),
+        )
+        for m in methods
+    ]

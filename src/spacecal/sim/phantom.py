@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..estimators import calibrate
 from ..errors import UnreachableError
+from ..estimators import calibrate
 from ..estimators.registration import register_points
 from ..geometry.metrics import summary_statistics
 from ..geometry.transforms import apply_transform, invert_transform, make_transform
@@ -82,44 +82,68 @@ class PhantomResult:
     paths_refused: int = 0
 
     def statistics(self) -> dict:
-        return {"entry_mm": summary_statistics(self.entry_error_mm),
-                "target_mm": summary_statistics(self.target_error_mm),
-                "direction_deg": summary_statistics(self.direction_error_deg)}
+        return {
+            "entry_mm": summary_statistics(self.entry_error_mm),
+            "target_mm": summary_statistics(self.target_error_mm),
+            "direction_deg": summary_statistics(self.direction_error_deg),
+        }
 
     def table(self) -> str:
-        lines = [f"phantom needle biopsy in simulation (calibration: {self.method}; registration FRE "
-                 f"{self.registration_fre_rms_mm:.2f} mm RMS; {self.paths_refused} planned paths refused as "
-                 "unreachable or hiding the marker, and replaced)",
-                 "case  entry (mm)  target (mm)  direction (deg)  predicted entry / target / direction",
-                 "----  ----------  -----------  ---------------  ------------------------------------"]
-        for k, (e, t, d, p) in enumerate(zip(self.entry_error_mm, self.target_error_mm, self.direction_error_deg,
-                                             self.predicted)):
-            lines.append(f"{k + 1:>4}  {e:10.2f}  {t:11.2f}  {d:15.2f}  "
-                         f"{p['entry_mm']:.2f} / {p['target_mm']:.2f} / {p['direction_deg']:.2f}")
+        lines = [
+            f"phantom needle biopsy in simulation (calibration: {self.method}; registration FRE "
+            f"{self.registration_fre_rms_mm:.2f} mm RMS; {self.paths_refused} planned paths refused as "
+            "unreachable or hiding the marker, and replaced)",
+            "case  entry (mm)  target (mm)  direction (deg)  predicted entry / target / direction",
+            "----  ----------  -----------  ---------------  ------------------------------------",
+        ]
+        for k, (e, t, d, p) in enumerate(
+            zip(self.entry_error_mm, self.target_error_mm, self.direction_error_deg, self.predicted)
+        ):
+            lines.append(
+                f"{k + 1:>4}  {e:10.2f}  {t:11.2f}  {d:15.2f}  "
+                f"{p['entry_mm']:.2f} / {p['target_mm']:.2f} / {p['direction_deg']:.2f}"
+            )
         s = self.statistics()
         for name in ("min", "mean", "max"):
-            lines.append(f"{name:>4}  {s['entry_mm'][name]:10.2f}  {s['target_mm'][name]:11.2f}  "
-                         f"{s['direction_deg'][name]:15.2f}")
-        lines.append(f"paper minimum: entry {PAPER_PHANTOM['entry_min_mm']} mm, target "
-                     f"{PAPER_PHANTOM['target_min_mm']} mm, direction {PAPER_PHANTOM['direction_min_deg']} deg")
+            lines.append(
+                f"{name:>4}  {s['entry_mm'][name]:10.2f}  {s['target_mm'][name]:11.2f}  "
+                f"{s['direction_deg'][name]:15.2f}"
+            )
+        lines.append(
+            f"paper minimum: entry {PAPER_PHANTOM['entry_min_mm']} mm, target "
+            f"{PAPER_PHANTOM['target_min_mm']} mm, direction {PAPER_PHANTOM['direction_min_deg']} deg"
+        )
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
-        return {"schema": "spacecal.phantom", "schema_version": 1, "method": self.method,
-                "statistics": self.statistics(), "paper": PAPER_PHANTOM,
-                "registration_fre_rms_mm": self.registration_fre_rms_mm,
-                "cases": [{"entry_error_mm": float(e), "target_error_mm": float(t), "direction_error_deg": float(d),
-                           "predicted": p}
-                          for e, t, d, p in zip(self.entry_error_mm, self.target_error_mm, self.direction_error_deg,
-                                                self.predicted)]}
+        return {
+            "schema": "spacecal.phantom",
+            "schema_version": 1,
+            "method": self.method,
+            "statistics": self.statistics(),
+            "paper": PAPER_PHANTOM,
+            "registration_fre_rms_mm": self.registration_fre_rms_mm,
+            "cases": [
+                {
+                    "entry_error_mm": float(e),
+                    "target_error_mm": float(t),
+                    "direction_error_deg": float(d),
+                    "predicted": p,
+                }
+                for e, t, d, p in zip(
+                    self.entry_error_mm, self.target_error_mm, self.direction_error_deg, self.predicted
+                )
+            ],
+        }
 
 
 def _noise(rng, rms_3d, shape):
     return rng.normal(scale=rms_3d / np.sqrt(3.0), size=shape)
 
 
-def run_phantom_experiment(scenario: Scenario, method: str = "paper", settings: PhantomSettings | None = None,
-                           seed: int = 0) -> PhantomResult:
+def run_phantom_experiment(
+    scenario: Scenario, method: str = "paper", settings: PhantomSettings | None = None, seed: int = 0
+) -> PhantomResult:
     """Calibrate on the simulated system, then run the phantom needle biopsy (paper §5.3)."""
     settings = settings or PhantomSettings()
     simulation = simulate(scenario)
@@ -146,8 +170,9 @@ def run_phantom_experiment(scenario: Scenario, method: str = "paper", settings: 
 
     calibration_tre = (calibration.predicted_tre_mm or {}).get("site", 0.0)
     # Planning predicts marker visibility from the calibration just made (what the system knows).
-    visibility = VisibilityModel(world.tracker, world.marker, calibration.tracker_from_base,
-                                 calibration.tcp_from_marker)
+    visibility = VisibilityModel(
+        world.tracker, world.marker, calibration.tracker_from_base, calibration.tcp_from_marker
+    )
     robot_sd = scenario.repeatability_mm / 3.6
     entry_errors, target_errors, direction_errors, predicted = [], [], [], []
     refused = 0
@@ -161,18 +186,30 @@ def run_phantom_experiment(scenario: Scenario, method: str = "paper", settings: 
             target = entry * (1.0 - rng.uniform(*settings.depth_mm) / np.linalg.norm(entry))
             reg_tre = registration.predicted_tre_mm(np.array([entry, target]))
             try:
-                plan = plan_needle(entry, target, tracker_from_image_estimate, calibration.tracker_from_base,
-                                   world.nominal_model, world.home_joints_rad, registration_tre_mm=tuple(reg_tre),
-                                   calibration_tre_mm=(calibration_tre, calibration_tre),
-                                   robot_position_sd_mm=robot_sd, visibility=visibility)
+                plan = plan_needle(
+                    entry,
+                    target,
+                    tracker_from_image_estimate,
+                    calibration.tracker_from_base,
+                    world.nominal_model,
+                    world.home_joints_rad,
+                    registration_tre_mm=tuple(reg_tre),
+                    calibration_tre_mm=(calibration_tre, calibration_tre),
+                    robot_position_sd_mm=robot_sd,
+                    visibility=visibility,
+                )
                 break
             except UnreachableError:
                 refused += 1
         else:
             raise UnreachableError(f"no feasible needle path in {MAX_PATH_ATTEMPTS} attempts")
         reached = world.true_base_from_tcp(plan.joints_target_rad)[0]
-        tip_in_image = apply_transform(invert_transform(tracker_from_image) @ world.tracker_from_base, reached[:3, 3])
-        axis_in_image = (invert_transform(tracker_from_image) @ world.tracker_from_base)[:3, :3] @ reached[:3, 2]
+        tip_in_image = apply_transform(
+            invert_transform(tracker_from_image) @ world.tracker_from_base, reached[:3, 3]
+        )
+        axis_in_image = (invert_transform(tracker_from_image) @ world.tracker_from_base)[:3, :3] @ reached[
+            :3, 2
+        ]
         # the second CT localises the needle's tip and its entry point on the surface
         depth = np.linalg.norm(target - entry)
         entry_seen = tip_in_image - depth * axis_in_image + _noise(rng, settings.ct_error_mm, 3)
@@ -183,5 +220,12 @@ def run_phantom_experiment(scenario: Scenario, method: str = "paper", settings: 
         target_errors.append(np.linalg.norm(tip_seen - target))
         direction_errors.append(np.degrees(np.arccos(np.clip(planned_axis @ seen_axis, -1, 1))))
         predicted.append(plan.predicted_error)
-    return PhantomResult(np.array(entry_errors), np.array(target_errors), np.array(direction_errors), predicted,
-                         registration.fre_rms_mm, method, refused)
+    return PhantomResult(
+        np.array(entry_errors),
+        np.array(target_errors),
+        np.array(direction_errors),
+        predicted,
+        registration.fre_rms_mm,
+        method,
+        refused,
+    )

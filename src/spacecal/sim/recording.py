@@ -31,7 +31,7 @@ class Simulation:
     plan: MotionPlan
     recording: Recording
     outlier_kind: np.ndarray
-    trajectory: "Trajectory"
+    trajectory: Trajectory
 
     def remeasure(self, trial: int) -> tuple[Recording, np.ndarray]:
         """The same motion in the same world, recorded again with fresh noise (Monte Carlo)."""
@@ -48,8 +48,10 @@ def sweep_settings(scenario: Scenario) -> PaperSweepSettings:
         translation_mm=scenario.translation_mm,
         rotation_sample_period_s=scenario.rotation_sample_period_s,
         translation_sample_period_s=scenario.translation_sample_period_s,
-        limits=MotionLimits(linear_speed_mm_s=scenario.linear_speed_mm_s,
-                            angular_speed_rad_s=np.radians(scenario.angular_speed_deg_s)),
+        limits=MotionLimits(
+            linear_speed_mm_s=scenario.linear_speed_mm_s,
+            angular_speed_rad_s=np.radians(scenario.angular_speed_deg_s),
+        ),
     )
 
 
@@ -60,11 +62,21 @@ def plan_for_world(world: World) -> MotionPlan:
     if s.motion == "paper":
         return plan_paper_sweeps(world.nominal_model, world.home_joints_rad, sweep_settings(s), visibility)
     if s.motion == "stations":
-        settings = StationSettings(count=s.stations, frames_per_station=s.frames_per_station,
-                                   cube_mm=s.station_cube_mm, tilt_deg=s.station_tilt_deg,
-                                   frame_period_s=1.0 / s.tracker_rate_hz, limits=sweep_settings(s).limits)
-        return plan_stations(world.nominal_model, world.home_joints_rad, settings, visibility,
-                             np.random.default_rng([s.seed, 3]))
+        settings = StationSettings(
+            count=s.stations,
+            frames_per_station=s.frames_per_station,
+            cube_mm=s.station_cube_mm,
+            tilt_deg=s.station_tilt_deg,
+            frame_period_s=1.0 / s.tracker_rate_hz,
+            limits=sweep_settings(s).limits,
+        )
+        return plan_stations(
+            world.nominal_model,
+            world.home_joints_rad,
+            settings,
+            visibility,
+            np.random.default_rng([s.seed, 3]),
+        )
     raise InvalidInputError(f"unknown motion {s.motion!r}; valid: paper, stations")
 
 
@@ -72,8 +84,11 @@ def recording_metadata(world: World) -> dict:
     """Metadata written next to a recording (the estimator does not need it)."""
     s = world.scenario
     return {
-        "robot": {"model": world.nominal_model.name, "flange_from_tcp": world.nominal_model.flange_from_tcp.tolist(),
-                  "controller_hz": world.nominal_model.controller_hz},
+        "robot": {
+            "model": world.nominal_model.name,
+            "flange_from_tcp": world.nominal_model.flange_from_tcp.tolist(),
+            "controller_hz": world.nominal_model.controller_hz,
+        },
         "tracker": {"name": world.tracker.name, "rate_hz": world.tracker.rate_hz},
         "marker": world.marker.to_dict(),
         "units": {"length": "mm", "angle": "rad", "time": "s"},
@@ -216,9 +231,13 @@ def simulate_raw(scenario: Scenario, clock_offset_s: float = 0.0):
     true_tcp = world.true_base_from_tcp(tracker_joints)
     frames = world.track_marker(world.tracker_from_base @ true_tcp @ world.tcp_from_marker)
     raw = RawRecording(
-        robot_time_s=np.concatenate(robot_times) + clock_offset_s, robot_segment=np.array(robot_labels),
-        joints_rad=robot_joints, base_from_tcp_stack=forward_kinematics(world.nominal_model, robot_joints),
-        tracker_time_s=np.concatenate(tracker_times), tracker_from_marker_stack=frames.tracker_from_marker,
-        marker_rms_mm=frames.rms_mm, metadata={**recording_metadata(world), "simulated_clock_offset_s": clock_offset_s},
+        robot_time_s=np.concatenate(robot_times) + clock_offset_s,
+        robot_segment=np.array(robot_labels),
+        joints_rad=robot_joints,
+        base_from_tcp_stack=forward_kinematics(world.nominal_model, robot_joints),
+        tracker_time_s=np.concatenate(tracker_times),
+        tracker_from_marker_stack=frames.tracker_from_marker,
+        marker_rms_mm=frames.rms_mm,
+        metadata={**recording_metadata(world), "simulated_clock_offset_s": clock_offset_s},
     )
     return raw, world

@@ -27,9 +27,13 @@ def calibration_error(result: CalibrationResult, world: World, cube_side_mm: flo
     return {
         "tre_rms_mm": float(np.sqrt(np.mean(tre**2))),
         "tre_max_mm": float(tre.max()),
-        "rotation_error_deg": float(np.degrees(posture_error_rad(result.tracker_from_base, world.tracker_from_base))),
+        "rotation_error_deg": float(
+            np.degrees(posture_error_rad(result.tracker_from_base, world.tracker_from_base))
+        ),
         "tcp_from_marker_position_error_mm": float(
-            np.linalg.norm(result.tcp_from_marker[:3, 3] - world.tcp_from_marker[:3, 3])),
+            np.linalg.norm(result.tcp_from_marker[:3, 3] - world.tcp_from_marker[:3, 3])
+        ),
         "tcp_from_marker_rotation_error_deg": float(
-            np.degrees(posture_error_rad(result.tcp_from_marker, world.tcp_from_marker))),
+            np.degrees(posture_error_rad(result.tcp_from_marker, world.tcp_from_marker))
+        ),
     }

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..estimators.kinematic import calibration_robot_model
 from ..geometry.transforms import axis_angle_transform, make_transform
 from ..models.kinematics import forward_kinematics
-from ..estimators.kinematic import calibration_robot_model
 from ..records import CalibrationResult
 from ..workflows.verification import VerificationResult, run_verification
 from .devices import SimulatedLaserTracker, SimulatedRobot
@@ -34,8 +34,9 @@ def verification_targets(world: World, count: int, rng: np.random.Generator) -> 
     return np.array(targets)
 
 
-def verify_in_simulation(calibration: CalibrationResult, scenario: Scenario,
-                         count: int | None = None, seed: int = 0) -> VerificationResult:
+def verify_in_simulation(
+    calibration: CalibrationResult, scenario: Scenario, count: int | None = None, seed: int = 0
+) -> VerificationResult:
     """Run the verification experiment (paper §5.2) in the world of ``scenario``.
 
     Parameters

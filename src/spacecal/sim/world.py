@@ -59,14 +59,22 @@ class VolumetricErrorField:
         return np.sin(phase) @ self.amplitudes_mm
 
     @classmethod
-    def random(cls, rng: np.random.Generator, rms_mm: float, length_scale_mm: float,
-               tracker: TrackerModel, modes: int = 12) -> "VolumetricErrorField":
+    def random(
+        cls,
+        rng: np.random.Generator,
+        rms_mm: float,
+        length_scale_mm: float,
+        tracker: TrackerModel,
+        modes: int = 12,
+    ) -> VolumetricErrorField:
         directions = rng.normal(size=(modes, 3))
         directions /= np.linalg.norm(directions, axis=1, keepdims=True)
         wavelengths = length_scale_mm * rng.uniform(1.0, 3.0, size=modes)
-        field = cls(rng.normal(size=(modes, 3)),
-                    directions * (2 * np.pi / wavelengths)[:, None],
-                    rng.uniform(0, 2 * np.pi, size=modes))
+        field = cls(
+            rng.normal(size=(modes, 3)),
+            directions * (2 * np.pi / wavelengths)[:, None],
+            rng.uniform(0, 2 * np.pi, size=modes),
+        )
         if rms_mm == 0:
             return cls(np.zeros((modes, 3)), field.wave_vectors_per_mm, field.phases_rad)
         probe = _points_in_volume(rng, tracker, 4000)
@@ -171,7 +179,7 @@ class World:
             spheres = spheres + noise
         return spheres
 
-    def track_marker(self, tracker_from_marker_true) -> "TrackedFrames":
+    def track_marker(self, tracker_from_marker_true) -> TrackedFrames:
         """What the tracker reports for true marker poses (N, 4, 4), in time order.
 
         The marker pose is a rigid fit of the marker geometry to the noisy spheres, as the
@@ -188,16 +196,19 @@ class World:
         stale = outliers[kinds == 1]
         shown[stale] = truth[np.maximum(stale - self.noise_rng.integers(2, 9, len(stale)), 0)]
         reflections = outliers[kinds == 2]
-        offsets = _random_directions(self.noise_rng, len(reflections)) * \
-            self.noise_rng.uniform(5.0, 30.0, (len(reflections), 1))
-        tilts = _random_directions(self.noise_rng, len(reflections)) * \
-            np.radians(self.noise_rng.uniform(1.0, 5.0, (len(reflections), 1)))
+        offsets = _random_directions(self.noise_rng, len(reflections)) * self.noise_rng.uniform(
+            5.0, 30.0, (len(reflections), 1)
+        )
+        tilts = _random_directions(self.noise_rng, len(reflections)) * np.radians(
+            self.noise_rng.uniform(1.0, 5.0, (len(reflections), 1))
+        )
         shown[reflections] = make_transform(rotvec_to_matrix(tilts), offsets) @ shown[reflections]
         spheres = self.measure_spheres(shown)
         misdetected = outliers[kinds == 0]
         which = self.noise_rng.integers(0, len(self.marker.spheres_in_marker), len(misdetected))
-        spheres[misdetected, which] += _random_directions(self.noise_rng, len(misdetected)) * \
-            self.noise_rng.uniform(3.0, 10.0, (len(misdetected), 1))
+        spheres[misdetected, which] += _random_directions(
+            self.noise_rng, len(misdetected)
+        ) * self.noise_rng.uniform(3.0, 10.0, (len(misdetected), 1))
         kind[misdetected], kind[stale], kind[reflections] = "sphere", "stale", "reflection"
         measured, rms = fit_rigid(self.marker.spheres_in_marker, spheres)
         seen = self.tracker.visible(truth, self.marker.spheres_in_marker, self.marker.face_normal_in_marker)
@@ -226,8 +237,9 @@ def build_world(scenario: Scenario) -> World:
     site = home[:3, 3].copy()
     azimuth = np.radians(scenario.tracker_azimuth_deg)
     elevation = np.radians(scenario.tracker_elevation_deg)
-    direction = np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
-                          np.sin(elevation)])
+    direction = np.array(
+        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
+    )
     tracker_from_base = look_at_tracker_from_base(site + scenario.tracker_distance_mm * direction, site)
 
     # The marker sits at a fixed offset from the TCP with its face towards the tracker at home.
@@ -243,7 +255,19 @@ def build_world(scenario: Scenario) -> World:
     tcp_from_marker = invert_transform(home) @ base_from_marker
 
     tracker = TrackerModel(rate_hz=scenario.tracker_rate_hz, max_view_angle_deg=scenario.max_view_angle_deg)
-    field = VolumetricErrorField.random(truth_rng, scenario.volumetric_error_rms_mm,
-                                        scenario.volumetric_length_scale_mm, tracker)
-    return World(scenario, nominal, true_model, tracker_from_base, tcp_from_marker, tracker, marker,
-                 field, home_joints, site, noise_rng)
+    field = VolumetricErrorField.random(
+        truth_rng, scenario.volumetric_error_rms_mm, scenario.volumetric_length_scale_mm, tracker
+    )
+    return World(
+        scenario,
+        nominal,
+        true_model,
+        tracker_from_base,
+        tcp_from_marker,
+        tracker,
+        marker,
+        field,
+        home_joints,
+        site,
+        noise_rng,
+    )

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -80,7 +80,9 @@ class AcquisitionStopped(DeviceError):
 
 def plan_fingerprint(plan: MotionPlan) -> str:
     """A short hash identifying a plan, so a resume cannot continue a different plan."""
-    data = np.concatenate([np.concatenate([m.start.ravel(), m.end.ravel(), [m.sample_period_s]]) for m in plan.moves])
+    data = np.concatenate(
+        [np.concatenate([m.start.ravel(), m.end.ravel(), [m.sample_period_s]]) for m in plan.moves]
+    )
     return hashlib.sha256(np.round(data, 6).tobytes()).hexdigest()[:16]
 
 
@@ -91,9 +93,18 @@ def progress_path(recording_path: str | Path) -> Path:
 
 
 def _write_progress(path: Path, plan: MotionPlan, completed: int, stopped_because: str | None) -> None:
-    path.write_text(json.dumps({"plan": plan_fingerprint(plan), "moves_completed": completed,
-                                "moves_total": len(plan.moves), "stopped_because": stopped_because,
-                                "home_joints_rad": np.asarray(plan.home_joints_rad).tolist()}, indent=2))
+    path.write_text(
+        json.dumps(
+            {
+                "plan": plan_fingerprint(plan),
+                "moves_completed": completed,
+                "moves_total": len(plan.moves),
+                "stopped_because": stopped_because,
+                "home_joints_rad": np.asarray(plan.home_joints_rad).tolist(),
+            },
+            indent=2,
+        )
+    )
 
 
 def resume_home_joints(recording_path: str | Path) -> np.ndarray | None:
@@ -104,9 +115,16 @@ def resume_home_joints(recording_path: str | Path) -> np.ndarray | None:
     return np.asarray(json.loads(path.read_text())["home_joints_rad"], dtype=float)
 
 
-def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: str | Path, metadata: dict,
-            settings: AcquisitionSettings | None = None, resume: bool = False,
-            on_sample: Callable[[int, int, int, str], None] | None = None) -> AcquisitionResult:
+def acquire(
+    plan: MotionPlan,
+    robot: Robot,
+    tracker: Tracker,
+    recording_path: str | Path,
+    metadata: dict,
+    settings: AcquisitionSettings | None = None,
+    resume: bool = False,
+    on_sample: Callable[[int, int, int, str], None] | None = None,
+) -> AcquisitionResult:
     """Run ``plan`` on ``robot`` while sampling ``tracker``; write the recording as it goes.
 
     Parameters
@@ -156,14 +174,18 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
         _write_progress(progress_file, plan, result.moves_completed, reason)
         raise AcquisitionStopped(
             f"acquisition stopped: {reason}; {result.samples_written} samples kept in {recording_path}; "
-            f"resume with --resume", result)
+            f"resume with --resume",
+            result,
+        )
 
     try:
         for index in range(first_move, len(plan.moves)):
             move = plan.moves[index]
             if index == first_move and resume:
                 robot.move_linear(move.start, settings.linear_speed_mm_s, settings.linear_accel_mm_s2)
-            robot.move_linear(move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True)
+            robot.move_linear(
+                move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
+            )
             last_recorded = -np.inf
             robot_time, robot_time_seen_at, frames_since_robot_update = None, None, 0
             move_started_at = None
@@ -183,17 +205,32 @@ def acquire(plan: MotionPlan, robot: Robot, tracker: Tracker, recording_path: st
                     robot_time, robot_time_seen_at, frames_since_robot_update = state.time_s, frame.time_s, 0
                 else:
                     frames_since_robot_update += 1
-                    if state.moving and frames_since_robot_update >= STALE_FRAMES and \
-                            frame.time_s - robot_time_seen_at > settings.stale_robot_s:
-                        fail(f"robot data stale: no new robot state for {frame.time_s - robot_time_seen_at:.2f} s")
+                    if (
+                        state.moving
+                        and frames_since_robot_update >= STALE_FRAMES
+                        and frame.time_s - robot_time_seen_at > settings.stale_robot_s
+                    ):
+                        fail(
+                            f"robot data stale: no new robot state for {frame.time_s - robot_time_seen_at:.2f} s"
+                        )
                 if move_started_at is None:
                     move_started_at = state.time_s
                 settled = state.time_s - move_started_at >= settings.move_start_guard_s
-                if settled and move.sample_period_s > 0 and frame.time_s - last_recorded >= move.sample_period_s - 1e-6:
+                if (
+                    settled
+                    and move.sample_period_s > 0
+                    and frame.time_s - last_recorded >= move.sample_period_s - 1e-6
+                ):
                     seen = frame.status == FRAME_OK
-                    writer.append(frame.time_s, move.label, state.joints_rad, state.base_from_tcp,
-                                  frame.tracker_from_marker if seen else None, frame.rms_mm,
-                                  frame.spheres_in_tracker if seen else None)
+                    writer.append(
+                        frame.time_s,
+                        move.label,
+                        state.joints_rad,
+                        state.base_from_tcp,
+                        frame.tracker_from_marker if seen else None,
+                        frame.rms_mm,
+                        frame.spheres_in_tracker if seen else None,
+                    )
                     last_recorded = frame.time_s
                     result.samples_written += 1
                     result.visible_written += int(seen)

@@ -44,15 +44,21 @@ class CheckResult:
 
     @property
     def passed(self) -> bool:
-        return bool(np.all(self.tcp_error_mm <= self.threshold_mm) and
-                    np.all(self.rotation_error_deg <= self.threshold_deg))
+        return bool(
+            np.all(self.tcp_error_mm <= self.threshold_mm)
+            and np.all(self.rotation_error_deg <= self.threshold_deg)
+        )
 
     def to_dict(self) -> dict:
         return {
             "checked_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "passed": self.passed, "threshold_mm": self.threshold_mm, "threshold_deg": self.threshold_deg,
-            "poses": [{"label": label, "tcp_error_mm": float(e), "rotation_error_deg": float(a)}
-                      for label, e, a in zip(self.labels, self.tcp_error_mm, self.rotation_error_deg)],
+            "passed": self.passed,
+            "threshold_mm": self.threshold_mm,
+            "threshold_deg": self.threshold_deg,
+            "poses": [
+                {"label": label, "tcp_error_mm": float(e), "rotation_error_deg": float(a)}
+                for label, e, a in zip(self.labels, self.tcp_error_mm, self.rotation_error_deg)
+            ],
         }
 
 
@@ -65,9 +71,17 @@ def pose_errors(calibration: CalibrationResult, base_from_tcp, tracker_from_mark
     return float(np.linalg.norm(predicted_tcp - measured_tcp)), float(angle)
 
 
-def check_with_robot(calibration: CalibrationResult, robot: Robot, tracker: Tracker, joints_list,
-                     threshold_mm: float = 1.0, threshold_deg: float = 1.0, frames_per_pose: int = 10,
-                     speed_rad_s: float = 0.3, accel_rad_s2: float = 0.5) -> CheckResult:
+def check_with_robot(
+    calibration: CalibrationResult,
+    robot: Robot,
+    tracker: Tracker,
+    joints_list,
+    threshold_mm: float = 1.0,
+    threshold_deg: float = 1.0,
+    frames_per_pose: int = 10,
+    speed_rad_s: float = 0.3,
+    accel_rad_s2: float = 0.5,
+) -> CheckResult:
     """Move to each configuration (P, 6), average ``frames_per_pose`` tracker frames, compare."""
     errors, angles, labels = [], [], []
     for k, joints in enumerate(np.asarray(joints_list, dtype=float)):
@@ -89,16 +103,26 @@ def check_with_robot(calibration: CalibrationResult, robot: Robot, tracker: Trac
     return CheckResult(np.array(errors), np.array(angles), threshold_mm, threshold_deg, labels)
 
 
-def check_with_recording(calibration: CalibrationResult, recording: Recording, threshold_mm: float = 1.0,
-                         threshold_deg: float = 1.0) -> CheckResult:
+def check_with_recording(
+    calibration: CalibrationResult,
+    recording: Recording,
+    threshold_mm: float = 1.0,
+    threshold_deg: float = 1.0,
+) -> CheckResult:
     """Check against the visible frames of a recording, one result per segment label."""
     errors, angles, labels = [], [], []
     for label in dict.fromkeys(recording.segment.tolist()):
         rows = np.flatnonzero((recording.segment == label) & recording.visible)
         if len(rows) == 0:
             continue
-        per_frame = np.array([pose_errors(calibration, recording.base_from_tcp_stack[r],
-                                          recording.tracker_from_marker_stack[r]) for r in rows])
+        per_frame = np.array(
+            [
+                pose_errors(
+                    calibration, recording.base_from_tcp_stack[r], recording.tracker_from_marker_stack[r]
+                )
+                for r in rows
+            ]
+        )
         errors.append(float(np.median(per_frame[:, 0])))
         angles.append(float(np.median(per_frame[:, 1])))
         labels.append(str(label))

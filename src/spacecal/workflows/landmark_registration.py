@@ -38,7 +38,9 @@ class LandmarkRegistrationResult:
     def to_dict(self) -> dict:
         reg = self.registration
         return {
-            "schema": "spacecal.landmark_registration", "schema_version": 1, "units": {"length": "mm"},
+            "schema": "spacecal.landmark_registration",
+            "schema_version": 1,
+            "units": {"length": "mm"},
             "reference_from_phantom": reg.a_from_b.tolist(),
             "landmarks_detected_in_reference_mm": self.detected_in_reference.tolist(),
             "detected_at_s": self.detected_at_s,
@@ -49,9 +51,14 @@ class LandmarkRegistrationResult:
         }
 
 
-def register_landmarks_from_stylus(timestamps_s, tracker_from_reference_stack, tracker_from_stylus_stack,
-                                   stylus_from_tip, landmarks_in_phantom,
-                                   settings: LandmarkDetectionSettings | None = None) -> LandmarkRegistrationResult:
+def register_landmarks_from_stylus(
+    timestamps_s,
+    tracker_from_reference_stack,
+    tracker_from_stylus_stack,
+    stylus_from_tip,
+    landmarks_in_phantom,
+    settings: LandmarkDetectionSettings | None = None,
+) -> LandmarkRegistrationResult:
     """Detect the landmark touches and register the phantom to the reference marker.
 
     Parameters
@@ -71,19 +78,27 @@ def register_landmarks_from_stylus(timestamps_s, tracker_from_reference_stack, t
     times = np.asarray(timestamps_s, dtype=float)
     keep = np.concatenate([[True], np.diff(times) != 0])
     phantom = np.asarray(landmarks_in_phantom, dtype=float)
-    tracker_from_reference = orthonormalize_transforms(np.asarray(tracker_from_reference_stack, dtype=float)[keep])
+    tracker_from_reference = orthonormalize_transforms(
+        np.asarray(tracker_from_reference_stack, dtype=float)[keep]
+    )
     tracker_from_stylus = orthonormalize_transforms(np.asarray(tracker_from_stylus_stack, dtype=float)[keep])
-    reference_from_tip = invert_transform(tracker_from_reference) @ tracker_from_stylus @ \
-        np.asarray(stylus_from_tip, dtype=float)
+    reference_from_tip = (
+        invert_transform(tracker_from_reference)
+        @ tracker_from_stylus
+        @ np.asarray(stylus_from_tip, dtype=float)
+    )
     if settings is None:
         kept_times = times[keep]
-        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(phantom) for b in phantom[i + 1:])
-        settings = LandmarkDetectionSettings(acquisition_rate_hz=1.0 / (kept_times[1] - kept_times[0]),
-                                             min_landmark_spacing_mm=spacing)
+        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(phantom) for b in phantom[i + 1 :])
+        settings = LandmarkDetectionSettings(
+            acquisition_rate_hz=1.0 / (kept_times[1] - kept_times[0]), min_landmark_spacing_mm=spacing
+        )
     detected, ends = detect_landmarks(reference_from_tip, settings, expected=len(phantom))
     if len(detected) < len(phantom):
         raise DegenerateDataError(
             f"found {len(detected)} landmark touches of the {len(phantom)} defined: hold the tip still in each "
-            "divot and pivot the stylus for at least a second")
-    return LandmarkRegistrationResult(register_points(detected, phantom), detected,
-                                      [float(times[keep][i]) for i in ends])
+            "divot and pivot the stylus for at least a second"
+        )
+    return LandmarkRegistrationResult(
+        register_points(detected, phantom), detected, [float(times[keep][i]) for i in ends]
+    )

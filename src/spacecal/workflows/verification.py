@@ -21,8 +21,12 @@ from ..models.kinematics import RobotModel, inverse_kinematics
 from ..records import CalibrationResult
 
 #: The paper's reported verification figures (§5.2), for side-by-side tables.
-PAPER_VERIFICATION = {"position_min_mm": 0.87, "position_mean_mm": 1.05, "posture_min_deg": 0.83,
-                      "posture_mean_deg": 1.1}
+PAPER_VERIFICATION = {
+    "position_min_mm": 0.87,
+    "position_mean_mm": 1.05,
+    "posture_min_deg": 0.83,
+    "posture_mean_deg": 1.1,
+}
 
 
 @dataclass
@@ -46,8 +50,10 @@ class VerificationResult:
 
     def statistics(self) -> dict:
         """min / mean / max / RMS of both errors."""
-        return {"position_mm": summary_statistics(self.position_error_mm),
-                "posture_deg": summary_statistics(self.posture_error_deg)}
+        return {
+            "position_mm": summary_statistics(self.position_error_mm),
+            "posture_deg": summary_statistics(self.posture_error_deg),
+        }
 
     def to_dict(self) -> dict:
         return {
@@ -57,17 +63,33 @@ class VerificationResult:
             "statistics": self.statistics(),
             "paper": PAPER_VERIFICATION,
             "points": [
-                {"desired_tracker_from_needle": d.tolist(), "reached_tracker_from_needle": r.tolist(),
-                 "position_error_mm": float(p), "posture_error_deg": float(a)}
-                for d, r, p, a in zip(self.desired_tracker_from_needle, self.reached_tracker_from_needle,
-                                      self.position_error_mm, self.posture_error_deg)
+                {
+                    "desired_tracker_from_needle": d.tolist(),
+                    "reached_tracker_from_needle": r.tolist(),
+                    "position_error_mm": float(p),
+                    "posture_error_deg": float(a),
+                }
+                for d, r, p, a in zip(
+                    self.desired_tracker_from_needle,
+                    self.reached_tracker_from_needle,
+                    self.position_error_mm,
+                    self.posture_error_deg,
+                )
             ],
         }
 
 
-def run_verification(calibration: CalibrationResult, robot: Robot, reference: PoseReference,
-                     robot_model: RobotModel, desired_tracker_from_needle, start_joints_rad,
-                     tcp_from_needle=None, speed_rad_s: float = 0.5, accel_rad_s2: float = 1.0) -> VerificationResult:
+def run_verification(
+    calibration: CalibrationResult,
+    robot: Robot,
+    reference: PoseReference,
+    robot_model: RobotModel,
+    desired_tracker_from_needle,
+    start_joints_rad,
+    tcp_from_needle=None,
+    speed_rad_s: float = 0.5,
+    accel_rad_s2: float = 1.0,
+) -> VerificationResult:
     """Drive the robot to needle poses given in tracker space and measure how close it gets.
 
     Parameters
