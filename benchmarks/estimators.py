@@ -20,10 +20,10 @@ import dataclasses
 import numpy as np
 
 from spacecal.estimators import METHODS, calibrate
-from spacecal.sim.monte_carlo import cramer_rao_tre_mm, run_monte_carlo
-from spacecal.sim.recording import simulate
+from spacecal.experiments.monte_carlo import cramer_rao_tre_mm, run_monte_carlo
+from spacecal.experiments.simulation import simulate
 from spacecal.sim.scenario import PRESETS
-from spacecal.sim.verification import verify_in_simulation
+from spacecal.experiments.verification import verify_in_simulation
 
 ORDER = ["paper", "ml", "robust", "shah", "li", "dornaika", "tsai", "park", "daniilidis"]
 

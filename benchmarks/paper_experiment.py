@@ -17,10 +17,10 @@ import time
 import numpy as np
 
 from spacecal.estimators import calibrate
-from spacecal.sim.recording import simulate
+from spacecal.experiments.simulation import simulate
 from spacecal.sim.scenario import PRESETS
-from spacecal.sim.truth import calibration_error
-from spacecal.sim.verification import verify_in_simulation
+from spacecal.experiments.truth import calibration_error
+from spacecal.experiments.verification import verify_in_simulation
 
 
 def run_case(scenario):

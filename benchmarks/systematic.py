@@ -27,10 +27,10 @@ from spacecal.estimators import calibrate
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.planning.optimal import plan_for_site
 from spacecal.planning.visibility import VisibilityModel
-from spacecal.sim.recording import execute_plan, plan_for_world, simulate_raw
+from spacecal.experiments.simulation import execute_plan, plan_for_world, simulate_raw
 from spacecal.sim.scenario import PRESETS
-from spacecal.sim.truth import calibration_error
-from spacecal.sim.verification import verify_in_simulation
+from spacecal.experiments.truth import calibration_error
+from spacecal.experiments.verification import verify_in_simulation
 from spacecal.sim.world import build_world
 
 

@@ -66,10 +66,10 @@ def paper_estimator_spread():
     import dataclasses
 
     from spacecal.estimators import calibrate
-    from spacecal.sim.monte_carlo import cramer_rao_tre_mm
-    from spacecal.sim.recording import simulate
+    from spacecal.experiments.monte_carlo import cramer_rao_tre_mm
+    from spacecal.experiments.simulation import simulate
     from spacecal.sim.scenario import PRESETS
-    from spacecal.sim.truth import calibration_error
+    from spacecal.experiments.truth import calibration_error
 
     scenario = dataclasses.replace(PRESETS["paper-white"], rotation_deg=45.0, translation_mm=300.0)
     simulation = simulate(scenario)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spacecal.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
 from spacecal.estimators.hand_eye import relative_motions
 from spacecal.geometry.rotations import rotation_angle

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from spacecal.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
 from spacecal.estimators.ml import apply_step, jacobian, predict_spheres
 from spacecal.estimators.observations import build_observations, sphere_noise_from_marker_rms
-from spacecal.sim.monte_carlo import cramer_rao_tre_mm, run_monte_carlo, true_sphere_sigma_mm
-from spacecal.sim.truth import calibration_error
+from spacecal.experiments.monte_carlo import cramer_rao_tre_mm, run_monte_carlo, true_sphere_sigma_mm
+from spacecal.experiments.truth import calibration_error
 
 
 def test_noise_free_recording_is_recovered_exactly(noise_free_simulation):

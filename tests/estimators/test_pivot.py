@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spacecal.errors import DegenerateDataError, UnknownMethodError
+from spacecal.core.errors import DegenerateDataError, UnknownMethodError
 from spacecal.estimators.pivot import pivot_calibration
 from spacecal.geometry.transforms import make_transform
 from spacecal.io.pose_files import read_matrix_folder

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spacecal.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.estimators.registration import register_points
 from spacecal.geometry.rotations import rotation_angle

@@ -4,7 +4,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from spacecal.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError
 from spacecal.geometry.fitting import fit_line, fit_rigid, fit_sphere, fit_sphere_algebraic
 
 seeds = st.integers(min_value=0, max_value=2**32 - 1)

@@ -4,7 +4,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from spacecal.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError
 from spacecal.geometry.metrics import cube_grid, position_error, posture_error_rad, summary_statistics
 from spacecal.geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
 from spacecal.geometry.transforms import axis_angle_transform, make_transform

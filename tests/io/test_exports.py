@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spacecal.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import make_transform
 from spacecal.io.plus_import import recording_from_plus_sequence
 from spacecal.io.recording_csv import read_recording, write_recording

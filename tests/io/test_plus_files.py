@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spacecal.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 from spacecal.io.plus_config import (
     read_plus_landmarks,
     read_plus_transform,

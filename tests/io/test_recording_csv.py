@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spacecal.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 from spacecal.io.recording_csv import COLUMNS, RecordingWriter, metadata_path, read_recording, write_recording
 
 
@@ -136,7 +136,7 @@ def test_empty_and_missing_files(tmp_path):
 def test_raw_sphere_columns_round_trip(tmp_path):
     import dataclasses
 
-    from spacecal.sim.recording import simulate
+    from spacecal.experiments.simulation import simulate
     from spacecal.sim.scenario import PRESETS
 
     simulation = simulate(

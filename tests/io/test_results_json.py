@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from spacecal.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
 from spacecal.io.results_json import read_calibration, write_calibration
 

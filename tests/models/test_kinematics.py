@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from spacecal.errors import InvalidInputError, UnreachableError
+from spacecal.core.errors import InvalidInputError, UnreachableError
 from spacecal.geometry.transforms import make_transform
 from spacecal.models.kinematics import (
     UR_TABLES,

@@ -12,7 +12,7 @@ import pytest
 
 from spacecal.estimators import calibrate
 from spacecal.report.html import Report, write_report
-from spacecal.sim.verification import verify_in_simulation
+from spacecal.experiments.verification import verify_in_simulation
 from spacecal.workflows.check import CheckResult
 
 CHROMIUM_FLAGS = [

@@ -65,9 +65,9 @@ def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulati
     # Real trackers number frames from power-up; one missed frame must not end the check.
     from dataclasses import replace as replace_frame
 
-    from spacecal.devices import FRAME_MISSING
-    from spacecal.errors import DegenerateDataError
-    from spacecal.sim.check import check_joints
+    from spacecal.core.ports import FRAME_MISSING
+    from spacecal.core.errors import DegenerateDataError
+    from spacecal.planning.check_poses import check_joints
     from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
     from spacecal.workflows.check import check_with_robot
 
@@ -86,11 +86,11 @@ def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulati
     calibration = calibrate(white_simulation.recording, "ml", uncertainty=False)
     robot = SimulatedRobot(world, SimClock())
     result = check_with_robot(
-        calibration, robot, LongRunning(world, robot, hidden_frames=1), check_joints(world, 2)
+        calibration, robot, LongRunning(world, robot, hidden_frames=1), check_joints(world.nominal_model, world.home_joints_rad, 2)
     )
     assert result.passed
     robot = SimulatedRobot(world, SimClock())
     with pytest.raises(DegenerateDataError, match="not visible"):
         check_with_robot(
-            calibration, robot, LongRunning(world, robot, hidden_frames=10**6), check_joints(world, 2)
+            calibration, robot, LongRunning(world, robot, hidden_frames=10**6), check_joints(world.nominal_model, world.home_joints_rad, 2)
         )

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from urllib.parse import urlparse
 
-from ..errors import InvalidInputError, MissingExtraError
+from spacecal.core.errors import InvalidInputError, MissingExtraError
 
 
 def require(module: str, extra: str):

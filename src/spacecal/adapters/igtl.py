@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from ..devices import FRAME_MISSING, FRAME_OK, TrackerFrame
-from ..errors import DeviceError, InvalidInputError
-from ..geometry.transforms import is_rigid_transform
-from . import require
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, TrackerFrame
+from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.geometry.transforms import is_rigid_transform
+from spacecal.adapters import require
 
 #: Time the connection stays open after publishing, so the server reads the message.
 PUBLISH_LINGER_S = 0.3

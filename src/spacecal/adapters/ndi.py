@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..devices import FRAME_MISSING, FRAME_OK, TrackerFrame
-from ..errors import DeviceError, InvalidInputError
-from ..geometry.transforms import transform_from_position_quaternion
-from . import require
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, TrackerFrame
+from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.geometry.transforms import transform_from_position_quaternion
+from spacecal.adapters import require
 
 VEGA_DEFAULT_PORT = 8765
 

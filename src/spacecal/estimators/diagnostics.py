@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.rotations import mean_rotation, rotation_angle
-from ..geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
-from ..records import Recording
+from spacecal.geometry.rotations import mean_rotation, rotation_angle
+from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
+from spacecal.records import Recording
 
 #: A posteriori variance factor above which residuals are called systematic: white noise
 #: gives 1 (measured 0.98–1.02 on the white-noise scenario).

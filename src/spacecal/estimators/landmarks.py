@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError
 
 
 @dataclass(frozen=True)

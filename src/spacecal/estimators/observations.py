@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from ..errors import DegenerateDataError
-from ..models.marker import ndi_8700339_like
-from ..records import Recording
+from spacecal.core.errors import DegenerateDataError
+from spacecal.models.marker import ndi_8700339_like
+from spacecal.records import Recording
 
 
 @dataclass

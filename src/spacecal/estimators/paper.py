@@ -23,11 +23,11 @@ from itertools import combinations
 
 import numpy as np
 
-from ..errors import DegenerateDataError
-from ..geometry.fitting import fit_line, fit_sphere
-from ..geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
-from ..geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
-from ..records import ROTATION_SEGMENTS, TRANSLATION_SEGMENTS, CalibrationResult, Recording
+from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.fitting import fit_line, fit_sphere
+from spacecal.geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
+from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
+from spacecal.records import ROTATION_SEGMENTS, TRANSLATION_SEGMENTS, CalibrationResult, Recording
 
 
 @dataclass(frozen=True)

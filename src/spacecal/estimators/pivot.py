@@ -21,9 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError, UnknownMethodError
-from ..geometry.fitting import fit_sphere
-from ..geometry.transforms import is_rigid_transform
+from spacecal.core.errors import DegenerateDataError, UnknownMethodError
+from spacecal.geometry.fitting import fit_sphere
+from spacecal.geometry.transforms import is_rigid_transform
 
 
 @dataclass

@@ -17,9 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError
-from ..geometry.fitting import fit_rigid
-from ..geometry.transforms import apply_transform
+from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.fitting import fit_rigid
+from spacecal.geometry.transforms import apply_transform
 
 
 @dataclass

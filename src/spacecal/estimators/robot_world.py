@@ -24,9 +24,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import DegenerateDataError
-from ..geometry.rotations import nearest_rotation, quaternion_product_matrices
-from ..geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
+from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.rotations import nearest_rotation, quaternion_product_matrices
+from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
 
 MIN_POSES = 3
 

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from ..errors import DegenerateDataError
-from ..geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
-from ..records import CalibrationResult, RawRecording, Recording
-from .likelihood import calibrate_ml, fit_ml, variance_factor_of
+from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from spacecal.records import CalibrationResult, RawRecording, Recording
+from spacecal.estimators.likelihood import calibrate_ml, fit_ml, variance_factor_of
 
 
 def pair_streams(raw: RawRecording, offset_s: float) -> Recording:

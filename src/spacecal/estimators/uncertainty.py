@@ -14,9 +14,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..errors import SpacecalError
-from ..geometry.transforms import matrix_to_rotvec
-from ..records import Recording
+from spacecal.core.errors import SpacecalError
+from spacecal.geometry.transforms import matrix_to_rotvec
+from spacecal.records import Recording
 
 #: Bootstrap resamples: enough for a 12x12 covariance to about +-20 % per variance.
 RESAMPLES = 50

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rotations import rotation_angle
-from .transforms import apply_transform, rotation_part, translation_part
+from spacecal.geometry.rotations import rotation_angle
+from spacecal.geometry.transforms import apply_transform, rotation_part, translation_part
 
 
 def position_error(desired_transform, reached_transform) -> np.ndarray:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError
 
 
 def nearest_rotation(matrix) -> np.ndarray:

@@ -142,7 +142,7 @@ def orthonormalize_transforms(stack) -> np.ndarray:
     Trackers and robots often write single-precision matrices that are not quite
     orthonormal; rows holding NaN (frames without a valid pose) stay NaN.
     """
-    from .rotations import nearest_rotation
+    from spacecal.geometry.rotations import nearest_rotation
 
     stack = np.asarray(stack, dtype=float)
     out = np.full_like(stack, np.nan)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 
 
 def _parse(path: str | Path) -> ElementTree.Element:

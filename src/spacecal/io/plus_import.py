@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError
-from ..geometry.transforms import orthonormalize_transforms
-from ..records import Recording
-from ..units import check_lengths_in_mm
-from .plus_sequence import read_plus_sequence
+from spacecal.core.errors import InvalidInputError
+from spacecal.geometry.transforms import orthonormalize_transforms
+from spacecal.records import Recording
+from spacecal.core.units import check_lengths_in_mm
+from spacecal.io.plus_sequence import read_plus_sequence
 
 
 def recording_from_plus_sequence(

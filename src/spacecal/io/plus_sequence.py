@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 
 _FIELD = re.compile(r"^Seq_Frame(\d+)_(\w+?)\s*=\s*(.*)$")
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 
 
 def read_matrix_folder(folder: str | Path, names=None) -> np.ndarray:

@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..errors import InvalidInputError
-from ..geometry.transforms import is_rigid_transform
-from ..records import CALIBRATION_SCHEMA_VERSION, CalibrationResult
+from spacecal import __version__
+from spacecal.core.errors import InvalidInputError
+from spacecal.geometry.transforms import is_rigid_transform
+from spacecal.records import CALIBRATION_SCHEMA_VERSION, CalibrationResult
 
 
 def _plain(value):

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidInputError
-from ..geometry.transforms import invert_transform, is_rigid_transform
+from spacecal.core.errors import InvalidInputError
+from spacecal.geometry.transforms import invert_transform, is_rigid_transform
 
 RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
 HEADER = "#Insight Transform File V1.0"

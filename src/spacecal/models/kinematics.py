@@ -17,8 +17,8 @@ from importlib import resources
 
 import numpy as np
 
-from ..errors import InvalidInputError, UnreachableError
-from ..geometry.transforms import invert_transform, matrix_to_rotvec
+from spacecal.core.errors import InvalidInputError, UnreachableError
+from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec
 
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 N_JOINTS = 6

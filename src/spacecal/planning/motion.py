@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import UnreachableError
-from ..geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
-from ..models.kinematics import RobotModel, forward_kinematics, geometric_jacobian, inverse_kinematics
+from spacecal.core.errors import UnreachableError
+from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from spacecal.models.kinematics import RobotModel, forward_kinematics, geometric_jacobian, inverse_kinematics
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError, UnreachableError
-from ..geometry.transforms import apply_transform, invert_transform, make_transform
-from ..models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
-from .visibility import VisibilityModel
+from spacecal.core.errors import DegenerateDataError, UnreachableError
+from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
+from spacecal.models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
+from spacecal.planning.visibility import VisibilityModel
 
 
 def needle_pose(tip_in_frame, direction_in_frame, roll_reference=(1.0, 0.0, 0.0)) -> np.ndarray:

@@ -20,19 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError, UnreachableError
-from ..geometry.rotations import rotation_angle
-from ..geometry.transforms import axis_angle_transform, make_transform
-from ..models.kinematics import (
-    RobotModel,
-    dh_point_jacobian,
-    forward_kinematics,
-    inverse_kinematics,
-    points_in_tracker,
-)
-from .motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
-from .stations import random_station
-from .visibility import VisibilityModel
+from spacecal.core.errors import DegenerateDataError, UnreachableError
+from spacecal.geometry.rotations import rotation_angle
+from spacecal.geometry.transforms import axis_angle_transform, make_transform
+from spacecal.models.kinematics import RobotModel, dh_point_jacobian, forward_kinematics, inverse_kinematics, points_in_tracker
+from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
+from spacecal.planning.stations import random_station
+from spacecal.planning.visibility import VisibilityModel
 
 
 @dataclass(frozen=True)
@@ -253,7 +247,7 @@ def paper_sweep_site_error(
 ) -> float:
     """The same predicted site error for an existing plan (e.g. the paper's sweeps), for comparison."""
     s = settings or PlannerSettings()
-    from .motion import track_path
+    from spacecal.planning.motion import track_path
 
     joints, q = [], plan.home_joints_rad
     for move in plan.moves:

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import DegenerateDataError, UnreachableError
-from ..geometry.transforms import axis_angle_transform, make_transform
-from ..models.kinematics import RobotModel, forward_kinematics, within_joint_limits
-from .motion import MotionLimits, MotionPlan, TimedMove, time_move, track_path
-from .visibility import VisibilityModel
+from spacecal.core.errors import DegenerateDataError, UnreachableError
+from spacecal.geometry.transforms import axis_angle_transform, make_transform
+from spacecal.models.kinematics import RobotModel, forward_kinematics, within_joint_limits
+from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move, track_path
+from spacecal.planning.visibility import VisibilityModel
 
 
 @dataclass(frozen=True)

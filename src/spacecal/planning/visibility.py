@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.marker import MarkerGeometry
-from ..models.tracker import TrackerModel
+from spacecal.models.marker import MarkerGeometry
+from spacecal.models.tracker import TrackerModel
 
 
 @dataclass(frozen=True)

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..estimators.diagnostics import sample_residuals
-from ..records import CalibrationResult, Recording
+from spacecal.estimators.diagnostics import sample_residuals
+from spacecal.records import CalibrationResult, Recording
 
 ERROR_BANNER = """
 <div id="script-errors" style="display:none;background:#fdd;border:1px solid #c00;padding:8px"></div>
@@ -234,7 +234,7 @@ def write_report(
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(page, encoding="utf-8")
     if png_dir is not None and report.verification is not None:
-        from .figures import plot_verification_errors
+        from spacecal.report.figures import plot_verification_errors
 
         points = report.verification["points"]
         plot_verification_errors(
@@ -243,7 +243,7 @@ def write_report(
             Path(png_dir) / "verification_errors.png",
         )
     if png_dir is not None and report.recording is not None:
-        from .figures import plot_residuals
+        from spacecal.report.figures import plot_residuals
 
         residuals = sample_residuals(
             report.recording, report.calibration.tracker_from_base, report.calibration.tcp_from_marker

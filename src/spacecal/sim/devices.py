@@ -1,4 +1,4 @@
-"""Simulated devices behind the interfaces of :mod:`spacecal.devices`, in simulated time.
+"""Simulated devices behind the interfaces of :mod:`spacecal.core.ports`, in simulated time.
 
 A :class:`SimClock` is shared by the robot and the tracker: waiting for a tracker frame
 advances it, and the robot's motion follows it, so workflows run the same loop against the
@@ -9,18 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..devices import (
-    FRAME_MISSING,
-    FRAME_OK,
-    SAFETY_NORMAL,
-    SAFETY_PROTECTIVE_STOP,
-    RobotState,
-    TrackerFrame,
-)
-from ..errors import DeviceError
-from ..models.kinematics import forward_kinematics
-from ..planning.motion import MotionLimits, time_move, track_path, trapezoid_duration
-from .world import World
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, RobotState, TrackerFrame
+from spacecal.core.errors import DeviceError
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.planning.motion import MotionLimits, time_move, track_path, trapezoid_duration
+from spacecal.sim.world import World
 
 
 class SimClock:

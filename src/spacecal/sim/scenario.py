@@ -11,8 +11,8 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import InvalidInputError
-from ..io.results_json import read_json_object
+from spacecal.core.errors import InvalidInputError
+from spacecal.io.results_json import read_json_object
 
 
 @dataclass(frozen=True)

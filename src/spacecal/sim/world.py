@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry.fitting import fit_rigid
-from ..geometry.transforms import invert_transform, make_transform, rotvec_to_matrix
-from ..models.kinematics import RobotModel, forward_kinematics, ur_model
-from ..models.marker import MarkerGeometry, ndi_8700339_like
-from ..models.tracker import TrackerModel
-from .scenario import Scenario
+from spacecal.geometry.fitting import fit_rigid
+from spacecal.geometry.transforms import invert_transform, make_transform, rotvec_to_matrix
+from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
+from spacecal.models.tracker import TrackerModel
+from spacecal.sim.scenario import Scenario
 
 #: ISO 9283 repeatability RP = mean + 3 s.d. of the 3-D distance; for isotropic Gaussian
 #: scatter with per-axis s.d. s that is about 1.60 s + 3 * 0.67 s = 3.6 s.

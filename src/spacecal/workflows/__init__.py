@@ -1,1 +1,1 @@
-"""Orchestration of devices and estimators; devices are reached only through spacecal.devices."""
+"""Orchestration of devices and estimators; devices are reached only through spacecal.core.ports."""

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..devices import FRAME_OK, SAFETY_NORMAL, Robot, Tracker
-from ..errors import DeviceError, InvalidInputError, SpacecalError
-from ..io.recording_csv import RecordingWriter
-from ..planning.motion import MotionPlan
+from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, Tracker
+from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
+from spacecal.io.recording_csv import RecordingWriter
+from spacecal.planning.motion import MotionPlan
 
 #: A robot state older than this, while moving, counts as stale (UR streams at 125–500 Hz).
 STALE_ROBOT_S = 0.5

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..devices import FRAME_OK, Robot, Tracker
-from ..errors import DegenerateDataError
-from ..geometry.rotations import mean_rotation, rotation_angle
-from ..geometry.transforms import invert_transform, make_transform
-from ..records import CalibrationResult, Recording
+from spacecal.core.ports import FRAME_OK, Robot, Tracker
+from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.rotations import mean_rotation, rotation_angle
+from spacecal.geometry.transforms import invert_transform, make_transform
+from spacecal.records import CalibrationResult, Recording
 
 
 @dataclass

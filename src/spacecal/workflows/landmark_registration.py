@@ -12,10 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError
-from ..estimators.landmarks import LandmarkDetectionSettings, detect_landmarks
-from ..estimators.registration import PointRegistration, register_points
-from ..geometry.transforms import invert_transform, orthonormalize_transforms
+from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.landmarks import LandmarkDetectionSettings, detect_landmarks
+from spacecal.estimators.registration import PointRegistration, register_points
+from spacecal.geometry.transforms import invert_transform, orthonormalize_transforms
 
 
 @dataclass

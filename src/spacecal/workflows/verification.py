@@ -14,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..devices import PoseReference, Robot
-from ..geometry.metrics import position_error, posture_error_rad, summary_statistics
-from ..geometry.transforms import invert_transform
-from ..models.kinematics import RobotModel, inverse_kinematics
-from ..records import CalibrationResult
+from spacecal.core.ports import PoseReference, Robot
+from spacecal.geometry.metrics import position_error, posture_error_rad, summary_statistics
+from spacecal.geometry.transforms import invert_transform
+from spacecal.models.kinematics import RobotModel, inverse_kinematics
+from spacecal.records import CalibrationResult
 
 #: The paper's reported verification figures (§5.2), for side-by-side tables.
 PAPER_VERIFICATION = {

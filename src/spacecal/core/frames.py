@@ -22,7 +22,7 @@ FRAMES: dict[str, str] = {
 def check_frame(name: str) -> str:
     """Return ``name`` if it is a known frame, else raise ``ValueError`` listing them."""
     if name not in FRAMES:
-        from .errors import InvalidInputError
+        from spacecal.core.errors import InvalidInputError
 
         raise InvalidInputError(f"unknown frame {name!r}; known frames: {', '.join(sorted(FRAMES))}")
     return name

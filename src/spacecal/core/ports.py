@@ -101,7 +101,7 @@ class Tracker(Protocol):
 
         Raises
         ------
-        spacecal.errors.DeviceError
+        spacecal.core.errors.DeviceError
             When no new frame arrives in time (unplugged, stalled stream).
         """
 

@@ -7,11 +7,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import SpacecalError
-from ..estimators import calibrate
-from ..estimators.likelihood import tre_lower_bound
-from .recording import Simulation
-from .truth import calibration_error
+from spacecal.core.errors import SpacecalError
+from spacecal.estimators import calibrate
+from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.experiments.simulation import Simulation
+from spacecal.experiments.truth import calibration_error
 
 
 @dataclass

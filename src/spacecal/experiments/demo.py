@@ -5,13 +5,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from ..estimators import calibrate
-from ..records import CalibrationResult
-from ..workflows.verification import PAPER_VERIFICATION, VerificationResult
-from .recording import Simulation, simulate
-from .scenario import Scenario
-from .truth import calibration_error
-from .verification import verify_in_simulation
+from spacecal.estimators import calibrate
+from spacecal.records import CalibrationResult
+from spacecal.workflows.verification import PAPER_VERIFICATION, VerificationResult
+from spacecal.experiments.simulation import Simulation, simulate
+from spacecal.sim.scenario import Scenario
+from spacecal.experiments.truth import calibration_error
+from spacecal.experiments.verification import verify_in_simulation
 
 
 @dataclass
@@ -89,7 +89,7 @@ def run_demo(scenario: Scenario | None = None) -> DemoResult:
     scenario : Scenario, optional
         The default is the paper's system with realistic errors.
     """
-    from .scenario import PRESETS
+    from spacecal.sim.scenario import PRESETS
 
     scenario = scenario or PRESETS["paper-realistic"]
     simulation = simulate(scenario)

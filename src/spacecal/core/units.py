@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError
 
 MM_PER_M = 1000.0
 

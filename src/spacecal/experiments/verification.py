@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..estimators.kinematic import calibration_robot_model
-from ..geometry.transforms import axis_angle_transform, make_transform
-from ..models.kinematics import forward_kinematics
-from ..records import CalibrationResult
-from ..workflows.verification import VerificationResult, run_verification
-from .devices import SimulatedLaserTracker, SimulatedRobot
-from .scenario import Scenario
-from .world import World, build_world
+from spacecal.estimators.kinematic import calibration_robot_model
+from spacecal.geometry.transforms import axis_angle_transform, make_transform
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.records import CalibrationResult
+from spacecal.workflows.verification import VerificationResult, run_verification
+from spacecal.sim.devices import SimulatedLaserTracker, SimulatedRobot
+from spacecal.sim.scenario import Scenario
+from spacecal.sim.world import World, build_world
 
 
 def verification_targets(world: World, count: int, rng: np.random.Generator) -> np.ndarray:

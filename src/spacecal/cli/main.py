@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .errors import InvalidInputError, SpacecalError
+from spacecal import __version__
+from spacecal.core.errors import InvalidInputError, SpacecalError
 
 
 class CheckFailed(SpacecalError):
@@ -24,16 +24,16 @@ class CheckFailed(SpacecalError):
 def _cmd_simulate(args) -> None:
     import dataclasses
 
-    from .io.recording_csv import metadata_path, write_recording
-    from .sim.recording import simulate
-    from .sim.scenario import load_scenario
+    from spacecal.io.recording_csv import metadata_path, write_recording
+    from spacecal.experiments.simulation import simulate
+    from spacecal.sim.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
     if args.seed is not None:
         scenario = dataclasses.replace(scenario, seed=args.seed)
     if args.raw:
-        from .io.raw_streams import write_raw_recording
-        from .sim.recording import simulate_raw
+        from spacecal.io.raw_streams import write_raw_recording
+        from spacecal.experiments.simulation import simulate_raw
 
         raw, _ = simulate_raw(scenario, args.clock_offset_ms / 1000.0)
         stem = str(args.output)[:-4] if str(args.output).endswith(".csv") else str(args.output)
@@ -75,14 +75,14 @@ def _parse_points(texts, option: str):
 
 
 def _cmd_calibrate(args) -> None:
-    from .estimators import calibrate
-    from .io.recording_csv import read_recording
-    from .io.results_json import write_calibration
+    from spacecal.estimators import calibrate
+    from spacecal.io.recording_csv import read_recording
+    from spacecal.io.results_json import write_calibration
 
     offset_note = None
     if args.tracker_stream:
-        from .estimators.time_offset import estimate_time_offset, pair_streams
-        from .io.raw_streams import read_raw_recording
+        from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
+        from spacecal.io.raw_streams import read_raw_recording
 
         raw = read_raw_recording(args.recording, args.tracker_stream)
         if args.time_offset_ms == "estimate":
@@ -140,9 +140,9 @@ def _cmd_calibrate(args) -> None:
 
 
 def _scenario_for_verification(args, calibration):
-    from .io.recording_csv import metadata_path
-    from .io.results_json import read_json_object
-    from .sim.scenario import load_scenario, scenario_from_dict
+    from spacecal.io.recording_csv import metadata_path
+    from spacecal.io.results_json import read_json_object
+    from spacecal.sim.scenario import load_scenario, scenario_from_dict
 
     if args.scenario is not None:
         return load_scenario(args.scenario)
@@ -159,9 +159,9 @@ def _scenario_for_verification(args, calibration):
 
 
 def _cmd_verify(args) -> None:
-    from .io.results_json import read_calibration, write_json
-    from .report.figures import plot_verification_errors
-    from .sim.verification import verify_in_simulation
+    from spacecal.io.results_json import read_calibration, write_json
+    from spacecal.report.figures import plot_verification_errors
+    from spacecal.experiments.verification import verify_in_simulation
 
     calibration = read_calibration(args.calibration)
     scenario = _scenario_for_verification(args, calibration)
@@ -188,8 +188,8 @@ def _cmd_verify(args) -> None:
 
 
 def _cmd_demo(args) -> None:
-    from .sim.demo import run_demo
-    from .sim.scenario import load_scenario
+    from spacecal.experiments.demo import run_demo
+    from spacecal.sim.scenario import load_scenario
 
     result = run_demo(load_scenario(args.scenario))
     print(result.table())
@@ -198,9 +198,9 @@ def _cmd_demo(args) -> None:
 
 
 def _write_demo_outputs(result, output_dir: Path) -> None:
-    from .io.recording_csv import write_recording
-    from .io.results_json import write_calibration, write_json
-    from .report.figures import plot_verification_errors
+    from spacecal.io.recording_csv import write_recording
+    from spacecal.io.results_json import write_calibration, write_json
+    from spacecal.report.figures import plot_verification_errors
 
     recording_path = write_recording(result.simulation.recording, output_dir / "recording.csv")
     result.calibration.source = {"recording": str(recording_path.resolve())}
@@ -217,10 +217,10 @@ def _write_demo_outputs(result, output_dir: Path) -> None:
 
 
 def _cmd_pivot(args) -> None:
-    from .estimators.pivot import pivot_calibration
-    from .io.pose_files import read_matrix_folder
-    from .io.recording_csv import read_recording
-    from .io.results_json import write_json
+    from spacecal.estimators.pivot import pivot_calibration
+    from spacecal.io.pose_files import read_matrix_folder
+    from spacecal.io.recording_csv import read_recording
+    from spacecal.io.results_json import write_json
 
     source = Path(args.poses)
     if source.is_dir():
@@ -243,9 +243,9 @@ def _cmd_pivot(args) -> None:
 
 
 def _cmd_bound(args) -> None:
-    from .estimators.likelihood import tre_lower_bound
-    from .io.recording_csv import read_recording
-    from .io.results_json import read_calibration
+    from spacecal.estimators.likelihood import tre_lower_bound
+    from spacecal.io.recording_csv import read_recording
+    from spacecal.io.results_json import read_calibration
 
     if not args.sigma_mm > 0:
         raise InvalidInputError("--sigma-mm must be a positive number of millimetres")
@@ -271,9 +271,9 @@ def _cmd_bound(args) -> None:
 
 def _sim_devices(args):
     """The simulated robot and tracker of a scenario, and its world."""
-    from .sim.devices import SimClock, SimulatedRobot, SimulatedTracker
-    from .sim.scenario import load_scenario
-    from .sim.world import build_world
+    from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
+    from spacecal.sim.scenario import load_scenario
+    from spacecal.sim.world import build_world
 
     world = build_world(load_scenario(args.scenario))
     robot = SimulatedRobot(world, SimClock())
@@ -342,8 +342,8 @@ def _cmd_acquire(args) -> None:
 
 
 def _run_acquisition(args, robot, tracker, world) -> None:
-    from .sim.recording import plan_for_world, recording_metadata
-    from .workflows.acquisition import AcquisitionSettings, acquire
+    from spacecal.experiments.simulation import plan_for_world, recording_metadata
+    from spacecal.workflows.acquisition import AcquisitionSettings, acquire
 
     plan = plan_for_world(world) if world is not None else _hardware_plan(args, robot)
     problems = _check_workspace(plan, args.workspace_box)
@@ -381,14 +381,14 @@ def _run_acquisition(args, robot, tracker, world) -> None:
 
 def _hardware_devices(args):
     """Open the robot and tracker named by --robot / --tracker (this is where hardware is chosen)."""
-    from .adapters import parse_device_url
+    from spacecal.adapters import parse_device_url
 
     if args.robot == "sim" or args.tracker == "sim":
         raise InvalidInputError("use --robot sim with --tracker sim, or real devices for both")
     _, host, _ = parse_device_url(args.robot, ("ur",))
     scheme, address, port = parse_device_url(args.tracker, ("ndi", "igtl"))
     if scheme == "ndi":
-        from .adapters.ndi import VEGA_DEFAULT_PORT, NDITracker
+        from spacecal.adapters.ndi import VEGA_DEFAULT_PORT, NDITracker
 
         if not args.rom:
             raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
@@ -397,18 +397,18 @@ def _hardware_devices(args):
             address, None if serial else (port or VEGA_DEFAULT_PORT), args.rom, rate_hz=args.tracker_rate_hz
         )
     else:
-        from .adapters.igtl import IGTLTracker
+        from spacecal.adapters.igtl import IGTLTracker
 
         tracker = IGTLTracker(address, port or 18944)
-    from .adapters.ur import URRobot
+    from spacecal.adapters.ur import URRobot
 
     robot = URRobot(host, control=not args.dry_run)
     return robot, tracker, None
 
 
 def _hardware_model(args):
-    from .geometry.transforms import make_transform
-    from .models.kinematics import ur_model
+    from spacecal.geometry.transforms import make_transform
+    from spacecal.models.kinematics import ur_model
 
     offset = _parse_points([args.tool_offset_mm], "--tool-offset-mm")[0]
     return ur_model(args.robot_model, make_transform(np.eye(3), offset))
@@ -416,14 +416,14 @@ def _hardware_model(args):
 
 def _hardware_plan(args, robot):
     """The paper's sweeps from the robot's current configuration (its home)."""
-    from .io.results_json import read_calibration
-    from .models.kinematics import forward_kinematics
-    from .models.marker import ndi_8700339_like
-    from .models.tracker import TrackerModel
-    from .planning.motion import MotionLimits
-    from .planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
-    from .planning.visibility import VisibilityModel
-    from .workflows.acquisition import resume_home_joints
+    from spacecal.io.results_json import read_calibration
+    from spacecal.models.kinematics import forward_kinematics
+    from spacecal.models.marker import ndi_8700339_like
+    from spacecal.models.tracker import TrackerModel
+    from spacecal.planning.motion import MotionLimits
+    from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
+    from spacecal.planning.visibility import VisibilityModel
+    from spacecal.workflows.acquisition import resume_home_joints
 
     model = _hardware_model(args)
     state = robot.state()
@@ -460,7 +460,7 @@ def _hardware_plan(args, robot):
 
 
 def _hardware_metadata(args):
-    from .models.marker import ndi_8700339_like
+    from spacecal.models.marker import ndi_8700339_like
 
     model = _hardware_model(args)
     return {
@@ -473,11 +473,11 @@ def _hardware_metadata(args):
 
 
 def _cmd_register_landmarks(args) -> None:
-    from .estimators.landmarks import LandmarkDetectionSettings
-    from .io.plus_config import read_plus_landmarks, read_plus_transform
-    from .io.plus_sequence import read_plus_sequence
-    from .io.results_json import write_json
-    from .workflows.landmark_registration import register_landmarks_from_stylus
+    from spacecal.estimators.landmarks import LandmarkDetectionSettings
+    from spacecal.io.plus_config import read_plus_landmarks, read_plus_transform
+    from spacecal.io.plus_sequence import read_plus_sequence
+    from spacecal.io.results_json import write_json
+    from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
 
     sequence = read_plus_sequence(args.sequence)
     _, landmarks = read_plus_landmarks(args.config)
@@ -517,9 +517,9 @@ def _cmd_register_landmarks(args) -> None:
 
 
 def _cmd_export(args) -> None:
-    from .io.plus_config import write_plus_coordinate_definitions
-    from .io.results_json import read_calibration
-    from .io.slicer import write_slicer_transform
+    from spacecal.io.plus_config import write_plus_coordinate_definitions
+    from spacecal.io.results_json import read_calibration
+    from spacecal.io.slicer import write_slicer_transform
 
     calibration = read_calibration(args.calibration)
     if not (args.slicer or args.plus or args.igtl):
@@ -542,8 +542,8 @@ def _cmd_export(args) -> None:
         )
         print(f"wrote {path} (PLUS CoordinateDefinitions: BaseToTracker, MarkerToTCP)")
     if args.igtl:
-        from .adapters import parse_device_url
-        from .adapters.igtl import publish_transform
+        from spacecal.adapters import parse_device_url
+        from spacecal.adapters.igtl import publish_transform
 
         _, host, port = parse_device_url("igtl://" + args.igtl, ("igtl",))
         publish_transform(host, port or 18944, "BaseToTracker", calibration.tracker_from_base)
@@ -551,8 +551,8 @@ def _cmd_export(args) -> None:
 
 
 def _cmd_import_plus(args) -> None:
-    from .io.plus_import import recording_from_plus_sequence
-    from .io.recording_csv import write_recording
+    from spacecal.io.plus_import import recording_from_plus_sequence
+    from spacecal.io.recording_csv import write_recording
 
     recording = recording_from_plus_sequence(args.sequence, args.marker, args.tcp, args.segment)
     path = write_recording(recording, args.output)
@@ -560,9 +560,9 @@ def _cmd_import_plus(args) -> None:
 
 
 def _cmd_check(args) -> None:
-    from .io.recording_csv import read_recording
-    from .io.results_json import read_calibration
-    from .workflows.check import append_history, check_with_recording, check_with_robot
+    from spacecal.io.recording_csv import read_recording
+    from spacecal.io.results_json import read_calibration
+    from spacecal.workflows.check import append_history, check_with_recording, check_with_robot
 
     calibration = read_calibration(args.calibration)
     if args.recording:
@@ -570,9 +570,9 @@ def _cmd_check(args) -> None:
             calibration, read_recording(args.recording), args.threshold_mm, args.threshold_deg
         )
     elif args.robot == "sim":
-        from .sim.check import check_joints
-        from .sim.devices import SimClock, SimulatedRobot, SimulatedTracker
-        from .sim.world import build_world
+        from spacecal.planning.check_poses import check_joints
+        from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
+        from spacecal.sim.world import build_world
 
         world = build_world(_scenario_for_verification(args, calibration))
         robot = SimulatedRobot(world, SimClock())
@@ -580,7 +580,7 @@ def _cmd_check(args) -> None:
             calibration,
             robot,
             SimulatedTracker(world, robot),
-            check_joints(world, args.poses),
+            check_joints(world.nominal_model, world.home_joints_rad, args.poses),
             args.threshold_mm,
             args.threshold_deg,
         )
@@ -603,10 +603,10 @@ def _cmd_check(args) -> None:
 
 
 def _cmd_phantom(args) -> None:
-    from .io.results_json import write_json
-    from .report.figures import plot_phantom_errors
-    from .sim.phantom import PhantomSettings, run_phantom_experiment
-    from .sim.scenario import load_scenario
+    from spacecal.io.results_json import write_json
+    from spacecal.report.figures import plot_phantom_errors
+    from spacecal.experiments.phantom import PhantomSettings, run_phantom_experiment
+    from spacecal.sim.scenario import load_scenario
 
     if args.cases < 1:
         raise InvalidInputError("--cases must be at least 1")
@@ -624,10 +624,10 @@ def _cmd_phantom(args) -> None:
 
 
 def _cmd_report(args) -> None:
-    from .io.recording_csv import read_recording
-    from .io.results_json import read_calibration, read_json_object
-    from .report.html import Report, write_report
-    from .workflows.check import read_history
+    from spacecal.io.recording_csv import read_recording
+    from spacecal.io.results_json import read_calibration, read_json_object
+    from spacecal.report.html import Report, write_report
+    from spacecal.workflows.check import read_history
 
     calibration = read_calibration(args.calibration)
     recording_path = args.recording or calibration.source.get("recording")
@@ -652,12 +652,12 @@ def _parse_seconds(text: str) -> float:
 
 
 def _cmd_plan(args) -> None:
-    from .io.results_json import write_json
-    from .planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
-    from .planning.visibility import VisibilityModel
-    from .sim.recording import plan_for_world
-    from .sim.scenario import load_scenario
-    from .sim.world import build_world
+    from spacecal.io.results_json import write_json
+    from spacecal.planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
+    from spacecal.planning.visibility import VisibilityModel
+    from spacecal.experiments.simulation import plan_for_world
+    from spacecal.sim.scenario import load_scenario
+    from spacecal.sim.world import build_world
 
     world = build_world(load_scenario(args.scenario))
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
@@ -701,13 +701,13 @@ def _cmd_plan(args) -> None:
 
 
 def _cmd_scenario(args) -> None:
-    from .sim.scenario import load_scenario
+    from spacecal.sim.scenario import load_scenario
 
     print(json.dumps(load_scenario(args.preset).to_dict(), indent=2))
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .estimators import METHODS
+    from spacecal.estimators import METHODS
 
     parser = argparse.ArgumentParser(
         prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker."

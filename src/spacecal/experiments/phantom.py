@@ -16,17 +16,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import UnreachableError
-from ..estimators import calibrate
-from ..estimators.registration import register_points
-from ..geometry.metrics import summary_statistics
-from ..geometry.transforms import apply_transform, invert_transform, make_transform
-from ..models.kinematics import forward_kinematics
-from ..planning.needle import plan_needle
-from ..planning.visibility import VisibilityModel
-from .recording import simulate
-from .scenario import Scenario
-from .world import World
+from spacecal.core.errors import UnreachableError
+from spacecal.estimators import calibrate
+from spacecal.estimators.registration import register_points
+from spacecal.geometry.metrics import summary_statistics
+from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.planning.needle import plan_needle
+from spacecal.planning.visibility import VisibilityModel
+from spacecal.experiments.simulation import simulate
+from spacecal.sim.scenario import Scenario
+from spacecal.sim.world import World
 
 #: Attempts to find a feasible needle path per case.
 MAX_PATH_ATTEMPTS = 50

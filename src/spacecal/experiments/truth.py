@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry.metrics import cube_grid, posture_error_rad, target_registration_errors
-from ..records import CalibrationResult
-from .world import World
+from spacecal.geometry.metrics import cube_grid, posture_error_rad, target_registration_errors
+from spacecal.records import CalibrationResult
+from spacecal.sim.world import World
 
 
 def calibration_error(result: CalibrationResult, world: World, cube_side_mm: float = 200.0) -> dict:

@@ -6,15 +6,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import DegenerateDataError, InvalidInputError
-from ..models.kinematics import forward_kinematics
-from ..planning.motion import MotionLimits, track_path
-from ..planning.paper_sweeps import MotionPlan, PaperSweepSettings, plan_paper_sweeps
-from ..planning.stations import StationSettings, plan_stations
-from ..planning.visibility import VisibilityModel
-from ..records import Recording
-from .scenario import Scenario
-from .world import World, build_world
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.planning.motion import MotionLimits, track_path
+from spacecal.planning.paper_sweeps import MotionPlan, PaperSweepSettings, plan_paper_sweeps
+from spacecal.planning.stations import StationSettings, plan_stations
+from spacecal.planning.visibility import VisibilityModel
+from spacecal.records import Recording
+from spacecal.sim.scenario import Scenario
+from spacecal.sim.world import World, build_world
 
 
 @dataclass
@@ -202,7 +202,7 @@ def simulate_raw(scenario: Scenario, clock_offset_s: float = 0.0):
     -------
     RawRecording, World
     """
-    from ..records import RawRecording
+    from spacecal.records import RawRecording
 
     world = build_world(scenario)
     plan = plan_for_world(world)
