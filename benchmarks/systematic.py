@@ -27,7 +27,8 @@ from spacecal.estimators import calibrate
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.planning.optimal import plan_for_site
 from spacecal.planning.visibility import VisibilityModel
-from spacecal.experiments.simulation import execute_plan, plan_for_world, simulate_raw
+from spacecal.experiments.simulation import execute_plan, simulate_raw
+from spacecal.sim.motion import plan_for_world
 from spacecal.sim.scenario import PRESETS
 from spacecal.experiments.truth import calibration_error
 from spacecal.experiments.verification import verify_in_simulation

@@ -110,7 +110,7 @@ def test_tcp_not_rotating_about_its_origin_is_named(white_simulation):
 
 def test_too_few_visible_samples_in_a_segment(white_simulation):
     recording = copy.deepcopy(white_simulation.recording)
-    rows = np.flatnonzero(recording.segment == "rot_y")
+    rows = np.flatnonzero((recording.segment == "rot_y") & recording.visible)
     recording.tracker_from_marker_stack[rows[3:]] = np.nan
     with pytest.raises(DegenerateDataError, match="'rot_y' has 3 samples with the marker visible"):
         calibrate(recording)

@@ -5,7 +5,7 @@ from spacecal.core.errors import DegenerateDataError, UnreachableError
 from spacecal.geometry.transforms import invert_transform
 from spacecal.planning.motion import MotionLimits, trapezoid_duration, trapezoid_progress
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
-from spacecal.experiments.simulation import plan_for_world
+from spacecal.sim.motion import plan_for_world
 from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
 

@@ -10,7 +10,7 @@ from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.estimators import calibrate
 from spacecal.io.recording_csv import read_recording
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
-from spacecal.experiments.simulation import plan_for_world, recording_metadata
+from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import PRESETS
 from spacecal.experiments.truth import calibration_error
 from spacecal.sim.world import build_world

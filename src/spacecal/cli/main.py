@@ -342,7 +342,7 @@ def _cmd_acquire(args) -> None:
 
 
 def _run_acquisition(args, robot, tracker, world) -> None:
-    from spacecal.experiments.simulation import plan_for_world, recording_metadata
+    from spacecal.sim.motion import plan_for_world, recording_metadata
     from spacecal.workflows.acquisition import AcquisitionSettings, acquire
 
     plan = plan_for_world(world) if world is not None else _hardware_plan(args, robot)
@@ -655,7 +655,7 @@ def _cmd_plan(args) -> None:
     from spacecal.io.results_json import write_json
     from spacecal.planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
     from spacecal.planning.visibility import VisibilityModel
-    from spacecal.experiments.simulation import plan_for_world
+    from spacecal.sim.motion import plan_for_world
     from spacecal.sim.scenario import load_scenario
     from spacecal.sim.world import build_world
 

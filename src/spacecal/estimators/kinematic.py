@@ -49,17 +49,6 @@ def robot_model_of(recording: Recording) -> RobotModel:
     return ur_model(robot["model"], np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
 
 
-def model_from_dict(table: dict, base: RobotModel) -> RobotModel:
-    """A corrected model stored in a result file (``dh_table`` layout)."""
-    return replace(base, **{field: np.asarray(table[field], dtype=float) for field in DH_FIELDS})
-
-
-def calibration_robot_model(calibration: CalibrationResult, nominal: RobotModel) -> RobotModel:
-    """The model to solve IK with: the identified one if the calibration has it, else ``nominal``."""
-    table = calibration.diagnostics.get("kinematic_model")
-    return nominal if table is None else model_from_dict(table, nominal)
-
-
 def identifiable_corrections(dh_jacobian, pose_jacobian_, rank_tolerance: float) -> tuple[np.ndarray, float]:
     """Indices of the DH corrections the data determines beyond the pose, and their condition."""
     scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
@@ -153,7 +142,6 @@ def calibrate_kinematic(
         for k, i in enumerate(selected)
     ]
     extra = {
-        "kinematic_model": {"name": model.name, **corrected.dh_table()},
         "kinematic_identification": {
             "identified": corrections,
             "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(selected.tolist())],
@@ -174,4 +162,4 @@ def calibrate_kinematic(
         extra,
         covariance_note="pose block of the joint (pose + DH) covariance; mm, rad",
     )
-    return result
+    return result.replace(robot_model=corrected)

@@ -93,7 +93,8 @@ def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, 
         {},
         covariance_note=f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
     )
-    result.covariance = reported.covariance
-    result.predicted_tre_mm = reported.predicted_tre_mm
-    result.diagnostics = {**reported.diagnostics, **result.diagnostics}
-    return result
+    return result.replace(
+        covariance=reported.covariance,
+        predicted_tre_mm=reported.predicted_tre_mm,
+        diagnostics={**reported.diagnostics, **result.diagnostics},
+    )

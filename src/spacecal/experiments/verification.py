@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacecal.estimators.kinematic import calibration_robot_model
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.records import CalibrationResult
@@ -56,5 +55,5 @@ def verify_in_simulation(
     robot = SimulatedRobot(world)
     laser = SimulatedLaserTracker(world, robot)
     # IK with the identified kinematic model when the calibration carries one
-    model = calibration_robot_model(calibration, world.nominal_model)
+    model = calibration.robot_model_for_ik(world.nominal_model)
     return run_verification(calibration, robot, laser, model, targets, world.home_joints_rad)

@@ -1,110 +1,77 @@
-"""JSON files for calibration and verification results.
+"""JSON files for results: one writer (atomic) and one reader that insists on an object.
 
-A calibration file holds at least ``tracker_from_base`` and ``tcp_from_marker`` (4x4 lists,
-mm), ``method``, ``sample_counts``, ``diagnostics`` and ``schema_version``.
+The content of each file is its record's ``to_dict()``; reading goes through the record's
+``from_dict()``, which validates every field (see :mod:`spacecal.records`).
 """
 
 from __future__ import annotations
 
-import datetime
 import json
+import os
+import tempfile
 from pathlib import Path
+from typing import Any
 
-import numpy as np
-
-from spacecal import __version__
 from spacecal.core.errors import InvalidInputError
-from spacecal.geometry.transforms import is_rigid_transform
-from spacecal.records import CALIBRATION_SCHEMA_VERSION, CalibrationResult
+from spacecal.records import CalibrationResult
+from spacecal.records.fields import plain
+
+#: Larger than this is not a spacecal result file.
+MAX_JSON_BYTES = 200 * 1024 * 1024
 
 
-def _plain(value):
-    """Turn numpy values inside nested containers into JSON-ready Python values."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
-def write_json(data: dict, path: str | Path) -> Path:
-    """Write a dict (numpy values allowed) as indented JSON; returns the path."""
+def write_text_atomic(text: str, path: str | Path) -> Path:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename,
+    so an interrupted write never leaves a half-written file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(_plain(data), indent=2) + "\n")
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as stream:
+            stream.write(text)
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
     return path
 
 
-def read_json_object(path: str | Path, what: str) -> dict:
+def write_json(data: dict[str, Any], path: str | Path) -> Path:
+    """Write a dict (numpy values allowed) as indented JSON, atomically; returns the path."""
+    text = json.dumps(plain(data), indent=2, allow_nan=False)
+    return write_text_atomic(text + "\n", path)
+
+
+def read_json_object(path: str | Path, what: str) -> dict[str, Any]:
     """Read a JSON file that must hold an object; one-line errors name the file and ``what`` it is."""
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such {what} file")
+    raw = path.read_bytes()
+    if len(raw) > MAX_JSON_BYTES:
+        raise InvalidInputError(f"{path}: too large for a {what} file ({len(raw)} bytes)")
     try:
-        data = json.loads(path.read_text())
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InvalidInputError(f"{path}: not UTF-8 text (a {what} file is JSON)") from None
+    try:
+        data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InvalidInputError(f"{path}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
+    except RecursionError:
+        raise InvalidInputError(f"{path}: JSON nested too deeply for a {what} file") from None
     if not isinstance(data, dict):
         raise InvalidInputError(f"{path}: a {what} file holds a JSON object")
     return data
 
 
-def calibration_to_dict(result: CalibrationResult) -> dict:
-    return {
-        "schema": "spacecal.calibration",
-        "schema_version": result.schema_version,
-        "spacecal_version": __version__,
-        "created_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "units": {"length": "mm", "angle": "rad"},
-        "method": result.method,
-        "tracker_from_base": result.tracker_from_base,
-        "tcp_from_marker": result.tcp_from_marker,
-        "sample_counts": result.sample_counts,
-        "diagnostics": result.diagnostics,
-        "source": result.source,
-        "covariance": result.covariance,
-        "predicted_tre_mm": result.predicted_tre_mm,
-    }
-
-
 def write_calibration(result: CalibrationResult, path: str | Path) -> Path:
-    """Write a calibration result file."""
-    return write_json(calibration_to_dict(result), path)
-
-
-def _matrix(data: dict, key: str, path: Path) -> np.ndarray:
-    if key not in data:
-        raise InvalidInputError(f"{path}: missing {key!r}")
-    try:
-        matrix = np.array(data[key], dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{path}: {key!r} is not a 4x4 list of numbers") from None
-    if matrix.shape != (4, 4) or not is_rigid_transform(matrix, atol=1e-6):
-        raise InvalidInputError(f"{path}: {key!r} is not a 4x4 rigid transform")
-    return matrix
+    """Write a calibration result file (schema 2)."""
+    return write_json(result.to_dict(), path)
 
 
 def read_calibration(path: str | Path) -> CalibrationResult:
-    """Read and validate a calibration result file."""
-    path = Path(path)
-    data = read_json_object(path, "calibration")
-    version = data.get("schema_version")
-    if version != CALIBRATION_SCHEMA_VERSION:
-        raise InvalidInputError(
-            f"{path}: schema_version {version!r} is not supported (this spacecal reads {CALIBRATION_SCHEMA_VERSION})"
-        )
-    return CalibrationResult(
-        method=str(data.get("method", "unknown")),
-        tracker_from_base=_matrix(data, "tracker_from_base", path),
-        tcp_from_marker=_matrix(data, "tcp_from_marker", path),
-        sample_counts=data.get("sample_counts", {}),
-        diagnostics=data.get("diagnostics", {}),
-        source=data.get("source", {}),
-        covariance=data.get("covariance"),
-        predicted_tre_mm=data.get("predicted_tre_mm"),
-        schema_version=version,
-    )
+    """Read and validate a calibration result file (schema 1 or 2)."""
+    return CalibrationResult.from_dict(read_json_object(path, "calibration"), what=str(path))

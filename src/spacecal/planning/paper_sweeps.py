@@ -22,6 +22,10 @@ from spacecal.planning.visibility import VisibilityModel
 AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
 
 
+#: Largest rotation commanded in one straight move; larger sweeps pass through home.
+MAX_SINGLE_ROTATION_DEG = 175.0
+
+
 @dataclass(frozen=True)
 class PaperSweepSettings:
     """Parameters of the paper's sweeps (defaults are the paper's values).
@@ -162,7 +166,13 @@ def plan_paper_sweeps(
         minus = home @ axis_angle_transform(axis, -np.radians(lo))
         period = settings.rotation_sample_period_s
         add(label, home, plus, period)
-        add(label, plus, minus, period)
+        if hi + lo > MAX_SINGLE_ROTATION_DEG:
+            # A straight move between orientations about 180 deg apart has no unique shortest
+            # rotation: the controller may turn the tool the other way round. Pass home.
+            add(label, plus, home, period)
+            add(label, home, minus, period)
+        else:
+            add(label, plus, minus, period)
         add(label, minus, home, period)
 
     for name, axis in AXES.items():

@@ -1,12 +1,34 @@
-"""Typed records: every result that travels between steps, validated on construction."""
+"""Typed records: every result that travels between steps, validated on construction.
 
-from spacecal.records._legacy import *  # noqa: F403
-from spacecal.records._legacy import (
+Each result record has ``to_dict()`` (the file content, with ``schema`` and
+``schema_version``) and ``from_dict()`` (which reads every version spacecal has written);
+:mod:`spacecal.io` turns them into files.
+"""
+
+from spacecal.records.calibration import (
     CALIBRATION_SCHEMA_VERSION,
+    CalibrationResult,
+    Provenance,
+    robot_model_from_dict,
+    robot_model_to_dict,
+)
+from spacecal.records.recording import (
     PAPER_SEGMENTS,
     ROTATION_SEGMENTS,
     TRANSLATION_SEGMENTS,
-    CalibrationResult,
     RawRecording,
     Recording,
 )
+
+__all__ = [
+    "CALIBRATION_SCHEMA_VERSION",
+    "PAPER_SEGMENTS",
+    "ROTATION_SEGMENTS",
+    "TRANSLATION_SEGMENTS",
+    "CalibrationResult",
+    "Provenance",
+    "RawRecording",
+    "Recording",
+    "robot_model_from_dict",
+    "robot_model_to_dict",
+]

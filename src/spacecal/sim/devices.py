@@ -7,6 +7,9 @@ simulation as against hardware, only faster than real time.
 
 from __future__ import annotations
 
+import dataclasses
+from collections import deque
+
 import numpy as np
 
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, RobotState, TrackerFrame
@@ -52,13 +55,24 @@ class SimulatedRobot:
     """The world's robot: moves by its true kinematics, reports by its nominal model.
 
     Linear moves follow the planner's trapezoidal Cartesian profile; joint moves a
-    trapezoid on the largest joint distance. States are stamped at controller ticks. A
-    resting arm carries one repeatability offset per stop; a moving one scatters per query.
+    trapezoid on the largest joint distance. States are stamped at controller ticks. Where
+    the arm really is carries the world's repeatability scatter, a fresh draw of
+    :meth:`World.repeatability_offsets` each time it is measured (the simulator's one
+    repeatability model).
 
     Parameters
     ----------
+    world : World
+    clock : SimClock, optional
+    joints_rad : array_like, shape (6,), optional
+        Start configuration (default: the world's home).
     protective_stop_at_s : float, optional
         Fault injection: the controller enters a protective stop at this simulated time.
+    limits : MotionLimits, optional
+        Rotation and joint limits of linear moves (each move command sets the linear ones).
+    stream_states : bool
+        Keep every controller state (one per tick, as RTDE streams them) for
+        :meth:`drain_states`.
     """
 
     def __init__(
@@ -67,59 +81,89 @@ class SimulatedRobot:
         clock: SimClock | None = None,
         joints_rad=None,
         protective_stop_at_s: float | None = None,
+        limits: MotionLimits | None = None,
+        stream_states: bool = False,
     ):
         self.world = world
         self.clock = clock or SimClock()
+        self.limits = limits or MotionLimits()
         self._joints = np.array(world.home_joints_rad if joints_rad is None else joints_rad, dtype=float)
-        self._motion = None  # (TimedMove, start time) of a linear move, or (q0, q1, start, duration)
-        self._rest_offset = self._draw_offset()
+        self._motion = None  # ("linear", TimedMove, start) or ("joint", (q0, q1, start, duration), start)
         self.protective_stop_at_s = protective_stop_at_s
         self._safety = SAFETY_NORMAL
         self.commands: list[str] = []
+        self._tick_s = 1.0 / world.nominal_model.controller_hz
+        self._stream = [] if stream_states else None
+        self._streamed_to_s = np.floor(self.clock.now_s / self._tick_s) * self._tick_s
+        self._updated_at_s = -np.inf
 
-    def _draw_offset(self) -> np.ndarray:
-        sd = self.world.scenario.repeatability_mm / 3.6
-        return self.world.noise_rng.normal(scale=sd, size=3) if sd > 0 else np.zeros(3)
+    def _joints_at(self, times_s: np.ndarray) -> np.ndarray:
+        """Joint angles (M, 6) of the current motion at increasing times (M,)."""
+        kind, move, start = self._motion
+        if kind == "linear":
+            elapsed = np.clip(times_s - start, 0.0, move.duration_s)
+            return track_path(self.world.nominal_model, move.poses_at(elapsed), self._joints)
+        q0, q1, _, duration = move
+        fraction = np.ones_like(times_s) if duration == 0 else np.clip((times_s - start) / duration, 0.0, 1.0)
+        return q0 + fraction[:, None] * (q1 - q0)
+
+    def _motion_end_s(self) -> float:
+        kind, move, start = self._motion
+        return start + (move.duration_s if kind == "linear" else move[3])
 
     def _update(self) -> None:
         now = self.clock.now_s
+        if now == self._updated_at_s:
+            return  # nothing has happened since the last look
+        self._updated_at_s = now
         if self.protective_stop_at_s is not None and now >= self.protective_stop_at_s:
             self._safety = SAFETY_PROTECTIVE_STOP
-        if self._motion is None:
+        ticks = np.arange(self._streamed_to_s + self._tick_s, now + 1e-12, self._tick_s)
+        if self._stream is None:
+            ticks = ticks[-1:]  # nobody keeps the stream: only the newest tick matters
+        if self._motion is None or self._safety != SAFETY_NORMAL:
+            self._stream_ticks(ticks, np.tile(self._joints, (len(ticks), 1)), moving=False)
+            if self._motion is not None:
+                self._finish()
             return
-        if self._safety != SAFETY_NORMAL:
+        path = self._joints_at(np.append(ticks, now))
+        end = self._motion_end_s()
+        self._stream_ticks(ticks, path[:-1], moving=ticks < end)
+        self._joints = path[-1]
+        if now >= end:
             self._finish()
+
+    def _stream_ticks(self, ticks: np.ndarray, joints: np.ndarray, moving) -> None:
+        if len(ticks):
+            self._streamed_to_s = float(ticks[-1])
+        if self._stream is None or not len(ticks):
             return
-        kind, move, start = self._motion
-        elapsed = min(now - start, move.duration_s if kind == "linear" else move[3])
-        if kind == "linear":
-            self._joints = track_path(
-                self.world.nominal_model, move.poses_at(np.array([elapsed])), self._joints
-            )[0]
-            done = now - start >= move.duration_s
-        else:
-            q0, q1, _, duration = move
-            fraction = 1.0 if duration == 0 else np.clip(elapsed / duration, 0.0, 1.0)
-            self._joints = q0 + fraction * (q1 - q0)
-            done = fraction >= 1.0
-        if done:
-            self._finish()
+        poses = forward_kinematics(self.world.nominal_model, joints)
+        moving = np.broadcast_to(moving, ticks.shape)
+        self._stream.extend(
+            RobotState(float(t), q.copy(), pose, self._safety, bool(m))
+            for t, q, pose, m in zip(ticks, joints, poses, moving)
+        )
 
     def _finish(self) -> None:
         self._motion = None
-        self._rest_offset = self._draw_offset()
 
     # -- Robot protocol ----------------------------------------------------------------
     def state(self) -> RobotState:
         self._update()
-        tick = 1.0 / self.world.nominal_model.controller_hz
         return RobotState(
-            time_s=float(np.floor(self.clock.now_s / tick) * tick),
+            time_s=float(np.floor(self.clock.now_s / self._tick_s) * self._tick_s),
             joints_rad=self._joints.copy(),
             base_from_tcp=forward_kinematics(self.world.nominal_model, self._joints),
             safety=self._safety,
             moving=self._motion is not None,
         )
+
+    def drain_states(self) -> list[RobotState]:
+        """Every controller state since the last call, one per tick (``stream_states``)."""
+        self._update()
+        states, self._stream = self._stream or [], [] if self._stream is not None else None
+        return states
 
     def move_linear(
         self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
@@ -128,11 +172,12 @@ class SimulatedRobot:
         self._require_normal()
         self.commands.append("movel")
         start_pose = forward_kinematics(self.world.nominal_model, self._joints)
-        limits = MotionLimits(linear_speed_mm_s=speed_mm_s, linear_accel_mm_s2=accel_mm_s2)
+        limits = dataclasses.replace(self.limits, linear_speed_mm_s=speed_mm_s, linear_accel_mm_s2=accel_mm_s2)
         move, _ = time_move(
             self.world.nominal_model, "move", start_pose, np.asarray(base_from_tcp), self._joints, limits, 0.0
         )
         self._motion = ("linear", move, self.clock.now_s)
+        self._updated_at_s = -np.inf
         if not asynchronous:
             self.clock.advance_to(self.clock.now_s + move.duration_s)
             self._update()
@@ -146,13 +191,15 @@ class SimulatedRobot:
             float(np.max(np.abs(target - self._joints))), speed_rad_s, accel_rad_s2
         )
         self._motion = ("joint", (self._joints.copy(), target, self.clock.now_s, duration), self.clock.now_s)
+        self._updated_at_s = -np.inf
         self.clock.advance_to(self.clock.now_s + duration)
         self._update()
 
     def stop(self) -> None:
         self.commands.append("stop")
         self._update()
-        self._motion = None
+        if self._motion is not None:
+            self._finish()
 
     def _require_normal(self) -> None:
         if self._safety != SAFETY_NORMAL:
@@ -162,10 +209,7 @@ class SimulatedRobot:
     def true_base_from_tcp(self) -> np.ndarray:
         """Where the TCP really is now (truth; for simulated instruments only)."""
         self._update()
-        pose = forward_kinematics(self.world.true_model, self._joints)
-        offset = self._draw_offset() if self._motion is not None else self._rest_offset
-        pose[:3, 3] += offset
-        return pose
+        return self.world.true_base_from_tcp(self._joints)[0]
 
 
 class SimulatedTracker:
@@ -175,7 +219,16 @@ class SimulatedTracker:
     ----------
     unplug_after_frames : int, optional
         Fault injection: after this many frames the tracker stops answering.
+
+    Attributes
+    ----------
+    truth : dict
+        Frame time (s) -> ``(true tracker_from_marker (4, 4), outlier kind)`` of every frame
+        delivered: the ground truth experiments score against.
     """
+
+    #: True poses kept for stale-frame outliers (the scenario's stale frames are 2-8 old).
+    HISTORY_FRAMES = 8
 
     def __init__(self, world: World, robot: SimulatedRobot, unplug_after_frames: int | None = None):
         self.world = world
@@ -185,6 +238,8 @@ class SimulatedTracker:
         self._frame_number = int(np.ceil(self.clock.now_s / self.period_s))
         self.unplug_after_frames = unplug_after_frames
         self._delivered = 0
+        self._history: deque[np.ndarray] = deque(maxlen=self.HISTORY_FRAMES)
+        self.truth: dict[float, tuple[np.ndarray, str]] = {}
 
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         if self.unplug_after_frames is not None and self._delivered >= self.unplug_after_frames:
@@ -193,12 +248,16 @@ class SimulatedTracker:
         self._frame_number = max(self._frame_number + 1, int(np.floor(self.clock.now_s / self.period_s)) + 1)
         self.clock.advance_to(self._frame_number * self.period_s)
         truth = self.world.tracker_from_base @ self.robot.true_base_from_tcp() @ self.world.tcp_from_marker
-        tracked = self.world.track_marker(truth[None])
+        earlier = np.array(self._history) if self._history else None
+        tracked = self.world.track_marker(truth[None], earlier)
+        self._history.append(truth)
         self._delivered += 1
         pose = tracked.tracker_from_marker[0]
         seen = bool(np.all(np.isfinite(pose)))
+        time_s = self._frame_number * self.period_s
+        self.truth[time_s] = (truth, str(tracked.outlier_kind[0]))
         return TrackerFrame(
-            time_s=self._frame_number * self.period_s,
+            time_s=time_s,
             frame_number=self._frame_number,
             status=FRAME_OK if seen else FRAME_MISSING,
             tracker_from_marker=pose if seen else None,

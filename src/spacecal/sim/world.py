@@ -153,13 +153,25 @@ class World:
     noise_rng: np.random.Generator
 
     # -- the robot ---------------------------------------------------------------------
-    def true_base_from_tcp(self, joints_rad, jitter: bool = True) -> np.ndarray:
-        """Where the TCP really is (N, 4, 4) for joint angles (N, 6), with repeatability scatter."""
-        poses = forward_kinematics(self.true_model, np.atleast_2d(joints_rad))
+    def repeatability_offsets(self, count: int) -> np.ndarray:
+        """Position scatter (count, 3), mm, of where the arm really comes to rest.
+
+        The one repeatability model of the simulator: isotropic Gaussian with the per-axis
+        s.d. that gives the scenario's ISO 9283 RP. The simulated robot draws one offset per
+        stop (and one per state while moving); draws from ``noise_rng``.
+        """
         sd = self.scenario.repeatability_mm * REPEATABILITY_TO_AXIS_SD
-        if jitter and sd > 0:
+        if sd <= 0:
+            return np.zeros((count, 3))
+        return self.noise_rng.normal(scale=sd, size=(count, 3))
+
+    def true_base_from_tcp(self, joints_rad, jitter: bool = True) -> np.ndarray:
+        """Where the TCP really is (N, 4, 4) for joint angles (N, 6), with repeatability scatter
+        (one :meth:`repeatability_offsets` draw per pose) unless ``jitter`` is False."""
+        poses = forward_kinematics(self.true_model, np.atleast_2d(joints_rad))
+        if jitter and self.scenario.repeatability_mm > 0:
             poses = poses.copy()
-            poses[:, :3, 3] += self.noise_rng.normal(scale=sd, size=(len(poses), 3))
+            poses[:, :3, 3] += self.repeatability_offsets(len(poses))
         return poses
 
     # -- the tracker -------------------------------------------------------------------
@@ -179,8 +191,11 @@ class World:
             spheres = spheres + noise
         return spheres
 
-    def track_marker(self, tracker_from_marker_true) -> TrackedFrames:
+    def track_marker(self, tracker_from_marker_true, earlier_true=None) -> TrackedFrames:
         """What the tracker reports for true marker poses (N, 4, 4), in time order.
+
+        ``earlier_true`` (M, 4, 4), the true poses of the frames just before these (oldest
+        first), lets a streaming tracker report a stale frame from before the batch.
 
         The marker pose is a rigid fit of the marker geometry to the noisy spheres, as the
         tracker computes it. A share ``outlier_fraction`` of frames are gross errors (see
@@ -194,7 +209,9 @@ class World:
         outliers = np.flatnonzero(self.noise_rng.random(n) < self.scenario.outlier_fraction)
         kinds = self.noise_rng.integers(0, 3, len(outliers))
         stale = outliers[kinds == 1]
-        shown[stale] = truth[np.maximum(stale - self.noise_rng.integers(2, 9, len(stale)), 0)]
+        history = truth if earlier_true is None else np.concatenate([np.reshape(earlier_true, (-1, 4, 4)), truth])
+        lead = len(history) - n
+        shown[stale] = history[np.maximum(stale + lead - self.noise_rng.integers(2, 9, len(stale)), 0)]
         reflections = outliers[kinds == 2]
         offsets = _random_directions(self.noise_rng, len(reflections)) * self.noise_rng.uniform(
             5.0, 30.0, (len(reflections), 1)

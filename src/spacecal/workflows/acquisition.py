@@ -13,14 +13,15 @@ import hashlib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NoReturn, Protocol
 from pathlib import Path
 
 import numpy as np
 
-from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, Tracker
+from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, Tracker
 from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
 from spacecal.io.recording_csv import RecordingWriter
-from spacecal.planning.motion import MotionPlan
+from spacecal.planning.motion import MotionPlan, TimedMove
 
 #: A robot state older than this, while moving, counts as stale (UR streams at 125–500 Hz).
 STALE_ROBOT_S = 0.5
@@ -115,6 +116,151 @@ def resume_home_joints(recording_path: str | Path) -> np.ndarray | None:
     return np.asarray(json.loads(path.read_text())["home_joints_rad"], dtype=float)
 
 
+def is_hold(move: TimedMove) -> bool:
+    """True for a move that holds still (a station): same start and end pose, some duration."""
+    return move.duration_s > 0 and bool(np.allclose(move.start, move.end, atol=1e-9))
+
+
+class SampleSink(Protocol):
+    """Where acquired samples go: the recording CSV writer, or memory for experiments."""
+
+    def append(
+        self,
+        time_s: float,
+        segment: str,
+        joints_rad: np.ndarray,
+        base_from_tcp: np.ndarray,
+        tracker_from_marker: np.ndarray | None = None,
+        marker_rms_mm: float = float("nan"),
+        spheres_in_tracker: np.ndarray | None = None,
+    ) -> None:
+        """Keep one paired sample (robot state at the frame, tracker frame)."""
+
+
+class RobotStreamSink(Protocol):
+    """A sink that also keeps the robot's own state stream (every controller tick)."""
+
+    def add_robot_states(self, states: list[RobotState], segment: str) -> None:
+        """Keep controller states received during a recorded move."""
+
+
+class RunFault(DeviceError):
+    """A fault that ends a run; the message says what happened in a robot operator's words."""
+
+
+def run_plan(
+    plan: MotionPlan,
+    robot: Robot,
+    tracker: Tracker,
+    sink: SampleSink,
+    settings: AcquisitionSettings,
+    progress: AcquisitionResult,
+    approach_first_move: bool = False,
+    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_move_done: Callable[[int], None] | None = None,
+) -> None:
+    """The acquisition loop (paper §4): run the moves of ``plan`` from
+    ``progress.moves_completed`` on, sampling the tracker, and hand each sample to ``sink``.
+
+    This one loop drives real devices (:func:`acquire`) and simulated ones (the simulator's
+    recordings are made by it, in simulated time). It stops nothing by itself: a fault
+    raises :class:`RunFault` and the caller stops the robot.
+
+    Parameters
+    ----------
+    plan : MotionPlan
+        Moves with ``sample_period_s > 0`` are recorded (at most one frame per period);
+        others are transit.
+    robot, tracker : Robot, Tracker
+    sink : SampleSink
+        Receives each sample; if it has ``add_robot_states`` and the robot ``drain_states``,
+        it also receives the robot's state stream during recorded moves.
+    settings : AcquisitionSettings
+    progress : AcquisitionResult
+        Updated in place (samples, moves completed).
+    approach_first_move : bool
+        Move to the first move's start pose first (resuming an interrupted run).
+    on_sample : callable, optional
+        Called as ``on_sample(samples, visible, move_index, label)`` after each sample.
+    on_move_done : callable, optional
+        Called with the number of moves completed after each move.
+    """
+    streams = hasattr(sink, "add_robot_states") and hasattr(robot, "drain_states")
+    first_move = progress.moves_completed
+    for index in range(first_move, len(plan.moves)):
+        move = plan.moves[index]
+        if index == first_move and approach_first_move:
+            robot.move_linear(move.start, settings.linear_speed_mm_s, settings.linear_accel_mm_s2)
+        if streams:
+            robot.drain_states()  # states before this move belong to no recorded segment
+        # A hold (start = end) is a station: the arm rests while frames are taken for the
+        # move's duration (stop-and-go sampling); there is nothing to command.
+        hold = is_hold(move)
+        if not hold:
+            robot.move_linear(
+                move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
+            )
+        last_recorded = -np.inf
+        robot_time, robot_time_seen_at, frames_since_robot_update = None, None, 0
+        move_started_at = None
+        while True:
+            try:
+                frame = tracker.next_frame(settings.frame_timeout_s)
+            except DeviceError as exc:
+                raise RunFault(f"tracker lost ({exc})") from exc
+            state = robot.state()
+            if streams and move.sample_period_s > 0:
+                sink.add_robot_states(robot.drain_states(), move.label)  # type: ignore[attr-defined]
+            if state.safety != SAFETY_NORMAL:
+                raise RunFault(f"robot {state.safety.replace('_', ' ')}")
+            # Stale robot data: its timestamp stands still while the tracker's advances. Each
+            # device is compared only with its own clock, so unrelated clocks are fine.
+            # Several frames are required: two reads a few ms apart may share a robot timestamp
+            # even when one tracker frame arrives late.
+            if state.time_s != robot_time:
+                robot_time, robot_time_seen_at, frames_since_robot_update = state.time_s, frame.time_s, 0
+            else:
+                frames_since_robot_update += 1
+                if (
+                    state.moving
+                    and frames_since_robot_update >= STALE_FRAMES
+                    and frame.time_s - robot_time_seen_at > settings.stale_robot_s
+                ):
+                    raise RunFault(
+                        f"robot data stale: no new robot state for {frame.time_s - robot_time_seen_at:.2f} s"
+                    )
+            if move_started_at is None:
+                move_started_at = state.time_s
+            settled = state.time_s - move_started_at >= settings.move_start_guard_s
+            if (
+                settled
+                and move.sample_period_s > 0
+                and frame.time_s - last_recorded >= move.sample_period_s - 1e-6
+            ):
+                seen = frame.status == FRAME_OK
+                sink.append(
+                    frame.time_s,
+                    move.label,
+                    state.joints_rad,
+                    state.base_from_tcp,
+                    frame.tracker_from_marker if seen else None,
+                    frame.rms_mm,
+                    frame.spheres_in_tracker if seen else None,
+                )
+                last_recorded = frame.time_s
+                progress.samples_written += 1
+                progress.visible_written += int(seen)
+                if on_sample:
+                    on_sample(progress.samples_written, progress.visible_written, index, move.label)
+            if hold and state.time_s - move_started_at >= move.duration_s:
+                break
+            if not hold and not state.moving:
+                break
+        progress.moves_completed = index + 1
+        if on_move_done:
+            on_move_done(progress.moves_completed)
+
+
 def acquire(
     plan: MotionPlan,
     robot: Robot,
@@ -168,7 +314,7 @@ def acquire(
     result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves))
     _write_progress(progress_file, plan, first_move, None)
 
-    def fail(reason: str) -> None:
+    def fail(reason: str) -> NoReturn:
         robot.stop()
         result.stopped_because = reason
         _write_progress(progress_file, plan, result.moves_completed, reason)
@@ -179,69 +325,21 @@ def acquire(
         )
 
     try:
-        for index in range(first_move, len(plan.moves)):
-            move = plan.moves[index]
-            if index == first_move and resume:
-                robot.move_linear(move.start, settings.linear_speed_mm_s, settings.linear_accel_mm_s2)
-            robot.move_linear(
-                move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
-            )
-            last_recorded = -np.inf
-            robot_time, robot_time_seen_at, frames_since_robot_update = None, None, 0
-            move_started_at = None
-            while True:
-                try:
-                    frame = tracker.next_frame(settings.frame_timeout_s)
-                except DeviceError as exc:
-                    fail(f"tracker lost ({exc})")
-                state = robot.state()
-                if state.safety != SAFETY_NORMAL:
-                    fail(f"robot {state.safety.replace('_', ' ')}")
-                # Stale robot data: its timestamp stands still while the tracker's advances. Each
-                # device is compared only with its own clock, so unrelated clocks are fine.
-                # Several frames are required: two reads a few ms apart may share a robot timestamp
-                # even when one tracker frame arrives late.
-                if state.time_s != robot_time:
-                    robot_time, robot_time_seen_at, frames_since_robot_update = state.time_s, frame.time_s, 0
-                else:
-                    frames_since_robot_update += 1
-                    if (
-                        state.moving
-                        and frames_since_robot_update >= STALE_FRAMES
-                        and frame.time_s - robot_time_seen_at > settings.stale_robot_s
-                    ):
-                        fail(
-                            f"robot data stale: no new robot state for {frame.time_s - robot_time_seen_at:.2f} s"
-                        )
-                if move_started_at is None:
-                    move_started_at = state.time_s
-                settled = state.time_s - move_started_at >= settings.move_start_guard_s
-                if (
-                    settled
-                    and move.sample_period_s > 0
-                    and frame.time_s - last_recorded >= move.sample_period_s - 1e-6
-                ):
-                    seen = frame.status == FRAME_OK
-                    writer.append(
-                        frame.time_s,
-                        move.label,
-                        state.joints_rad,
-                        state.base_from_tcp,
-                        frame.tracker_from_marker if seen else None,
-                        frame.rms_mm,
-                        frame.spheres_in_tracker if seen else None,
-                    )
-                    last_recorded = frame.time_s
-                    result.samples_written += 1
-                    result.visible_written += int(seen)
-                    if on_sample:
-                        on_sample(result.samples_written, result.visible_written, index, move.label)
-                if not state.moving:
-                    break
-            result.moves_completed = index + 1
-            _write_progress(progress_file, plan, result.moves_completed, None)
+        run_plan(
+            plan,
+            robot,
+            tracker,
+            writer,
+            settings,
+            result,
+            approach_first_move=resume,
+            on_sample=on_sample,
+            on_move_done=lambda done: _write_progress(progress_file, plan, done, None),
+        )
     except KeyboardInterrupt:
         fail("interrupted by the user (Ctrl-C)")
+    except RunFault as exc:
+        fail(str(exc))
     except SpacecalError as exc:
         if isinstance(exc, AcquisitionStopped):
             raise

@@ -1,6 +1,7 @@
-"""Plain data records passed between steps: recordings and calibration results.
+"""Recordings: paired samples, and the two raw streams they are derived from.
 
-They hold numbers and names only; reading and writing them is :mod:`spacecal.io`.
+They hold numbers and names only, checked for consistent shapes on construction; reading
+and writing them is :mod:`spacecal.io` (``recording_csv``, ``raw_streams``).
 """
 
 from __future__ import annotations
@@ -9,12 +10,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spacecal.core.errors import InvalidInputError
+
 #: Segment labels of the paper's sweeps (paper §4). Other labels are allowed in a recording.
 ROTATION_SEGMENTS = ("rot_x", "rot_y", "rot_z")
 TRANSLATION_SEGMENTS = ("lin_x", "lin_y", "lin_z")
 PAPER_SEGMENTS = ROTATION_SEGMENTS + TRANSLATION_SEGMENTS
-
-CALIBRATION_SCHEMA_VERSION = 1
 
 
 @dataclass
@@ -51,6 +52,25 @@ class Recording:
     metadata: dict = field(default_factory=dict)
     spheres_in_tracker: np.ndarray | None = None
 
+    def __post_init__(self) -> None:
+        n = len(np.atleast_1d(self.time_s))
+        self.time_s = _column(self.time_s, (n,), "time_s")
+        self.segment = np.asarray(self.segment).astype(str)
+        _check_shape(self.segment, (n,), "segment")
+        self.joints_rad = _column(self.joints_rad, (n, 6), "joints_rad")
+        self.base_from_tcp_stack = _column(self.base_from_tcp_stack, (n, 4, 4), "base_from_tcp_stack")
+        self.tracker_from_marker_stack = _column(
+            self.tracker_from_marker_stack, (n, 4, 4), "tracker_from_marker_stack"
+        )
+        self.marker_rms_mm = _column(self.marker_rms_mm, (n,), "marker_rms_mm")
+        if self.spheres_in_tracker is not None:
+            self.spheres_in_tracker = np.asarray(self.spheres_in_tracker, dtype=float)
+            if self.spheres_in_tracker.ndim != 3 or self.spheres_in_tracker.shape[::2] != (n, 3):
+                raise InvalidInputError(
+                    f"recording: spheres_in_tracker must have shape ({n}, K, 3), "
+                    f"got {self.spheres_in_tracker.shape}"
+                )
+
     def __len__(self) -> int:
         return len(self.time_s)
 
@@ -72,43 +92,6 @@ class Recording:
             metadata=self.metadata,
             spheres_in_tracker=None if self.spheres_in_tracker is None else self.spheres_in_tracker[mask],
         )
-
-
-@dataclass
-class CalibrationResult:
-    """The outcome of a calibration.
-
-    Attributes
-    ----------
-    method : str
-        Registry name of the estimator.
-    tracker_from_base : numpy.ndarray, shape (4, 4)
-        Maps base coordinates into the tracker frame, mm. What navigation needs.
-    tcp_from_marker : numpy.ndarray, shape (4, 4)
-        Pose of the marker on the tool, mm.
-    sample_counts : dict
-        ``{"total", "used", "rejected", "per_segment": {...}}``.
-    diagnostics : dict
-        Method-specific quality figures (see each estimator).
-    source : dict
-        Where the data came from (recording path, robot model).
-    covariance : dict, optional
-        ``{"parameters": [12 names], "matrix": 12x12}``: covariance of the perturbation
-        parameters of both transforms (see :mod:`spacecal.estimators.ml`), mm and rad.
-    predicted_tre_mm : dict, optional
-        Predicted RMS target registration error at the surgical site, over a cube around
-        it, and at user targets.
-    """
-
-    method: str
-    tracker_from_base: np.ndarray
-    tcp_from_marker: np.ndarray
-    sample_counts: dict
-    diagnostics: dict
-    source: dict = field(default_factory=dict)
-    covariance: dict | None = None
-    predicted_tre_mm: dict | None = None
-    schema_version: int = CALIBRATION_SCHEMA_VERSION
 
 
 @dataclass
@@ -138,3 +121,32 @@ class RawRecording:
     tracker_from_marker_stack: np.ndarray
     marker_rms_mm: np.ndarray
     metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        r = len(np.atleast_1d(self.robot_time_s))
+        t = len(np.atleast_1d(self.tracker_time_s))
+        self.robot_time_s = _column(self.robot_time_s, (r,), "robot_time_s")
+        self.robot_segment = np.asarray(self.robot_segment).astype(str)
+        _check_shape(self.robot_segment, (r,), "robot_segment")
+        self.joints_rad = _column(self.joints_rad, (r, 6), "joints_rad")
+        self.base_from_tcp_stack = _column(self.base_from_tcp_stack, (r, 4, 4), "base_from_tcp_stack")
+        self.tracker_time_s = _column(self.tracker_time_s, (t,), "tracker_time_s")
+        self.tracker_from_marker_stack = _column(
+            self.tracker_from_marker_stack, (t, 4, 4), "tracker_from_marker_stack"
+        )
+        self.marker_rms_mm = _column(self.marker_rms_mm, (t,), "marker_rms_mm")
+
+
+def _check_shape(array: np.ndarray, shape: tuple[int, ...], name: str) -> None:
+    if array.shape != shape:
+        raise InvalidInputError(f"recording: {name} must have shape {shape}, got {array.shape}")
+
+
+def _column(values: object, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """A float array of the given shape (the length of ``time_s`` sets N)."""
+    try:
+        array = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"recording: {name} must be numbers") from None
+    _check_shape(array, shape, name)
+    return array

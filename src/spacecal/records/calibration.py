@@ -1,0 +1,290 @@
+"""The calibration result: the two transforms, how they were obtained, and how good they are.
+
+Schema history of the calibration file (``schema: spacecal.calibration``):
+
+* 1: the identified robot model rode in ``diagnostics["kinematic_model"]`` and the origin
+  of the data in an untyped ``source`` object (``{"recording": path}``).
+* 2: ``robot_model`` and ``provenance`` are typed fields. Version 1 files are still read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from spacecal.core.errors import InvalidInputError
+from spacecal.models.kinematics import RobotModel
+from spacecal.records.fields import (
+    as_array,
+    as_transform,
+    check_schema,
+    get_mapping,
+    get_str,
+    plain,
+)
+
+CALIBRATION_SCHEMA = "spacecal.calibration"
+CALIBRATION_SCHEMA_VERSION = 2
+#: Versions :meth:`CalibrationResult.from_dict` reads.
+CALIBRATION_READABLE_VERSIONS = (1, 2)
+
+
+def robot_model_to_dict(model: RobotModel) -> dict[str, Any]:
+    """A robot model as plain JSON values (DH table in mm and rad, tool, limits, rate)."""
+    return {
+        "name": model.name,
+        **model.dh_table(),
+        "flange_from_tcp": model.flange_from_tcp.tolist(),
+        "joint_lower_rad": model.joint_lower_rad.tolist(),
+        "joint_upper_rad": model.joint_upper_rad.tolist(),
+        "controller_hz": model.controller_hz,
+    }
+
+
+def robot_model_from_dict(data: Mapping[str, Any], what: str, base: RobotModel | None = None) -> RobotModel:
+    """The inverse of :func:`robot_model_to_dict`; fields missing from ``data`` come from ``base``.
+
+    Version-1 calibration files stored only the DH table and the name; their tool offset,
+    limits and rate are taken from ``base`` (the nominal model) when given.
+    """
+    name = get_str(data, "name", what, default=base.name if base else "robot")
+    values: dict[str, Any] = {"name": name}
+    for key in ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad", "joint_lower_rad", "joint_upper_rad"):
+        if key in data:
+            values[key] = as_array(data[key], (6,), f"robot_model.{key}", what)
+        elif base is not None:
+            values[key] = getattr(base, key)
+        elif key in ("a_mm", "d_mm", "alpha_rad"):
+            raise InvalidInputError(f"{what}: robot_model lacks {key!r}")
+    if "flange_from_tcp" in data:
+        values["flange_from_tcp"] = as_transform(data["flange_from_tcp"], "robot_model.flange_from_tcp", what)
+    elif base is not None:
+        values["flange_from_tcp"] = base.flange_from_tcp
+    if "controller_hz" in data:
+        values["controller_hz"] = float(data["controller_hz"])
+    elif base is not None:
+        values["controller_hz"] = base.controller_hz
+    return RobotModel(**values)
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where a result came from, so later steps need not guess.
+
+    Attributes
+    ----------
+    recording : str or None
+        Absolute path of the recording calibrated (or the robot stream of a raw recording).
+    tracker_stream : str or None
+        Absolute path of the raw tracker stream, when the recording was two raw streams.
+    simulated : bool or None
+        True for data from spacecal's simulator, False for real devices, None when unknown
+        (e.g. an imported file).
+    scenario : dict or None
+        The simulation scenario the data came from (simulated data only).
+    devices : dict
+        Device identities (``robot``, ``tracker`` URLs, models, firmware) where known.
+    created_utc : str
+        ISO time the result was made.
+    software : str
+        ``spacecal <version>``.
+    """
+
+    recording: str | None = None
+    tracker_stream: str | None = None
+    simulated: bool | None = None
+    scenario: dict[str, Any] | None = None
+    devices: dict[str, Any] = field(default_factory=dict)
+    created_utc: str = field(
+        default_factory=lambda: datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    )
+    software: str = field(default_factory=lambda: f"spacecal {_version()}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return plain(dataclasses.asdict(self))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], what: str) -> Provenance:
+        recording = data.get("recording")
+        tracker_stream = data.get("tracker_stream")
+        simulated = data.get("simulated")
+        for key, value in (("recording", recording), ("tracker_stream", tracker_stream)):
+            if value is not None and not isinstance(value, str):
+                raise InvalidInputError(f"{what}: provenance {key!r} must be a path string")
+        if simulated is not None and not isinstance(simulated, bool):
+            raise InvalidInputError(f"{what}: provenance 'simulated' must be true, false or null")
+        scenario = data.get("scenario")
+        if scenario is not None and not isinstance(scenario, Mapping):
+            raise InvalidInputError(f"{what}: provenance 'scenario' must be an object")
+        return cls(
+            recording=recording,
+            tracker_stream=tracker_stream,
+            simulated=simulated,
+            scenario=None if scenario is None else dict(scenario),
+            devices=get_mapping(data, "devices", what),
+            created_utc=get_str(data, "created_utc", what, default=""),
+            software=get_str(data, "software", what, default=""),
+        )
+
+
+def _version() -> str:
+    from spacecal import __version__
+
+    return __version__
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """The outcome of a calibration.
+
+    Attributes
+    ----------
+    method : str
+        Registry name of the estimator.
+    tracker_from_base : numpy.ndarray, shape (4, 4)
+        Maps base coordinates into the tracker frame, mm. What navigation needs.
+    tcp_from_marker : numpy.ndarray, shape (4, 4)
+        Pose of the marker on the tool, mm.
+    sample_counts : dict
+        ``{"total", "used", "rejected", "per_segment": {...}}`` (see
+        :func:`spacecal.estimators.diagnostics.sample_counts`).
+    diagnostics : dict
+        Method-specific quality figures (see each estimator).
+    provenance : Provenance
+        Where the data came from.
+    covariance : dict, optional
+        ``{"parameters": [12 names], "matrix": 12x12}``: covariance of the perturbation
+        parameters of both transforms (see :mod:`spacecal.estimators.ml`), mm and rad.
+    predicted_tre_mm : dict, optional
+        Predicted RMS target registration error at the surgical site, over a cube around
+        it, and at user targets.
+    robot_model : RobotModel, optional
+        The robot's kinematic model identified with the calibration (``kinematic``); IK
+        for this calibration must use it.
+    """
+
+    method: str
+    tracker_from_base: np.ndarray
+    tcp_from_marker: np.ndarray
+    sample_counts: dict[str, Any]
+    diagnostics: dict[str, Any]
+    provenance: Provenance = field(default_factory=Provenance)
+    covariance: dict[str, Any] | None = None
+    predicted_tre_mm: dict[str, Any] | None = None
+    robot_model: RobotModel | None = None
+    schema_version: int = CALIBRATION_SCHEMA_VERSION
+
+    def __post_init__(self) -> None:
+        what = f"calibration ({self.method})"
+        object.__setattr__(self, "tracker_from_base", as_transform(self.tracker_from_base, "tracker_from_base", what))
+        object.__setattr__(self, "tcp_from_marker", as_transform(self.tcp_from_marker, "tcp_from_marker", what))
+        if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, dict):
+            raise InvalidInputError(f"{what}: sample_counts and diagnostics must be objects")
+
+    def robot_model_for_ik(self, nominal: RobotModel) -> RobotModel:
+        """The model to solve IK with: ``nominal`` with the identified DH parameters, if any.
+
+        The tool offset, joint limits and controller rate stay those of ``nominal`` (the
+        robot as configured now); only the kinematic parameters come from the calibration.
+        """
+        if self.robot_model is None:
+            return nominal
+        identified = self.robot_model
+        return dataclasses.replace(
+            nominal,
+            a_mm=identified.a_mm,
+            d_mm=identified.d_mm,
+            alpha_rad=identified.alpha_rad,
+            theta_offset_rad=identified.theta_offset_rad,
+        )
+
+    def replace(self, **changes: Any) -> CalibrationResult:
+        """A copy with some fields changed (the record itself is immutable)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The calibration file's content (schema 2)."""
+        return plain(
+            {
+                "schema": CALIBRATION_SCHEMA,
+                "schema_version": CALIBRATION_SCHEMA_VERSION,
+                "spacecal_version": _version(),
+                "created_utc": self.provenance.created_utc,
+                "units": {"length": "mm", "angle": "rad"},
+                "method": self.method,
+                "tracker_from_base": self.tracker_from_base,
+                "tcp_from_marker": self.tcp_from_marker,
+                "sample_counts": self.sample_counts,
+                "diagnostics": self.diagnostics,
+                "provenance": self.provenance.to_dict(),
+                "covariance": self.covariance,
+                "predicted_tre_mm": self.predicted_tre_mm,
+                "robot_model": None if self.robot_model is None else robot_model_to_dict(self.robot_model),
+            }
+        )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], what: str = "calibration") -> CalibrationResult:
+        """Read a calibration file's content, version 1 or 2."""
+        version = check_schema(data, CALIBRATION_SCHEMA, CALIBRATION_READABLE_VERSIONS, what)
+        if "schema_version" not in data:
+            raise InvalidInputError(f"{what}: missing 'schema_version' (not a spacecal calibration file?)")
+        diagnostics = get_mapping(data, "diagnostics", what)
+        covariance = data.get("covariance")
+        if covariance is not None and not isinstance(covariance, Mapping):
+            raise InvalidInputError(f"{what}: 'covariance' must be an object")
+        predicted = data.get("predicted_tre_mm")
+        if predicted is not None:
+            predicted = get_mapping(data, "predicted_tre_mm", what)
+            for key in ("site", "cube_rms"):
+                if key in predicted and (
+                    isinstance(predicted[key], bool) or not isinstance(predicted[key], (int, float))
+                ):
+                    raise InvalidInputError(f"{what}: predicted_tre_mm.{key} must be a number")
+        for key in ("tracker_from_base", "tcp_from_marker"):
+            if key not in data:
+                raise InvalidInputError(f"{what}: missing {key!r}")
+        if version == 1:
+            # v1: the robot model in diagnostics, the recording path in "source"
+            model_data = diagnostics.get("kinematic_model")
+            provenance = Provenance(
+                recording=_optional_path(get_mapping(data, "source", what).get("recording"), what),
+                created_utc=str(data.get("created_utc", "")),
+                software=f"spacecal {data.get('spacecal_version', '')}".strip(),
+            )
+        else:
+            model_data = data.get("robot_model")
+            provenance = Provenance.from_dict(get_mapping(data, "provenance", what), what)
+        robot_model = None
+        if model_data is not None:
+            if not isinstance(model_data, Mapping):
+                raise InvalidInputError(f"{what}: robot_model must be an object")
+            from spacecal.models.kinematics import UR_TABLES, ur_model
+
+            name = model_data.get("name")
+            base = ur_model(name) if isinstance(name, str) and name in UR_TABLES else None
+            robot_model = robot_model_from_dict(model_data, what, base)
+        return cls(
+            method=get_str(data, "method", what, default="unknown"),
+            tracker_from_base=as_transform(data["tracker_from_base"], "tracker_from_base", what),
+            tcp_from_marker=as_transform(data["tcp_from_marker"], "tcp_from_marker", what),
+            sample_counts=get_mapping(data, "sample_counts", what),
+            diagnostics=diagnostics,
+            provenance=provenance,
+            covariance=None if covariance is None else dict(covariance),
+            predicted_tre_mm=predicted,
+            robot_model=robot_model,
+        )
+
+
+def _optional_path(value: Any, what: str) -> str | None:
+    if value is None:
+        return None
+    if not isinstance(value, str):
+        raise InvalidInputError(f"{what}: source 'recording' must be a path string")
+    return value

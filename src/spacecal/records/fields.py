@@ -1,0 +1,115 @@
+"""Reading typed fields out of plain dicts (parsed JSON), with one-line errors.
+
+Every record's ``from_dict`` goes through these, so a file that parses but holds the wrong
+type (a string where a 4x4 list belongs, a list where an object belongs) is refused with a
+message naming the record, the field, what it got and what it expects.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from spacecal.core.errors import InvalidInputError
+from spacecal.geometry.transforms import is_rigid_transform
+
+
+def _describe(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def get_mapping(data: Mapping[str, Any], key: str, what: str, default: Any = None) -> dict[str, Any]:
+    """``data[key]`` as a dict (``default`` or ``{}`` when absent or null)."""
+    value = data.get(key)
+    if value is None:
+        return {} if default is None else default
+    if not isinstance(value, Mapping):
+        raise InvalidInputError(f"{what}: {key!r} must be an object, got {_describe(value)}")
+    return dict(value)
+
+
+def get_number(data: Mapping[str, Any], key: str, what: str, default: float | None = None) -> float:
+    """``data[key]`` as a finite float."""
+    if key not in data or data[key] is None:
+        if default is None:
+            raise InvalidInputError(f"{what}: missing number {key!r}")
+        return default
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InvalidInputError(f"{what}: {key!r} must be a finite number, got {_describe(value)}")
+    return float(value)
+
+
+def get_str(data: Mapping[str, Any], key: str, what: str, default: str | None = None) -> str:
+    """``data[key]`` as a string."""
+    value = data.get(key, default)
+    if not isinstance(value, str):
+        raise InvalidInputError(f"{what}: {key!r} must be a string, got {_describe(value)}")
+    return value
+
+
+def as_array(value: Any, shape: tuple[int | None, ...], name: str, what: str) -> np.ndarray:
+    """``value`` as a finite float array of ``shape`` (None = any length)."""
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{what}: {name!r} must be numbers of shape {_shape_text(shape)}") from None
+    if array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape)):
+        raise InvalidInputError(
+            f"{what}: {name!r} must have shape {_shape_text(shape)}, got {tuple(array.shape)}"
+        )
+    if not np.all(np.isfinite(array)):
+        raise InvalidInputError(f"{what}: {name!r} holds NaN or infinite values")
+    return array
+
+
+def as_transform(value: Any, name: str, what: str) -> np.ndarray:
+    """``value`` as a 4x4 rigid transform (rotation orthonormal, det +1, last row 0 0 0 1)."""
+    matrix = as_array(value, (4, 4), name, what)
+    if not is_rigid_transform(matrix, atol=1e-6):
+        raise InvalidInputError(f"{what}: {name!r} is not a rigid transform (4x4 with a rotation and 0 0 0 1)")
+    return matrix
+
+
+def as_transform_stack(value: Any, name: str, what: str) -> np.ndarray:
+    """``value`` as (N, 4, 4) rigid transforms."""
+    stack = as_array(value, (None, 4, 4), name, what)
+    for index, matrix in enumerate(stack):
+        if not is_rigid_transform(matrix, atol=1e-6):
+            raise InvalidInputError(f"{what}: {name}[{index}] is not a rigid transform")
+    return stack
+
+
+def _shape_text(shape: tuple[int | None, ...]) -> str:
+    return "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+
+
+def check_schema(data: Mapping[str, Any], schema: str, versions: tuple[int, ...], what: str) -> int:
+    """The file's schema version, after checking its ``schema`` name (when present) and version."""
+    name = data.get("schema", schema)
+    if name != schema:
+        raise InvalidInputError(f"{what}: this is a {name!r} file, not {schema!r}")
+    version = data.get("schema_version", versions[0])
+    if isinstance(version, bool) or version not in versions:
+        raise InvalidInputError(
+            f"{what}: schema_version {_describe(version)} is not supported "
+            f"(this spacecal reads {', '.join(map(str, versions))})"
+        )
+    return int(version)
+
+
+def plain(value: Any) -> Any:
+    """Numpy values inside nested containers -> JSON-ready Python values."""
+    if isinstance(value, Mapping):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
