@@ -6,8 +6,8 @@ import dataclasses
 
 import pytest
 
-from spacecal.io.recording_csv import write_recording
 from spacecal.experiments.simulation import simulate
+from spacecal.io.recording_csv import write_recording
 from spacecal.sim.scenario import PRESETS
 
 #: No noise, no kinematic error, no dropouts: estimators must be exact (to ~1e-9).

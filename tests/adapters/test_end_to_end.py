@@ -68,8 +68,8 @@ def paper_estimator_spread():
     from spacecal.estimators import calibrate
     from spacecal.experiments.monte_carlo import cramer_rao_tre_mm
     from spacecal.experiments.simulation import simulate
-    from spacecal.sim.scenario import PRESETS
     from spacecal.experiments.truth import calibration_error
+    from spacecal.sim.scenario import PRESETS
 
     scenario = dataclasses.replace(PRESETS["paper-white"], rotation_deg=45.0, translation_mm=300.0)
     simulation = simulate(scenario)

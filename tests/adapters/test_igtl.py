@@ -9,8 +9,8 @@ import pytest
 pytest.importorskip("pyigtl")
 
 from spacecal.adapters.igtl import IGTLTracker, publish_transform
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 from spacecal.core.errors import DeviceError
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 
 
 def test_marker_to_tracker_stream_with_status(world):

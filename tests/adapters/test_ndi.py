@@ -6,8 +6,8 @@ import pytest
 pytest.importorskip("ndicapy")
 
 from spacecal.adapters.ndi import NDITracker
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 
 from ..fakes.ndi import crc16
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from spacecal.estimators import calibrate
-from spacecal.report.html import Report, write_report
 from spacecal.experiments.verification import verify_in_simulation
+from spacecal.report.html import Report, write_report
 from spacecal.workflows.check import CheckResult
 
 CHROMIUM_FLAGS = [
@@ -69,10 +69,8 @@ def plots_drawn(dom: str, count: int) -> list[bool]:
 def full_report(tmp_path_factory, white_simulation):
     folder = tmp_path_factory.mktemp("report")
     calibration = calibrate(white_simulation.recording, "paper")
-    verification = verify_in_simulation(calibration, white_simulation.world.scenario).to_dict()
-    history = [
-        CheckResult(np.array([0.3, 0.4]), np.array([0.1, 0.1]), 1.0, 1.0, ["pose 1", "pose 2"]).to_dict()
-    ]
+    verification = verify_in_simulation(calibration, white_simulation.world.scenario)
+    history = [CheckResult(np.array([0.3, 0.4]), np.array([0.1, 0.1]), 1.0, 1.0, ["pose 1", "pose 2"])]
     report = Report(calibration, white_simulation.recording, verification, history)
     path, titles = write_report(report, folder / "report.html", png_dir=folder / "png")
     return path, titles, folder

@@ -5,14 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from spacecal.core.ports import Robot, Tracker
 from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.core.ports import Robot, Tracker
 from spacecal.estimators import calibrate
+from spacecal.experiments.truth import calibration_error
 from spacecal.io.recording_csv import read_recording
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import PRESETS
-from spacecal.experiments.truth import calibration_error
 from spacecal.sim.world import build_world
 from spacecal.workflows.acquisition import AcquisitionStopped, acquire, progress_path
 

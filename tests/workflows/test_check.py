@@ -9,6 +9,7 @@ from spacecal.cli import main
 from spacecal.estimators import calibrate
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.results_json import write_calibration
+from spacecal.records import Provenance
 from spacecal.workflows.check import history_path, read_history
 
 
@@ -18,7 +19,8 @@ def calibration_file(tmp_path, white_simulation):
 
     recording = write_recording(white_simulation.recording, tmp_path / "rec.csv")
     result = calibrate(white_simulation.recording, "ml")
-    result.source = {"recording": str(recording)}
+    result = result.replace(provenance=Provenance(recording=str(recording), simulated=True,
+                                                  scenario=white_simulation.world.scenario.to_dict()))
     return write_calibration(result, tmp_path / "cal.json")
 
 
@@ -37,8 +39,9 @@ def tamper(path, key, change):
 def test_good_calibration_passes_and_is_logged(calibration_file, capsys):
     assert main(["check", str(calibration_file)]) == 0
     assert "PASS" in capsys.readouterr().out
-    history = read_history(calibration_file)
-    assert len(history) == 1 and history[0]["passed"] and len(history[0]["poses"]) == 3
+    history, _ = read_history(calibration_file)
+    assert len(history) == 1 and history[0].passed and len(history[0].labels) == 3
+    assert history[0].simulated is True
     assert history_path(calibration_file).name == "cal.checks.jsonl"
 
 
@@ -65,8 +68,8 @@ def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulati
     # Real trackers number frames from power-up; one missed frame must not end the check.
     from dataclasses import replace as replace_frame
 
-    from spacecal.core.ports import FRAME_MISSING
     from spacecal.core.errors import DegenerateDataError
+    from spacecal.core.ports import FRAME_MISSING
     from spacecal.planning.check_poses import check_joints
     from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
     from spacecal.workflows.check import check_with_robot
@@ -86,11 +89,17 @@ def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulati
     calibration = calibrate(white_simulation.recording, "ml", uncertainty=False)
     robot = SimulatedRobot(world, SimClock())
     result = check_with_robot(
-        calibration, robot, LongRunning(world, robot, hidden_frames=1), check_joints(world.nominal_model, world.home_joints_rad, 2)
+        calibration,
+        robot,
+        LongRunning(world, robot, hidden_frames=1),
+        check_joints(world.nominal_model, world.home_joints_rad, 2),
     )
     assert result.passed
     robot = SimulatedRobot(world, SimClock())
     with pytest.raises(DegenerateDataError, match="not visible"):
         check_with_robot(
-            calibration, robot, LongRunning(world, robot, hidden_frames=10**6), check_joints(world.nominal_model, world.home_joints_rad, 2)
+            calibration,
+            robot,
+            LongRunning(world, robot, hidden_frames=10**6),
+            check_joints(world.nominal_model, world.home_joints_rad, 2),
         )

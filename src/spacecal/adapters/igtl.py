@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK, TrackerFrame
-from spacecal.core.errors import DeviceError, InvalidInputError
-from spacecal.geometry.transforms import is_rigid_transform
 from spacecal.adapters import require
+from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, TrackerFrame
+from spacecal.geometry.transforms import is_rigid_transform
 
 #: Time the connection stays open after publishing, so the server reads the message.
 PUBLISH_LINGER_S = 0.3

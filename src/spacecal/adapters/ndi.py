@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK, TrackerFrame
-from spacecal.core.errors import DeviceError, InvalidInputError
-from spacecal.geometry.transforms import transform_from_position_quaternion
 from spacecal.adapters import require
+from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, TrackerFrame
+from spacecal.geometry.transforms import transform_from_position_quaternion
 
 VEGA_DEFAULT_PORT = 8765
 

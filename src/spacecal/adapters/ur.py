@@ -18,12 +18,12 @@ import time
 
 import numpy as np
 
-from spacecal.core.ports import SAFETY_EMERGENCY_STOP, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, RobotState
+from spacecal.adapters import require
 from spacecal.core.errors import DeviceError
+from spacecal.core.ports import SAFETY_EMERGENCY_STOP, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, RobotState
+from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
-from spacecal.core.units import metres_to_mm, mm_to_metres
-from spacecal.adapters import require
 
 RECEIVE_VARIABLES = ["timestamp", "actual_q", "actual_qd", "actual_TCP_pose", "safety_status_bits"]
 PROTECTIVE_STOP_BITS = 1 << 2

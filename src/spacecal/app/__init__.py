@@ -1,1 +1,92 @@
-"""app"""
+"""The app layer: one typed function per command, taking a settings dataclass and returning
+typed records. The command line (:mod:`spacecal.cli`) only parses, calls one of these and
+prints; a notebook does exactly what the command line does by calling them.
+
+>>> from spacecal import app
+>>> out = app.simulate(app.SimulateSettings(output="rec.csv", scenario="paper-white"))  # doctest: +SKIP
+>>> cal = app.calibrate(app.CalibrateSettings(recording="rec.csv", output="cal.json", method="ml"))  # doctest: +SKIP
+"""
+
+from spacecal.app.acquisition import (
+    AcquireOutput,
+    AcquireSettings,
+    CheckOutput,
+    CheckSettings,
+    PlanSettings,
+    acquire,
+    check,
+    plan,
+)
+from spacecal.app.calibration import (
+    BoundSettings,
+    CalibrateOutput,
+    CalibrateSettings,
+    PivotSettings,
+    bound,
+    calibrate,
+    pivot,
+)
+from spacecal.app.files import (
+    ExportSettings,
+    ImportPlusSettings,
+    RegisterLandmarksSettings,
+    ReportOutput,
+    ReportSettings,
+    export,
+    import_plus,
+    register_landmarks,
+    report,
+)
+from spacecal.app.simulation import (
+    DemoOutput,
+    DemoSettings,
+    PhantomCommandSettings,
+    SimulateOutput,
+    SimulateSettings,
+    VerifyOutput,
+    VerifySettings,
+    demo,
+    phantom,
+    scenario,
+    simulate,
+    verify,
+)
+
+__all__ = [
+    "AcquireOutput",
+    "AcquireSettings",
+    "BoundSettings",
+    "CalibrateOutput",
+    "CalibrateSettings",
+    "CheckOutput",
+    "CheckSettings",
+    "DemoOutput",
+    "DemoSettings",
+    "ExportSettings",
+    "ImportPlusSettings",
+    "PhantomCommandSettings",
+    "PivotSettings",
+    "PlanSettings",
+    "RegisterLandmarksSettings",
+    "ReportOutput",
+    "ReportSettings",
+    "SimulateOutput",
+    "SimulateSettings",
+    "VerifyOutput",
+    "VerifySettings",
+    "acquire",
+    "bound",
+    "calibrate",
+    "check",
+    "demo",
+    "export",
+    "import_plus",
+    "phantom",
+    "pivot",
+    "plan",
+    "register_landmarks",
+    "report",
+    "scenario",
+    "simulate",
+    "verify",
+]

@@ -23,7 +23,13 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.geometry.rotations import quaternion_product_matrices, skew
-from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_quaternion_wxyz, matrix_to_rotvec, quaternion_wxyz_to_matrix
+from spacecal.geometry.transforms import (
+    invert_transform,
+    make_transform,
+    matrix_to_quaternion_wxyz,
+    matrix_to_rotvec,
+    quaternion_wxyz_to_matrix,
+)
 
 #: Motions that rotate less than this carry no information on the rotation axis.
 MIN_MOTION_ANGLE_RAD = np.radians(2.0)

@@ -29,12 +29,19 @@ import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.models.kinematics import RobotModel, dh_point_jacobian, forward_kinematics, points_in_tracker, ur_model, with_dh_corrections
-from spacecal.records import CalibrationResult, Recording
 from spacecal.estimators.likelihood import calibrate_ml, report_uncertainty, variance_factor_of
 from spacecal.estimators.ml import apply_step
 from spacecal.estimators.ml import jacobian as pose_jacobian
 from spacecal.estimators.observations import build_observations
+from spacecal.models.kinematics import (
+    RobotModel,
+    dh_point_jacobian,
+    forward_kinematics,
+    points_in_tracker,
+    ur_model,
+    with_dh_corrections,
+)
+from spacecal.records import CalibrationResult, Recording
 
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
 DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]

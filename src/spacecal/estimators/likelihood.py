@@ -6,13 +6,28 @@ import numpy as np
 from scipy.stats import chi2
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.diagnostics import (
+    motion_spread,
+    residual_table,
+    sample_residuals,
+    site_in_base,
+    verdict,
+)
+from spacecal.estimators.ml import (
+    PARAMETER_NAMES,
+    Fit,
+    cauchy_weights,
+    covariance_from_information,
+    frame_errors,
+    information_matrix,
+    levenberg_marquardt,
+    predicted_tre_mm,
+)
+from spacecal.estimators.observations import Observations, build_observations
+from spacecal.estimators.robot_world import solve_shah
 from spacecal.geometry.metrics import cube_grid
 from spacecal.geometry.transforms import invert_transform
 from spacecal.records import CalibrationResult, Recording
-from spacecal.estimators.diagnostics import motion_spread, residual_table, sample_residuals, site_in_base, verdict
-from spacecal.estimators.ml import PARAMETER_NAMES, Fit, cauchy_weights, covariance_from_information, frame_errors, information_matrix, levenberg_marquardt, predicted_tre_mm
-from spacecal.estimators.observations import Observations, build_observations
-from spacecal.estimators.robot_world import solve_shah
 
 #: Frames beyond this quantile of the inlier error distribution are outliers.
 OUTLIER_QUANTILE = 0.999

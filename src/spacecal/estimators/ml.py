@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.observations import Observations
 from spacecal.geometry.rotations import skew
 from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
-from spacecal.estimators.observations import Observations
 
 PARAMETER_NAMES = [
     "tracker_from_base.v_x_mm",

@@ -6,12 +6,12 @@ import time
 from dataclasses import dataclass
 
 from spacecal.estimators import calibrate
-from spacecal.records import CalibrationResult
-from spacecal.workflows.verification import PAPER_VERIFICATION, VerificationResult
 from spacecal.experiments.simulation import Simulation, simulate
-from spacecal.sim.scenario import Scenario
 from spacecal.experiments.truth import calibration_error
 from spacecal.experiments.verification import verify_in_simulation
+from spacecal.records import CalibrationResult, VerificationResult
+from spacecal.records.paper_reference import PAPER_VERIFICATION
+from spacecal.sim.scenario import Scenario
 
 
 @dataclass
@@ -59,7 +59,7 @@ class DemoResult:
             (
                 f"verification position error, {len(self.verification.position_error_mm)} points (min / mean / max)",
                 f"{pos['min']:.2f} / {pos['mean']:.2f} / {pos['max']:.2f} mm",
-                f"{p['position_min_mm']} / <{p['position_mean_mm']} / - mm",
+                f"{p['position_min_mm']} / <{p['position_mean_bound_mm']} / - mm",
             ),
             (
                 "verification posture error (min / mean / max)",

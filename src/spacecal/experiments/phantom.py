@@ -19,12 +19,13 @@ import numpy as np
 from spacecal.core.errors import UnreachableError
 from spacecal.estimators import calibrate
 from spacecal.estimators.registration import register_points
-from spacecal.geometry.metrics import summary_statistics
+from spacecal.experiments.simulation import simulate
 from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.planning.needle import plan_needle
 from spacecal.planning.visibility import VisibilityModel
-from spacecal.experiments.simulation import simulate
+from spacecal.records import PhantomResult
+from spacecal.records.paper_reference import PAPER_PHANTOM
 from spacecal.sim.scenario import Scenario
 from spacecal.sim.world import World
 
@@ -32,7 +33,6 @@ from spacecal.sim.world import World
 MAX_PATH_ATTEMPTS = 50
 
 #: The paper's phantom results (§5.3): minimum errors over its five cases.
-PAPER_PHANTOM = {"entry_min_mm": 0.87, "target_min_mm": 0.83, "direction_min_deg": 0.89}
 
 
 @dataclass(frozen=True)
@@ -69,72 +69,34 @@ def _surface_point(radii, direction):
     return direction * scale
 
 
-@dataclass
-class PhantomResult:
-    """Per-case errors of the phantom experiment."""
-
-    entry_error_mm: np.ndarray
-    target_error_mm: np.ndarray
-    direction_error_deg: np.ndarray
-    predicted: list
-    registration_fre_rms_mm: float
-    method: str
-    paths_refused: int = 0
-
-    def statistics(self) -> dict:
-        return {
-            "entry_mm": summary_statistics(self.entry_error_mm),
-            "target_mm": summary_statistics(self.target_error_mm),
-            "direction_deg": summary_statistics(self.direction_error_deg),
-        }
-
-    def table(self) -> str:
-        lines = [
-            f"phantom needle biopsy in simulation (calibration: {self.method}; registration FRE "
-            f"{self.registration_fre_rms_mm:.2f} mm RMS; {self.paths_refused} planned paths refused as "
-            "unreachable or hiding the marker, and replaced)",
-            "case  entry (mm)  target (mm)  direction (deg)  predicted entry / target / direction",
-            "----  ----------  -----------  ---------------  ------------------------------------",
-        ]
-        for k, (e, t, d, p) in enumerate(
-            zip(self.entry_error_mm, self.target_error_mm, self.direction_error_deg, self.predicted)
-        ):
-            lines.append(
-                f"{k + 1:>4}  {e:10.2f}  {t:11.2f}  {d:15.2f}  "
-                f"{p['entry_mm']:.2f} / {p['target_mm']:.2f} / {p['direction_deg']:.2f}"
-            )
-        s = self.statistics()
-        for name in ("min", "mean", "max"):
-            lines.append(
-                f"{name:>4}  {s['entry_mm'][name]:10.2f}  {s['target_mm'][name]:11.2f}  "
-                f"{s['direction_deg'][name]:15.2f}"
-            )
+def phantom_table(result: PhantomResult) -> str:
+    """Table 2 of the paper, for the simulated experiment: per-case errors, min/mean/max,
+    the predictions, and the paper's minima."""
+    lines = [
+        f"phantom needle biopsy in simulation (calibration: {result.method}; registration FRE "
+        f"{result.registration_fre_rms_mm:.2f} mm RMS; {result.paths_refused} planned paths refused as "
+        "unreachable or hiding the marker, and replaced)",
+        "case  entry (mm)  target (mm)  direction (deg)  predicted entry / target / direction",
+        "----  ----------  -----------  ---------------  ------------------------------------",
+    ]
+    for k, (e, t, d, p) in enumerate(
+        zip(result.entry_error_mm, result.target_error_mm, result.direction_error_deg, result.predicted)
+    ):
         lines.append(
-            f"paper minimum: entry {PAPER_PHANTOM['entry_min_mm']} mm, target "
-            f"{PAPER_PHANTOM['target_min_mm']} mm, direction {PAPER_PHANTOM['direction_min_deg']} deg"
+            f"{k + 1:>4}  {e:10.2f}  {t:11.2f}  {d:15.2f}  "
+            f"{p['entry_mm']:.2f} / {p['target_mm']:.2f} / {p['direction_deg']:.2f}"
         )
-        return "\n".join(lines)
-
-    def to_dict(self) -> dict:
-        return {
-            "schema": "spacecal.phantom",
-            "schema_version": 1,
-            "method": self.method,
-            "statistics": self.statistics(),
-            "paper": PAPER_PHANTOM,
-            "registration_fre_rms_mm": self.registration_fre_rms_mm,
-            "cases": [
-                {
-                    "entry_error_mm": float(e),
-                    "target_error_mm": float(t),
-                    "direction_error_deg": float(d),
-                    "predicted": p,
-                }
-                for e, t, d, p in zip(
-                    self.entry_error_mm, self.target_error_mm, self.direction_error_deg, self.predicted
-                )
-            ],
-        }
+    s = result.statistics()
+    for name in ("min", "mean", "max"):
+        lines.append(
+            f"{name:>4}  {s['entry_mm'][name]:10.2f}  {s['target_mm'][name]:11.2f}  "
+            f"{s['direction_deg'][name]:15.2f}"
+        )
+    lines.append(
+        f"paper minimum: entry {PAPER_PHANTOM['entry_min_mm']} mm, target "
+        f"{PAPER_PHANTOM['target_min_mm']} mm, direction {PAPER_PHANTOM['direction_min_deg']} deg"
+    )
+    return "\n".join(lines)
 
 
 def _noise(rng, rms_3d, shape):

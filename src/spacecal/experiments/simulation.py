@@ -39,7 +39,15 @@ class MemorySink:
         spheres_in_tracker=None,
     ) -> None:
         self.rows.append(
-            (time_s, segment, joints_rad, base_from_tcp, tracker_from_marker, marker_rms_mm, spheres_in_tracker)
+            (
+                time_s,
+                segment,
+                joints_rad,
+                base_from_tcp,
+                tracker_from_marker,
+                marker_rms_mm,
+                spheres_in_tracker,
+            )
         )
 
     def add_robot_states(self, states: list[RobotState], segment: str) -> None:

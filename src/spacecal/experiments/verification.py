@@ -7,10 +7,10 @@ import numpy as np
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.records import CalibrationResult
-from spacecal.workflows.verification import VerificationResult, run_verification
 from spacecal.sim.devices import SimulatedLaserTracker, SimulatedRobot
 from spacecal.sim.scenario import Scenario
 from spacecal.sim.world import World, build_world
+from spacecal.workflows.verification import VerificationResult, run_verification
 
 
 def verification_targets(world: World, count: int, rng: np.random.Generator) -> np.ndarray:

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.geometry.transforms import orthonormalize_transforms
-from spacecal.records import Recording
 from spacecal.core.units import check_lengths_in_mm
+from spacecal.geometry.transforms import orthonormalize_transforms
 from spacecal.io.plus_sequence import read_plus_sequence
+from spacecal.records import Recording
 
 
 def recording_from_plus_sequence(

@@ -22,11 +22,18 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
-from spacecal.records import RawRecording
 from spacecal.core.units import check_lengths_in_mm
-from spacecal.io.recording_csv import JOINT_COLUMNS, MARKER_COLUMNS, TCP_COLUMNS, _check_quaternions, _format, _number
+from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
+from spacecal.io.recording_csv import (
+    JOINT_COLUMNS,
+    MARKER_COLUMNS,
+    TCP_COLUMNS,
+    _check_quaternions,
+    _format,
+    _number,
+)
 from spacecal.io.results_json import read_json_object
+from spacecal.records import RawRecording
 
 ROBOT_COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS
 TRACKER_COLUMNS = ["time_s"] + MARKER_COLUMNS

@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
-from spacecal.records import Recording
 from spacecal.core.units import check_lengths_in_mm
+from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.results_json import read_json_object
+from spacecal.records import Recording
 
 JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
 TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]

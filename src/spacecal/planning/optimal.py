@@ -23,7 +23,13 @@ import numpy as np
 from spacecal.core.errors import DegenerateDataError, UnreachableError
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
-from spacecal.models.kinematics import RobotModel, dh_point_jacobian, forward_kinematics, inverse_kinematics, points_in_tracker
+from spacecal.models.kinematics import (
+    RobotModel,
+    dh_point_jacobian,
+    forward_kinematics,
+    inverse_kinematics,
+    points_in_tracker,
+)
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
 from spacecal.planning.stations import random_station
 from spacecal.planning.visibility import VisibilityModel

@@ -32,3 +32,21 @@ __all__ = [
     "robot_model_from_dict",
     "robot_model_to_dict",
 ]
+
+from spacecal.records.acquisition import AcquisitionProgress
+from spacecal.records.plan import PlanRecord
+from spacecal.records.results import (
+    CheckResult,
+    LandmarkRegistrationResult,
+    PhantomResult,
+    VerificationResult,
+)
+
+__all__ += [
+    "AcquisitionProgress",
+    "CheckResult",
+    "LandmarkRegistrationResult",
+    "PhantomResult",
+    "PlanRecord",
+    "VerificationResult",
+]

@@ -181,8 +181,12 @@ class CalibrationResult:
 
     def __post_init__(self) -> None:
         what = f"calibration ({self.method})"
-        object.__setattr__(self, "tracker_from_base", as_transform(self.tracker_from_base, "tracker_from_base", what))
-        object.__setattr__(self, "tcp_from_marker", as_transform(self.tcp_from_marker, "tcp_from_marker", what))
+        object.__setattr__(
+            self, "tracker_from_base", as_transform(self.tracker_from_base, "tracker_from_base", what)
+        )
+        object.__setattr__(
+            self, "tcp_from_marker", as_transform(self.tcp_from_marker, "tcp_from_marker", what)
+        )
         if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, dict):
             raise InvalidInputError(f"{what}: sample_counts and diagnostics must be objects")
 

@@ -69,9 +69,17 @@ def as_array(value: Any, shape: tuple[int | None, ...], name: str, what: str) ->
 
 def as_transform(value: Any, name: str, what: str) -> np.ndarray:
     """``value`` as a 4x4 rigid transform (rotation orthonormal, det +1, last row 0 0 0 1)."""
-    matrix = as_array(value, (4, 4), name, what)
+    try:
+        matrix = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{what}: {name!r} is not a 4x4 rigid transform (not numbers)") from None
+    if matrix.shape != (4, 4):
+        raise InvalidInputError(f"{what}: {name!r} is not a 4x4 rigid transform: shape {matrix.shape}")
+    matrix = as_array(matrix, (4, 4), name, what)
     if not is_rigid_transform(matrix, atol=1e-6):
-        raise InvalidInputError(f"{what}: {name!r} is not a rigid transform (4x4 with a rotation and 0 0 0 1)")
+        raise InvalidInputError(
+            f"{what}: {name!r} is not a rigid transform (4x4 with a rotation and 0 0 0 1)"
+        )
     return matrix
 
 

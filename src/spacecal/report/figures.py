@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from spacecal.records.paper_reference import PAPER_VERIFICATION
+
 
 def _pyplot():
     import matplotlib
@@ -28,8 +30,8 @@ def plot_verification_errors(
     position_error_mm,
     posture_error_deg,
     path: str | Path,
-    paper_mean_mm: float = 1.05,
-    paper_mean_deg: float = 1.1,
+    paper_mean_mm: float = PAPER_VERIFICATION["position_mean_bound_mm"],
+    paper_mean_deg: float = PAPER_VERIFICATION["posture_mean_deg"],
 ) -> Path:
     """The error curves of the paper's Fig. 7: (A) position deviation, (B) posture deviation.
 

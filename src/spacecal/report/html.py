@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.estimators.diagnostics import sample_residuals
-from spacecal.records import CalibrationResult, Recording
+from spacecal.records import CalibrationResult, CheckResult, Recording, VerificationResult
+from spacecal.records.paper_reference import PAPER_VERIFICATION
 
 ERROR_BANNER = """
 <div id="script-errors" style="display:none;background:#fdd;border:1px solid #c00;padding:8px"></div>
@@ -37,8 +38,8 @@ class Report:
 
     calibration: CalibrationResult
     recording: Recording | None = None
-    verification: dict | None = None
-    check_history: list | None = None
+    verification: VerificationResult | None = None
+    check_history: list[CheckResult] | None = None
 
 
 def _sweep_figure(report: Report):
@@ -121,35 +122,31 @@ def _residual_figure(report: Report):
     return figure
 
 
-def _verification_figure(verification: dict):
+def _verification_figure(verification: VerificationResult):
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 
-    points = verification["points"]
-    index = list(range(1, len(points) + 1))
+    index = list(range(1, len(verification.position_error_mm) + 1))
     figure = make_subplots(
         rows=1, cols=2, subplot_titles=("(A) deviation of position (mm)", "(B) deviation of posture (deg)")
     )
     figure.add_trace(
-        go.Scatter(
-            x=index, y=[p["position_error_mm"] for p in points], mode="lines+markers", name="position"
-        ),
+        go.Scatter(x=index, y=verification.position_error_mm, mode="markers", name="position"),
         row=1,
         col=1,
     )
     figure.add_trace(
-        go.Scatter(x=index, y=[p["posture_error_deg"] for p in points], mode="lines+markers", name="posture"),
+        go.Scatter(x=index, y=verification.posture_error_deg, mode="markers", name="posture"),
         row=1,
         col=2,
     )
-    paper = verification.get("paper", {})
-    if paper:
-        figure.add_hline(
-            y=paper["position_mean_mm"], line_dash="dash", row=1, col=1, annotation_text="paper mean"
-        )
-        figure.add_hline(
-            y=paper["posture_mean_deg"], line_dash="dash", row=1, col=2, annotation_text="paper mean"
-        )
+    paper = PAPER_VERIFICATION
+    figure.add_hline(
+        y=paper["position_mean_bound_mm"], line_dash="dash", row=1, col=1, annotation_text="paper: mean below"
+    )
+    figure.add_hline(
+        y=paper["posture_mean_deg"], line_dash="dash", row=1, col=2, annotation_text="paper: about"
+    )
     figure.update_layout(title="Verification experiment (paper Fig. 7)")
     return figure
 
@@ -171,15 +168,15 @@ def _uncertainty_figure(calibration: CalibrationResult):
     return figure
 
 
-def _check_figure(history: list):
+def _check_figure(history: list[CheckResult]):
     import plotly.graph_objects as go
 
-    labels = [entry["checked_utc"] for entry in history]
-    worst = [max(p["tcp_error_mm"] for p in entry["poses"]) for entry in history]
-    colours = ["green" if entry["passed"] else "red" for entry in history]
+    labels = [entry.checked_utc for entry in history]
+    worst = [float(np.max(entry.tcp_error_mm)) for entry in history]
+    colours = ["green" if entry.passed else "red" for entry in history]
     figure = go.Figure(go.Bar(x=labels, y=worst, marker_color=colours))
     if history:
-        figure.add_hline(y=history[-1]["threshold_mm"], line_dash="dash", annotation_text="threshold")
+        figure.add_hline(y=history[-1].threshold_mm, line_dash="dash", annotation_text="threshold")
     figure.update_layout(title="Calibration checks: worst TCP error per check (mm)")
     return figure
 
@@ -236,10 +233,9 @@ def write_report(
     if png_dir is not None and report.verification is not None:
         from spacecal.report.figures import plot_verification_errors
 
-        points = report.verification["points"]
         plot_verification_errors(
-            [p["position_error_mm"] for p in points],
-            [p["posture_error_deg"] for p in points],
+            report.verification.position_error_mm,
+            report.verification.posture_error_deg,
             Path(png_dir) / "verification_errors.png",
         )
     if png_dir is not None and report.recording is not None:

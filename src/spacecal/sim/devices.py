@@ -12,8 +12,15 @@ from collections import deque
 
 import numpy as np
 
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, RobotState, TrackerFrame
 from spacecal.core.errors import DeviceError
+from spacecal.core.ports import (
+    FRAME_MISSING,
+    FRAME_OK,
+    SAFETY_NORMAL,
+    SAFETY_PROTECTIVE_STOP,
+    RobotState,
+    TrackerFrame,
+)
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.planning.motion import MotionLimits, time_move, track_path, trapezoid_duration
 from spacecal.sim.world import World
@@ -172,7 +179,9 @@ class SimulatedRobot:
         self._require_normal()
         self.commands.append("movel")
         start_pose = forward_kinematics(self.world.nominal_model, self._joints)
-        limits = dataclasses.replace(self.limits, linear_speed_mm_s=speed_mm_s, linear_accel_mm_s2=accel_mm_s2)
+        limits = dataclasses.replace(
+            self.limits, linear_speed_mm_s=speed_mm_s, linear_accel_mm_s2=accel_mm_s2
+        )
         move, _ = time_move(
             self.world.nominal_model, "move", start_pose, np.asarray(base_from_tcp), self._joints, limits, 0.0
         )

@@ -70,8 +70,6 @@ def recording_metadata(world: World) -> dict:
     }
 
 
-
-
 def motion_limits(scenario: Scenario) -> MotionLimits:
     """The TCP limits the simulated robot moves with in a scenario."""
     return sweep_settings(scenario).limits

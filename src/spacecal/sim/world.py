@@ -209,7 +209,9 @@ class World:
         outliers = np.flatnonzero(self.noise_rng.random(n) < self.scenario.outlier_fraction)
         kinds = self.noise_rng.integers(0, 3, len(outliers))
         stale = outliers[kinds == 1]
-        history = truth if earlier_true is None else np.concatenate([np.reshape(earlier_true, (-1, 4, 4)), truth])
+        history = (
+            truth if earlier_true is None else np.concatenate([np.reshape(earlier_true, (-1, 4, 4)), truth])
+        )
         lead = len(history) - n
         shown[stale] = history[np.maximum(stale + lead - self.noise_rng.integers(2, 9, len(stale)), 0)]
         reflections = outliers[kinds == 2]

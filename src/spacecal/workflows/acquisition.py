@@ -10,18 +10,19 @@ run can then be resumed where it stopped.
 from __future__ import annotations
 
 import hashlib
-import json
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import NoReturn, Protocol
 from pathlib import Path
+from typing import NoReturn, Protocol
 
 import numpy as np
 
-from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, Tracker
 from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
+from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, Tracker
 from spacecal.io.recording_csv import RecordingWriter
+from spacecal.io.results_json import read_json_object, write_json
 from spacecal.planning.motion import MotionPlan, TimedMove
+from spacecal.records import AcquisitionProgress
 
 #: A robot state older than this, while moving, counts as stale (UR streams at 125–500 Hz).
 STALE_ROBOT_S = 0.5
@@ -94,26 +95,24 @@ def progress_path(recording_path: str | Path) -> Path:
 
 
 def _write_progress(path: Path, plan: MotionPlan, completed: int, stopped_because: str | None) -> None:
-    path.write_text(
-        json.dumps(
-            {
-                "plan": plan_fingerprint(plan),
-                "moves_completed": completed,
-                "moves_total": len(plan.moves),
-                "stopped_because": stopped_because,
-                "home_joints_rad": np.asarray(plan.home_joints_rad).tolist(),
-            },
-            indent=2,
-        )
+    progress = AcquisitionProgress(
+        plan_fingerprint(plan), completed, len(plan.moves), stopped_because, np.asarray(plan.home_joints_rad)
     )
+    write_json(progress.to_dict(), path)
+
+
+def read_progress(recording_path: str | Path) -> AcquisitionProgress | None:
+    """The progress of a stopped acquisition, or None when there is none."""
+    path = progress_path(recording_path)
+    if not path.is_file():
+        return None
+    return AcquisitionProgress.from_dict(read_json_object(path, "acquisition progress"), what=str(path))
 
 
 def resume_home_joints(recording_path: str | Path) -> np.ndarray | None:
     """The home configuration a stopped acquisition was planned from (to re-plan it on resume)."""
-    path = progress_path(recording_path)
-    if not path.is_file():
-        return None
-    return np.asarray(json.loads(path.read_text())["home_joints_rad"], dtype=float)
+    progress = read_progress(recording_path)
+    return None if progress is None else progress.home_joints_rad
 
 
 def is_hold(move: TimedMove) -> bool:
@@ -303,10 +302,10 @@ def acquire(
     if resume:
         if not progress_file.is_file() or not recording_path.is_file():
             raise InvalidInputError(f"nothing to resume: {progress_file} or {recording_path} is missing")
-        progress = json.loads(progress_file.read_text())
-        if progress.get("plan") != plan_fingerprint(plan):
+        progress = read_progress(recording_path)
+        if progress is None or progress.plan_fingerprint != plan_fingerprint(plan):
             raise InvalidInputError(f"{recording_path} was recorded with a different plan; cannot resume it")
-        first_move = int(progress["moves_completed"])
+        first_move = progress.moves_completed
     elif recording_path.exists():
         raise InvalidInputError(f"{recording_path} exists; choose another file or pass --resume")
 

@@ -10,56 +10,17 @@ shows up at once. Each check is appended to a history file next to the calibrati
 
 from __future__ import annotations
 
-import datetime
 import json
-from dataclasses import dataclass, field
+import os
 from pathlib import Path
 
 import numpy as np
 
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.core.ports import FRAME_OK, Robot, Tracker
-from spacecal.core.errors import DegenerateDataError
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
-from spacecal.records import CalibrationResult, Recording
-
-
-@dataclass
-class CheckResult:
-    """Outcome of a calibration check.
-
-    Attributes
-    ----------
-    tcp_error_mm, rotation_error_deg : numpy.ndarray, shape (P,)
-        Per checked pose.
-    threshold_mm, threshold_deg : float
-    labels : list of str
-    """
-
-    tcp_error_mm: np.ndarray
-    rotation_error_deg: np.ndarray
-    threshold_mm: float
-    threshold_deg: float
-    labels: list = field(default_factory=list)
-
-    @property
-    def passed(self) -> bool:
-        return bool(
-            np.all(self.tcp_error_mm <= self.threshold_mm)
-            and np.all(self.rotation_error_deg <= self.threshold_deg)
-        )
-
-    def to_dict(self) -> dict:
-        return {
-            "checked_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-            "passed": self.passed,
-            "threshold_mm": self.threshold_mm,
-            "threshold_deg": self.threshold_deg,
-            "poses": [
-                {"label": label, "tcp_error_mm": float(e), "rotation_error_deg": float(a)}
-                for label, e, a in zip(self.labels, self.tcp_error_mm, self.rotation_error_deg)
-            ],
-        }
+from spacecal.records import CalibrationResult, CheckResult, Recording
 
 
 def pose_errors(calibration: CalibrationResult, base_from_tcp, tracker_from_marker) -> tuple[float, float]:
@@ -140,13 +101,28 @@ def history_path(calibration_path: str | Path) -> Path:
 def append_history(calibration_path: str | Path, result: CheckResult) -> Path:
     """Append a check to the calibration's history (one JSON object per line)."""
     path = history_path(calibration_path)
-    with open(path, "a") as handle:
-        handle.write(json.dumps(result.to_dict()) + "\n")
+    with open(path, "a", encoding="utf-8") as handle:
+        handle.write(json.dumps(result.to_dict(), allow_nan=False) + "\n")
+        handle.flush()
+        os.fsync(handle.fileno())
     return path
 
 
-def read_history(calibration_path: str | Path) -> list[dict]:
+def read_history(calibration_path: str | Path) -> tuple[list[CheckResult], int]:
+    """The checks logged for a calibration, oldest first, and the number of lines that could
+    not be read (a corrupt line is skipped, never fatal: the history is advisory)."""
     path = history_path(calibration_path)
     if not path.is_file():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+        return [], 0
+    checks, unreadable = [], 0
+    for line in path.read_bytes().decode("utf-8", errors="replace").splitlines():
+        if not line.strip():
+            continue
+        try:
+            data = json.loads(line)
+            if not isinstance(data, dict):
+                raise InvalidInputError("not an object")
+            checks.append(CheckResult.from_dict(data, what=str(path)))
+        except (ValueError, RecursionError):
+            unreadable += 1
+    return checks, unreadable

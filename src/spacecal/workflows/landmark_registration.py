@@ -8,47 +8,13 @@ landmark positions are registered to them (``reference_from_phantom``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings, detect_landmarks
-from spacecal.estimators.registration import PointRegistration, register_points
+from spacecal.estimators.registration import register_points
 from spacecal.geometry.transforms import invert_transform, orthonormalize_transforms
-
-
-@dataclass
-class LandmarkRegistrationResult:
-    """A landmark registration and what it was computed from.
-
-    Attributes
-    ----------
-    registration : PointRegistration
-        ``a_from_b`` is ``reference_from_phantom``.
-    detected_in_reference : numpy.ndarray, shape (M, 3), mm
-    detected_at_s : list of float
-        Time of each detection.
-    """
-
-    registration: PointRegistration
-    detected_in_reference: np.ndarray
-    detected_at_s: list
-
-    def to_dict(self) -> dict:
-        reg = self.registration
-        return {
-            "schema": "spacecal.landmark_registration",
-            "schema_version": 1,
-            "units": {"length": "mm"},
-            "reference_from_phantom": reg.a_from_b.tolist(),
-            "landmarks_detected_in_reference_mm": self.detected_in_reference.tolist(),
-            "detected_at_s": self.detected_at_s,
-            "residuals_mm": reg.residuals_mm.tolist(),
-            "fre_rms_mm": reg.fre_rms_mm,
-            "fre_mean_mm": reg.fre_mean_mm,
-            "fle_rms_mm": reg.fle_rms_mm,
-        }
+from spacecal.records import LandmarkRegistrationResult
 
 
 def register_landmarks_from_stylus(
@@ -99,6 +65,13 @@ def register_landmarks_from_stylus(
             f"found {len(detected)} landmark touches of the {len(phantom)} defined: hold the tip still in each "
             "divot and pivot the stylus for at least a second"
         )
+    registration = register_points(detected, phantom)
     return LandmarkRegistrationResult(
-        register_points(detected, phantom), detected, [float(times[keep][i]) for i in ends]
+        reference_from_phantom=registration.a_from_b,
+        detected_in_reference=detected,
+        detected_at_s=[float(times[keep][i]) for i in ends],
+        residuals_mm=registration.residuals_mm,
+        fre_rms_mm=registration.fre_rms_mm,
+        fre_mean_mm=registration.fre_mean_mm,
+        fle_rms_mm=registration.fle_rms_mm,
     )

@@ -10,73 +10,13 @@ independent instrument (the paper's laser tracker). Per point:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from spacecal.core.ports import PoseReference, Robot
-from spacecal.geometry.metrics import position_error, posture_error_rad, summary_statistics
+from spacecal.geometry.metrics import position_error, posture_error_rad
 from spacecal.geometry.transforms import invert_transform
 from spacecal.models.kinematics import RobotModel, inverse_kinematics
-from spacecal.records import CalibrationResult
-
-#: The paper's reported verification figures (§5.2), for side-by-side tables.
-PAPER_VERIFICATION = {
-    "position_min_mm": 0.87,
-    "position_mean_mm": 1.05,
-    "posture_min_deg": 0.83,
-    "posture_mean_deg": 1.1,
-}
-
-
-@dataclass
-class VerificationResult:
-    """Outcome of a verification experiment.
-
-    Attributes
-    ----------
-    desired_tracker_from_needle, reached_tracker_from_needle : numpy.ndarray, shape (N, 4, 4)
-        Target and measured needle poses in the tracker frame, mm.
-    joints_rad : numpy.ndarray, shape (N, 6)
-        The configurations commanded.
-    position_error_mm, posture_error_deg : numpy.ndarray, shape (N,)
-    """
-
-    desired_tracker_from_needle: np.ndarray
-    reached_tracker_from_needle: np.ndarray
-    joints_rad: np.ndarray
-    position_error_mm: np.ndarray
-    posture_error_deg: np.ndarray
-
-    def statistics(self) -> dict:
-        """min / mean / max / RMS of both errors."""
-        return {
-            "position_mm": summary_statistics(self.position_error_mm),
-            "posture_deg": summary_statistics(self.posture_error_deg),
-        }
-
-    def to_dict(self) -> dict:
-        return {
-            "schema": "spacecal.verification",
-            "schema_version": 1,
-            "units": {"length": "mm", "angle": "deg"},
-            "statistics": self.statistics(),
-            "paper": PAPER_VERIFICATION,
-            "points": [
-                {
-                    "desired_tracker_from_needle": d.tolist(),
-                    "reached_tracker_from_needle": r.tolist(),
-                    "position_error_mm": float(p),
-                    "posture_error_deg": float(a),
-                }
-                for d, r, p, a in zip(
-                    self.desired_tracker_from_needle,
-                    self.reached_tracker_from_needle,
-                    self.position_error_mm,
-                    self.posture_error_deg,
-                )
-            ],
-        }
+from spacecal.records import CalibrationResult, VerificationResult
 
 
 def run_verification(

@@ -1,0 +1,465 @@
+"""App functions that move a robot: ``acquire``, ``check``, and ``plan`` (which plans motions).
+
+This is where devices are chosen: ``sim`` gives the simulated robot and tracker of a scenario
+(running in simulated time), URLs give hardware adapters (``ur://HOST``, ``ndi://PORT_OR_HOST``,
+``igtl://HOST:PORT``). Every device opened is closed on every way out.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spacecal.app._common import refuse_overwriting_inputs
+from spacecal.app.simulation import DEFAULT_SCENARIO
+from spacecal.core.errors import InvalidInputError
+from spacecal.core.ports import Robot, Tracker
+from spacecal.geometry.transforms import make_transform
+from spacecal.io.recording_csv import read_recording
+from spacecal.io.results_json import read_calibration, write_json
+from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.marker import ndi_8700339_like
+from spacecal.models.tracker import TrackerModel
+from spacecal.planning.check_poses import check_joints
+from spacecal.planning.motion import MotionLimits, MotionPlan
+from spacecal.planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
+from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
+from spacecal.planning.visibility import VisibilityModel
+from spacecal.records import CheckResult, PlanRecord
+from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
+from spacecal.sim.motion import plan_for_world, recording_metadata
+from spacecal.sim.scenario import load_scenario
+from spacecal.sim.world import World, build_world
+from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, resume_home_joints
+from spacecal.workflows.acquisition import acquire as run_acquisition
+from spacecal.workflows.check import append_history, check_with_recording, check_with_robot
+
+#: Largest distance (mm) between where our model puts the TCP and where the controller reports it.
+TCP_MISMATCH_MM = 1.0
+
+
+@dataclass(frozen=True)
+class AcquireSettings:
+    """``spacecal acquire``: run the calibration motion while sampling the tracker.
+
+    Attributes
+    ----------
+    output : str
+        Recording CSV to write (each sample flushed to disk).
+    robot, tracker : str
+        ``sim`` (the simulated system of ``scenario``) or device URLs.
+    scenario : str
+        Scenario of the simulated devices.
+    dry_run : bool
+        Check the plan (reach, joint limits, visibility, workspace box) without moving.
+    resume : bool
+        Continue a stopped acquisition of the same plan.
+    confirm_robot_motion : bool
+        Required to move a real robot.
+    speed_mm_s, accel_mm_s2, angular_speed_deg_s : float
+        TCP limits of every move.
+    workspace_box : tuple of 6 floats or None
+        ``xmin, xmax, ymin, ymax, zmin, zmax`` in base (mm) the TCP must stay in.
+    rom : tuple of str
+        NDI tool definitions: the marker first.
+    tracker_rate_hz : float
+        NDI frame rate (Vicra 20, Vega 60).
+    robot_model : str
+        UR model for planning checks.
+    tool_offset_mm : (x, y, z)
+        TCP in the flange frame, as set on the robot.
+    prior : str or None
+        An earlier calibration, to check marker visibility along the plan.
+    rotation_deg, translation_mm : float
+        Rotation sweep each way; translation sweep stroke.
+    """
+
+    output: str
+    robot: str = "sim"
+    tracker: str = "sim"
+    scenario: str = DEFAULT_SCENARIO
+    dry_run: bool = False
+    resume: bool = False
+    confirm_robot_motion: bool = False
+    speed_mm_s: float = AcquisitionSettings.linear_speed_mm_s
+    accel_mm_s2: float = AcquisitionSettings.linear_accel_mm_s2
+    angular_speed_deg_s: float = float(np.degrees(MotionLimits.angular_speed_rad_s))
+    workspace_box: tuple[float, float, float, float, float, float] | None = None
+    rom: tuple[str, ...] = ()
+    tracker_rate_hz: float = 20.0
+    robot_model: str = "UR10"
+    tool_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    prior: str | None = None
+    rotation_deg: float = PaperSweepSettings.rotation_deg
+    translation_mm: float = PaperSweepSettings.translation_mm
+
+    def __post_init__(self) -> None:
+        for name in (
+            "speed_mm_s",
+            "accel_mm_s2",
+            "angular_speed_deg_s",
+            "tracker_rate_hz",
+            "rotation_deg",
+            "translation_mm",
+        ):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and 0 < value < 1e5):
+                raise InvalidInputError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
+        if self.workspace_box is not None:
+            box = np.asarray(self.workspace_box, dtype=float)
+            if box.shape != (6,) or not np.all(np.isfinite(box)) or np.any(box[0::2] >= box[1::2]):
+                raise InvalidInputError(
+                    "--workspace-box takes xmin,xmax,ymin,ymax,zmin,zmax in mm, each min < max"
+                )
+        if not np.all(np.isfinite(self.tool_offset_mm)):
+            raise InvalidInputError("--tool-offset-mm takes finite x,y,z in mm")
+
+
+@dataclass
+class AcquireOutput:
+    """The plan that was checked or run and, unless a dry run, the acquisition's result."""
+
+    moves: int
+    motion_time_s: float
+    messages: list[str] = field(default_factory=list)
+    dry_run: bool = False
+    result: AcquisitionResult | None = None
+    simulated: bool = True
+
+
+def workspace_problems(plan: MotionPlan, box: Sequence[float] | None) -> list[str]:
+    """Sampled plan poses outside a base-frame box ``xmin, xmax, ymin, ymax, zmin, zmax`` (mm)."""
+    if box is None:
+        return []
+    limits = np.asarray(box, dtype=float).reshape(3, 2)
+    problems = []
+    for move in plan.moves:
+        positions = move.poses_at(np.linspace(0.0, move.duration_s, 21))[:, :3, 3]
+        outside = (positions < limits[:, 0]) | (positions > limits[:, 1])
+        if outside.any():
+            excess = np.max(np.maximum(limits[:, 0] - positions, positions - limits[:, 1]))
+            problems.append(f"{move.label} move leaves the workspace box (up to {excess:.0f} mm)")
+    return problems
+
+
+def simulated_devices(scenario_name: str) -> tuple[World, SimulatedRobot, SimulatedTracker]:
+    """The simulated robot and tracker of a scenario (simulated time), and their world."""
+    world = build_world(load_scenario(scenario_name))
+    robot = SimulatedRobot(world, SimClock())
+    return world, robot, SimulatedTracker(world, robot)
+
+
+def open_hardware(settings: AcquireSettings) -> tuple[Robot, Tracker]:
+    """Open the robot and tracker named by the settings' URLs (this is where hardware is chosen)."""
+    from spacecal.adapters import parse_device_url
+
+    if settings.robot == "sim" or settings.tracker == "sim":
+        raise InvalidInputError("use --robot sim with --tracker sim, or real devices for both")
+    _, host, _ = parse_device_url(settings.robot, ("ur",))
+    scheme, address, port = parse_device_url(settings.tracker, ("ndi", "igtl"))
+    tracker: Tracker
+    if scheme == "ndi":
+        from spacecal.adapters.ndi import VEGA_DEFAULT_PORT, NDITracker
+
+        if not settings.rom:
+            raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
+        serial = address.startswith("/")
+        tracker = NDITracker(
+            address,
+            None if serial else (port or VEGA_DEFAULT_PORT),
+            list(settings.rom),
+            rate_hz=settings.tracker_rate_hz,
+        )
+    else:
+        from spacecal.adapters.igtl import IGTLTracker
+
+        tracker = IGTLTracker(address, port or 18944)
+    try:
+        from spacecal.adapters.ur import URRobot
+
+        robot = URRobot(host, control=not settings.dry_run)
+    except BaseException:
+        _close(tracker)
+        raise
+    return robot, tracker
+
+
+def _close(device: object) -> None:
+    close = getattr(device, "close", None)
+    if close is not None:
+        with contextlib.suppress(OSError):
+            close()  # closing must not mask the error that stopped the run
+
+
+@contextlib.contextmanager
+def opened_devices(settings: AcquireSettings) -> Iterator[tuple[Robot, Tracker, World | None]]:
+    """The devices of the settings, closed again on every way out."""
+    world: World | None
+    if settings.robot == "sim" and settings.tracker == "sim":
+        world, robot, tracker = simulated_devices(settings.scenario)
+    else:
+        robot, tracker = open_hardware(settings)
+        world = None
+    try:
+        yield robot, tracker, world
+    finally:
+        for device in (robot, tracker):
+            _close(device)
+
+
+def hardware_model(settings: AcquireSettings) -> RobotModel:
+    """The UR model and tool offset the settings describe."""
+    return ur_model(
+        settings.robot_model, make_transform(np.eye(3), np.asarray(settings.tool_offset_mm, float))
+    )
+
+
+def hardware_plan(settings: AcquireSettings, robot: Robot) -> MotionPlan:
+    """The paper's sweeps from the robot's current configuration (its home)."""
+    model = hardware_model(settings)
+    state = robot.state()
+    home_joints = resume_home_joints(settings.output) if settings.resume else None
+    predicted = forward_kinematics(model, state.joints_rad)
+    mismatch = float(np.linalg.norm(predicted[:3, 3] - state.base_from_tcp[:3, 3]))
+    if mismatch > TCP_MISMATCH_MM:
+        raise InvalidInputError(
+            f"--robot-model/--tool-offset-mm put the TCP {mismatch:.1f} mm from where the controller reports "
+            "it; they must match the TCP configured on the robot"
+        )
+    visibility = None
+    if settings.prior:
+        prior = read_calibration(settings.prior)
+        visibility = VisibilityModel(
+            TrackerModel(), ndi_8700339_like(), prior.tracker_from_base, prior.tcp_from_marker
+        )
+    sweep = PaperSweepSettings(
+        rotation_deg=settings.rotation_deg,
+        translation_mm=settings.translation_mm,
+        limits=MotionLimits(
+            linear_speed_mm_s=settings.speed_mm_s,
+            linear_accel_mm_s2=settings.accel_mm_s2,
+            angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
+        ),
+    )
+    # On resume the plan is rebuilt from the home it was made from, not from where the robot stopped.
+    start = state.joints_rad if home_joints is None else home_joints
+    plan = plan_paper_sweeps(model, start, sweep, visibility)
+    if visibility is None:
+        plan.messages.append("no --prior calibration: marker visibility was not checked")
+    return plan
+
+
+def hardware_metadata(settings: AcquireSettings) -> dict[str, Any]:
+    """Metadata of a recording made on real devices."""
+    model = hardware_model(settings)
+    return {
+        "robot": {
+            "model": model.name,
+            "url": settings.robot,
+            "flange_from_tcp": model.flange_from_tcp.tolist(),
+        },
+        "tracker": {"url": settings.tracker, "rate_hz": settings.tracker_rate_hz},
+        "marker": ndi_8700339_like().to_dict(),
+        "units": {"length": "mm", "angle": "rad", "time": "s"},
+        "source": "spacecal acquire",
+        "simulated": False,
+    }
+
+
+def acquire(
+    settings: AcquireSettings, on_sample: Callable[[int, int, int, str], None] | None = None
+) -> AcquireOutput:
+    """Plan, check and (unless a dry run) run the calibration motion, writing the recording.
+
+    Parameters
+    ----------
+    settings : AcquireSettings
+    on_sample : callable, optional
+        Progress callback ``on_sample(samples, visible, move_index, label)``.
+    """
+    refuse_overwriting_inputs(settings.output, settings.prior, *settings.rom)
+    with opened_devices(settings) as (robot, tracker, world):
+        plan = plan_for_world(world) if world is not None else hardware_plan(settings, robot)
+        problems = workspace_problems(plan, settings.workspace_box)
+        output = AcquireOutput(
+            len(plan.moves), plan.motion_time_s, list(plan.messages) + problems, simulated=world is not None
+        )
+        if problems:
+            raise InvalidInputError("the plan leaves the workspace box; nothing was moved")
+        if settings.dry_run:
+            output.dry_run = True
+            return output
+        if world is None and not settings.confirm_robot_motion:
+            raise InvalidInputError(
+                "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
+            )
+        metadata = recording_metadata(world) if world is not None else hardware_metadata(settings)
+        run_settings = AcquisitionSettings(
+            linear_speed_mm_s=settings.speed_mm_s, linear_accel_mm_s2=settings.accel_mm_s2
+        )
+        output.result = run_acquisition(
+            plan,
+            robot,
+            tracker,
+            settings.output,
+            metadata,
+            run_settings,
+            resume=settings.resume,
+            on_sample=on_sample,
+        )
+        return output
+
+
+@dataclass(frozen=True)
+class CheckSettings:
+    """``spacecal check``: does a calibration still hold before surgery?
+
+    Attributes
+    ----------
+    calibration : str
+        Calibration JSON.
+    recording : str or None
+        Static poses to check against instead of moving the robot.
+    robot : str
+        ``sim``: move the simulated robot of ``scenario``.
+    scenario : str or None
+        Default: the scenario the calibration's data came from.
+    poses : int
+        Two or three poses.
+    threshold_mm, threshold_deg : float
+        Largest TCP and rotation errors that pass.
+    """
+
+    calibration: str
+    recording: str | None = None
+    robot: str = "sim"
+    scenario: str | None = None
+    poses: int = 3
+    threshold_mm: float = 1.0
+    threshold_deg: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.poses not in (2, 3):
+            raise InvalidInputError(f"--poses takes 2 or 3, got {self.poses}")
+        for name in ("threshold_mm", "threshold_deg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0 < value < 1e3):
+                raise InvalidInputError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
+
+
+@dataclass(frozen=True)
+class CheckOutput:
+    result: CheckResult
+    history: Path
+
+
+def check(settings: CheckSettings) -> CheckOutput:
+    """Check a calibration at two or three poses (simulated robot) or against a recording;
+    the result is appended to the calibration's check history."""
+    from spacecal.app.simulation import scenario_of_calibration
+
+    calibration = read_calibration(settings.calibration)
+    if settings.recording:
+        result = check_with_recording(
+            calibration, read_recording(settings.recording), settings.threshold_mm, settings.threshold_deg
+        )
+        result = _with(result, simulated=None, devices={"recording": str(Path(settings.recording).resolve())})
+    elif settings.robot == "sim":
+        if settings.scenario is not None:
+            scenario = load_scenario(settings.scenario)
+        else:
+            scenario, _ = scenario_of_calibration(calibration)
+            if scenario is None:
+                raise InvalidInputError(
+                    "no scenario given and none found with the calibration; pass --scenario"
+                )
+        world = build_world(scenario)
+        robot = SimulatedRobot(world, SimClock())
+        result = check_with_robot(
+            calibration,
+            robot,
+            SimulatedTracker(world, robot),
+            check_joints(world.nominal_model, world.home_joints_rad, settings.poses),
+            settings.threshold_mm,
+            settings.threshold_deg,
+        )
+        result = _with(
+            result, simulated=True, devices={"robot": "sim", "tracker": "sim", "scenario": scenario.name}
+        )
+    else:
+        raise InvalidInputError(
+            "check on real hardware: record two or three static poses with 'spacecal acquire' and pass "
+            "them with --recording"
+        )
+    return CheckOutput(result, append_history(settings.calibration, result))
+
+
+def _with(result: CheckResult, **changes: Any) -> CheckResult:
+    import dataclasses
+
+    return dataclasses.replace(result, **changes)
+
+
+@dataclass(frozen=True)
+class PlanSettings:
+    """``spacecal plan``: a calibration motion for the smallest predicted error at the site.
+
+    Attributes
+    ----------
+    budget_s : float
+        Motion time allowed, s.
+    scenario : str
+        The (simulated) set-up to plan for.
+    frames_per_station : int
+        Tracker frames held at each station.
+    output : str or None
+        Plan JSON to write.
+    """
+
+    budget_s: float = PlannerSettings.budget_s
+    scenario: str = DEFAULT_SCENARIO
+    frames_per_station: int = PlannerSettings.frames_per_station
+    output: str | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.budget_s) and 0 < self.budget_s <= 3600):
+            raise InvalidInputError(f"--budget must be between 0 and 3600 s, got {self.budget_s}")
+        if not 1 <= self.frames_per_station <= 1000:
+            raise InvalidInputError(f"--frames-per-station must be 1..1000, got {self.frames_per_station}")
+
+
+def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
+    """Plan the motion and compare it with the paper's sweeps; returns the plan and the file."""
+    world = build_world(load_scenario(settings.scenario))
+    visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
+    planner = PlannerSettings(
+        budget_s=settings.budget_s,
+        frames_per_station=settings.frames_per_station,
+        sphere_sigma_mm=world.scenario.white_noise_rms_mm / np.sqrt(3) or 0.1,
+    )
+    planned = plan_for_site(
+        world.nominal_model,
+        world.home_joints_rad,
+        visibility,
+        np.random.default_rng([world.scenario.seed, 7]),
+        planner,
+    )
+    paper = plan_for_world(world)
+    paper_error = paper_sweep_site_error(world.nominal_model, paper, visibility, planner)
+    record = PlanRecord(
+        budget_s=planner.budget_s,
+        motion_time_s=planned.motion_time_s,
+        predicted_error_mm=planned.predicted_error_mm,
+        paper_sweep={"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
+        home_joints_rad=world.home_joints_rad,
+        station_joints_rad=planned.station_joints_rad,
+        moves=planned.plan.summary()["moves"],
+    )
+    path = write_json(record.to_dict(), settings.output) if settings.output else None
+    return record, path

@@ -1,0 +1,188 @@
+"""App functions that estimate: ``calibrate``, ``bound``, ``pivot``."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from spacecal.app._common import provenance_of, refuse_overwriting_inputs
+from spacecal.core.errors import InvalidInputError
+from spacecal.estimators import calibrate as estimate
+from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.estimators.pivot import PivotResult, pivot_calibration
+from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
+from spacecal.io.pose_files import read_matrix_folder
+from spacecal.io.raw_streams import read_raw_recording
+from spacecal.io.recording_csv import metadata_path, read_recording
+from spacecal.io.results_json import read_calibration, write_calibration, write_json
+from spacecal.records import CalibrationResult
+
+Point = tuple[float, float, float]
+
+
+def check_points(points: Sequence[Sequence[float]], option: str) -> np.ndarray | None:
+    """Targets (M, 3) in mm, finite; None when there are none."""
+    if not points:
+        return None
+    array = np.asarray(points, dtype=float)
+    if array.ndim != 2 or array.shape[1] != 3 or not np.all(np.isfinite(array)):
+        raise InvalidInputError(f"{option} takes finite x,y,z in mm")
+    if np.any(np.abs(array) > 1e5):
+        raise InvalidInputError(
+            f"{option}: a point {float(np.max(np.abs(array))):.3g} mm away is not a target"
+        )
+    return array
+
+
+def check_positive(value: float | None, option: str, unit: str) -> None:
+    if value is not None and not (math.isfinite(value) and 0 < value < 1e6):
+        raise InvalidInputError(f"{option} must be a positive number of {unit}, got {value}")
+
+
+@dataclass(frozen=True)
+class CalibrateSettings:
+    """``spacecal calibrate``: estimate ``tracker_from_base`` and ``tcp_from_marker``.
+
+    Attributes
+    ----------
+    recording : str
+        Recording CSV, or with ``tracker_stream`` the raw robot stream.
+    output : str
+        Calibration JSON to write.
+    method : str
+        Estimator name (see :data:`spacecal.estimators.METHODS`).
+    tracker_stream : str or None
+        The raw tracker stream: the two streams are paired first.
+    time_offset_ms : float or None
+        With ``tracker_stream``: robot clock minus tracker clock, ms; None = estimate it.
+    targets_in_base : sequence of (x, y, z)
+        Points in the base frame (mm) to predict the TRE at.
+    sigma_mm : float or None
+        Per-axis sphere noise, mm; default: estimated from the tracker's RMS.
+    """
+
+    recording: str
+    output: str
+    method: str = "paper"
+    tracker_stream: str | None = None
+    time_offset_ms: float | None = None
+    targets_in_base: tuple[Point, ...] = ()
+    sigma_mm: float | None = None
+
+
+@dataclass(frozen=True)
+class CalibrateOutput:
+    calibration: CalibrationResult
+    path: Path
+    time_offset_note: str | None = None
+
+
+def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
+    """Read a recording (or two raw streams), calibrate it, and write the result."""
+    refuse_overwriting_inputs(
+        settings.output,
+        settings.recording,
+        metadata_path(settings.recording),
+        settings.tracker_stream,
+    )
+    check_positive(settings.sigma_mm, "--sigma-mm", "millimetres")
+    targets = check_points(settings.targets_in_base, "--target")
+    note = None
+    if settings.tracker_stream:
+        raw = read_raw_recording(settings.recording, settings.tracker_stream)
+        if settings.time_offset_ms is None:
+            offset_s = estimate_time_offset(raw).offset_s
+            note = f"clock offset estimated: robot clock {offset_s * 1000:.2f} ms ahead of the tracker's"
+        else:
+            if not (math.isfinite(settings.time_offset_ms) and abs(settings.time_offset_ms) <= 10_000):
+                raise InvalidInputError(
+                    "--time-offset-ms takes a number of milliseconds within +-10 s, or 'estimate'"
+                )
+            offset_s = settings.time_offset_ms / 1000.0
+            note = f"clock offset given: {offset_s * 1000:.2f} ms"
+        recording = pair_streams(raw, offset_s)
+    else:
+        recording = read_recording(settings.recording)
+    options: dict[str, Any] = {}
+    if targets is not None:
+        options["targets_in_base"] = targets
+    if settings.sigma_mm is not None:
+        options["sigma_mm"] = settings.sigma_mm
+    result = estimate(recording, settings.method, **options)
+    result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))
+    if settings.tracker_stream:
+        result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
+    return CalibrateOutput(result, write_calibration(result, settings.output), note)
+
+
+@dataclass(frozen=True)
+class BoundSettings:
+    """``spacecal bound``: the Cramér–Rao lower bound on TRE for a recording."""
+
+    recording: str
+    calibration: str
+    sigma_mm: float
+    targets_in_base: tuple[Point, ...] = ()
+
+
+def bound(settings: BoundSettings) -> dict[str, Any]:
+    """The bound at the site, over the cube and at the targets (mm)."""
+    check_positive(settings.sigma_mm, "--sigma-mm", "millimetres")
+    recording = read_recording(settings.recording)
+    calibration = read_calibration(settings.calibration)
+    return tre_lower_bound(
+        recording,
+        calibration.tracker_from_base,
+        calibration.tcp_from_marker,
+        settings.sigma_mm,
+        check_points(settings.targets_in_base, "--target"),
+    )
+
+
+@dataclass(frozen=True)
+class PivotSettings:
+    """``spacecal pivot``: pivot calibration of a pointer or needle tip.
+
+    Attributes
+    ----------
+    poses : str
+        Folder of 4x4 ``.txt`` pose files, or a recording CSV.
+    method : str
+        ``aos`` (algebraic one-step) or ``sphere``.
+    subset : str or None
+        File listing the pose file names to use.
+    output : str or None
+        Pivot result JSON.
+    """
+
+    poses: str
+    method: str = "aos"
+    subset: str | None = None
+    output: str | None = None
+
+
+def pivot(settings: PivotSettings) -> tuple[PivotResult, Path | None]:
+    """Pivot calibration; returns the result and the file written (if any)."""
+    source = Path(settings.poses)
+    refuse_overwriting_inputs(settings.output, settings.poses, settings.subset)
+    if source.is_dir():
+        names = None
+        if settings.subset:
+            subset = Path(settings.subset)
+            if not subset.is_file():
+                raise InvalidInputError(f"{subset}: no such subset file")
+            try:
+                names = subset.read_text(encoding="utf-8").split()
+            except UnicodeDecodeError:
+                raise InvalidInputError(f"{subset}: not UTF-8 text (one pose file name per line)") from None
+        poses = read_matrix_folder(source, names)
+    else:
+        poses = read_recording(source).tracker_from_marker_stack
+    result = pivot_calibration(poses, settings.method)
+    path = write_json(result.to_dict(), settings.output) if settings.output else None
+    return result, path

@@ -1,0 +1,234 @@
+"""The argument parser of ``spacecal``; every default is read from the app's settings."""
+
+from __future__ import annotations
+
+import argparse
+
+from spacecal import __version__, app
+from spacecal.app.simulation import DEFAULT_SCENARIO
+
+#: Options whose values are coordinates, often negative (base-frame positions).
+COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm")
+
+
+def _d(settings: type, name: str):
+    import dataclasses
+
+    return {f.name: f.default for f in dataclasses.fields(settings)}[name]
+
+
+def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
+    """The parser; ``commands_impl`` maps each command name to the function that runs it."""
+    from spacecal.estimators import METHODS
+
+    parser = argparse.ArgumentParser(
+        prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker."
+    )
+    parser.add_argument("--version", action="version", version=f"spacecal {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    scenario_help = f"scenario JSON file or preset (default {DEFAULT_SCENARIO})"
+
+    def command(name: str, help_text: str) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_text)
+        p.set_defaults(run=commands_impl[name])
+        return p
+
+    S = app.SimulateSettings
+    p = command("simulate", "simulate a calibration run on the simulated system -> recording CSV")
+    p.add_argument("--scenario", default=_d(S, "scenario"), help=scenario_help)
+    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument(
+        "--raw", action="store_true", help="write the two raw streams (STEM.robot.csv, STEM.tracker.csv)"
+    )
+    p.add_argument(
+        "--clock-offset-ms",
+        type=float,
+        default=_d(S, "clock_offset_ms"),
+        help="with --raw: robot clock ahead of the tracker's",
+    )
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write (with --raw: the stem)")
+
+    C = app.CalibrateSettings
+    p = command("calibrate", "estimate tracker_from_base from a recording")
+    p.add_argument("recording", help="recording CSV (or, with --tracker-stream, the robot stream)")
+    p.add_argument("--method", default=_d(C, "method"), help=f"estimator: {', '.join(sorted(METHODS))}")
+    p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
+    p.add_argument(
+        "--time-offset-ms",
+        default="estimate",
+        help="with --tracker-stream: robot clock minus tracker clock, or 'estimate' (default)",
+    )
+    p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
+    p.add_argument(
+        "--target",
+        action="append",
+        metavar="X,Y,Z",
+        help="point in the base frame (mm) to predict the TRE at; repeatable",
+    )
+    p.add_argument(
+        "--sigma-mm", type=float, help="per-axis sphere noise (ml, robust); default: from marker_rms_mm"
+    )
+
+    p = command("pivot", "pivot calibration of a pointer or needle tip")
+    p.add_argument("poses", help="folder of 4x4 .txt pose files, or a recording CSV")
+    p.add_argument(
+        "--method", default=_d(app.PivotSettings, "method"), help="aos (algebraic one-step) or sphere"
+    )
+    p.add_argument("--subset", help="file listing the pose file names to use")
+    p.add_argument("-o", "--output", help="pivot result JSON to write")
+
+    p = command("bound", "Cramer-Rao lower bound on TRE for a recording")
+    p.add_argument("recording", help="recording CSV")
+    p.add_argument("--calibration", required=True, help="calibration JSON (where to evaluate the bound)")
+    p.add_argument("--sigma-mm", type=float, required=True, help="per-axis sphere noise, mm")
+    p.add_argument(
+        "--target", action="append", metavar="X,Y,Z", help="point in the base frame (mm); repeatable"
+    )
+
+    V = app.VerifySettings
+    p = command("verify", "the paper's verification experiment, in simulation")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--scenario", help="simulated world (default: the one the calibration's data came from)")
+    p.add_argument("--points", type=int, default=_d(V, "points"), help="number of needle poses")
+    p.add_argument("-o", "--output", help="verification JSON to write")
+    p.add_argument("--figure", help="PNG of the error curves (paper Fig. 7)")
+
+    p = command("demo", "simulate, calibrate and verify; print a summary table")
+    p.add_argument("--scenario", default=_d(app.DemoSettings, "scenario"), help=scenario_help)
+    p.add_argument("--out", help="directory to write the recording, calibration, verification and figure to")
+
+    A = app.AcquireSettings
+    p = command("acquire", "run the calibration motion on a robot while sampling the tracker")
+    p.add_argument("--robot", default=_d(A, "robot"), help="sim (default) or ur://HOST")
+    p.add_argument("--tracker", default=_d(A, "tracker"), help="sim, ndi://PORT_OR_HOST or igtl://HOST:PORT")
+    p.add_argument("--scenario", default=_d(A, "scenario"), help="scenario of the simulated devices")
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write (each sample flushed)")
+    p.add_argument("--dry-run", action="store_true", help="check the plan without moving")
+    p.add_argument("--resume", action="store_true", help="continue a stopped acquisition of the same plan")
+    p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
+    p.add_argument("--speed-mm-s", type=float, default=_d(A, "speed_mm_s"), help="TCP speed")
+    p.add_argument("--accel-mm-s2", type=float, default=_d(A, "accel_mm_s2"), help="TCP acceleration")
+    p.add_argument(
+        "--angular-speed-deg-s", type=float, default=_d(A, "angular_speed_deg_s"), help="TCP rotation speed"
+    )
+    p.add_argument(
+        "--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"
+    )
+    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
+    p.add_argument("--tracker-rate-hz", type=float, default=_d(A, "tracker_rate_hz"), help="NDI frame rate")
+    p.add_argument("--robot-model", default=_d(A, "robot_model"), help="UR model for planning checks")
+    p.add_argument(
+        "--tool-offset-mm",
+        default=",".join(str(v) for v in _d(A, "tool_offset_mm")),
+        help="TCP in the flange frame, as set on the robot",
+    )
+    p.add_argument("--prior", help="an earlier calibration, to check marker visibility along the plan")
+    p.add_argument(
+        "--rotation-deg", type=float, default=_d(A, "rotation_deg"), help="rotation sweep each way"
+    )
+    p.add_argument(
+        "--translation-mm", type=float, default=_d(A, "translation_mm"), help="translation sweep stroke"
+    )
+
+    R = app.RegisterLandmarksSettings
+    p = command(
+        "register-landmarks",
+        "register a phantom to its reference marker from a tracked-stylus PLUS recording",
+    )
+    p.add_argument(
+        "sequence", help="PLUS sequence file (.igs.mha) with <Reference>ToTracker and <Stylus>ToTracker"
+    )
+    p.add_argument(
+        "--config", required=True, help="PLUS device set: StylusTip->Stylus transform and <Landmarks>"
+    )
+    p.add_argument("--reference", default=_d(R, "reference"), help="reference tool name")
+    p.add_argument("--stylus", default=_d(R, "stylus"), help="stylus tool name")
+    p.add_argument(
+        "--plus-compatible", action="store_true", help="average landmark frames exactly as PLUS does"
+    )
+    p.add_argument("-o", "--output", help="registration JSON to write")
+
+    p = command("export", "export a calibration to 3D Slicer, PLUS, or over OpenIGTLink")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--slicer", help="ITK transform file (.tfm) for 3D Slicer")
+    p.add_argument("--plus", help="PLUS CoordinateDefinitions XML")
+    p.add_argument(
+        "--igtl", metavar="HOST:PORT", help="send BaseToTracker to an OpenIGTLink server (e.g. Slicer)"
+    )
+
+    I = app.ImportPlusSettings
+    p = command("import-plus", "turn a PLUS sequence file (.igs.mha) into a recording CSV")
+    p.add_argument("sequence", help="PLUS sequence file")
+    p.add_argument("--marker", default=_d(I, "marker"), help="marker transform name")
+    p.add_argument("--tcp", default=_d(I, "tcp"), help="robot TCP transform name")
+    p.add_argument("--segment", default=_d(I, "segment"), help="segment label for every frame")
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write")
+
+    K = app.CheckSettings
+    p = command("check", "confirm before surgery that a calibration still holds")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--recording", help="static poses to check against (instead of moving the robot)")
+    p.add_argument("--robot", default=_d(K, "robot"), help="sim: move the simulated robot")
+    p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
+    p.add_argument("--poses", type=int, default=_d(K, "poses"), choices=[2, 3], help="number of poses")
+    p.add_argument(
+        "--threshold-mm", type=float, default=_d(K, "threshold_mm"), help="largest TCP error that passes"
+    )
+    p.add_argument(
+        "--threshold-deg", type=float, default=_d(K, "threshold_deg"), help="largest rotation error"
+    )
+
+    P = app.PhantomCommandSettings
+    p = command("phantom", "the paper's phantom needle biopsy (section 5.3) in simulation")
+    p.add_argument("--scenario", default=_d(P, "scenario"), help=scenario_help)
+    p.add_argument("--method", default=_d(P, "method"), help="calibration method")
+    p.add_argument("--cases", type=int, default=_d(P, "cases"), help="needle paths (the paper: 5)")
+    p.add_argument("-o", "--output", help="results JSON to write")
+    p.add_argument("--figure", help="PNG of the error curves (paper Fig. 9)")
+
+    p = command("report", "a self-contained HTML report (works offline) and PNG figures")
+    p.add_argument("calibration", help="calibration JSON")
+    p.add_argument("--recording", help="recording CSV (default: the calibration's own)")
+    p.add_argument("--verification", help="verification JSON (from spacecal verify -o)")
+    p.add_argument("--png-dir", help="also write PNG figures here")
+    p.add_argument("-o", "--output", required=True, help="HTML file to write")
+
+    L = app.PlanSettings
+    p = command("plan", "plan a calibration motion for the smallest predicted error at the site")
+    p.add_argument("--budget", default=f"{_d(L, 'budget_s'):g}s", help="motion time budget, e.g. 30s")
+    p.add_argument("--scenario", default=_d(L, "scenario"), help="the (simulated) set-up to plan for")
+    p.add_argument(
+        "--frames-per-station",
+        type=int,
+        default=_d(L, "frames_per_station"),
+        help="tracker frames held at each station",
+    )
+    p.add_argument("-o", "--output", help="plan JSON to write")
+
+    p = command("scenario", "print a scenario preset as JSON, to edit")
+    p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
+    return parser
+
+
+def join_negative_coordinates(argv: list[str]) -> list[str]:
+    """``--target -573,-168,327`` -> ``--target=-573,-168,327``: base-frame coordinates are often
+    negative, and argparse would take such a value for an option."""
+    joined: list[str] = []
+    skip = False
+    for index, item in enumerate(argv):
+        if skip:
+            skip = False
+            continue
+        following = argv[index + 1] if index + 1 < len(argv) else None
+        if (
+            item in COORDINATE_OPTIONS
+            and following is not None
+            and following[:1] == "-"
+            and following[1:2].isdigit()
+        ):
+            joined.append(f"{item}={following}")
+            skip = True
+        else:
+            joined.append(item)
+    return joined

@@ -1,0 +1,403 @@
+"""Result records of the verification experiment, the pre-operative check, the phantom
+experiment and landmark registration: validated on construction, with readers and writers."""
+
+from __future__ import annotations
+
+import datetime
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from spacecal.core.errors import InvalidInputError
+from spacecal.geometry.metrics import summary_statistics
+from spacecal.records.fields import (
+    as_array,
+    as_transform,
+    as_transform_stack,
+    check_schema,
+    get_number,
+    get_str,
+    plain,
+)
+
+
+def _list_of_objects(data: Mapping[str, Any], key: str, what: str) -> list[Mapping[str, Any]]:
+    items = data.get(key)
+    if not isinstance(items, list) or not all(isinstance(item, Mapping) for item in items):
+        raise InvalidInputError(f"{what}: {key!r} must be a list of objects")
+    return items
+
+
+def _column(items: Sequence[Mapping[str, Any]], key: str, what: str) -> np.ndarray:
+    return np.array([get_number(item, key, what) for item in items], dtype=float)
+
+
+def _finite(values: Any, name: str, what: str) -> np.ndarray:
+    return as_array(values, (None,), name, what)
+
+
+@dataclass(frozen=True)
+class VerificationResult:
+    """Outcome of a verification experiment (paper §5.2).
+
+    Attributes
+    ----------
+    desired_tracker_from_needle, reached_tracker_from_needle : numpy.ndarray, shape (N, 4, 4)
+        Target and measured needle poses in the tracker frame, mm.
+    joints_rad : numpy.ndarray, shape (N, 6)
+        The configurations commanded (NaN when read from a file that does not keep them).
+    position_error_mm, posture_error_deg : numpy.ndarray, shape (N,)
+    simulated : bool
+        True when the poses were reached and measured in spacecal's simulator.
+    scenario : str
+        The simulated scenario's name (simulated results only).
+    """
+
+    desired_tracker_from_needle: np.ndarray
+    reached_tracker_from_needle: np.ndarray
+    joints_rad: np.ndarray
+    position_error_mm: np.ndarray
+    posture_error_deg: np.ndarray
+    simulated: bool = True
+    scenario: str = ""
+
+    SCHEMA = "spacecal.verification"
+    SCHEMA_VERSION = 2
+
+    def __post_init__(self) -> None:
+        what = "verification"
+        n = len(self.position_error_mm)
+        object.__setattr__(
+            self, "position_error_mm", _finite(self.position_error_mm, "position_error_mm", what)
+        )
+        object.__setattr__(
+            self, "posture_error_deg", _finite(self.posture_error_deg, "posture_error_deg", what)
+        )
+        if n == 0 or len(self.posture_error_deg) != n:
+            raise InvalidInputError(f"{what}: needs one position and one posture error per point (got {n})")
+        for name in ("desired_tracker_from_needle", "reached_tracker_from_needle"):
+            stack = as_transform_stack(getattr(self, name), name, what)
+            if len(stack) != n:
+                raise InvalidInputError(f"{what}: {name} has {len(stack)} poses for {n} points")
+            object.__setattr__(self, name, stack)
+
+    def statistics(self) -> dict[str, dict[str, float]]:
+        """min / mean / max / RMS of both errors."""
+        return {
+            "position_mm": summary_statistics(self.position_error_mm),
+            "posture_deg": summary_statistics(self.posture_error_deg),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        return plain(
+            {
+                "schema": self.SCHEMA,
+                "schema_version": self.SCHEMA_VERSION,
+                "units": {"length": "mm", "angle": "deg"},
+                "simulated": self.simulated,
+                "scenario": self.scenario,
+                "statistics": self.statistics(),
+                "points": [
+                    {
+                        "desired_tracker_from_needle": d,
+                        "reached_tracker_from_needle": r,
+                        "joints_rad": None if not np.all(np.isfinite(q)) else q,
+                        "position_error_mm": float(p),
+                        "posture_error_deg": float(a),
+                    }
+                    for d, r, q, p, a in zip(
+                        self.desired_tracker_from_needle,
+                        self.reached_tracker_from_needle,
+                        self.joints_rad,
+                        self.position_error_mm,
+                        self.posture_error_deg,
+                    )
+                ],
+            }
+        )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], what: str = "verification") -> VerificationResult:
+        """Read a verification file, version 1 (no ``simulated`` field: it was always
+        simulated) or 2."""
+        check_schema(data, cls.SCHEMA, (1, 2), what)
+        points = _list_of_objects(data, "points", what)
+        if not points:
+            raise InvalidInputError(f"{what}: 'points' is empty")
+        joints = [
+            as_array(p["joints_rad"], (6,), "joints_rad", what)
+            if p.get("joints_rad") is not None
+            else np.full(6, np.nan)
+            for p in points
+        ]
+        simulated = data.get("simulated", True)
+        if not isinstance(simulated, bool):
+            raise InvalidInputError(f"{what}: 'simulated' must be true or false")
+        return cls(
+            desired_tracker_from_needle=np.array(
+                [
+                    as_transform(p.get("desired_tracker_from_needle"), "desired_tracker_from_needle", what)
+                    for p in points
+                ]
+            ),
+            reached_tracker_from_needle=np.array(
+                [
+                    as_transform(p.get("reached_tracker_from_needle"), "reached_tracker_from_needle", what)
+                    for p in points
+                ]
+            ),
+            joints_rad=np.array(joints),
+            position_error_mm=_column(points, "position_error_mm", what),
+            posture_error_deg=_column(points, "posture_error_deg", what),
+            simulated=simulated,
+            scenario=get_str(data, "scenario", what, default=""),
+        )
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """Outcome of a calibration check (one entry of the check history).
+
+    Attributes
+    ----------
+    tcp_error_mm, rotation_error_deg : numpy.ndarray, shape (P,)
+        Per checked pose.
+    threshold_mm, threshold_deg : float
+    labels : list of str
+    simulated : bool or None
+        True: checked in the simulator; False: on real devices; None: against a recording.
+    devices : dict
+        Robot and tracker identities, or the recording checked against.
+    checked_utc : str
+    """
+
+    tcp_error_mm: np.ndarray
+    rotation_error_deg: np.ndarray
+    threshold_mm: float
+    threshold_deg: float
+    labels: list[str] = field(default_factory=list)
+    simulated: bool | None = None
+    devices: dict[str, Any] = field(default_factory=dict)
+    checked_utc: str = field(
+        default_factory=lambda: datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    )
+
+    def __post_init__(self) -> None:
+        what = "check"
+        object.__setattr__(self, "tcp_error_mm", _finite(self.tcp_error_mm, "tcp_error_mm", what))
+        object.__setattr__(
+            self, "rotation_error_deg", _finite(self.rotation_error_deg, "rotation_error_deg", what)
+        )
+        for name in ("threshold_mm", "threshold_deg"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise InvalidInputError(f"{what}: {name} must be a positive number, got {value!r}")
+        if not self.labels:
+            object.__setattr__(self, "labels", [f"pose {k + 1}" for k in range(len(self.tcp_error_mm))])
+        if not (len(self.labels) == len(self.tcp_error_mm) == len(self.rotation_error_deg)):
+            raise InvalidInputError(f"{what}: one label, TCP error and rotation error per pose")
+
+    @property
+    def passed(self) -> bool:
+        return bool(
+            np.all(self.tcp_error_mm <= self.threshold_mm)
+            and np.all(self.rotation_error_deg <= self.threshold_deg)
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return plain(
+            {
+                "schema": "spacecal.check",
+                "schema_version": 2,
+                "checked_utc": self.checked_utc,
+                "passed": self.passed,
+                "simulated": self.simulated,
+                "devices": self.devices,
+                "threshold_mm": self.threshold_mm,
+                "threshold_deg": self.threshold_deg,
+                "poses": [
+                    {"label": label, "tcp_error_mm": float(e), "rotation_error_deg": float(a)}
+                    for label, e, a in zip(self.labels, self.tcp_error_mm, self.rotation_error_deg)
+                ],
+            }
+        )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], what: str = "check") -> CheckResult:
+        """One history line, version 1 (no schema fields, no ``simulated``) or 2."""
+        check_schema(data, "spacecal.check", (1, 2), what)
+        poses = _list_of_objects(data, "poses", what)
+        simulated = data.get("simulated")
+        if simulated is not None and not isinstance(simulated, bool):
+            raise InvalidInputError(f"{what}: 'simulated' must be true, false or null")
+        devices = data.get("devices") or {}
+        if not isinstance(devices, Mapping):
+            raise InvalidInputError(f"{what}: 'devices' must be an object")
+        return cls(
+            tcp_error_mm=_column(poses, "tcp_error_mm", what),
+            rotation_error_deg=_column(poses, "rotation_error_deg", what),
+            threshold_mm=get_number(data, "threshold_mm", what),
+            threshold_deg=get_number(data, "threshold_deg", what),
+            labels=[get_str(p, "label", what, default=f"pose {k + 1}") for k, p in enumerate(poses)],
+            simulated=simulated,
+            devices=dict(devices),
+            checked_utc=get_str(data, "checked_utc", what, default=""),
+        )
+
+
+@dataclass(frozen=True)
+class PhantomResult:
+    """Per-case errors of the phantom experiment (paper §5.3), in simulation.
+
+    Attributes
+    ----------
+    entry_error_mm, target_error_mm, direction_error_deg : numpy.ndarray, shape (C,)
+    predicted : list of dict
+        Per case: predicted ``entry_mm``, ``target_mm``, ``direction_deg`` and their parts.
+    registration_fre_rms_mm : float
+    method : str
+        Calibration method used.
+    paths_refused : int
+        Planned paths refused (unreachable or hiding the marker) and replaced.
+    """
+
+    entry_error_mm: np.ndarray
+    target_error_mm: np.ndarray
+    direction_error_deg: np.ndarray
+    predicted: list[dict[str, Any]]
+    registration_fre_rms_mm: float
+    method: str
+    paths_refused: int = 0
+
+    def __post_init__(self) -> None:
+        what = "phantom"
+        for name in ("entry_error_mm", "target_error_mm", "direction_error_deg"):
+            object.__setattr__(self, name, _finite(getattr(self, name), name, what))
+        if not (len(self.entry_error_mm) == len(self.target_error_mm) == len(self.direction_error_deg)):
+            raise InvalidInputError(f"{what}: one entry, target and direction error per case")
+
+    def statistics(self) -> dict[str, dict[str, float]]:
+        return {
+            "entry_mm": summary_statistics(self.entry_error_mm),
+            "target_mm": summary_statistics(self.target_error_mm),
+            "direction_deg": summary_statistics(self.direction_error_deg),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        return plain(
+            {
+                "schema": "spacecal.phantom",
+                "schema_version": 1,
+                "simulated": True,
+                "method": self.method,
+                "statistics": self.statistics(),
+                "registration_fre_rms_mm": self.registration_fre_rms_mm,
+                "paths_refused": self.paths_refused,
+                "cases": [
+                    {
+                        "entry_error_mm": float(e),
+                        "target_error_mm": float(t),
+                        "direction_error_deg": float(d),
+                        "predicted": p,
+                    }
+                    for e, t, d, p in zip(
+                        self.entry_error_mm, self.target_error_mm, self.direction_error_deg, self.predicted
+                    )
+                ],
+            }
+        )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], what: str = "phantom") -> PhantomResult:
+        check_schema(data, "spacecal.phantom", (1,), what)
+        cases = _list_of_objects(data, "cases", what)
+        return cls(
+            entry_error_mm=_column(cases, "entry_error_mm", what),
+            target_error_mm=_column(cases, "target_error_mm", what),
+            direction_error_deg=_column(cases, "direction_error_deg", what),
+            predicted=[dict(c.get("predicted") or {}) for c in cases],
+            registration_fre_rms_mm=get_number(data, "registration_fre_rms_mm", what),
+            method=get_str(data, "method", what, default="unknown"),
+            paths_refused=int(get_number(data, "paths_refused", what, default=0.0)),
+        )
+
+
+@dataclass(frozen=True)
+class LandmarkRegistrationResult:
+    """A landmark registration and what it was computed from.
+
+    Attributes
+    ----------
+    reference_from_phantom : numpy.ndarray, shape (4, 4)
+        Maps phantom (image/landmark) coordinates into the reference marker's frame, mm.
+    detected_in_reference : numpy.ndarray, shape (M, 3)
+        Landmarks as detected with the stylus, in the reference frame, mm.
+    detected_at_s : list of float
+        Time of each detection.
+    residuals_mm : numpy.ndarray, shape (M,)
+        Per-landmark registration error, mm.
+    fre_rms_mm, fre_mean_mm, fle_rms_mm : float
+        Fiducial registration error (RMS, mean: PLUS's "Error") and the localisation error it implies.
+    """
+
+    reference_from_phantom: np.ndarray
+    detected_in_reference: np.ndarray
+    detected_at_s: list[float]
+    residuals_mm: np.ndarray
+    fre_rms_mm: float
+    fre_mean_mm: float
+    fle_rms_mm: float
+
+    def __post_init__(self) -> None:
+        what = "landmark registration"
+        object.__setattr__(
+            self,
+            "reference_from_phantom",
+            as_transform(self.reference_from_phantom, "reference_from_phantom", what),
+        )
+        object.__setattr__(
+            self,
+            "detected_in_reference",
+            as_array(self.detected_in_reference, (None, 3), "detected_in_reference", what),
+        )
+        object.__setattr__(self, "residuals_mm", _finite(self.residuals_mm, "residuals_mm", what))
+
+    def to_dict(self) -> dict[str, Any]:
+        return plain(
+            {
+                "schema": "spacecal.landmark_registration",
+                "schema_version": 1,
+                "units": {"length": "mm"},
+                "reference_from_phantom": self.reference_from_phantom,
+                "landmarks_detected_in_reference_mm": self.detected_in_reference,
+                "detected_at_s": list(self.detected_at_s),
+                "residuals_mm": self.residuals_mm,
+                "fre_rms_mm": self.fre_rms_mm,
+                "fre_mean_mm": self.fre_mean_mm,
+                "fle_rms_mm": self.fle_rms_mm,
+            }
+        )
+
+    @classmethod
+    def from_dict(
+        cls, data: Mapping[str, Any], what: str = "landmark registration"
+    ) -> LandmarkRegistrationResult:
+        check_schema(data, "spacecal.landmark_registration", (1,), what)
+        return cls(
+            reference_from_phantom=as_transform(
+                data.get("reference_from_phantom"), "reference_from_phantom", what
+            ),
+            detected_in_reference=as_array(
+                data.get("landmarks_detected_in_reference_mm"),
+                (None, 3),
+                "landmarks_detected_in_reference_mm",
+                what,
+            ),
+            detected_at_s=[float(t) for t in _finite(data.get("detected_at_s", []), "detected_at_s", what)],
+            residuals_mm=_finite(data.get("residuals_mm"), "residuals_mm", what),
+            fre_rms_mm=get_number(data, "fre_rms_mm", what),
+            fre_mean_mm=get_number(data, "fre_mean_mm", what),
+            fle_rms_mm=get_number(data, "fle_rms_mm", what),
+        )
