@@ -260,15 +260,7 @@ class FakeController:
 
     def _move_joints(self, q, speed, accel):
         # a joint move in real time: start it without blocking the server thread
-        target = np.asarray(q, dtype=float)
-        from spacecal.planning.motion import trapezoid_duration
-
-        duration, _ = trapezoid_duration(float(np.max(np.abs(target - self.robot._joints))), speed, accel)
-        self.robot._motion = (
-            "joint",
-            (self.robot._joints.copy(), target, self.robot.clock.now_s, duration),
-            self.robot.clock.now_s,
-        )
+        self.robot.start_joint_move(q, speed, accel)
 
     def _start(self, begin, asynchronous: bool) -> None:
         begin()

@@ -19,8 +19,11 @@ def calibration_file(tmp_path, white_simulation):
 
     recording = write_recording(white_simulation.recording, tmp_path / "rec.csv")
     result = calibrate(white_simulation.recording, "ml")
-    result = result.replace(provenance=Provenance(recording=str(recording), simulated=True,
-                                                  scenario=white_simulation.world.scenario.to_dict()))
+    result = result.replace(
+        provenance=Provenance(
+            recording=str(recording), simulated=True, scenario=white_simulation.world.scenario.to_dict()
+        )
+    )
     return write_calibration(result, tmp_path / "cal.json")
 
 

@@ -8,6 +8,7 @@ simulation as against hardware, only faster than real time.
 from __future__ import annotations
 
 import dataclasses
+import threading
 from collections import deque
 
 import numpy as np
@@ -103,10 +104,11 @@ class SimulatedRobot:
         self._stream = [] if stream_states else None
         self._streamed_to_s = np.floor(self.clock.now_s / self._tick_s) * self._tick_s
         self._updated_at_s = -np.inf
+        self._lock = threading.RLock()
 
-    def _joints_at(self, times_s: np.ndarray) -> np.ndarray:
-        """Joint angles (M, 6) of the current motion at increasing times (M,)."""
-        kind, move, start = self._motion
+    def _joints_at(self, motion: tuple, times_s: np.ndarray) -> np.ndarray:
+        """Joint angles (M, 6) of ``motion`` at increasing times (M,)."""
+        kind, move, start = motion
         if kind == "linear":
             elapsed = np.clip(times_s - start, 0.0, move.duration_s)
             return track_path(self.world.nominal_model, move.poses_at(elapsed), self._joints)
@@ -114,11 +116,17 @@ class SimulatedRobot:
         fraction = np.ones_like(times_s) if duration == 0 else np.clip((times_s - start) / duration, 0.0, 1.0)
         return q0 + fraction[:, None] * (q1 - q0)
 
-    def _motion_end_s(self) -> float:
-        kind, move, start = self._motion
+    @staticmethod
+    def _motion_end_s(motion: tuple) -> float:
+        kind, move, start = motion
         return start + (move.duration_s if kind == "linear" else move[3])
 
     def _update(self) -> None:
+        # the protocol fakes call in from several threads: one look at a time
+        with self._lock:
+            self._advance()
+
+    def _advance(self) -> None:
         now = self.clock.now_s
         if now == self._updated_at_s:
             return  # nothing has happened since the last look
@@ -128,13 +136,14 @@ class SimulatedRobot:
         ticks = np.arange(self._streamed_to_s + self._tick_s, now + 1e-12, self._tick_s)
         if self._stream is None:
             ticks = ticks[-1:]  # nobody keeps the stream: only the newest tick matters
-        if self._motion is None or self._safety != SAFETY_NORMAL:
+        motion = self._motion
+        if motion is None or self._safety != SAFETY_NORMAL:
             self._stream_ticks(ticks, np.tile(self._joints, (len(ticks), 1)), moving=False)
-            if self._motion is not None:
+            if motion is not None:
                 self._finish()
             return
-        path = self._joints_at(np.append(ticks, now))
-        end = self._motion_end_s()
+        path = self._joints_at(motion, np.append(ticks, now))
+        end = self._motion_end_s(motion)
         self._stream_ticks(ticks, path[:-1], moving=ticks < end)
         self._joints = path[-1]
         if now >= end:
@@ -191,16 +200,23 @@ class SimulatedRobot:
             self.clock.advance_to(self.clock.now_s + move.duration_s)
             self._update()
 
-    def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
+    def start_joint_move(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> float:
+        """Start a joint move (trapezoid on the largest joint distance) and return its duration, s."""
         self._update()
         self._require_normal()
         self.commands.append("movej")
         target = np.asarray(joints_rad, dtype=float)
-        duration, _ = trapezoid_duration(
-            float(np.max(np.abs(target - self._joints))), speed_rad_s, accel_rad_s2
-        )
-        self._motion = ("joint", (self._joints.copy(), target, self.clock.now_s, duration), self.clock.now_s)
-        self._updated_at_s = -np.inf
+        with self._lock:
+            duration, _ = trapezoid_duration(
+                float(np.max(np.abs(target - self._joints))), speed_rad_s, accel_rad_s2
+            )
+            now = self.clock.now_s
+            self._motion = ("joint", (self._joints.copy(), target, now, duration), now)
+            self._updated_at_s = -np.inf
+        return duration
+
+    def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
+        duration = self.start_joint_move(joints_rad, speed_rad_s, accel_rad_s2)
         self.clock.advance_to(self.clock.now_s + duration)
         self._update()
 

@@ -1,0 +1,146 @@
+"""Every command's app function called directly, as a notebook would: typed settings in,
+typed records out, files that read back to the same records."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from spacecal import app
+from spacecal.core.errors import InvalidInputError
+from spacecal.io.results_json import read_calibration, read_json_object
+from spacecal.records import (
+    CalibrationResult,
+    CheckResult,
+    LandmarkRegistrationResult,
+    PhantomResult,
+    PlanRecord,
+    VerificationResult,
+)
+
+from ..conftest import shared_realdata
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("app")
+    out = app.simulate(app.SimulateSettings(str(folder / "rec.csv"), scenario="paper-white", seed=4))
+    return folder, out
+
+
+def test_simulate_returns_what_it_wrote(simulated):
+    folder, out = simulated
+    assert out.simulated and out.seed == 4 and out.scenario == "paper-white"
+    assert out.paths[0] == folder / "rec.csv" and out.paths[1].name == "rec.meta.json"
+    assert 0 < out.visible <= out.samples == sum(1 for _ in open(out.paths[0])) - 1
+
+
+def test_calibrate_bound_verify_check_report_export(simulated):
+    folder, _ = simulated
+    calibrated = app.calibrate(
+        app.CalibrateSettings(
+            str(folder / "rec.csv"),
+            str(folder / "cal.json"),
+            "ml",
+            targets_in_base=((-573.0, -164.0, 338.0),),
+        )
+    )
+    assert isinstance(calibrated.calibration, CalibrationResult)
+    provenance = calibrated.calibration.provenance
+    assert provenance.simulated is True and provenance.scenario["seed"] == 4
+    assert provenance.recording == str((folder / "rec.csv").resolve())
+    again = read_calibration(calibrated.path)
+    assert np.array_equal(again.tracker_from_base, calibrated.calibration.tracker_from_base)
+    assert again.provenance == provenance
+
+    bound = app.bound(app.BoundSettings(str(folder / "rec.csv"), str(calibrated.path), 0.144))
+    assert 0 < bound["site"] <= calibrated.calibration.predicted_tre_mm["site"] * 1.5
+
+    verified = app.verify(app.VerifySettings(str(calibrated.path), points=5, output=str(folder / "ver.json")))
+    assert isinstance(verified.result, VerificationResult) and verified.result.simulated
+    assert verified.world_source == "the calibration's provenance" and verified.scenario == "paper-white"
+    read_back = VerificationResult.from_dict(read_json_object(folder / "ver.json", "verification"))
+    assert np.allclose(read_back.position_error_mm, verified.result.position_error_mm)
+
+    checked = app.check(app.CheckSettings(str(calibrated.path), poses=2))
+    assert isinstance(checked.result, CheckResult) and checked.result.passed and checked.result.simulated
+    recorded = app.check(app.CheckSettings(str(calibrated.path), recording=str(folder / "rec.csv")))
+    assert recorded.result.simulated is None
+
+    report = app.report(app.ReportSettings(str(calibrated.path), str(folder / "r.html")))
+    assert "Check history" in report.titles and report.path.stat().st_size > 1_000_000
+
+    lines = app.export(app.ExportSettings(str(calibrated.path), slicer=str(folder / "t.tfm")))
+    assert len(lines) == 1 and (folder / "t.tfm").is_file()
+
+
+def test_an_output_never_overwrites_an_input(simulated):
+    folder, _ = simulated
+    before = (folder / "rec.csv").read_bytes()
+    with pytest.raises(InvalidInputError, match="overwrite an input"):
+        app.calibrate(app.CalibrateSettings(str(folder / "rec.csv"), str(folder / "rec.csv")))
+    with pytest.raises(InvalidInputError, match="overwrite an input"):
+        app.calibrate(app.CalibrateSettings(str(folder / "rec.csv"), str(folder / "rec.meta.json")))
+    assert (folder / "rec.csv").read_bytes() == before
+
+
+def test_acquire_on_the_simulated_devices(tmp_path):
+    dry = app.acquire(app.AcquireSettings(str(tmp_path / "a.csv"), scenario="paper-white", dry_run=True))
+    assert dry.dry_run and dry.simulated and dry.moves > 0 and not (tmp_path / "a.csv").exists()
+    run = app.acquire(app.AcquireSettings(str(tmp_path / "a.csv"), scenario="paper-white"))
+    assert run.result is not None and run.result.complete and run.result.samples_written > 100
+    with pytest.raises(InvalidInputError, match="workspace-box"):
+        app.AcquireSettings(str(tmp_path / "b.csv"), workspace_box=(1.0, 0.0, 0.0, 1.0, 0.0, 1.0))
+
+
+def test_plan_phantom_scenario(tmp_path):
+    record, path = app.plan(app.PlanSettings(budget_s=15.0, output=str(tmp_path / "plan.json")))
+    assert isinstance(record, PlanRecord) and record.motion_time_s <= 15.0
+    assert PlanRecord.from_dict(json.loads(path.read_text())).motion_time_s == record.motion_time_s
+    result, _ = app.phantom(app.PhantomCommandSettings(scenario="paper-white", method="ml", cases=2))
+    assert isinstance(result, PhantomResult) and len(result.entry_error_mm) == 2
+    assert PhantomResult.from_dict(result.to_dict()).method == "ml"
+    scenario = app.scenario("paper-white")
+    assert scenario["name"] == "paper-white" and dataclasses.is_dataclass(app.PlanSettings)
+
+
+def test_pivot_and_landmarks_on_real_recordings(tmp_path):
+    pivot_folder = shared_realdata("pivot_sksurgery_ndi")
+    result, path = app.pivot(
+        app.PivotSettings(
+            str(pivot_folder / "PivotCalibration"),
+            subset=str(pivot_folder / "subset57_sksurgerycalibration.txt"),
+            output=str(tmp_path / "p.json"),
+        )
+    )
+    assert np.allclose(result.tip_in_marker, [-14.473, 394.634, -7.407], atol=1e-3) and path.is_file()
+    folder = shared_realdata("plus_phantom_landmarks")
+    registration, _, written = app.register_landmarks(
+        app.RegisterLandmarksSettings(
+            str(folder / "EightLandmarkPointsTrackedForPhantomRegistration.igs.mha"),
+            str(folder / "PlusDeviceSet_fCal_Sim_RecordPhantomLandmarks.xml"),
+            plus_compatible=True,
+            output=str(tmp_path / "reg.json"),
+        )
+    )
+    assert isinstance(registration, LandmarkRegistrationResult)
+    assert registration.fre_mean_mm == pytest.approx(0.207, abs=0.001)
+    assert np.allclose(
+        LandmarkRegistrationResult.from_dict(json.loads(written.read_text())).reference_from_phantom,
+        registration.reference_from_phantom,
+    )
+
+
+def test_demo_returns_its_parts(tmp_path):
+    out = app.demo(app.DemoSettings(scenario="paper-white", out=str(tmp_path)))
+    assert {p.name for p in out.paths} == {
+        "recording.csv",
+        "calibration.json",
+        "verification.json",
+        "verification_errors.png",
+    }
+    calibration = read_calibration(tmp_path / "calibration.json")
+    assert calibration.provenance.simulated and calibration.provenance.scenario["name"] == "paper-white"
