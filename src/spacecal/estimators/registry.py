@@ -14,7 +14,7 @@ from spacecal.estimators.observations import build_observations
 from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
 
-#: name -> function(recording, **options) -> CalibrationResult
+#: name -> ``function(recording, **options) -> CalibrationResult``
 METHODS: dict[str, Callable[..., CalibrationResult]] = {
     "paper": calibrate_paper,
     "ml": calibrate_ml,
