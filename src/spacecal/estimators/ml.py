@@ -116,7 +116,7 @@ def levenberg_marquardt(
     max_iterations: int = 50,
     tolerance: float = 1e-12,
 ) -> Fit:
-    """Minimise sum_i w_i sum_k |predicted_ik - observed_ik|^2 / sigma^2.
+    """Minimise ``sum_i w_i sum_k |predicted_ik - observed_ik|^2 / sigma^2``.
 
     Parameters
     ----------

@@ -211,7 +211,7 @@ def calibrate_paper(recording: Recording, thresholds: PaperThresholds | None = N
         ``diagnostics`` holds: sphere radius, RMS and centre; rotation span per sweep;
         TCP origin drift; per-line straightness, length and direction; the angles between
         fitted axes before orthonormalising, beside the commanded ones; the angle the
-        orthonormalisation moved each axis; sphere radius versus |tcp_from_marker| offset.
+        orthonormalisation moved each axis; sphere radius versus ``|tcp_from_marker|`` offset.
 
     Raises
     ------

@@ -10,7 +10,7 @@ The pointer pivots about its tip in a fixed divot, so for every frame i
   fit (:func:`spacecal.geometry.fitting.fit_sphere`) gives the pivot, and the tip in the
   marker frame is the mean of R_i^T (pivot - t_i).
 
-The residual reported is the ordinary 3-D RMS of |R_i tip + t_i - pivot|.
+The residual reported is the ordinary 3-D RMS of ``|R_i tip + t_i - pivot|``.
 scikit-surgerycalibration reports sqrt(mean of the 3N squared components), the per-axis
 RMS, which is the 3-D RMS divided by sqrt(3); we give both.
 """
@@ -36,7 +36,7 @@ class PivotResult:
     tip_in_marker : numpy.ndarray, shape (3,), mm
     pivot_in_tracker : numpy.ndarray, shape (3,), mm
     residuals_mm : numpy.ndarray, shape (N,)
-        |tracker_from_marker_i @ tip - pivot| per frame.
+        ``|tracker_from_marker_i @ tip - pivot|`` per frame.
     """
 
     method: str

@@ -24,7 +24,7 @@ from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
 from spacecal.records import CalibrationResult, Recording
 
-#: name -> function(recording, **options) -> CalibrationResult
+#: name -> ``function(recording, **options) -> CalibrationResult``
 METHODS: dict[str, Callable[..., CalibrationResult]] = {
     "paper": calibrate_paper,
     "ml": calibrate_ml,

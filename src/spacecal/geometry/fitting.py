@@ -21,7 +21,7 @@ class SphereFit:
     radius : float
         Radius, mm.
     residuals : numpy.ndarray, shape (N,)
-        Signed geometric residuals |p_i - c| - R, mm.
+        Signed geometric residuals ``|p_i - c| - R``, mm.
     rms : float
         RMS of the residuals, mm.
     """
@@ -71,7 +71,7 @@ def _finite_points(points, what: str, minimum: int) -> np.ndarray:
 def fit_sphere_algebraic(points) -> tuple[np.ndarray, float]:
     """Algebraic (linear) sphere fit, the start for :func:`fit_sphere`.
 
-    |p|^2 = 2 p.c + (R^2 - |c|^2) is linear in c and k = R^2 - |c|^2; solved in the
+    ``|p|^2 = 2 p.c + (R^2 - |c|^2)`` is linear in c and ``k = R^2 - |c|^2``; solved in the
     centroid frame for conditioning.
 
     Parameters
@@ -104,7 +104,7 @@ def fit_sphere_algebraic(points) -> tuple[np.ndarray, float]:
 def fit_sphere(points) -> SphereFit:
     """Geometric least-squares sphere fit (paper §3.2, eqs. 7–9).
 
-    Minimises sum_i (|p_i - c| - R)^2 by Levenberg–Marquardt with the analytic Jacobian,
+    Minimises ``sum_i (|p_i - c| - R)^2`` by Levenberg–Marquardt with the analytic Jacobian,
     started from :func:`fit_sphere_algebraic`. The paper solves the same problem with
     MATLAB's nonlinear regression.
 

@@ -9,7 +9,7 @@ from spacecal.geometry.transforms import apply_transform, rotation_part, transla
 
 
 def position_error(desired_transform, reached_transform) -> np.ndarray:
-    """|ΔP| = |P_d - P_r| in mm, for transforms of shape (…, 4, 4) in one frame."""
+    """``|ΔP| = |P_d - P_r|`` in mm, for transforms of shape (…, 4, 4) in one frame."""
     return np.linalg.norm(translation_part(desired_transform) - translation_part(reached_transform), axis=-1)
 
 
@@ -21,7 +21,7 @@ def posture_error_rad(desired_transform, reached_transform) -> np.ndarray:
 
 
 def target_registration_errors(estimated_a_from_b, true_a_from_b, points_in_b) -> np.ndarray:
-    """Distances |T_est p - T_true p| in mm for target points (N, 3) given in frame b."""
+    """Distances ``|T_est p - T_true p|`` in mm for target points (N, 3) given in frame b."""
     return np.linalg.norm(
         apply_transform(estimated_a_from_b, points_in_b) - apply_transform(true_a_from_b, points_in_b),
         axis=-1,

@@ -36,7 +36,7 @@ def nearest_rotation(matrix) -> np.ndarray:
 
 
 def wahba_rotation(directions_in_a, directions_in_b, weights=None) -> np.ndarray:
-    """Solve Wahba's problem: the rotation ``a_from_b`` minimising sum w_k |u_k - R v_k|^2.
+    """Solve Wahba's problem: the rotation ``a_from_b`` minimising ``sum w_k |u_k - R v_k|^2``.
 
     Used by the paper estimator to turn fitted travel directions in the tracker frame and
     the commanded ones in the base frame into the tracker-from-base rotation. With the

@@ -151,7 +151,7 @@ def time_move(
     """Time a Cartesian move under ``limits`` and return it with the joint angles at its end.
 
     The duration is the longest of the linear, angular and joint-speed bounds; the joint
-    bound uses the peak path speed of the trapezoid and max |dq/ds| on a dense path.
+    bound uses the peak path speed of the trapezoid and ``max |dq/ds|`` on a dense path.
     """
     start = np.asarray(start, dtype=float)
     end = np.asarray(end, dtype=float)

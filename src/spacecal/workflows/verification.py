@@ -2,7 +2,7 @@
 
 Needle poses X_d = [P_d, phi_d] are given in tracker space, mapped through a calibration to
 robot space, reached by inverse kinematics, and the reached pose X_r is measured by an
-independent instrument (the paper's laser tracker). Per point:
+independent instrument (the paper's laser tracker). Per point::
 
     position error |dP| = |P_d - P_r|
     posture error  dphi = angle of dR = R_d R_r^-1
