@@ -9,15 +9,17 @@ from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from spacecal.core.errors import InvalidInputError, MissingExtraError
 from spacecal.estimators import calibrate
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.experiments.simulation import simulate_raw
-from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec
+from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from spacecal.io.ros_bag import list_bag_contents, read_ros_bag
 from spacecal.io.ros_common import transform_to_ros
+from spacecal.models.kinematics import forward_kinematics, ur_model
 from spacecal.records import RawRecording
 from spacecal.sim.scenario import load_scenario
 
@@ -278,3 +280,44 @@ def test_missing_rosbags_names_the_extra(monkeypatch, tmp_path):
     (tmp_path / "x.bag").write_bytes(b"")
     with pytest.raises(MissingExtraError, match=r"spacecal\[ros\]"):
         list_bag_contents(tmp_path / "x.bag")
+
+
+def _without_definitions(folder):
+    """Drop the embedded message definitions, as in bags recorded before ROS 2 stored them."""
+    import sqlite3
+
+    (database,) = folder.glob("*.db3")
+    with sqlite3.connect(database) as connection:
+        connection.execute("DELETE FROM message_definitions")
+    return folder
+
+
+def test_bags_without_definitions_use_the_standard_type_store(tmp_path):
+    rng = np.random.default_rng(2)
+    times = np.arange(20) * 0.05
+    joints = rng.uniform(-2.0, 2.0, (20, 6))
+    model = ur_model("UR10")
+    markers = make_transform(Rotation.random(20, random_state=4).as_matrix(), rng.normal(0.0, 500.0, (20, 3)))
+    raw = RawRecording(
+        times,
+        np.array(["x"] * 20),
+        joints,
+        forward_kinematics(model, joints),
+        times,
+        markers,
+        np.full(20, np.nan),
+    )
+    world = type("World", (), {"nominal_model": model})()
+    folder = _without_definitions(
+        write_ros2(tmp_path / "old", raw, world, StoragePlugin.SQLITE3, robot="joints")
+    )
+    read = read_ros_bag(folder, robot_model="UR10")
+    assert np.max(np.abs(read.base_from_tcp_stack - raw.base_from_tcp_stack)) < 1e-9
+    assert np.max(np.abs(read.tracker_from_marker_stack - markers)) < 1e-9
+    with pytest.raises(
+        InvalidInputError, match="has type .*, defined neither in the bag nor in the empty type store"
+    ) as info:
+        read_ros_bag(folder, robot_model="UR10", typestore="empty")
+    assert "\n" not in str(info.value)
+    with pytest.raises(InvalidInputError, match="unknown ROS type store 'ros3'"):
+        list_bag_contents(folder, typestore="ros3")
