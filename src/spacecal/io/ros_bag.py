@@ -1,0 +1,613 @@
+"""ROS bags in: a ROS 1 ``.bag`` or a ROS 2 bag (sqlite3 ``.db3`` or ``.mcap``) -> :class:`RawRecording`.
+
+Read with the pure-Python ``rosbags`` package (``pip install 'spacecal[ros]'``; no ROS install).
+The two streams keep their own time stamps, taken from the message headers, so the clock
+offset between robot and tracker is estimated afterwards as for any raw recording
+(:func:`spacecal.estimators.time_offset.estimate_time_offset`).
+
+Sources:
+
+* robot, from ``/tf`` (+ ``/tf_static``): the chain from a base frame to a tool frame, composed
+  through the tf tree (``base_from_tool``; edges that are published at other times are
+  interpolated, linearly in position and along the geodesic in rotation, at the stamps of the
+  chain's most frequent edge);
+* robot, from ``sensor_msgs/JointState``: spacecal's kinematics, ``forward_kinematics(model, q)``
+  with joints taken by name (the UR driver's names, any prefix);
+* marker, from ``/tf``: the chain tracker frame -> marker frame (``tracker_from_marker``);
+* marker, from a ``geometry_msgs/PoseStamped`` topic (``header.frame_id`` = tracker frame, the
+  pose of the marker in it) or a ``geometry_msgs/TransformStamped`` topic (``header.frame_id`` =
+  tracker, ``child_frame_id`` = marker).
+
+Boundary conversions: a ROS transform with ``header.frame_id = P`` and ``child_frame_id = C`` is
+the pose of C in P, our ``p_from_c``; translations in metres become mm; quaternions ``x, y, z,
+w`` become rotation matrices (stored by spacecal as ``w, x, y, z`` where quaternions appear).
+Times are seconds since the earliest header stamp used (kept as integer nanoseconds until
+then, so no precision is lost to the epoch); the origin is in ``metadata["ros_bag"]``.
+
+Which streams: when the bag has one obvious choice (exactly one PoseStamped/TransformStamped
+topic for the marker; exactly one JointState topic when a robot model is given, else one tf
+chain) no names are needed; otherwise the error lists the candidates (see
+:func:`list_bag_contents`). Bags without embedded message definitions (older ROS 2 sqlite3
+bags) are decoded with a standard type store (``ros1_noetic`` for ``.bag``, ``ros2_humble``
+otherwise; choose another with ``typestore=``).
+
+Frame names lose a leading ``/`` (ROS 1 tf). The recording's ``base`` is the base frame you
+name; for UR robots the controller's base is ur_description's ``base`` (not ``base_link``), and
+``tool0_controller`` is the TCP the controller reports.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from spacecal.core.errors import InvalidInputError, MissingExtraError
+from spacecal.geometry.transforms import invert_transform, make_transform
+from spacecal.io.ros_common import transform_from_ros
+from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.records import RawRecording
+
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped",)
+TRANSFORM_TYPES = ("geometry_msgs/msg/TransformStamped",)
+MARKER_TYPES = POSE_TYPES + TRANSFORM_TYPES
+JOINT_STATE_TYPES = ("sensor_msgs/msg/JointState",)
+#: Joint names the UR ROS drivers publish, joint 1 to 6 (a prefix such as ``ur_`` is allowed).
+UR_JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+ROBOT_SEGMENT = "ros_bag"
+
+
+def _rosbags():
+    try:
+        from rosbags.highlevel import AnyReader, AnyReaderError
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError as exc:
+        raise MissingExtraError(
+            "reading ROS bags needs the rosbags package: pip install 'spacecal[ros]'"
+        ) from exc
+    return AnyReader, AnyReaderError, Stores, get_typestore
+
+
+@contextmanager
+def _open_bag(path: Path, typestore: str | None):
+    AnyReader, AnyReaderError, Stores, get_typestore = _rosbags()
+    if not path.exists():
+        raise InvalidInputError(f"{path}: no such bag")
+    store_name = typestore or ("ros1_noetic" if path.suffix == ".bag" else "ros2_humble")
+    try:
+        store = get_typestore(Stores(store_name))
+    except ValueError:
+        known = ", ".join(s.value for s in Stores)
+        raise InvalidInputError(f"unknown ROS type store {store_name!r}; known: {known}") from None
+    try:
+        reader = AnyReader([path], default_typestore=store)
+        reader.open()
+    except (AnyReaderError, FileNotFoundError, OSError, KeyError, ValueError) as exc:
+        raise InvalidInputError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+    try:
+        # Types the bag does not define are taken from the standard store (bags may define some only).
+        missing = {k: v for k, v in store.fielddefs.items() if k not in reader.typestore.fielddefs}
+        if missing:
+            try:
+                reader.typestore.register(missing)
+            except Exception:  # a conflicting definition: keep the bag's own
+                pass
+        reader.spacecal_store_name = store_name
+        yield reader
+    finally:
+        reader.close()
+
+
+def _frame(name: str) -> str:
+    return str(name).lstrip("/")
+
+
+def _stamp_ns(header) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _messages(reader, path: Path, topics: Sequence[str]):
+    """(topic, log time ns, message) of the named topics, with one clear line for an undecodable type."""
+    connections = [c for c in reader.connections if c.topic in topics]
+    for connection in connections:
+        if connection.msgtype not in reader.typestore.fielddefs:
+            raise InvalidInputError(
+                f"{path}: topic {connection.topic} has type {connection.msgtype}, defined neither in the bag "
+                f"nor in the {reader.spacecal_store_name} type store (choose another with typestore=)"
+            )
+    for connection, log_ns, raw in reader.messages(connections=connections):
+        try:
+            message = reader.deserialize(raw, connection.msgtype)
+        except Exception as exc:  # rosbags raises several kinds here
+            raise InvalidInputError(
+                f"{path}: cannot decode a {connection.msgtype} message on {connection.topic} ({exc})"
+            ) from None
+        yield connection.topic, log_ns, message
+
+
+@dataclass(frozen=True)
+class BagTopic:
+    """A topic of a bag: name, message type (``pkg/msg/Name``), message count."""
+
+    name: str
+    msgtype: str
+    count: int
+
+
+@dataclass(frozen=True)
+class TfEdge:
+    """A tf edge found in a bag: ``parent -> child`` (pose of child in parent), count, static or not."""
+
+    parent: str
+    child: str
+    count: int
+    static: bool
+
+
+@dataclass
+class BagContents:
+    """What a bag holds, for choosing the streams (:func:`list_bag_contents`)."""
+
+    path: str
+    topics: list[BagTopic]
+    tf_edges: list[TfEdge] = field(default_factory=list)
+
+    def topics_of(self, msgtypes: Sequence[str]) -> list[str]:
+        """Names of the topics whose type is one of ``msgtypes``."""
+        return [t.name for t in self.topics if t.msgtype in msgtypes]
+
+    @property
+    def marker_topics(self) -> list[str]:
+        """PoseStamped and TransformStamped topics (candidate marker streams)."""
+        return self.topics_of(MARKER_TYPES)
+
+    @property
+    def joint_state_topics(self) -> list[str]:
+        """JointState topics (candidate robot streams with a kinematic model)."""
+        return self.topics_of(JOINT_STATE_TYPES)
+
+    def tf_chains(self) -> list[tuple[str, str]]:
+        """``(root, leaf)`` of every branch of the tf forest that moves (holds a non-static edge)."""
+        return _tf_chains(self.tf_edges)
+
+    def describe(self) -> str:
+        """A table for people: topics with types and counts, tf edges, candidate chains."""
+        lines = [f"{self.path}", "topics:"]
+        width = max((len(t.name) for t in self.topics), default=0)
+        for t in self.topics:
+            lines.append(f"  {t.name:<{width}}  {t.msgtype}  ({t.count} messages)")
+        if self.tf_edges:
+            lines.append("tf edges (parent -> child):")
+            for e in self.tf_edges:
+                lines.append(f"  {e.parent} -> {e.child}  ({e.count}{', static' if e.static else ''})")
+            chains = self.tf_chains()
+            if chains:
+                lines.append(
+                    "moving tf chains (root -> leaf): " + "; ".join(f"{a} -> {b}" for a, b in chains)
+                )
+        return "\n".join(lines)
+
+
+def _parents(edges) -> dict[str, str]:
+    parents: dict[str, str] = {}
+    for e in edges:
+        parents.setdefault(e.child, e.parent)
+    return parents
+
+
+def _tf_chains(edges: Sequence[TfEdge]) -> list[tuple[str, str]]:
+    parents = _parents(edges)
+    moving = {(e.parent, e.child) for e in edges if not e.static}
+    frames = set(parents) | set(parents.values())
+    has_children = set(parents.values())
+    chains = []
+    for leaf in sorted(frames - has_children):
+        node, moves = leaf, False
+        seen = {leaf}
+        while node in parents:
+            moves |= (parents[node], node) in moving
+            node = parents[node]
+            if node in seen:
+                break
+            seen.add(node)
+        if moves:
+            chains.append((node, leaf))
+    return chains
+
+
+@dataclass
+class _EdgeSeries:
+    times_ns: list[int] = field(default_factory=list)
+    translations_m: list[tuple[float, float, float]] = field(default_factory=list)
+    quaternions_xyzw: list[tuple[float, float, float, float]] = field(default_factory=list)
+    static: bool = False
+
+
+def _read_tf(reader, path: Path, topics: Sequence[str]) -> dict[tuple[str, str], _EdgeSeries]:
+    edges: dict[tuple[str, str], _EdgeSeries] = {}
+    for topic, _, message in _messages(reader, path, topics):
+        for ts in message.transforms:
+            key = (_frame(ts.header.frame_id), _frame(ts.child_frame_id))
+            series = edges.setdefault(key, _EdgeSeries())
+            series.static |= topic.rstrip("/").endswith("tf_static")
+            t, r = ts.transform.translation, ts.transform.rotation
+            series.times_ns.append(_stamp_ns(ts.header))
+            series.translations_m.append((t.x, t.y, t.z))
+            series.quaternions_xyzw.append((r.x, r.y, r.z, r.w))
+    return edges
+
+
+def list_bag_contents(path: str | Path, typestore: str | None = None) -> BagContents:
+    """The topics of a bag (type, count) and its tf edges, to choose the streams from.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ROS 1 ``.bag``, a ROS 2 bag directory, or a bare ``.db3`` / ``.mcap`` file.
+    typestore : str, optional
+        Type store for bags without message definitions (e.g. ``"ros2_humble"``).
+    """
+    path = Path(path)
+    with _open_bag(path, typestore) as reader:
+        topics = [
+            BagTopic(name, info.msgtype or "?", int(info.msgcount)) for name, info in reader.topics.items()
+        ]
+        tf_topics = [t.name for t in topics if t.msgtype in TF_TYPES]
+        series = _read_tf(reader, path, tf_topics) if tf_topics else {}
+    edges = [
+        TfEdge(parent, child, len(s.times_ns), s.static or _constant(s))
+        for (parent, child), s in sorted(series.items())
+    ]
+    return BagContents(str(path), sorted(topics, key=lambda t: t.name), edges)
+
+
+def _constant(series: _EdgeSeries) -> bool:
+    if len(series.times_ns) < 2:
+        return True
+    values = np.hstack([np.array(series.translations_m), np.array(series.quaternions_xyzw)])
+    return bool(np.all(values == values[0]))
+
+
+def _edge_stack(series: _EdgeSeries, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(times ns (K,), parent_from_child (K, 4, 4) mm), sorted by time, duplicates of a stamp dropped."""
+    times = np.array(series.times_ns, dtype=np.int64)
+    order = np.argsort(times, kind="stable")
+    times = times[order]
+    keep = np.concatenate([[True], np.diff(times) > 0])
+    translations = np.array(series.translations_m)[order][keep]
+    quaternions = np.array(series.quaternions_xyzw)[order][keep]
+    return times[keep], transform_from_ros(translations, quaternions, what)
+
+
+def _interpolate(times_ns, stack, query_ns) -> np.ndarray:
+    """Poses (Q, 4, 4) at ``query_ns`` inside ``times_ns``: position linear, rotation slerp."""
+    if len(times_ns) == len(query_ns) and np.array_equal(times_ns, query_ns):
+        return stack
+    base = times_ns[0]
+    t = (times_ns - base).astype(float)
+    q = (query_ns - base).astype(float)
+    rotation = Slerp(t, Rotation.from_matrix(stack[:, :3, :3]))(q).as_matrix()
+    position = np.column_stack([np.interp(q, t, stack[:, k, 3]) for k in range(3)])
+    return make_transform(rotation, position)
+
+
+def _path_to_root(parents: dict[str, str], frame: str) -> list[str]:
+    path = [frame]
+    while path[-1] in parents:
+        path.append(parents[path[-1]])
+        if len(path) > len(parents) + 1:
+            break
+    return path
+
+
+def _chain(
+    edges: dict[tuple[str, str], _EdgeSeries], from_frame: str, to_frame: str, where: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """``from_frame <- to_frame`` through the tf tree at the stamps of its most frequent moving edge.
+
+    Returns times (N,) in ns and ``from_from_to`` (N, 4, 4) in mm.
+    """
+    parents: dict[str, str] = {}
+    for parent, child in edges:
+        if child in parents and parents[child] != parent:
+            raise InvalidInputError(
+                f"{where}: tf frame {child!r} has two parents ({parents[child]}, {parent})"
+            )
+        parents[child] = parent
+    frames = set(parents) | set(parents.values())
+    for frame in (from_frame, to_frame):
+        if frame not in frames:
+            raise InvalidInputError(
+                f"{where}: tf has no frame {frame!r}; frames: {', '.join(sorted(frames))}"
+            )
+    up_from, up_to = _path_to_root(parents, from_frame), _path_to_root(parents, to_frame)
+    common = next((f for f in up_from if f in up_to), None)
+    if common is None:
+        raise InvalidInputError(f"{where}: tf frames {from_frame!r} and {to_frame!r} are not connected")
+    # edges (parent, child, sign): +1 walked down (parent_from_child), -1 walked up (its inverse)
+    walk = [(up_from[k + 1], up_from[k], -1) for k in range(up_from.index(common))]
+    walk += [(up_to[k + 1], up_to[k], +1) for k in reversed(range(up_to.index(common)))]
+    stacks = {key: _edge_stack(edges[key], f"{where}: tf {key[0]} -> {key[1]}") for key in edges}
+    moving = [(p, c) for p, c, _ in walk if not (edges[(p, c)].static or _constant(edges[(p, c)]))]
+    if not moving:
+        raise InvalidInputError(f"{where}: the tf chain {from_frame} -> {to_frame} never moves")
+    reference = max(moving, key=lambda key: len(stacks[key][0]))
+    times = stacks[reference][0]
+    for key in moving:
+        edge_times = stacks[key][0]
+        times = times[(times >= edge_times[0]) & (times <= edge_times[-1])]
+    if len(times) == 0:
+        raise InvalidInputError(
+            f"{where}: the moving edges of {from_frame} -> {to_frame} do not overlap in time"
+        )
+    result = np.broadcast_to(np.eye(4), (len(times), 4, 4)).copy()
+    for parent, child, sign in walk:
+        edge_times, stack = stacks[(parent, child)]
+        pose = _interpolate(edge_times, stack, times) if (parent, child) in moving else stack[-1][None]
+        result = result @ (pose if sign > 0 else invert_transform(pose))
+    return times, result
+
+
+def _one(candidates: list, what: str, hint: str, where: str):
+    if len(candidates) == 1:
+        return candidates[0]
+    listing = ", ".join(str(c) for c in candidates) if candidates else "none"
+    raise InvalidInputError(
+        f"{where}: cannot choose the {what} ({len(candidates)} candidates: {listing}); {hint}"
+    )
+
+
+def _marker_from_topic(reader, path: Path, topic: str, msgtype: str, tracker_frame, marker_frame):
+    times, translations, quaternions, frames = [], [], [], set()
+    for _, _, message in _messages(reader, path, [topic]):
+        times.append(_stamp_ns(message.header))
+        parent = _frame(message.header.frame_id)
+        if msgtype in POSE_TYPES:
+            p, r = message.pose.position, message.pose.orientation
+            child = marker_frame or ""
+        else:
+            p, r = message.transform.translation, message.transform.rotation
+            child = _frame(message.child_frame_id)
+        frames.add((parent, child))
+        translations.append((p.x, p.y, p.z))
+        quaternions.append((r.x, r.y, r.z, r.w))
+    if not times:
+        raise InvalidInputError(f"{path}: topic {topic} has no messages")
+    for parent, child in frames:
+        if tracker_frame and parent != tracker_frame:
+            raise InvalidInputError(
+                f"{path}: {topic} is in frame {parent!r}, not the tracker frame {tracker_frame!r}"
+            )
+        if marker_frame and msgtype in TRANSFORM_TYPES and child != marker_frame:
+            raise InvalidInputError(
+                f"{path}: {topic} has child frame {child!r}, not the marker frame {marker_frame!r}"
+            )
+    translations, quaternions = np.array(translations, float), np.array(quaternions, float)
+    seen = np.all(np.isfinite(translations), axis=1) & np.all(np.isfinite(quaternions), axis=1)
+    stack = np.full((len(times), 4, 4), np.nan)
+    if seen.any():
+        stack[seen] = transform_from_ros(translations[seen], quaternions[seen], f"{path}: {topic}")
+    parent, child = sorted(frames)[0]
+    return (
+        np.array(times, dtype=np.int64),
+        stack,
+        {"topic": topic, "tracker_frame": parent, "marker_frame": child},
+    )
+
+
+def _joint_columns(names: Sequence[str], wanted: Sequence[str], where: str) -> list[int]:
+    columns = []
+    for joint in wanted:
+        matches = [k for k, n in enumerate(names) if n == joint or n.endswith(joint)]
+        if len(matches) != 1:
+            raise InvalidInputError(
+                f"{where}: joint {joint!r} found {len(matches)} times in the names {', '.join(names)}"
+            )
+        columns.append(matches[0])
+    return columns
+
+
+def _robot_from_joint_states(reader, path: Path, topic: str, model: RobotModel, joint_names):
+    where = f"{path}: {topic}"
+    times, log_times, joints = [], [], []
+    columns, names_seen = None, None
+    for _, log_ns, message in _messages(reader, path, [topic]):
+        names = list(message.name)
+        if names != names_seen:
+            columns, names_seen = _joint_columns(names, joint_names, where), names
+        positions = np.asarray(message.position, dtype=float)
+        if len(positions) != len(names):
+            raise InvalidInputError(
+                f"{where}: a message has {len(positions)} positions for {len(names)} names"
+            )
+        times.append(_stamp_ns(message.header))
+        log_times.append(log_ns)
+        joints.append(positions[columns])
+    if not times:
+        raise InvalidInputError(f"{where}: no messages")
+    times = np.array(times, dtype=np.int64)
+    source = "header.stamp"
+    if np.any(times == 0):
+        times, source = np.array(log_times, dtype=np.int64), "bag receive time (header stamps are zero)"
+    joints = np.array(joints)
+    return (
+        times,
+        joints,
+        forward_kinematics(model, joints),
+        {"topic": topic, "model": model.name, "time": source},
+    )
+
+
+def _sorted_unique(times_ns, *arrays):
+    order = np.argsort(times_ns, kind="stable")
+    times_ns = times_ns[order]
+    keep = np.concatenate([[True], np.diff(times_ns) > 0])
+    return (times_ns[keep],) + tuple(a[order][keep] for a in arrays)
+
+
+def read_ros_bag(
+    path: str | Path,
+    *,
+    base_frame: str | None = None,
+    tool_frame: str | None = None,
+    tracker_frame: str | None = None,
+    marker_frame: str | None = None,
+    joint_state_topic: str | None = None,
+    marker_topic: str | None = None,
+    robot_model: RobotModel | str | None = None,
+    joint_names: Sequence[str] = UR_JOINT_NAMES,
+    typestore: str | None = None,
+    metadata: dict | None = None,
+) -> RawRecording:
+    """Read the robot and tracker streams of a ROS bag into a raw two-stream recording.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ROS 1 ``.bag``, a ROS 2 bag directory, or a bare ``.db3`` / ``.mcap`` file.
+    base_frame, tool_frame : str, optional
+        Robot pose from tf: ``base_from_tcp`` = the chain ``base_frame <- tool_frame``.
+    tracker_frame, marker_frame : str, optional
+        Marker pose from tf (``tracker_frame <- marker_frame``); with a marker topic they are
+        checked against its ``header.frame_id`` / ``child_frame_id``.
+    joint_state_topic : str, optional
+        Robot pose from this JointState topic through ``robot_model``'s forward kinematics.
+    marker_topic : str, optional
+        Marker pose from this PoseStamped or TransformStamped topic.
+    robot_model : RobotModel or str, optional
+        For joint states: a model, or a UR name for :func:`ur_model` (tool offset identity).
+    joint_names : sequence of str
+        The six joint names in kinematic order (matched exactly or as a name's suffix).
+    typestore : str, optional
+        rosbags type store for bags without message definitions (``ros1_noetic``, ``ros2_humble``...).
+    metadata : dict, optional
+        Merged into the recording's metadata (e.g. the marker geometry, the robot).
+
+    Returns
+    -------
+    RawRecording
+        Robot stream (R samples, header-stamp times, ``joints_rad`` NaN when read from tf) and
+        tracker stream (T frames, ``marker_rms_mm`` NaN: ROS messages do not carry it); times in
+        s since the earliest stamp used; lengths in mm.
+
+    Raises
+    ------
+    InvalidInputError
+        An unreadable bag, a missing or ambiguous stream (the message lists the candidates), an
+        undecodable message type, a frame that is not in the bag.
+    MissingExtraError
+        Without the ``rosbags`` package (``spacecal[ros]``).
+    """
+    path = Path(path)
+    contents = list_bag_contents(path, typestore)
+    where = str(path)
+    types = {t.name: t.msgtype for t in contents.topics}
+    tf_topics = contents.topics_of(TF_TYPES)
+    if isinstance(robot_model, str):
+        robot_model = ur_model(robot_model)
+    frames_hint = "name them (see list_bag_contents)"
+
+    # marker stream
+    if marker_topic is None and not (tracker_frame and marker_frame) and contents.marker_topics:
+        marker_topic = _one(contents.marker_topics, "marker topic", "give marker_topic", where)
+    if marker_topic is not None and types.get(marker_topic) not in MARKER_TYPES:
+        found = types.get(marker_topic, "absent")
+        raise InvalidInputError(
+            f"{where}: marker topic {marker_topic} is {found}; expected PoseStamped or TransformStamped"
+        )
+    chains = contents.tf_chains()
+    if marker_topic is None and not (tracker_frame and marker_frame):
+        raise InvalidInputError(
+            f"{where}: no PoseStamped/TransformStamped topic; give tracker_frame and marker_frame "
+            f"(moving tf chains: {', '.join(f'{a} -> {b}' for a, b in chains) or 'none'})"
+        )
+
+    # robot stream
+    if joint_state_topic is None and not (base_frame and tool_frame):
+        if robot_model is not None and contents.joint_state_topics:
+            joint_state_topic = _one(
+                contents.joint_state_topics, "joint state topic", "give joint_state_topic", where
+            )
+        else:
+            marker_chain = (tracker_frame, marker_frame) if marker_topic is None else None
+            candidates = [c for c in chains if marker_chain is None or c[1] != marker_chain[1]]
+            if base_frame or tool_frame:
+                candidates = [
+                    c for c in candidates if base_frame in (None, c[0]) and tool_frame in (None, c[1])
+                ]
+            hint = f"give base_frame and tool_frame, or a JointState topic and a robot model; {frames_hint}"
+            if contents.joint_state_topics:
+                hint += f" (JointState topics: {', '.join(contents.joint_state_topics)})"
+            base_frame, tool_frame = _one(candidates, "robot tf chain", hint, where)
+    if joint_state_topic is not None:
+        if types.get(joint_state_topic) not in JOINT_STATE_TYPES:
+            raise InvalidInputError(
+                f"{where}: {joint_state_topic} is {types.get(joint_state_topic, 'absent')}, not JointState"
+            )
+        if robot_model is None:
+            raise InvalidInputError(f"{where}: joint states need a robot model (e.g. robot_model='UR10')")
+
+    with _open_bag(path, typestore) as reader:
+        tf = _read_tf(reader, path, tf_topics) if tf_topics else {}
+        if marker_topic is not None:
+            tracker_ns, tracker_from_marker, marker_source = _marker_from_topic(
+                reader, path, marker_topic, types[marker_topic], tracker_frame, marker_frame
+            )
+        else:
+            tracker_ns, tracker_from_marker = _chain(tf, tracker_frame, marker_frame, where)
+            marker_source = {"tf": True, "tracker_frame": tracker_frame, "marker_frame": marker_frame}
+        if joint_state_topic is not None:
+            robot_ns, joints, base_from_tcp, robot_source = _robot_from_joint_states(
+                reader, path, joint_state_topic, robot_model, joint_names
+            )
+        else:
+            robot_ns, base_from_tcp = _chain(tf, base_frame, tool_frame, where)
+            joints = np.full((len(robot_ns), 6), np.nan)
+            robot_source = {"tf": True, "base_frame": base_frame, "tool_frame": tool_frame}
+
+    robot_ns, joints, base_from_tcp = _sorted_unique(robot_ns, joints, base_from_tcp)
+    tracker_ns, tracker_from_marker = _sorted_unique(tracker_ns, tracker_from_marker)
+    for label, count in (("robot", len(robot_ns)), ("tracker", len(tracker_ns))):
+        if count < 10:
+            raise InvalidInputError(
+                f"{where}: the {label} stream has {count} samples; at least 10 are needed"
+            )
+    origin_ns = int(min(robot_ns[0], tracker_ns[0]))
+    info = {
+        "ros_bag": {
+            "path": str(path),
+            "time_origin_ns": origin_ns,
+            "time": "seconds since time_origin_ns (header stamps)",
+            "robot": robot_source,
+            "marker": marker_source,
+        },
+        "units": {"length": "mm", "angle": "rad", "time": "s"},
+    }
+    if robot_model is not None:
+        info["robot"] = {
+            "model": robot_model.name,
+            "flange_from_tcp": robot_model.flange_from_tcp.tolist(),
+            "controller_hz": robot_model.controller_hz,
+        }
+    return RawRecording(
+        robot_time_s=(robot_ns - origin_ns) * 1e-9,
+        robot_segment=np.array([ROBOT_SEGMENT] * len(robot_ns)),
+        joints_rad=joints,
+        base_from_tcp_stack=base_from_tcp,
+        tracker_time_s=(tracker_ns - origin_ns) * 1e-9,
+        tracker_from_marker_stack=tracker_from_marker,
+        marker_rms_mm=np.full(len(tracker_ns), np.nan),
+        metadata={**info, **(metadata or {})},
+    )

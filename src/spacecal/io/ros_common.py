@@ -1,0 +1,114 @@
+"""Conversions at the boundary with ROS: metres and ``x, y, z, w`` quaternions outside, mm and 4x4 inside.
+
+ROS messages (``geometry_msgs/Transform``, ``Pose``) and the files of ROS tools carry
+translations in metres and quaternions in the order ``x, y, z, w``. A ROS transform with
+``header.frame_id = P`` and ``child_frame_id = C`` is the pose of C in P, i.e. our
+``p_from_c`` (it maps coordinates given in C into P). These helpers convert exactly that and
+nothing else; which frames a file or message names is decided by the caller.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spacecal.core.errors import InvalidInputError, MissingExtraError
+from spacecal.core.units import metres_to_mm, mm_to_metres
+from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
+
+#: Largest deviation of a quaternion's norm from 1 accepted in a file (ROS tools write 1e-9 or better).
+QUATERNION_NORM_TOLERANCE = 1e-6
+
+
+def transform_from_ros(translation_m, quaternion_xyzw, what: str = "transform") -> np.ndarray:
+    """4x4 transforms (mm) from ROS translations (m) and ``x, y, z, w`` quaternions.
+
+    Parameters
+    ----------
+    translation_m : array_like, shape (3,) or (N, 3)
+        Translation of the child frame's origin in the parent frame, metres.
+    quaternion_xyzw : array_like, shape (4,) or (N, 4)
+        Rotation of the child frame in the parent frame, scalar last (ROS order).
+    what : str
+        Named in the error when a quaternion is not a unit quaternion.
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, 4) or (N, 4, 4)
+        ``parent_from_child`` in mm.
+    """
+    translation_m = np.asarray(translation_m, dtype=float)
+    quaternion_xyzw = np.asarray(quaternion_xyzw, dtype=float)
+    norms = np.linalg.norm(quaternion_xyzw, axis=-1)
+    bad = ~np.isfinite(norms) | (np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE)
+    if np.any(bad):
+        first = float(np.atleast_1d(norms)[np.flatnonzero(np.atleast_1d(bad))[0]])
+        raise InvalidInputError(
+            f"{what}: quaternion norm {first:.6g}, expected a unit quaternion (x, y, z, w)"
+        )
+    quaternion_wxyz = np.roll(quaternion_xyzw / norms[..., None], 1, axis=-1)
+    return make_transform(quaternion_wxyz_to_matrix(quaternion_wxyz), metres_to_mm(translation_m))
+
+
+def transform_to_ros(parent_from_child) -> tuple[np.ndarray, np.ndarray]:
+    """Split a transform (4, 4) in mm into a ROS translation (3,) in m and a quaternion ``x, y, z, w`` (4,).
+
+    The quaternion has a non-negative ``w`` (the sign is free; this makes files reproducible).
+    """
+    parent_from_child = np.asarray(parent_from_child, dtype=float)
+    if parent_from_child.shape != (4, 4) or not np.all(np.isfinite(parent_from_child)):
+        raise InvalidInputError(f"expected a finite 4x4 transform, got shape {parent_from_child.shape}")
+    quaternion_wxyz = matrix_to_quaternion_wxyz(parent_from_child[:3, :3])
+    return mm_to_metres(parent_from_child[:3, 3]), np.roll(quaternion_wxyz, -1)
+
+
+def number_text(value: float) -> str:
+    """A float written so that reading it back gives the same double (shortest round-trip form)."""
+    value = float(value)
+    if not np.isfinite(value):
+        raise InvalidInputError(f"cannot write the non-finite number {value!r}")
+    return repr(value + 0.0)  # + 0.0 turns -0.0 into 0.0
+
+
+def require_yaml():
+    """The ``yaml`` module (PyYAML), or :class:`MissingExtraError` naming the extra that brings it."""
+    try:
+        import yaml
+    except ImportError as exc:  # pragma: no cover - the extra is installed in CI
+        raise MissingExtraError(
+            "reading ROS tools' YAML files needs PyYAML: pip install 'spacecal[ros]'"
+        ) from exc
+    return yaml
+
+
+def load_yaml_mapping(path, what: str) -> dict:
+    """Read a YAML file whose top level is a mapping; one clear line when it is not."""
+    from pathlib import Path
+
+    yaml = require_yaml()
+    path = Path(path)
+    if not path.is_file():
+        raise InvalidInputError(f"{path}: no such {what} file")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise InvalidInputError(f"{path}: not valid YAML{where}; expected a {what}") from exc
+    if not isinstance(data, dict):
+        raise InvalidInputError(f"{path}: expected a {what} (a YAML mapping), found {type(data).__name__}")
+    return data
+
+
+def field(mapping, key: str, where: str):
+    """``mapping[key]`` or an InvalidInputError naming the missing field and where it was expected."""
+    if not isinstance(mapping, dict) or key not in mapping:
+        raise InvalidInputError(f"{where}: missing field {key!r}")
+    return mapping[key]
+
+
+def number_field(mapping, key: str, where: str) -> float:
+    """A finite number from ``mapping[key]``; one clear line otherwise."""
+    value = field(mapping, key, where)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise InvalidInputError(f"{where}: field {key!r} is {value!r}, expected a finite number")
+    return float(value)
