@@ -118,10 +118,21 @@ def test_acquire_and_calibrate_against_the_ground_truth(
     assert tre < paper_estimator_spread * bound
 
 
-def start_fault_after(world, command, delay_s):
-    timer = threading.Timer(delay_s, lambda: world.control(command))
-    timer.start()
-    return timer
+def start_fault_when_recorded(world, command, recording, rows=30, timeout_s=90.0):
+    """Inject the fault once the run has written ``rows`` samples (not after a fixed delay: on a
+    loaded machine the command may take seconds to start, and the fault would land first)."""
+
+    def wait_then_fault():
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if recording.is_file() and recording.read_bytes().count(b"\n") > rows:
+                break
+            time.sleep(0.05)
+        world.control(command)
+
+    thread = threading.Thread(target=wait_then_fault, daemon=True)
+    thread.start()
+    return thread
 
 
 FAULTS = {
@@ -136,7 +147,7 @@ FAULTS = {
 def test_faults_stop_the_run_and_keep_every_sample(world, rom_file, tmp_path, fault):
     kind, command, message = FAULTS[fault]
     recording = tmp_path / "rec.csv"
-    start_fault_after(world, command, 4.0)
+    start_fault_when_recorded(world, command, recording)
     run = subprocess.run(
         acquire_command(world, kind, recording, rom_file, "15", "120"),
         capture_output=True,

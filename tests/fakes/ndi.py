@@ -226,7 +226,7 @@ def serve_tcp(device: FakeNDI, server, stop: threading.Event, unplugged: threadi
     for connection in accept_connections(server, stop):
         connection.settimeout(0.2)
 
-        def read():
+        def read(connection=connection):
             while not stop.is_set():
                 if unplugged.is_set():
                     return b""

@@ -1,7 +1,8 @@
 """A fake world in its own process: one simulated ground truth behind fake devices that speak
 the real wire protocols on loopback, so the real client libraries talk to them unmodified.
 
-    python tests/fakes/world.py --host 127.0.0.12 [--scenario paper-white] [--igtl-port P] [--ndi-port P] [--rtde]
+    python tests/fakes/world.py --host 127.0.0.12 [--scenario paper-white] \
+        [--igtl-port P] [--ndi-port P] [--rtde]
 
 Prints ``READY {json}`` (ports, pty path) on stdout when every server listens. A line
 protocol on the control port injects faults and reads the truth:

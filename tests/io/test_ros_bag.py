@@ -32,13 +32,15 @@ UR_JOINTS += ["wrist_3_joint"]
 @pytest.fixture(scope="module")
 def simulated():
     raw, world = simulate_raw(load_scenario("paper-white"), clock_offset_s=CLOCK_OFFSET_S)
-    # What a bag can carry: no marker RMS; stamps in whole nanoseconds.
+    # What a bag can carry: no marker RMS; stamps in whole nanoseconds, counted from the
+    # earliest stamp in the bag (as the reader returns them).
+    origin = min(raw.robot_time_s[0], raw.tracker_time_s[0])
     expected = RawRecording(
-        robot_time_s=np.round(raw.robot_time_s * 1e9) * 1e-9,
+        robot_time_s=np.round((raw.robot_time_s - origin) * 1e9) * 1e-9,
         robot_segment=raw.robot_segment,
         joints_rad=raw.joints_rad,
         base_from_tcp_stack=raw.base_from_tcp_stack,
-        tracker_time_s=np.round(raw.tracker_time_s * 1e9) * 1e-9,
+        tracker_time_s=np.round((raw.tracker_time_s - origin) * 1e9) * 1e-9,
         tracker_from_marker_stack=raw.tracker_from_marker_stack,
         marker_rms_mm=np.full(len(raw.tracker_time_s), np.nan),
         metadata=raw.metadata,
@@ -321,3 +323,60 @@ def test_bags_without_definitions_use_the_standard_type_store(tmp_path):
     assert "\n" not in str(info.value)
     with pytest.raises(InvalidInputError, match="unknown ROS type store 'ros3'"):
         list_bag_contents(folder, typestore="ros3")
+
+
+def test_the_three_commands_a_ros_user_runs(tmp_path, simulated, capsys):
+    """import-bag -> calibrate (offset estimated) -> export for ROS 2, through the command line."""
+    from spacecal.cli import main
+    from spacecal.io.ros_exports import read_ros2_launch, read_urdf_joint
+
+    expected, world = simulated
+    bag = write_ros1(tmp_path / "run.bag", expected, world)
+    assert main(["import-bag", str(bag), "--list"]) == 0
+    assert "PoseStamped" in capsys.readouterr().out
+    assert main(["import-bag", str(bag), "-o", str(tmp_path / "run")]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                str(tmp_path / "run.robot.csv"),
+                "--tracker-stream",
+                str(tmp_path / "run.tracker.csv"),
+                "--method",
+                "ml",
+                "-o",
+                str(tmp_path / "cal.json"),
+            ]
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    offset_ms = float(out.split("robot clock ")[1].split(" ms")[0])
+    assert abs(offset_ms - CLOCK_OFFSET_S * 1000) < 2.0
+    assert (
+        main(
+            [
+                "export",
+                str(tmp_path / "cal.json"),
+                "--ros2-launch",
+                str(tmp_path / "cal.launch.py"),
+                "--urdf",
+                str(tmp_path / "cal.urdf"),
+                "--easy-handeye2",
+                str(tmp_path / "cal.calib"),
+            ]
+        )
+        == 0
+    )
+    from spacecal.io.easy_handeye import read_easy_handeye_calibration
+    from spacecal.io.results_json import read_calibration
+
+    tracker_from_base = read_calibration(tmp_path / "cal.json").tracker_from_base
+    for edge in (read_ros2_launch(tmp_path / "cal.launch.py"), read_urdf_joint(tmp_path / "cal.urdf")):
+        # the frame direction users get wrong: parent base, child tracker, matrix base_from_tracker
+        assert (edge.parent_frame, edge.child_frame) == ("base", "tracker")
+        assert np.allclose(edge.parent_from_child @ tracker_from_base, np.eye(4), atol=1e-6)
+    read = read_easy_handeye_calibration(tmp_path / "cal.calib")
+    assert np.allclose(read.tracker_from_base, tracker_from_base, atol=1e-6)
+    assert main(["export", str(tmp_path / "cal.json"), "--ur-calibration", str(tmp_path / "ur.yaml")]) == 1
+    assert "--method kinematic" in capsys.readouterr().err

@@ -67,15 +67,15 @@ class NDITracker:
             raise DeviceError(f"could not open the NDI tracker at {address}" + (f":{port}" if port else ""))
         self._command("INIT:")
         if self.serial:
-            self._command("COMM:%d%03d%d" % (ndi.NDI_115200, ndi.NDI_8N1, ndi.NDI_NOHANDSHAKE))
+            self._command(f"COMM:{ndi.NDI_115200:d}{ndi.NDI_8N1:03d}{ndi.NDI_NOHANDSHAKE:d}")
         self.handles = []
         for rom in rom_files:
             self._command("PHRQ:*********1****")
             handle = ndi.ndiGetPHRQHandle(self._device)
             ndi.ndiPVWRFromFile(self._device, handle, str(rom))
             self._check(f"uploading {rom}")
-            self._command("PINIT:%02X" % handle)
-            self._command("PENA:%02XD" % handle)
+            self._command(f"PINIT:{handle:02X}")
+            self._command(f"PENA:{handle:02X}D")
             self.handles.append(handle)
         self._command("TSTART:")
         self._marker = bytes([self.handles[0]])

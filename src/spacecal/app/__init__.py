@@ -4,7 +4,8 @@ prints; a notebook does exactly what the command line does by calling them.
 
 >>> from spacecal import app
 >>> out = app.simulate(app.SimulateSettings(output="rec.csv", scenario="paper-white"))  # doctest: +SKIP
->>> cal = app.calibrate(app.CalibrateSettings(recording="rec.csv", output="cal.json", method="ml"))  # doctest: +SKIP
+>>> settings = app.CalibrateSettings(recording="rec.csv", output="cal.json", method="ml")
+>>> cal = app.calibrate(settings)  # doctest: +SKIP
 """
 
 from spacecal.app.acquisition import (
@@ -37,6 +38,13 @@ from spacecal.app.files import (
     register_landmarks,
     report,
 )
+from spacecal.app.ros import (
+    ImportBagSettings,
+    RosExportSettings,
+    export_ros,
+    import_bag,
+    import_easy_handeye,
+)
 from spacecal.app.simulation import (
     DemoOutput,
     DemoSettings,
@@ -63,7 +71,9 @@ __all__ = [
     "DemoOutput",
     "DemoSettings",
     "ExportSettings",
+    "ImportBagSettings",
     "ImportPlusSettings",
+    "RosExportSettings",
     "PhantomCommandSettings",
     "PivotSettings",
     "PlanSettings",
@@ -80,6 +90,9 @@ __all__ = [
     "check",
     "demo",
     "export",
+    "export_ros",
+    "import_bag",
+    "import_easy_handeye",
     "import_plus",
     "phantom",
     "pivot",

@@ -142,7 +142,8 @@ def export(settings: ExportSettings) -> list[str]:
     """Export the calibration to every target named; returns one line per export done."""
     if not (settings.slicer or settings.plus or settings.igtl):
         raise InvalidInputError(
-            "say where to export: --slicer FILE.tfm, --plus FILE.xml and/or --igtl HOST:PORT"
+            "say where to export: --slicer FILE.tfm, --plus FILE.xml, --igtl HOST:PORT, --easy-handeye2, "
+            "--ros2-launch, --urdf, --static-tf or --ur-calibration"
         )
     refuse_overwriting_inputs(settings.slicer, settings.calibration)
     refuse_overwriting_inputs(settings.plus, settings.calibration)

@@ -63,7 +63,8 @@ def _simulate(a: argparse.Namespace) -> None:
         )
         return
     print(
-        f"wrote {out.paths[0]} ({out.samples} samples, {out.visible} with the marker visible) and {out.paths[1]}"
+        f"wrote {out.paths[0]} ({out.samples} samples, {out.visible} with the marker visible) "
+        f"and {out.paths[1]}"
     )
     print(
         f"simulated: scenario {out.scenario}, seed {out.seed}; planned motion time {out.motion_time_s:.1f} s"
@@ -218,7 +219,8 @@ def _acquire(a: argparse.Namespace) -> None:
     _print_notes(out.messages)
     if out.dry_run:
         print(
-            "dry run: plan checked (reach, joint limits, visibility in the model, workspace box); nothing moved"
+            "dry run: plan checked (reach, joint limits, visibility in the model, workspace box); "
+            "nothing moved"
         )
         return
     r = out.result
@@ -252,8 +254,41 @@ def _register_landmarks(a: argparse.Namespace) -> None:
 
 
 def _export(a: argparse.Namespace) -> None:
-    for line in app.export(app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl)):
+    ros = (a.easy_handeye2, a.ros2_launch, a.urdf, a.static_tf, a.ur_calibration)
+    lines = []
+    if a.slicer or a.plus or a.igtl or not any(ros):
+        lines += app.export(app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl))
+    if any(ros):
+        lines += app.export_ros(
+            app.RosExportSettings(
+                a.calibration, *ros, a.base_frame, a.tool_frame, a.tracker_frame, a.marker_frame
+            )
+        )
+    for line in lines:
         print(line)
+
+
+def _import_bag(a: argparse.Namespace) -> None:
+    print(
+        app.import_bag(
+            app.ImportBagSettings(
+                a.bag,
+                a.output,
+                a.list,
+                a.base_frame,
+                a.tool_frame,
+                a.tracker_frame,
+                a.marker_frame,
+                a.joint_states,
+                a.marker_topic,
+                a.robot_model,
+            )
+        )
+    )
+
+
+def _import_easy_handeye(a: argparse.Namespace) -> None:
+    print(app.import_easy_handeye(a.samples, a.output))
 
 
 def _import_plus(a: argparse.Namespace) -> None:
@@ -274,7 +309,8 @@ def _check(a: argparse.Namespace) -> None:
         print(f"  {label:>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
     where = {True: "simulated robot", False: "real robot", None: "recording"}[r.simulated]
     print(
-        f"{'PASS' if r.passed else 'FAIL'} ({where}): thresholds {r.threshold_mm} mm and {r.threshold_deg} deg "
+        f"{'PASS' if r.passed else 'FAIL'} ({where}): thresholds {r.threshold_mm} mm and "
+        f"{r.threshold_deg} deg "
         f"(history: {out.history})"
     )
     if not r.passed:
@@ -287,7 +323,8 @@ def _phantom(a: argparse.Namespace) -> None:
     result, paths = app.phantom(app.PhantomCommandSettings(a.scenario, a.method, a.cases, a.output, a.figure))
     print(phantom_table(result))
     print(
-        "(simulated; measured errors include the second CT's localisation error, as in the paper's experiment)"
+        "(simulated; measured errors include the second CT's localisation error, as in the paper's "
+        "experiment)"
     )
     for path in paths:
         print(f"wrote {path}")
@@ -303,10 +340,12 @@ def _plan(a: argparse.Namespace) -> None:
     record, path = app.plan(app.PlanSettings(_seconds(a.budget), a.scenario, a.frames_per_station, a.output))
     print(
         f"planned for the simulated set-up {a.scenario}: {len(record.station_joints_rad)} stations, "
-        f"{record.motion_time_s:.1f} s of motion, predicted tip error at the site {record.predicted_error_mm:.3f} mm"
+        f"{record.motion_time_s:.1f} s of motion, predicted tip error at the site "
+        f"{record.predicted_error_mm:.3f} mm"
     )
     print(
-        f"paper's sweeps: {record.paper_sweep['motion_time_s']:.1f} s of motion, predicted tip error at the site "
+        f"paper's sweeps: {record.paper_sweep['motion_time_s']:.1f} s of motion, predicted tip error at "
+        "the site "
         f"{record.paper_sweep['predicted_error_mm']:.3f} mm"
     )
     print(
@@ -332,6 +371,8 @@ COMMANDS = {
     "register-landmarks": _register_landmarks,
     "export": _export,
     "import-plus": _import_plus,
+    "import-bag": _import_bag,
+    "import-easy-handeye": _import_easy_handeye,
     "check": _check,
     "phantom": _phantom,
     "report": _report,

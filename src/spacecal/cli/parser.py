@@ -156,6 +156,21 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--igtl", metavar="HOST:PORT", help="send BaseToTracker to an OpenIGTLink server (e.g. Slicer)"
     )
+    X = app.RosExportSettings
+    p.add_argument("--easy-handeye2", metavar="FILE.calib", help="easy_handeye2 eye-on-base result file")
+    p.add_argument(
+        "--ros2-launch", metavar="FILE.launch.py", help="ROS 2 launch file publishing the static transform"
+    )
+    p.add_argument(
+        "--urdf", metavar="FILE.urdf", help="URDF snippet: a fixed joint from the base link to the tracker"
+    )
+    p.add_argument("--static-tf", action="store_true", help="print a ros2 static_transform_publisher command")
+    p.add_argument(
+        "--ur-calibration",
+        metavar="FILE.yaml",
+        help="UR ROS driver kinematics file of the identified robot model (--method kinematic)",
+    )
+    _ros_frames(p, X)
 
     I = app.ImportPlusSettings
     p = command("import-plus", "turn a PLUS sequence file (.igs.mha) into a recording CSV")
@@ -163,6 +178,29 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--marker", default=_d(I, "marker"), help="marker transform name")
     p.add_argument("--tcp", default=_d(I, "tcp"), help="robot TCP transform name")
     p.add_argument("--segment", default=_d(I, "segment"), help="segment label for every frame")
+    p.add_argument("-o", "--output", required=True, help="recording CSV to write")
+
+    B = app.ImportBagSettings
+    p = command("import-bag", "turn a ROS 1 or ROS 2 bag into a raw two-stream recording (spacecal[ros])")
+    p.add_argument("bag", help="ROS 1 .bag, ROS 2 bag folder, or a .db3 / .mcap file")
+    p.add_argument("-o", "--output", help="stem of STEM.robot.csv and STEM.tracker.csv")
+    p.add_argument("--list", action="store_true", help="show the topics and tf frames found, write nothing")
+    p.add_argument("--base-frame", help="tf: robot base frame")
+    p.add_argument("--tool-frame", help="tf: robot tool (TCP) frame")
+    p.add_argument("--tracker-frame", help="tf: tracker frame")
+    p.add_argument("--marker-frame", help="tf: marker frame")
+    p.add_argument(
+        "--joint-states", metavar="TOPIC", help="sensor_msgs/JointState topic (robot pose by kinematics)"
+    )
+    p.add_argument(
+        "--marker-topic", metavar="TOPIC", help="PoseStamped / TransformStamped topic of the marker"
+    )
+    p.add_argument("--robot-model", default=_d(B, "robot_model"), help="UR model for --joint-states")
+
+    p = command(
+        "import-easy-handeye", "turn easy_handeye2 saved samples into a recording CSV (spacecal[ros])"
+    )
+    p.add_argument("samples", help="easy_handeye2 .samples file")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write")
 
     K = app.CheckSettings
@@ -209,6 +247,18 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command("scenario", "print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
     return parser
+
+
+def _ros_frames(p: argparse.ArgumentParser, settings: type) -> None:
+    for name, what in (
+        ("base", "robot base link (tf parent)"),
+        ("tool", "robot tool flange"),
+        ("tracker", "tracker (tf child)"),
+        ("marker", "marker"),
+    ):
+        p.add_argument(
+            f"--{name}-frame", default=_d(settings, f"{name}_frame"), help=f"ROS frame of the {what}"
+        )
 
 
 def join_negative_coordinates(argv: list[str]) -> list[str]:

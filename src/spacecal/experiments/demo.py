@@ -47,7 +47,8 @@ class DemoResult:
             ("paper estimator: rotation error", f"{err['rotation_error_deg']:.4f} deg", ""),
             (
                 "ML estimator, same data: TRE (RMS / max)",
-                f"{self.ml_calibration_error['tre_rms_mm']:.3f} / {self.ml_calibration_error['tre_max_mm']:.3f} mm",
+                f"{self.ml_calibration_error['tre_rms_mm']:.3f} / "
+                f"{self.ml_calibration_error['tre_max_mm']:.3f} mm",
                 "",
             ),
             (
@@ -57,7 +58,8 @@ class DemoResult:
                 "",
             ),
             (
-                f"verification position error, {len(self.verification.position_error_mm)} points (min / mean / max)",
+                f"verification position error, {len(self.verification.position_error_mm)} points "
+                "(min / mean / max)",
                 f"{pos['min']:.2f} / {pos['mean']:.2f} / {pos['max']:.2f} mm",
                 f"{p['position_min_mm']} / <{p['position_mean_bound_mm']} / - mm",
             ),

@@ -16,6 +16,7 @@ The paired format (:mod:`spacecal.io.recording_csv`) is unchanged.
 from __future__ import annotations
 
 import csv
+import io
 import json
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from spacecal.io.recording_csv import (
     _number,
 )
 from spacecal.io.results_json import read_json_object
+from spacecal.io.text import read_text_file
 from spacecal.records import RawRecording
 
 ROBOT_COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS
@@ -86,8 +88,8 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
 def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict]:
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such stream file")
-    with open(path, newline="") as handle:
-        rows = [r for r in csv.reader(handle) if any(c.strip() for c in r)]
+    text = read_text_file(path, "stream")
+    rows = [r for r in csv.reader(io.StringIO(text, newline="")) if any(c.strip() for c in r)]
     if not rows:
         raise InvalidInputError(f"{path}: the stream is empty")
     header = [h.strip() for h in rows[0]]
@@ -96,6 +98,11 @@ def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict]:
         raise InvalidInputError(f"{path}: missing column(s): {', '.join(missing)}")
     if len(rows) < 11:
         raise InvalidInputError(f"{path}: the stream has {len(rows) - 1} rows; at least 10 are needed")
+    short = [k + 2 for k, row in enumerate(rows[1:]) if len(row) < len(header)]
+    if short:
+        raise InvalidInputError(
+            f"{path}: line {short[0]} has fewer cells than the header's {len(header)} columns"
+        )
     return rows[1:], {c: header.index(c) for c in columns}
 
 
@@ -110,9 +117,14 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     robot_path, tracker_path = Path(robot_path), Path(tracker_path)
     rows, index = _rows(robot_path, ROBOT_COLUMNS)
     numeric = ["time_s"] + JOINT_COLUMNS + TCP_COLUMNS
-    values = np.array(
-        [[_number(r[index[c]], k + 2, c, robot_path) for c in numeric] for k, r in enumerate(rows)]
-    )
+    values = np.empty((len(rows), len(numeric)))
+    for k, row in enumerate(rows):
+        # joints may be unrecorded (a robot pose from tf in a ROS bag): all six cells empty
+        joints_missing = not any(row[index[c]].strip() for c in JOINT_COLUMNS)
+        values[k] = [
+            np.nan if joints_missing and c in JOINT_COLUMNS else _number(row[index[c]], k + 2, c, robot_path)
+            for c in numeric
+        ]
     segments = np.array([r[index["segment"]].strip() for r in rows])
     _increasing(values[:, 0], robot_path)
     lines = np.arange(2, len(rows) + 2)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import csv
 import difflib
+import io
 import json
 import math
 import os
@@ -31,6 +32,7 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.results_json import read_json_object
+from spacecal.io.text import read_text_file
 from spacecal.records import Recording
 
 JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
@@ -229,8 +231,7 @@ def read_recording(path: str | Path) -> Recording:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such recording file")
-    with open(path, newline="") as handle:
-        rows = list(csv.reader(handle))
+    rows = list(csv.reader(io.StringIO(read_text_file(path, "recording"), newline="")))
     rows = [r for r in rows if any(cell.strip() for cell in r)]
     if not rows:
         raise InvalidInputError(f"{path}: the recording is empty")

@@ -28,6 +28,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import invert_transform, is_rigid_transform
+from spacecal.io.text import read_text_file
 
 RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
 HEADER = "#Insight Transform File V1.0"
@@ -57,7 +58,7 @@ def read_slicer_transform(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such transform file")
-    lines = [line.strip() for line in path.read_text().splitlines() if line.strip()]
+    lines = [line.strip() for line in read_text_file(path, "transform").splitlines() if line.strip()]
     if not lines or lines[0] != HEADER:
         raise InvalidInputError(f"{path}: not an ITK transform file (first line must be '{HEADER}')")
     fields = dict(line.split(":", 1) for line in lines[1:] if ":" in line and not line.startswith("#"))

@@ -62,8 +62,8 @@ def register_landmarks_from_stylus(
     detected, ends = detect_landmarks(reference_from_tip, settings, expected=len(phantom))
     if len(detected) < len(phantom):
         raise DegenerateDataError(
-            f"found {len(detected)} landmark touches of the {len(phantom)} defined: hold the tip still in each "
-            "divot and pivot the stylus for at least a second"
+            f"found {len(detected)} landmark touches of the {len(phantom)} defined: hold the tip still "
+            "in each divot and pivot the stylus for at least a second"
         )
     registration = register_points(detected, phantom)
     return LandmarkRegistrationResult(

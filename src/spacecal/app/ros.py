@@ -1,0 +1,153 @@
+"""App functions for ROS users: ``import-bag``, ``import-easy-handeye``, and ROS exports
+(easy_handeye2 ``.calib``, ROS 2 static transform command and launch file, URDF joint, UR
+driver kinematics file). None needs ROS installed; reading bags needs ``spacecal[ros]``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from spacecal.app._common import refuse_overwriting_inputs
+from spacecal.core.errors import InvalidInputError
+from spacecal.io.easy_handeye import read_easy_handeye_samples, write_easy_handeye2_calibration
+from spacecal.io.raw_streams import write_raw_recording
+from spacecal.io.recording_csv import write_recording
+from spacecal.io.results_json import read_calibration
+from spacecal.io.ros_bag import list_bag_contents, read_ros_bag
+from spacecal.io.ros_exports import (
+    calibration_static_transform,
+    static_transform_publisher_command,
+    write_ros2_launch,
+    write_urdf_joint,
+)
+from spacecal.io.ur_driver_calibration import write_ur_calibration
+
+
+@dataclass(frozen=True)
+class ImportBagSettings:
+    """``spacecal import-bag``: a ROS 1 or ROS 2 bag as a raw two-stream recording.
+
+    Attributes
+    ----------
+    bag : str
+        ROS 1 ``.bag``, ROS 2 bag folder, or a bare ``.db3`` / ``.mcap`` file.
+    output : str or None
+        Stem of ``STEM.robot.csv`` and ``STEM.tracker.csv`` (None with ``list_only``).
+    list_only : bool
+        Only describe the topics and tf frames found.
+    base_frame, tool_frame, tracker_frame, marker_frame : str or None
+        tf frames of the robot pose (base -> tool) and the marker pose (tracker -> marker).
+    joint_states, marker_topic : str or None
+        ``sensor_msgs/JointState`` topic (with ``robot_model``) and a ``PoseStamped`` /
+        ``TransformStamped`` topic for the marker.
+    robot_model : str
+        UR model whose kinematics turn joint states into TCP poses.
+    """
+
+    bag: str
+    output: str | None = None
+    list_only: bool = False
+    base_frame: str | None = None
+    tool_frame: str | None = None
+    tracker_frame: str | None = None
+    marker_frame: str | None = None
+    joint_states: str | None = None
+    marker_topic: str | None = None
+    robot_model: str = "UR10"
+
+
+def import_bag(settings: ImportBagSettings) -> str:
+    """Describe the bag (``list_only``) or convert it; returns the text to print."""
+    if settings.list_only:
+        return list_bag_contents(settings.bag).describe()
+    if not settings.output:
+        raise InvalidInputError("say where to write the streams: -o STEM (or --list to look inside the bag)")
+    refuse_overwriting_inputs(settings.output, settings.bag)
+    raw = read_ros_bag(
+        settings.bag,
+        base_frame=settings.base_frame,
+        tool_frame=settings.tool_frame,
+        tracker_frame=settings.tracker_frame,
+        marker_frame=settings.marker_frame,
+        joint_state_topic=settings.joint_states,
+        marker_topic=settings.marker_topic,
+        robot_model=settings.robot_model if settings.joint_states else None,
+    )
+    stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
+    robot_path, tracker_path = write_raw_recording(raw, stem)
+    return (
+        f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
+        f"({len(raw.tracker_time_s)} tracker poses); calibrate with: spacecal calibrate {robot_path} "
+        f"--tracker-stream {tracker_path} --method ml (the clock offset is estimated)"
+    )
+
+
+def import_easy_handeye(samples: str, output: str) -> str:
+    """easy_handeye2 saved samples as a recording CSV, to re-solve with spacecal's estimators."""
+    refuse_overwriting_inputs(output, samples)
+    recording = read_easy_handeye_samples(samples)
+    path = write_recording(recording, output)
+    return f"wrote {path}: {len(recording)} samples (re-solve with: spacecal calibrate {path} --method ml)"
+
+
+@dataclass(frozen=True)
+class RosExportSettings:
+    """ROS exports of a calibration (``spacecal export --easy-handeye2/--ros2-launch/...``).
+
+    The frame names are the user's: ``base_frame`` is the robot base link the tracker is
+    attached to (the tf parent), ``tracker_frame`` the tracker's (the child).
+    """
+
+    calibration: str
+    easy_handeye2: str | None = None
+    ros2_launch: str | None = None
+    urdf: str | None = None
+    static_tf: bool = False
+    ur_calibration: str | None = None
+    base_frame: str = "base"
+    tool_frame: str = "tool0"
+    tracker_frame: str = "tracker"
+    marker_frame: str = "marker"
+
+
+def export_ros(settings: RosExportSettings) -> list[str]:
+    """Write each ROS export named; returns one line per export."""
+    for output in (settings.easy_handeye2, settings.ros2_launch, settings.urdf, settings.ur_calibration):
+        refuse_overwriting_inputs(output, settings.calibration)
+    calibration = read_calibration(settings.calibration)
+    edge = calibration_static_transform(
+        calibration.tracker_from_base, base_frame=settings.base_frame, tracker_frame=settings.tracker_frame
+    )
+    done = []
+    if settings.easy_handeye2:
+        path = write_easy_handeye2_calibration(
+            settings.easy_handeye2,
+            calibration.tracker_from_base,
+            robot_base_frame=settings.base_frame,
+            robot_effector_frame=settings.tool_frame,
+            tracking_base_frame=settings.tracker_frame,
+            tracking_marker_frame=settings.marker_frame,
+        )
+        done.append(
+            f"wrote {path} (easy_handeye2 eye-on-base: {settings.base_frame} -> {settings.tracker_frame})"
+        )
+    if settings.ros2_launch:
+        path = write_ros2_launch(settings.ros2_launch, edge)
+        done.append(
+            f"wrote {path} (ROS 2 launch file: static transform parent {settings.base_frame}, "
+            f"child {settings.tracker_frame})"
+        )
+    if settings.urdf:
+        path = write_urdf_joint(settings.urdf, edge)
+        done.append(f"wrote {path} (URDF fixed joint {settings.base_frame} -> {settings.tracker_frame})")
+    if settings.static_tf:
+        done.append(static_transform_publisher_command(edge))
+    if settings.ur_calibration:
+        if calibration.robot_model is None:
+            raise InvalidInputError(
+                "this calibration holds no identified robot model: calibrate with --method kinematic first"
+            )
+        path = write_ur_calibration(settings.ur_calibration, calibration.robot_model)
+        done.append(
+            f"wrote {path} (UR ROS driver kinematics of the identified {calibration.robot_model.name})"
+        )
+    return done
