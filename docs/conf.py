@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import sys
-import types
 from pathlib import Path
 
 # Document the source tree even when the package is not installed in the building environment.
@@ -16,10 +15,6 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 import spacecal  # noqa: E402
 
-# ``spacecal.cli.__main__`` runs the command line when imported; autosummary imports every
-# submodule while it walks the package, so hand it an empty stand-in (the page template skips
-# ``__main__`` modules anyway).
-sys.modules.setdefault("spacecal.cli.__main__", types.ModuleType("spacecal.cli.__main__"))
 
 project = "spacecal"
 author = "the spacecal developers"

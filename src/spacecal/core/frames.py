@@ -1,7 +1,7 @@
 """The coordinate frames spacecal knows, each defined once.
 
 Transforms are named ``<to>_from_<from>`` (``p_tracker = tracker_from_base @ p_base``);
-see the README's "Frames" section. Code that needs a new frame adds it here.
+see docs/conventions.md. Code that needs a new frame adds it here.
 """
 
 from __future__ import annotations

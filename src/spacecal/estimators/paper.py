@@ -32,7 +32,7 @@ from spacecal.records import ROTATION_SEGMENTS, TRANSLATION_SEGMENTS, Calibratio
 
 @dataclass(frozen=True)
 class PaperThresholds:
-    """Limits beyond which the data is called degenerate (all documented in the README).
+    """Limits beyond which the data is called degenerate (documented in docs/methods.md).
 
     Attributes
     ----------

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.frames import transform_name
 from spacecal.models.kinematics import RobotModel
 from spacecal.records.fields import (
     as_array,
@@ -27,6 +28,10 @@ from spacecal.records.fields import (
     get_str,
     plain,
 )
+
+#: The file's names of the two transforms, built from the frame table (``<to>_from_<from>``).
+TRACKER_FROM_BASE = transform_name("tracker", "base")
+TCP_FROM_MARKER = transform_name("tcp", "marker")
 
 CALIBRATION_SCHEMA = "spacecal.calibration"
 CALIBRATION_SCHEMA_VERSION = 2
@@ -221,8 +226,8 @@ class CalibrationResult:
                 "created_utc": self.provenance.created_utc,
                 "units": {"length": "mm", "angle": "rad"},
                 "method": self.method,
-                "tracker_from_base": self.tracker_from_base,
-                "tcp_from_marker": self.tcp_from_marker,
+                TRACKER_FROM_BASE: self.tracker_from_base,
+                TCP_FROM_MARKER: self.tcp_from_marker,
                 "sample_counts": self.sample_counts,
                 "diagnostics": self.diagnostics,
                 "provenance": self.provenance.to_dict(),
@@ -250,7 +255,7 @@ class CalibrationResult:
                     isinstance(predicted[key], bool) or not isinstance(predicted[key], (int, float))
                 ):
                     raise InvalidInputError(f"{what}: predicted_tre_mm.{key} must be a number")
-        for key in ("tracker_from_base", "tcp_from_marker"):
+        for key in (TRACKER_FROM_BASE, TCP_FROM_MARKER):
             if key not in data:
                 raise InvalidInputError(f"{what}: missing {key!r}")
         if version == 1:
@@ -275,8 +280,8 @@ class CalibrationResult:
             robot_model = robot_model_from_dict(model_data, what, base)
         return cls(
             method=get_str(data, "method", what, default="unknown"),
-            tracker_from_base=as_transform(data["tracker_from_base"], "tracker_from_base", what),
-            tcp_from_marker=as_transform(data["tcp_from_marker"], "tcp_from_marker", what),
+            tracker_from_base=as_transform(data[TRACKER_FROM_BASE], TRACKER_FROM_BASE, what),
+            tcp_from_marker=as_transform(data[TCP_FROM_MARKER], TCP_FROM_MARKER, what),
             sample_counts=get_mapping(data, "sample_counts", what),
             diagnostics=diagnostics,
             provenance=provenance,

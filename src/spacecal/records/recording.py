@@ -38,7 +38,7 @@ class Recording:
         The tracker's RMS fit error of the marker, mm; NaN where not seen.
     metadata : dict
         Robot model, TCP in flange, tracker, marker geometry, and for simulated data the
-        scenario (see the README's "Files" section).
+        scenario (see docs/formats.md).
     spheres_in_tracker : numpy.ndarray, shape (N, K, 3), optional
         Raw sphere centres when the tracker reports them, mm; NaN where not seen.
     """
