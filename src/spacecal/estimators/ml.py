@@ -26,7 +26,7 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.geometry.rotations import skew
-from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
+from spacecal.geometry.transforms import apply_transform, make_transform, rotvec_to_matrix, transform_points_by_stack
 from spacecal.estimators.observations import Observations
 
 PARAMETER_NAMES = [
@@ -48,7 +48,7 @@ PARAMETER_NAMES = [
 def predict_spheres(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
     """Predicted sphere centres (N, K, 3) in the tracker frame."""
     chain = tracker_from_base @ obs.base_from_tcp_stack @ tcp_from_marker
-    return np.einsum("nij,kj->nki", chain[:, :3, :3], obs.spheres_in_marker) + chain[:, None, :3, 3]
+    return transform_points_by_stack(chain, obs.spheres_in_marker)
 
 
 def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
@@ -56,13 +56,8 @@ def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarra
     r_t = tracker_from_base[:3, :3]
     r_a = obs.base_from_tcp_stack[:, :3, :3]
     r_x = tcp_from_marker[:3, :3]
-    points_in_base = (
-        np.einsum(
-            "nij,kj->nki",
-            obs.base_from_tcp_stack[:, :3, :3],
-            obs.spheres_in_marker @ r_x.T + tcp_from_marker[:3, 3],
-        )
-        + obs.base_from_tcp_stack[:, None, :3, 3]
+    points_in_base = transform_points_by_stack(
+        obs.base_from_tcp_stack, apply_transform(tcp_from_marker, obs.spheres_in_marker)
     )
     rotated = points_in_base @ r_t.T  # R_t p_base
     n, k = rotated.shape[:2]

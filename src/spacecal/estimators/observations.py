@@ -17,6 +17,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.transforms import transform_points_by_stack
 from spacecal.models.marker import ndi_8700339_like
 from spacecal.records import Recording
 
@@ -98,7 +99,7 @@ def build_observations(
         observed, dof = raw[rows], 3 * len(spheres)
     else:
         poses = recording.tracker_from_marker_stack[rows]
-        observed = np.einsum("nij,kj->nki", poses[:, :3, :3], spheres) + poses[:, None, :3, 3]
+        observed = transform_points_by_stack(poses, spheres)
         dof = 6
     known = True
     if sigma_mm is None:

@@ -23,7 +23,7 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, UnknownMethodError
 from spacecal.geometry.fitting import fit_sphere
-from spacecal.geometry.transforms import is_rigid_transform
+from spacecal.geometry.transforms import is_rigid_transform, transform_points_by_stack
 
 
 @dataclass
@@ -82,7 +82,7 @@ def _check_poses(tracker_from_marker_stack) -> np.ndarray:
 
 
 def _residuals(poses, tip, pivot):
-    return np.linalg.norm(np.einsum("nij,j->ni", poses[:, :3, :3], tip) + poses[:, :3, 3] - pivot, axis=1)
+    return np.linalg.norm(transform_points_by_stack(poses, tip) - pivot, axis=1)
 
 
 def pivot_algebraic_one_step(tracker_from_marker_stack) -> PivotResult:

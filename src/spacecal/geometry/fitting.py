@@ -8,6 +8,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.transforms import transform_points_by_stack
 
 
 @dataclass(frozen=True)
@@ -213,12 +214,12 @@ def fit_rigid(points_in_b, points_in_a, weights=None) -> tuple[np.ndarray, float
     u[:, :, 2] *= d[:, None]
     rotation = u @ vt
     translation = measured_centroid - np.einsum("mij,j->mi", rotation, model_centroid)
-    fitted = np.einsum("mij,nj->mni", rotation, model) + translation[:, None, :]
-    rms = np.sqrt(np.mean(np.sum((fitted - measured) ** 2, axis=2), axis=1))
     transform = np.zeros((len(measured), 4, 4))
     transform[:, :3, :3] = rotation
     transform[:, :3, 3] = translation
     transform[:, 3, 3] = 1.0
+    fitted = transform_points_by_stack(transform, model)
+    rms = np.sqrt(np.mean(np.sum((fitted - measured) ** 2, axis=2), axis=1))
     if single:
         return transform[0], float(rms[0])
     return transform, rms

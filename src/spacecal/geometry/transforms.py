@@ -53,6 +53,8 @@ def apply_transform(a_from_b, points_in_b) -> np.ndarray:
     ----------
     a_from_b : array_like, shape (4, 4) or (N, 4, 4)
     points_in_b : array_like, shape (3,), (M, 3), or (N, 3) paired with a stack
+        With a stack, point n goes through transform n only; to place the same points by
+        every transform of a stack use :func:`transform_points_by_stack`.
 
     Returns
     -------
@@ -64,6 +66,34 @@ def apply_transform(a_from_b, points_in_b) -> np.ndarray:
     if a_from_b.ndim == 2:
         return points_in_b @ a_from_b[:3, :3].T + a_from_b[:3, 3]
     return np.einsum("nij,nj->ni", a_from_b[:, :3, :3], points_in_b) + a_from_b[:, :3, 3]
+
+
+def transform_points_by_stack(a_from_b_stack, points_in_b) -> np.ndarray:
+    """Place the same model points by each of N poses: every point through every transform.
+
+    This is how a marker's sphere centres (given once, in the marker frame) appear at each
+    of N measured or predicted poses. Unlike :func:`apply_transform` with a stack, the
+    points are not paired with the transforms: all of them go through each one.
+
+    Parameters
+    ----------
+    a_from_b_stack : array_like, shape (N, 4, 4)
+        Poses of frame b in frame a, mm.
+    points_in_b : array_like, shape (K, 3) or (3,)
+        Model points in frame b, mm.
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, K, 3) or (N, 3)
+        ``points_in_a``: row n holds the points placed by transform n (one point per row if
+        a single point (3,) was given).
+    """
+    a_from_b_stack = np.asarray(a_from_b_stack, dtype=float)
+    points_in_b = np.asarray(points_in_b, dtype=float)
+    if points_in_b.ndim == 1:
+        return np.einsum("nij,j->ni", a_from_b_stack[:, :3, :3], points_in_b) + a_from_b_stack[:, :3, 3]
+    rotated = np.einsum("nij,kj->nki", a_from_b_stack[:, :3, :3], points_in_b)
+    return rotated + a_from_b_stack[:, None, :3, 3]
 
 
 def rotation_part(transform) -> np.ndarray:

@@ -18,7 +18,7 @@ from importlib import resources
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
-from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec
+from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec, transform_points_by_stack
 
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 N_JOINTS = 6
@@ -341,7 +341,7 @@ def points_in_tracker(
     The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
     """
     chain = tracker_from_base @ forward_kinematics(model, np.atleast_2d(joints_rad)) @ tcp_from_marker
-    return np.einsum("nij,kj->nki", chain[:, :3, :3], points_in_marker) + chain[:, None, :3, 3]
+    return transform_points_by_stack(chain, points_in_marker)
 
 
 def dh_point_jacobian(

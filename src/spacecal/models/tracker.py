@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spacecal.geometry.transforms import transform_points_by_stack
+
 
 @dataclass(frozen=True)
 class PyramidVolume:
@@ -94,7 +96,7 @@ class TrackerModel:
         face_normal_in_marker : array_like, shape (3,)
         """
         t = np.asarray(tracker_from_marker, dtype=float).reshape(-1, 4, 4)
-        spheres = np.einsum("nij,kj->nki", t[:, :3, :3], sphere_positions_in_marker) + t[:, None, :3, 3]
+        spheres = transform_points_by_stack(t, sphere_positions_in_marker)
         in_volume = self.volume.contains(spheres.reshape(-1, 3)).reshape(len(t), -1).all(axis=1)
         facing = view_angles_rad(t, face_normal_in_marker) <= np.radians(self.max_view_angle_deg)
         return in_volume & facing

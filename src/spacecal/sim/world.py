@@ -12,7 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.geometry.fitting import fit_rigid
-from spacecal.geometry.transforms import invert_transform, make_transform, rotvec_to_matrix
+from spacecal.geometry.transforms import (
+    invert_transform,
+    make_transform,
+    rotvec_to_matrix,
+    transform_points_by_stack,
+)
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
 from spacecal.models.tracker import TrackerModel
@@ -166,7 +171,7 @@ class World:
     def measure_spheres(self, tracker_from_marker_true) -> np.ndarray:
         """Noisy sphere centres (N, K, 3) in the tracker frame for true marker poses (N, 4, 4)."""
         t = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
-        spheres = np.einsum("nij,kj->nki", t[:, :3, :3], self.marker.spheres_in_marker) + t[:, None, :3, 3]
+        spheres = transform_points_by_stack(t, self.marker.spheres_in_marker)
         spheres = spheres + self.error_field(spheres)
         s = self.scenario
         if s.white_noise_rms_mm > 0:
