@@ -12,6 +12,7 @@ import numpy as np
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, RobotState, TrackerFrame
 from spacecal.core.errors import DeviceError
 from spacecal.models.kinematics import forward_kinematics
+from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.planning.motion import MotionLimits, time_move, track_path, trapezoid_duration
 from spacecal.sim.world import World
 
@@ -78,7 +79,7 @@ class SimulatedRobot:
         self.commands: list[str] = []
 
     def _draw_offset(self) -> np.ndarray:
-        sd = self.world.scenario.repeatability_mm / 3.6
+        sd = self.world.scenario.repeatability_mm * REPEATABILITY_TO_AXIS_SD
         return self.world.noise_rng.normal(scale=sd, size=3) if sd > 0 else np.zeros(3)
 
     def _update(self) -> None:

@@ -20,12 +20,9 @@ from spacecal.geometry.transforms import (
 )
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
+from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.models.tracker import TrackerModel
 from spacecal.sim.scenario import Scenario
-
-#: ISO 9283 repeatability RP = mean + 3 s.d. of the 3-D distance; for isotropic Gaussian
-#: scatter with per-axis s.d. s that is about 1.60 s + 3 * 0.67 s = 3.6 s.
-REPEATABILITY_TO_AXIS_SD = 1.0 / 3.6
 
 
 def look_at_tracker_from_base(camera_in_base, target_in_base) -> np.ndarray:
