@@ -96,6 +96,34 @@ def transform_points_by_stack(a_from_b_stack, points_in_b) -> np.ndarray:
     return rotated + a_from_b_stack[:, None, :3, 3]
 
 
+def interpolate_transforms(start_a_from_b, end_a_from_b, fraction) -> np.ndarray:
+    """Transforms part-way from ``start`` to ``end``: position linearly, rotation along the geodesic.
+
+    The rotation turns about the fixed axis of the relative rotation ``R_start^T R_end`` at a
+    constant rate (slerp, expressed in the moving frame), so ``fraction`` 0 gives ``start``,
+    1 gives ``end``. A UR ``movel`` moves its TCP this way; it is also how a pose is
+    interpolated between two timestamps.
+
+    Parameters
+    ----------
+    start_a_from_b, end_a_from_b : array_like, shape (4, 4) or (N, 4, 4)
+        The end poses, mm; stacks are interpolated pairwise.
+    fraction : array_like, shape (M,), or (N,) paired with stacks
+        Where along the way, usually in [0, 1].
+
+    Returns
+    -------
+    numpy.ndarray, shape (M, 4, 4) or (N, 4, 4)
+    """
+    start = np.asarray(start_a_from_b, dtype=float)
+    end = np.asarray(end_a_from_b, dtype=float)
+    fraction = np.asarray(fraction, dtype=float)
+    relative = matrix_to_rotvec(np.swapaxes(start[..., :3, :3], -1, -2) @ end[..., :3, :3])
+    rotation = start[..., :3, :3] @ rotvec_to_matrix(fraction[..., None] * relative)
+    position = start[..., :3, 3] + fraction[..., None] * (end[..., :3, 3] - start[..., :3, 3])
+    return make_transform(rotation, position)
+
+
 def rotation_part(transform) -> np.ndarray:
     """The (…, 3, 3) rotation block of transforms."""
     return np.asarray(transform, dtype=float)[..., :3, :3]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import UnreachableError
-from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from spacecal.geometry.transforms import interpolate_transforms, matrix_to_rotvec
 from spacecal.models.kinematics import RobotModel, forward_kinematics, geometric_jacobian, inverse_kinematics
 
 
@@ -36,17 +36,6 @@ class MotionLimits:
     angular_speed_rad_s: float = np.radians(45.0)
     angular_accel_rad_s2: float = np.radians(180.0)
     joint_speed_rad_s: float = 1.0
-
-
-def interpolate_pose(start_base_from_tcp, end_base_from_tcp, s) -> np.ndarray:
-    """Poses along a straight Cartesian move at path parameters ``s`` (M,) in [0, 1]: (M, 4, 4)."""
-    s = np.atleast_1d(np.asarray(s, dtype=float))
-    delta = matrix_to_rotvec(start_base_from_tcp[:3, :3].T @ end_base_from_tcp[:3, :3])
-    rotation = start_base_from_tcp[:3, :3] @ rotvec_to_matrix(s[:, None] * delta)
-    position = start_base_from_tcp[:3, 3] + s[:, None] * (
-        end_base_from_tcp[:3, 3] - start_base_from_tcp[:3, 3]
-    )
-    return make_transform(rotation, position)
 
 
 def trapezoid_duration(distance: float, speed: float, accel: float) -> tuple[float, float]:
@@ -133,9 +122,8 @@ class TimedMove:
 
     def poses_at(self, t_s) -> np.ndarray:
         """Commanded ``base_from_tcp`` (M, 4, 4) at times (M,) since the move started."""
-        return interpolate_pose(
-            self.start, self.end, trapezoid_progress(t_s, self.duration_s, self.accel_time_s)
-        )
+        progress = trapezoid_progress(t_s, self.duration_s, self.accel_time_s)
+        return interpolate_transforms(self.start, self.end, np.atleast_1d(progress))
 
 
 def time_move(
@@ -163,7 +151,7 @@ def time_move(
     ]
     duration, accel_time = max(candidates)
     s = np.linspace(0.0, 1.0, path_points)
-    joints = track_path(model, interpolate_pose(start, end, s), start_joints_rad)
+    joints = track_path(model, interpolate_transforms(start, end, s), start_joints_rad)
     if duration > 0:
         dq_ds = np.max(np.abs(np.diff(joints, axis=0)), axis=0).max() / (s[1] - s[0])
         peak_rate = 1.0 / (duration - accel_time)
