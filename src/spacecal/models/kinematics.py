@@ -187,17 +187,52 @@ def geometric_jacobian(model: RobotModel, joints_rad) -> np.ndarray:
     return np.swapaxes(jac, 1, 2)
 
 
-def _newton_polish(model: RobotModel, base_from_tcp, q0, iterations: int = 20, tol_mm=1e-10):
-    """Refine IK solutions (N, 6) on the exact (possibly non-nominal) model by Gauss–Newton."""
-    q = q0.copy()
-    for _ in range(iterations):
-        err = _pose_error_vector(base_from_tcp, forward_kinematics(model, q))
-        if np.max(np.abs(err[:, :3])) < tol_mm and np.max(np.abs(err[:, 3:])) < tol_mm * 1e-3:
-            break
+def inverse_kinematics_gauss_newton(
+    model: RobotModel,
+    base_from_tcp,
+    start_joints_rad,
+    *,
+    max_iterations: int,
+    position_tol_mm: float,
+    rotation_tol_rad: float,
+) -> tuple[np.ndarray, bool]:
+    """Joint angles reaching ``base_from_tcp`` by Gauss–Newton from a start configuration.
+
+    The one iterative IK of the package: it polishes the closed-form branches of
+    :func:`inverse_kinematics` on a model's exact (possibly identified) parameters, and it
+    follows a dense Cartesian path continuously (:func:`spacecal.planning.motion.track_path`),
+    staying on the branch it starts on. Each step is ``dq = pinv(J) e`` with ``J`` the
+    :func:`geometric_jacobian` and ``e`` the pose error (position mm, rotation vector rad)
+    in the base frame; the pseudo-inverse keeps the step finite at a singularity.
+
+    Parameters
+    ----------
+    model : RobotModel
+    base_from_tcp : array_like, shape (N, 4, 4)
+        Target TCP poses, mm.
+    start_joints_rad : array_like, shape (N, 6)
+        Where each iteration starts.
+    max_iterations : int
+        Steps allowed; the error is checked before each step.
+    position_tol_mm, rotation_tol_rad : float
+        Converged when every component of every pose error is below these.
+
+    Returns
+    -------
+    joints_rad : numpy.ndarray, shape (N, 6)
+        The last iterate (converged or not).
+    converged : bool
+        Whether all rows met the tolerances within ``max_iterations`` checks.
+    """
+    targets = np.asarray(base_from_tcp, dtype=float)
+    q = np.array(start_joints_rad, dtype=float)
+    for _ in range(max_iterations):
+        err = _pose_error_vector(targets, forward_kinematics(model, q))
+        if np.max(np.abs(err[:, :3])) < position_tol_mm and np.max(np.abs(err[:, 3:])) < rotation_tol_rad:
+            return q, True
         jac = geometric_jacobian(model, q)
-        # pinv rather than solve: stays finite at a wrist or elbow singularity.
-        q = q + np.einsum("nij,nj->ni", np.linalg.pinv(jac), err)
-    return q
+        q = q + (np.linalg.pinv(jac) @ err[:, :, None])[:, :, 0]
+    return q, False
 
 
 def _wrap_near(angles, reference):
@@ -304,7 +339,15 @@ def inverse_kinematics(
         candidates = candidates[np.all(np.isfinite(candidates), axis=1)]
         if len(candidates) == 0:
             raise UnreachableError(f"pose {n} is outside the {model.name}'s workspace")
-        candidates = _newton_polish(model, np.broadcast_to(target, (len(candidates), 4, 4)), candidates)
+        # polish on the exact model; unconverged candidates fail the tolerance check below
+        candidates, _ = inverse_kinematics_gauss_newton(
+            model,
+            np.broadcast_to(target, (len(candidates), 4, 4)),
+            candidates,
+            max_iterations=20,
+            position_tol_mm=1e-10,
+            rotation_tol_rad=1e-13,
+        )
         err = _pose_error_vector(target, forward_kinematics(model, candidates))
         ok = (np.linalg.norm(err[:, :3], axis=1) < tol_mm) & (
             np.linalg.norm(err[:, 3:], axis=1) < tol_mm * 1e-3

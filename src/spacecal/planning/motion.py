@@ -14,7 +14,7 @@ import numpy as np
 
 from spacecal.core.errors import UnreachableError
 from spacecal.geometry.transforms import interpolate_transforms, matrix_to_rotvec
-from spacecal.models.kinematics import RobotModel, forward_kinematics, geometric_jacobian, inverse_kinematics
+from spacecal.models.kinematics import RobotModel, inverse_kinematics, inverse_kinematics_gauss_newton
 
 
 @dataclass(frozen=True)
@@ -72,8 +72,9 @@ def trapezoid_progress(t, duration: float, accel_time: float) -> np.ndarray:
 def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.ndarray:
     """Joint angles (M, 6) following a dense pose path continuously from ``start_joints_rad``.
 
-    Each pose is solved by Gauss–Newton from the previous solution, so the arm never
-    jumps between IK branches mid-move (as a UR controller behaves on ``movel``).
+    Each pose is solved by Gauss–Newton (:func:`~spacecal.models.kinematics.inverse_kinematics_gauss_newton`)
+    from the previous solution, so the arm never jumps between IK branches mid-move (as a UR
+    controller behaves on ``movel``).
 
     Raises
     ------
@@ -84,16 +85,12 @@ def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.n
     joints = np.empty((len(poses), 6))
     q = np.asarray(start_joints_rad, dtype=float).copy()
     for k, target in enumerate(poses):
-        for _ in range(30):
-            reached = forward_kinematics(model, q)
-            dp = target[:3, 3] - reached[:3, 3]
-            dr = matrix_to_rotvec(target[:3, :3] @ reached[:3, :3].T)
-            if np.max(np.abs(dp)) < 1e-9 and np.max(np.abs(dr)) < 1e-12:
-                break
-            jac = geometric_jacobian(model, q)[0]
-            q = q + np.linalg.pinv(jac) @ np.concatenate([dp, dr])
-        else:
+        solved, converged = inverse_kinematics_gauss_newton(
+            model, target[None], q[None], max_iterations=30, position_tol_mm=1e-9, rotation_tol_rad=1e-12
+        )
+        if not converged:
             raise UnreachableError(f"path pose {k} cannot be tracked (workspace edge or singularity)")
+        q = solved[0]
         joints[k] = q
     return joints
 
