@@ -3,14 +3,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
+from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import (
     apply_transform,
+    interpolate_transforms,
     invert_transform,
     is_rigid_transform,
     make_transform,
     matrix_to_quaternion_wxyz,
     quaternion_wxyz_to_matrix,
     transform_from_position_quaternion,
+    transform_points_by_stack,
     transform_to_position_quaternion,
 )
 
@@ -65,3 +68,31 @@ def test_rigidity_check(seed):
     mirrored = transforms[0].copy()
     mirrored[:3, 0] *= -1
     assert not is_rigid_transform(mirrored)
+
+
+@given(seeds)
+def test_points_by_stack_put_every_point_through_every_pose(seed):
+    stack = random_transforms(seed, 4)
+    points = np.random.default_rng(seed).normal(size=(3, 3)) * 100
+    placed = transform_points_by_stack(stack, points)
+    assert placed.shape == (4, 3, 3)
+    for n in range(4):
+        assert np.allclose(placed[n], apply_transform(stack[n], points), atol=1e-9)
+    single = transform_points_by_stack(stack, points[0])
+    assert single.shape == (4, 3) and np.allclose(single, placed[:, 0], atol=1e-12)
+
+
+@given(seeds)
+def test_interpolation_runs_the_geodesic_from_start_to_end(seed):
+    start, end = random_transforms(seed, 2)
+    fractions = np.linspace(0.0, 1.0, 5)
+    path = interpolate_transforms(start, end, fractions)
+    assert np.allclose(path[0], start, atol=1e-9) and np.allclose(path[-1], end, atol=1e-9)
+    assert is_rigid_transform(path)
+    # constant rate: equal fractions turn equal angles, and positions move on the straight line
+    steps = rotation_angle(path[1:, :3, :3] @ np.swapaxes(path[:-1, :3, :3], 1, 2))
+    assert np.allclose(steps, steps[0], atol=1e-9)
+    assert np.allclose(path[2, :3, 3], (start[:3, 3] + end[:3, 3]) / 2, atol=1e-9)
+    # stacks are interpolated pairwise
+    pairwise = interpolate_transforms(np.stack([start, end]), np.stack([end, start]), np.array([0.25, 0.75]))
+    assert np.allclose(pairwise[0], pairwise[1], atol=1e-9)
