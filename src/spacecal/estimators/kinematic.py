@@ -29,12 +29,19 @@ import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.models.kinematics import RobotModel, dh_point_jacobian, forward_kinematics, points_in_tracker, ur_model, with_dh_corrections
-from spacecal.records import CalibrationResult, Recording
 from spacecal.estimators.likelihood import calibrate_ml, report_uncertainty, variance_factor_of
-from spacecal.estimators.ml import apply_step
-from spacecal.estimators.ml import jacobian as pose_jacobian
 from spacecal.estimators.observations import build_observations
+from spacecal.models.kinematics import (
+    RobotModel,
+    apply_pose_step,
+    dh_point_jacobian,
+    forward_kinematics,
+    points_in_tracker,
+    pose_point_jacobian,
+    ur_model,
+    with_dh_corrections,
+)
+from spacecal.records import CalibrationResult, Recording
 
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
 DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]
@@ -110,7 +117,7 @@ def calibrate_kinematic(
     obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
     j_dh = dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres)
     selected, condition = identifiable_corrections(
-        j_dh, pose_jacobian(obs_model, t_cur, x_cur), rank_tolerance
+        j_dh, pose_point_jacobian(obs_model.base_from_tcp_stack, t_cur, x_cur, spheres), rank_tolerance
     )
     if len(selected) == 0:
         raise DegenerateDataError(
@@ -122,7 +129,10 @@ def calibrate_kinematic(
         obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
         predicted = points_in_tracker(corrected, joints, t_cur, x_cur, spheres)
         residual = (predicted - obs.spheres_in_tracker).reshape(-1) / obs.sigma_mm
-        j_pose = pose_jacobian(obs_model, t_cur, x_cur).reshape(-1, 12) / obs.sigma_mm
+        j_pose = (
+            pose_point_jacobian(obs_model.base_from_tcp_stack, t_cur, x_cur, spheres).reshape(-1, 12)
+            / obs.sigma_mm
+        )
         j_dh = (
             dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres).reshape(-1, 24)[:, selected]
             / obs.sigma_mm
@@ -133,7 +143,7 @@ def calibrate_kinematic(
         jac_all = np.vstack([jac, prior_rows])
         res_all = np.concatenate([residual, delta[selected] / prior_sd[selected]])
         step, *_ = np.linalg.lstsq(jac_all, -res_all, rcond=None)
-        t_cur, x_cur = apply_step(t_cur, x_cur, step[:12])
+        t_cur, x_cur = apply_pose_step(t_cur, x_cur, step[:12])
         delta[selected] += step[12:]
         if np.max(np.abs(step[:12])) < 1e-9 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-9:
             break

@@ -11,7 +11,9 @@ around the current estimate, re-linearised every iteration:
     tcp_from_marker   = [R_x exp(w_x) | t_x + v_x]     (w_x in the marker frame)
 
 so the Jacobian is analytic: d q / d v_t = I, d q / d w_t = -[R_t p_base]x,
-d q / d v_x = R_t R_A, d q / d w_x = -R_t R_A R_x [s_k]x.
+d q / d v_x = R_t R_A, d q / d w_x = -R_t R_A R_x [s_k]x. The convention, the step and the
+Jacobian live in :mod:`spacecal.models.kinematics` (``apply_pose_step``,
+``pose_point_jacobian``), shared with kinematic identification and motion planning.
 
 Levenberg–Marquardt minimises the (optionally robustly weighted) sum of squared whitened
 residuals. The covariance of the 12 parameters is s^2 (J^T J)^-1, with s^2 the a-posteriori
@@ -25,61 +27,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.geometry.rotations import skew
-from spacecal.geometry.transforms import apply_transform, make_transform, rotvec_to_matrix, transform_points_by_stack
 from spacecal.estimators.observations import Observations
+from spacecal.geometry.rotations import skew
+from spacecal.models.kinematics import (
+    POSE_PARAMETER_NAMES,
+    apply_pose_step,
+    chain_points_in_tracker,
+    pose_point_jacobian,
+)
 
-PARAMETER_NAMES = [
-    "tracker_from_base.v_x_mm",
-    "tracker_from_base.v_y_mm",
-    "tracker_from_base.v_z_mm",
-    "tracker_from_base.w_x_rad",
-    "tracker_from_base.w_y_rad",
-    "tracker_from_base.w_z_rad",
-    "tcp_from_marker.v_x_mm",
-    "tcp_from_marker.v_y_mm",
-    "tcp_from_marker.v_z_mm",
-    "tcp_from_marker.w_x_rad",
-    "tcp_from_marker.w_y_rad",
-    "tcp_from_marker.w_z_rad",
-]
+#: The 12 perturbation parameters of the covariance, in order (the convention is
+#: :func:`spacecal.models.kinematics.apply_pose_step`).
+PARAMETER_NAMES = POSE_PARAMETER_NAMES
 
 
 def predict_spheres(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
     """Predicted sphere centres (N, K, 3) in the tracker frame."""
-    chain = tracker_from_base @ obs.base_from_tcp_stack @ tcp_from_marker
-    return transform_points_by_stack(chain, obs.spheres_in_marker)
+    return chain_points_in_tracker(obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker)
 
 
 def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
-    """d(predicted spheres)/d(12 parameters), shape (N, K, 3, 12), unwhitened (mm per unit)."""
-    r_t = tracker_from_base[:3, :3]
-    r_a = obs.base_from_tcp_stack[:, :3, :3]
-    r_x = tcp_from_marker[:3, :3]
-    points_in_base = transform_points_by_stack(
-        obs.base_from_tcp_stack, apply_transform(tcp_from_marker, obs.spheres_in_marker)
-    )
-    rotated = points_in_base @ r_t.T  # R_t p_base
-    n, k = rotated.shape[:2]
-    jac = np.zeros((n, k, 3, 12))
-    jac[..., 0:3] = np.eye(3)
-    jac[..., 3:6] = -skew(rotated)
-    r_ta = np.einsum("ij,njk->nik", r_t, r_a)  # (N, 3, 3)
-    jac[..., 6:9] = r_ta[:, None]
-    r_tax = r_ta @ r_x
-    jac[..., 9:12] = -np.einsum("nij,kjl->nkil", r_tax, skew(obs.spheres_in_marker))
-    return jac
+    """d(predicted spheres)/d(12 parameters), shape (N, K, 3, 12), unwhitened (mm per unit).
 
-
-def apply_step(tracker_from_base, tcp_from_marker, step) -> tuple[np.ndarray, np.ndarray]:
-    """Apply a 12-parameter perturbation (see module docstring) to the two transforms."""
-    t_new = make_transform(
-        rotvec_to_matrix(step[3:6]) @ tracker_from_base[:3, :3], tracker_from_base[:3, 3] + step[0:3]
-    )
-    x_new = make_transform(
-        tcp_from_marker[:3, :3] @ rotvec_to_matrix(step[9:12]), tcp_from_marker[:3, 3] + step[6:9]
-    )
-    return t_new, x_new
+    The analytic :func:`spacecal.models.kinematics.pose_point_jacobian` at the observed poses.
+    """
+    return pose_point_jacobian(obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker)
 
 
 def frame_errors(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
@@ -137,7 +109,7 @@ def levenberg_marquardt(
         gradient = np.einsum("nkia,nki->a", w * jac, diff) / obs.sigma_mm**2
         while True:
             step = np.linalg.solve(normal + damping * np.diag(np.diag(normal)), -gradient)
-            t_try, x_try = apply_step(t_cur, x_cur, step)
+            t_try, x_try = apply_pose_step(t_cur, x_cur, step)
             cost_try, diff_try = cost_of(t_try, x_try)
             if cost_try <= cost:
                 break

@@ -18,7 +18,15 @@ from importlib import resources
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
-from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec, transform_points_by_stack
+from spacecal.geometry.rotations import skew
+from spacecal.geometry.transforms import (
+    apply_transform,
+    invert_transform,
+    make_transform,
+    matrix_to_rotvec,
+    rotvec_to_matrix,
+    transform_points_by_stack,
+)
 
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 N_JOINTS = 6
@@ -376,6 +384,133 @@ def with_dh_corrections(model: RobotModel, delta) -> RobotModel:
     return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
 
 
+# -- the calibration chain -----------------------------------------------------------------
+#
+# Every frame i of a calibration sees marker points s_k through (paper eq. 1)
+#
+#     p_ik_in_tracker = tracker_from_base @ base_from_tcp_i @ tcp_from_marker @ s_k
+#
+# The two unknown transforms are perturbed with 12 parameters, one convention for the whole
+# package (the ML estimator, its covariance in result files, the bootstrap, kinematic
+# identification and motion planning all use it):
+#
+#     tracker_from_base = [exp(w_t) R_t | t_t + v_t]     (w_t, v_t in the tracker frame)
+#     tcp_from_marker   = [R_x exp(w_x) | t_x + v_x]     (w_x in the marker frame)
+#
+# with the parameter vector (v_t, w_t, v_x, w_x), mm and rad.
+
+#: Names of the 12 pose perturbation parameters, in order (see :func:`apply_pose_step`).
+POSE_PARAMETER_NAMES = [
+    "tracker_from_base.v_x_mm",
+    "tracker_from_base.v_y_mm",
+    "tracker_from_base.v_z_mm",
+    "tracker_from_base.w_x_rad",
+    "tracker_from_base.w_y_rad",
+    "tracker_from_base.w_z_rad",
+    "tcp_from_marker.v_x_mm",
+    "tcp_from_marker.v_y_mm",
+    "tcp_from_marker.v_z_mm",
+    "tcp_from_marker.w_x_rad",
+    "tcp_from_marker.w_y_rad",
+    "tcp_from_marker.w_z_rad",
+]
+
+
+def apply_pose_step(tracker_from_base, tcp_from_marker, step) -> tuple[np.ndarray, np.ndarray]:
+    """Perturb the two calibration transforms by 12 parameters (v_t, w_t, v_x, w_x).
+
+    Parameters
+    ----------
+    tracker_from_base, tcp_from_marker : array_like, shape (4, 4), mm
+    step : array_like, shape (12,)
+        Translations in mm, rotation vectors in rad; see the convention above
+        :data:`POSE_PARAMETER_NAMES`.
+
+    Returns
+    -------
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+    """
+    tracker_from_base = np.asarray(tracker_from_base, dtype=float)
+    tcp_from_marker = np.asarray(tcp_from_marker, dtype=float)
+    step = np.asarray(step, dtype=float)
+    t_new = make_transform(
+        rotvec_to_matrix(step[3:6]) @ tracker_from_base[:3, :3], tracker_from_base[:3, 3] + step[0:3]
+    )
+    x_new = make_transform(
+        tcp_from_marker[:3, :3] @ rotvec_to_matrix(step[9:12]), tcp_from_marker[:3, 3] + step[6:9]
+    )
+    return t_new, x_new
+
+
+def pose_step_between(
+    reference_tracker_from_base, reference_tcp_from_marker, tracker_from_base, tcp_from_marker
+) -> np.ndarray:
+    """The 12 parameters (12,) that :func:`apply_pose_step` needs to go from the reference
+    transforms to the given ones (its inverse), mm and rad."""
+    reference_t = np.asarray(reference_tracker_from_base, dtype=float)
+    reference_x = np.asarray(reference_tcp_from_marker, dtype=float)
+    tracker_from_base = np.asarray(tracker_from_base, dtype=float)
+    tcp_from_marker = np.asarray(tcp_from_marker, dtype=float)
+    return np.concatenate(
+        [
+            tracker_from_base[:3, 3] - reference_t[:3, 3],
+            matrix_to_rotvec(tracker_from_base[:3, :3] @ reference_t[:3, :3].T),
+            tcp_from_marker[:3, 3] - reference_x[:3, 3],
+            matrix_to_rotvec(reference_x[:3, :3].T @ tcp_from_marker[:3, :3]),
+        ]
+    )
+
+
+def chain_points_in_tracker(
+    base_from_tcp_stack, tracker_from_base, tcp_from_marker, points_in_marker
+) -> np.ndarray:
+    """Marker points (K, 3) placed by the calibration chain at TCP poses (N, 4, 4): (N, K, 3), mm."""
+    chain = tracker_from_base @ np.asarray(base_from_tcp_stack, dtype=float) @ tcp_from_marker
+    return transform_points_by_stack(chain, points_in_marker)
+
+
+def pose_point_jacobian(
+    base_from_tcp_stack, tracker_from_base, tcp_from_marker, points_in_marker
+) -> np.ndarray:
+    """d(:func:`chain_points_in_tracker`)/d(12 pose parameters), analytic: shape (N, K, 3, 12).
+
+    With q = R_t (R_A (R_x s + t_x) + t_A) + t_t and the perturbations of
+    :func:`apply_pose_step`: dq/dv_t = I, dq/dw_t = -[R_t p_base]x, dq/dv_x = R_t R_A,
+    dq/dw_x = -R_t R_A R_x [s]x.
+
+    Parameters
+    ----------
+    base_from_tcp_stack : array_like, shape (N, 4, 4), mm
+    tracker_from_base, tcp_from_marker : array_like, shape (4, 4), mm
+    points_in_marker : array_like, shape (K, 3), mm
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, K, 3, 12)
+        mm per mm or per rad, unwhitened.
+    """
+    base_from_tcp_stack = np.asarray(base_from_tcp_stack, dtype=float)
+    tracker_from_base = np.asarray(tracker_from_base, dtype=float)
+    tcp_from_marker = np.asarray(tcp_from_marker, dtype=float)
+    points_in_marker = np.asarray(points_in_marker, dtype=float)
+    r_t = tracker_from_base[:3, :3]
+    r_a = base_from_tcp_stack[:, :3, :3]
+    r_x = tcp_from_marker[:3, :3]
+    points_in_base = transform_points_by_stack(
+        base_from_tcp_stack, apply_transform(tcp_from_marker, points_in_marker)
+    )
+    rotated = points_in_base @ r_t.T  # R_t p_base
+    n, k = rotated.shape[:2]
+    jac = np.zeros((n, k, 3, 12))
+    jac[..., 0:3] = np.eye(3)
+    jac[..., 3:6] = -skew(rotated)
+    r_ta = np.einsum("ij,njk->nik", r_t, r_a)  # (N, 3, 3)
+    jac[..., 6:9] = r_ta[:, None]
+    r_tax = r_ta @ r_x
+    jac[..., 9:12] = -np.einsum("nij,kjl->nkil", r_tax, skew(points_in_marker))
+    return jac
+
+
 def points_in_tracker(
     model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker
 ) -> np.ndarray:
@@ -383,14 +518,18 @@ def points_in_tracker(
 
     The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
     """
-    chain = tracker_from_base @ forward_kinematics(model, np.atleast_2d(joints_rad)) @ tcp_from_marker
-    return transform_points_by_stack(chain, points_in_marker)
+    return chain_points_in_tracker(
+        forward_kinematics(model, np.atleast_2d(joints_rad)), tracker_from_base, tcp_from_marker, points_in_marker
+    )
 
 
 def dh_point_jacobian(
     model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker, step: float = 1e-6
 ) -> np.ndarray:
-    """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24)."""
+    """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24).
+
+    The pose columns that go with these are :func:`pose_point_jacobian` (analytic).
+    """
     columns = []
     for index in range(24):
         delta = np.zeros(24)

@@ -22,8 +22,14 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, UnreachableError
 from spacecal.geometry.rotations import rotation_angle
-from spacecal.geometry.transforms import axis_angle_transform, make_transform
-from spacecal.models.kinematics import RobotModel, dh_point_jacobian, forward_kinematics, inverse_kinematics, points_in_tracker
+from spacecal.geometry.transforms import axis_angle_transform
+from spacecal.models.kinematics import (
+    RobotModel,
+    dh_point_jacobian,
+    forward_kinematics,
+    inverse_kinematics,
+    pose_point_jacobian,
+)
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
 from spacecal.planning.stations import random_station
 from spacecal.planning.visibility import VisibilityModel
@@ -66,35 +72,16 @@ class PlannerSettings:
     limits: MotionLimits = MotionLimits()
 
 
-def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, step=1e-6):
+def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, dh_step=1e-6):
     """d(points in tracker)/d(36 parameters) for configurations (N, 6): shape (N, K, 3, 36).
 
-    Parameters: 6 of tracker_from_base (translation, rotation vector; left), 6 of
-    tcp_from_marker (right), 24 DH corrections; central differences.
+    Parameters: the 12 pose perturbations of the estimators
+    (:func:`~spacecal.models.kinematics.apply_pose_step`; analytic), then the 24 DH
+    corrections (central differences with ``dh_step``).
     """
-
-    def perturbed(index, sign):
-        delta = np.zeros(12)
-        delta[index] = sign * step
-        t = (
-            make_transform(
-                axis_angle_transform(delta[3:6], np.linalg.norm(delta[3:6]))[:3, :3]
-                if np.any(delta[3:6])
-                else np.eye(3),
-                delta[0:3],
-            )
-            @ tracker_from_base
-        )
-        x_rot = (
-            axis_angle_transform(delta[9:12], np.linalg.norm(delta[9:12]))[:3, :3]
-            if np.any(delta[9:12])
-            else np.eye(3)
-        )
-        x = make_transform(tcp_from_marker[:3, :3] @ x_rot, tcp_from_marker[:3, 3] + delta[6:9])
-        return points_in_tracker(model, joints, t, x, points_in_marker)
-
-    pose = np.stack([(perturbed(i, 1) - perturbed(i, -1)) / (2 * step) for i in range(12)], axis=-1)
-    dh = dh_point_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, step)
+    base_from_tcp_stack = forward_kinematics(model, np.atleast_2d(joints))
+    pose = pose_point_jacobian(base_from_tcp_stack, tracker_from_base, tcp_from_marker, points_in_marker)
+    dh = dh_point_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, dh_step)
     return np.concatenate([pose, dh], axis=-1)
 
 
