@@ -86,7 +86,7 @@ def test_too_little_rotation_is_named():
     plan = plan_paper_sweeps(
         world.nominal_model,
         world.home_joints_rad,
-        PaperSweepSettings(rotation_deg=6.0, minimum_rotation_deg=1.0),
+        PaperSweepSettings(rotation_each_way_deg=6.0, minimum_rotation_span_deg=1.0),
     )
     with pytest.raises(DegenerateDataError, match="covers only 12.0 deg of rotation"):
         calibrate(execute_plan(world, plan)[0])

@@ -442,8 +442,8 @@ def _hardware_plan(args, robot):
             TrackerModel(), ndi_8700339_like(), prior.tracker_from_base, prior.tcp_from_marker
         )
     settings = PaperSweepSettings(
-        rotation_deg=args.rotation_deg,
-        translation_mm=args.translation_mm,
+        rotation_each_way_deg=args.rotation_deg,
+        translation_stroke_mm=args.translation_mm,
         limits=MotionLimits(
             linear_speed_mm_s=args.speed_mm_s,
             linear_accel_mm_s2=args.accel_mm_s2,

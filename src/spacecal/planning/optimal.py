@@ -16,7 +16,7 @@ for the frames) until the time budget is spent; the final plan is timed exactly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -69,7 +69,7 @@ class PlannerSettings:
     prior_angle_sd_rad: float = 0.002
     pose_prior_mm: float = 50.0
     pose_prior_rad: float = 0.05
-    limits: MotionLimits = MotionLimits()
+    limits: MotionLimits = field(default_factory=MotionLimits)
 
 
 def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, dh_step=1e-6):
