@@ -508,7 +508,7 @@ def _cmd_register_landmarks(args) -> None:
         + " s)"
     )
     print("reference_from_phantom:")
-    for row in reg.a_from_b:
+    for row in reg.target_from_source:
         print("  " + "  ".join(f"{v:11.6f}" for v in row))
     print(
         f"landmark error: mean {reg.fre_mean_mm:.3f} mm (PLUS's 'Error'), RMS {reg.fre_rms_mm:.3f} mm; "

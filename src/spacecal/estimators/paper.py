@@ -227,7 +227,7 @@ def calibrate_paper(recording: Recording, thresholds: PaperThresholds | None = N
     tcp_origin_in_tracker, tcp_origin_in_base = _rotation_origin(recording, rot_rows, thresholds, diagnostics)
     d_tracker, d_base = _translation_axes(recording, thresholds, diagnostics)
 
-    rotation = wahba_rotation(d_tracker, d_base)
+    rotation = wahba_rotation(directions_in_source=d_base, directions_in_target=d_tracker)
     translation = tcp_origin_in_tracker - rotation @ tcp_origin_in_base
     tracker_from_base = make_transform(rotation, translation)
 

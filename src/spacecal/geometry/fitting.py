@@ -178,27 +178,30 @@ def fit_line(points) -> LineFit:
     )
 
 
-def fit_rigid(points_in_b, points_in_a, weights=None) -> tuple[np.ndarray, float]:
-    """Least-squares rigid transform ``a_from_b`` between paired point sets (Kabsch/Arun).
+def fit_rigid(*, points_in_source, points_in_target, weights=None) -> tuple[np.ndarray, float]:
+    """Least-squares rigid transform ``target_from_source`` between paired point sets (Kabsch/Arun).
 
     Used to compute a marker's pose from its measured sphere centres, as a tracker does.
+    The point sets are keyword-only and named as in
+    :func:`spacecal.estimators.registration.register_points`, so they cannot be swapped silently.
 
     Parameters
     ----------
-    points_in_b : array_like, shape (N, 3)
+    points_in_source : array_like, shape (N, 3)
         Model points (e.g. sphere centres in the marker frame), mm.
-    points_in_a : array_like, shape (N, 3) or (M, N, 3)
+    points_in_target : array_like, shape (N, 3) or (M, N, 3)
         Measured points (e.g. in the tracker frame), mm; a stack gives M fits at once.
     weights : array_like, shape (N,), optional
 
     Returns
     -------
-    a_from_b : numpy.ndarray, shape (4, 4) or (M, 4, 4)
+    target_from_source : numpy.ndarray, shape (4, 4) or (M, 4, 4)
+        E.g. ``tracker_from_marker``.
     rms : float or numpy.ndarray, shape (M,)
         RMS distance between transformed model points and measured points, mm.
     """
-    model = np.asarray(points_in_b, dtype=float)
-    measured = np.asarray(points_in_a, dtype=float)
+    model = np.asarray(points_in_source, dtype=float)
+    measured = np.asarray(points_in_target, dtype=float)
     single = measured.ndim == 2
     if single:
         measured = measured[None]

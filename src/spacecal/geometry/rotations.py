@@ -35,32 +35,38 @@ def nearest_rotation(matrix) -> np.ndarray:
     return (u * correction[..., None, :]) @ vt
 
 
-def wahba_rotation(directions_in_a, directions_in_b, weights=None) -> np.ndarray:
-    """Solve Wahba's problem: the rotation ``a_from_b`` minimising sum w_k |u_k - R v_k|^2.
+def wahba_rotation(*, directions_in_source, directions_in_target, weights=None) -> np.ndarray:
+    """Solve Wahba's problem: the rotation ``target_from_source`` minimising sum w_k |u_k - R v_k|^2.
 
     Used by the paper estimator to turn fitted travel directions in the tracker frame and
     the commanded ones in the base frame into the tracker-from-base rotation. With the
     base directions equal to the TCP axes this equals the paper's nearest rotation of the
     fitted axes followed by the home TCP orientation.
 
+    The direction sets are keyword-only, named (and ordered) as the point sets of
+    :func:`spacecal.geometry.fitting.fit_rigid`.
+
     Parameters
     ----------
-    directions_in_a : array_like, shape (K, 3)
-    directions_in_b : array_like, shape (K, 3)
-        Matching directions; normalised here. K >= 2 and not all parallel.
+    directions_in_source : array_like, shape (K, 3)
+        Directions v_k in the frame mapped from (e.g. base).
+    directions_in_target : array_like, shape (K, 3)
+        The matching directions u_k in the frame mapped into (e.g. tracker). Both are
+        normalised here; K >= 2 and not all parallel.
     weights : array_like, shape (K,), optional
 
     Returns
     -------
     numpy.ndarray, shape (3, 3)
+        ``target_from_source`` rotation.
     """
-    a = np.asarray(directions_in_a, dtype=float)
-    b = np.asarray(directions_in_b, dtype=float)
-    a = a / np.linalg.norm(a, axis=1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    if len(a) < 2 or np.linalg.matrix_rank(b, tol=1e-6) < 2:
+    target = np.asarray(directions_in_target, dtype=float)
+    source = np.asarray(directions_in_source, dtype=float)
+    target = target / np.linalg.norm(target, axis=1, keepdims=True)
+    source = source / np.linalg.norm(source, axis=1, keepdims=True)
+    if len(target) < 2 or np.linalg.matrix_rank(source, tol=1e-6) < 2:
         raise DegenerateDataError("at least two non-parallel directions are needed for a rotation")
-    rotation, _ = Rotation.align_vectors(a, b, weights=weights)
+    rotation, _ = Rotation.align_vectors(target, source, weights=weights)
     return rotation.as_matrix()
 
 

@@ -212,7 +212,7 @@ class World:
             self.noise_rng, len(misdetected)
         ) * self.noise_rng.uniform(3.0, 10.0, (len(misdetected), 1))
         kind[misdetected], kind[stale], kind[reflections] = "sphere", "stale", "reflection"
-        measured, rms = fit_rigid(self.marker.spheres_in_marker, spheres)
+        measured, rms = fit_rigid(points_in_source=self.marker.spheres_in_marker, points_in_target=spheres)
         seen = self.tracker.visible(truth, self.marker.spheres_in_marker, self.marker.face_normal_in_marker)
         seen &= self.noise_rng.random(n) >= self.scenario.dropout_probability
         measured[~seen] = np.nan

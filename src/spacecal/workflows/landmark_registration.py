@@ -25,7 +25,7 @@ class LandmarkRegistrationResult:
     Attributes
     ----------
     registration : PointRegistration
-        ``a_from_b`` is ``reference_from_phantom``.
+        ``target_from_source`` is ``reference_from_phantom``.
     detected_in_reference : numpy.ndarray, shape (M, 3), mm
     detected_at_s : list of float
         Time of each detection.
@@ -41,7 +41,7 @@ class LandmarkRegistrationResult:
             "schema": "spacecal.landmark_registration",
             "schema_version": 1,
             "units": {"length": "mm"},
-            "reference_from_phantom": reg.a_from_b.tolist(),
+            "reference_from_phantom": reg.target_from_source.tolist(),
             "landmarks_detected_in_reference_mm": self.detected_in_reference.tolist(),
             "detected_at_s": self.detected_at_s,
             "residuals_mm": reg.residuals_mm.tolist(),
@@ -100,5 +100,7 @@ def register_landmarks_from_stylus(
             "divot and pivot the stylus for at least a second"
         )
     return LandmarkRegistrationResult(
-        register_points(detected, phantom), detected, [float(times[keep][i]) for i in ends]
+        register_points(points_in_source=phantom, points_in_target=detected),
+        detected,
+        [float(times[keep][i]) for i in ends],
     )
