@@ -15,6 +15,9 @@ since A_i X = Y B_i for every sample gives A_i^-1 A_j X = X B_i^-1 B_j.
 * Daniilidis 1999, "Hand-eye calibration using dual quaternions", IJRR 18(3).
 
 Translation (Tsai, Park): (R_Ak - I) t_X = R_X t_Bk - t_Ak by least squares.
+
+Each solver takes ``(tcp_motion_stack, marker_motion_stack)``, the (A_k, B_k) of
+:func:`relative_motions`, and returns X.
 """
 
 from __future__ import annotations
@@ -23,25 +26,40 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.geometry.rotations import quaternion_product_matrices, skew
-from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_quaternion_wxyz, matrix_to_rotvec, quaternion_wxyz_to_matrix
+from spacecal.geometry.transforms import (
+    invert_transform,
+    make_transform,
+    matrix_to_quaternion_wxyz,
+    matrix_to_rotvec,
+    quaternion_wxyz_to_matrix,
+)
 
 #: Motions that rotate less than this carry no information on the rotation axis.
 MIN_MOTION_ANGLE_RAD = np.radians(2.0)
 
 
-def relative_motions(a_stack, b_stack, pairs=None) -> tuple[np.ndarray, np.ndarray]:
+def relative_motions(
+    base_from_tcp_stack, tracker_from_marker_stack, pairs=None
+) -> tuple[np.ndarray, np.ndarray]:
     """Relative motions (A_k, B_k) for sample pairs (default: consecutive samples).
 
     Parameters
     ----------
-    a_stack : array_like, shape (N, 4, 4)
-        ``base_from_tcp`` per sample.
-    b_stack : array_like, shape (N, 4, 4)
-        ``tracker_from_marker`` per sample.
+    base_from_tcp_stack : array_like, shape (N, 4, 4)
+        TCP pose per sample, mm.
+    tracker_from_marker_stack : array_like, shape (N, 4, 4)
+        Marker pose per sample, mm.
     pairs : array_like of int, shape (K, 2), optional
+
+    Returns
+    -------
+    tcp_motion_stack : numpy.ndarray, shape (K, 4, 4)
+        A_k = tcp_from_base_i @ base_from_tcp_j.
+    marker_motion_stack : numpy.ndarray, shape (K, 4, 4)
+        B_k = marker_from_tracker_i @ tracker_from_marker_j.
     """
-    a = np.asarray(a_stack, dtype=float)
-    b = np.asarray(b_stack, dtype=float)
+    a = np.asarray(base_from_tcp_stack, dtype=float)
+    b = np.asarray(tracker_from_marker_stack, dtype=float)
     if pairs is None:
         pairs = np.column_stack([np.arange(len(a) - 1), np.arange(1, len(a))])
     pairs = np.asarray(pairs)
@@ -55,8 +73,8 @@ def _rotating(motion_a, motion_b):
     keep = angle > MIN_MOTION_ANGLE_RAD
     if keep.sum() < 2:
         raise DegenerateDataError(
-            f"AX = XB needs at least two motions rotating more than {np.degrees(MIN_MOTION_ANGLE_RAD):.0f} deg "
-            f"about different axes; got {int(keep.sum())}"
+            "AX = XB needs at least two motions rotating more than "
+            f"{np.degrees(MIN_MOTION_ANGLE_RAD):.0f} deg about different axes; got {int(keep.sum())}"
         )
     return motion_a[keep], motion_b[keep]
 
@@ -69,9 +87,9 @@ def _translation(motion_a, motion_b, rotation_x) -> np.ndarray:
     return solution
 
 
-def solve_tsai(motion_a, motion_b) -> np.ndarray:
+def solve_tsai(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
     """Tsai–Lenz 1989; returns X = ``tcp_from_marker``."""
-    rot_a, rot_b = _rotating(motion_a, motion_b)
+    rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     rv_a = matrix_to_rotvec(rot_a[:, :3, :3])
     rv_b = matrix_to_rotvec(rot_b[:, :3, :3])
 
@@ -86,12 +104,12 @@ def solve_tsai(motion_a, motion_b) -> np.ndarray:
     p = 2.0 * p_prime / np.sqrt(1.0 + p_prime @ p_prime)
     norm_sq = p @ p
     rotation = (1.0 - norm_sq / 2.0) * np.eye(3) + 0.5 * (np.outer(p, p) + np.sqrt(4.0 - norm_sq) * skew(p))
-    return make_transform(rotation, _translation(motion_a, motion_b, rotation))
+    return make_transform(rotation, _translation(tcp_motion_stack, marker_motion_stack, rotation))
 
 
-def solve_park(motion_a, motion_b) -> np.ndarray:
+def solve_park(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
     """Park–Martin 1994; returns X = ``tcp_from_marker``."""
-    rot_a, rot_b = _rotating(motion_a, motion_b)
+    rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     alpha = matrix_to_rotvec(rot_a[:, :3, :3])
     beta = matrix_to_rotvec(rot_b[:, :3, :3])
     m = np.einsum("ni,nj->ij", beta, alpha)
@@ -100,7 +118,7 @@ def solve_park(motion_a, motion_b) -> np.ndarray:
         raise DegenerateDataError("AX = XB: the motions rotate about fewer than two independent axes")
     inverse_sqrt = eigenvectors @ np.diag(eigenvalues**-0.5) @ eigenvectors.T
     rotation = inverse_sqrt @ m.T
-    return make_transform(rotation, _translation(motion_a, motion_b, rotation))
+    return make_transform(rotation, _translation(tcp_motion_stack, marker_motion_stack, rotation))
 
 
 def _dual_quaternion(transform):
@@ -110,9 +128,9 @@ def _dual_quaternion(transform):
     return q, 0.5 * np.einsum("nij,nj->ni", left_t, q)
 
 
-def solve_daniilidis(motion_a, motion_b) -> np.ndarray:
+def solve_daniilidis(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
     """Daniilidis 1999 (dual quaternions); returns X = ``tcp_from_marker``."""
-    rot_a, rot_b = _rotating(motion_a, motion_b)
+    rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     qa, qa_dual = _dual_quaternion(rot_a)
     qb, qb_dual = _dual_quaternion(rot_b)
     # Equal rotation angles: make the scalar parts agree in sign (q ~ -q).

@@ -6,13 +6,28 @@ import numpy as np
 from scipy.stats import chi2
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.diagnostics import (
+    motion_spread,
+    residual_table,
+    sample_residuals,
+    site_in_base,
+    verdict,
+)
+from spacecal.estimators.ml import (
+    PARAMETER_NAMES,
+    Fit,
+    cauchy_weights,
+    covariance_from_information,
+    frame_errors,
+    information_matrix,
+    levenberg_marquardt,
+    predicted_tre_mm,
+)
+from spacecal.estimators.observations import Observations, build_observations
+from spacecal.estimators.robot_world import solve_shah
 from spacecal.geometry.metrics import cube_grid
 from spacecal.geometry.transforms import invert_transform
 from spacecal.records import CalibrationResult, Recording
-from spacecal.estimators.diagnostics import motion_spread, residual_table, sample_residuals, site_in_base, verdict
-from spacecal.estimators.ml import PARAMETER_NAMES, Fit, cauchy_weights, covariance_from_information, frame_errors, information_matrix, levenberg_marquardt, predicted_tre_mm
-from spacecal.estimators.observations import Observations, build_observations
-from spacecal.estimators.robot_world import solve_shah
 
 #: Frames beyond this quantile of the inlier error distribution are outliers.
 OUTLIER_QUANTILE = 0.999
@@ -61,9 +76,11 @@ def variance_factor_of(obs: Observations, tracker_from_base, tcp_from_marker) ->
     return float(np.sum(errors**2) * len(obs.spheres_in_marker) / obs.sigma_mm**2) / dof
 
 
-def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outlier_rows=()):
-    information = information_matrix(obs, fit_t, fit_x)
-    variance_factor = variance_factor_of(obs, fit_t, fit_x)
+def _package(
+    method, recording, obs, tracker_from_base, tcp_from_marker, targets_in_base, extra, outlier_rows=()
+):
+    information = information_matrix(obs, tracker_from_base, tcp_from_marker)
+    variance_factor = variance_factor_of(obs, tracker_from_base, tcp_from_marker)
     # Without a known tracker noise the residuals alone set the scale (no floor at 1).
     scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
     covariance = covariance_from_information(information) * scale
@@ -79,8 +96,8 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
         method,
         recording,
         obs,
-        fit_t,
-        fit_x,
+        tracker_from_base,
+        tcp_from_marker,
         covariance,
         variance_factor,
         targets_in_base,
@@ -95,8 +112,8 @@ def report_uncertainty(
     method,
     recording,
     obs,
-    fit_t,
-    fit_x,
+    tracker_from_base,
+    tcp_from_marker,
     covariance,
     variance_factor,
     targets_in_base,
@@ -106,8 +123,8 @@ def report_uncertainty(
 ) -> CalibrationResult:
     """A calibration result with covariance, predicted TRE, residuals, spread and verdict."""
     site = site_in_base(recording, obs.rows)
-    tre = tre_summary(fit_t, covariance, site, targets_in_base)
-    residuals = sample_residuals(recording, fit_t, fit_x, rms_rows=obs.rows)
+    tre = tre_summary(tracker_from_base, covariance, site, targets_in_base)
+    residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
     diagnostics = {
@@ -144,8 +161,8 @@ def report_uncertainty(
     }
     return CalibrationResult(
         method,
-        fit_t,
-        fit_x,
+        tracker_from_base,
+        tcp_from_marker,
         counts,
         diagnostics,
         covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(), "note": covariance_note},
@@ -185,8 +202,8 @@ def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observa
     """The bare maximum-likelihood fit (Shah start, then Levenberg–Marquardt), without the
     diagnostics a result carries: for callers that fit many times (clock-offset search)."""
     obs = build_observations(recording, sigma_mm=sigma_mm)
-    start_t, start_x = _initial_estimate(obs, recording)
-    return obs, levenberg_marquardt(obs, start_t, start_x)
+    start_tracker_from_base, start_tcp_from_marker = _initial_estimate(obs, recording)
+    return obs, levenberg_marquardt(obs, start_tracker_from_base, start_tcp_from_marker)
 
 
 def ransac_start(
@@ -234,21 +251,23 @@ def calibrate_robust(
     """
     obs = build_observations(recording, sigma_mm=sigma_mm)
     rng = np.random.default_rng(seed)
-    (start_t, start_x), inliers, threshold = ransac_start(obs, recording, rng)
-    fit = levenberg_marquardt(obs, start_t, start_x, frame_weights=inliers.astype(float))
-    t_cur, x_cur = fit.tracker_from_base, fit.tcp_from_marker
+    (start_tracker_from_base, start_tcp_from_marker), inliers, threshold = ransac_start(obs, recording, rng)
+    fit = levenberg_marquardt(
+        obs, start_tracker_from_base, start_tcp_from_marker, frame_weights=inliers.astype(float)
+    )
+    tracker_from_base, tcp_from_marker = fit.tracker_from_base, fit.tcp_from_marker
     # An inlier's squared frame error is sigma^2 chi2(dof) / K: scale the errors by a
     # robust (median) estimate of sigma, so systematic errors larger than the tracker's
     # noise do not turn good frames into outliers.
     dof = obs.dof_per_frame
     median_ratio = np.sqrt(chi2.median(dof) / dof)
     for _ in range(5):
-        errors = frame_errors(obs, t_cur, x_cur)
+        errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
         scale = np.median(errors) / median_ratio
         weights = cauchy_weights(errors / scale)
-        fit = levenberg_marquardt(obs, t_cur, x_cur, frame_weights=weights)
-        t_cur, x_cur = fit.tracker_from_base, fit.tcp_from_marker
-    errors = frame_errors(obs, t_cur, x_cur)
+        fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, frame_weights=weights)
+        tracker_from_base, tcp_from_marker = fit.tracker_from_base, fit.tcp_from_marker
+    errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
     gaussian_cutoff = np.median(errors) / median_ratio * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dof) / dof)
     cutoff = max(gaussian_cutoff, SYSTEMATIC_TAIL_FACTOR * np.median(errors))
     keep = errors <= cutoff
@@ -256,7 +275,7 @@ def calibrate_robust(
     kept = build_observations(
         recording, mask=np.isin(np.arange(len(recording)), obs.rows[keep]), sigma_mm=obs.sigma_mm
     )
-    final = levenberg_marquardt(kept, t_cur, x_cur)
+    final = levenberg_marquardt(kept, tracker_from_base, tcp_from_marker)
     outliers = [
         {
             "row": int(r),

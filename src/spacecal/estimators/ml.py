@@ -43,7 +43,9 @@ PARAMETER_NAMES = POSE_PARAMETER_NAMES
 
 def predict_spheres(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
     """Predicted sphere centres (N, K, 3) in the tracker frame."""
-    return chain_points_in_tracker(obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker)
+    return chain_points_in_tracker(
+        obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker
+    )
 
 
 def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
@@ -51,7 +53,9 @@ def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarra
 
     The analytic :func:`spacecal.models.kinematics.pose_point_jacobian` at the observed poses.
     """
-    return pose_point_jacobian(obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker)
+    return pose_point_jacobian(
+        obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker
+    )
 
 
 def frame_errors(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
@@ -95,34 +99,37 @@ def levenberg_marquardt(
     """
     weights = np.ones(len(obs.rows)) if frame_weights is None else np.asarray(frame_weights, float)
     damping = 1e-3
-    t_cur, x_cur = np.array(tracker_from_base, float), np.array(tcp_from_marker, float)
+    tracker_from_base = np.array(tracker_from_base, float)
+    tcp_from_marker = np.array(tcp_from_marker, float)
 
-    def cost_of(t, x):
-        diff = predict_spheres(obs, t, x) - obs.spheres_in_tracker
+    def cost_of(trial_tracker_from_base, trial_tcp_from_marker):
+        diff = predict_spheres(obs, trial_tracker_from_base, trial_tcp_from_marker) - obs.spheres_in_tracker
         return float(np.sum(weights[:, None, None] * diff**2)) / obs.sigma_mm**2, diff
 
-    cost, diff = cost_of(t_cur, x_cur)
+    cost, diff = cost_of(tracker_from_base, tcp_from_marker)
     for iteration in range(1, max_iterations + 1):
-        jac = jacobian(obs, t_cur, x_cur)
+        jac = jacobian(obs, tracker_from_base, tcp_from_marker)
         w = weights[:, None, None, None]
         normal = np.einsum("nkia,nkib->ab", w * jac, jac) / obs.sigma_mm**2
         gradient = np.einsum("nkia,nki->a", w * jac, diff) / obs.sigma_mm**2
         while True:
             step = np.linalg.solve(normal + damping * np.diag(np.diag(normal)), -gradient)
-            t_try, x_try = apply_pose_step(t_cur, x_cur, step)
-            cost_try, diff_try = cost_of(t_try, x_try)
+            trial_tracker_from_base, trial_tcp_from_marker = apply_pose_step(
+                tracker_from_base, tcp_from_marker, step
+            )
+            cost_try, diff_try = cost_of(trial_tracker_from_base, trial_tcp_from_marker)
             if cost_try <= cost:
                 break
             damping *= 10.0
             if damping > 1e12:
-                return Fit(t_cur, x_cur, iteration, True)
-        t_cur, x_cur, diff = t_try, x_try, diff_try
+                return Fit(tracker_from_base, tcp_from_marker, iteration, True)
+        tracker_from_base, tcp_from_marker, diff = trial_tracker_from_base, trial_tcp_from_marker, diff_try
         improvement = cost - cost_try
         cost = cost_try
         damping = max(damping / 10.0, 1e-12)
         if np.max(np.abs(step)) < tolerance or improvement <= tolerance * max(cost, 1.0):
-            return Fit(t_cur, x_cur, iteration, True)
-    return Fit(t_cur, x_cur, max_iterations, False)
+            return Fit(tracker_from_base, tcp_from_marker, iteration, True)
+    return Fit(tracker_from_base, tcp_from_marker, max_iterations, False)
 
 
 def information_matrix(

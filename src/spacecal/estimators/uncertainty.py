@@ -25,8 +25,8 @@ RESAMPLES = 50
 def bootstrap_covariance(
     recording: Recording,
     solve: Callable[[Recording], tuple[np.ndarray, np.ndarray]],
-    reference_t,
-    reference_x,
+    reference_tracker_from_base,
+    reference_tcp_from_marker,
     resamples: int = RESAMPLES,
     seed: int = 0,
 ) -> np.ndarray | None:
@@ -36,7 +36,7 @@ def bootstrap_covariance(
     ----------
     solve : callable
         recording -> (tracker_from_base, tcp_from_marker).
-    reference_t, reference_x : numpy.ndarray, shape (4, 4)
+    reference_tracker_from_base, reference_tcp_from_marker : numpy.ndarray, shape (4, 4)
         The full-data estimate the spread is measured around.
     """
     rng = np.random.default_rng(seed)
@@ -48,7 +48,7 @@ def bootstrap_covariance(
             estimate = solve(recording.select(rows))
         except SpacecalError:
             continue
-        samples.append(pose_step_between(reference_t, reference_x, *estimate))
+        samples.append(pose_step_between(reference_tracker_from_base, reference_tcp_from_marker, *estimate))
     if len(samples) < resamples // 2:
         return None
     return np.cov(np.array(samples).T)
