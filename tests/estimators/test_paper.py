@@ -6,10 +6,10 @@ import pytest
 from spacecal.core.errors import DegenerateDataError, UnknownMethodError
 from spacecal.estimators import calibrate
 from spacecal.estimators.paper import PaperThresholds
-from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
-from spacecal.records import TRANSLATION_SEGMENTS
 from spacecal.experiments.simulation import execute_plan
 from spacecal.experiments.truth import calibration_error
+from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
+from spacecal.records import TRANSLATION_SEGMENTS
 from spacecal.sim.world import build_world
 
 from ..conftest import NOISE_FREE

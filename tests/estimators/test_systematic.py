@@ -9,11 +9,11 @@ from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators import calibrate
 from spacecal.estimators.kinematic import DH_NAMES
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
-from spacecal.io.raw_streams import read_raw_recording, write_raw_recording
 from spacecal.experiments.simulation import simulate, simulate_raw
-from spacecal.sim.scenario import PRESETS
 from spacecal.experiments.truth import calibration_error
 from spacecal.experiments.verification import verify_in_simulation
+from spacecal.io.raw_streams import read_raw_recording, write_raw_recording
+from spacecal.sim.scenario import PRESETS
 
 from ..conftest import NOISE_FREE
 

@@ -2,8 +2,7 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
-from spacecal.geometry.transforms import make_transform
-from spacecal.geometry.transforms import axis_angle_transform
+from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.kinematics import (
     UR_TABLES,
     apply_pose_step,

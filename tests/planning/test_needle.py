@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import DegenerateDataError, UnreachableError
+from spacecal.experiments.phantom import PhantomSettings, run_phantom_experiment
 from spacecal.geometry.transforms import make_transform
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.planning.needle import needle_pose, plan_needle
-from spacecal.experiments.phantom import PhantomSettings, run_phantom_experiment
 from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
 

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from spacecal.estimators import calibrate
+from spacecal.experiments.simulation import execute_plan, plan_for_world
+from spacecal.experiments.verification import verify_in_simulation
 from spacecal.planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
 from spacecal.planning.visibility import VisibilityModel
-from spacecal.experiments.simulation import execute_plan, plan_for_world
 from spacecal.sim.scenario import PRESETS
-from spacecal.experiments.verification import verify_in_simulation
 from spacecal.sim.world import build_world
 
 

@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import DegenerateDataError, UnreachableError
+from spacecal.experiments.simulation import plan_for_world
 from spacecal.geometry.transforms import invert_transform
 from spacecal.planning.motion import MotionLimits, trapezoid_duration, trapezoid_progress
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
-from spacecal.experiments.simulation import plan_for_world
 from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
 
@@ -74,4 +74,6 @@ def test_infeasible_home_and_too_small_sweeps_are_refused():
     with pytest.raises(UnreachableError, match="not visible"):
         plan_paper_sweeps(world.nominal_model, world.home_joints_rad, visibility=behind)
     with pytest.raises(DegenerateDataError, match="rotation is feasible"):
-        plan_paper_sweeps(world.nominal_model, world.home_joints_rad, PaperSweepSettings(rotation_each_way_deg=5.0))
+        plan_paper_sweeps(
+            world.nominal_model, world.home_joints_rad, PaperSweepSettings(rotation_each_way_deg=5.0)
+        )

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacecal.geometry.transforms import invert_transform
-from spacecal.records import CalibrationResult, Recording
 from spacecal.estimators.diagnostics import motion_spread, sample_residuals, tracker_from_base_from_samples
 from spacecal.estimators.hand_eye import relative_motions, solve_daniilidis, solve_park, solve_tsai
 from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
+from spacecal.geometry.transforms import invert_transform
+from spacecal.records import CalibrationResult, Recording
 
 ROBOT_WORLD_SOLVERS = {"shah": solve_shah, "li": solve_li, "dornaika": solve_dornaika}
 HAND_EYE_SOLVERS = {"tsai": solve_tsai, "park": solve_park, "daniilidis": solve_daniilidis}

@@ -83,7 +83,7 @@ def register_points(*, points_in_source, points_in_target) -> PointRegistration:
     target = np.asarray(points_in_target, dtype=float)
     if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3:
         raise DegenerateDataError(
-            f"registration needs paired (N, 3) points, got {source.shape} (source) and {target.shape} (target)"
+            f"registration needs paired (N, 3) points, got source {source.shape} and target {target.shape}"
         )
     if len(source) < 3:
         raise DegenerateDataError(f"registration needs at least 3 point pairs, got {len(source)}")

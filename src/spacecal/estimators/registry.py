@@ -6,13 +6,23 @@ import inspect
 from collections.abc import Callable
 
 from spacecal.core.errors import InvalidInputError, UnknownMethodError
-from spacecal.records import CalibrationResult, Recording
-from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS, hand_eye_method, robot_world_method
+from spacecal.estimators.closed_form import (
+    HAND_EYE_SOLVERS,
+    ROBOT_WORLD_SOLVERS,
+    hand_eye_method,
+    robot_world_method,
+)
 from spacecal.estimators.kinematic import calibrate_kinematic
-from spacecal.estimators.likelihood import calibrate_ml, calibrate_robust, report_uncertainty, variance_factor_of
+from spacecal.estimators.likelihood import (
+    calibrate_ml,
+    calibrate_robust,
+    report_uncertainty,
+    variance_factor_of,
+)
 from spacecal.estimators.observations import build_observations
 from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
+from spacecal.records import CalibrationResult, Recording
 
 #: name -> function(recording, **options) -> CalibrationResult
 METHODS: dict[str, Callable[..., CalibrationResult]] = {
@@ -91,7 +101,9 @@ def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, 
         variance_factor,
         targets_in_base,
         {},
-        covariance_note=f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
+        covariance_note=(
+            f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad"
+        ),
     )
     result.covariance = reported.covariance
     result.predicted_tre_mm = reported.predicted_tre_mm

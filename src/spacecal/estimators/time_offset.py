@@ -17,9 +17,9 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.likelihood import calibrate_ml, fit_ml, variance_factor_of
 from spacecal.geometry.transforms import interpolate_transforms
 from spacecal.records import CalibrationResult, RawRecording, Recording
-from spacecal.estimators.likelihood import calibrate_ml, fit_ml, variance_factor_of
 
 
 def pair_streams(raw: RawRecording, offset_s: float) -> Recording:

@@ -519,7 +519,10 @@ def points_in_tracker(
     The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
     """
     return chain_points_in_tracker(
-        forward_kinematics(model, np.atleast_2d(joints_rad)), tracker_from_base, tcp_from_marker, points_in_marker
+        forward_kinematics(model, np.atleast_2d(joints_rad)),
+        tracker_from_base,
+        tcp_from_marker,
+        points_in_marker,
     )
 
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
-from spacecal.models.kinematics import forward_kinematics, inverse_kinematics
-from spacecal.models.kinematics import RobotModel
+from spacecal.models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
 
 
 def check_joints(model: RobotModel, home_joints_rad: np.ndarray, count: int = 3) -> np.ndarray:

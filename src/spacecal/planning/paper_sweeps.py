@@ -162,7 +162,7 @@ def plan_paper_sweeps(
             1.0,
             "deg",
             settings.minimum_rotation_span_deg,
-            lambda a: home @ axis_angle_transform(axis, np.radians(a)),
+            lambda a, axis=axis: home @ axis_angle_transform(axis, np.radians(a)),
         )
         plus = home @ axis_angle_transform(axis, np.radians(hi))
         minus = home @ axis_angle_transform(axis, -np.radians(lo))
@@ -179,7 +179,7 @@ def plan_paper_sweeps(
             5.0,
             "mm",
             settings.minimum_translation_stroke_mm,
-            lambda d: home @ make_transform(np.eye(3), d * axis),
+            lambda d, axis=axis: home @ make_transform(np.eye(3), d * axis),
         )
         start = home @ make_transform(np.eye(3), -lo * axis)
         end = home @ make_transform(np.eye(3), hi * axis)
