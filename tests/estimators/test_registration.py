@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spacecal.core.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.estimators.registration import register_points
 from spacecal.geometry.rotations import rotation_angle
@@ -43,6 +43,14 @@ def test_fle_and_predicted_tre_match_monte_carlo():
 def test_degenerate_fiducials():
     with pytest.raises(DegenerateDataError, match="at least 3"):
         register_points(points_in_source=FIDUCIALS[:2], points_in_target=FIDUCIALS[:2])
+    with pytest.raises(InvalidInputError, match=r"points_in_target: expected shape \(N, 3\), got \(6, 2\)"):
+        register_points(points_in_source=FIDUCIALS, points_in_target=FIDUCIALS[:, :2])
+    with pytest.raises(InvalidInputError, match="differ|source .* and target"):
+        register_points(points_in_source=FIDUCIALS, points_in_target=FIDUCIALS[:5])
+    touched = FIDUCIALS.copy()
+    touched[4, 0] = np.nan
+    with pytest.raises(InvalidInputError, match="points_in_target .*row 4: non-finite"):
+        register_points(points_in_source=FIDUCIALS, points_in_target=touched)
     line = np.outer(np.arange(5.0), [1, 2, 3])
     with pytest.raises(DegenerateDataError, match="collinear"):
         register_points(points_in_source=line, points_in_target=line)

@@ -23,7 +23,7 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, UnknownMethodError
 from spacecal.geometry.fitting import fit_sphere
-from spacecal.geometry.transforms import is_rigid_transform, transform_points_by_stack
+from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, transform_points_by_stack
 
 
 @dataclass
@@ -70,14 +70,17 @@ class PivotResult:
 
 
 def _check_poses(tracker_from_marker_stack) -> np.ndarray:
-    poses = np.asarray(tracker_from_marker_stack, dtype=float)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
-        raise DegenerateDataError(f"pivot calibration needs poses of shape (N, 4, 4), got {poses.shape}")
-    poses = poses[np.all(np.isfinite(poses.reshape(len(poses), -1)), axis=1)]
+    """The tracked poses (rows of NaN, frames without the marker, dropped), checked rigid."""
+    poses = check_transform(
+        tracker_from_marker_stack,
+        "tracker_from_marker_stack",
+        stack=True,
+        allow_missing=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
+    poses = poses[~np.isnan(poses[:, 0, 0])]
     if len(poses) < 4:
         raise DegenerateDataError(f"pivot calibration needs at least 4 tracked poses, got {len(poses)}")
-    if not is_rigid_transform(poses, atol=1e-4):
-        raise DegenerateDataError("pivot calibration: some poses are not rigid transforms")
     return poses
 
 

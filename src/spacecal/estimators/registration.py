@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spacecal.core.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.geometry.fitting import fit_rigid
-from spacecal.geometry.transforms import apply_transform
+from spacecal.geometry.transforms import apply_transform, check_points
 
 
 @dataclass
@@ -76,13 +76,15 @@ def register_points(*, points_in_source, points_in_target) -> PointRegistration:
 
     Raises
     ------
+    InvalidInputError
+        For point sets that are not (N, 3), hold non-finite values, or differ in length.
     DegenerateDataError
         For fewer than 3 pairs, or collinear fiducials.
     """
-    source = np.asarray(points_in_source, dtype=float)
-    target = np.asarray(points_in_target, dtype=float)
-    if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3:
-        raise DegenerateDataError(
+    source = check_points(points_in_source, "points_in_source")
+    target = check_points(points_in_target, "points_in_target")
+    if source.shape != target.shape:
+        raise InvalidInputError(
             f"registration needs paired (N, 3) points, got source {source.shape} and target {target.shape}"
         )
     if len(source) < 3:

@@ -22,6 +22,7 @@ from spacecal.estimators.likelihood import (
 from spacecal.estimators.observations import build_observations
 from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
+from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_points, check_transform
 from spacecal.records import CalibrationResult, Recording
 
 #: name -> function(recording, **options) -> CalibrationResult
@@ -55,10 +56,16 @@ def calibrate(
     ------
     UnknownMethodError
         For a name not in the registry; the message lists the valid ones.
+    InvalidInputError
+        For pose stacks that are not rigid transforms (:func:`check_recording_poses`) or
+        targets that are not (M, 3) finite points.
     """
     if method not in METHODS:
         raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(METHODS))}")
     targets = options.pop("targets_in_base", None)
+    if targets is not None:
+        targets = check_points(targets, "targets_in_base")
+    check_recording_poses(recording)
     accepted = inspect.signature(METHODS[method]).parameters
     unexpected = sorted(set(options) - set(accepted))
     if unexpected:
@@ -75,6 +82,31 @@ def calibrate(
     if not uncertainty:
         return result
     return with_bootstrap_uncertainty(result, recording, METHODS[method], targets)
+
+
+def check_recording_poses(recording: Recording) -> None:
+    """Refuse a recording whose pose stacks are not rigid transforms (one readable line).
+
+    Frames where the marker was not seen are rows of NaN in ``tracker_from_marker_stack``
+    and pass; the tolerance is that of measured matrices (about six significant digits).
+
+    Raises
+    ------
+    InvalidInputError
+    """
+    check_transform(
+        recording.base_from_tcp_stack,
+        "recording.base_from_tcp_stack",
+        stack=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
+    check_transform(
+        recording.tracker_from_marker_stack,
+        "recording.tracker_from_marker_stack",
+        stack=True,
+        allow_missing=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
 
 
 def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, solver, targets_in_base=None):

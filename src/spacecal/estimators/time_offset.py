@@ -18,7 +18,7 @@ from scipy.optimize import minimize_scalar
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.likelihood import calibrate_ml, fit_ml, variance_factor_of
-from spacecal.geometry.transforms import interpolate_transforms
+from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, interpolate_transforms
 from spacecal.records import CalibrationResult, RawRecording, Recording
 
 
@@ -73,10 +73,23 @@ def estimate_time_offset(
 
     Raises
     ------
+    InvalidInputError
+        When a pose stream is not a stack of rigid transforms (NaN rows mark frames without
+        the marker).
     DegenerateDataError
         When the best offset sits at the edge of the search (widen it) or the robot never
         moved while sampled (no information on the offset).
     """
+    check_transform(
+        raw.base_from_tcp_stack, "raw.base_from_tcp_stack", stack=True, atol=MEASURED_TRANSFORM_ATOL
+    )
+    check_transform(
+        raw.tracker_from_marker_stack,
+        "raw.tracker_from_marker_stack",
+        stack=True,
+        allow_missing=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
     offsets = np.arange(-search_s, search_s + 1e-12, coarse_step_s)
     costs = np.array([_fit_cost(raw, o) for o in offsets])
     best = int(np.argmin(costs))

@@ -10,6 +10,136 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from spacecal.core.errors import InvalidInputError
+
+#: Default tolerance of :func:`check_transform`: largest |R^T R - I| and |det R - 1|.
+RIGID_ATOL = 1e-6
+
+#: Tolerance for matrices measured by devices or read from text files, which carry about six
+#: significant digits (NDI's and scikit-surgery's pose files, for instance); estimators check
+#: their inputs with it.
+MEASURED_TRANSFORM_ATOL = 1e-4
+
+
+def _as_float_array(value, name: str) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as error:
+        raise InvalidInputError(f"{name}: not an array of numbers ({error})") from None
+
+
+def check_transform(
+    matrix,
+    name: str = "transform",
+    *,
+    stack: bool = False,
+    allow_missing: bool = False,
+    atol: float = RIGID_ATOL,
+) -> np.ndarray:
+    """Check that ``matrix`` is a proper rigid transform (or a stack of them) and return it.
+
+    Modelled on pytransform3d's ``check_transform``: one call at a public entry point turns
+    a malformed input into one readable line instead of a wrong answer later.
+
+    Parameters
+    ----------
+    matrix : array_like, shape (4, 4), or (N, 4, 4) with ``stack=True``
+        Homogeneous transform(s), mm.
+    name : str
+        How the caller calls it (e.g. ``"tracker_from_base"``); starts the error message.
+    stack : bool
+        Expect a stack (N, 4, 4) instead of a single (4, 4).
+    allow_missing : bool
+        In a stack, rows that are entirely NaN pass (the package's mark for a frame where the
+        marker was not seen); a partly NaN or infinite row is still an error.
+    atol : float
+        Largest accepted entry of |R^T R - I| and |det R - 1|; the bottom row must be
+        0 0 0 1 to the same tolerance.
+
+    Returns
+    -------
+    numpy.ndarray of float64, the same shape
+        A new array if the input was not already float64.
+
+    Raises
+    ------
+    InvalidInputError
+        One line naming ``name``, the shape it got and what is wrong: not (4, 4) /
+        (N, 4, 4), non-finite values, a rotation that is not orthonormal or has det -1 (a
+        reflection), or a bottom row other than 0 0 0 1.
+    """
+    m = _as_float_array(matrix, name)
+    expected = "(N, 4, 4)" if stack else "(4, 4)"
+    if (m.ndim != (3 if stack else 2)) or m.shape[-2:] != (4, 4):
+        raise InvalidInputError(f"{name}: expected shape {expected}, got {m.shape}")
+    rows = m.reshape(-1, 4, 4)
+    finite = np.all(np.isfinite(rows), axis=(1, 2))
+    if allow_missing and stack:
+        missing = np.all(np.isnan(rows), axis=(1, 2))
+    else:
+        missing = np.zeros(len(rows), dtype=bool)
+    bad = np.flatnonzero(~finite & ~missing)
+    if len(bad):
+        hint = " (only whole rows may be NaN)" if allow_missing and stack else ""
+        raise InvalidInputError(
+            f"{_located(name, m.shape, int(bad[0]), stack)}: non-finite values (NaN or infinite){hint}"
+        )
+    present = rows[finite]
+    bottom_error = np.max(np.abs(present[:, 3, :] - [0.0, 0.0, 0.0, 1.0]), axis=1, initial=0.0)
+    bad = np.flatnonzero(bottom_error > atol)
+    if len(bad):
+        index = int(np.flatnonzero(finite)[bad[0]])
+        raise InvalidInputError(
+            f"{_located(name, m.shape, index, stack)}: bottom row is not 0 0 0 1 "
+            f"(got {np.array2string(rows[index, 3], precision=6)})"
+        )
+    rotation = present[:, :3, :3]
+    gram_error = np.max(np.abs(np.swapaxes(rotation, 1, 2) @ rotation - np.eye(3)), axis=(1, 2), initial=0.0)
+    bad = np.flatnonzero(gram_error > atol)
+    if len(bad):
+        index = int(np.flatnonzero(finite)[bad[0]])
+        raise InvalidInputError(
+            f"{_located(name, m.shape, index, stack)}: rotation block is not orthonormal "
+            f"(max |R^T R - I| = {gram_error[bad[0]]:.2g} > {atol:g})"
+        )
+    determinant = np.linalg.det(rotation) if len(rotation) else np.ones(0)
+    bad = np.flatnonzero(np.abs(determinant - 1.0) > atol)
+    if len(bad):
+        index = int(np.flatnonzero(finite)[bad[0]])
+        raise InvalidInputError(
+            f"{_located(name, m.shape, index, stack)}: rotation has det {determinant[bad[0]]:+.3g}, "
+            "not +1 (a reflection: mirrored axes or a left-handed frame)"
+        )
+    return m
+
+
+def _located(name: str, shape: tuple[int, ...], index: int, stack: bool) -> str:
+    return f"{name} {shape}, matrix {index}" if stack else f"{name} {shape}"
+
+
+def check_points(points, name: str = "points") -> np.ndarray:
+    """Check that ``points`` is an (N, 3) array of finite coordinates and return it as float64.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Points, one per row, mm.
+    name : str
+        How the caller calls them (e.g. ``"points_in_source"``); starts the error message.
+
+    Raises
+    ------
+    InvalidInputError
+        One line naming ``name``, the shape it got and what is wrong.
+    """
+    p = _as_float_array(points, name)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InvalidInputError(f"{name}: expected shape (N, 3), got {p.shape}")
+    bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
+    if len(bad):
+        raise InvalidInputError(f"{name} {p.shape}, row {bad[0]}: non-finite coordinates (NaN or infinite)")
+    return p
+
 
 def make_transform(rotation, translation_mm) -> np.ndarray:
     """Build homogeneous transforms from rotations and translations.
