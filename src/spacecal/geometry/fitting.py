@@ -8,6 +8,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.transforms import transform_points_by_stack
 
 
@@ -58,7 +59,7 @@ class LineFit:
     length: float
 
 
-def _finite_points(points, what: str, minimum: int) -> np.ndarray:
+def _finite_points(points: ArrayLike, what: str, minimum: int) -> FloatArray:
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3:
         raise DegenerateDataError(f"{what}: expected points of shape (N, 3), got {p.shape}")
@@ -69,7 +70,7 @@ def _finite_points(points, what: str, minimum: int) -> np.ndarray:
     return p
 
 
-def fit_sphere_algebraic(points) -> tuple[np.ndarray, float]:
+def fit_sphere_algebraic(points: ArrayLike) -> tuple[FloatArray, float]:
     """Algebraic (linear) sphere fit, the start for :func:`fit_sphere`.
 
     |p|^2 = 2 p.c + (R^2 - |c|^2) is linear in c and k = R^2 - |c|^2; solved in the
@@ -102,7 +103,7 @@ def fit_sphere_algebraic(points) -> tuple[np.ndarray, float]:
     return centre_local + origin, float(np.sqrt(radius_sq))
 
 
-def fit_sphere(points) -> SphereFit:
+def fit_sphere(points: ArrayLike) -> SphereFit:
     """Geometric least-squares sphere fit (paper §3.2, eqs. 7–9).
 
     Minimises sum_i (|p_i - c| - R)^2 by Levenberg–Marquardt with the analytic Jacobian,
@@ -124,10 +125,10 @@ def fit_sphere(points) -> SphereFit:
     origin = p.mean(axis=0)
     q = p - origin
 
-    def residuals(x):
-        return np.linalg.norm(q - x[:3], axis=1) - x[3]
+    def residuals(x: FloatArray) -> FloatArray:
+        return as_float_array(np.linalg.norm(q - x[:3], axis=1) - x[3])
 
-    def jacobian(x):
+    def jacobian(x: FloatArray) -> FloatArray:
         diff = q - x[:3]
         dist = np.linalg.norm(diff, axis=1)
         dist = np.where(dist == 0, 1.0, dist)
@@ -141,7 +142,7 @@ def fit_sphere(points) -> SphereFit:
     return SphereFit(centre=centre, radius=radius, residuals=res, rms=float(np.sqrt(np.mean(res**2))))
 
 
-def fit_line(points) -> LineFit:
+def fit_line(points: ArrayLike) -> LineFit:
     """Total least-squares 3-D line fit (paper §3.1, eqs. 2–6).
 
     The paper writes the line as two planes x = k1 z + b1, y = k2 z + b2; the principal
@@ -178,7 +179,9 @@ def fit_line(points) -> LineFit:
     )
 
 
-def fit_rigid(*, points_in_source, points_in_target, weights=None) -> tuple[np.ndarray, float]:
+def fit_rigid(
+    *, points_in_source: ArrayLike, points_in_target: ArrayLike, weights: ArrayLike | None = None
+) -> tuple[FloatArray, float]:
     """Least-squares rigid transform ``target_from_source`` between paired point sets (Kabsch/Arun).
 
     Used to compute a marker's pose from its measured sphere centres, as a tracker does.

@@ -11,6 +11,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 
 #: Default tolerance of :func:`check_transform`: largest |R^T R - I| and |det R - 1|.
 RIGID_ATOL = 1e-6
@@ -21,7 +22,7 @@ RIGID_ATOL = 1e-6
 MEASURED_TRANSFORM_ATOL = 1e-4
 
 
-def _as_float_array(value, name: str) -> np.ndarray:
+def _as_float_array(value: ArrayLike, name: str) -> FloatArray:
     try:
         return np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as error:
@@ -29,13 +30,13 @@ def _as_float_array(value, name: str) -> np.ndarray:
 
 
 def check_transform(
-    matrix,
+    matrix: ArrayLike,
     name: str = "transform",
     *,
     stack: bool = False,
     allow_missing: bool = False,
     atol: float = RIGID_ATOL,
-) -> np.ndarray:
+) -> FloatArray:
     """Check that ``matrix`` is a proper rigid transform (or a stack of them) and return it.
 
     Modelled on pytransform3d's ``check_transform``: one call at a public entry point turns
@@ -117,7 +118,7 @@ def _located(name: str, shape: tuple[int, ...], index: int, stack: bool) -> str:
     return f"{name} {shape}, matrix {index}" if stack else f"{name} {shape}"
 
 
-def check_points(points, name: str = "points") -> np.ndarray:
+def check_points(points: ArrayLike, name: str = "points") -> FloatArray:
     """Check that ``points`` is an (N, 3) array of finite coordinates and return it as float64.
 
     Parameters
@@ -141,7 +142,7 @@ def check_points(points, name: str = "points") -> np.ndarray:
     return p
 
 
-def make_transform(rotation, translation_mm) -> np.ndarray:
+def make_transform(rotation: ArrayLike, translation_mm: ArrayLike) -> FloatArray:
     """Build homogeneous transforms from rotations and translations.
 
     Parameters
@@ -163,7 +164,7 @@ def make_transform(rotation, translation_mm) -> np.ndarray:
     return out
 
 
-def invert_transform(a_from_b) -> np.ndarray:
+def invert_transform(a_from_b: ArrayLike) -> FloatArray:
     """Invert rigid transforms exactly (R^T, -R^T t): ``b_from_a = invert_transform(a_from_b)``.
 
     Parameters
@@ -176,7 +177,7 @@ def invert_transform(a_from_b) -> np.ndarray:
     return make_transform(rotation_t, translation)
 
 
-def apply_transform(a_from_b, points_in_b) -> np.ndarray:
+def apply_transform(a_from_b: ArrayLike, points_in_b: ArrayLike) -> FloatArray:
     """Map points given in frame b into frame a.
 
     Parameters
@@ -194,11 +195,11 @@ def apply_transform(a_from_b, points_in_b) -> np.ndarray:
     a_from_b = np.asarray(a_from_b, dtype=float)
     points_in_b = np.asarray(points_in_b, dtype=float)
     if a_from_b.ndim == 2:
-        return points_in_b @ a_from_b[:3, :3].T + a_from_b[:3, 3]
-    return np.einsum("nij,nj->ni", a_from_b[:, :3, :3], points_in_b) + a_from_b[:, :3, 3]
+        return as_float_array(points_in_b @ a_from_b[:3, :3].T + a_from_b[:3, 3])
+    return as_float_array(np.einsum("nij,nj->ni", a_from_b[:, :3, :3], points_in_b) + a_from_b[:, :3, 3])
 
 
-def transform_points_by_stack(a_from_b_stack, points_in_b) -> np.ndarray:
+def transform_points_by_stack(a_from_b_stack: ArrayLike, points_in_b: ArrayLike) -> FloatArray:
     """Place the same model points by each of N poses: every point through every transform.
 
     This is how a marker's sphere centres (given once, in the marker frame) appear at each
@@ -221,12 +222,16 @@ def transform_points_by_stack(a_from_b_stack, points_in_b) -> np.ndarray:
     a_from_b_stack = np.asarray(a_from_b_stack, dtype=float)
     points_in_b = np.asarray(points_in_b, dtype=float)
     if points_in_b.ndim == 1:
-        return np.einsum("nij,j->ni", a_from_b_stack[:, :3, :3], points_in_b) + a_from_b_stack[:, :3, 3]
+        return as_float_array(
+            np.einsum("nij,j->ni", a_from_b_stack[:, :3, :3], points_in_b) + a_from_b_stack[:, :3, 3]
+        )
     rotated = np.einsum("nij,kj->nki", a_from_b_stack[:, :3, :3], points_in_b)
-    return rotated + a_from_b_stack[:, None, :3, 3]
+    return as_float_array(rotated + a_from_b_stack[:, None, :3, 3])
 
 
-def interpolate_transforms(start_a_from_b, end_a_from_b, fraction) -> np.ndarray:
+def interpolate_transforms(
+    start_a_from_b: ArrayLike, end_a_from_b: ArrayLike, fraction: ArrayLike
+) -> FloatArray:
     """Transforms part-way from ``start`` to ``end``: position linearly, rotation along the geodesic.
 
     The rotation turns about the fixed axis of the relative rotation ``R_start^T R_end`` at a
@@ -254,17 +259,17 @@ def interpolate_transforms(start_a_from_b, end_a_from_b, fraction) -> np.ndarray
     return make_transform(rotation, position)
 
 
-def rotation_part(transform) -> np.ndarray:
+def rotation_part(transform: ArrayLike) -> FloatArray:
     """The (…, 3, 3) rotation block of transforms."""
     return np.asarray(transform, dtype=float)[..., :3, :3]
 
 
-def translation_part(transform) -> np.ndarray:
+def translation_part(transform: ArrayLike) -> FloatArray:
     """The (…, 3) translation column of transforms, in mm."""
     return np.asarray(transform, dtype=float)[..., :3, 3]
 
 
-def quaternion_wxyz_to_matrix(quaternion_wxyz) -> np.ndarray:
+def quaternion_wxyz_to_matrix(quaternion_wxyz: ArrayLike) -> FloatArray:
     """Rotation matrices from unit quaternions, scalar first.
 
     Parameters
@@ -274,36 +279,38 @@ def quaternion_wxyz_to_matrix(quaternion_wxyz) -> np.ndarray:
         non-unit input check it first (see :mod:`spacecal.io.recording_csv`).
     """
     q = np.asarray(quaternion_wxyz, dtype=float)
-    return Rotation.from_quat(np.roll(q, -1, axis=-1)).as_matrix()
+    return as_float_array(Rotation.from_quat(np.roll(q, -1, axis=-1)).as_matrix())
 
 
-def matrix_to_quaternion_wxyz(rotation) -> np.ndarray:
+def matrix_to_quaternion_wxyz(rotation: ArrayLike) -> FloatArray:
     """Unit quaternions, scalar first and non-negative, from rotation matrices (…, 3, 3)."""
     q_xyzw = Rotation.from_matrix(np.asarray(rotation, dtype=float)).as_quat(canonical=True)
     return np.roll(q_xyzw, 1, axis=-1)
 
 
-def rotvec_to_matrix(rotation_vector) -> np.ndarray:
+def rotvec_to_matrix(rotation_vector: ArrayLike) -> FloatArray:
     """Rotation matrices from rotation vectors (axis times angle in radians), (…, 3)."""
-    return Rotation.from_rotvec(np.asarray(rotation_vector, dtype=float)).as_matrix()
+    return as_float_array(Rotation.from_rotvec(np.asarray(rotation_vector, dtype=float)).as_matrix())
 
 
-def matrix_to_rotvec(rotation) -> np.ndarray:
+def matrix_to_rotvec(rotation: ArrayLike) -> FloatArray:
     """Rotation vectors (axis times angle in radians) from rotation matrices (…, 3, 3)."""
-    return Rotation.from_matrix(np.asarray(rotation, dtype=float)).as_rotvec()
+    return as_float_array(Rotation.from_matrix(np.asarray(rotation, dtype=float)).as_rotvec())
 
 
-def transform_from_position_quaternion(position_mm, quaternion_wxyz) -> np.ndarray:
+def transform_from_position_quaternion(position_mm: ArrayLike, quaternion_wxyz: ArrayLike) -> FloatArray:
     """Transforms from positions (…, 3) in mm and ``wxyz`` quaternions (…, 4)."""
     return make_transform(quaternion_wxyz_to_matrix(quaternion_wxyz), position_mm)
 
 
-def transform_to_position_quaternion(transform) -> tuple[np.ndarray, np.ndarray]:
+def transform_to_position_quaternion(transform: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Split transforms into positions (…, 3) in mm and ``wxyz`` quaternions (…, 4)."""
     return translation_part(transform).copy(), matrix_to_quaternion_wxyz(rotation_part(transform))
 
 
-def axis_angle_transform(axis, angle_rad, translation_mm=(0.0, 0.0, 0.0)) -> np.ndarray:
+def axis_angle_transform(
+    axis: ArrayLike, angle_rad: ArrayLike, translation_mm: ArrayLike = (0.0, 0.0, 0.0)
+) -> FloatArray:
     """A transform rotating by ``angle_rad`` about unit ``axis`` (3,), then translating."""
     axis = np.asarray(axis, dtype=float)
     axis = axis / np.linalg.norm(axis)
@@ -311,7 +318,7 @@ def axis_angle_transform(axis, angle_rad, translation_mm=(0.0, 0.0, 0.0)) -> np.
     return make_transform(rotvec_to_matrix(angle[..., None] * axis), translation_mm)
 
 
-def is_rigid_transform(transform, atol: float = 1e-6) -> bool:
+def is_rigid_transform(transform: ArrayLike, atol: float = 1e-6) -> bool:
     """True if every matrix is a proper rigid transform (orthonormal, det +1, last row 0 0 0 1)."""
     t = np.asarray(transform, dtype=float)
     if t.shape[-2:] != (4, 4) or not np.all(np.isfinite(t)):
@@ -324,7 +331,7 @@ def is_rigid_transform(transform, atol: float = 1e-6) -> bool:
     return bool(orthonormal and proper and last_row)
 
 
-def orthonormalize_transforms(stack) -> np.ndarray:
+def orthonormalize_transforms(stack: ArrayLike) -> FloatArray:
     """Transforms (N, 4, 4) with each rotation replaced by its nearest proper rotation.
 
     Trackers and robots often write single-precision matrices that are not quite
