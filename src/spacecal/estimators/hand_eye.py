@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.rotations import quaternion_product_matrices, skew
 from spacecal.geometry.transforms import (
     invert_transform,
@@ -39,8 +40,8 @@ MIN_MOTION_ANGLE_RAD = np.radians(2.0)
 
 
 def relative_motions(
-    base_from_tcp_stack, tracker_from_marker_stack, pairs=None
-) -> tuple[np.ndarray, np.ndarray]:
+    base_from_tcp_stack: ArrayLike, tracker_from_marker_stack: ArrayLike, pairs: ArrayLike | None = None
+) -> tuple[FloatArray, FloatArray]:
     """Relative motions (A_k, B_k) for sample pairs (default: consecutive samples).
 
     Parameters
@@ -68,7 +69,7 @@ def relative_motions(
     return motion_a, motion_b
 
 
-def _rotating(motion_a, motion_b):
+def _rotating(motion_a: FloatArray, motion_b: FloatArray) -> tuple[FloatArray, FloatArray]:
     angle = np.linalg.norm(matrix_to_rotvec(motion_a[:, :3, :3]), axis=1)
     keep = angle > MIN_MOTION_ANGLE_RAD
     if keep.sum() < 2:
@@ -79,23 +80,23 @@ def _rotating(motion_a, motion_b):
     return motion_a[keep], motion_b[keep]
 
 
-def _translation(motion_a, motion_b, rotation_x) -> np.ndarray:
+def _translation(motion_a: FloatArray, motion_b: FloatArray, rotation_x: FloatArray) -> FloatArray:
     n = len(motion_a)
     design = (motion_a[:, :3, :3] - np.eye(3)).reshape(3 * n, 3)
     rhs = (motion_b[:, :3, 3] @ rotation_x.T - motion_a[:, :3, 3]).reshape(-1)
     solution, *_ = np.linalg.lstsq(design, rhs, rcond=None)
-    return solution
+    return as_float_array(solution)
 
 
-def solve_tsai(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
+def solve_tsai(tcp_motion_stack: FloatArray, marker_motion_stack: FloatArray) -> FloatArray:
     """Tsai–Lenz 1989; returns X = ``tcp_from_marker``."""
     rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     rv_a = matrix_to_rotvec(rot_a[:, :3, :3])
     rv_b = matrix_to_rotvec(rot_b[:, :3, :3])
 
-    def modified_rodrigues(rv):
+    def modified_rodrigues(rv: FloatArray) -> FloatArray:
         angle = np.linalg.norm(rv, axis=1, keepdims=True)
-        return 2.0 * np.sin(angle / 2.0) * rv / angle
+        return as_float_array(2.0 * np.sin(angle / 2.0) * rv / angle)
 
     p_a, p_b = modified_rodrigues(rv_a), modified_rodrigues(rv_b)
     # skew(P_A + P_B) P' = P_B - P_A; P = 2 P' / sqrt(1 + |P'|^2)
@@ -107,7 +108,7 @@ def solve_tsai(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
     return make_transform(rotation, _translation(tcp_motion_stack, marker_motion_stack, rotation))
 
 
-def solve_park(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
+def solve_park(tcp_motion_stack: FloatArray, marker_motion_stack: FloatArray) -> FloatArray:
     """Park–Martin 1994; returns X = ``tcp_from_marker``."""
     rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     alpha = matrix_to_rotvec(rot_a[:, :3, :3])
@@ -121,14 +122,14 @@ def solve_park(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
     return make_transform(rotation, _translation(tcp_motion_stack, marker_motion_stack, rotation))
 
 
-def _dual_quaternion(transform):
+def _dual_quaternion(transform: FloatArray) -> tuple[FloatArray, FloatArray]:
     q = matrix_to_quaternion_wxyz(transform[:, :3, :3])
     t = np.concatenate([np.zeros((len(transform), 1)), transform[:, :3, 3]], axis=1)
     left_t, _ = quaternion_product_matrices(t)
     return q, 0.5 * np.einsum("nij,nj->ni", left_t, q)
 
 
-def solve_daniilidis(tcp_motion_stack, marker_motion_stack) -> np.ndarray:
+def solve_daniilidis(tcp_motion_stack: FloatArray, marker_motion_stack: FloatArray) -> FloatArray:
     """Daniilidis 1999 (dual quaternions); returns X = ``tcp_from_marker``."""
     rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     qa, qa_dual = _dual_quaternion(rot_a)

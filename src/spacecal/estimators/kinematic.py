@@ -24,6 +24,7 @@ identified corrections with standard deviations, the rank and the condition numb
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from scipy.linalg import qr
@@ -31,6 +32,7 @@ from scipy.linalg import qr
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.likelihood import calibrate_ml, report_uncertainty, variance_factor_of
 from spacecal.estimators.observations import build_observations
+from spacecal.geometry.arrays import FloatArray
 from spacecal.models.kinematics import (
     RobotModel,
     apply_pose_step,
@@ -56,9 +58,16 @@ def robot_model_of(recording: Recording) -> RobotModel:
     return ur_model(robot["model"], np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
 
 
-def model_from_dict(table: dict, base: RobotModel) -> RobotModel:
+def model_from_dict(table: dict[str, Any], base: RobotModel) -> RobotModel:
     """A corrected model stored in a result file (``dh_table`` layout)."""
-    return replace(base, **{field: np.asarray(table[field], dtype=float) for field in DH_FIELDS})
+    corrected = {field: np.asarray(table[field], dtype=float) for field in DH_FIELDS}
+    return replace(
+        base,
+        a_mm=corrected["a_mm"],
+        d_mm=corrected["d_mm"],
+        alpha_rad=corrected["alpha_rad"],
+        theta_offset_rad=corrected["theta_offset_rad"],
+    )
 
 
 def calibration_robot_model(calibration: CalibrationResult, nominal: RobotModel) -> RobotModel:
@@ -67,7 +76,9 @@ def calibration_robot_model(calibration: CalibrationResult, nominal: RobotModel)
     return nominal if table is None else model_from_dict(table, nominal)
 
 
-def identifiable_corrections(dh_jacobian, pose_jacobian, rank_tolerance: float) -> tuple[np.ndarray, float]:
+def identifiable_corrections(
+    dh_jacobian: FloatArray, pose_jacobian: FloatArray, rank_tolerance: float
+) -> tuple[FloatArray, float]:
     """Indices of the DH corrections the data determines beyond the pose, and their condition."""
     scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
     dh = dh_jacobian.reshape(-1, 24) / scale
@@ -85,7 +96,7 @@ def identifiable_corrections(dh_jacobian, pose_jacobian, rank_tolerance: float) 
 def calibrate_kinematic(
     recording: Recording,
     sigma_mm: float | None = None,
-    targets_in_base=None,
+    targets_in_base: FloatArray | None = None,
     prior_length_sd_mm: float = 1.0,
     prior_angle_sd_rad: float = 0.002,
     rank_tolerance: float = 0.02,

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -25,6 +28,7 @@ from spacecal.estimators.ml import (
 )
 from spacecal.estimators.observations import Observations, build_observations
 from spacecal.estimators.robot_world import solve_shah
+from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IntArray
 from spacecal.geometry.metrics import cube_grid
 from spacecal.geometry.transforms import invert_transform
 from spacecal.records import CalibrationResult, Recording
@@ -41,9 +45,15 @@ SYSTEMATIC_TAIL_FACTOR = 4.0
 CUBE_SIDE_MM = 200.0
 
 
-def tre_summary(tracker_from_base, covariance, site, targets_in_base=None) -> dict:
+def tre_summary(
+    tracker_from_base: FloatArray,
+    covariance: FloatArray,
+    site: ArrayLike,
+    targets_in_base: ArrayLike | None = None,
+) -> dict[str, Any]:
     """Predicted TRE at the site, RMS over a 200 mm cube around it, and at given targets."""
-    summary = {
+    site = np.asarray(site, dtype=float)
+    summary: dict[str, Any] = {
         "site_in_base_mm": np.asarray(site).tolist(),
         "site": float(predicted_tre_mm(tracker_from_base, covariance, site[None])[0]),
         "cube_rms": float(
@@ -62,14 +72,16 @@ def tre_summary(tracker_from_base, covariance, site, targets_in_base=None) -> di
     return summary
 
 
-def _initial_estimate(obs: Observations, recording: Recording):
+def _initial_estimate(obs: Observations, recording: Recording) -> tuple[FloatArray, FloatArray]:
     tcp_from_marker, base_from_tracker = solve_shah(
         obs.base_from_tcp_stack, recording.tracker_from_marker_stack[obs.rows]
     )
     return invert_transform(base_from_tracker), tcp_from_marker
 
 
-def variance_factor_of(obs: Observations, tracker_from_base, tcp_from_marker) -> float:
+def variance_factor_of(
+    obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
+) -> float:
     """A posteriori variance factor: chi-square of the sphere residuals over its degrees of freedom."""
     errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
     dof = max(obs.dof_per_frame * len(obs.rows) - 12, 1)
@@ -77,8 +89,15 @@ def variance_factor_of(obs: Observations, tracker_from_base, tcp_from_marker) ->
 
 
 def _package(
-    method, recording, obs, tracker_from_base, tcp_from_marker, targets_in_base, extra, outlier_rows=()
-):
+    method: str,
+    recording: Recording,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    targets_in_base: ArrayLike | None,
+    extra: dict[str, Any],
+    outlier_rows: IntArray | Sequence[int] = (),
+) -> CalibrationResult:
     information = information_matrix(obs, tracker_from_base, tcp_from_marker)
     variance_factor = variance_factor_of(obs, tracker_from_base, tcp_from_marker)
     # Without a known tracker noise the residuals alone set the scale (no floor at 1).
@@ -109,17 +128,17 @@ def _package(
 
 
 def report_uncertainty(
-    method,
-    recording,
-    obs,
-    tracker_from_base,
-    tcp_from_marker,
-    covariance,
-    variance_factor,
-    targets_in_base,
-    extra,
-    outlier_rows=(),
-    covariance_note="",
+    method: str,
+    recording: Recording,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    covariance: FloatArray,
+    variance_factor: float,
+    targets_in_base: ArrayLike | None,
+    extra: dict[str, Any],
+    outlier_rows: IntArray | Sequence[int] = (),
+    covariance_note: str = "",
 ) -> CalibrationResult:
     """A calibration result with covariance, predicted TRE, residuals, spread and verdict."""
     site = site_in_base(recording, obs.rows)
@@ -171,7 +190,7 @@ def report_uncertainty(
 
 
 def calibrate_ml(
-    recording: Recording, sigma_mm: float | None = None, targets_in_base=None
+    recording: Recording, sigma_mm: float | None = None, targets_in_base: ArrayLike | None = None
 ) -> CalibrationResult:
     """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
 
@@ -213,14 +232,14 @@ def ransac_start(
     iterations: int = 60,
     subset: int = 6,
     threshold_mm: float | None = None,
-):
+) -> tuple[tuple[FloatArray, FloatArray], BoolArray, float]:
     """Best closed-form (Shah) solution over random frame subsets, by inlier count.
 
     Returns the transforms, the inlier mask and the threshold used.
     """
     threshold = threshold_mm if threshold_mm is not None else max(1.0, 10.0 * obs.sigma_mm)
     poses = recording.tracker_from_marker_stack[obs.rows]
-    best = (-1, None, None)
+    best_count, best_start, best_inliers = -1, None, None
     for _ in range(iterations):
         pick = rng.choice(len(obs.rows), size=min(subset, len(obs.rows)), replace=False)
         try:
@@ -229,15 +248,22 @@ def ransac_start(
             continue
         tracker_from_base = invert_transform(base_from_tracker)
         inliers = frame_errors(obs, tracker_from_base, tcp_from_marker) < threshold
-        if inliers.sum() > best[0]:
-            best = (int(inliers.sum()), (tracker_from_base, tcp_from_marker), inliers)
-    if best[1] is None:
+        if inliers.sum() > best_count:
+            best_count, best_start, best_inliers = (
+                int(inliers.sum()),
+                (tracker_from_base, tcp_from_marker),
+                inliers,
+            )
+    if best_start is None or best_inliers is None:
         raise DegenerateDataError("no random subset of frames gave a usable closed-form start")
-    return best[1], best[2], threshold
+    return best_start, best_inliers, threshold
 
 
 def calibrate_robust(
-    recording: Recording, sigma_mm: float | None = None, targets_in_base=None, seed: int = 0
+    recording: Recording,
+    sigma_mm: float | None = None,
+    targets_in_base: ArrayLike | None = None,
+    seed: int = 0,
 ) -> CalibrationResult:
     """Maximum likelihood that survives bad frames (mis-detected spheres, stale frames, reflections).
 
@@ -300,8 +326,12 @@ def calibrate_robust(
 
 
 def tre_lower_bound(
-    recording: Recording, tracker_from_base, tcp_from_marker, sigma_mm: float, targets_in_base=None
-) -> dict:
+    recording: Recording,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    sigma_mm: float,
+    targets_in_base: ArrayLike | None = None,
+) -> dict[str, Any]:
     """Cramér–Rao lower bound on the RMS TRE for a recording under white sphere noise.
 
     The Fisher information of the 12 parameters is J^T J / sigma^2 with J evaluated at

@@ -28,6 +28,7 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.observations import Observations
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.rotations import skew
 from spacecal.models.kinematics import (
     POSE_PARAMETER_NAMES,
@@ -41,14 +42,16 @@ from spacecal.models.kinematics import (
 PARAMETER_NAMES = POSE_PARAMETER_NAMES
 
 
-def predict_spheres(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
+def predict_spheres(
+    obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
+) -> FloatArray:
     """Predicted sphere centres (N, K, 3) in the tracker frame."""
     return chain_points_in_tracker(
         obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker
     )
 
 
-def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
+def jacobian(obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray) -> FloatArray:
     """d(predicted spheres)/d(12 parameters), shape (N, K, 3, 12), unwhitened (mm per unit).
 
     The analytic :func:`spacecal.models.kinematics.pose_point_jacobian` at the observed poses.
@@ -58,13 +61,13 @@ def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarra
     )
 
 
-def frame_errors(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
+def frame_errors(obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray) -> FloatArray:
     """Per-frame RMS sphere residual (N,), mm."""
     diff = predict_spheres(obs, tracker_from_base, tcp_from_marker) - obs.spheres_in_tracker
-    return np.sqrt(np.mean(np.sum(diff**2, axis=2), axis=1))
+    return as_float_array(np.sqrt(np.mean(np.sum(diff**2, axis=2), axis=1)))
 
 
-def cauchy_weights(normalised_error, scale: float = 2.5) -> np.ndarray:
+def cauchy_weights(normalised_error: ArrayLike, scale: float = 2.5) -> FloatArray:
     """IRLS weights of the Cauchy loss for per-frame errors in units of their expected size."""
     return 1.0 / (1.0 + (np.asarray(normalised_error) / scale) ** 2)
 
@@ -81,9 +84,9 @@ class Fit:
 
 def levenberg_marquardt(
     obs: Observations,
-    tracker_from_base,
-    tcp_from_marker,
-    frame_weights=None,
+    tracker_from_base: ArrayLike,
+    tcp_from_marker: ArrayLike,
+    frame_weights: ArrayLike | None = None,
     max_iterations: int = 50,
     tolerance: float = 1e-12,
 ) -> Fit:
@@ -102,7 +105,9 @@ def levenberg_marquardt(
     tracker_from_base = np.array(tracker_from_base, float)
     tcp_from_marker = np.array(tcp_from_marker, float)
 
-    def cost_of(trial_tracker_from_base, trial_tcp_from_marker):
+    def cost_of(
+        trial_tracker_from_base: FloatArray, trial_tcp_from_marker: FloatArray
+    ) -> tuple[float, FloatArray]:
         diff = predict_spheres(obs, trial_tracker_from_base, trial_tcp_from_marker) - obs.spheres_in_tracker
         return float(np.sum(weights[:, None, None] * diff**2)) / obs.sigma_mm**2, diff
 
@@ -133,8 +138,12 @@ def levenberg_marquardt(
 
 
 def information_matrix(
-    obs: Observations, tracker_from_base, tcp_from_marker, sigma_mm=None, frame_weights=None
-) -> np.ndarray:
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    sigma_mm: FloatArray | None = None,
+    frame_weights: ArrayLike | None = None,
+) -> FloatArray:
     """Fisher information (12, 12) of the two transforms under the sphere noise model.
 
     With raw spheres each component is an independent observation. With poses fitted from
@@ -144,30 +153,34 @@ def information_matrix(
     sigma = obs.sigma_mm if sigma_mm is None else sigma_mm
     jac = jacobian(obs, tracker_from_base, tcp_from_marker)
     w = np.ones(len(obs.rows)) if frame_weights is None else np.asarray(frame_weights, float)
-    return np.einsum("nkia,nkib->ab", w[:, None, None, None] * jac, jac) / sigma**2
+    return as_float_array(np.einsum("nkia,nkib->ab", w[:, None, None, None] * jac, jac) / sigma**2)
 
 
-def covariance_from_information(information) -> np.ndarray:
+def covariance_from_information(information: FloatArray) -> FloatArray:
     """Invert an information matrix, refusing an unidentifiable problem."""
     eigenvalues = np.linalg.eigvalsh(information)
     if eigenvalues.min() <= eigenvalues.max() * 1e-14:
         raise DegenerateDataError(
             "the recording does not determine all 12 calibration parameters (rotate about more axes)"
         )
-    return np.linalg.inv(information)
+    return as_float_array(np.linalg.inv(information))
 
 
-def point_covariances(tracker_from_base, covariance_tracker_from_base, points_in_base) -> np.ndarray:
+def point_covariances(
+    tracker_from_base: FloatArray, covariance_tracker_from_base: FloatArray, points_in_base: ArrayLike
+) -> FloatArray:
     """Covariances (M, 3, 3), mm^2, of base points mapped into the tracker frame.
 
     q = R_t p + t_t; with the left perturbation, dq = v - [R_t p]x w.
     """
     rotated = np.asarray(points_in_base, float) @ tracker_from_base[:3, :3].T
     g = np.concatenate([np.broadcast_to(np.eye(3), rotated.shape[:-1] + (3, 3)), -skew(rotated)], axis=-1)
-    return g @ covariance_tracker_from_base @ np.swapaxes(g, -1, -2)
+    return as_float_array(g @ covariance_tracker_from_base @ np.swapaxes(g, -1, -2))
 
 
-def predicted_tre_mm(tracker_from_base, covariance, points_in_base) -> np.ndarray:
+def predicted_tre_mm(
+    tracker_from_base: FloatArray, covariance: ArrayLike, points_in_base: FloatArray
+) -> FloatArray:
     """Predicted RMS target registration error (M,), mm: sqrt(trace) of each point covariance."""
     cov = point_covariances(tracker_from_base, np.asarray(covariance)[:6, :6], points_in_base)
-    return np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
+    return as_float_array(np.sqrt(np.trace(cov, axis1=-2, axis2=-1)))

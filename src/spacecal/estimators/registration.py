@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
+from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.geometry.fitting import fit_rigid
 from spacecal.geometry.transforms import apply_transform, check_points
 
@@ -53,14 +54,14 @@ class PointRegistration:
         """Mean residual: PLUS's "Error"."""
         return float(np.mean(self.residuals_mm))
 
-    def predicted_tre_mm(self, targets_in_source, fle_rms_mm: float | None = None) -> np.ndarray:
+    def predicted_tre_mm(self, targets_in_source: FloatArray, fle_rms_mm: float | None = None) -> FloatArray:
         """Fitzpatrick–West–Maurer predicted RMS TRE at targets (M, 3) given in the source frame."""
         return predicted_tre(
             self.points_in_source, targets_in_source, self.fle_rms_mm if fle_rms_mm is None else fle_rms_mm
         )
 
 
-def register_points(*, points_in_source, points_in_target) -> PointRegistration:
+def register_points(*, points_in_source: ArrayLike, points_in_target: ArrayLike) -> PointRegistration:
     """Rigid ``target_from_source`` from paired points by least squares (Arun/Umeyama).
 
     The point sets are keyword-only and named as in :func:`spacecal.geometry.fitting.fit_rigid`,
@@ -98,7 +99,7 @@ def register_points(*, points_in_source, points_in_target) -> PointRegistration:
     return PointRegistration(target_from_source, residuals, fle, source)
 
 
-def predicted_tre(fiducials, targets, fle_rms_mm: float) -> np.ndarray:
+def predicted_tre(fiducials: ArrayLike, targets: ArrayLike, fle_rms_mm: float) -> FloatArray:
     """Fitzpatrick–West–Maurer 1998 predicted RMS TRE (M,) at targets (M, 3), same frame as fiducials."""
     fiducials = np.asarray(fiducials, dtype=float)
     targets = np.atleast_2d(np.asarray(targets, dtype=float))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable
+from typing import Any
 
 from spacecal.core.errors import InvalidInputError, UnknownMethodError
 from spacecal.estimators.closed_form import (
@@ -22,6 +23,7 @@ from spacecal.estimators.likelihood import (
 from spacecal.estimators.observations import build_observations
 from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
+from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_points, check_transform
 from spacecal.records import CalibrationResult, Recording
 
@@ -37,7 +39,7 @@ METHODS: dict[str, Callable[..., CalibrationResult]] = {
 
 
 def calibrate(
-    recording: Recording, method: str = "paper", uncertainty: bool = True, **options
+    recording: Recording, method: str = "paper", uncertainty: bool = True, **options: Any
 ) -> CalibrationResult:
     """Estimate ``tracker_from_base`` and ``tcp_from_marker`` from a recording.
 
@@ -109,11 +111,16 @@ def check_recording_poses(recording: Recording) -> None:
     )
 
 
-def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, solver, targets_in_base=None):
+def with_bootstrap_uncertainty(
+    result: CalibrationResult,
+    recording: Recording,
+    solver: Callable[..., CalibrationResult],
+    targets_in_base: ArrayLike | None = None,
+) -> CalibrationResult:
     """Add covariance (bootstrap over frames), predicted TRE, residuals and a verdict to a
     result from an estimator without a likelihood; its transforms are unchanged."""
 
-    def solve(resampled):
+    def solve(resampled: Recording) -> tuple[FloatArray, FloatArray]:
         again = solver(resampled)
         return again.tracker_from_base, again.tcp_from_marker
 

@@ -26,13 +26,16 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.geometry.rotations import nearest_rotation, quaternion_product_matrices
 from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
 
 MIN_POSES = 3
 
 
-def _check(base_from_tcp_stack, tracker_from_marker_stack):
+def _check(
+    base_from_tcp_stack: ArrayLike, tracker_from_marker_stack: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
     a = np.asarray(base_from_tcp_stack, dtype=float)
     b = np.asarray(tracker_from_marker_stack, dtype=float)
     if a.shape != b.shape or a.ndim != 3 or a.shape[1:] != (4, 4):
@@ -46,7 +49,7 @@ def _check(base_from_tcp_stack, tracker_from_marker_stack):
     return a, b
 
 
-def _orthonormal_from_vec(vec9) -> np.ndarray:
+def _orthonormal_from_vec(vec9: ArrayLike) -> FloatArray:
     """A rotation from a column-major 9-vector known up to scale (and sign)."""
     m = np.asarray(vec9).reshape(3, 3, order="F")
     det = np.linalg.det(m)
@@ -57,8 +60,11 @@ def _orthonormal_from_vec(vec9) -> np.ndarray:
 
 
 def solve_translations(
-    base_from_tcp_stack, tracker_from_marker_stack, rotation_x, rotation_y
-) -> tuple[np.ndarray, np.ndarray]:
+    base_from_tcp_stack: ArrayLike,
+    tracker_from_marker_stack: ArrayLike,
+    rotation_x: FloatArray,
+    rotation_y: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
     """Least-squares t_X, t_Y given the rotations: R_Ai t_X - t_Y = R_Y t_Bi - t_Ai."""
     a = np.asarray(base_from_tcp_stack, dtype=float)
     b = np.asarray(tracker_from_marker_stack, dtype=float)
@@ -71,7 +77,9 @@ def solve_translations(
     return solution[:3], solution[3:]
 
 
-def solve_shah(base_from_tcp_stack, tracker_from_marker_stack) -> tuple[np.ndarray, np.ndarray]:
+def solve_shah(
+    base_from_tcp_stack: FloatArray, tracker_from_marker_stack: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Shah 2013 (Kronecker product). See the module docstring for the frame mapping."""
     a, b = _check(base_from_tcp_stack, tracker_from_marker_stack)
     # vec(R_A R_X R_B^T) = (R_B (x) R_A) vec(R_X) = vec(R_Y): K vec(R_X) = n vec(R_Y)
@@ -83,7 +91,9 @@ def solve_shah(base_from_tcp_stack, tracker_from_marker_stack) -> tuple[np.ndarr
     return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
 
 
-def solve_li(base_from_tcp_stack, tracker_from_marker_stack) -> tuple[np.ndarray, np.ndarray]:
+def solve_li(
+    base_from_tcp_stack: FloatArray, tracker_from_marker_stack: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Li, Wang, Wu 2010 (simultaneous Kronecker system). Frame mapping in the module docstring.
 
     Unknowns [vec R_X, vec R_Y, t_X, t_Y] (column-major vec) from
@@ -103,15 +113,16 @@ def solve_li(base_from_tcp_stack, tracker_from_marker_stack) -> tuple[np.ndarray
     system[:, 9:, 21:24] = -eye3
     rhs = np.zeros((n, 12))
     rhs[:, 9:] = -ta
-    system, rhs = system.reshape(12 * n, 24), rhs.reshape(-1)
-    solution, *_ = np.linalg.lstsq(system, rhs, rcond=None)
+    solution, *_ = np.linalg.lstsq(system.reshape(12 * n, 24), rhs.reshape(-1), rcond=None)
     rotation_x = _orthonormal_from_vec(solution[:9])
     rotation_y = _orthonormal_from_vec(solution[9:18])
     t_x, t_y = solve_translations(a, b, rotation_x, rotation_y)
     return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
 
 
-def solve_dornaika(base_from_tcp_stack, tracker_from_marker_stack) -> tuple[np.ndarray, np.ndarray]:
+def solve_dornaika(
+    base_from_tcp_stack: FloatArray, tracker_from_marker_stack: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Dornaika–Horaud 1998 closed form (quaternions). Frame mapping in the module docstring.
 
     q and -q are the same rotation, so q_A q_X = +-q_Y q_B per pose; the signs of q_Bi are

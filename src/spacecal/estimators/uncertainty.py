@@ -15,6 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from spacecal.core.errors import SpacecalError
+from spacecal.geometry.arrays import FloatArray
 from spacecal.models.kinematics import pose_step_between
 from spacecal.records import Recording
 
@@ -24,9 +25,9 @@ RESAMPLES = 50
 
 def bootstrap_covariance(
     recording: Recording,
-    solve: Callable[[Recording], tuple[np.ndarray, np.ndarray]],
-    reference_tracker_from_base,
-    reference_tcp_from_marker,
+    solve: Callable[[Recording], tuple[FloatArray, FloatArray]],
+    reference_tracker_from_base: FloatArray,
+    reference_tcp_from_marker: FloatArray,
     resamples: int = RESAMPLES,
     seed: int = 0,
 ) -> np.ndarray | None:

@@ -12,8 +12,10 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.intp]
+#: Rows picked out of a stack: indices or a boolean mask.
+IndexArray = NDArray[np.intp] | NDArray[np.bool_]
 
-__all__ = ["ArrayLike", "BoolArray", "FloatArray", "IntArray", "as_float_array"]
+__all__ = ["ArrayLike", "BoolArray", "FloatArray", "IndexArray", "IntArray", "as_float_array"]
 
 
 def as_float_array(value: ArrayLike) -> FloatArray:

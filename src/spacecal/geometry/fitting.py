@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -181,7 +182,7 @@ def fit_line(points: ArrayLike) -> LineFit:
 
 def fit_rigid(
     *, points_in_source: ArrayLike, points_in_target: ArrayLike, weights: ArrayLike | None = None
-) -> tuple[FloatArray, float]:
+) -> tuple[FloatArray, Any]:
     """Least-squares rigid transform ``target_from_source`` between paired point sets (Kabsch/Arun).
 
     Used to compute a marker's pose from its measured sphere centres, as a tracker does.

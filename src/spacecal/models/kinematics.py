@@ -18,6 +18,7 @@ from importlib import resources
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
+from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray
 from spacecal.geometry.rotations import skew
 from spacecal.geometry.transforms import (
     apply_transform,
@@ -59,29 +60,33 @@ class RobotModel:
     """
 
     name: str
-    a_mm: np.ndarray
-    d_mm: np.ndarray
-    alpha_rad: np.ndarray
-    theta_offset_rad: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS))
-    flange_from_tcp: np.ndarray = field(default_factory=lambda: np.eye(4))
-    joint_lower_rad: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, -2 * np.pi))
-    joint_upper_rad: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, 2 * np.pi))
+    a_mm: FloatArray
+    d_mm: FloatArray
+    alpha_rad: FloatArray
+    theta_offset_rad: FloatArray = field(default_factory=lambda: np.zeros(N_JOINTS))
+    flange_from_tcp: FloatArray = field(default_factory=lambda: np.eye(4))
+    joint_lower_rad: FloatArray = field(default_factory=lambda: np.full(N_JOINTS, -2 * np.pi))
+    joint_upper_rad: FloatArray = field(default_factory=lambda: np.full(N_JOINTS, 2 * np.pi))
     controller_hz: float = 125.0
 
-    def with_tcp(self, flange_from_tcp) -> RobotModel:
+    def with_tcp(self, flange_from_tcp: ArrayLike) -> RobotModel:
         """A copy with another tool offset (4, 4), mm."""
         return replace(self, flange_from_tcp=np.asarray(flange_from_tcp, dtype=float))
 
     def with_dh_errors(
-        self, delta_a_mm=0.0, delta_d_mm=0.0, delta_alpha_rad=0.0, delta_theta_rad=0.0
+        self,
+        delta_a_mm: ArrayLike = 0.0,
+        delta_d_mm: ArrayLike = 0.0,
+        delta_alpha_rad: ArrayLike = 0.0,
+        delta_theta_rad: ArrayLike = 0.0,
     ) -> RobotModel:
         """A copy whose DH parameters are offset, e.g. a real robot's deviation from nominal."""
         return replace(
             self,
-            a_mm=self.a_mm + delta_a_mm,
-            d_mm=self.d_mm + delta_d_mm,
-            alpha_rad=self.alpha_rad + delta_alpha_rad,
-            theta_offset_rad=self.theta_offset_rad + delta_theta_rad,
+            a_mm=self.a_mm + np.asarray(delta_a_mm, dtype=np.float64),
+            d_mm=self.d_mm + np.asarray(delta_d_mm, dtype=np.float64),
+            alpha_rad=self.alpha_rad + np.asarray(delta_alpha_rad, dtype=np.float64),
+            theta_offset_rad=self.theta_offset_rad + np.asarray(delta_theta_rad, dtype=np.float64),
         )
 
     def dh_table(self) -> dict[str, list[float]]:
@@ -94,7 +99,7 @@ class RobotModel:
         }
 
 
-def ur_model(name: str, flange_from_tcp=None) -> RobotModel:
+def ur_model(name: str, flange_from_tcp: ArrayLike | None = None) -> RobotModel:
     """The nominal model of a Universal Robots arm.
 
     Parameters
@@ -117,7 +122,7 @@ def ur_model(name: str, flange_from_tcp=None) -> RobotModel:
     )
 
 
-def _link_transforms(model: RobotModel, joints_rad: np.ndarray) -> np.ndarray:
+def _link_transforms(model: RobotModel, joints_rad: FloatArray) -> FloatArray:
     """Per-link transforms, shape (N, 6, 4, 4), for joint vectors (N, 6)."""
     theta = joints_rad + model.theta_offset_rad
     ct, st = np.cos(theta), np.sin(theta)
@@ -138,7 +143,7 @@ def _link_transforms(model: RobotModel, joints_rad: np.ndarray) -> np.ndarray:
     return links
 
 
-def _as_joint_array(joints_rad) -> tuple[np.ndarray, bool]:
+def _as_joint_array(joints_rad: ArrayLike) -> tuple[FloatArray, bool]:
     q = np.asarray(joints_rad, dtype=float)
     single = q.ndim == 1
     q = np.atleast_2d(q)
@@ -147,7 +152,7 @@ def _as_joint_array(joints_rad) -> tuple[np.ndarray, bool]:
     return q, single
 
 
-def forward_kinematics(model: RobotModel, joints_rad, to_tcp: bool = True) -> np.ndarray:
+def forward_kinematics(model: RobotModel, joints_rad: ArrayLike, to_tcp: bool = True) -> FloatArray:
     """``base_from_tcp`` (or ``base_from_flange``) for joint vectors.
 
     Parameters
@@ -171,14 +176,14 @@ def forward_kinematics(model: RobotModel, joints_rad, to_tcp: bool = True) -> np
     return pose[0] if single else pose
 
 
-def _pose_error_vector(target, reached) -> np.ndarray:
+def _pose_error_vector(target: FloatArray, reached: FloatArray) -> FloatArray:
     """6-vector (position mm, rotation rad) of the error from reached to target, in base."""
     dp = target[..., :3, 3] - reached[..., :3, 3]
     dr = matrix_to_rotvec(target[..., :3, :3] @ np.swapaxes(reached[..., :3, :3], -1, -2))
     return np.concatenate([dp, dr], axis=-1)
 
 
-def geometric_jacobian(model: RobotModel, joints_rad) -> np.ndarray:
+def geometric_jacobian(model: RobotModel, joints_rad: ArrayLike) -> FloatArray:
     """Geometric Jacobian of the TCP in the base frame, shape (N, 6, 6): rows (v mm, w rad)."""
     q, _ = _as_joint_array(joints_rad)
     links = _link_transforms(model, q)
@@ -197,13 +202,13 @@ def geometric_jacobian(model: RobotModel, joints_rad) -> np.ndarray:
 
 def inverse_kinematics_gauss_newton(
     model: RobotModel,
-    base_from_tcp,
-    start_joints_rad,
+    base_from_tcp: ArrayLike,
+    start_joints_rad: ArrayLike,
     *,
     max_iterations: int,
     position_tol_mm: float,
     rotation_tol_rad: float,
-) -> tuple[np.ndarray, bool]:
+) -> tuple[FloatArray, bool]:
     """Joint angles reaching ``base_from_tcp`` by Gauss–Newton from a start configuration.
 
     The one iterative IK of the package: it polishes the closed-form branches of
@@ -243,12 +248,12 @@ def inverse_kinematics_gauss_newton(
     return q, False
 
 
-def _wrap_near(angles, reference):
+def _wrap_near(angles: FloatArray, reference: FloatArray) -> FloatArray:
     """Add multiples of 2 pi to ``angles`` to bring them nearest to ``reference``."""
     return reference + np.mod(angles - reference + np.pi, 2 * np.pi) - np.pi
 
 
-def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarray:
+def _ur_closed_form(model: RobotModel, base_from_flange: FloatArray) -> FloatArray:
     """The 8 closed-form UR branches (Hawkins 2013) for one flange pose: shape (8, 6), NaN rows
     where a branch does not exist. Exact for the nominal UR geometry; a start for Newton
     otherwise."""
@@ -306,8 +311,11 @@ def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarr
 
 
 def inverse_kinematics(
-    model: RobotModel, base_from_tcp, reference_joints_rad=None, tol_mm: float = 1e-9
-) -> np.ndarray:
+    model: RobotModel,
+    base_from_tcp: ArrayLike,
+    reference_joints_rad: ArrayLike | None = None,
+    tol_mm: float = 1e-9,
+) -> FloatArray:
     """Joint angles reaching ``base_from_tcp``, nearest to a reference configuration.
 
     The UR closed form (8 branches) gives candidates from the nominal geometry; each is
@@ -372,13 +380,13 @@ def inverse_kinematics(
     return result[0] if single else result
 
 
-def within_joint_limits(model: RobotModel, joints_rad) -> np.ndarray:
+def within_joint_limits(model: RobotModel, joints_rad: ArrayLike) -> BoolArray:
     """Boolean per row of joints (N, 6): inside the model's limits."""
     q, _ = _as_joint_array(joints_rad)
     return np.all((q >= model.joint_lower_rad) & (q <= model.joint_upper_rad), axis=1)
 
 
-def with_dh_corrections(model: RobotModel, delta) -> RobotModel:
+def with_dh_corrections(model: RobotModel, delta: ArrayLike) -> RobotModel:
     """``model`` with DH corrections (24,): a, d, alpha, theta offset of joints 1..6, in that order."""
     delta = np.asarray(delta, dtype=float).reshape(4, 6)
     return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
@@ -416,7 +424,9 @@ POSE_PARAMETER_NAMES = [
 ]
 
 
-def apply_pose_step(tracker_from_base, tcp_from_marker, step) -> tuple[np.ndarray, np.ndarray]:
+def apply_pose_step(
+    tracker_from_base: ArrayLike, tcp_from_marker: ArrayLike, step: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
     """Perturb the two calibration transforms by 12 parameters (v_t, w_t, v_x, w_x).
 
     Parameters
@@ -443,8 +453,11 @@ def apply_pose_step(tracker_from_base, tcp_from_marker, step) -> tuple[np.ndarra
 
 
 def pose_step_between(
-    reference_tracker_from_base, reference_tcp_from_marker, tracker_from_base, tcp_from_marker
-) -> np.ndarray:
+    reference_tracker_from_base: ArrayLike,
+    reference_tcp_from_marker: ArrayLike,
+    tracker_from_base: ArrayLike,
+    tcp_from_marker: ArrayLike,
+) -> FloatArray:
     """The 12 parameters (12,) that :func:`apply_pose_step` needs to go from the reference
     transforms to the given ones (its inverse), mm and rad."""
     reference_t = np.asarray(reference_tracker_from_base, dtype=float)
@@ -462,16 +475,22 @@ def pose_step_between(
 
 
 def chain_points_in_tracker(
-    base_from_tcp_stack, tracker_from_base, tcp_from_marker, points_in_marker
-) -> np.ndarray:
+    base_from_tcp_stack: ArrayLike,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    points_in_marker: FloatArray,
+) -> FloatArray:
     """Marker points (K, 3) placed by the calibration chain at TCP poses (N, 4, 4): (N, K, 3), mm."""
     chain = tracker_from_base @ np.asarray(base_from_tcp_stack, dtype=float) @ tcp_from_marker
     return transform_points_by_stack(chain, points_in_marker)
 
 
 def pose_point_jacobian(
-    base_from_tcp_stack, tracker_from_base, tcp_from_marker, points_in_marker
-) -> np.ndarray:
+    base_from_tcp_stack: ArrayLike,
+    tracker_from_base: ArrayLike,
+    tcp_from_marker: ArrayLike,
+    points_in_marker: ArrayLike,
+) -> FloatArray:
     """d(:func:`chain_points_in_tracker`)/d(12 pose parameters), analytic: shape (N, K, 3, 12).
 
     With q = R_t (R_A (R_x s + t_x) + t_A) + t_t and the perturbations of
@@ -512,8 +531,12 @@ def pose_point_jacobian(
 
 
 def points_in_tracker(
-    model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker
-) -> np.ndarray:
+    model: RobotModel,
+    joints_rad: ArrayLike,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    points_in_marker: FloatArray,
+) -> FloatArray:
     """Marker points (K, 3) seen in the tracker at joint configurations (N, 6): shape (N, K, 3), mm.
 
     The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
@@ -527,8 +550,13 @@ def points_in_tracker(
 
 
 def dh_point_jacobian(
-    model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker, step: float = 1e-6
-) -> np.ndarray:
+    model: RobotModel,
+    joints_rad: ArrayLike,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    points_in_marker: FloatArray,
+    step: float = 1e-6,
+) -> FloatArray:
     """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24).
 
     The pose columns that go with these are :func:`pose_point_jacobian` (analytic).

@@ -130,9 +130,10 @@ def plan_for_site(
     spheres = visibility.marker.spheres_in_marker
     t_prior, x_prior = visibility.tracker_from_base, visibility.tcp_from_marker
 
-    poses, joints = [], []
+    feasible_poses: list[np.ndarray] = []
+    feasible_joints: list[np.ndarray] = []
     for _ in range(s.candidates * 10):
-        if len(poses) >= s.candidates:
+        if len(feasible_poses) >= s.candidates:
             break
         pose = random_station(home, rng, s.cube_mm, s.tilt_deg)
         if not visibility.visible(pose[None])[0]:
@@ -141,13 +142,13 @@ def plan_for_site(
             q = inverse_kinematics(model, pose, home_joints)
         except UnreachableError:
             continue
-        poses.append(pose)
-        joints.append(q)
-    if len(poses) < 6:
+        feasible_poses.append(pose)
+        feasible_joints.append(q)
+    if len(feasible_poses) < 6:
         raise DegenerateDataError(
-            f"only {len(poses)} feasible stations around the site; widen the cube or tilt"
+            f"only {len(feasible_poses)} feasible stations around the site; widen the cube or tilt"
         )
-    poses, joints = np.array(poses), np.array(joints)
+    poses, joints = np.array(feasible_poses), np.array(feasible_joints)
 
     # information per candidate (frames at a station repeat the same geometry)
     jac = parameter_jacobian(model, joints, t_prior, x_prior, spheres).reshape(len(joints), -1, 36)
@@ -236,15 +237,16 @@ def paper_sweep_site_error(
     s = settings or PlannerSettings()
     from spacecal.planning.motion import track_path
 
-    joints, q = [], plan.home_joints_rad
+    paths: list[np.ndarray] = []
+    q = plan.home_joints_rad
     for move in plan.moves:
         if move.sample_period_s > 0:
             t = np.arange(0.0, move.duration_s, move.sample_period_s)
             path = track_path(model, move.poses_at(t), q)
-            joints.append(path)
+            paths.append(path)
             q = path[-1]
         q = track_path(model, move.end[None], q)[0]
-    joints = np.concatenate(joints)
+    joints = np.concatenate(paths)
     seen = visibility.visible(forward_kinematics(model, joints))
     jac = parameter_jacobian(
         model,
