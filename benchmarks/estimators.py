@@ -22,8 +22,8 @@ import numpy as np
 from spacecal.estimators import METHODS, calibrate
 from spacecal.experiments.monte_carlo import cramer_rao_tre_mm, run_monte_carlo
 from spacecal.experiments.simulation import simulate
-from spacecal.sim.scenario import PRESETS
 from spacecal.experiments.verification import verify_in_simulation
+from spacecal.sim.scenario import PRESETS
 
 ORDER = ["paper", "ml", "robust", "shah", "li", "dornaika", "tsai", "park", "daniilidis"]
 
@@ -69,7 +69,8 @@ def main() -> None:
         f"to about +-{100 / np.sqrt(2 * args.bound_trials):.0f} %):\n"
     )
     print(
-        "| motion | Cramér–Rao bound (mm) | ML TRE RMS (mm) | ratio | ML predicted TRE (mm) | predicted / observed |"
+        "| motion | Cramér–Rao bound (mm) | ML TRE RMS (mm) | ratio | ML predicted TRE (mm) | "
+        "predicted / observed |"
     )
     print("|" + "|".join(["---"] * 6) + "|")
     for motion in ("paper", "stations"):

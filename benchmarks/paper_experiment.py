@@ -18,9 +18,9 @@ import numpy as np
 
 from spacecal.estimators import calibrate
 from spacecal.experiments.simulation import simulate
-from spacecal.sim.scenario import PRESETS
 from spacecal.experiments.truth import calibration_error
 from spacecal.experiments.verification import verify_in_simulation
+from spacecal.sim.scenario import PRESETS
 
 
 def run_case(scenario):
@@ -71,7 +71,8 @@ def main() -> None:
             f"{fmt(col['motion_s'], 1)} | {fmt(col['samples'], 0)} | {fmt(col['compute_ms'], 1)} |"
         )
     print(
-        "| paper (real UR10 + Vicra) | – | – | – | < 1.05 (min 0.87) | – | about 1.1 (min 0.83) | about 60 | – | – |"
+        "| paper (real UR10 + Vicra) | – | – | – | < 1.05 (min 0.87) | – | about 1.1 (min 0.83) | about 60 "
+        "| – | – |"
     )
 
 

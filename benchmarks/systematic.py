@@ -25,13 +25,13 @@ import numpy as np
 
 from spacecal.estimators import calibrate
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
-from spacecal.planning.optimal import plan_for_site
-from spacecal.planning.visibility import VisibilityModel
 from spacecal.experiments.simulation import execute_plan, simulate_raw
-from spacecal.sim.motion import plan_for_world
-from spacecal.sim.scenario import PRESETS
 from spacecal.experiments.truth import calibration_error
 from spacecal.experiments.verification import verify_in_simulation
+from spacecal.planning.optimal import plan_for_site
+from spacecal.planning.visibility import VisibilityModel
+from spacecal.sim.motion import plan_for_world
+from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
 
 
@@ -91,7 +91,8 @@ def main() -> None:
     args = parser.parse_args()
     results = [run_seed(seed) for seed in range(1, args.seeds + 1)]
     print(
-        f"Realistic scenario, {args.seeds} seeds (mean ± s.d. over seeds; verification: paper §5.2, 15 points)\n"
+        f"Realistic scenario, {args.seeds} seeds "
+        "(mean ± s.d. over seeds; verification: paper §5.2, 15 points)\n"
     )
     print(
         "| motion | estimator | calibration TRE, 200 mm cube (mm) | verification mean position (mm) | "
@@ -111,9 +112,11 @@ def main() -> None:
         ]
         print(f"| {motion} | {method} | {' | '.join(cells)} | {values[:, 4].mean():.1f} |")
     offsets = np.array([r["_offset"] for r in results])
+    spread = offsets[:, 0].std(ddof=1) if len(offsets) > 1 else 0.0
+    largest = np.max(np.abs(offsets[:, 0] - 30.0))
     print(
-        f"\nClock offset 30 ms: estimated {offsets[:, 0].mean():.2f} ± {offsets[:, 0].std(ddof=1) if len(offsets) > 1 else 0:.2f} ms "
-        f"(largest error {np.max(np.abs(offsets[:, 0] - 30.0)):.2f} ms), {offsets[:, 1].mean():.1f} s of compute"
+        f"\nClock offset 30 ms: estimated {offsets[:, 0].mean():.2f} ± {spread:.2f} ms "
+        f"(largest error {largest:.2f} ms), {offsets[:, 1].mean():.1f} s of compute"
     )
 
 

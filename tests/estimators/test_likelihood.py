@@ -5,10 +5,11 @@ import pytest
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.ml import apply_step, jacobian, predict_spheres
+from spacecal.estimators.ml import jacobian, predict_spheres
 from spacecal.estimators.observations import build_observations, sphere_noise_from_marker_rms
 from spacecal.experiments.monte_carlo import cramer_rao_tre_mm, run_monte_carlo, true_sphere_sigma_mm
 from spacecal.experiments.truth import calibration_error
+from spacecal.models.kinematics import apply_pose_step
 
 
 def test_noise_free_recording_is_recovered_exactly(noise_free_simulation):
@@ -26,8 +27,8 @@ def test_analytic_jacobian_matches_finite_differences(white_simulation):
     for k in range(12):
         step = np.zeros(12)
         step[k] = eps
-        plus = predict_spheres(obs, *apply_step(t, x, step))
-        minus = predict_spheres(obs, *apply_step(t, x, -step))
+        plus = predict_spheres(obs, *apply_pose_step(t, x, step))
+        minus = predict_spheres(obs, *apply_pose_step(t, x, -step))
         assert np.allclose((plus - minus) / (2 * eps), jac[..., k], atol=1e-4)
 
 

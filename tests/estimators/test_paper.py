@@ -3,7 +3,7 @@ import copy
 import numpy as np
 import pytest
 
-from spacecal.core.errors import DegenerateDataError, UnknownMethodError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnknownMethodError
 from spacecal.estimators import calibrate
 from spacecal.estimators.paper import PaperThresholds
 from spacecal.experiments.simulation import execute_plan
@@ -86,7 +86,7 @@ def test_too_little_rotation_is_named():
     plan = plan_paper_sweeps(
         world.nominal_model,
         world.home_joints_rad,
-        PaperSweepSettings(rotation_deg=6.0, minimum_rotation_deg=1.0),
+        PaperSweepSettings(rotation_each_way_deg=6.0, minimum_rotation_span_deg=1.0),
     )
     with pytest.raises(DegenerateDataError, match="covers only 12.0 deg of rotation"):
         calibrate(execute_plan(world, plan)[0])
@@ -125,3 +125,21 @@ def test_axes_far_from_commanded_angles_are_refused(white_simulation):
     with pytest.raises(DegenerateDataError, match="apart where the robot moved"):
         calibrate(recording, thresholds=PaperThresholds(max_line_rms_mm=10.0))
     assert np.all(np.isfinite(start))
+
+
+def test_recordings_with_malformed_poses_are_refused_at_the_entry(white_simulation):
+    recording = copy.deepcopy(white_simulation.recording)
+    recording.base_from_tcp_stack[7, :3, 0] *= -1  # a mirrored robot pose
+    with pytest.raises(
+        InvalidInputError, match=r"recording.base_from_tcp_stack \(\d+, 4, 4\), matrix 7: .*det -1"
+    ):
+        calibrate(recording, "ml")
+    recording = copy.deepcopy(white_simulation.recording)
+    row = np.flatnonzero(recording.visible)[3]
+    recording.tracker_from_marker_stack[row, 3, :] = [0.0, 0.0, 0.0, 1000.0]  # a scaled homogeneous row
+    with pytest.raises(
+        InvalidInputError, match=f"recording.tracker_from_marker_stack .*matrix {row}: bottom row"
+    ):
+        calibrate(recording, "paper")
+    with pytest.raises(InvalidInputError, match=r"targets_in_base: expected shape \(N, 3\)"):
+        calibrate(white_simulation.recording, "ml", targets_in_base=[1.0, 2.0])

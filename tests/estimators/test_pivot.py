@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spacecal.core.errors import DegenerateDataError, UnknownMethodError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnknownMethodError
 from spacecal.estimators.pivot import pivot_calibration
 from spacecal.geometry.transforms import make_transform
 from spacecal.io.pose_files import read_matrix_folder
@@ -82,3 +82,19 @@ def test_degenerate_pivots_are_refused():
         pivot_calibration(still[:2], "aos")
     with pytest.raises(UnknownMethodError, match="aos, sphere"):
         pivot_calibration(still, "magic")
+
+
+def test_malformed_pivot_poses_are_refused_and_missing_frames_skipped():
+    tip = np.array([1.0, 2.0, 150.0])
+    rotations = Rotation.from_rotvec(np.random.default_rng(1).normal(scale=0.4, size=(12, 3))).as_matrix()
+    poses = make_transform(rotations, -rotations @ tip)
+    poses[5] = np.nan  # the marker was not seen in frame 5
+    assert np.allclose(pivot_calibration(poses, "aos").tip_in_marker, tip, atol=1e-8)
+    scaled = poses.copy()
+    scaled[2, :3, :3] *= 1.01
+    with pytest.raises(
+        InvalidInputError, match="tracker_from_marker_stack .*matrix 2: rotation block is not orthonormal"
+    ):
+        pivot_calibration(scaled, "aos")
+    with pytest.raises(InvalidInputError, match=r"expected shape \(N, 4, 4\), got \(12, 3, 4\)"):
+        pivot_calibration(poses[:, :3], "aos")

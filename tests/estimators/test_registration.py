@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from spacecal.core.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.estimators.registration import register_points
 from spacecal.geometry.rotations import rotation_angle
@@ -20,8 +20,8 @@ FIDUCIALS = np.array([[0, 0, 0], [80, 0, 0], [0, 60, 0], [0, 0, 50], [70, 50, 40
 
 def test_exact_points_register_exactly():
     truth = make_transform(Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix(), [10, -20, 300])
-    reg = register_points(apply_transform(truth, FIDUCIALS), FIDUCIALS)
-    assert np.allclose(reg.a_from_b, truth, atol=1e-10) and reg.fre_rms_mm < 1e-10
+    reg = register_points(points_in_source=FIDUCIALS, points_in_target=apply_transform(truth, FIDUCIALS))
+    assert np.allclose(reg.target_from_source, truth, atol=1e-10) and reg.fre_rms_mm < 1e-10
 
 
 def test_fle_and_predicted_tre_match_monte_carlo():
@@ -31,8 +31,8 @@ def test_fle_and_predicted_tre_match_monte_carlo():
     errors, fle_estimates, predicted = [], [], []
     for _ in range(2000):
         noisy = FIDUCIALS + rng.normal(scale=fle_rms / np.sqrt(3), size=FIDUCIALS.shape)
-        reg = register_points(noisy, FIDUCIALS)
-        errors.append(np.linalg.norm(apply_transform(reg.a_from_b, target) - target))
+        reg = register_points(points_in_source=FIDUCIALS, points_in_target=noisy)
+        errors.append(np.linalg.norm(apply_transform(reg.target_from_source, target) - target))
         fle_estimates.append(reg.fle_rms_mm**2)
         predicted.append(reg.predicted_tre_mm(target, fle_rms_mm=fle_rms)[0])
     observed = np.sqrt(np.mean(np.square(errors)))
@@ -42,10 +42,18 @@ def test_fle_and_predicted_tre_match_monte_carlo():
 
 def test_degenerate_fiducials():
     with pytest.raises(DegenerateDataError, match="at least 3"):
-        register_points(FIDUCIALS[:2], FIDUCIALS[:2])
+        register_points(points_in_source=FIDUCIALS[:2], points_in_target=FIDUCIALS[:2])
+    with pytest.raises(InvalidInputError, match=r"points_in_target: expected shape \(N, 3\), got \(6, 2\)"):
+        register_points(points_in_source=FIDUCIALS, points_in_target=FIDUCIALS[:, :2])
+    with pytest.raises(InvalidInputError, match="differ|source .* and target"):
+        register_points(points_in_source=FIDUCIALS, points_in_target=FIDUCIALS[:5])
+    touched = FIDUCIALS.copy()
+    touched[4, 0] = np.nan
+    with pytest.raises(InvalidInputError, match="points_in_target .*row 4: non-finite"):
+        register_points(points_in_source=FIDUCIALS, points_in_target=touched)
     line = np.outer(np.arange(5.0), [1, 2, 3])
     with pytest.raises(DegenerateDataError, match="collinear"):
-        register_points(line, line)
+        register_points(points_in_source=line, points_in_target=line)
 
 
 # ../shared/realdata/plus_phantom_landmarks/README.md: PLUS's baseline result

@@ -100,9 +100,9 @@ def test_rigid_fit_recovers_pose(seed):
     rotation = Rotation.random(random_state=seed).as_matrix()
     translation = rng.uniform(-1000, 1000, 3)
     measured = model @ rotation.T + translation
-    pose, rms = fit_rigid(model, measured)
+    pose, rms = fit_rigid(points_in_source=model, points_in_target=measured)
     assert np.allclose(pose[:3, :3], rotation, atol=1e-9)
     assert np.allclose(pose[:3, 3], translation, atol=1e-8)
     assert rms < 1e-9
-    stack, stack_rms = fit_rigid(model, np.stack([measured, measured]))
+    stack, stack_rms = fit_rigid(points_in_source=model, points_in_target=np.stack([measured, measured]))
     assert np.allclose(stack[1], pose) and stack_rms.shape == (2,)

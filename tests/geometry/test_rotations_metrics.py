@@ -30,7 +30,13 @@ def test_nearest_rotation_never_returns_a_reflection():
 def test_wahba_recovers_rotation(seed):
     rotation = Rotation.random(random_state=seed).as_matrix()
     directions_in_b = np.random.default_rng(seed).normal(size=(3, 3))
-    assert np.allclose(wahba_rotation(directions_in_b @ rotation.T, directions_in_b), rotation, atol=1e-9)
+    assert np.allclose(
+        wahba_rotation(
+            directions_in_source=directions_in_b, directions_in_target=directions_in_b @ rotation.T
+        ),
+        rotation,
+        atol=1e-9,
+    )
 
 
 def test_wahba_equals_paper_form_for_axes():
@@ -38,14 +44,18 @@ def test_wahba_equals_paper_form_for_axes():
     rng = np.random.default_rng(1)
     a = Rotation.random(random_state=2).as_matrix() + rng.normal(scale=0.01, size=(3, 3))
     r_bt = Rotation.random(random_state=3).as_matrix()
-    wahba = wahba_rotation(a.T / np.linalg.norm(a.T, axis=1, keepdims=True), r_bt.T)
+    wahba = wahba_rotation(
+        directions_in_source=r_bt.T, directions_in_target=a.T / np.linalg.norm(a.T, axis=1, keepdims=True)
+    )
     paper = nearest_rotation(a / np.linalg.norm(a, axis=0)) @ r_bt.T
     assert np.allclose(wahba, paper, atol=1e-9)
 
 
 def test_wahba_rejects_parallel_directions():
     with pytest.raises(DegenerateDataError):
-        wahba_rotation([[1, 0, 0], [2, 0, 0]], [[0, 1, 0], [0, 2, 0]])
+        wahba_rotation(
+            directions_in_source=[[0, 1, 0], [0, 2, 0]], directions_in_target=[[1, 0, 0], [2, 0, 0]]
+        )
 
 
 def test_posture_error_is_the_angle_of_rd_rr_inverse():

@@ -2,12 +2,17 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
-from spacecal.geometry.transforms import make_transform
+from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.kinematics import (
     UR_TABLES,
+    apply_pose_step,
+    chain_points_in_tracker,
     forward_kinematics,
     geometric_jacobian,
     inverse_kinematics,
+    inverse_kinematics_gauss_newton,
+    pose_point_jacobian,
+    pose_step_between,
     ur_model,
     within_joint_limits,
 )
@@ -91,3 +96,42 @@ def test_jacobian_matches_finite_differences():
 def test_unknown_model_lists_known_ones():
     with pytest.raises(InvalidInputError, match="UR10e"):
         ur_model("UR11")
+
+
+def test_gauss_newton_ik_converges_from_nearby_and_reports_failure():
+    model = ur_model("UR10", TOOL)
+    joints = np.radians([[15, -95, 105, -80, -70, 40], [-30, -70, 90, -100, -90, 10]])
+    poses = forward_kinematics(model, joints)
+    solved, converged = inverse_kinematics_gauss_newton(
+        model, poses, joints + 0.05, max_iterations=30, position_tol_mm=1e-9, rotation_tol_rad=1e-12
+    )
+    assert converged and np.allclose(forward_kinematics(model, solved), poses, atol=1e-9)
+    far = make_transform(np.eye(3), [5000.0, 0.0, 0.0])[None]
+    _, converged = inverse_kinematics_gauss_newton(
+        model, far, joints[:1], max_iterations=30, position_tol_mm=1e-9, rotation_tol_rad=1e-12
+    )
+    assert not converged
+
+
+def test_pose_step_round_trip_and_analytic_jacobian():
+    rng = np.random.default_rng(2)
+    tracker_from_base = axis_angle_transform([1, 2, 3], 0.7, [100.0, -50.0, -1200.0])
+    tcp_from_marker = axis_angle_transform([0, 1, 1], -0.4, [20.0, 80.0, 40.0])
+    step = rng.normal(scale=[1, 1, 1, 0.01, 0.01, 0.01, 1, 1, 1, 0.01, 0.01, 0.01])
+    moved = apply_pose_step(tracker_from_base, tcp_from_marker, step)
+    assert np.allclose(pose_step_between(tracker_from_base, tcp_from_marker, *moved), step, atol=1e-12)
+    base_from_tcp = forward_kinematics(ur_model("UR5"), rng.uniform(-2, 2, (4, 6)))
+    points = rng.normal(size=(3, 3)) * 40
+    jac = pose_point_jacobian(base_from_tcp, tracker_from_base, tcp_from_marker, points)
+    assert jac.shape == (4, 3, 3, 12)
+    eps = 1e-6
+    for k in range(12):
+        delta = np.zeros(12)
+        delta[k] = eps
+        plus = chain_points_in_tracker(
+            base_from_tcp, *apply_pose_step(tracker_from_base, tcp_from_marker, delta), points
+        )
+        minus = chain_points_in_tracker(
+            base_from_tcp, *apply_pose_step(tracker_from_base, tcp_from_marker, -delta), points
+        )
+        assert np.allclose((plus - minus) / (2 * eps), jac[..., k], atol=1e-4)

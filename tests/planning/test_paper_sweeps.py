@@ -74,4 +74,6 @@ def test_infeasible_home_and_too_small_sweeps_are_refused():
     with pytest.raises(UnreachableError, match="not visible"):
         plan_paper_sweeps(world.nominal_model, world.home_joints_rad, visibility=behind)
     with pytest.raises(DegenerateDataError, match="rotation is feasible"):
-        plan_paper_sweeps(world.nominal_model, world.home_joints_rad, PaperSweepSettings(rotation_deg=5.0))
+        plan_paper_sweeps(
+            world.nominal_model, world.home_joints_rad, PaperSweepSettings(rotation_each_way_deg=5.0)
+        )

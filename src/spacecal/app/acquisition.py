@@ -96,8 +96,8 @@ class AcquireSettings:
     robot_model: str = "UR10"
     tool_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     prior: str | None = None
-    rotation_deg: float = PaperSweepSettings.rotation_deg
-    translation_mm: float = PaperSweepSettings.translation_mm
+    rotation_deg: float = PaperSweepSettings.rotation_each_way_deg
+    translation_mm: float = PaperSweepSettings.translation_stroke_mm
 
     def __post_init__(self) -> None:
         for name in (
@@ -239,8 +239,8 @@ def hardware_plan(settings: AcquireSettings, robot: Robot) -> MotionPlan:
             TrackerModel(), ndi_8700339_like(), prior.tracker_from_base, prior.tcp_from_marker
         )
     sweep = PaperSweepSettings(
-        rotation_deg=settings.rotation_deg,
-        translation_mm=settings.translation_mm,
+        rotation_each_way_deg=settings.rotation_deg,
+        translation_stroke_mm=settings.translation_mm,
         limits=MotionLimits(
             linear_speed_mm_s=settings.speed_mm_s,
             linear_accel_mm_s2=settings.accel_mm_s2,

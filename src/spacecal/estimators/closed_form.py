@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 from spacecal.estimators.diagnostics import motion_spread, sample_residuals, tracker_from_base_from_samples
 from spacecal.estimators.hand_eye import relative_motions, solve_daniilidis, solve_park, solve_tsai
 from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
+from spacecal.geometry.arrays import FloatArray, IntArray
 from spacecal.geometry.transforms import invert_transform
 from spacecal.records import CalibrationResult, Recording
 
@@ -17,7 +21,11 @@ HAND_EYE_SOLVERS = {"tsai": solve_tsai, "park": solve_park, "daniilidis": solve_
 HAND_EYE_FRAMES = 60
 
 
-def _counts(recording: Recording, used_rows) -> dict:
+def _first_line(text: str | None) -> str:
+    return (text or "").strip().splitlines()[0] if text and text.strip() else ""
+
+
+def _counts(recording: Recording, used_rows: IntArray) -> dict[str, int]:
     return {
         "total": len(recording),
         "used": int(len(used_rows)),
@@ -29,10 +37,10 @@ def _counts(recording: Recording, used_rows) -> dict:
 def closed_form_result(
     method: str,
     recording: Recording,
-    tracker_from_base,
-    tcp_from_marker,
-    used_rows,
-    extra: dict | None = None,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    used_rows: IntArray,
+    extra: dict[str, Any] | None = None,
 ) -> CalibrationResult:
     """Package a closed-form estimate with the shared diagnostics."""
     residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker)
@@ -47,7 +55,7 @@ def closed_form_result(
     )
 
 
-def robot_world_method(name: str):
+def robot_world_method(name: str) -> Callable[[Recording], CalibrationResult]:
     """A registry function solving AX = YB with the named closed form on all visible frames."""
     solver = ROBOT_WORLD_SOLVERS[name]
 
@@ -58,11 +66,11 @@ def robot_world_method(name: str):
         )
         return closed_form_result(name, recording, invert_transform(base_from_tracker), tcp_from_marker, rows)
 
-    calibrate_robot_world.__doc__ = f"AX = YB by {solver.__doc__.splitlines()[0]}"
+    calibrate_robot_world.__doc__ = f"AX = YB by {_first_line(solver.__doc__)}"
     return calibrate_robot_world
 
 
-def hand_eye_method(name: str):
+def hand_eye_method(name: str) -> Callable[[Recording], CalibrationResult]:
     """A registry function solving AX = XB from relative motions, then tracker_from_base by averaging."""
     solver = HAND_EYE_SOLVERS[name]
 
@@ -83,5 +91,5 @@ def hand_eye_method(name: str):
             {"hand_eye_motions": len(frames) - 1},
         )
 
-    calibrate_hand_eye.__doc__ = f"AX = XB by {solver.__doc__.splitlines()[0]}"
+    calibrate_hand_eye.__doc__ = f"AX = XB by {_first_line(solver.__doc__)}"
     return calibrate_hand_eye

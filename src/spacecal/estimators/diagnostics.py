@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 
+from spacecal.geometry.arrays import ArrayLike, FloatArray, IndexArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from spacecal.records import Recording
@@ -13,7 +17,12 @@ from spacecal.records import Recording
 SYSTEMATIC_VARIANCE_FACTOR = 1.5
 
 
-def sample_residuals(recording: Recording, tracker_from_base, tcp_from_marker, rms_rows=None) -> dict:
+def sample_residuals(
+    recording: Recording,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    rms_rows: IndexArray | None = None,
+) -> dict[str, Any]:
     """Residuals of every visible frame: measured vs predicted ``tracker_from_marker``.
 
     Parameters
@@ -42,7 +51,7 @@ def sample_residuals(recording: Recording, tracker_from_base, tcp_from_marker, r
     }
 
 
-def motion_spread(base_from_tcp_stack) -> dict:
+def motion_spread(base_from_tcp_stack: ArrayLike) -> dict[str, Any]:
     """How much the tool rotated and moved: principal spreads of orientation and position.
 
     Small second or third rotation spreads mean the tool turned about (nearly) one axis:
@@ -57,7 +66,9 @@ def motion_spread(base_from_tcp_stack) -> dict:
     return {"rotation_sd_deg": np.degrees(rot_spread).tolist(), "position_sd_mm": pos_spread.tolist()}
 
 
-def residual_table(recording: Recording, residuals: dict, outlier_rows=()) -> list[dict]:
+def residual_table(
+    recording: Recording, residuals: dict[str, Any], outlier_rows: Sequence[int] | IntArray = ()
+) -> list[dict[str, Any]]:
     """Per-sample residual rows for result files (time, segment, position, rotation, outlier)."""
     outliers = set(int(r) for r in outlier_rows)
     return [
@@ -75,7 +86,7 @@ def residual_table(recording: Recording, residuals: dict, outlier_rows=()) -> li
 
 def verdict(
     predicted_tre_site_mm: float | None,
-    spread: dict,
+    spread: dict[str, Any],
     outlier_fraction: float = 0.0,
     variance_factor: float | None = None,
     likelihood_based: bool = True,
@@ -87,12 +98,13 @@ def verdict(
     headline says so.
     """
     notes = []
-    systematic = variance_factor is not None and variance_factor > SYSTEMATIC_VARIANCE_FACTOR
+    factor = 0.0 if variance_factor is None else variance_factor
+    systematic = factor > SYSTEMATIC_VARIANCE_FACTOR
     if predicted_tre_site_mm is not None:
         if systematic:
             notes.append(
                 f"check: predicted error at the site {predicted_tre_site_mm:.2f} mm is a lower bound, "
-                f"because residuals are {np.sqrt(variance_factor):.1f}x the tracker's noise: the model does "
+                f"because residuals are {np.sqrt(factor):.1f}x the tracker's noise: the model does "
                 "not fit the data (systematic error such as robot kinematics, tracker volume error, time "
                 "offset or a loose marker"
                 + ("" if likelihood_based else ", or an inaccurate estimator: compare with ml")
@@ -117,13 +129,15 @@ def verdict(
     return "; ".join(notes) if notes else "no problems detected"
 
 
-def site_in_base(recording: Recording, rows=None) -> np.ndarray:
+def site_in_base(recording: Recording, rows: IndexArray | None = None) -> FloatArray:
     """The surgical site proxy: centroid of the TCP positions of the used samples (3,), mm."""
-    rows = np.flatnonzero(recording.visible) if rows is None else rows
-    return recording.base_from_tcp_stack[rows, :3, 3].mean(axis=0)
+    used = np.flatnonzero(recording.visible) if rows is None else rows
+    return as_float_array(recording.base_from_tcp_stack[used, :3, 3].mean(axis=0))
 
 
-def tracker_from_base_from_samples(recording: Recording, tcp_from_marker, rows) -> np.ndarray:
+def tracker_from_base_from_samples(
+    recording: Recording, tcp_from_marker: FloatArray, rows: IndexArray
+) -> FloatArray:
     """Mean of tracker_from_marker_i @ marker_from_tcp @ tcp_from_base_i over rows."""
     each = (
         recording.tracker_from_marker_stack[rows]

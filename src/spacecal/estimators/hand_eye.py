@@ -15,6 +15,9 @@ since A_i X = Y B_i for every sample gives A_i^-1 A_j X = X B_i^-1 B_j.
 * Daniilidis 1999, "Hand-eye calibration using dual quaternions", IJRR 18(3).
 
 Translation (Tsai, Park): (R_Ak - I) t_X = R_X t_Bk - t_Ak by least squares.
+
+Each solver takes ``(tcp_motion_stack, marker_motion_stack)``, the (A_k, B_k) of
+:func:`relative_motions`, and returns X.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.rotations import quaternion_product_matrices, skew
 from spacecal.geometry.transforms import (
     invert_transform,
@@ -35,19 +39,28 @@ from spacecal.geometry.transforms import (
 MIN_MOTION_ANGLE_RAD = np.radians(2.0)
 
 
-def relative_motions(a_stack, b_stack, pairs=None) -> tuple[np.ndarray, np.ndarray]:
+def relative_motions(
+    base_from_tcp_stack: ArrayLike, tracker_from_marker_stack: ArrayLike, pairs: ArrayLike | None = None
+) -> tuple[FloatArray, FloatArray]:
     """Relative motions (A_k, B_k) for sample pairs (default: consecutive samples).
 
     Parameters
     ----------
-    a_stack : array_like, shape (N, 4, 4)
-        ``base_from_tcp`` per sample.
-    b_stack : array_like, shape (N, 4, 4)
-        ``tracker_from_marker`` per sample.
+    base_from_tcp_stack : array_like, shape (N, 4, 4)
+        TCP pose per sample, mm.
+    tracker_from_marker_stack : array_like, shape (N, 4, 4)
+        Marker pose per sample, mm.
     pairs : array_like of int, shape (K, 2), optional
+
+    Returns
+    -------
+    tcp_motion_stack : numpy.ndarray, shape (K, 4, 4)
+        A_k = tcp_from_base_i @ base_from_tcp_j.
+    marker_motion_stack : numpy.ndarray, shape (K, 4, 4)
+        B_k = marker_from_tracker_i @ tracker_from_marker_j.
     """
-    a = np.asarray(a_stack, dtype=float)
-    b = np.asarray(b_stack, dtype=float)
+    a = np.asarray(base_from_tcp_stack, dtype=float)
+    b = np.asarray(tracker_from_marker_stack, dtype=float)
     if pairs is None:
         pairs = np.column_stack([np.arange(len(a) - 1), np.arange(1, len(a))])
     pairs = np.asarray(pairs)
@@ -56,34 +69,34 @@ def relative_motions(a_stack, b_stack, pairs=None) -> tuple[np.ndarray, np.ndarr
     return motion_a, motion_b
 
 
-def _rotating(motion_a, motion_b):
+def _rotating(motion_a: FloatArray, motion_b: FloatArray) -> tuple[FloatArray, FloatArray]:
     angle = np.linalg.norm(matrix_to_rotvec(motion_a[:, :3, :3]), axis=1)
     keep = angle > MIN_MOTION_ANGLE_RAD
     if keep.sum() < 2:
         raise DegenerateDataError(
-            f"AX = XB needs at least two motions rotating more than {np.degrees(MIN_MOTION_ANGLE_RAD):.0f} deg "
-            f"about different axes; got {int(keep.sum())}"
+            "AX = XB needs at least two motions rotating more than "
+            f"{np.degrees(MIN_MOTION_ANGLE_RAD):.0f} deg about different axes; got {int(keep.sum())}"
         )
     return motion_a[keep], motion_b[keep]
 
 
-def _translation(motion_a, motion_b, rotation_x) -> np.ndarray:
+def _translation(motion_a: FloatArray, motion_b: FloatArray, rotation_x: FloatArray) -> FloatArray:
     n = len(motion_a)
     design = (motion_a[:, :3, :3] - np.eye(3)).reshape(3 * n, 3)
     rhs = (motion_b[:, :3, 3] @ rotation_x.T - motion_a[:, :3, 3]).reshape(-1)
     solution, *_ = np.linalg.lstsq(design, rhs, rcond=None)
-    return solution
+    return as_float_array(solution)
 
 
-def solve_tsai(motion_a, motion_b) -> np.ndarray:
+def solve_tsai(tcp_motion_stack: FloatArray, marker_motion_stack: FloatArray) -> FloatArray:
     """Tsai–Lenz 1989; returns X = ``tcp_from_marker``."""
-    rot_a, rot_b = _rotating(motion_a, motion_b)
+    rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     rv_a = matrix_to_rotvec(rot_a[:, :3, :3])
     rv_b = matrix_to_rotvec(rot_b[:, :3, :3])
 
-    def modified_rodrigues(rv):
+    def modified_rodrigues(rv: FloatArray) -> FloatArray:
         angle = np.linalg.norm(rv, axis=1, keepdims=True)
-        return 2.0 * np.sin(angle / 2.0) * rv / angle
+        return as_float_array(2.0 * np.sin(angle / 2.0) * rv / angle)
 
     p_a, p_b = modified_rodrigues(rv_a), modified_rodrigues(rv_b)
     # skew(P_A + P_B) P' = P_B - P_A; P = 2 P' / sqrt(1 + |P'|^2)
@@ -92,12 +105,12 @@ def solve_tsai(motion_a, motion_b) -> np.ndarray:
     p = 2.0 * p_prime / np.sqrt(1.0 + p_prime @ p_prime)
     norm_sq = p @ p
     rotation = (1.0 - norm_sq / 2.0) * np.eye(3) + 0.5 * (np.outer(p, p) + np.sqrt(4.0 - norm_sq) * skew(p))
-    return make_transform(rotation, _translation(motion_a, motion_b, rotation))
+    return make_transform(rotation, _translation(tcp_motion_stack, marker_motion_stack, rotation))
 
 
-def solve_park(motion_a, motion_b) -> np.ndarray:
+def solve_park(tcp_motion_stack: FloatArray, marker_motion_stack: FloatArray) -> FloatArray:
     """Park–Martin 1994; returns X = ``tcp_from_marker``."""
-    rot_a, rot_b = _rotating(motion_a, motion_b)
+    rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     alpha = matrix_to_rotvec(rot_a[:, :3, :3])
     beta = matrix_to_rotvec(rot_b[:, :3, :3])
     m = np.einsum("ni,nj->ij", beta, alpha)
@@ -106,19 +119,19 @@ def solve_park(motion_a, motion_b) -> np.ndarray:
         raise DegenerateDataError("AX = XB: the motions rotate about fewer than two independent axes")
     inverse_sqrt = eigenvectors @ np.diag(eigenvalues**-0.5) @ eigenvectors.T
     rotation = inverse_sqrt @ m.T
-    return make_transform(rotation, _translation(motion_a, motion_b, rotation))
+    return make_transform(rotation, _translation(tcp_motion_stack, marker_motion_stack, rotation))
 
 
-def _dual_quaternion(transform):
+def _dual_quaternion(transform: FloatArray) -> tuple[FloatArray, FloatArray]:
     q = matrix_to_quaternion_wxyz(transform[:, :3, :3])
     t = np.concatenate([np.zeros((len(transform), 1)), transform[:, :3, 3]], axis=1)
     left_t, _ = quaternion_product_matrices(t)
     return q, 0.5 * np.einsum("nij,nj->ni", left_t, q)
 
 
-def solve_daniilidis(motion_a, motion_b) -> np.ndarray:
+def solve_daniilidis(tcp_motion_stack: FloatArray, marker_motion_stack: FloatArray) -> FloatArray:
     """Daniilidis 1999 (dual quaternions); returns X = ``tcp_from_marker``."""
-    rot_a, rot_b = _rotating(motion_a, motion_b)
+    rot_a, rot_b = _rotating(tcp_motion_stack, marker_motion_stack)
     qa, qa_dual = _dual_quaternion(rot_a)
     qb, qb_dual = _dual_quaternion(rot_b)
     # Equal rotation angles: make the scalar parts agree in sign (q ~ -q).

@@ -30,14 +30,15 @@ from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.likelihood import calibrate_ml, report_uncertainty, variance_factor_of
-from spacecal.estimators.ml import apply_step
-from spacecal.estimators.ml import jacobian as pose_jacobian
 from spacecal.estimators.observations import build_observations
+from spacecal.geometry.arrays import FloatArray
 from spacecal.models.kinematics import (
     RobotModel,
+    apply_pose_step,
     dh_point_jacobian,
     forward_kinematics,
     points_in_tracker,
+    pose_point_jacobian,
     ur_model,
     with_dh_corrections,
 )
@@ -56,11 +57,13 @@ def robot_model_of(recording: Recording) -> RobotModel:
     return ur_model(robot["model"], np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
 
 
-def identifiable_corrections(dh_jacobian, pose_jacobian_, rank_tolerance: float) -> tuple[np.ndarray, float]:
+def identifiable_corrections(
+    dh_jacobian: FloatArray, pose_jacobian: FloatArray, rank_tolerance: float
+) -> tuple[FloatArray, float]:
     """Indices of the DH corrections the data determines beyond the pose, and their condition."""
     scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
     dh = dh_jacobian.reshape(-1, 24) / scale
-    pose = pose_jacobian_.reshape(-1, 12)
+    pose = pose_jacobian.reshape(-1, 12)
     basis, _ = np.linalg.qr(pose)
     projected = dh - basis @ (basis.T @ dh)
     _, r, order = qr(projected, mode="economic", pivoting=True)
@@ -74,7 +77,7 @@ def identifiable_corrections(dh_jacobian, pose_jacobian_, rank_tolerance: float)
 def calibrate_kinematic(
     recording: Recording,
     sigma_mm: float | None = None,
-    targets_in_base=None,
+    targets_in_base: FloatArray | None = None,
     prior_length_sd_mm: float = 1.0,
     prior_angle_sd_rad: float = 0.002,
     rank_tolerance: float = 0.02,
@@ -98,15 +101,17 @@ def calibrate_kinematic(
     if not np.all(np.isfinite(joints)):
         raise DegenerateDataError("kinematic identification needs the joint angles of every used frame")
     spheres = obs.spheres_in_marker
-    t_cur, x_cur = start.tracker_from_base, start.tcp_from_marker
+    tracker_from_base, tcp_from_marker = start.tracker_from_base, start.tcp_from_marker
     delta = np.zeros(24)
     prior_sd = np.array([prior_length_sd_mm] * 12 + [prior_angle_sd_rad] * 12)
 
     corrected = with_dh_corrections(model, delta)
     obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
-    j_dh = dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres)
+    j_dh = dh_point_jacobian(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
     selected, condition = identifiable_corrections(
-        j_dh, pose_jacobian(obs_model, t_cur, x_cur), rank_tolerance
+        j_dh,
+        pose_point_jacobian(obs_model.base_from_tcp_stack, tracker_from_base, tcp_from_marker, spheres),
+        rank_tolerance,
     )
     if len(selected) == 0:
         raise DegenerateDataError(
@@ -116,11 +121,18 @@ def calibrate_kinematic(
     for _ in range(iterations):
         corrected = with_dh_corrections(model, delta)
         obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
-        predicted = points_in_tracker(corrected, joints, t_cur, x_cur, spheres)
+        predicted = points_in_tracker(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
         residual = (predicted - obs.spheres_in_tracker).reshape(-1) / obs.sigma_mm
-        j_pose = pose_jacobian(obs_model, t_cur, x_cur).reshape(-1, 12) / obs.sigma_mm
+        j_pose = (
+            pose_point_jacobian(
+                obs_model.base_from_tcp_stack, tracker_from_base, tcp_from_marker, spheres
+            ).reshape(-1, 12)
+            / obs.sigma_mm
+        )
         j_dh = (
-            dh_point_jacobian(corrected, joints, t_cur, x_cur, spheres).reshape(-1, 24)[:, selected]
+            dh_point_jacobian(corrected, joints, tracker_from_base, tcp_from_marker, spheres).reshape(-1, 24)[
+                :, selected
+            ]
             / obs.sigma_mm
         )
         jac = np.hstack([j_pose, j_dh])
@@ -129,7 +141,7 @@ def calibrate_kinematic(
         jac_all = np.vstack([jac, prior_rows])
         res_all = np.concatenate([residual, delta[selected] / prior_sd[selected]])
         step, *_ = np.linalg.lstsq(jac_all, -res_all, rcond=None)
-        t_cur, x_cur = apply_step(t_cur, x_cur, step[:12])
+        tracker_from_base, tcp_from_marker = apply_pose_step(tracker_from_base, tcp_from_marker, step[:12])
         delta[selected] += step[12:]
         if np.max(np.abs(step[:12])) < 1e-9 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-9:
             break
@@ -137,7 +149,7 @@ def calibrate_kinematic(
     corrected = with_dh_corrections(model, delta)
     obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
     information = jac_all.T @ jac_all
-    variance_factor = variance_factor_of(obs_model, t_cur, x_cur)
+    variance_factor = variance_factor_of(obs_model, tracker_from_base, tcp_from_marker)
     scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
     covariance_all = np.linalg.inv(information) * scale
     corrections = [
@@ -161,8 +173,8 @@ def calibrate_kinematic(
         "kinematic",
         recording,
         obs_model,
-        t_cur,
-        x_cur,
+        tracker_from_base,
+        tcp_from_marker,
         covariance_all[:12, :12],
         variance_factor,
         targets_in_base,

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ class LandmarkDetectionSettings:
     detection_s: float = 1.0
     tip_max_motion_mm: float = 1.5
     shaft_min_motion_mm: float = 30.0
-    shaft_point_in_tip_mm: tuple = (100.0, 0.0, 0.0)
+    shaft_point_in_tip_mm: tuple[float, float, float] = (100.0, 0.0, 0.0)
     min_landmark_spacing_mm: float = 15.0
     skip_fraction: float = 0.1
     plus_compatible: bool = False
@@ -61,18 +62,21 @@ class LandmarkDetectionSettings:
 class _Box:
     """An axis-aligned bounding box that can be empty."""
 
-    def __init__(self):
-        self.low = self.high = None
+    def __init__(self) -> None:
+        self.low: FloatArray | None = None
+        self.high: FloatArray | None = None
 
-    def add(self, point):
-        point = np.asarray(point, dtype=float)
-        self.low = point.copy() if self.low is None else np.minimum(self.low, point)
-        self.high = point.copy() if self.high is None else np.maximum(self.high, point)
+    def add(self, point: ArrayLike) -> None:
+        p = np.asarray(point, dtype=np.float64)
+        self.low = p.copy() if self.low is None else np.minimum(self.low, p)
+        self.high = p.copy() if self.high is None else np.maximum(self.high, p)
 
     def diagonal(self) -> float:
-        return 0.0 if self.low is None else float(np.linalg.norm(self.high - self.low))
+        if self.low is None or self.high is None:
+            return 0.0
+        return float(np.linalg.norm(self.high - self.low))
 
-    def reset(self):
+    def reset(self) -> None:
         self.low = self.high = None
 
 
@@ -81,7 +85,9 @@ def _round_half_up(value: float) -> int:
 
 
 def detect_landmarks(
-    reference_from_tip_stack, settings: LandmarkDetectionSettings | None = None, expected: int | None = None
+    reference_from_tip_stack: ArrayLike,
+    settings: LandmarkDetectionSettings | None = None,
+    expected: int | None = None,
 ) -> tuple[np.ndarray, list[int]]:
     """Landmark positions touched by a pivoting stylus, in the reference frame.
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 from scipy.stats import chi2
 
@@ -25,6 +28,7 @@ from spacecal.estimators.ml import (
 )
 from spacecal.estimators.observations import Observations, build_observations
 from spacecal.estimators.robot_world import solve_shah
+from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IntArray
 from spacecal.geometry.metrics import cube_grid
 from spacecal.geometry.transforms import invert_transform
 from spacecal.records import CalibrationResult, Recording
@@ -41,9 +45,15 @@ SYSTEMATIC_TAIL_FACTOR = 4.0
 CUBE_SIDE_MM = 200.0
 
 
-def tre_summary(tracker_from_base, covariance, site, targets_in_base=None) -> dict:
+def tre_summary(
+    tracker_from_base: FloatArray,
+    covariance: FloatArray,
+    site: ArrayLike,
+    targets_in_base: ArrayLike | None = None,
+) -> dict[str, Any]:
     """Predicted TRE at the site, RMS over a 200 mm cube around it, and at given targets."""
-    summary = {
+    site = np.asarray(site, dtype=float)
+    summary: dict[str, Any] = {
         "site_in_base_mm": np.asarray(site).tolist(),
         "site": float(predicted_tre_mm(tracker_from_base, covariance, site[None])[0]),
         "cube_rms": float(
@@ -62,23 +72,34 @@ def tre_summary(tracker_from_base, covariance, site, targets_in_base=None) -> di
     return summary
 
 
-def _initial_estimate(obs: Observations, recording: Recording):
+def _initial_estimate(obs: Observations, recording: Recording) -> tuple[FloatArray, FloatArray]:
     tcp_from_marker, base_from_tracker = solve_shah(
         obs.base_from_tcp_stack, recording.tracker_from_marker_stack[obs.rows]
     )
     return invert_transform(base_from_tracker), tcp_from_marker
 
 
-def variance_factor_of(obs: Observations, tracker_from_base, tcp_from_marker) -> float:
+def variance_factor_of(
+    obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
+) -> float:
     """A posteriori variance factor: chi-square of the sphere residuals over its degrees of freedom."""
     errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
     dof = max(obs.dof_per_frame * len(obs.rows) - 12, 1)
     return float(np.sum(errors**2) * len(obs.spheres_in_marker) / obs.sigma_mm**2) / dof
 
 
-def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outlier_rows=()):
-    information = information_matrix(obs, fit_t, fit_x)
-    variance_factor = variance_factor_of(obs, fit_t, fit_x)
+def _package(
+    method: str,
+    recording: Recording,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    targets_in_base: ArrayLike | None,
+    extra: dict[str, Any],
+    outlier_rows: IntArray | Sequence[int] = (),
+) -> CalibrationResult:
+    information = information_matrix(obs, tracker_from_base, tcp_from_marker)
+    variance_factor = variance_factor_of(obs, tracker_from_base, tcp_from_marker)
     # Without a known tracker noise the residuals alone set the scale (no floor at 1).
     scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
     covariance = covariance_from_information(information) * scale
@@ -94,8 +115,8 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
         method,
         recording,
         obs,
-        fit_t,
-        fit_x,
+        tracker_from_base,
+        tcp_from_marker,
         covariance,
         variance_factor,
         targets_in_base,
@@ -107,22 +128,22 @@ def _package(method, recording, obs, fit_t, fit_x, targets_in_base, extra, outli
 
 
 def report_uncertainty(
-    method,
-    recording,
-    obs,
-    fit_t,
-    fit_x,
-    covariance,
-    variance_factor,
-    targets_in_base,
-    extra,
-    outlier_rows=(),
-    covariance_note="",
+    method: str,
+    recording: Recording,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    covariance: FloatArray,
+    variance_factor: float,
+    targets_in_base: ArrayLike | None,
+    extra: dict[str, Any],
+    outlier_rows: IntArray | Sequence[int] = (),
+    covariance_note: str = "",
 ) -> CalibrationResult:
     """A calibration result with covariance, predicted TRE, residuals, spread and verdict."""
     site = site_in_base(recording, obs.rows)
-    tre = tre_summary(fit_t, covariance, site, targets_in_base)
-    residuals = sample_residuals(recording, fit_t, fit_x, rms_rows=obs.rows)
+    tre = tre_summary(tracker_from_base, covariance, site, targets_in_base)
+    residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
     diagnostics = {
@@ -159,8 +180,8 @@ def report_uncertainty(
     }
     return CalibrationResult(
         method,
-        fit_t,
-        fit_x,
+        tracker_from_base,
+        tcp_from_marker,
         counts,
         diagnostics,
         covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(), "note": covariance_note},
@@ -169,7 +190,7 @@ def report_uncertainty(
 
 
 def calibrate_ml(
-    recording: Recording, sigma_mm: float | None = None, targets_in_base=None
+    recording: Recording, sigma_mm: float | None = None, targets_in_base: ArrayLike | None = None
 ) -> CalibrationResult:
     """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
 
@@ -200,8 +221,8 @@ def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observa
     """The bare maximum-likelihood fit (Shah start, then Levenberg–Marquardt), without the
     diagnostics a result carries: for callers that fit many times (clock-offset search)."""
     obs = build_observations(recording, sigma_mm=sigma_mm)
-    start_t, start_x = _initial_estimate(obs, recording)
-    return obs, levenberg_marquardt(obs, start_t, start_x)
+    start_tracker_from_base, start_tcp_from_marker = _initial_estimate(obs, recording)
+    return obs, levenberg_marquardt(obs, start_tracker_from_base, start_tcp_from_marker)
 
 
 def ransac_start(
@@ -211,14 +232,14 @@ def ransac_start(
     iterations: int = 60,
     subset: int = 6,
     threshold_mm: float | None = None,
-):
+) -> tuple[tuple[FloatArray, FloatArray], BoolArray, float]:
     """Best closed-form (Shah) solution over random frame subsets, by inlier count.
 
     Returns the transforms, the inlier mask and the threshold used.
     """
     threshold = threshold_mm if threshold_mm is not None else max(1.0, 10.0 * obs.sigma_mm)
     poses = recording.tracker_from_marker_stack[obs.rows]
-    best = (-1, None, None)
+    best_count, best_start, best_inliers = -1, None, None
     for _ in range(iterations):
         pick = rng.choice(len(obs.rows), size=min(subset, len(obs.rows)), replace=False)
         try:
@@ -227,15 +248,22 @@ def ransac_start(
             continue
         tracker_from_base = invert_transform(base_from_tracker)
         inliers = frame_errors(obs, tracker_from_base, tcp_from_marker) < threshold
-        if inliers.sum() > best[0]:
-            best = (int(inliers.sum()), (tracker_from_base, tcp_from_marker), inliers)
-    if best[1] is None:
+        if inliers.sum() > best_count:
+            best_count, best_start, best_inliers = (
+                int(inliers.sum()),
+                (tracker_from_base, tcp_from_marker),
+                inliers,
+            )
+    if best_start is None or best_inliers is None:
         raise DegenerateDataError("no random subset of frames gave a usable closed-form start")
-    return best[1], best[2], threshold
+    return best_start, best_inliers, threshold
 
 
 def calibrate_robust(
-    recording: Recording, sigma_mm: float | None = None, targets_in_base=None, seed: int = 0
+    recording: Recording,
+    sigma_mm: float | None = None,
+    targets_in_base: ArrayLike | None = None,
+    seed: int = 0,
 ) -> CalibrationResult:
     """Maximum likelihood that survives bad frames (mis-detected spheres, stale frames, reflections).
 
@@ -249,21 +277,23 @@ def calibrate_robust(
     """
     obs = build_observations(recording, sigma_mm=sigma_mm)
     rng = np.random.default_rng(seed)
-    (start_t, start_x), inliers, threshold = ransac_start(obs, recording, rng)
-    fit = levenberg_marquardt(obs, start_t, start_x, frame_weights=inliers.astype(float))
-    t_cur, x_cur = fit.tracker_from_base, fit.tcp_from_marker
+    (start_tracker_from_base, start_tcp_from_marker), inliers, threshold = ransac_start(obs, recording, rng)
+    fit = levenberg_marquardt(
+        obs, start_tracker_from_base, start_tcp_from_marker, frame_weights=inliers.astype(float)
+    )
+    tracker_from_base, tcp_from_marker = fit.tracker_from_base, fit.tcp_from_marker
     # An inlier's squared frame error is sigma^2 chi2(dof) / K: scale the errors by a
     # robust (median) estimate of sigma, so systematic errors larger than the tracker's
     # noise do not turn good frames into outliers.
     dof = obs.dof_per_frame
     median_ratio = np.sqrt(chi2.median(dof) / dof)
     for _ in range(5):
-        errors = frame_errors(obs, t_cur, x_cur)
+        errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
         scale = np.median(errors) / median_ratio
         weights = cauchy_weights(errors / scale)
-        fit = levenberg_marquardt(obs, t_cur, x_cur, frame_weights=weights)
-        t_cur, x_cur = fit.tracker_from_base, fit.tcp_from_marker
-    errors = frame_errors(obs, t_cur, x_cur)
+        fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, frame_weights=weights)
+        tracker_from_base, tcp_from_marker = fit.tracker_from_base, fit.tcp_from_marker
+    errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
     gaussian_cutoff = np.median(errors) / median_ratio * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dof) / dof)
     cutoff = max(gaussian_cutoff, SYSTEMATIC_TAIL_FACTOR * np.median(errors))
     keep = errors <= cutoff
@@ -271,7 +301,7 @@ def calibrate_robust(
     kept = build_observations(
         recording, mask=np.isin(np.arange(len(recording)), obs.rows[keep]), sigma_mm=obs.sigma_mm
     )
-    final = levenberg_marquardt(kept, t_cur, x_cur)
+    final = levenberg_marquardt(kept, tracker_from_base, tcp_from_marker)
     outliers = [
         {
             "row": int(r),
@@ -296,8 +326,12 @@ def calibrate_robust(
 
 
 def tre_lower_bound(
-    recording: Recording, tracker_from_base, tcp_from_marker, sigma_mm: float, targets_in_base=None
-) -> dict:
+    recording: Recording,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    sigma_mm: float,
+    targets_in_base: ArrayLike | None = None,
+) -> dict[str, Any]:
     """Cramér–Rao lower bound on the RMS TRE for a recording under white sphere noise.
 
     The Fisher information of the 12 parameters is J^T J / sigma^2 with J evaluated at

@@ -11,7 +11,9 @@ around the current estimate, re-linearised every iteration:
     tcp_from_marker   = [R_x exp(w_x) | t_x + v_x]     (w_x in the marker frame)
 
 so the Jacobian is analytic: d q / d v_t = I, d q / d w_t = -[R_t p_base]x,
-d q / d v_x = R_t R_A, d q / d w_x = -R_t R_A R_x [s_k]x.
+d q / d v_x = R_t R_A, d q / d w_x = -R_t R_A R_x [s_k]x. The convention, the step and the
+Jacobian live in :mod:`spacecal.models.kinematics` (``apply_pose_step``,
+``pose_point_jacobian``), shared with kinematic identification and motion planning.
 
 Levenberg–Marquardt minimises the (optionally robustly weighted) sum of squared whitened
 residuals. The covariance of the 12 parameters is s^2 (J^T J)^-1, with s^2 the a-posteriori
@@ -26,74 +28,46 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.observations import Observations
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.rotations import skew
-from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
+from spacecal.models.kinematics import (
+    POSE_PARAMETER_NAMES,
+    apply_pose_step,
+    chain_points_in_tracker,
+    pose_point_jacobian,
+)
 
-PARAMETER_NAMES = [
-    "tracker_from_base.v_x_mm",
-    "tracker_from_base.v_y_mm",
-    "tracker_from_base.v_z_mm",
-    "tracker_from_base.w_x_rad",
-    "tracker_from_base.w_y_rad",
-    "tracker_from_base.w_z_rad",
-    "tcp_from_marker.v_x_mm",
-    "tcp_from_marker.v_y_mm",
-    "tcp_from_marker.v_z_mm",
-    "tcp_from_marker.w_x_rad",
-    "tcp_from_marker.w_y_rad",
-    "tcp_from_marker.w_z_rad",
-]
+#: The 12 perturbation parameters of the covariance, in order (the convention is
+#: :func:`spacecal.models.kinematics.apply_pose_step`).
+PARAMETER_NAMES = POSE_PARAMETER_NAMES
 
 
-def predict_spheres(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
+def predict_spheres(
+    obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
+) -> FloatArray:
     """Predicted sphere centres (N, K, 3) in the tracker frame."""
-    chain = tracker_from_base @ obs.base_from_tcp_stack @ tcp_from_marker
-    return np.einsum("nij,kj->nki", chain[:, :3, :3], obs.spheres_in_marker) + chain[:, None, :3, 3]
-
-
-def jacobian(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
-    """d(predicted spheres)/d(12 parameters), shape (N, K, 3, 12), unwhitened (mm per unit)."""
-    r_t = tracker_from_base[:3, :3]
-    r_a = obs.base_from_tcp_stack[:, :3, :3]
-    r_x = tcp_from_marker[:3, :3]
-    points_in_base = (
-        np.einsum(
-            "nij,kj->nki",
-            obs.base_from_tcp_stack[:, :3, :3],
-            obs.spheres_in_marker @ r_x.T + tcp_from_marker[:3, 3],
-        )
-        + obs.base_from_tcp_stack[:, None, :3, 3]
+    return chain_points_in_tracker(
+        obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker
     )
-    rotated = points_in_base @ r_t.T  # R_t p_base
-    n, k = rotated.shape[:2]
-    jac = np.zeros((n, k, 3, 12))
-    jac[..., 0:3] = np.eye(3)
-    jac[..., 3:6] = -skew(rotated)
-    r_ta = np.einsum("ij,njk->nik", r_t, r_a)  # (N, 3, 3)
-    jac[..., 6:9] = r_ta[:, None]
-    r_tax = r_ta @ r_x
-    jac[..., 9:12] = -np.einsum("nij,kjl->nkil", r_tax, skew(obs.spheres_in_marker))
-    return jac
 
 
-def apply_step(tracker_from_base, tcp_from_marker, step) -> tuple[np.ndarray, np.ndarray]:
-    """Apply a 12-parameter perturbation (see module docstring) to the two transforms."""
-    t_new = make_transform(
-        rotvec_to_matrix(step[3:6]) @ tracker_from_base[:3, :3], tracker_from_base[:3, 3] + step[0:3]
+def jacobian(obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray) -> FloatArray:
+    """d(predicted spheres)/d(12 parameters), shape (N, K, 3, 12), unwhitened (mm per unit).
+
+    The analytic :func:`spacecal.models.kinematics.pose_point_jacobian` at the observed poses.
+    """
+    return pose_point_jacobian(
+        obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, obs.spheres_in_marker
     )
-    x_new = make_transform(
-        tcp_from_marker[:3, :3] @ rotvec_to_matrix(step[9:12]), tcp_from_marker[:3, 3] + step[6:9]
-    )
-    return t_new, x_new
 
 
-def frame_errors(obs: Observations, tracker_from_base, tcp_from_marker) -> np.ndarray:
+def frame_errors(obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray) -> FloatArray:
     """Per-frame RMS sphere residual (N,), mm."""
     diff = predict_spheres(obs, tracker_from_base, tcp_from_marker) - obs.spheres_in_tracker
-    return np.sqrt(np.mean(np.sum(diff**2, axis=2), axis=1))
+    return as_float_array(np.sqrt(np.mean(np.sum(diff**2, axis=2), axis=1)))
 
 
-def cauchy_weights(normalised_error, scale: float = 2.5) -> np.ndarray:
+def cauchy_weights(normalised_error: ArrayLike, scale: float = 2.5) -> FloatArray:
     """IRLS weights of the Cauchy loss for per-frame errors in units of their expected size."""
     return 1.0 / (1.0 + (np.asarray(normalised_error) / scale) ** 2)
 
@@ -110,9 +84,9 @@ class Fit:
 
 def levenberg_marquardt(
     obs: Observations,
-    tracker_from_base,
-    tcp_from_marker,
-    frame_weights=None,
+    tracker_from_base: ArrayLike,
+    tcp_from_marker: ArrayLike,
+    frame_weights: ArrayLike | None = None,
     max_iterations: int = 50,
     tolerance: float = 1e-12,
 ) -> Fit:
@@ -128,39 +102,48 @@ def levenberg_marquardt(
     """
     weights = np.ones(len(obs.rows)) if frame_weights is None else np.asarray(frame_weights, float)
     damping = 1e-3
-    t_cur, x_cur = np.array(tracker_from_base, float), np.array(tcp_from_marker, float)
+    tracker_from_base = np.array(tracker_from_base, float)
+    tcp_from_marker = np.array(tcp_from_marker, float)
 
-    def cost_of(t, x):
-        diff = predict_spheres(obs, t, x) - obs.spheres_in_tracker
+    def cost_of(
+        trial_tracker_from_base: FloatArray, trial_tcp_from_marker: FloatArray
+    ) -> tuple[float, FloatArray]:
+        diff = predict_spheres(obs, trial_tracker_from_base, trial_tcp_from_marker) - obs.spheres_in_tracker
         return float(np.sum(weights[:, None, None] * diff**2)) / obs.sigma_mm**2, diff
 
-    cost, diff = cost_of(t_cur, x_cur)
+    cost, diff = cost_of(tracker_from_base, tcp_from_marker)
     for iteration in range(1, max_iterations + 1):
-        jac = jacobian(obs, t_cur, x_cur)
+        jac = jacobian(obs, tracker_from_base, tcp_from_marker)
         w = weights[:, None, None, None]
         normal = np.einsum("nkia,nkib->ab", w * jac, jac) / obs.sigma_mm**2
         gradient = np.einsum("nkia,nki->a", w * jac, diff) / obs.sigma_mm**2
         while True:
             step = np.linalg.solve(normal + damping * np.diag(np.diag(normal)), -gradient)
-            t_try, x_try = apply_step(t_cur, x_cur, step)
-            cost_try, diff_try = cost_of(t_try, x_try)
+            trial_tracker_from_base, trial_tcp_from_marker = apply_pose_step(
+                tracker_from_base, tcp_from_marker, step
+            )
+            cost_try, diff_try = cost_of(trial_tracker_from_base, trial_tcp_from_marker)
             if cost_try <= cost:
                 break
             damping *= 10.0
             if damping > 1e12:
-                return Fit(t_cur, x_cur, iteration, True)
-        t_cur, x_cur, diff = t_try, x_try, diff_try
+                return Fit(tracker_from_base, tcp_from_marker, iteration, True)
+        tracker_from_base, tcp_from_marker, diff = trial_tracker_from_base, trial_tcp_from_marker, diff_try
         improvement = cost - cost_try
         cost = cost_try
         damping = max(damping / 10.0, 1e-12)
         if np.max(np.abs(step)) < tolerance or improvement <= tolerance * max(cost, 1.0):
-            return Fit(t_cur, x_cur, iteration, True)
-    return Fit(t_cur, x_cur, max_iterations, False)
+            return Fit(tracker_from_base, tcp_from_marker, iteration, True)
+    return Fit(tracker_from_base, tcp_from_marker, max_iterations, False)
 
 
 def information_matrix(
-    obs: Observations, tracker_from_base, tcp_from_marker, sigma_mm=None, frame_weights=None
-) -> np.ndarray:
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    sigma_mm: FloatArray | None = None,
+    frame_weights: ArrayLike | None = None,
+) -> FloatArray:
     """Fisher information (12, 12) of the two transforms under the sphere noise model.
 
     With raw spheres each component is an independent observation. With poses fitted from
@@ -170,30 +153,34 @@ def information_matrix(
     sigma = obs.sigma_mm if sigma_mm is None else sigma_mm
     jac = jacobian(obs, tracker_from_base, tcp_from_marker)
     w = np.ones(len(obs.rows)) if frame_weights is None else np.asarray(frame_weights, float)
-    return np.einsum("nkia,nkib->ab", w[:, None, None, None] * jac, jac) / sigma**2
+    return as_float_array(np.einsum("nkia,nkib->ab", w[:, None, None, None] * jac, jac) / sigma**2)
 
 
-def covariance_from_information(information) -> np.ndarray:
+def covariance_from_information(information: FloatArray) -> FloatArray:
     """Invert an information matrix, refusing an unidentifiable problem."""
     eigenvalues = np.linalg.eigvalsh(information)
     if eigenvalues.min() <= eigenvalues.max() * 1e-14:
         raise DegenerateDataError(
             "the recording does not determine all 12 calibration parameters (rotate about more axes)"
         )
-    return np.linalg.inv(information)
+    return as_float_array(np.linalg.inv(information))
 
 
-def point_covariances(tracker_from_base, covariance_tracker_from_base, points_in_base) -> np.ndarray:
+def point_covariances(
+    tracker_from_base: FloatArray, covariance_tracker_from_base: FloatArray, points_in_base: ArrayLike
+) -> FloatArray:
     """Covariances (M, 3, 3), mm^2, of base points mapped into the tracker frame.
 
     q = R_t p + t_t; with the left perturbation, dq = v - [R_t p]x w.
     """
     rotated = np.asarray(points_in_base, float) @ tracker_from_base[:3, :3].T
     g = np.concatenate([np.broadcast_to(np.eye(3), rotated.shape[:-1] + (3, 3)), -skew(rotated)], axis=-1)
-    return g @ covariance_tracker_from_base @ np.swapaxes(g, -1, -2)
+    return as_float_array(g @ covariance_tracker_from_base @ np.swapaxes(g, -1, -2))
 
 
-def predicted_tre_mm(tracker_from_base, covariance, points_in_base) -> np.ndarray:
+def predicted_tre_mm(
+    tracker_from_base: FloatArray, covariance: ArrayLike, points_in_base: FloatArray
+) -> FloatArray:
     """Predicted RMS target registration error (M,), mm: sqrt(trace) of each point covariance."""
     cov = point_covariances(tracker_from_base, np.asarray(covariance)[:6, :6], points_in_base)
-    return np.sqrt(np.trace(cov, axis1=-2, axis2=-1))
+    return as_float_array(np.sqrt(np.trace(cov, axis1=-2, axis2=-1)))

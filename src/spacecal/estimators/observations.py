@@ -17,6 +17,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray
+from spacecal.geometry.transforms import transform_points_by_stack
 from spacecal.models.marker import ndi_8700339_like
 from spacecal.records import Recording
 
@@ -50,7 +52,7 @@ class Observations:
     sigma_known: bool = True
 
 
-def sphere_noise_from_marker_rms(marker_rms_mm, sphere_count: int) -> float:
+def sphere_noise_from_marker_rms(marker_rms_mm: ArrayLike, sphere_count: int) -> float:
     """Per-axis sphere noise sigma from the tracker's RMS fit errors.
 
     For K spheres with iid per-axis noise sigma, a rigid fit leaves 3K - 6 degrees of
@@ -65,7 +67,7 @@ def sphere_noise_from_marker_rms(marker_rms_mm, sphere_count: int) -> float:
     return float(np.sqrt(sphere_count * np.median(rms**2) / chi2.median(3 * sphere_count - 6)))
 
 
-def marker_geometry_of(recording: Recording) -> np.ndarray:
+def marker_geometry_of(recording: Recording) -> FloatArray:
     """Sphere centres (K, 3) in the marker frame from the metadata, else an 8700339-like marker."""
     marker = recording.metadata.get("marker", {})
     if "spheres_in_marker_mm" in marker:
@@ -74,7 +76,10 @@ def marker_geometry_of(recording: Recording) -> np.ndarray:
 
 
 def build_observations(
-    recording: Recording, mask=None, sigma_mm: float | None = None, minimum_sigma_mm: float = 1e-3
+    recording: Recording,
+    mask: ArrayLike | None = None,
+    sigma_mm: float | None = None,
+    minimum_sigma_mm: float = 1e-3,
 ) -> Observations:
     """Sphere observations of the visible (and masked-in) frames.
 
@@ -98,7 +103,7 @@ def build_observations(
         observed, dof = raw[rows], 3 * len(spheres)
     else:
         poses = recording.tracker_from_marker_stack[rows]
-        observed = np.einsum("nij,kj->nki", poses[:, :3, :3], spheres) + poses[:, None, :3, 3]
+        observed = transform_points_by_stack(poses, spheres)
         dof = 6
     known = True
     if sigma_mm is None:

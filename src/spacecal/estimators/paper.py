@@ -20,11 +20,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import combinations
+from typing import Any
 
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.geometry.fitting import fit_line, fit_sphere
+from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IndexArray
+from spacecal.geometry.fitting import LineFit, fit_line, fit_sphere
 from spacecal.geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from spacecal.records import ROTATION_SEGMENTS, TRANSLATION_SEGMENTS, CalibrationResult, Recording
@@ -61,7 +63,7 @@ class PaperThresholds:
     max_axis_angle_error_deg: float = 5.0
 
 
-def _segment_rows(recording: Recording, label: str, thresholds: PaperThresholds) -> np.ndarray:
+def _segment_rows(recording: Recording, label: str, thresholds: PaperThresholds) -> BoolArray:
     rows = recording.segment == label
     if not rows.any():
         raise DegenerateDataError(
@@ -74,10 +76,10 @@ def _segment_rows(recording: Recording, label: str, thresholds: PaperThresholds)
             f"sweep segment {label!r} has {int(used.sum())} samples with the marker visible "
             f"(of {int(rows.sum())}); at least {thresholds.min_samples_per_segment} are needed"
         )
-    return used
+    return np.asarray(used, dtype=np.bool_)
 
 
-def rotation_span_deg(rotations) -> float:
+def rotation_span_deg(rotations: ArrayLike) -> float:
     """Range of rotation angle covered about the dominant axis by rotations (N, 3, 3), deg."""
     rotations = np.asarray(rotations)
     reference = mean_rotation(rotations)
@@ -88,8 +90,8 @@ def rotation_span_deg(rotations) -> float:
 
 
 def _rotation_origin(
-    recording: Recording, rot_rows: np.ndarray, thresholds: PaperThresholds, diagnostics: dict
-):
+    recording: Recording, rot_rows: BoolArray, thresholds: PaperThresholds, diagnostics: dict[str, Any]
+) -> tuple[FloatArray, FloatArray]:
     """Sphere fit of the marker origin over all rotation sweeps -> TCP origin in tracker and base."""
     spans = {}
     for label in ROTATION_SEGMENTS:
@@ -121,7 +123,9 @@ def _rotation_origin(
     return sphere.centre, tcp_origin_in_base
 
 
-def _signed_direction(points, reference_points, label: str, thresholds: PaperThresholds):
+def _signed_direction(
+    points: FloatArray, reference_points: FloatArray, label: str, thresholds: PaperThresholds
+) -> tuple[FloatArray, FloatArray, LineFit]:
     """Line fit of ``points`` signed to agree with the travel of ``reference_points``."""
     line = fit_line(points)
     reference = fit_line(reference_points)
@@ -141,9 +145,13 @@ def _signed_direction(points, reference_points, label: str, thresholds: PaperThr
     return direction, reference.direction, line
 
 
-def _translation_axes(recording: Recording, thresholds: PaperThresholds, diagnostics: dict):
+def _translation_axes(
+    recording: Recording, thresholds: PaperThresholds, diagnostics: dict[str, Any]
+) -> tuple[FloatArray, FloatArray]:
     """Line fits of the translation sweeps -> matching travel directions in tracker and base."""
-    in_tracker, in_base, lines = [], [], {}
+    tracker_directions: list[FloatArray] = []
+    base_directions: list[FloatArray] = []
+    lines: dict[str, Any] = {}
     for label in TRANSLATION_SEGMENTS:
         rows = _segment_rows(recording, label, thresholds)
         orientations = recording.base_from_tcp_stack[recording.segment == label, :3, :3]
@@ -159,15 +167,15 @@ def _translation_axes(recording: Recording, thresholds: PaperThresholds, diagnos
             label,
             thresholds,
         )
-        in_tracker.append(d_tracker)
-        in_base.append(d_base)
+        tracker_directions.append(d_tracker)
+        base_directions.append(d_base)
         lines[label] = {
             "straightness_rms_mm": line.rms,
             "length_mm": line.length,
             "direction_in_tracker": d_tracker.tolist(),
             "samples": int(rows.sum()),
         }
-    in_tracker, in_base = np.array(in_tracker), np.array(in_base)
+    in_tracker, in_base = np.array(tracker_directions), np.array(base_directions)
     angles = {}
     for i, j in combinations(range(3), 2):
         fitted = np.degrees(np.arccos(np.clip(in_tracker[i] @ in_tracker[j], -1, 1)))
@@ -184,7 +192,9 @@ def _translation_axes(recording: Recording, thresholds: PaperThresholds, diagnos
     return in_tracker, in_base
 
 
-def estimate_tcp_from_marker(recording: Recording, tracker_from_base, rows) -> np.ndarray:
+def estimate_tcp_from_marker(
+    recording: Recording, tracker_from_base: FloatArray, rows: IndexArray
+) -> FloatArray:
     """Average tcp_from_marker = tcp_from_base @ base_from_tracker @ tracker_from_marker over rows."""
     base_from_tracker = invert_transform(tracker_from_base)
     each = (
@@ -220,14 +230,14 @@ def calibrate_paper(recording: Recording, thresholds: PaperThresholds | None = N
         bent line, a drifting TCP, or axes far from the commanded angles.
     """
     thresholds = thresholds or PaperThresholds()
-    diagnostics: dict = {}
+    diagnostics: dict[str, Any] = {}
     rot_rows = np.zeros(len(recording), dtype=bool)
     for label in ROTATION_SEGMENTS:
         rot_rows |= _segment_rows(recording, label, thresholds)
     tcp_origin_in_tracker, tcp_origin_in_base = _rotation_origin(recording, rot_rows, thresholds, diagnostics)
     d_tracker, d_base = _translation_axes(recording, thresholds, diagnostics)
 
-    rotation = wahba_rotation(d_tracker, d_base)
+    rotation = wahba_rotation(directions_in_source=d_base, directions_in_target=d_tracker)
     translation = tcp_origin_in_tracker - rotation @ tcp_origin_in_base
     tracker_from_base = make_transform(rotation, translation)
 

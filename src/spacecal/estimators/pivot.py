@@ -18,12 +18,14 @@ RMS, which is the 3-D RMS divided by sqrt(3); we give both.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, UnknownMethodError
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.fitting import fit_sphere
-from spacecal.geometry.transforms import is_rigid_transform
+from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, transform_points_by_stack
 
 
 @dataclass
@@ -52,9 +54,9 @@ class PivotResult:
     @property
     def rms_per_axis_mm(self) -> float:
         """Per-axis RMS, mm: scikit-surgerycalibration's ``residual`` (3-D RMS / sqrt(3))."""
-        return self.rms_mm / np.sqrt(3.0)
+        return float(self.rms_mm / np.sqrt(3.0))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "schema": "spacecal.pivot",
             "schema_version": 1,
@@ -69,23 +71,26 @@ class PivotResult:
         }
 
 
-def _check_poses(tracker_from_marker_stack) -> np.ndarray:
-    poses = np.asarray(tracker_from_marker_stack, dtype=float)
-    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
-        raise DegenerateDataError(f"pivot calibration needs poses of shape (N, 4, 4), got {poses.shape}")
-    poses = poses[np.all(np.isfinite(poses.reshape(len(poses), -1)), axis=1)]
+def _check_poses(tracker_from_marker_stack: ArrayLike) -> FloatArray:
+    """The tracked poses (rows of NaN, frames without the marker, dropped), checked rigid."""
+    poses = check_transform(
+        tracker_from_marker_stack,
+        "tracker_from_marker_stack",
+        stack=True,
+        allow_missing=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
+    poses = poses[~np.isnan(poses[:, 0, 0])]
     if len(poses) < 4:
         raise DegenerateDataError(f"pivot calibration needs at least 4 tracked poses, got {len(poses)}")
-    if not is_rigid_transform(poses, atol=1e-4):
-        raise DegenerateDataError("pivot calibration: some poses are not rigid transforms")
     return poses
 
 
-def _residuals(poses, tip, pivot):
-    return np.linalg.norm(np.einsum("nij,j->ni", poses[:, :3, :3], tip) + poses[:, :3, 3] - pivot, axis=1)
+def _residuals(poses: FloatArray, tip: FloatArray, pivot: FloatArray) -> FloatArray:
+    return as_float_array(np.linalg.norm(transform_points_by_stack(poses, tip) - pivot, axis=1))
 
 
-def pivot_algebraic_one_step(tracker_from_marker_stack) -> PivotResult:
+def pivot_algebraic_one_step(tracker_from_marker_stack: FloatArray) -> PivotResult:
     """Algebraic one-step pivot calibration (Yaniv 2015)."""
     poses = _check_poses(tracker_from_marker_stack)
     n = len(poses)
@@ -99,7 +104,7 @@ def pivot_algebraic_one_step(tracker_from_marker_stack) -> PivotResult:
     return PivotResult("aos", tip, pivot, _residuals(poses, tip, pivot))
 
 
-def pivot_sphere_fit(tracker_from_marker_stack) -> PivotResult:
+def pivot_sphere_fit(tracker_from_marker_stack: FloatArray) -> PivotResult:
     """Pivot from the geometric sphere fit of the marker origins; tip by averaging."""
     poses = _check_poses(tracker_from_marker_stack)
     pivot = fit_sphere(poses[:, :3, 3]).centre
@@ -110,7 +115,7 @@ def pivot_sphere_fit(tracker_from_marker_stack) -> PivotResult:
 PIVOT_METHODS = {"aos": pivot_algebraic_one_step, "sphere": pivot_sphere_fit}
 
 
-def pivot_calibration(tracker_from_marker_stack, method: str = "aos") -> PivotResult:
+def pivot_calibration(tracker_from_marker_stack: FloatArray, method: str = "aos") -> PivotResult:
     """Pivot calibration by a named method (``aos`` or ``sphere``)."""
     if method not in PIVOT_METHODS:
         raise UnknownMethodError(

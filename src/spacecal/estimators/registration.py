@@ -1,7 +1,8 @@
 """Paired-point rigid registration with its error figures.
 
-* Registration: Arun/Umeyama least squares (SVD), the rigid transform ``a_from_b`` that
-  maps fiducials given in b onto their partners in a.
+* Registration: Arun/Umeyama least squares (SVD), the rigid transform ``target_from_source``
+  that maps fiducials given in a source frame onto their partners in a target frame (e.g.
+  ``reference_from_phantom``: landmarks defined in the phantom, touched in the reference).
 * FRE: fiducial registration error, the residual distances after registration; reported as
   RMS and as mean (the figure PLUS calls "Error").
 * Predicted TRE at a target (Fitzpatrick, West, Maurer 1998, "Predicting error in rigid-body
@@ -17,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spacecal.core.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
+from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.geometry.fitting import fit_rigid
-from spacecal.geometry.transforms import apply_transform
+from spacecal.geometry.transforms import apply_transform, check_points
 
 
 @dataclass
@@ -28,18 +30,20 @@ class PointRegistration:
 
     Attributes
     ----------
-    a_from_b : numpy.ndarray, shape (4, 4)
+    target_from_source : numpy.ndarray, shape (4, 4)
+        Maps points given in the source frame into the target frame, mm.
     residuals_mm : numpy.ndarray, shape (N,)
-        Distances between registered b-points and their a partners.
+        Distances between the registered source points and their target partners.
     fle_rms_mm : float
         Fiducial localisation error estimated from the residuals.
-    points_in_b : numpy.ndarray, shape (N, 3)
+    points_in_source : numpy.ndarray, shape (N, 3)
+        The fiducials in the source frame (where predicted TRE is evaluated), mm.
     """
 
-    a_from_b: np.ndarray
+    target_from_source: np.ndarray
     residuals_mm: np.ndarray
     fle_rms_mm: float
-    points_in_b: np.ndarray
+    points_in_source: np.ndarray
 
     @property
     def fre_rms_mm(self) -> float:
@@ -50,37 +54,52 @@ class PointRegistration:
         """Mean residual: PLUS's "Error"."""
         return float(np.mean(self.residuals_mm))
 
-    def predicted_tre_mm(self, targets_in_b, fle_rms_mm: float | None = None) -> np.ndarray:
-        """Fitzpatrick–West–Maurer predicted RMS TRE at targets (M, 3) given in b."""
+    def predicted_tre_mm(self, targets_in_source: FloatArray, fle_rms_mm: float | None = None) -> FloatArray:
+        """Fitzpatrick–West–Maurer predicted RMS TRE at targets (M, 3) given in the source frame."""
         return predicted_tre(
-            self.points_in_b, targets_in_b, self.fle_rms_mm if fle_rms_mm is None else fle_rms_mm
+            self.points_in_source, targets_in_source, self.fle_rms_mm if fle_rms_mm is None else fle_rms_mm
         )
 
 
-def register_points(points_in_a, points_in_b) -> PointRegistration:
-    """Rigid ``a_from_b`` from paired points (N, 3) by least squares (Arun/Umeyama).
+def register_points(*, points_in_source: ArrayLike, points_in_target: ArrayLike) -> PointRegistration:
+    """Rigid ``target_from_source`` from paired points by least squares (Arun/Umeyama).
+
+    The point sets are keyword-only and named as in :func:`spacecal.geometry.fitting.fit_rigid`,
+    so a call reads which frame is which and cannot swap them silently.
+
+    Parameters
+    ----------
+    points_in_source : array_like, shape (N, 3)
+        Fiducials in the frame mapped from (e.g. landmarks defined in the phantom), mm.
+    points_in_target : array_like, shape (N, 3)
+        The same fiducials, in the same order, in the frame mapped into (e.g. as touched in
+        the reference marker frame), mm.
 
     Raises
     ------
+    InvalidInputError
+        For point sets that are not (N, 3), hold non-finite values, or differ in length.
     DegenerateDataError
         For fewer than 3 pairs, or collinear fiducials.
     """
-    a = np.asarray(points_in_a, dtype=float)
-    b = np.asarray(points_in_b, dtype=float)
-    if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3:
-        raise DegenerateDataError(f"registration needs paired (N, 3) points, got {a.shape} and {b.shape}")
-    if len(a) < 3:
-        raise DegenerateDataError(f"registration needs at least 3 point pairs, got {len(a)}")
-    if np.linalg.svd(b - b.mean(axis=0), compute_uv=False)[1] < 1e-6:
+    source = check_points(points_in_source, "points_in_source")
+    target = check_points(points_in_target, "points_in_target")
+    if source.shape != target.shape:
+        raise InvalidInputError(
+            f"registration needs paired (N, 3) points, got source {source.shape} and target {target.shape}"
+        )
+    if len(source) < 3:
+        raise DegenerateDataError(f"registration needs at least 3 point pairs, got {len(source)}")
+    if np.linalg.svd(source - source.mean(axis=0), compute_uv=False)[1] < 1e-6:
         raise DegenerateDataError("the fiducials are collinear: a rigid registration is not determined")
-    a_from_b, _ = fit_rigid(b, a)
-    residuals = np.linalg.norm(apply_transform(a_from_b, b) - a, axis=1)
-    n = len(a)
+    target_from_source, _ = fit_rigid(points_in_source=source, points_in_target=target)
+    residuals = np.linalg.norm(apply_transform(target_from_source, source) - target, axis=1)
+    n = len(source)
     fle = float(np.sqrt(np.sum(residuals**2) / max(n - 2, 1))) if n > 2 else 0.0
-    return PointRegistration(a_from_b, residuals, fle, b)
+    return PointRegistration(target_from_source, residuals, fle, source)
 
 
-def predicted_tre(fiducials, targets, fle_rms_mm: float) -> np.ndarray:
+def predicted_tre(fiducials: ArrayLike, targets: ArrayLike, fle_rms_mm: float) -> FloatArray:
     """Fitzpatrick–West–Maurer 1998 predicted RMS TRE (M,) at targets (M, 3), same frame as fiducials."""
     fiducials = np.asarray(fiducials, dtype=float)
     targets = np.atleast_2d(np.asarray(targets, dtype=float))

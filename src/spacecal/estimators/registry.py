@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable
+from typing import Any
 
 from spacecal.core.errors import InvalidInputError, UnknownMethodError
 from spacecal.estimators.closed_form import (
@@ -22,6 +23,8 @@ from spacecal.estimators.likelihood import (
 from spacecal.estimators.observations import build_observations
 from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
+from spacecal.geometry.arrays import ArrayLike, FloatArray
+from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_points, check_transform
 from spacecal.records import CalibrationResult, Recording
 
 #: name -> ``function(recording, **options) -> CalibrationResult``
@@ -36,7 +39,7 @@ METHODS: dict[str, Callable[..., CalibrationResult]] = {
 
 
 def calibrate(
-    recording: Recording, method: str = "paper", uncertainty: bool = True, **options
+    recording: Recording, method: str = "paper", uncertainty: bool = True, **options: Any
 ) -> CalibrationResult:
     """Estimate ``tracker_from_base`` and ``tcp_from_marker`` from a recording.
 
@@ -55,10 +58,16 @@ def calibrate(
     ------
     UnknownMethodError
         For a name not in the registry; the message lists the valid ones.
+    InvalidInputError
+        For pose stacks that are not rigid transforms (:func:`check_recording_poses`) or
+        targets that are not (M, 3) finite points.
     """
     if method not in METHODS:
         raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(METHODS))}")
     targets = options.pop("targets_in_base", None)
+    if targets is not None:
+        targets = check_points(targets, "targets_in_base")
+    check_recording_poses(recording)
     accepted = inspect.signature(METHODS[method]).parameters
     unexpected = sorted(set(options) - set(accepted))
     if unexpected:
@@ -77,11 +86,41 @@ def calibrate(
     return with_bootstrap_uncertainty(result, recording, METHODS[method], targets)
 
 
-def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, solver, targets_in_base=None):
+def check_recording_poses(recording: Recording) -> None:
+    """Refuse a recording whose pose stacks are not rigid transforms (one readable line).
+
+    Frames where the marker was not seen are rows of NaN in ``tracker_from_marker_stack``
+    and pass; the tolerance is that of measured matrices (about six significant digits).
+
+    Raises
+    ------
+    InvalidInputError
+    """
+    check_transform(
+        recording.base_from_tcp_stack,
+        "recording.base_from_tcp_stack",
+        stack=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
+    check_transform(
+        recording.tracker_from_marker_stack,
+        "recording.tracker_from_marker_stack",
+        stack=True,
+        allow_missing=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
+
+
+def with_bootstrap_uncertainty(
+    result: CalibrationResult,
+    recording: Recording,
+    solver: Callable[..., CalibrationResult],
+    targets_in_base: ArrayLike | None = None,
+) -> CalibrationResult:
     """Add covariance (bootstrap over frames), predicted TRE, residuals and a verdict to a
     result from an estimator without a likelihood; its transforms are unchanged."""
 
-    def solve(resampled):
+    def solve(resampled: Recording) -> tuple[FloatArray, FloatArray]:
         again = solver(resampled)
         return again.tracker_from_base, again.tcp_from_marker
 
@@ -101,7 +140,9 @@ def with_bootstrap_uncertainty(result: CalibrationResult, recording: Recording, 
         variance_factor,
         targets_in_base,
         {},
-        covariance_note=f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
+        covariance_note=(
+            f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad"
+        ),
     )
     return result.replace(
         covariance=reported.covariance,

@@ -7,7 +7,8 @@ Mapping to spacecal's frames (CONVENTIONS §2)::
     Y   = base_from_tracker             (the inverse of what navigation needs)
     B_i = tracker_from_marker_stack[i]  (tracker measurement)
 
-so both sides read ``base_from_marker``. Each solver returns ``(X, Y)``.
+so both sides read ``base_from_marker``. Each solver takes ``(base_from_tcp_stack,
+tracker_from_marker_stack)``, calls them A and B inside, and returns ``(X, Y)``.
 
 * Shah 2013, "Solving the robot-world/hand-eye calibration problem using the Kronecker
   product", J. Mech. Robot. 5(3): rotation from the dominant singular vectors of
@@ -25,15 +26,18 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.geometry.rotations import nearest_rotation, quaternion_product_matrices
 from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
 
 MIN_POSES = 3
 
 
-def _check(a_stack, b_stack):
-    a = np.asarray(a_stack, dtype=float)
-    b = np.asarray(b_stack, dtype=float)
+def _check(
+    base_from_tcp_stack: ArrayLike, tracker_from_marker_stack: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    a = np.asarray(base_from_tcp_stack, dtype=float)
+    b = np.asarray(tracker_from_marker_stack, dtype=float)
     if a.shape != b.shape or a.ndim != 3 or a.shape[1:] != (4, 4):
         raise DegenerateDataError(f"need matching pose stacks (N, 4, 4); got {a.shape} and {b.shape}")
     if len(a) < MIN_POSES:
@@ -45,7 +49,7 @@ def _check(a_stack, b_stack):
     return a, b
 
 
-def _orthonormal_from_vec(vec9) -> np.ndarray:
+def _orthonormal_from_vec(vec9: ArrayLike) -> FloatArray:
     """A rotation from a column-major 9-vector known up to scale (and sign)."""
     m = np.asarray(vec9).reshape(3, 3, order="F")
     det = np.linalg.det(m)
@@ -55,20 +59,29 @@ def _orthonormal_from_vec(vec9) -> np.ndarray:
     return nearest_rotation(m)
 
 
-def solve_translations(a_stack, b_stack, rotation_x, rotation_y) -> tuple[np.ndarray, np.ndarray]:
+def solve_translations(
+    base_from_tcp_stack: ArrayLike,
+    tracker_from_marker_stack: ArrayLike,
+    rotation_x: FloatArray,
+    rotation_y: FloatArray,
+) -> tuple[FloatArray, FloatArray]:
     """Least-squares t_X, t_Y given the rotations: R_Ai t_X - t_Y = R_Y t_Bi - t_Ai."""
-    n = len(a_stack)
+    a = np.asarray(base_from_tcp_stack, dtype=float)
+    b = np.asarray(tracker_from_marker_stack, dtype=float)
+    n = len(a)
     design = np.zeros((3 * n, 6))
-    design[:, :3] = a_stack[:, :3, :3].reshape(3 * n, 3)
+    design[:, :3] = a[:, :3, :3].reshape(3 * n, 3)
     design[:, 3:] = -np.tile(np.eye(3), (n, 1))
-    rhs = (b_stack[:, :3, 3] @ rotation_y.T - a_stack[:, :3, 3]).reshape(-1)
+    rhs = (b[:, :3, 3] @ rotation_y.T - a[:, :3, 3]).reshape(-1)
     solution, *_ = np.linalg.lstsq(design, rhs, rcond=None)
     return solution[:3], solution[3:]
 
 
-def solve_shah(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
+def solve_shah(
+    base_from_tcp_stack: FloatArray, tracker_from_marker_stack: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Shah 2013 (Kronecker product). See the module docstring for the frame mapping."""
-    a, b = _check(a_stack, b_stack)
+    a, b = _check(base_from_tcp_stack, tracker_from_marker_stack)
     # vec(R_A R_X R_B^T) = (R_B (x) R_A) vec(R_X) = vec(R_Y): K vec(R_X) = n vec(R_Y)
     k = np.einsum("nij,nkl->nikjl", b[:, :3, :3], a[:, :3, :3]).reshape(len(a), 9, 9).sum(axis=0)
     u, _, vt = np.linalg.svd(k)
@@ -78,7 +91,9 @@ def solve_shah(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
     return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
 
 
-def solve_li(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
+def solve_li(
+    base_from_tcp_stack: FloatArray, tracker_from_marker_stack: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Li, Wang, Wu 2010 (simultaneous Kronecker system). Frame mapping in the module docstring.
 
     Unknowns [vec R_X, vec R_Y, t_X, t_Y] (column-major vec) from
@@ -86,7 +101,7 @@ def solve_li(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
     R_A t_X - (t_B^T (x) I) vec R_Y - t_Y = -t_A; the rotations are then orthonormalised and
     the translations re-solved with them.
     """
-    a, b = _check(a_stack, b_stack)
+    a, b = _check(base_from_tcp_stack, tracker_from_marker_stack)
     n = len(a)
     eye3 = np.eye(3)
     ra, rb, ta, tb = a[:, :3, :3], b[:, :3, :3], a[:, :3, 3], b[:, :3, 3]
@@ -98,22 +113,23 @@ def solve_li(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
     system[:, 9:, 21:24] = -eye3
     rhs = np.zeros((n, 12))
     rhs[:, 9:] = -ta
-    system, rhs = system.reshape(12 * n, 24), rhs.reshape(-1)
-    solution, *_ = np.linalg.lstsq(system, rhs, rcond=None)
+    solution, *_ = np.linalg.lstsq(system.reshape(12 * n, 24), rhs.reshape(-1), rcond=None)
     rotation_x = _orthonormal_from_vec(solution[:9])
     rotation_y = _orthonormal_from_vec(solution[9:18])
     t_x, t_y = solve_translations(a, b, rotation_x, rotation_y)
     return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
 
 
-def solve_dornaika(a_stack, b_stack) -> tuple[np.ndarray, np.ndarray]:
+def solve_dornaika(
+    base_from_tcp_stack: FloatArray, tracker_from_marker_stack: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Dornaika–Horaud 1998 closed form (quaternions). Frame mapping in the module docstring.
 
     q and -q are the same rotation, so q_A q_X = +-q_Y q_B per pose; the signs of q_Bi are
     made consistent with the Kronecker (Shah) rotations first, then the 8x8 eigenproblem
     is solved and translations follow by least squares.
     """
-    a, b = _check(a_stack, b_stack)
+    a, b = _check(base_from_tcp_stack, tracker_from_marker_stack)
     x0, y0 = solve_shah(a, b)
     q_a = matrix_to_quaternion_wxyz(a[:, :3, :3])
     q_b = matrix_to_quaternion_wxyz(b[:, :3, :3])

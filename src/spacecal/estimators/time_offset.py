@@ -18,7 +18,7 @@ from scipy.optimize import minimize_scalar
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.likelihood import calibrate_ml, fit_ml, variance_factor_of
-from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, interpolate_transforms
 from spacecal.records import CalibrationResult, RawRecording, Recording
 
 
@@ -36,16 +36,15 @@ def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
     span = robot_t[upper] - robot_t[lower]
     weight = np.where(span > 0, (query - robot_t[lower]) / np.where(span > 0, span, 1.0), 0.0)
     joints = raw.joints_rad[lower] + weight[:, None] * (raw.joints_rad[upper] - raw.joints_rad[lower])
-    a, b = raw.base_from_tcp_stack[lower], raw.base_from_tcp_stack[upper]
-    relative = matrix_to_rotvec(np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3])
-    rotation = a[:, :3, :3] @ rotvec_to_matrix(weight[:, None] * relative)
-    position = a[:, :3, 3] + weight[:, None] * (b[:, :3, 3] - a[:, :3, 3])
+    base_from_tcp = interpolate_transforms(
+        raw.base_from_tcp_stack[lower], raw.base_from_tcp_stack[upper], weight
+    )
     nearest = np.where(weight < 0.5, lower, upper)
     return Recording(
         time_s=raw.tracker_time_s[inside],
         segment=raw.robot_segment[nearest],
         joints_rad=joints,
-        base_from_tcp_stack=make_transform(rotation, position),
+        base_from_tcp_stack=base_from_tcp,
         tracker_from_marker_stack=raw.tracker_from_marker_stack[inside],
         marker_rms_mm=raw.marker_rms_mm[inside],
         metadata={**raw.metadata, "paired_with_offset_s": float(offset_s)},
@@ -74,10 +73,23 @@ def estimate_time_offset(
 
     Raises
     ------
+    InvalidInputError
+        When a pose stream is not a stack of rigid transforms (NaN rows mark frames without
+        the marker).
     DegenerateDataError
         When the best offset sits at the edge of the search (widen it) or the robot never
         moved while sampled (no information on the offset).
     """
+    check_transform(
+        raw.base_from_tcp_stack, "raw.base_from_tcp_stack", stack=True, atol=MEASURED_TRANSFORM_ATOL
+    )
+    check_transform(
+        raw.tracker_from_marker_stack,
+        "raw.tracker_from_marker_stack",
+        stack=True,
+        allow_missing=True,
+        atol=MEASURED_TRANSFORM_ATOL,
+    )
     offsets = np.arange(-search_s, search_s + 1e-12, coarse_step_s)
     costs = np.array([_fit_cost(raw, o) for o in offsets])
     best = int(np.argmin(costs))

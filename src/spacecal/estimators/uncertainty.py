@@ -3,9 +3,9 @@
 The closed forms and the paper's estimator have no covariance of their own. Resampling the
 visible frames with replacement and re-solving gives the spread of each estimate around
 the full-data one, expressed in the same 12 perturbation parameters as the ML covariance
-(:mod:`spacecal.estimators.ml`), so the predicted TRE is computed the same way. Frames are
-treated as independent: with systematic errors the spread is optimistic, as the verdict
-then says.
+(:func:`spacecal.models.kinematics.apply_pose_step`), so the predicted TRE is computed the
+same way. Frames are treated as independent: with systematic errors the spread is
+optimistic, as the verdict then says.
 """
 
 from __future__ import annotations
@@ -15,30 +15,19 @@ from collections.abc import Callable
 import numpy as np
 
 from spacecal.core.errors import SpacecalError
-from spacecal.geometry.transforms import matrix_to_rotvec
+from spacecal.geometry.arrays import FloatArray
+from spacecal.models.kinematics import pose_step_between
 from spacecal.records import Recording
 
 #: Bootstrap resamples: enough for a 12x12 covariance to about +-20 % per variance.
 RESAMPLES = 50
 
 
-def perturbation(reference_t, reference_x, tracker_from_base, tcp_from_marker) -> np.ndarray:
-    """The 12 parameters taking the reference transforms to the given ones (see ml.apply_step)."""
-    return np.concatenate(
-        [
-            tracker_from_base[:3, 3] - reference_t[:3, 3],
-            matrix_to_rotvec(tracker_from_base[:3, :3] @ reference_t[:3, :3].T),
-            tcp_from_marker[:3, 3] - reference_x[:3, 3],
-            matrix_to_rotvec(reference_x[:3, :3].T @ tcp_from_marker[:3, :3]),
-        ]
-    )
-
-
 def bootstrap_covariance(
     recording: Recording,
-    solve: Callable[[Recording], tuple[np.ndarray, np.ndarray]],
-    reference_t,
-    reference_x,
+    solve: Callable[[Recording], tuple[FloatArray, FloatArray]],
+    reference_tracker_from_base: FloatArray,
+    reference_tcp_from_marker: FloatArray,
     resamples: int = RESAMPLES,
     seed: int = 0,
 ) -> np.ndarray | None:
@@ -48,7 +37,7 @@ def bootstrap_covariance(
     ----------
     solve : callable
         recording -> (tracker_from_base, tcp_from_marker).
-    reference_t, reference_x : numpy.ndarray, shape (4, 4)
+    reference_tracker_from_base, reference_tcp_from_marker : numpy.ndarray, shape (4, 4)
         The full-data estimate the spread is measured around.
     """
     rng = np.random.default_rng(seed)
@@ -60,7 +49,7 @@ def bootstrap_covariance(
             estimate = solve(recording.select(rows))
         except SpacecalError:
             continue
-        samples.append(perturbation(reference_t, reference_x, *estimate))
+        samples.append(pose_step_between(reference_tracker_from_base, reference_tcp_from_marker, *estimate))
     if len(samples) < resamples // 2:
         return None
     return np.cov(np.array(samples).T)

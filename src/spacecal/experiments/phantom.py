@@ -22,6 +22,7 @@ from spacecal.estimators.registration import register_points
 from spacecal.experiments.simulation import simulate
 from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
 from spacecal.models.kinematics import forward_kinematics
+from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.planning.needle import plan_needle
 from spacecal.planning.visibility import VisibilityModel
 from spacecal.records import PhantomResult
@@ -125,17 +126,17 @@ def run_phantom_experiment(
     # CT localises the fiducials; the pointer touches them in tracker space.
     fiducials_in_ct = fiducials_in_image + _noise(rng, settings.ct_error_mm, fiducials_in_image.shape)
     touched = apply_transform(tracker_from_image, fiducials_in_image)
-    spheres_sd = np.hypot(scenario.white_noise_rms_mm, scenario.volumetric_error_rms_mm)
-    touched = touched + _noise(rng, np.hypot(spheres_sd, settings.pointer_tip_error_mm), touched.shape)
-    registration = register_points(touched, fiducials_in_ct)
-    tracker_from_image_estimate = registration.a_from_b
+    sphere_rms_mm = np.hypot(scenario.white_noise_rms_mm, scenario.volumetric_error_rms_mm)
+    touched = touched + _noise(rng, np.hypot(sphere_rms_mm, settings.pointer_tip_error_mm), touched.shape)
+    registration = register_points(points_in_source=fiducials_in_ct, points_in_target=touched)
+    tracker_from_image_estimate = registration.target_from_source
 
     calibration_tre = (calibration.predicted_tre_mm or {}).get("site", 0.0)
     # Planning predicts marker visibility from the calibration just made (what the system knows).
     visibility = VisibilityModel(
         world.tracker, world.marker, calibration.tracker_from_base, calibration.tcp_from_marker
     )
-    robot_sd = scenario.repeatability_mm / 3.6
+    robot_sd = scenario.repeatability_mm * REPEATABILITY_TO_AXIS_SD
     entry_errors, target_errors, direction_errors, predicted = [], [], [], []
     refused = 0
     for _ in range(settings.cases):

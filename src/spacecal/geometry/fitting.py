@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
+from spacecal.geometry.transforms import transform_points_by_stack
 
 
 @dataclass(frozen=True)
@@ -57,7 +60,7 @@ class LineFit:
     length: float
 
 
-def _finite_points(points, what: str, minimum: int) -> np.ndarray:
+def _finite_points(points: ArrayLike, what: str, minimum: int) -> FloatArray:
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3:
         raise DegenerateDataError(f"{what}: expected points of shape (N, 3), got {p.shape}")
@@ -68,7 +71,7 @@ def _finite_points(points, what: str, minimum: int) -> np.ndarray:
     return p
 
 
-def fit_sphere_algebraic(points) -> tuple[np.ndarray, float]:
+def fit_sphere_algebraic(points: ArrayLike) -> tuple[FloatArray, float]:
     """Algebraic (linear) sphere fit, the start for :func:`fit_sphere`.
 
     ``|p|^2 = 2 p.c + (R^2 - |c|^2)`` is linear in c and ``k = R^2 - |c|^2``; solved in the
@@ -101,7 +104,7 @@ def fit_sphere_algebraic(points) -> tuple[np.ndarray, float]:
     return centre_local + origin, float(np.sqrt(radius_sq))
 
 
-def fit_sphere(points) -> SphereFit:
+def fit_sphere(points: ArrayLike) -> SphereFit:
     """Geometric least-squares sphere fit (paper §3.2, eqs. 7–9).
 
     Minimises ``sum_i (|p_i - c| - R)^2`` by Levenberg–Marquardt with the analytic Jacobian,
@@ -123,10 +126,10 @@ def fit_sphere(points) -> SphereFit:
     origin = p.mean(axis=0)
     q = p - origin
 
-    def residuals(x):
-        return np.linalg.norm(q - x[:3], axis=1) - x[3]
+    def residuals(x: FloatArray) -> FloatArray:
+        return as_float_array(np.linalg.norm(q - x[:3], axis=1) - x[3])
 
-    def jacobian(x):
+    def jacobian(x: FloatArray) -> FloatArray:
         diff = q - x[:3]
         dist = np.linalg.norm(diff, axis=1)
         dist = np.where(dist == 0, 1.0, dist)
@@ -140,7 +143,7 @@ def fit_sphere(points) -> SphereFit:
     return SphereFit(centre=centre, radius=radius, residuals=res, rms=float(np.sqrt(np.mean(res**2))))
 
 
-def fit_line(points) -> LineFit:
+def fit_line(points: ArrayLike) -> LineFit:
     """Total least-squares 3-D line fit (paper §3.1, eqs. 2–6).
 
     The paper writes the line as two planes x = k1 z + b1, y = k2 z + b2; the principal
@@ -177,27 +180,32 @@ def fit_line(points) -> LineFit:
     )
 
 
-def fit_rigid(points_in_b, points_in_a, weights=None) -> tuple[np.ndarray, float]:
-    """Least-squares rigid transform ``a_from_b`` between paired point sets (Kabsch/Arun).
+def fit_rigid(
+    *, points_in_source: ArrayLike, points_in_target: ArrayLike, weights: ArrayLike | None = None
+) -> tuple[FloatArray, Any]:
+    """Least-squares rigid transform ``target_from_source`` between paired point sets (Kabsch/Arun).
 
     Used to compute a marker's pose from its measured sphere centres, as a tracker does.
+    The point sets are keyword-only and named as in
+    :func:`spacecal.estimators.registration.register_points`, so they cannot be swapped silently.
 
     Parameters
     ----------
-    points_in_b : array_like, shape (N, 3)
+    points_in_source : array_like, shape (N, 3)
         Model points (e.g. sphere centres in the marker frame), mm.
-    points_in_a : array_like, shape (N, 3) or (M, N, 3)
+    points_in_target : array_like, shape (N, 3) or (M, N, 3)
         Measured points (e.g. in the tracker frame), mm; a stack gives M fits at once.
     weights : array_like, shape (N,), optional
 
     Returns
     -------
-    a_from_b : numpy.ndarray, shape (4, 4) or (M, 4, 4)
+    target_from_source : numpy.ndarray, shape (4, 4) or (M, 4, 4)
+        E.g. ``tracker_from_marker``.
     rms : float or numpy.ndarray, shape (M,)
         RMS distance between transformed model points and measured points, mm.
     """
-    model = np.asarray(points_in_b, dtype=float)
-    measured = np.asarray(points_in_a, dtype=float)
+    model = np.asarray(points_in_source, dtype=float)
+    measured = np.asarray(points_in_target, dtype=float)
     single = measured.ndim == 2
     if single:
         measured = measured[None]
@@ -213,12 +221,12 @@ def fit_rigid(points_in_b, points_in_a, weights=None) -> tuple[np.ndarray, float
     u[:, :, 2] *= d[:, None]
     rotation = u @ vt
     translation = measured_centroid - np.einsum("mij,j->mi", rotation, model_centroid)
-    fitted = np.einsum("mij,nj->mni", rotation, model) + translation[:, None, :]
-    rms = np.sqrt(np.mean(np.sum((fitted - measured) ** 2, axis=2), axis=1))
     transform = np.zeros((len(measured), 4, 4))
     transform[:, :3, :3] = rotation
     transform[:, :3, 3] = translation
     transform[:, 3, 3] = 1.0
+    fitted = transform_points_by_stack(transform, model)
+    rms = np.sqrt(np.mean(np.sum((fitted - measured) ** 2, axis=2), axis=1))
     if single:
         return transform[0], float(rms[0])
     return transform, rms

@@ -18,7 +18,16 @@ from importlib import resources
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
-from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec
+from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray
+from spacecal.geometry.rotations import skew
+from spacecal.geometry.transforms import (
+    apply_transform,
+    invert_transform,
+    make_transform,
+    matrix_to_rotvec,
+    rotvec_to_matrix,
+    transform_points_by_stack,
+)
 
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 N_JOINTS = 6
@@ -51,29 +60,33 @@ class RobotModel:
     """
 
     name: str
-    a_mm: np.ndarray
-    d_mm: np.ndarray
-    alpha_rad: np.ndarray
-    theta_offset_rad: np.ndarray = field(default_factory=lambda: np.zeros(N_JOINTS))
-    flange_from_tcp: np.ndarray = field(default_factory=lambda: np.eye(4))
-    joint_lower_rad: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, -2 * np.pi))
-    joint_upper_rad: np.ndarray = field(default_factory=lambda: np.full(N_JOINTS, 2 * np.pi))
+    a_mm: FloatArray
+    d_mm: FloatArray
+    alpha_rad: FloatArray
+    theta_offset_rad: FloatArray = field(default_factory=lambda: np.zeros(N_JOINTS))
+    flange_from_tcp: FloatArray = field(default_factory=lambda: np.eye(4))
+    joint_lower_rad: FloatArray = field(default_factory=lambda: np.full(N_JOINTS, -2 * np.pi))
+    joint_upper_rad: FloatArray = field(default_factory=lambda: np.full(N_JOINTS, 2 * np.pi))
     controller_hz: float = 125.0
 
-    def with_tcp(self, flange_from_tcp) -> RobotModel:
+    def with_tcp(self, flange_from_tcp: ArrayLike) -> RobotModel:
         """A copy with another tool offset (4, 4), mm."""
         return replace(self, flange_from_tcp=np.asarray(flange_from_tcp, dtype=float))
 
     def with_dh_errors(
-        self, delta_a_mm=0.0, delta_d_mm=0.0, delta_alpha_rad=0.0, delta_theta_rad=0.0
+        self,
+        delta_a_mm: ArrayLike = 0.0,
+        delta_d_mm: ArrayLike = 0.0,
+        delta_alpha_rad: ArrayLike = 0.0,
+        delta_theta_rad: ArrayLike = 0.0,
     ) -> RobotModel:
         """A copy whose DH parameters are offset, e.g. a real robot's deviation from nominal."""
         return replace(
             self,
-            a_mm=self.a_mm + delta_a_mm,
-            d_mm=self.d_mm + delta_d_mm,
-            alpha_rad=self.alpha_rad + delta_alpha_rad,
-            theta_offset_rad=self.theta_offset_rad + delta_theta_rad,
+            a_mm=self.a_mm + np.asarray(delta_a_mm, dtype=np.float64),
+            d_mm=self.d_mm + np.asarray(delta_d_mm, dtype=np.float64),
+            alpha_rad=self.alpha_rad + np.asarray(delta_alpha_rad, dtype=np.float64),
+            theta_offset_rad=self.theta_offset_rad + np.asarray(delta_theta_rad, dtype=np.float64),
         )
 
     def dh_table(self) -> dict[str, list[float]]:
@@ -86,7 +99,7 @@ class RobotModel:
         }
 
 
-def ur_model(name: str, flange_from_tcp=None) -> RobotModel:
+def ur_model(name: str, flange_from_tcp: ArrayLike | None = None) -> RobotModel:
     """The nominal model of a Universal Robots arm.
 
     Parameters
@@ -109,7 +122,7 @@ def ur_model(name: str, flange_from_tcp=None) -> RobotModel:
     )
 
 
-def _link_transforms(model: RobotModel, joints_rad: np.ndarray) -> np.ndarray:
+def _link_transforms(model: RobotModel, joints_rad: FloatArray) -> FloatArray:
     """Per-link transforms, shape (N, 6, 4, 4), for joint vectors (N, 6)."""
     theta = joints_rad + model.theta_offset_rad
     ct, st = np.cos(theta), np.sin(theta)
@@ -130,7 +143,7 @@ def _link_transforms(model: RobotModel, joints_rad: np.ndarray) -> np.ndarray:
     return links
 
 
-def _as_joint_array(joints_rad) -> tuple[np.ndarray, bool]:
+def _as_joint_array(joints_rad: ArrayLike) -> tuple[FloatArray, bool]:
     q = np.asarray(joints_rad, dtype=float)
     single = q.ndim == 1
     q = np.atleast_2d(q)
@@ -139,7 +152,7 @@ def _as_joint_array(joints_rad) -> tuple[np.ndarray, bool]:
     return q, single
 
 
-def forward_kinematics(model: RobotModel, joints_rad, to_tcp: bool = True) -> np.ndarray:
+def forward_kinematics(model: RobotModel, joints_rad: ArrayLike, to_tcp: bool = True) -> FloatArray:
     """``base_from_tcp`` (or ``base_from_flange``) for joint vectors.
 
     Parameters
@@ -163,14 +176,14 @@ def forward_kinematics(model: RobotModel, joints_rad, to_tcp: bool = True) -> np
     return pose[0] if single else pose
 
 
-def _pose_error_vector(target, reached) -> np.ndarray:
+def _pose_error_vector(target: FloatArray, reached: FloatArray) -> FloatArray:
     """6-vector (position mm, rotation rad) of the error from reached to target, in base."""
     dp = target[..., :3, 3] - reached[..., :3, 3]
     dr = matrix_to_rotvec(target[..., :3, :3] @ np.swapaxes(reached[..., :3, :3], -1, -2))
     return np.concatenate([dp, dr], axis=-1)
 
 
-def geometric_jacobian(model: RobotModel, joints_rad) -> np.ndarray:
+def geometric_jacobian(model: RobotModel, joints_rad: ArrayLike) -> FloatArray:
     """Geometric Jacobian of the TCP in the base frame, shape (N, 6, 6): rows (v mm, w rad)."""
     q, _ = _as_joint_array(joints_rad)
     links = _link_transforms(model, q)
@@ -187,25 +200,60 @@ def geometric_jacobian(model: RobotModel, joints_rad) -> np.ndarray:
     return np.swapaxes(jac, 1, 2)
 
 
-def _newton_polish(model: RobotModel, base_from_tcp, q0, iterations: int = 20, tol_mm=1e-10):
-    """Refine IK solutions (N, 6) on the exact (possibly non-nominal) model by Gauss–Newton."""
-    q = q0.copy()
-    for _ in range(iterations):
-        err = _pose_error_vector(base_from_tcp, forward_kinematics(model, q))
-        if np.max(np.abs(err[:, :3])) < tol_mm and np.max(np.abs(err[:, 3:])) < tol_mm * 1e-3:
-            break
+def inverse_kinematics_gauss_newton(
+    model: RobotModel,
+    base_from_tcp: ArrayLike,
+    start_joints_rad: ArrayLike,
+    *,
+    max_iterations: int,
+    position_tol_mm: float,
+    rotation_tol_rad: float,
+) -> tuple[FloatArray, bool]:
+    """Joint angles reaching ``base_from_tcp`` by Gauss–Newton from a start configuration.
+
+    The one iterative IK of the package: it polishes the closed-form branches of
+    :func:`inverse_kinematics` on a model's exact (possibly identified) parameters, and it
+    follows a dense Cartesian path continuously (:func:`spacecal.planning.motion.track_path`),
+    staying on the branch it starts on. Each step is ``dq = pinv(J) e`` with ``J`` the
+    :func:`geometric_jacobian` and ``e`` the pose error (position mm, rotation vector rad)
+    in the base frame; the pseudo-inverse keeps the step finite at a singularity.
+
+    Parameters
+    ----------
+    model : RobotModel
+    base_from_tcp : array_like, shape (N, 4, 4)
+        Target TCP poses, mm.
+    start_joints_rad : array_like, shape (N, 6)
+        Where each iteration starts.
+    max_iterations : int
+        Steps allowed; the error is checked before each step.
+    position_tol_mm, rotation_tol_rad : float
+        Converged when every component of every pose error is below these.
+
+    Returns
+    -------
+    joints_rad : numpy.ndarray, shape (N, 6)
+        The last iterate (converged or not).
+    converged : bool
+        Whether all rows met the tolerances within ``max_iterations`` checks.
+    """
+    targets = np.asarray(base_from_tcp, dtype=float)
+    q = np.array(start_joints_rad, dtype=float)
+    for _ in range(max_iterations):
+        err = _pose_error_vector(targets, forward_kinematics(model, q))
+        if np.max(np.abs(err[:, :3])) < position_tol_mm and np.max(np.abs(err[:, 3:])) < rotation_tol_rad:
+            return q, True
         jac = geometric_jacobian(model, q)
-        # pinv rather than solve: stays finite at a wrist or elbow singularity.
-        q = q + np.einsum("nij,nj->ni", np.linalg.pinv(jac), err)
-    return q
+        q = q + (np.linalg.pinv(jac) @ err[:, :, None])[:, :, 0]
+    return q, False
 
 
-def _wrap_near(angles, reference):
+def _wrap_near(angles: FloatArray, reference: FloatArray) -> FloatArray:
     """Add multiples of 2 pi to ``angles`` to bring them nearest to ``reference``."""
     return reference + np.mod(angles - reference + np.pi, 2 * np.pi) - np.pi
 
 
-def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarray:
+def _ur_closed_form(model: RobotModel, base_from_flange: FloatArray) -> FloatArray:
     """The 8 closed-form UR branches (Hawkins 2013) for one flange pose: shape (8, 6), NaN rows
     where a branch does not exist. Exact for the nominal UR geometry; a start for Newton
     otherwise."""
@@ -263,8 +311,11 @@ def _ur_closed_form(model: RobotModel, base_from_flange: np.ndarray) -> np.ndarr
 
 
 def inverse_kinematics(
-    model: RobotModel, base_from_tcp, reference_joints_rad=None, tol_mm: float = 1e-9
-) -> np.ndarray:
+    model: RobotModel,
+    base_from_tcp: ArrayLike,
+    reference_joints_rad: ArrayLike | None = None,
+    tol_mm: float = 1e-9,
+) -> FloatArray:
     """Joint angles reaching ``base_from_tcp``, nearest to a reference configuration.
 
     The UR closed form (8 branches) gives candidates from the nominal geometry; each is
@@ -304,7 +355,15 @@ def inverse_kinematics(
         candidates = candidates[np.all(np.isfinite(candidates), axis=1)]
         if len(candidates) == 0:
             raise UnreachableError(f"pose {n} is outside the {model.name}'s workspace")
-        candidates = _newton_polish(model, np.broadcast_to(target, (len(candidates), 4, 4)), candidates)
+        # polish on the exact model; unconverged candidates fail the tolerance check below
+        candidates, _ = inverse_kinematics_gauss_newton(
+            model,
+            np.broadcast_to(target, (len(candidates), 4, 4)),
+            candidates,
+            max_iterations=20,
+            position_tol_mm=1e-10,
+            rotation_tol_rad=1e-13,
+        )
         err = _pose_error_vector(target, forward_kinematics(model, candidates))
         ok = (np.linalg.norm(err[:, :3], axis=1) < tol_mm) & (
             np.linalg.norm(err[:, 3:], axis=1) < tol_mm * 1e-3
@@ -321,33 +380,187 @@ def inverse_kinematics(
     return result[0] if single else result
 
 
-def within_joint_limits(model: RobotModel, joints_rad) -> np.ndarray:
+def within_joint_limits(model: RobotModel, joints_rad: ArrayLike) -> BoolArray:
     """Boolean per row of joints (N, 6): inside the model's limits."""
     q, _ = _as_joint_array(joints_rad)
     return np.all((q >= model.joint_lower_rad) & (q <= model.joint_upper_rad), axis=1)
 
 
-def with_dh_corrections(model: RobotModel, delta) -> RobotModel:
+def with_dh_corrections(model: RobotModel, delta: ArrayLike) -> RobotModel:
     """``model`` with DH corrections (24,): a, d, alpha, theta offset of joints 1..6, in that order."""
     delta = np.asarray(delta, dtype=float).reshape(4, 6)
     return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
 
 
+# -- the calibration chain -----------------------------------------------------------------
+#
+# Every frame i of a calibration sees marker points s_k through (paper eq. 1)
+#
+#     p_ik_in_tracker = tracker_from_base @ base_from_tcp_i @ tcp_from_marker @ s_k
+#
+# The two unknown transforms are perturbed with 12 parameters, one convention for the whole
+# package (the ML estimator, its covariance in result files, the bootstrap, kinematic
+# identification and motion planning all use it):
+#
+#     tracker_from_base = [exp(w_t) R_t | t_t + v_t]     (w_t, v_t in the tracker frame)
+#     tcp_from_marker   = [R_x exp(w_x) | t_x + v_x]     (w_x in the marker frame)
+#
+# with the parameter vector (v_t, w_t, v_x, w_x), mm and rad.
+
+#: Names of the 12 pose perturbation parameters, in order (see :func:`apply_pose_step`).
+POSE_PARAMETER_NAMES = [
+    "tracker_from_base.v_x_mm",
+    "tracker_from_base.v_y_mm",
+    "tracker_from_base.v_z_mm",
+    "tracker_from_base.w_x_rad",
+    "tracker_from_base.w_y_rad",
+    "tracker_from_base.w_z_rad",
+    "tcp_from_marker.v_x_mm",
+    "tcp_from_marker.v_y_mm",
+    "tcp_from_marker.v_z_mm",
+    "tcp_from_marker.w_x_rad",
+    "tcp_from_marker.w_y_rad",
+    "tcp_from_marker.w_z_rad",
+]
+
+
+def apply_pose_step(
+    tracker_from_base: ArrayLike, tcp_from_marker: ArrayLike, step: ArrayLike
+) -> tuple[FloatArray, FloatArray]:
+    """Perturb the two calibration transforms by 12 parameters (v_t, w_t, v_x, w_x).
+
+    Parameters
+    ----------
+    tracker_from_base, tcp_from_marker : array_like, shape (4, 4), mm
+    step : array_like, shape (12,)
+        Translations in mm, rotation vectors in rad; see the convention above
+        :data:`POSE_PARAMETER_NAMES`.
+
+    Returns
+    -------
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+    """
+    tracker_from_base = np.asarray(tracker_from_base, dtype=float)
+    tcp_from_marker = np.asarray(tcp_from_marker, dtype=float)
+    step = np.asarray(step, dtype=float)
+    t_new = make_transform(
+        rotvec_to_matrix(step[3:6]) @ tracker_from_base[:3, :3], tracker_from_base[:3, 3] + step[0:3]
+    )
+    x_new = make_transform(
+        tcp_from_marker[:3, :3] @ rotvec_to_matrix(step[9:12]), tcp_from_marker[:3, 3] + step[6:9]
+    )
+    return t_new, x_new
+
+
+def pose_step_between(
+    reference_tracker_from_base: ArrayLike,
+    reference_tcp_from_marker: ArrayLike,
+    tracker_from_base: ArrayLike,
+    tcp_from_marker: ArrayLike,
+) -> FloatArray:
+    """The 12 parameters (12,) that :func:`apply_pose_step` needs to go from the reference
+    transforms to the given ones (its inverse), mm and rad."""
+    reference_t = np.asarray(reference_tracker_from_base, dtype=float)
+    reference_x = np.asarray(reference_tcp_from_marker, dtype=float)
+    tracker_from_base = np.asarray(tracker_from_base, dtype=float)
+    tcp_from_marker = np.asarray(tcp_from_marker, dtype=float)
+    return np.concatenate(
+        [
+            tracker_from_base[:3, 3] - reference_t[:3, 3],
+            matrix_to_rotvec(tracker_from_base[:3, :3] @ reference_t[:3, :3].T),
+            tcp_from_marker[:3, 3] - reference_x[:3, 3],
+            matrix_to_rotvec(reference_x[:3, :3].T @ tcp_from_marker[:3, :3]),
+        ]
+    )
+
+
+def chain_points_in_tracker(
+    base_from_tcp_stack: ArrayLike,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    points_in_marker: FloatArray,
+) -> FloatArray:
+    """Marker points (K, 3) placed by the calibration chain at TCP poses (N, 4, 4): (N, K, 3), mm."""
+    chain = tracker_from_base @ np.asarray(base_from_tcp_stack, dtype=float) @ tcp_from_marker
+    return transform_points_by_stack(chain, points_in_marker)
+
+
+def pose_point_jacobian(
+    base_from_tcp_stack: ArrayLike,
+    tracker_from_base: ArrayLike,
+    tcp_from_marker: ArrayLike,
+    points_in_marker: ArrayLike,
+) -> FloatArray:
+    """d(:func:`chain_points_in_tracker`)/d(12 pose parameters), analytic: shape (N, K, 3, 12).
+
+    With q = R_t (R_A (R_x s + t_x) + t_A) + t_t and the perturbations of
+    :func:`apply_pose_step`: dq/dv_t = I, dq/dw_t = -[R_t p_base]x, dq/dv_x = R_t R_A,
+    dq/dw_x = -R_t R_A R_x [s]x.
+
+    Parameters
+    ----------
+    base_from_tcp_stack : array_like, shape (N, 4, 4), mm
+    tracker_from_base, tcp_from_marker : array_like, shape (4, 4), mm
+    points_in_marker : array_like, shape (K, 3), mm
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, K, 3, 12)
+        mm per mm or per rad, unwhitened.
+    """
+    base_from_tcp_stack = np.asarray(base_from_tcp_stack, dtype=float)
+    tracker_from_base = np.asarray(tracker_from_base, dtype=float)
+    tcp_from_marker = np.asarray(tcp_from_marker, dtype=float)
+    points_in_marker = np.asarray(points_in_marker, dtype=float)
+    r_t = tracker_from_base[:3, :3]
+    r_a = base_from_tcp_stack[:, :3, :3]
+    r_x = tcp_from_marker[:3, :3]
+    points_in_base = transform_points_by_stack(
+        base_from_tcp_stack, apply_transform(tcp_from_marker, points_in_marker)
+    )
+    rotated = points_in_base @ r_t.T  # R_t p_base
+    n, k = rotated.shape[:2]
+    jac = np.zeros((n, k, 3, 12))
+    jac[..., 0:3] = np.eye(3)
+    jac[..., 3:6] = -skew(rotated)
+    r_ta = np.einsum("ij,njk->nik", r_t, r_a)  # (N, 3, 3)
+    jac[..., 6:9] = r_ta[:, None]
+    r_tax = r_ta @ r_x
+    jac[..., 9:12] = -np.einsum("nij,kjl->nkil", r_tax, skew(points_in_marker))
+    return jac
+
+
 def points_in_tracker(
-    model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker
-) -> np.ndarray:
+    model: RobotModel,
+    joints_rad: ArrayLike,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    points_in_marker: FloatArray,
+) -> FloatArray:
     """Marker points (K, 3) seen in the tracker at joint configurations (N, 6): shape (N, K, 3), mm.
 
     The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
     """
-    chain = tracker_from_base @ forward_kinematics(model, np.atleast_2d(joints_rad)) @ tcp_from_marker
-    return np.einsum("nij,kj->nki", chain[:, :3, :3], points_in_marker) + chain[:, None, :3, 3]
+    return chain_points_in_tracker(
+        forward_kinematics(model, np.atleast_2d(joints_rad)),
+        tracker_from_base,
+        tcp_from_marker,
+        points_in_marker,
+    )
 
 
 def dh_point_jacobian(
-    model: RobotModel, joints_rad, tracker_from_base, tcp_from_marker, points_in_marker, step: float = 1e-6
-) -> np.ndarray:
-    """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24)."""
+    model: RobotModel,
+    joints_rad: ArrayLike,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    points_in_marker: FloatArray,
+    step: float = 1e-6,
+) -> FloatArray:
+    """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24).
+
+    The pose columns that go with these are :func:`pose_point_jacobian` (analytic).
+    """
     columns = []
     for index in range(24):
         delta = np.zeros(24)

@@ -12,6 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray
+from spacecal.geometry.transforms import transform_points_by_stack
+
 
 @dataclass(frozen=True)
 class PyramidVolume:
@@ -31,7 +34,7 @@ class PyramidVolume:
     far_width_mm: float = 936.0
     far_height_mm: float = 887.0
 
-    def contains(self, points_in_tracker) -> np.ndarray:
+    def contains(self, points_in_tracker: ArrayLike) -> BoolArray:
         """Boolean (N,): which points (N, 3), mm, lie inside the volume."""
         p = np.atleast_2d(np.asarray(points_in_tracker, dtype=float))
         depth = -p[:, 2]
@@ -41,12 +44,12 @@ class PyramidVolume:
         inside_y = np.abs(p[:, 1]) <= 0.5 * self.far_height_mm * scale
         return inside_depth & inside_x & inside_y
 
-    def centre(self) -> np.ndarray:
+    def centre(self) -> FloatArray:
         """A point in the middle of the volume (3,), mm."""
         return np.array([0.0, 0.0, -0.5 * (self.near_mm + self.far_mm)])
 
 
-def view_angles_rad(tracker_from_marker, face_normal_in_marker) -> np.ndarray:
+def view_angles_rad(tracker_from_marker: ArrayLike, face_normal_in_marker: ArrayLike) -> FloatArray:
     """Angle between a marker's face normal and its line of sight to the sensor, (N,) rad.
 
     Passive spheres are seen from the front of the marker only; trackers lose them, or
@@ -84,7 +87,12 @@ class TrackerModel:
     rate_hz: float = 20.0
     max_view_angle_deg: float = 70.0
 
-    def visible(self, tracker_from_marker, sphere_positions_in_marker, face_normal_in_marker) -> np.ndarray:
+    def visible(
+        self,
+        tracker_from_marker: ArrayLike,
+        sphere_positions_in_marker: ArrayLike,
+        face_normal_in_marker: ArrayLike,
+    ) -> BoolArray:
         """Boolean (N,): the marker is tracked (all spheres in the volume and facing the sensor).
 
         Parameters
@@ -94,7 +102,7 @@ class TrackerModel:
         face_normal_in_marker : array_like, shape (3,)
         """
         t = np.asarray(tracker_from_marker, dtype=float).reshape(-1, 4, 4)
-        spheres = np.einsum("nij,kj->nki", t[:, :3, :3], sphere_positions_in_marker) + t[:, None, :3, 3]
+        spheres = transform_points_by_stack(t, sphere_positions_in_marker)
         in_volume = self.volume.contains(spheres.reshape(-1, 3)).reshape(len(t), -1).all(axis=1)
         facing = view_angles_rad(t, face_normal_in_marker) <= np.radians(self.max_view_angle_deg)
         return in_volume & facing

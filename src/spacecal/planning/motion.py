@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import UnreachableError
-from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
-from spacecal.models.kinematics import RobotModel, forward_kinematics, geometric_jacobian, inverse_kinematics
+from spacecal.geometry.transforms import interpolate_transforms, matrix_to_rotvec
+from spacecal.models.kinematics import RobotModel, inverse_kinematics, inverse_kinematics_gauss_newton
 
 
 @dataclass(frozen=True)
@@ -36,17 +36,6 @@ class MotionLimits:
     angular_speed_rad_s: float = np.radians(45.0)
     angular_accel_rad_s2: float = np.radians(180.0)
     joint_speed_rad_s: float = 1.0
-
-
-def interpolate_pose(start_base_from_tcp, end_base_from_tcp, s) -> np.ndarray:
-    """Poses along a straight Cartesian move at path parameters ``s`` (M,) in [0, 1]: (M, 4, 4)."""
-    s = np.atleast_1d(np.asarray(s, dtype=float))
-    delta = matrix_to_rotvec(start_base_from_tcp[:3, :3].T @ end_base_from_tcp[:3, :3])
-    rotation = start_base_from_tcp[:3, :3] @ rotvec_to_matrix(s[:, None] * delta)
-    position = start_base_from_tcp[:3, 3] + s[:, None] * (
-        end_base_from_tcp[:3, 3] - start_base_from_tcp[:3, 3]
-    )
-    return make_transform(rotation, position)
 
 
 def trapezoid_duration(distance: float, speed: float, accel: float) -> tuple[float, float]:
@@ -83,8 +72,9 @@ def trapezoid_progress(t, duration: float, accel_time: float) -> np.ndarray:
 def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.ndarray:
     """Joint angles (M, 6) following a dense pose path continuously from ``start_joints_rad``.
 
-    Each pose is solved by Gauss–Newton from the previous solution, so the arm never
-    jumps between IK branches mid-move (as a UR controller behaves on ``movel``).
+    Each pose is solved by Gauss–Newton (:func:`~spacecal.models.kinematics.inverse_kinematics_gauss_newton`)
+    from the previous solution, so the arm never jumps between IK branches mid-move (as a UR
+    controller behaves on ``movel``).
 
     Raises
     ------
@@ -95,16 +85,12 @@ def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.n
     joints = np.empty((len(poses), 6))
     q = np.asarray(start_joints_rad, dtype=float).copy()
     for k, target in enumerate(poses):
-        for _ in range(30):
-            reached = forward_kinematics(model, q)
-            dp = target[:3, 3] - reached[:3, 3]
-            dr = matrix_to_rotvec(target[:3, :3] @ reached[:3, :3].T)
-            if np.max(np.abs(dp)) < 1e-9 and np.max(np.abs(dr)) < 1e-12:
-                break
-            jac = geometric_jacobian(model, q)[0]
-            q = q + np.linalg.pinv(jac) @ np.concatenate([dp, dr])
-        else:
+        solved, converged = inverse_kinematics_gauss_newton(
+            model, target[None], q[None], max_iterations=30, position_tol_mm=1e-9, rotation_tol_rad=1e-12
+        )
+        if not converged:
             raise UnreachableError(f"path pose {k} cannot be tracked (workspace edge or singularity)")
+        q = solved[0]
         joints[k] = q
     return joints
 
@@ -133,9 +119,8 @@ class TimedMove:
 
     def poses_at(self, t_s) -> np.ndarray:
         """Commanded ``base_from_tcp`` (M, 4, 4) at times (M,) since the move started."""
-        return interpolate_pose(
-            self.start, self.end, trapezoid_progress(t_s, self.duration_s, self.accel_time_s)
-        )
+        progress = trapezoid_progress(t_s, self.duration_s, self.accel_time_s)
+        return interpolate_transforms(self.start, self.end, np.atleast_1d(progress))
 
 
 def time_move(
@@ -163,7 +148,7 @@ def time_move(
     ]
     duration, accel_time = max(candidates)
     s = np.linspace(0.0, 1.0, path_points)
-    joints = track_path(model, interpolate_pose(start, end, s), start_joints_rad)
+    joints = track_path(model, interpolate_transforms(start, end, s), start_joints_rad)
     if duration > 0:
         dq_ds = np.max(np.abs(np.diff(joints, axis=0)), axis=0).max() / (s[1] - s[0])
         peak_rate = 1.0 / (duration - accel_time)

@@ -22,7 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, UnreachableError
-from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
+from spacecal.geometry.transforms import (
+    MEASURED_TRANSFORM_ATOL,
+    apply_transform,
+    check_transform,
+    invert_transform,
+    make_transform,
+)
 from spacecal.models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
 from spacecal.planning.visibility import VisibilityModel
 
@@ -111,7 +117,11 @@ def plan_needle(
     length = float(np.linalg.norm(target - entry))
     if length < 1e-6:
         raise DegenerateDataError("entry and target coincide: no needle direction")
-    base_from_image = invert_transform(np.asarray(tracker_from_base)) @ np.asarray(tracker_from_image)
+    tracker_from_image = check_transform(
+        tracker_from_image, "tracker_from_image", atol=MEASURED_TRANSFORM_ATOL
+    )
+    tracker_from_base = check_transform(tracker_from_base, "tracker_from_base", atol=MEASURED_TRANSFORM_ATOL)
+    base_from_image = invert_transform(tracker_from_base) @ tracker_from_image
     direction_in_base = base_from_image[:3, :3] @ ((target - entry) / length)
     entry_in_base = apply_transform(base_from_image, entry)
     target_in_base = apply_transform(base_from_image, target)

@@ -16,19 +16,19 @@ for the frames) until the time budget is spent; the final plan is timed exactly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, UnreachableError
 from spacecal.geometry.rotations import rotation_angle
-from spacecal.geometry.transforms import axis_angle_transform, make_transform
+from spacecal.geometry.transforms import axis_angle_transform
 from spacecal.models.kinematics import (
     RobotModel,
     dh_point_jacobian,
     forward_kinematics,
     inverse_kinematics,
-    points_in_tracker,
+    pose_point_jacobian,
 )
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
 from spacecal.planning.stations import random_station
@@ -69,38 +69,19 @@ class PlannerSettings:
     prior_angle_sd_rad: float = 0.002
     pose_prior_mm: float = 50.0
     pose_prior_rad: float = 0.05
-    limits: MotionLimits = MotionLimits()
+    limits: MotionLimits = field(default_factory=MotionLimits)
 
 
-def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, step=1e-6):
+def parameter_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, dh_step=1e-6):
     """d(points in tracker)/d(36 parameters) for configurations (N, 6): shape (N, K, 3, 36).
 
-    Parameters: 6 of tracker_from_base (translation, rotation vector; left), 6 of
-    tcp_from_marker (right), 24 DH corrections; central differences.
+    Parameters: the 12 pose perturbations of the estimators
+    (:func:`~spacecal.models.kinematics.apply_pose_step`; analytic), then the 24 DH
+    corrections (central differences with ``dh_step``).
     """
-
-    def perturbed(index, sign):
-        delta = np.zeros(12)
-        delta[index] = sign * step
-        t = (
-            make_transform(
-                axis_angle_transform(delta[3:6], np.linalg.norm(delta[3:6]))[:3, :3]
-                if np.any(delta[3:6])
-                else np.eye(3),
-                delta[0:3],
-            )
-            @ tracker_from_base
-        )
-        x_rot = (
-            axis_angle_transform(delta[9:12], np.linalg.norm(delta[9:12]))[:3, :3]
-            if np.any(delta[9:12])
-            else np.eye(3)
-        )
-        x = make_transform(tcp_from_marker[:3, :3] @ x_rot, tcp_from_marker[:3, 3] + delta[6:9])
-        return points_in_tracker(model, joints, t, x, points_in_marker)
-
-    pose = np.stack([(perturbed(i, 1) - perturbed(i, -1)) / (2 * step) for i in range(12)], axis=-1)
-    dh = dh_point_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, step)
+    base_from_tcp_stack = forward_kinematics(model, np.atleast_2d(joints))
+    pose = pose_point_jacobian(base_from_tcp_stack, tracker_from_base, tcp_from_marker, points_in_marker)
+    dh = dh_point_jacobian(model, joints, tracker_from_base, tcp_from_marker, points_in_marker, dh_step)
     return np.concatenate([pose, dh], axis=-1)
 
 
@@ -149,9 +130,10 @@ def plan_for_site(
     spheres = visibility.marker.spheres_in_marker
     t_prior, x_prior = visibility.tracker_from_base, visibility.tcp_from_marker
 
-    poses, joints = [], []
+    feasible_poses: list[np.ndarray] = []
+    feasible_joints: list[np.ndarray] = []
     for _ in range(s.candidates * 10):
-        if len(poses) >= s.candidates:
+        if len(feasible_poses) >= s.candidates:
             break
         pose = random_station(home, rng, s.cube_mm, s.tilt_deg)
         if not visibility.visible(pose[None])[0]:
@@ -160,13 +142,13 @@ def plan_for_site(
             q = inverse_kinematics(model, pose, home_joints)
         except UnreachableError:
             continue
-        poses.append(pose)
-        joints.append(q)
-    if len(poses) < 6:
+        feasible_poses.append(pose)
+        feasible_joints.append(q)
+    if len(feasible_poses) < 6:
         raise DegenerateDataError(
-            f"only {len(poses)} feasible stations around the site; widen the cube or tilt"
+            f"only {len(feasible_poses)} feasible stations around the site; widen the cube or tilt"
         )
-    poses, joints = np.array(poses), np.array(joints)
+    poses, joints = np.array(feasible_poses), np.array(feasible_joints)
 
     # information per candidate (frames at a station repeat the same geometry)
     jac = parameter_jacobian(model, joints, t_prior, x_prior, spheres).reshape(len(joints), -1, 36)
@@ -255,15 +237,16 @@ def paper_sweep_site_error(
     s = settings or PlannerSettings()
     from spacecal.planning.motion import track_path
 
-    joints, q = [], plan.home_joints_rad
+    paths: list[np.ndarray] = []
+    q = plan.home_joints_rad
     for move in plan.moves:
         if move.sample_period_s > 0:
             t = np.arange(0.0, move.duration_s, move.sample_period_s)
             path = track_path(model, move.poses_at(t), q)
-            joints.append(path)
+            paths.append(path)
             q = path[-1]
         q = track_path(model, move.end[None], q)[0]
-    joints = np.concatenate(joints)
+    joints = np.concatenate(paths)
     seen = visibility.visible(forward_kinematics(model, joints))
     jac = parameter_jacobian(
         model,

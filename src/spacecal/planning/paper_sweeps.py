@@ -30,26 +30,32 @@ MAX_SINGLE_ROTATION_DEG = 175.0
 class PaperSweepSettings:
     """Parameters of the paper's sweeps (defaults are the paper's values).
 
+    These defaults, with those of :class:`~spacecal.planning.motion.MotionLimits`, are the
+    one place the paper's sweep values are written; read them from here
+    (``PaperSweepSettings().rotation_each_way_deg``) rather than repeating them.
+
     Attributes
     ----------
-    rotation_deg : float
-        Rotation each way about each TCP axis (paper: 90, i.e. 180 in all).
-    translation_mm : float
-        Stroke length along each TCP axis, centred on home (paper: 500).
+    rotation_each_way_deg : float
+        Rotation to each side of home about each TCP axis (paper: 90, i.e. 180 in all).
+    translation_stroke_mm : float
+        Total stroke along each TCP axis, centred on home, so half of it to each side
+        (paper: 500).
     rotation_sample_period_s, translation_sample_period_s : float
         Tracker sampling during the sweeps (paper: 0.1 and 0.05).
     limits : MotionLimits
-    minimum_rotation_deg, minimum_translation_mm : float
-        A sweep shrunk below these is refused: the estimator could not use it.
+    minimum_rotation_span_deg, minimum_translation_stroke_mm : float
+        A sweep shrunk below these totals (both sides together) is refused: the estimator
+        could not use it.
     """
 
-    rotation_deg: float = 90.0
-    translation_mm: float = 500.0
+    rotation_each_way_deg: float = 90.0
+    translation_stroke_mm: float = 500.0
     rotation_sample_period_s: float = 0.1
     translation_sample_period_s: float = 0.05
     limits: MotionLimits = field(default_factory=MotionLimits)
-    minimum_rotation_deg: float = 20.0
-    minimum_translation_mm: float = 100.0
+    minimum_rotation_span_deg: float = 20.0
+    minimum_translation_stroke_mm: float = 100.0
 
 
 def _feasible_extent(model, home_joints, offsets, make_pose, visibility) -> tuple[float, str]:
@@ -156,11 +162,11 @@ def plan_paper_sweeps(
         label = f"rot_{name}"
         lo, hi = sweep_extent(
             label,
-            settings.rotation_deg,
+            settings.rotation_each_way_deg,
             1.0,
             "deg",
-            settings.minimum_rotation_deg,
-            lambda a: home @ axis_angle_transform(axis, np.radians(a)),
+            settings.minimum_rotation_span_deg,
+            lambda a, axis=axis: home @ axis_angle_transform(axis, np.radians(a)),
         )
         plus = home @ axis_angle_transform(axis, np.radians(hi))
         minus = home @ axis_angle_transform(axis, -np.radians(lo))
@@ -179,11 +185,11 @@ def plan_paper_sweeps(
         label = f"lin_{name}"
         lo, hi = sweep_extent(
             label,
-            settings.translation_mm / 2.0,
+            settings.translation_stroke_mm / 2.0,
             5.0,
             "mm",
-            settings.minimum_translation_mm,
-            lambda d: home @ make_transform(np.eye(3), d * axis),
+            settings.minimum_translation_stroke_mm,
+            lambda d, axis=axis: home @ make_transform(np.eye(3), d * axis),
         )
         start = home @ make_transform(np.eye(3), -lo * axis)
         end = home @ make_transform(np.eye(3), hi * axis)

@@ -16,8 +16,8 @@ from spacecal.sim.world import World
 def sweep_settings(scenario: Scenario) -> PaperSweepSettings:
     """The paper sweep settings a scenario asks for."""
     return PaperSweepSettings(
-        rotation_deg=scenario.rotation_deg,
-        translation_mm=scenario.translation_mm,
+        rotation_each_way_deg=scenario.rotation_deg,
+        translation_stroke_mm=scenario.translation_mm,
         rotation_sample_period_s=scenario.rotation_sample_period_s,
         translation_sample_period_s=scenario.translation_sample_period_s,
         limits=MotionLimits(

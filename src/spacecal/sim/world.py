@@ -12,15 +12,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.geometry.fitting import fit_rigid
-from spacecal.geometry.transforms import invert_transform, make_transform, rotvec_to_matrix
+from spacecal.geometry.transforms import (
+    invert_transform,
+    make_transform,
+    rotvec_to_matrix,
+    transform_points_by_stack,
+)
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
+from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.models.tracker import TrackerModel
 from spacecal.sim.scenario import Scenario
-
-#: ISO 9283 repeatability RP = mean + 3 s.d. of the 3-D distance; for isotropic Gaussian
-#: scatter with per-axis s.d. s that is about 1.60 s + 3 * 0.67 s = 3.6 s.
-REPEATABILITY_TO_AXIS_SD = 1.0 / 3.6
 
 
 def look_at_tracker_from_base(camera_in_base, target_in_base) -> np.ndarray:
@@ -178,7 +180,7 @@ class World:
     def measure_spheres(self, tracker_from_marker_true) -> np.ndarray:
         """Noisy sphere centres (N, K, 3) in the tracker frame for true marker poses (N, 4, 4)."""
         t = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
-        spheres = np.einsum("nij,kj->nki", t[:, :3, :3], self.marker.spheres_in_marker) + t[:, None, :3, 3]
+        spheres = transform_points_by_stack(t, self.marker.spheres_in_marker)
         spheres = spheres + self.error_field(spheres)
         s = self.scenario
         if s.white_noise_rms_mm > 0:
@@ -229,7 +231,7 @@ class World:
             self.noise_rng, len(misdetected)
         ) * self.noise_rng.uniform(3.0, 10.0, (len(misdetected), 1))
         kind[misdetected], kind[stale], kind[reflections] = "sphere", "stale", "reflection"
-        measured, rms = fit_rigid(self.marker.spheres_in_marker, spheres)
+        measured, rms = fit_rigid(points_in_source=self.marker.spheres_in_marker, points_in_target=spheres)
         seen = self.tracker.visible(truth, self.marker.spheres_in_marker, self.marker.face_normal_in_marker)
         seen &= self.noise_rng.random(n) >= self.scenario.dropout_probability
         measured[~seen] = np.nan

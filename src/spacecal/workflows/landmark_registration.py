@@ -65,9 +65,9 @@ def register_landmarks_from_stylus(
             f"found {len(detected)} landmark touches of the {len(phantom)} defined: hold the tip still "
             "in each divot and pivot the stylus for at least a second"
         )
-    registration = register_points(detected, phantom)
+    registration = register_points(points_in_source=phantom, points_in_target=detected)
     return LandmarkRegistrationResult(
-        reference_from_phantom=registration.a_from_b,
+        reference_from_phantom=registration.target_from_source,
         detected_in_reference=detected,
         detected_at_s=[float(times[keep][i]) for i in ends],
         residuals_mm=registration.residuals_mm,
