@@ -69,8 +69,8 @@ class URRobot:
             self._control = rtde_control.RTDEControlInterface(host)
             if not self._control.isConnected():
                 raise DeviceError(f"the UR control interface on {host} did not connect")
-        self._target = None
-        self._last_timestamp = None
+        self._target: np.ndarray | None = None
+        self._last_timestamp: float | None = None
         self._last_change = time.monotonic()
 
     def state(self) -> RobotState:

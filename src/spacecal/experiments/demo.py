@@ -53,7 +53,7 @@ class DemoResult:
             ),
             (
                 "ML estimator: predicted TRE, verdict",
-                f"{self.ml_calibration.predicted_tre_mm['cube_rms']:.3f} mm, "
+                f"{(self.ml_calibration.predicted_tre_mm or {}).get('cube_rms', float('nan')):.3f} mm, "
                 f"{self.ml_calibration.diagnostics['verdict'].split(':')[0]}",
                 "",
             ),

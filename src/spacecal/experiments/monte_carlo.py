@@ -57,10 +57,10 @@ def cramer_rao_tre_mm(simulation: Simulation) -> float:
 
 def run_monte_carlo(simulation: Simulation, methods, trials: int) -> list[MonteCarloSummary]:
     """Re-record the simulation's motion ``trials`` times and calibrate with each method."""
-    errors = {m: [] for m in methods}
-    rotations = {m: [] for m in methods}
-    predicted = {m: [] for m in methods}
-    times = {m: [] for m in methods}
+    errors: dict[str, list[float]] = {m: [] for m in methods}
+    rotations: dict[str, list[float]] = {m: [] for m in methods}
+    predicted: dict[str, list[float]] = {m: [] for m in methods}
+    times: dict[str, list[float]] = {m: [] for m in methods}
     failures: dict[str, str] = {}
     for trial in range(trials):
         recording, _ = simulation.remeasure(trial)

@@ -39,7 +39,8 @@ def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.
 
 def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Names and positions (M, 3), mm, of the ``<Landmarks>`` of a PLUS phantom definition."""
-    names, positions = [], []
+    names: list[str] = []
+    positions: list[list[float]] = []
     for element in _parse(path).iter("Landmark"):
         names.append(element.get("Name", str(len(names) + 1)))
         positions.append([float(v) for v in element.get("Position", "").split()])

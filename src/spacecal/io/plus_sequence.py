@@ -51,7 +51,8 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such sequence file")
-    header, frames = {}, {}
+    header: dict[str, str] = {}
+    frames: dict[int, dict[str, str]] = {}
     with open(path, "rb") as handle:
         for raw in handle:
             line = raw.decode("latin-1").rstrip("\r\n")

@@ -394,11 +394,11 @@ def _marker_from_topic(reader, path: Path, topic: str, msgtype: str, tracker_fra
             raise InvalidInputError(
                 f"{path}: {topic} has child frame {child!r}, not the marker frame {marker_frame!r}"
             )
-    translations, quaternions = np.array(translations, float), np.array(quaternions, float)
-    seen = np.all(np.isfinite(translations), axis=1) & np.all(np.isfinite(quaternions), axis=1)
+    translation_array, quaternion_array = np.array(translations, float), np.array(quaternions, float)
+    seen = np.all(np.isfinite(translation_array), axis=1) & np.all(np.isfinite(quaternion_array), axis=1)
     stack = np.full((len(times), 4, 4), np.nan)
     if seen.any():
-        stack[seen] = transform_from_ros(translations[seen], quaternions[seen], f"{path}: {topic}")
+        stack[seen] = transform_from_ros(translation_array[seen], quaternion_array[seen], f"{path}: {topic}")
     parent, child = sorted(frames)[0]
     return (
         np.array(times, dtype=np.int64),
@@ -437,15 +437,15 @@ def _robot_from_joint_states(reader, path: Path, topic: str, model: RobotModel, 
         joints.append(positions[columns])
     if not times:
         raise InvalidInputError(f"{where}: no messages")
-    times = np.array(times, dtype=np.int64)
+    stamps = np.array(times, dtype=np.int64)
     source = "header.stamp"
-    if np.any(times == 0):
-        times, source = np.array(log_times, dtype=np.int64), "bag receive time (header stamps are zero)"
-    joints = np.array(joints)
+    if np.any(stamps == 0):
+        stamps, source = np.array(log_times, dtype=np.int64), "bag receive time (header stamps are zero)"
+    joint_array = np.array(joints)
     return (
-        times,
-        joints,
-        forward_kinematics(model, joints),
+        stamps,
+        joint_array,
+        forward_kinematics(model, joint_array),
         {"topic": topic, "model": model.name, "time": source},
     )
 
@@ -566,13 +566,16 @@ def read_ros_bag(
                 reader, path, marker_topic, types[marker_topic], tracker_frame, marker_frame
             )
         else:
+            assert tracker_frame is not None and marker_frame is not None  # chosen above
             tracker_ns, tracker_from_marker = _chain(tf, tracker_frame, marker_frame, where)
             marker_source = {"tf": True, "tracker_frame": tracker_frame, "marker_frame": marker_frame}
         if joint_state_topic is not None:
+            assert robot_model is not None  # checked above
             robot_ns, joints, base_from_tcp, robot_source = _robot_from_joint_states(
                 reader, path, joint_state_topic, robot_model, joint_names
             )
         else:
+            assert base_frame is not None and tool_frame is not None  # chosen above
             robot_ns, base_from_tcp = _chain(tf, base_frame, tool_frame, where)
             joints = np.full((len(robot_ns), 6), np.nan)
             robot_source = {"tf": True, "base_frame": base_frame, "tool_frame": tool_frame}

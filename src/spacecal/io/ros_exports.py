@@ -350,11 +350,9 @@ def parse_urdf_joint(text: str, child_frame: str | None = None, where: str = "UR
             raise InvalidInputError(f"{where}: not valid XML ({exc})") from None
     joints = [j for j in root.iter("joint") if j.get("type") == "fixed"]
     if child_frame is not None:
-        joints = [
-            j for j in joints if (j.find("child") is not None and j.find("child").get("link") == child_frame)
-        ]
+        joints = [j for j in joints if _child_link(j) == child_frame]
     if len(joints) != 1:
-        children = [j.find("child").get("link") for j in joints if j.find("child") is not None]
+        children = [link for link in (_child_link(j) for j in joints) if link]
         raise InvalidInputError(
             f"{where}: expected one fixed joint"
             + ("" if child_frame is None else f" with child {child_frame!r}")
@@ -363,7 +361,9 @@ def parse_urdf_joint(text: str, child_frame: str | None = None, where: str = "UR
         )
     joint = joints[0]
     parent, child = joint.find("parent"), joint.find("child")
-    if parent is None or child is None or not parent.get("link") or not child.get("link"):
+    parent_link = None if parent is None else parent.get("link")
+    child_link = None if child is None else child.get("link")
+    if not parent_link or not child_link:
         raise InvalidInputError(f"{where}: joint {joint.get('name')!r} lacks a parent or child link")
     origin = joint.find("origin")
     xyz = _floats(
@@ -372,9 +372,12 @@ def parse_urdf_joint(text: str, child_frame: str | None = None, where: str = "UR
     rpy = _floats(
         None if origin is None else origin.get("rpy"), 3, f"{where}: joint {joint.get('name')!r} rpy"
     )
-    return StaticTransform(
-        parent.get("link"), child.get("link"), make_transform(rotation_from_rpy(rpy), xyz * 1000.0)
-    )
+    return StaticTransform(parent_link, child_link, make_transform(rotation_from_rpy(rpy), xyz * 1000.0))
+
+
+def _child_link(joint: ET.Element) -> str | None:
+    child = joint.find("child")
+    return None if child is None else child.get("link")
 
 
 def read_urdf_joint(path: str | Path, child_frame: str | None = None) -> StaticTransform:

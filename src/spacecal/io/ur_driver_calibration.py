@@ -147,8 +147,7 @@ def ur_joint_origins(model: RobotModel) -> np.ndarray:
     chain = _split_chain(np.asarray(model.d_mm) / 1000.0, np.asarray(model.a_mm) / 1000.0, theta, alpha)
     _correct_axis(chain, 1, theta, alpha)
     _correct_axis(chain, 2, theta, alpha)
-    origins = [chain[0]] + [chain[k] @ chain[k + 1] for k in range(1, 2 * N_JOINTS - 1, 2)]
-    origins = np.array(origins)
+    origins = np.array([chain[0]] + [chain[k] @ chain[k + 1] for k in range(1, 2 * N_JOINTS - 1, 2)])
     origins[:, :3, 3] = metres_to_mm(origins[:, :3, 3])
     return origins
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 from collections import deque
+from typing import Any
 
 import numpy as np
 
@@ -31,10 +32,14 @@ class SimClock:
     """Simulated time, s."""
 
     def __init__(self, start_s: float = 0.0):
-        self.now_s = start_s
+        self._now_s = start_s
+
+    @property
+    def now_s(self) -> float:
+        return self._now_s
 
     def advance_to(self, time_s: float) -> None:
-        self.now_s = max(self.now_s, time_s)
+        self._now_s = max(self._now_s, time_s)
 
 
 class RealClock(SimClock):
@@ -96,12 +101,13 @@ class SimulatedRobot:
         self.clock = clock or SimClock()
         self.limits = limits or MotionLimits()
         self._joints = np.array(world.home_joints_rad if joints_rad is None else joints_rad, dtype=float)
-        self._motion = None  # ("linear", TimedMove, start) or ("joint", (q0, q1, start, duration), start)
+        # ("linear", TimedMove, start) or ("joint", (q0, q1, start, duration), start)
+        self._motion: tuple[Any, ...] | None = None
         self.protective_stop_at_s = protective_stop_at_s
         self._safety = SAFETY_NORMAL
         self.commands: list[str] = []
         self._tick_s = 1.0 / world.nominal_model.controller_hz
-        self._stream = [] if stream_states else None
+        self._stream: list[RobotState] | None = [] if stream_states else None
         self._streamed_to_s = np.floor(self.clock.now_s / self._tick_s) * self._tick_s
         self._updated_at_s = -np.inf
         self._lock = threading.RLock()

@@ -47,15 +47,16 @@ def check_with_robot(
     errors, angles, labels = [], [], []
     for k, joints in enumerate(np.asarray(joints_list, dtype=float)):
         robot.move_joints(joints, speed_rad_s, accel_rad_s2)
-        poses, frames_read = [], 0
-        while len(poses) < frames_per_pose:
+        seen: list[np.ndarray] = []
+        frames_read = 0
+        while len(seen) < frames_per_pose:
             frame = tracker.next_frame(1.0)
             frames_read += 1
-            if frame.status == FRAME_OK:
-                poses.append(frame.tracker_from_marker)
+            if frame.status == FRAME_OK and frame.tracker_from_marker is not None:
+                seen.append(frame.tracker_from_marker)
             elif frames_read > 10 * frames_per_pose:
                 raise DegenerateDataError(f"check pose {k + 1}: the marker is not visible")
-        poses = np.array(poses)
+        poses = np.array(seen)
         measured = make_transform(mean_rotation(poses[:, :3, :3]), poses[:, :3, 3].mean(axis=0))
         error, angle = pose_errors(calibration, robot.state().base_from_tcp, measured)
         errors.append(error)

@@ -55,7 +55,7 @@ def register_landmarks_from_stylus(
     )
     if settings is None:
         kept_times = times[keep]
-        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(phantom) for b in phantom[i + 1 :])
+        spacing = float(min(np.linalg.norm(a - b) for i, a in enumerate(phantom) for b in phantom[i + 1 :]))
         settings = LandmarkDetectionSettings(
             acquisition_rate_hz=1.0 / (kept_times[1] - kept_times[0]), min_landmark_spacing_mm=spacing
         )

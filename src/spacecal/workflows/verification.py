@@ -64,11 +64,11 @@ def run_verification(
         robot.move_joints(q, speed_rad_s, accel_rad_s2)
         reached.append(reference.measure_tracker_from_needle())
         joints.append(q)
-    reached = np.array(reached)
+    reached_stack = np.array(reached)
     return VerificationResult(
         desired_tracker_from_needle=desired,
-        reached_tracker_from_needle=reached,
+        reached_tracker_from_needle=reached_stack,
         joints_rad=np.array(joints),
-        position_error_mm=position_error(desired, reached),
-        posture_error_deg=np.degrees(posture_error_rad(desired, reached)),
+        position_error_mm=position_error(desired, reached_stack),
+        posture_error_deg=np.degrees(posture_error_rad(desired, reached_stack)),
     )
