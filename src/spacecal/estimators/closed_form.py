@@ -7,7 +7,12 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.estimators.diagnostics import motion_spread, sample_residuals, tracker_from_base_from_samples
+from spacecal.estimators.diagnostics import (
+    motion_spread,
+    sample_counts,
+    sample_residuals,
+    tracker_from_base_from_samples,
+)
 from spacecal.estimators.hand_eye import relative_motions, solve_daniilidis, solve_park, solve_tsai
 from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
 from spacecal.geometry.arrays import FloatArray, IntArray
@@ -23,15 +28,6 @@ HAND_EYE_FRAMES = 60
 
 def _first_line(text: str | None) -> str:
     return (text or "").strip().splitlines()[0] if text and text.strip() else ""
-
-
-def _counts(recording: Recording, used_rows: IntArray) -> dict[str, int]:
-    return {
-        "total": len(recording),
-        "used": int(len(used_rows)),
-        "rejected": int(len(recording) - len(used_rows)),
-        "rejected_not_visible": int((~recording.visible).sum()),
-    }
 
 
 def closed_form_result(
@@ -51,7 +47,7 @@ def closed_form_result(
         **(extra or {}),
     }
     return CalibrationResult(
-        method, tracker_from_base, tcp_from_marker, _counts(recording, used_rows), diagnostics
+        method, tracker_from_base, tcp_from_marker, sample_counts(recording, used_rows), diagnostics
     )
 
 

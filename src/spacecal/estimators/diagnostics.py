@@ -17,6 +17,53 @@ from spacecal.records import Recording
 SYSTEMATIC_VARIANCE_FACTOR = 1.5
 
 
+def sample_counts(
+    recording: Recording,
+    used: ArrayLike,
+    considered: ArrayLike | None = None,
+    extra_rejections: dict[str, int] | None = None,
+    per_segment: Sequence[str] = (),
+) -> dict[str, Any]:
+    """How many samples a method used and why the others were left out (every method's
+    ``sample_counts``).
+
+    Parameters
+    ----------
+    recording : Recording
+    used : array_like of bool, shape (N,), or of int, shape (U,)
+        The samples used (mask or row indices).
+    considered : array_like of bool, shape (N,), optional
+        The samples the method looks at (e.g. the paper's six sweeps); invisible ones among
+        them count as ``rejected_not_visible``. All samples when omitted.
+    extra_rejections : dict, optional
+        Further ``rejected_<reason>`` counts, e.g. ``{"outlier": 12}``.
+    per_segment : sequence of str
+        Segment labels to count the used samples of.
+    """
+    mask = np.zeros(len(recording), dtype=bool)
+    used_array = np.asarray(used)
+    if used_array.dtype == bool:
+        mask[:] = used_array
+    else:
+        mask[used_array.astype(int)] = True
+    looked_at = (
+        np.ones(len(recording), dtype=bool) if considered is None else np.asarray(considered, dtype=bool)
+    )
+    counts: dict[str, Any] = {
+        "total": int(len(recording)),
+        "used": int(mask.sum()),
+        "rejected": int(len(recording) - mask.sum()),
+        "rejected_not_visible": int((looked_at & ~recording.visible).sum()),
+    }
+    for reason, count in (extra_rejections or {}).items():
+        counts[f"rejected_{reason}"] = int(count)
+    if per_segment:
+        counts["per_segment"] = {
+            label: int((mask & (recording.segment == label)).sum()) for label in per_segment
+        }
+    return counts
+
+
 def sample_residuals(
     recording: Recording,
     tracker_from_base: FloatArray,

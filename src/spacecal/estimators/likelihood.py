@@ -12,6 +12,7 @@ from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.diagnostics import (
     motion_spread,
     residual_table,
+    sample_counts,
     sample_residuals,
     site_in_base,
     verdict,
@@ -170,14 +171,7 @@ def report_uncertainty(
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,
     }
-    used = len(obs.rows)
-    counts = {
-        "total": len(recording),
-        "used": used,
-        "rejected": len(recording) - used,
-        "rejected_not_visible": int((~recording.visible).sum()),
-        "rejected_outlier": len(outlier_rows),
-    }
+    counts = sample_counts(recording, obs.rows, extra_rejections={"outlier": len(outlier_rows)})
     return CalibrationResult(
         method,
         tracker_from_base,

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.diagnostics import sample_counts
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IndexArray
 from spacecal.geometry.fitting import LineFit, fit_line, fit_sphere
 from spacecal.geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
@@ -255,17 +256,13 @@ def calibrate_paper(recording: Recording, thresholds: PaperThresholds | None = N
     diagnostics["sphere"]["radius_minus_marker_offset_mm"] = diagnostics["sphere"]["radius_mm"] - offset
 
     in_sweeps = np.isin(recording.segment, ROTATION_SEGMENTS + TRANSLATION_SEGMENTS)
-    counts = {
-        "total": int(len(recording)),
-        "used": int(used.sum()),
-        "rejected": int(len(recording) - used.sum()),
-        "rejected_not_visible": int((in_sweeps & ~recording.visible).sum()),
-        "rejected_other_segment": int((~in_sweeps).sum()),
-        "per_segment": {
-            label: int((used & (recording.segment == label)).sum())
-            for label in ROTATION_SEGMENTS + TRANSLATION_SEGMENTS
-        },
-    }
+    counts = sample_counts(
+        recording,
+        used,
+        considered=in_sweeps,
+        extra_rejections={"other_segment": int((~in_sweeps).sum())},
+        per_segment=ROTATION_SEGMENTS + TRANSLATION_SEGMENTS,
+    )
     return CalibrationResult(
         method="paper",
         tracker_from_base=tracker_from_base,

@@ -11,8 +11,12 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from spacecal.core.errors import InvalidInputError
 from spacecal.io.results_json import read_json_object
+from spacecal.planning.motion import MotionLimits
+from spacecal.planning.paper_sweeps import PaperSweepSettings
 
 
 @dataclass(frozen=True)
@@ -83,13 +87,13 @@ class Scenario:
     frames_per_station: int = 10
     station_cube_mm: float = 150.0
     station_tilt_deg: float = 35.0
-    # sweeps
-    rotation_deg: float = 90.0
-    translation_mm: float = 500.0
-    rotation_sample_period_s: float = 0.1
-    translation_sample_period_s: float = 0.05
-    linear_speed_mm_s: float = 100.0
-    angular_speed_deg_s: float = 45.0
+    # sweeps (the planner's defaults: planning.paper_sweeps and planning.motion hold them)
+    rotation_deg: float = PaperSweepSettings.rotation_each_way_deg
+    translation_mm: float = PaperSweepSettings.translation_stroke_mm
+    rotation_sample_period_s: float = PaperSweepSettings.rotation_sample_period_s
+    translation_sample_period_s: float = PaperSweepSettings.translation_sample_period_s
+    linear_speed_mm_s: float = MotionLimits.linear_speed_mm_s
+    angular_speed_deg_s: float = float(np.degrees(MotionLimits.angular_speed_rad_s))
     # verification
     verification_targets: int = 15
     target_cube_mm: float = 100.0

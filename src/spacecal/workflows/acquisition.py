@@ -21,7 +21,7 @@ from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
 from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, Tracker
 from spacecal.io.recording_csv import RecordingWriter
 from spacecal.io.results_json import read_json_object, write_json
-from spacecal.planning.motion import MotionPlan, TimedMove
+from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove
 from spacecal.records import AcquisitionProgress
 
 #: A robot state older than this, while moving, counts as stale (UR streams at 125–500 Hz).
@@ -48,8 +48,8 @@ class AcquisitionSettings:
         frames of one move with the next move's segment.
     """
 
-    linear_speed_mm_s: float = 100.0
-    linear_accel_mm_s2: float = 400.0
+    linear_speed_mm_s: float = MotionLimits.linear_speed_mm_s
+    linear_accel_mm_s2: float = MotionLimits.linear_accel_mm_s2
     frame_timeout_s: float = 1.0
     stale_robot_s: float = STALE_ROBOT_S
     move_start_guard_s: float = 0.1
