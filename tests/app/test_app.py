@@ -144,3 +144,18 @@ def test_demo_returns_its_parts(tmp_path):
     }
     calibration = read_calibration(tmp_path / "calibration.json")
     assert calibration.provenance.simulated and calibration.provenance.scenario["name"] == "paper-white"
+
+
+def test_pivot_files_of_both_versions_read_back(tmp_path):
+    from spacecal.records import PivotResult
+
+    folder = shared_realdata("pivot_sksurgery_ndi")
+    result, path = app.pivot(
+        app.PivotSettings(str(folder / "PivotCalibration"), output=str(tmp_path / "p.json"))
+    )
+    again = PivotResult.from_dict(json.loads(path.read_text()))
+    assert np.array_equal(again.residuals_mm, result.residuals_mm) and again.rms_mm == result.rms_mm
+    version_1 = {k: v for k, v in result.to_dict().items() if k not in ("residuals_mm", "units")}
+    version_1["schema_version"] = 1
+    old = PivotResult.from_dict(version_1)
+    assert old.rms_mm == pytest.approx(result.rms_mm) and old.frames == len(result.residuals_mm)

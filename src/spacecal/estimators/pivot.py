@@ -17,58 +17,13 @@ RMS, which is the 3-D RMS divided by sqrt(3); we give both.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
-
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, UnknownMethodError
 from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.fitting import fit_sphere
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, transform_points_by_stack
-
-
-@dataclass
-class PivotResult:
-    """Tip and pivot of a pivot calibration.
-
-    Attributes
-    ----------
-    method : str
-    tip_in_marker : numpy.ndarray, shape (3,), mm
-    pivot_in_tracker : numpy.ndarray, shape (3,), mm
-    residuals_mm : numpy.ndarray, shape (N,)
-        ``|tracker_from_marker_i @ tip - pivot|`` per frame.
-    """
-
-    method: str
-    tip_in_marker: np.ndarray
-    pivot_in_tracker: np.ndarray
-    residuals_mm: np.ndarray
-
-    @property
-    def rms_mm(self) -> float:
-        """3-D RMS residual, mm."""
-        return float(np.sqrt(np.mean(self.residuals_mm**2)))
-
-    @property
-    def rms_per_axis_mm(self) -> float:
-        """Per-axis RMS, mm: scikit-surgerycalibration's ``residual`` (3-D RMS / sqrt(3))."""
-        return float(self.rms_mm / np.sqrt(3.0))
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "schema": "spacecal.pivot",
-            "schema_version": 1,
-            "method": self.method,
-            "tip_in_marker_mm": self.tip_in_marker.tolist(),
-            "pivot_in_tracker_mm": self.pivot_in_tracker.tolist(),
-            "frames": int(len(self.residuals_mm)),
-            "residual_rms_mm": self.rms_mm,
-            "residual_rms_per_axis_mm": self.rms_per_axis_mm,
-            "residual_mean_mm": float(self.residuals_mm.mean()),
-            "residual_max_mm": float(self.residuals_mm.max()),
-        }
+from spacecal.records import PivotResult
 
 
 def _check_poses(tracker_from_marker_stack: ArrayLike) -> FloatArray:

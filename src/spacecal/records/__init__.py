@@ -39,6 +39,7 @@ from spacecal.records.results import (
     CheckResult,
     LandmarkRegistrationResult,
     PhantomResult,
+    PivotResult,
     VerificationResult,
 )
 
@@ -47,6 +48,7 @@ __all__ += [
     "CheckResult",
     "LandmarkRegistrationResult",
     "PhantomResult",
+    "PivotResult",
     "PlanRecord",
     "VerificationResult",
 ]

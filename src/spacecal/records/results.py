@@ -401,3 +401,96 @@ class LandmarkRegistrationResult:
             fre_mean_mm=get_number(data, "fre_mean_mm", what),
             fle_rms_mm=get_number(data, "fle_rms_mm", what),
         )
+
+
+@dataclass(frozen=True)
+class PivotResult:
+    """Tip and pivot of a pivot calibration.
+
+    Attributes
+    ----------
+    method : str
+    tip_in_marker : numpy.ndarray, shape (3,)
+        The tip in the marker frame, mm.
+    pivot_in_tracker : numpy.ndarray, shape (3,)
+        The pivot point in the tracker frame, mm.
+    residuals_mm : numpy.ndarray, shape (N,)
+        ``|tracker_from_marker_i @ tip - pivot|`` per frame (empty when read from a version-1
+        file, which kept only their summary).
+    summary : dict or None
+        ``frames``, ``residual_rms_mm``, ``residual_mean_mm``, ``residual_max_mm`` of a
+        version-1 file.
+    """
+
+    method: str
+    tip_in_marker: np.ndarray
+    pivot_in_tracker: np.ndarray
+    residuals_mm: np.ndarray
+    summary: dict[str, float] | None = None
+
+    def __post_init__(self) -> None:
+        what = "pivot"
+        object.__setattr__(self, "tip_in_marker", as_array(self.tip_in_marker, (3,), "tip_in_marker", what))
+        object.__setattr__(
+            self, "pivot_in_tracker", as_array(self.pivot_in_tracker, (3,), "pivot_in_tracker", what)
+        )
+        object.__setattr__(self, "residuals_mm", _finite(self.residuals_mm, "residuals_mm", what))
+        if not len(self.residuals_mm) and self.summary is None:
+            raise InvalidInputError(f"{what}: no residuals")
+
+    @property
+    def frames(self) -> int:
+        return int(self.summary["frames"]) if self.summary else len(self.residuals_mm)
+
+    @property
+    def rms_mm(self) -> float:
+        """3-D RMS residual, mm."""
+        if self.summary:
+            return float(self.summary["residual_rms_mm"])
+        return float(np.sqrt(np.mean(self.residuals_mm**2)))
+
+    @property
+    def rms_per_axis_mm(self) -> float:
+        """Per-axis RMS, mm: scikit-surgerycalibration's ``residual`` (3-D RMS / sqrt(3))."""
+        return float(self.rms_mm / np.sqrt(3.0))
+
+    def to_dict(self) -> dict[str, Any]:
+        mean = self.summary["residual_mean_mm"] if self.summary else float(self.residuals_mm.mean())
+        largest = self.summary["residual_max_mm"] if self.summary else float(self.residuals_mm.max())
+        return plain(
+            {
+                "schema": "spacecal.pivot",
+                "schema_version": 2,
+                "units": {"length": "mm"},
+                "method": self.method,
+                "tip_in_marker_mm": self.tip_in_marker,
+                "pivot_in_tracker_mm": self.pivot_in_tracker,
+                "frames": self.frames,
+                "residual_rms_mm": self.rms_mm,
+                "residual_rms_per_axis_mm": self.rms_per_axis_mm,
+                "residual_mean_mm": mean,
+                "residual_max_mm": largest,
+                "residuals_mm": self.residuals_mm,
+            }
+        )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], what: str = "pivot") -> PivotResult:
+        """Read a pivot file, version 1 (summary only) or 2 (with every residual)."""
+        version = check_schema(data, "spacecal.pivot", (1, 2), what)
+        residuals = (
+            _finite(data.get("residuals_mm", []), "residuals_mm", what) if version >= 2 else np.zeros(0)
+        )
+        summary = None
+        if version == 1:
+            summary = {
+                key: get_number(data, key, what)
+                for key in ("frames", "residual_rms_mm", "residual_mean_mm", "residual_max_mm")
+            }
+        return cls(
+            method=get_str(data, "method", what, default="unknown"),
+            tip_in_marker=as_array(data.get("tip_in_marker_mm"), (3,), "tip_in_marker_mm", what),
+            pivot_in_tracker=as_array(data.get("pivot_in_tracker_mm"), (3,), "pivot_in_tracker_mm", what),
+            residuals_mm=residuals,
+            summary=summary,
+        )
