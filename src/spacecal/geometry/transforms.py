@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 
-#: Default tolerance of :func:`check_transform`: largest |R^T R - I| and |det R - 1|.
+#: Default tolerance of :func:`check_transform`: largest ``|R^T R - I|`` and ``|det R - 1|``.
 RIGID_ATOL = 1e-6
 
 #: Tolerance for matrices measured by devices or read from text files, which carry about six
@@ -54,7 +54,7 @@ def check_transform(
         In a stack, rows that are entirely NaN pass (the package's mark for a frame where the
         marker was not seen); a partly NaN or infinite row is still an error.
     atol : float
-        Largest accepted entry of |R^T R - I| and |det R - 1|; the bottom row must be
+        Largest accepted entry of ``|R^T R - I|`` and ``|det R - 1|``; the bottom row must be
         0 0 0 1 to the same tolerance.
 
     Returns
