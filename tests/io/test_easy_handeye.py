@@ -138,6 +138,27 @@ def test_easy_handeye2_samples_are_re_solved_by_spacecal(tmp_path):
     assert yaml.safe_load(ours.read_text()) == yaml.safe_load((tmp_path / "theirs.samples").read_text())
 
 
+def test_easy_handeye_ros1_sample_lists_are_re_solved(tmp_path):
+    # what `rosservice call .../get_sample_list` prints: a SampleList under "samples"
+    base_from_tcp, tracker_from_marker = _samples()
+    sample_list = {
+        "samples": {
+            "hand_world_samples": [_message(invert_transform(a)) for a in base_from_tcp],
+            "camera_marker_samples": [_message(b) for b in tracker_from_marker],
+        }
+    }
+    (tmp_path / "ros1.yaml").write_text(yaml.safe_dump(sample_list))
+    recording = read_easy_handeye_samples(tmp_path / "ros1.yaml")
+    assert recording.metadata["source"] == "easy_handeye samples (ROS 1)"
+    assert np.max(np.abs(recording.base_from_tcp_stack - base_from_tcp)) < 1e-9
+    result = calibrate(recording, "ml")
+    assert np.max(np.abs(result.tracker_from_base - TRACKER_FROM_BASE)) < 1e-6
+    # the visp TransformArray form, without the "samples" wrapper
+    visp = {key: {"transforms": value} for key, value in sample_list["samples"].items()}
+    (tmp_path / "visp.yaml").write_text(yaml.safe_dump(visp))
+    assert len(read_easy_handeye_samples(tmp_path / "visp.yaml")) == len(base_from_tcp)
+
+
 def test_bad_easy_handeye_files_are_one_clear_line(tmp_path):
     eye_in_hand = {"parameters": _parameters("eye_in_hand"), "samples": []}
     (tmp_path / "eih.samples").write_text(_as_easy_handeye2_writes(eye_in_hand))

@@ -304,11 +304,22 @@ def write_easy_handeye2_calibration(path: str | Path, tracker_from_base, **frame
 
 
 def read_easy_handeye_samples(path: str | Path) -> Recording:
-    """Read an easy_handeye2 ``.samples`` file (a ``SampleList``) into a :class:`Recording`.
+    """Read easy_handeye2 or easy_handeye sample lists into a :class:`Recording`.
 
-    Each sample becomes one row: ``base_from_tcp`` is the inverse of the stored ``robot``
+    Two layouts are read:
+
+    * easy_handeye2's ``.samples`` file (a ``SampleList`` with ``parameters`` and
+      ``samples: [{robot, tracking}]``);
+    * easy_handeye's (ROS 1) ``SampleList`` as YAML, e.g. saved from its
+      ``get_sample_list`` service (``rosservice call /easy_handeye_eye_on_base/get_sample_list
+      > samples.yaml``): ``hand_world_samples`` and ``camera_marker_samples``, each a list of
+      ``geometry_msgs/Transform`` (or a ``TransformArray`` with ``transforms``), possibly under
+      ``samples``. It carries no parameters; eye-on-base is assumed (its sampler's robot
+      transform is then ``effector_from_base``, as in easy_handeye2).
+
+    Each sample becomes one row: ``base_from_tcp`` is the inverse of the stored robot
     transform (``effector_from_base`` for eye-on-base), ``tracker_from_marker`` the stored
-    ``tracking`` transform. The samples carry no times or joint angles: ``time_s`` is the sample
+    tracking transform. The samples carry no times or joint angles: ``time_s`` is the sample
     index (s), ``joints_rad`` and ``marker_rms_mm`` are NaN, ``segment`` is ``"sample"``.
 
     Raises
@@ -318,30 +329,41 @@ def read_easy_handeye_samples(path: str | Path) -> Recording:
         fewer than 3 samples, a missing field, a non-unit quaternion.
     """
     path = Path(path)
-    data = load_yaml_mapping(path, "easy_handeye2 sample list")
+    data = load_yaml_mapping(path, "easy_handeye sample list")
     where = str(path)
-    parameters = _parameters2(field(data, "parameters", where), f"{where}: parameters")
-    if parameters["calibration_type"] != "eye_on_base":
+    ros1 = _ros1_sample_list(data)
+    if ros1 is not None:
+        robot_messages, tracking_messages = ros1
+        parameters = {
+            "robot_base_frame": "base",
+            "robot_effector_frame": "tool",
+            "tracking_base_frame": "tracker",
+            "tracking_marker_frame": "marker",
+        }
+    else:
+        parameters = _parameters2(field(data, "parameters", where), f"{where}: parameters")
+        if parameters["calibration_type"] != "eye_on_base":
+            raise InvalidInputError(
+                f"{where}: calibration_type is {parameters['calibration_type']}; spacecal re-solves "
+                "eye_on_base samples (tracker fixed, marker on the robot)"
+            )
+        samples = field(data, "samples", where)
+        if not isinstance(samples, list):
+            raise InvalidInputError(f"{where}: 'samples' must be a list")
+        robot_messages = [field(s, "robot", f"{where}: sample {k}") for k, s in enumerate(samples)]
+        tracking_messages = [field(s, "tracking", f"{where}: sample {k}") for k, s in enumerate(samples)]
+    if len(robot_messages) < 3 or len(robot_messages) != len(tracking_messages):
         raise InvalidInputError(
-            f"{where}: calibration_type is {parameters['calibration_type']}; spacecal re-solves eye_on_base "
-            "samples (tracker fixed, marker on the robot)"
+            f"{where}: {len(robot_messages)} robot and {len(tracking_messages)} tracking samples; "
+            "at least 3 pairs are needed"
         )
-    samples = field(data, "samples", where)
-    if not isinstance(samples, list) or len(samples) < 3:
-        count = len(samples) if isinstance(samples, list) else 0
-        raise InvalidInputError(f"{where}: {count} samples; at least 3 are needed")
     effector_from_base = np.array(
-        [
-            _transform_message(field(s, "robot", f"{where}: sample {k}"), f"{where}: sample {k}.robot")
-            for k, s in enumerate(samples)
-        ]
+        [_transform_message(m, f"{where}: sample {k}.robot") for k, m in enumerate(robot_messages)]
     )
     tracker_from_marker = np.array(
-        [
-            _transform_message(field(s, "tracking", f"{where}: sample {k}"), f"{where}: sample {k}.tracking")
-            for k, s in enumerate(samples)
-        ]
+        [_transform_message(m, f"{where}: sample {k}.tracking") for k, m in enumerate(tracking_messages)]
     )
+    samples = robot_messages
     count = len(samples)
     return Recording(
         time_s=np.arange(count, dtype=float),
@@ -351,7 +373,7 @@ def read_easy_handeye_samples(path: str | Path) -> Recording:
         tracker_from_marker_stack=tracker_from_marker,
         marker_rms_mm=np.full(count, np.nan),
         metadata={
-            "source": "easy_handeye2 samples",
+            "source": "easy_handeye samples (ROS 1)" if ros1 is not None else "easy_handeye2 samples",
             "file": str(path),
             "frames": {
                 "base": parameters["robot_base_frame"],
@@ -396,3 +418,19 @@ def easy_handeye2_samples_text(
         lines += ["- robot:"] + robot
         lines += ["  tracking:"] + _transform_yaml(tracker_from_marker, "    ")
     return "\n".join(lines) + "\n"
+
+
+def _ros1_sample_list(data: dict) -> tuple[list, list] | None:
+    """easy_handeye (ROS 1) ``SampleList`` content, or None for another layout."""
+    body = data.get("samples", data)
+    if not isinstance(body, dict) or "hand_world_samples" not in body:
+        return None
+
+    def transforms(value: object) -> list:
+        if isinstance(value, dict) and "transforms" in value:  # visp TransformArray
+            value = value["transforms"]
+        if not isinstance(value, list):
+            raise InvalidInputError("easy_handeye sample list: samples must be lists of transforms")
+        return value
+
+    return transforms(body["hand_world_samples"]), transforms(body.get("camera_marker_samples"))
