@@ -333,6 +333,8 @@ def _phantom(a: argparse.Namespace) -> None:
 def _report(a: argparse.Namespace) -> None:
     out = app.report(app.ReportSettings(a.calibration, a.output, a.recording, a.verification, a.png_dir))
     print(f"wrote {out.path} ({len(out.titles)} plots: {', '.join(out.titles)})")
+    if out.figures:
+        print(f"wrote {len(out.figures)} PNG figures: {', '.join(str(p) for p in out.figures)}")
     _print_notes(out.notes)
 
 

@@ -67,6 +67,7 @@ table.facts { border-collapse: collapse; width: 100%; font-size: 0.92em; }
 table.facts th { text-align: left; font-weight: 600; padding: 2px 10px 2px 0; vertical-align: top;
                  white-space: nowrap; color: #444; }
 table.facts td { padding: 2px 0; }
+#key-figures th { white-space: normal; width: 42%; }
 table.matrix { border-collapse: collapse; font-family: ui-monospace, "DejaVu Sans Mono", monospace;
                font-size: 0.9em; margin: 2px 0 4px; }
 table.matrix td { padding: 1px 10px; text-align: right; }
@@ -390,7 +391,7 @@ def _summary_section(report: Report, assessment: Assessment) -> str:
     )
     reasons = "".join(f"<li>{html.escape(r)}</li>" for r in assessment.reasons)
     verdict_text = (
-        f"<p class='verdict-text'>{html.escape(assessment.verdict)}</p>"
+        f"<p class='verdict-text'><b>estimator's verdict:</b> {html.escape(assessment.verdict)}</p>"
         if assessment.verdict
         else "<p class='verdict-text'>This method gives no verdict; judge by the residuals and a check.</p>"
     )
