@@ -211,7 +211,24 @@ def _acquire(a: argparse.Namespace) -> None:
         a.translation_mm,
     )
     holder: dict[str, int] = {}
-    out = app.acquire(settings, on_sample=lambda *s: _progress(holder.get("moves", 1))(*s))
+    view = None
+    if a.live_view is not None and not a.dry_run:
+        from spacecal.report.live import LiveView
+
+        view = LiveView(a.live_view)
+        if view.start():
+            print(f"live view: {view.url} (open it in a web browser)", flush=True)
+        else:
+            view = None
+    try:
+        out = app.acquire(
+            settings,
+            on_sample=lambda *s: _progress(holder.get("moves", 1))(*s),
+            observer=view.observe if view is not None else None,
+        )
+    finally:
+        if view is not None:
+            view.close()
     print(
         f"plan: {out.moves} moves, {out.motion_time_s:.1f} s of motion"
         + (" (simulated devices, simulated time)" if out.simulated else "")
