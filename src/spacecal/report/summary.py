@@ -218,14 +218,14 @@ def assess(
 
     if verification is not None:
         stats = verification.statistics()["position_mm"]
-        posture = verification.statistics()["posture_deg"]
+        posture_stats = verification.statistics()["posture_deg"]
         bound = PAPER_VERIFICATION["position_mean_bound_mm"]
         where = "simulated" if verification.simulated else "measured"
         numbers.append(
             (
                 f"verification, {len(verification.position_error_mm)} targets ({where})",
                 f"position mean {stats['mean']:.2f} mm (max {stats['max']:.2f}), "
-                f"posture mean {posture['mean']:.2f} deg; paper: mean < {bound:g} mm",
+                f"posture mean {posture_stats['mean']:.2f} deg; paper: mean < {bound:g} mm",
             )
         )
         if stats["mean"] > bound:
