@@ -36,7 +36,12 @@ from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import load_scenario
 from spacecal.sim.world import World, build_world
-from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, resume_home_joints
+from spacecal.workflows.acquisition import (
+    AcquisitionResult,
+    AcquisitionSettings,
+    FrameObserver,
+    resume_home_joints,
+)
 from spacecal.workflows.acquisition import acquire as run_acquisition
 from spacecal.workflows.check import append_history, check_with_recording, check_with_robot
 
@@ -273,7 +278,9 @@ def hardware_metadata(settings: AcquireSettings) -> dict[str, Any]:
 
 
 def acquire(
-    settings: AcquireSettings, on_sample: Callable[[int, int, int, str], None] | None = None
+    settings: AcquireSettings,
+    on_sample: Callable[[int, int, int, str], None] | None = None,
+    observer: FrameObserver | None = None,
 ) -> AcquireOutput:
     """Plan, check and (unless a dry run) run the calibration motion, writing the recording.
 
@@ -282,6 +289,10 @@ def acquire(
     settings : AcquireSettings
     on_sample : callable, optional
         Progress callback ``on_sample(samples, visible, move_index, label)``.
+    observer : FrameObserver, optional
+        Sees every tracker frame, e.g. ``LiveView(...).observe`` of
+        :mod:`spacecal.report.live`; it must return at once, and a failing one is detached
+        with a warning.
     """
     refuse_overwriting_inputs(settings.output, settings.prior, *settings.rom)
     with opened_devices(settings) as (robot, tracker, world):
@@ -312,6 +323,7 @@ def acquire(
             run_settings,
             resume=settings.resume,
             on_sample=on_sample,
+            observer=observer,
         )
         return output
 

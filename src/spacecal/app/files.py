@@ -21,7 +21,7 @@ from spacecal.io.recording_csv import metadata_path, read_recording, write_recor
 from spacecal.io.results_json import read_calibration, read_json_object, write_json
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.records import LandmarkRegistrationResult, VerificationResult
-from spacecal.report.html import Report, write_report
+from spacecal.report.html import Report, write_figures, write_report
 from spacecal.workflows.check import read_history
 from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
 
@@ -99,6 +99,7 @@ class ReportOutput:
     path: Path
     titles: list[str]
     notes: list[str] = field(default_factory=list)
+    figures: list[Path] = field(default_factory=list)
 
 
 def report(settings: ReportSettings) -> ReportOutput:
@@ -116,16 +117,37 @@ def report(settings: ReportSettings) -> ReportOutput:
         notes.append("no recording found (pass --recording): sweeps and residuals are not shown")
     verification = None
     if settings.verification:
-        verification = VerificationResult.from_dict(
-            read_json_object(settings.verification, "verification"), what=settings.verification
-        )
+        verification = _read_verification(settings.verification)
     history, unreadable = read_history(settings.calibration)
     if unreadable:
         notes.append(f"{unreadable} unreadable line(s) in the check history were skipped")
-    path, titles = write_report(
-        Report(calibration, recording, verification, history), settings.output, settings.png_dir
-    )
-    return ReportOutput(path, titles, notes)
+    report_data = Report(calibration, recording, verification, history)
+    path, titles = write_report(report_data, settings.output)
+    figures = write_figures(report_data, settings.png_dir) if settings.png_dir else []
+    return ReportOutput(path, titles, notes, figures)
+
+
+#: What other spacecal files are, for the one line that refuses them as a verification.
+_OTHER_RESULTS = {
+    "spacecal.phantom": "a phantom experiment result (spacecal phantom -o)",
+    "spacecal.calibration": "a calibration",
+    "spacecal.check": "a check result",
+    "spacecal.landmark_registration": "a landmark registration",
+    "spacecal.acquisition_progress": "an acquisition progress file",
+}
+
+
+def _read_verification(path: str) -> VerificationResult:
+    """The verification file, or one line saying what the file is instead."""
+    data = read_json_object(path, "verification")
+    schema = data.get("schema")
+    legacy = schema is None and "points" in data  # early files had no schema name
+    if schema != VerificationResult.SCHEMA and not legacy:
+        what = _OTHER_RESULTS.get(str(schema), f"a {schema!r} file" if schema else "not a spacecal result")
+        raise InvalidInputError(
+            f"{path}: --verification takes the file of 'spacecal verify -o'; this is {what}"
+        )
+    return VerificationResult.from_dict(data, what=path)
 
 
 @dataclass(frozen=True)

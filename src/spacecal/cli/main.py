@@ -211,7 +211,24 @@ def _acquire(a: argparse.Namespace) -> None:
         a.translation_mm,
     )
     holder: dict[str, int] = {}
-    out = app.acquire(settings, on_sample=lambda *s: _progress(holder.get("moves", 1))(*s))
+    view = None
+    if a.live_view is not None and not a.dry_run:
+        from spacecal.report.live import LiveView
+
+        view = LiveView(a.live_view)
+        if view.start():
+            print(f"live view: {view.url} (open it in a web browser)", flush=True)
+        else:
+            view = None
+    try:
+        out = app.acquire(
+            settings,
+            on_sample=lambda *s: _progress(holder.get("moves", 1))(*s),
+            observer=view.observe if view is not None else None,
+        )
+    finally:
+        if view is not None:
+            view.close()
     print(
         f"plan: {out.moves} moves, {out.motion_time_s:.1f} s of motion"
         + (" (simulated devices, simulated time)" if out.simulated else "")
@@ -333,6 +350,8 @@ def _phantom(a: argparse.Namespace) -> None:
 def _report(a: argparse.Namespace) -> None:
     out = app.report(app.ReportSettings(a.calibration, a.output, a.recording, a.verification, a.png_dir))
     print(f"wrote {out.path} ({len(out.titles)} plots: {', '.join(out.titles)})")
+    if out.figures:
+        print(f"wrote {len(out.figures)} PNG figures: {', '.join(str(p) for p in out.figures)}")
     _print_notes(out.notes)
 
 

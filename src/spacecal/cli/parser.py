@@ -6,6 +6,7 @@ import argparse
 
 from spacecal import __version__, app
 from spacecal.app.simulation import DEFAULT_SCENARIO
+from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
 
 #: Options whose values are coordinates, often negative (base-frame positions).
 COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm")
@@ -129,6 +130,15 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--translation-mm", type=float, default=_d(A, "translation_mm"), help="translation sweep stroke"
+    )
+    p.add_argument(
+        "--live-view",
+        nargs="?",
+        type=int,
+        const=LIVE_VIEW_PORT,
+        metavar="PORT",
+        help=f"show the marker, the sweeps and the samples in a web browser at http://127.0.0.1:PORT/ "
+        f"(default port {LIVE_VIEW_PORT}) while the motion runs",
     )
 
     R = app.RegisterLandmarksSettings

@@ -1,4 +1,10 @@
-"""Figures in the style of the paper (PNG, matplotlib without a display)."""
+"""PNG figures (matplotlib without a display): the paper's figures and every figure of the
+HTML report, for papers, service records and pages that cannot run scripts.
+
+Independent cases (verification targets, phantom cases, checks) are drawn as points, not
+joined by lines: nothing lies between two targets. The paper reports its mean position error
+as a bound ("< 1.05 mm"), so it is drawn as a bound, not as a measured mean.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spacecal.records.paper_reference import PAPER_VERIFICATION
+from spacecal.records import CalibrationResult, CheckResult, Recording
+from spacecal.records.paper_reference import PAPER_PHANTOM, PAPER_VERIFICATION
+from spacecal.report.evidence import check_series, fitted_sphere, sweeps, uncertainty
 
 
 def _pyplot():
@@ -26,6 +34,14 @@ def _save(fig, path: str | Path) -> Path:
     return path
 
 
+def _points_axis(ax, count: int, label: str) -> None:
+    ax.set_xlabel(label)
+    ax.set_xticks(np.arange(1, count + 1))
+    ax.set_xlim(0.5, count + 0.5)
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+
+
 def plot_verification_errors(
     position_error_mm,
     posture_error_deg,
@@ -33,63 +49,199 @@ def plot_verification_errors(
     paper_mean_mm: float = PAPER_VERIFICATION["position_mean_bound_mm"],
     paper_mean_deg: float = PAPER_VERIFICATION["posture_mean_deg"],
 ) -> Path:
-    """The error curves of the paper's Fig. 7: (A) position deviation, (B) posture deviation.
+    """The verification errors of the paper's Fig. 7: (A) position, (B) posture, one point per
+    target, with the paper's figures drawn as what they are.
 
     Parameters
     ----------
     position_error_mm, posture_error_deg : array_like, shape (N,)
-        Per verification point.
+        Per verification target.
     path : str or Path
         PNG file to write.
+    paper_mean_mm : float
+        The paper's bound on the mean position error ("< 1.05 mm").
+    paper_mean_deg : float
+        The paper's approximate mean posture error ("about 1.1 deg").
     """
     plt = _pyplot()
-    position = np.asarray(position_error_mm)
-    posture = np.asarray(posture_error_deg)
-    points = np.arange(1, len(position) + 1)
+    position = np.asarray(position_error_mm, dtype=float)
+    posture = np.asarray(posture_error_deg, dtype=float)
+    targets = np.arange(1, len(position) + 1)
     fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
-    for ax, values, unit, paper, title in (
-        (ax_a, position, "mm", paper_mean_mm, "(A) deviation of position"),
-        (ax_b, posture, "deg", paper_mean_deg, "(B) deviation of posture"),
-    ):
-        ax.plot(points, values, "o-", color="tab:blue", label=f"spacecal (mean {values.mean():.2f} {unit})")
-        ax.axhline(paper, color="tab:red", ls="--", label=f"paper mean {paper} {unit}")
-        ax.set_xlabel("experimental point")
+    panels = (
+        (ax_a, position, "mm", "(A) deviation of position", f"paper: mean < {paper_mean_mm:g} mm (a bound)"),
+        (ax_b, posture, "deg", "(B) deviation of posture", f"paper: mean about {paper_mean_deg:g} deg"),
+    )
+    for ax, values, unit, title, paper_label in panels:
+        ax.plot(targets, values, "o", color="tab:blue", label="spacecal, per target")
+        ax.axhline(values.mean(), color="tab:blue", lw=1, label=f"spacecal mean {values.mean():.2f} {unit}")
+        paper = paper_mean_mm if unit == "mm" else paper_mean_deg
+        ax.axhline(paper, color="tab:red", ls="--", label=paper_label)
+        if unit == "mm":
+            # a bound: the paper's mean lies somewhere below the line
+            ax.axhspan(0, paper, color="tab:red", alpha=0.06)
         ax.set_ylabel(f"error ({unit})")
         ax.set_title(title)
-        ax.set_xticks(points)
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        _points_axis(ax, len(values), "verification target")
+        ax.set_ylim(0, max(values.max(), paper) * 1.25)
+        ax.legend(fontsize=8, loc="upper right")
     return _save(fig, path)
 
 
 def plot_phantom_errors(entry_error_mm, target_error_mm, direction_error_deg, path: str | Path) -> Path:
-    """The paper's Fig. 9: (A) entry and target position errors, (B) puncture direction error."""
+    """The paper's Fig. 9, one point per case: (A) entry and target position errors,
+    (B) puncture direction error, with the paper's smallest errors (Table 2) for reference."""
     plt = _pyplot()
-    cases = np.arange(1, len(entry_error_mm) + 1)
+    entry = np.asarray(entry_error_mm, dtype=float)
+    target = np.asarray(target_error_mm, dtype=float)
+    direction = np.asarray(direction_error_deg, dtype=float)
+    cases = np.arange(1, len(entry) + 1)
     fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(10, 3.8), constrained_layout=True)
-    ax_a.plot(cases, entry_error_mm, "o-", label="entry")
-    ax_a.plot(cases, target_error_mm, "s-", label="target (tumour)")
+    ax_a.plot(cases - 0.08, entry, "o", label="entry")
+    ax_a.plot(cases + 0.08, target, "s", label="target (tumour)")
+    ax_a.axhline(
+        PAPER_PHANTOM["entry_min_mm"], color="tab:blue", ls=":", lw=1, label="paper: smallest entry error"
+    )
+    ax_a.axhline(
+        PAPER_PHANTOM["target_min_mm"], color="tab:orange", ls=":", lw=1, label="paper: smallest target error"
+    )
     ax_a.set_title("(A) position error of entry and target")
     ax_a.set_ylabel("error (mm)")
-    ax_b.plot(cases, direction_error_deg, "o-", color="tab:green", label="direction")
+    ax_b.plot(cases, direction, "o", color="tab:green", label="direction")
+    ax_b.axhline(
+        PAPER_PHANTOM["direction_min_deg"], color="tab:green", ls=":", lw=1, label="paper: smallest error"
+    )
     ax_b.set_title("(B) deviation of puncture direction")
     ax_b.set_ylabel("error (deg)")
     for ax in (ax_a, ax_b):
-        ax.set_xlabel("case")
-        ax.set_xticks(cases)
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
+        _points_axis(ax, len(cases), "case")
         ax.legend(fontsize=8)
     return _save(fig, path)
 
 
-def plot_residuals(time_s, position_residual_mm, path: str | Path) -> Path:
-    """Per-sample marker position residuals over time (PNG)."""
+def plot_residuals(
+    time_s, position_residual_mm, path: str | Path, rotation_residual_deg=None, segment=None
+) -> Path:
+    """Per-sample marker residuals over time, coloured by segment: position (mm) above and,
+    when given, rotation (deg) below, each with its own axis."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 3.2), constrained_layout=True)
-    ax.plot(time_s, position_residual_mm, ".", ms=3)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("marker position residual (mm)")
-    ax.grid(alpha=0.3)
+    time_s = np.asarray(time_s, dtype=float)
+    position = np.asarray(position_residual_mm, dtype=float)
+    segment = np.full(len(time_s), "samples") if segment is None else np.asarray(segment).astype(str)
+    panels = 1 if rotation_residual_deg is None else 2
+    fig, axes = plt.subplots(
+        panels, 1, figsize=(9, 2.6 * panels + 0.6), sharex=True, constrained_layout=True, squeeze=False
+    )
+    columns = [(position, "position residual (mm)")]
+    if rotation_residual_deg is not None:
+        columns.append((np.asarray(rotation_residual_deg, dtype=float), "rotation residual (deg)"))
+    for ax, (values, label) in zip(axes[:, 0], columns):
+        for name in dict.fromkeys(segment.tolist()):
+            rows = segment == name
+            ax.plot(time_s[rows], values[rows], ".", ms=3, label=name)
+        ax.set_ylabel(label)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_title("Marker residuals: measured vs predicted marker pose")
+    if len(set(segment.tolist())) > 1:
+        axes[0, 0].legend(fontsize=7, ncol=6, markerscale=3, loc="upper right")
+    axes[-1, 0].set_xlabel("time (s)")
+    return _save(fig, path)
+
+
+def plot_sweeps(recording: Recording, calibration: CalibrationResult, path: str | Path) -> Path:
+    """The marker origin over the sweeps in the tracker frame (mm), with the fitted lines and
+    sphere of the paper's method where it made them."""
+    plt = _pyplot()
+    fig = plt.figure(figsize=(7.5, 6.5), constrained_layout=True)
+    ax = fig.add_subplot(projection="3d")
+    everything = []
+    for sweep in sweeps(recording, calibration):
+        p = sweep.marker_in_tracker
+        everything.append(p)
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], ".", ms=2, label=sweep.label)
+        if sweep.line_in_tracker is not None:
+            line = sweep.line_in_tracker
+            ax.plot(line[:, 0], line[:, 1], line[:, 2], "-", color="k", lw=1)
+    sphere = fitted_sphere(calibration)
+    if sphere is not None:
+        centre, radius = sphere
+        u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
+        ax.plot_wireframe(
+            centre[0] + radius * np.cos(u) * np.sin(v),
+            centre[1] + radius * np.sin(u) * np.sin(v),
+            centre[2] + radius * np.cos(v),
+            color="grey",
+            lw=0.3,
+            alpha=0.4,
+        )
+    if everything:
+        points = np.concatenate(everything)
+        ax.set_box_aspect(np.ptp(points, axis=0) + 1e-9)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    ax.set_title("Marker origin over the sweeps, tracker frame (lines: fits)")
+    ax.legend(fontsize=7, markerscale=4, loc="upper left")
+    return _save(fig, path)
+
+
+def plot_uncertainty(calibration: CalibrationResult, path: str | Path) -> Path | None:
+    """Standard deviations of both transforms: translations (mm) and rotations (deg) on their
+    own axes. None when the calibration has no covariance."""
+    split = uncertainty(calibration)
+    if split is None:
+        return None
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+    x = np.arange(3)
+    for ax, values, unit, title in (
+        (axes[0], split.translation_sd_mm, "mm", "translation"),
+        (axes[1], split.rotation_sd_deg, "deg", "rotation"),
+    ):
+        width = 0.8 / max(len(values), 1)
+        for k, (name, sd) in enumerate(values.items()):
+            ax.bar(x + (k - (len(values) - 1) / 2) * width, sd, width, label=name)
+        ax.set_xticks(x, [f"{title} {a}" for a in split.axes])
+        ax.set_ylabel(f"standard deviation ({unit})")
+        ax.set_title(f"{title.capitalize()}s ({unit})")
+        ax.grid(alpha=0.3, axis="y")
+        ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_check_history(history: list[CheckResult], path: str | Path) -> Path | None:
+    """Worst TCP and rotation error of each check over time, with the thresholds."""
+    if not history:
+        return None
+    series = check_series(history)
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+    x = series.when if series.dated else np.arange(1, len(series.when) + 1)
+    colours = np.where(series.passed, "tab:green", "tab:red")
+    for ax, values, threshold, unit, title in (
+        (axes[0], series.worst_tcp_mm, series.threshold_mm, "mm", "worst TCP error"),
+        (axes[1], series.worst_rotation_deg, series.threshold_deg, "deg", "worst rotation error"),
+    ):
+        ax.scatter(x, values, c=colours, zorder=3)
+        ax.axhline(threshold, color="tab:red", ls="--", label=f"threshold {threshold:g} {unit}")
+        ax.set_ylim(0, max(float(values.max()), threshold) * 1.25)
+        ax.set_ylabel(f"{title} ({unit})")
+        ax.set_title(f"Checks: {title}")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        if series.dated:
+            import datetime
+
+            from matplotlib.dates import AutoDateLocator, DateFormatter
+
+            # at least half a day either side: checks minutes apart read as one occasion
+            first, last = min(series.when), max(series.when)
+            pad = max(0.1 * (last - first), datetime.timedelta(hours=12))
+            ax.set_xlim(first - pad, last + pad)
+            ax.xaxis.set_major_locator(AutoDateLocator(maxticks=6))
+            ax.xaxis.set_major_formatter(DateFormatter("%Y-%m-%d\n%H:%M"))
+            ax.set_xlabel("check time (UTC)")
+        else:
+            ax.set_xticks(x, [str(t) for t in series.when], rotation=30, ha="right")
     return _save(fig, path)

@@ -10,10 +10,11 @@ run can then be resumed where it stopped.
 from __future__ import annotations
 
 import hashlib
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NoReturn, Protocol
+from typing import Any, NoReturn, Protocol
 
 import numpy as np
 
@@ -147,6 +148,30 @@ class RunFault(DeviceError):
     """A fault that ends a run; the message says what happened in a robot operator's words."""
 
 
+#: ``observer(time_s, segment, tracker_from_marker, base_from_tcp, recorded)``, called for every
+#: tracker frame of a run (recorded or not): the frame time (s), the move's label, the marker
+#: pose (4, 4) in mm or None when not seen, the robot's TCP pose (4, 4) in mm, and whether the
+#: frame was recorded as a sample. It runs in the acquisition loop, so it must return at once
+#: (a live view puts the frame on a bounded queue); an exception in it detaches it with one
+#: warning on stderr and the run goes on.
+FrameObserver = Callable[[float, str, "np.ndarray | None", np.ndarray, bool], None]
+
+
+def _notify(observer: FrameObserver, *frame: Any) -> FrameObserver | None:
+    """Call ``observer``; on an exception warn once and return None (detach it)."""
+    try:
+        observer(*frame)
+    except Exception as exc:  # a failed view must never stop the robot's run
+        print(
+            f"warning: the acquisition's frame observer failed ({type(exc).__name__}: {exc}); "
+            "the run continues without it",
+            file=sys.stderr,
+            flush=True,
+        )
+        return None
+    return observer
+
+
 def run_plan(
     plan: MotionPlan,
     robot: Robot,
@@ -157,6 +182,7 @@ def run_plan(
     approach_first_move: bool = False,
     on_sample: Callable[[int, int, int, str], None] | None = None,
     on_move_done: Callable[[int], None] | None = None,
+    observer: FrameObserver | None = None,
 ) -> None:
     """The acquisition loop (paper §4): run the moves of ``plan`` from
     ``progress.moves_completed`` on, sampling the tracker, and hand each sample to ``sink``.
@@ -183,6 +209,9 @@ def run_plan(
         Called as ``on_sample(samples, visible, move_index, label)`` after each sample.
     on_move_done : callable, optional
         Called with the number of moves completed after each move.
+    observer : FrameObserver, optional
+        Called with every tracker frame (see :data:`FrameObserver`); costs one comparison
+        per frame when None.
     """
     streams = hasattr(sink, "add_robot_states") and hasattr(robot, "drain_states")
     first_move = progress.moves_completed
@@ -231,11 +260,13 @@ def run_plan(
             if move_started_at is None:
                 move_started_at = state.time_s
             settled = state.time_s - move_started_at >= settings.move_start_guard_s
+            recorded = False
             if (
                 settled
                 and move.sample_period_s > 0
                 and frame.time_s - last_recorded >= move.sample_period_s - 1e-6
             ):
+                recorded = True
                 seen = frame.status == FRAME_OK
                 sink.append(
                     frame.time_s,
@@ -251,6 +282,15 @@ def run_plan(
                 progress.visible_written += int(seen)
                 if on_sample:
                     on_sample(progress.samples_written, progress.visible_written, index, move.label)
+            if observer is not None:
+                observer = _notify(
+                    observer,
+                    frame.time_s,
+                    move.label,
+                    frame.tracker_from_marker if frame.status == FRAME_OK else None,
+                    state.base_from_tcp,
+                    recorded,
+                )
             if hold and state.time_s - move_started_at >= move.duration_s:
                 break
             if not hold and not state.moving:
@@ -269,6 +309,7 @@ def acquire(
     settings: AcquisitionSettings | None = None,
     resume: bool = False,
     on_sample: Callable[[int, int, int, str], None] | None = None,
+    observer: FrameObserver | None = None,
 ) -> AcquisitionResult:
     """Run ``plan`` on ``robot`` while sampling ``tracker``; write the recording as it goes.
 
@@ -289,6 +330,8 @@ def acquire(
     on_sample : callable, optional
         Called as ``on_sample(samples, visible, move_index, label)`` after each sample
         (progress display).
+    observer : FrameObserver, optional
+        Called with every tracker frame (a live view); see :data:`FrameObserver`.
 
     Raises
     ------
@@ -334,6 +377,7 @@ def acquire(
             approach_first_move=resume,
             on_sample=on_sample,
             on_move_done=lambda done: _write_progress(progress_file, plan, done, None),
+            observer=observer,
         )
     except KeyboardInterrupt:
         fail("interrupted by the user (Ctrl-C)")

@@ -1,0 +1,353 @@
+"""What a person reads first: the judgement of a calibration, and the facts behind it.
+
+The HTML report's first screen is built from :func:`assess` (the verdict, coloured, and the
+reasons for a red flag) and :func:`provenance_facts` (what was calibrated with what, when,
+from which data, by which software). Both read records only; no figure is drawn here.
+
+A red flag is raised when any of these holds:
+
+* the calibration's own verdict starts with ``check``, ``poor`` or ``unusable``;
+* the marker residuals (measured vs predicted marker pose over the recording) exceed
+  :data:`RESIDUAL_RMS_LIMIT_MM` RMS: the two transforms do not explain the data, whatever
+  the stored diagnostics say (the residuals are recomputed when the recording is at hand);
+* the predicted or expected error at the target exceeds :data:`TARGET_ERROR_LIMIT_MM`;
+* a verification's mean position error exceeds the paper's bound, or the last check failed.
+"""
+
+from __future__ import annotations
+
+import datetime
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
+from spacecal.estimators.diagnostics import sample_residuals
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.records import CalibrationResult, CheckResult, Recording, VerificationResult
+from spacecal.records.paper_reference import PAPER_VERIFICATION
+
+#: Marker residual RMS (mm) above which the calibration does not explain its own data.
+RESIDUAL_RMS_LIMIT_MM = 1.0
+#: Predicted or expected error at the target (mm) above which the calibration is flagged.
+TARGET_ERROR_LIMIT_MM = 1.0
+#: Verdict words that raise the red flag; the verdict's first word is one of these or
+#: ``good`` / ``acceptable``.
+ALARMING_VERDICTS = ("check", "poor", "unusable")
+
+#: A sentence per method family, for the summary.
+METHOD_FAMILIES = {
+    "paper": "the paper's linear-rotation method (sphere and line fits)",
+    "ml": "maximum likelihood over all marker poses",
+    "robust": "maximum likelihood with outlier rejection",
+    "kinematic": "maximum likelihood with robot kinematic identification",
+    **{name: "closed-form robot-world solver (AX = YB)" for name in ROBOT_WORLD_SOLVERS},
+    **{name: "closed-form hand-eye solver (AX = XB) on relative motions" for name in HAND_EYE_SOLVERS},
+}
+
+
+@dataclass
+class Residuals:
+    """Per-sample marker residuals and where they came from.
+
+    Attributes
+    ----------
+    time_s : numpy.ndarray, shape (N,)
+    segment : numpy.ndarray of str, shape (N,)
+    position_mm, rotation_deg : numpy.ndarray, shape (N,)
+        Distance of the marker origin and rotation angle between the measured and the
+        predicted ``tracker_from_marker``.
+    source : str
+        ``recomputed from the recording`` or ``as stored with the calibration``.
+    """
+
+    time_s: np.ndarray
+    segment: np.ndarray
+    position_mm: np.ndarray
+    rotation_deg: np.ndarray
+    source: str
+
+    @property
+    def position_rms_mm(self) -> float:
+        return float(np.sqrt(np.mean(self.position_mm**2)))
+
+    @property
+    def rotation_rms_deg(self) -> float:
+        return float(np.sqrt(np.mean(self.rotation_deg**2)))
+
+
+def residuals_of(calibration: CalibrationResult, recording: Recording | None) -> Residuals | None:
+    """The marker residuals of a calibration: recomputed from ``recording`` when given (with
+    the robot model the calibration identified, if any), else the per-sample residuals
+    stored in its diagnostics; None when neither is available."""
+    if recording is not None and recording.visible.any():
+        if calibration.robot_model is not None and np.all(np.isfinite(recording.joints_rad)):
+            # a kinematic calibration predicts the TCP with the model it identified
+            recording = _with_base_from_tcp(
+                recording, forward_kinematics(calibration.robot_model, recording.joints_rad)
+            )
+        found = sample_residuals(recording, calibration.tracker_from_base, calibration.tcp_from_marker)
+        rows = found["rows"]
+        return Residuals(
+            recording.time_s[rows],
+            recording.segment[rows],
+            np.asarray(found["position_mm"]),
+            np.asarray(found["rotation_deg"]),
+            "recomputed from the recording",
+        )
+    stored = calibration.diagnostics.get("per_sample_residuals")
+    if isinstance(stored, list) and stored and all(isinstance(row, dict) for row in stored):
+        try:
+            return Residuals(
+                np.array([float(row["time_s"]) for row in stored]),
+                np.array([str(row.get("segment", "")) for row in stored]),
+                np.array([float(row["position_mm"]) for row in stored]),
+                np.array([float(row["rotation_deg"]) for row in stored]),
+                "as stored with the calibration",
+            )
+        except (KeyError, TypeError, ValueError):
+            return None
+    return None
+
+
+def _with_base_from_tcp(recording: Recording, base_from_tcp_stack: np.ndarray) -> Recording:
+    import dataclasses
+
+    return dataclasses.replace(recording, base_from_tcp_stack=base_from_tcp_stack)
+
+
+@dataclass
+class Assessment:
+    """The judgement shown first.
+
+    Attributes
+    ----------
+    level : str
+        ``ok`` (green), ``alarm`` (red) or ``unknown`` (grey: no verdict and no red flag).
+    headline : str
+        A few words: ``Good``, ``Check before use``, ``Do not use: errors too large``...
+    verdict : str or None
+        The calibration's own verdict sentence.
+    reasons : list of str
+        Why the flag is red (empty when it is not).
+    numbers : list of (str, str)
+        Key figures as (label, value with unit), in reading order.
+    """
+
+    level: str
+    headline: str
+    verdict: str | None
+    reasons: list[str] = field(default_factory=list)
+    numbers: list[tuple[str, str]] = field(default_factory=list)
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        return None
+    return float(value)
+
+
+def expected_error(calibration: CalibrationResult) -> dict[str, Any] | None:
+    """``diagnostics["expected_error"]`` (``position_mm``, ``posture_deg``, ``basis``) when a
+    calibration carries one and it holds a position figure; None otherwise."""
+    entry = calibration.diagnostics.get("expected_error")
+    if not isinstance(entry, dict) or _number(entry.get("position_mm")) is None:
+        return None
+    return entry
+
+
+def assess(
+    calibration: CalibrationResult,
+    residuals: Residuals | None = None,
+    verification: VerificationResult | None = None,
+    check_history: list[CheckResult] | None = None,
+) -> Assessment:
+    """Judge a calibration from its verdict, residuals, predicted error, verification and checks."""
+    verdict = calibration.diagnostics.get("verdict")
+    verdict = verdict if isinstance(verdict, str) and verdict.strip() else None
+    word = verdict.split(":")[0].split(";")[0].strip().lower() if verdict else ""
+    reasons: list[str] = []
+    hard: list[str] = []
+    numbers: list[tuple[str, str]] = []
+
+    expected = expected_error(calibration)
+    tre = calibration.predicted_tre_mm or {}
+    site, cube = _number(tre.get("site")), _number(tre.get("cube_rms"))
+    lower_bound = " (a lower bound)" if word == "check" else ""
+    if expected is not None:
+        position = float(expected["position_mm"])
+        posture = _number(expected.get("posture_deg"))
+        text = f"{position:.2f} mm" + (f", {posture:.2f} deg" if posture is not None else "")
+        basis = expected.get("basis")
+        numbers.append(("expected error at the target", text + (f" ({basis})" if basis else "")))
+        if position > TARGET_ERROR_LIMIT_MM:
+            hard.append(
+                f"expected error at the target {position:.2f} mm exceeds {TARGET_ERROR_LIMIT_MM:g} mm"
+            )
+    if site is not None:
+        numbers.append(("predicted error at the site (RMS)", f"{site:.3f} mm{lower_bound}"))
+        if site > TARGET_ERROR_LIMIT_MM:
+            hard.append(f"predicted error at the site {site:.2f} mm exceeds {TARGET_ERROR_LIMIT_MM:g} mm")
+    if cube is not None:
+        side = _number(tre.get("cube_side_mm"))
+        label = f"predicted error over a {side:g} mm cube (RMS)" if side else "predicted error over the cube"
+        numbers.append((label, f"{cube:.3f} mm{lower_bound}"))
+    if site is None and expected is None:
+        numbers.append(("predicted error at the site", "not available (no uncertainty with this result)"))
+
+    if residuals is not None:
+        rms = residuals.position_rms_mm
+        numbers.append(
+            (
+                "marker residuals (RMS)",
+                f"{rms:.3f} mm, {residuals.rotation_rms_deg:.3f} deg ({residuals.source})",
+            )
+        )
+        if rms > RESIDUAL_RMS_LIMIT_MM:
+            hard.append(
+                f"marker residuals are {rms:.2f} mm RMS (limit {RESIDUAL_RMS_LIMIT_MM:g} mm): the "
+                "calibration does not explain its own data"
+            )
+    else:
+        stored = _number(calibration.diagnostics.get("residual_position_rms_mm"))
+        if stored is not None:
+            numbers.append(("marker residuals (RMS, as stored)", f"{stored:.3f} mm"))
+            if stored > RESIDUAL_RMS_LIMIT_MM:
+                hard.append(f"marker residuals are {stored:.2f} mm RMS (limit {RESIDUAL_RMS_LIMIT_MM:g} mm)")
+
+    if verification is not None:
+        stats = verification.statistics()["position_mm"]
+        posture_stats = verification.statistics()["posture_deg"]
+        bound = PAPER_VERIFICATION["position_mean_bound_mm"]
+        where = "simulated" if verification.simulated else "measured"
+        numbers.append(
+            (
+                f"verification, {len(verification.position_error_mm)} targets ({where})",
+                f"position mean {stats['mean']:.2f} mm (max {stats['max']:.2f}), "
+                f"posture mean {posture_stats['mean']:.2f} deg; paper: mean < {bound:g} mm",
+            )
+        )
+        if stats["mean"] > bound:
+            hard.append(
+                f"verification mean position error {stats['mean']:.2f} mm is above the paper's {bound:g} mm"
+            )
+    if check_history:
+        last = check_history[-1]
+        outcome = "PASS" if last.passed else "FAIL"
+        numbers.append(
+            (
+                f"last check ({len(check_history)} in the history)",
+                f"{outcome}: worst TCP error {float(np.max(last.tcp_error_mm)):.2f} mm "
+                f"(threshold {last.threshold_mm:g} mm), {_date(last.checked_utc)}",
+            )
+        )
+        if not last.passed:
+            hard.append(f"the last check ({_date(last.checked_utc)}) failed")
+
+    # the verdict sentence is shown beside the reasons: they list only what it does not say
+    reasons.extend(hard)
+    if hard:
+        level, headline = "alarm", "Do not use: errors too large"
+    elif word in ALARMING_VERDICTS:
+        level = "alarm"
+        headline = {"check": "Check before use", "poor": "Poor", "unusable": "Unusable"}[word]
+    elif word in ("good", "acceptable"):
+        level, headline = "ok", word.capitalize()
+    else:
+        level, headline = "unknown", "No verdict" if verdict is None else verdict.split(":")[0].capitalize()
+    return Assessment(level, headline, verdict, reasons, numbers)
+
+
+def _date(iso: str) -> str:
+    """``2026-11-22T23:13:08+00:00`` -> ``2026-11-22 23:13 UTC``; other text as it is."""
+    if not iso:
+        return "unknown"
+    try:
+        moment = datetime.datetime.fromisoformat(iso.replace("Z", "+00:00"))
+    except ValueError:
+        return iso
+    if moment.tzinfo is not None:
+        moment = moment.astimezone(datetime.timezone.utc)
+    return moment.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _describe_device(entry: Any, keys: tuple[str, ...]) -> str | None:
+    if isinstance(entry, str):
+        return entry
+    if not isinstance(entry, dict):
+        return None
+    parts = [str(entry[k]) for k in keys if entry.get(k) not in (None, "")]
+    return ", ".join(dict.fromkeys(parts)) or None
+
+
+def provenance_facts(
+    calibration: CalibrationResult, recording: Recording | None = None
+) -> list[tuple[str, str]]:
+    """What was calibrated with what, when, from which data and by which software, as
+    (label, text) rows."""
+    provenance = calibration.provenance
+    metadata = recording.metadata if recording is not None else {}
+    devices = provenance.devices or {}
+    facts: list[tuple[str, str]] = []
+    family = METHOD_FAMILIES.get(calibration.method)
+    facts.append(("method", calibration.method + (f": {family}" if family else "")))
+    counts = calibration.sample_counts
+    used, total = counts.get("used"), counts.get("total")
+    if used is not None and total is not None:
+        rejected = {
+            k.removeprefix("rejected_").replace("_", " "): v
+            for k, v in counts.items()
+            if k.startswith("rejected_") and v
+        }
+        detail = ", ".join(f"{v} {k}" for k, v in rejected.items())
+        facts.append(("samples used", f"{used} of {total}" + (f" (rejected: {detail})" if detail else "")))
+    per_segment = counts.get("per_segment")
+    if isinstance(per_segment, dict) and per_segment:
+        facts.append(("samples per sweep", ", ".join(f"{k} {v}" for k, v in per_segment.items())))
+
+    robot = _describe_device(devices.get("robot"), ("model", "name", "url", "serial", "firmware"))
+    robot = robot or _describe_device(metadata.get("robot"), ("model", "name", "url"))
+    if calibration.robot_model is not None:
+        robot = (
+            robot or calibration.robot_model.name
+        ) + "; kinematic (DH) parameters identified with this calibration"
+    facts.append(("robot", robot or "not recorded"))
+    tracker = _describe_device(devices.get("tracker"), ("name", "model", "url", "serial", "firmware"))
+    tracker = tracker or _describe_device(metadata.get("tracker"), ("name", "model", "url"))
+    rate = None
+    for entry in (devices.get("tracker"), metadata.get("tracker")):
+        if isinstance(entry, dict) and _number(entry.get("rate_hz")):
+            rate = float(entry["rate_hz"])
+            break
+    facts.append(("tracker", (tracker or "not recorded") + (f" at {rate:g} Hz" if rate else "")))
+    marker = _describe_device(metadata.get("marker"), ("name",))
+    if marker:
+        facts.append(("marker", marker))
+
+    if provenance.simulated is True:
+        scenario = provenance.scenario or metadata.get("scenario") or {}
+        scenario = scenario if isinstance(scenario, dict) else {}
+        name, seed = scenario.get("name"), scenario.get("seed")
+        facts.append(
+            (
+                "data",
+                "SIMULATED in spacecal's simulator"
+                + (
+                    f" (scenario {name}" + (f", seed {seed}" if seed is not None else "") + ")"
+                    if name
+                    else ""
+                )
+                + ": not a measurement of a real system",
+            )
+        )
+    elif provenance.simulated is False:
+        facts.append(("data", "measured on real devices"))
+    else:
+        facts.append(("data", "origin unknown (imported or older file)"))
+    recording_path = provenance.recording
+    if recording_path:
+        facts.append(("recording", recording_path))
+    facts.append(("calibrated", _date(provenance.created_utc)))
+    facts.append(("software", provenance.software or "unknown"))
+    return facts

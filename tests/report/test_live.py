@@ -1,0 +1,186 @@
+"""The live view of an acquisition: served while a simulated acquisition runs, drawn by
+headless Chromium, and never in the run's way."""
+
+import json
+import socket
+import statistics
+import threading
+import time
+import urllib.request
+
+import numpy as np
+import pytest
+
+from spacecal import app
+from spacecal.cli.main import main
+from spacecal.report.live import LiveView
+
+from .test_html import rendered_dom, screenshot, script_errors
+
+
+def fetch(url: str) -> dict:
+    with urllib.request.urlopen(url, timeout=10) as reply:
+        return json.loads(reply.read())
+
+
+def acquire(folder, observer=None):
+    settings = app.AcquireSettings(str(folder / "rec.csv"), scenario="paper-white")
+    return app.acquire(settings, observer=observer).result
+
+
+def test_the_view_follows_a_simulated_acquisition(tmp_path):
+    seen: list[int] = []
+    stop = threading.Event()
+    with LiveView(0) as view:
+        assert view.running
+
+        def poll():
+            since = 0
+            while not stop.is_set():
+                data = fetch(f"{view.url}data?since={since}")
+                since = data["sequence"]
+                seen.append(data["samples"])
+                time.sleep(0.1)
+
+        poller = threading.Thread(target=poll, daemon=True)
+        poller.start()
+        result = acquire(tmp_path, view.observe)
+        stop.set()
+        poller.join(10)
+        view.finish()
+        assert result.complete
+        # the page saw the run while it went on, not only its end
+        assert any(0 < samples < result.samples_written for samples in seen), seen[:5]
+        data = fetch(f"{view.url}data?since=0")
+        assert data["samples"] == result.samples_written and data["visible"] == result.visible_written
+        recorded = [f for f in data["frames"] if f["recorded"]]
+        assert len(recorded) == result.samples_written and data["dropped"] == 0
+        marker = np.array([f["marker_mm"] for f in recorded if f["marker_mm"] is not None])
+        assert np.all(marker[:, 2] < -500)  # in front of the tracker, mm
+        assert sum(data["per_segment"].values()) == result.samples_written
+
+        dom = rendered_dom_of(view.url)
+        assert script_errors(dom) == ""
+        assert "main-svg" in dom  # the 3-D view was drawn
+        assert f'<b id="samples">{result.samples_written}</b>' in dom
+        # kept for a person to look at
+        screenshot(_Url(view.url), tmp_path / "live_view.png")
+
+
+class _Url:
+    """Something with ``as_uri()`` for the Chromium helpers, from a URL."""
+
+    def __init__(self, url):
+        self.url = url
+
+    def as_uri(self):
+        return self.url
+
+
+def rendered_dom_of(url: str) -> str:
+    return rendered_dom(_Url(url))
+
+
+def test_a_failing_observer_does_not_stop_the_run(tmp_path, capfd):
+    calls = []
+
+    def broken(*frame):
+        calls.append(frame)
+        raise RuntimeError("the view fell over")
+
+    result = acquire(tmp_path, broken)
+    assert result.complete and result.samples_written > 100
+    assert len(calls) == 1  # detached after the first failure
+    err = capfd.readouterr().err
+    assert err.count("frame observer failed (RuntimeError: the view fell over)") == 1
+
+
+def test_a_taken_port_warns_and_the_run_goes_on(tmp_path, capfd):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code = main(
+            [
+                "acquire",
+                "-o",
+                str(tmp_path / "rec.csv"),
+                "--scenario",
+                "paper-white",
+                "--live-view",
+                str(port),
+            ]
+        )
+    out, err = capfd.readouterr()
+    assert code == 0 and "wrote" in out and "live view:" not in out
+    assert err.count(f"live view not started: port {port}") == 1
+
+
+def test_the_command_prints_the_url(tmp_path, capfd):
+    code = main(["acquire", "-o", str(tmp_path / "rec.csv"), "--scenario", "paper-white", "--live-view", "0"])
+    out, _ = capfd.readouterr()
+    assert code == 0 and "live view: http://127.0.0.1:" in out
+
+
+def test_a_full_buffer_drops_the_oldest():
+    view = LiveView(0, capacity=10)
+    pose = np.eye(4)
+    for k in range(25):
+        view.observe(0.05 * k, "rot_x", pose if k % 5 else None, pose, recorded=True)
+    data = view.snapshot(0)
+    assert [f["n"] for f in data["frames"]] == list(range(16, 26)) and data["dropped"] == 15
+    assert data["samples"] == 25 and data["visible"] == 20
+    assert view.snapshot(20)["frames"][0]["n"] == 21 and view.snapshot(20)["dropped"] == 0
+
+
+class Timed:
+    """Wraps an observer and adds up the time spent in it."""
+
+    def __init__(self, observer):
+        self.observer, self.seconds, self.calls = observer, 0.0, 0
+
+    def __call__(self, *frame):
+        start = time.perf_counter()
+        self.observer(*frame)
+        self.seconds += time.perf_counter() - start
+        self.calls += 1
+
+
+def test_the_view_costs_the_acquisition_less_than_5_percent(tmp_path):
+    """Two measures. Wall time of the whole simulated acquisition, with and without the view,
+    over interleaved repeats (medians), is printed but only loosely bounded: on a loaded
+    2-core machine runs of the same work differ by 10-20 %. The bound that is asserted is the
+    robust one: the time spent inside the observer is below 5 % of the run's CPU time
+    (measured: about 0.3 %)."""
+    without, with_view, shares = [], [], []
+    with LiveView(0) as view:
+        for k in range(3):
+            start = time.perf_counter()
+            acquire(tmp_path / f"plain{k}")
+            without.append(time.perf_counter() - start)
+            timed = Timed(view.observe)
+            start, cpu = time.perf_counter(), time.process_time()
+            result = acquire(tmp_path / f"viewed{k}", timed)
+            with_view.append(time.perf_counter() - start)
+            shares.append(timed.seconds / (time.process_time() - cpu))
+            assert result.complete and timed.calls > result.samples_written
+    ratio = statistics.median(with_view) / statistics.median(without)
+    print(
+        f"\nacquisition wall time, median of 3: {statistics.median(without):.2f} s without the view, "
+        f"{statistics.median(with_view):.2f} s with it (ratio {ratio:.3f}); time in the observer "
+        f"{100 * max(shares):.2f} % of the run's CPU time"
+    )
+    assert max(shares) < 0.05
+    assert ratio < 1.25  # a gross regression (the loop waiting on the view) would show here
+
+
+def test_no_view_started_for_a_dry_run(tmp_path, capfd):
+    code = main(["acquire", "-o", str(tmp_path / "rec.csv"), "--dry-run", "--live-view", "0"])
+    out, _ = capfd.readouterr()
+    assert code == 0 and "live view" not in out
+
+
+@pytest.fixture(autouse=True)
+def _tmp_folders(tmp_path):
+    for name in ("plain0", "plain1", "plain2", "viewed0", "viewed1", "viewed2"):
+        (tmp_path / name).mkdir()

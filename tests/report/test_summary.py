@@ -1,0 +1,73 @@
+"""The judgement and the numbers behind the figures, without a browser."""
+
+import numpy as np
+
+from spacecal.estimators import calibrate
+from spacecal.records import CheckResult
+from spacecal.report.evidence import check_series, tick_format, uncertainty
+from spacecal.report.html import (
+    Report,
+    _check_figure,
+    _sweep_figure,
+    _uncertainty_figure,
+    _verification_figure,
+)
+from spacecal.report.summary import assess, residuals_of
+
+
+def test_tick_formats_follow_the_scale():
+    assert tick_format([0.0089]) == ".3f"
+    assert tick_format([0.7]) == ".1f"
+    assert tick_format([12.0]) == ".0f"
+    assert tick_format([1e-9]) == ".1e"
+
+
+def test_the_verdict_word_sets_the_colour(white_simulation):
+    calibration = calibrate(white_simulation.recording, "ml")
+    residuals = residuals_of(calibration, white_simulation.recording)
+    assert assess(calibration, residuals).level == "ok"
+    for word, headline in (("check", "Check before use"), ("poor", "Poor"), ("unusable", "Unusable")):
+        flagged = calibration.replace(diagnostics={**calibration.diagnostics, "verdict": f"{word}: because"})
+        found = assess(flagged, residuals)
+        assert (found.level, found.headline) == ("alarm", headline)
+    silent = calibration.replace(diagnostics={}, predicted_tre_mm=None, covariance=None)
+    assert assess(silent).level == "unknown"
+
+
+def test_an_expected_error_entry_is_shown_and_judged(white_simulation):
+    calibration = calibrate(white_simulation.recording, "ml")
+    expected = {"position_mm": 1.6, "posture_deg": 0.4, "basis": "tip 150 mm from the flange"}
+    found = assess(calibration.replace(diagnostics={**calibration.diagnostics, "expected_error": expected}))
+    assert ("expected error at the target", "1.60 mm, 0.40 deg (tip 150 mm from the flange)") in found.numbers
+    assert found.level == "alarm" and any("expected error" in r for r in found.reasons)
+
+
+def test_figures_have_units_and_points(white_simulation):
+    calibration = calibrate(white_simulation.recording, "paper")
+    sweep = _sweep_figure(Report(calibration, white_simulation.recording)).layout.scene
+    assert [sweep.xaxis.title.text, sweep.yaxis.title.text, sweep.zaxis.title.text] == [
+        "x (mm)",
+        "y (mm)",
+        "z (mm)",
+    ]
+    split = uncertainty(calibration)
+    assert set(split.translation_sd_mm) == {"tracker_from_base", "tcp_from_marker"}
+    figure = _uncertainty_figure(calibration)
+    assert figure.layout.yaxis.title.text == "standard deviation (mm)"
+    assert figure.layout.yaxis2.title.text == "standard deviation (deg)"
+    one_check = [
+        CheckResult(np.array([0.3]), np.array([0.1]), 1.0, 1.0, checked_utc="2025-03-01T10:00:00+00:00")
+    ]
+    figure = _check_figure(one_check)
+    assert all(trace.mode == "markers" for trace in figure.data)  # a point, not a bar
+    assert check_series(one_check).dated
+
+
+def test_verification_points_and_the_paper_bound(white_simulation):
+    from spacecal.experiments.verification import verify_in_simulation
+
+    calibration = calibrate(white_simulation.recording, "ml")
+    figure = _verification_figure(verify_in_simulation(calibration, white_simulation.world.scenario))
+    assert all(trace.mode == "markers" for trace in figure.data)
+    labels = [a.text for a in figure.layout.annotations]
+    assert "paper: mean < 1.05 mm (a bound)" in labels
