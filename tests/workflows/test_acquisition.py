@@ -1,5 +1,6 @@
 """Acquisition on simulated devices: the complete run, every fault, resume, and refusals."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -159,3 +160,25 @@ def test_a_stopped_robot_refuses_new_motion():
     world, _, robot = setup(protective_stop_at_s=0.0)
     with pytest.raises(DeviceError, match="protective stop"):
         robot.move_joints(world.home_joints_rad, 1.0, 1.0)
+
+
+def test_a_move_that_never_finishes_ends_the_run_at_its_deadline(tmp_path):
+    """A controller that keeps reporting "moving" (the run that stood still for five minutes)
+    ends the run with the move named, the robot stopped and the samples kept."""
+    world, plan, robot = setup()
+
+    class NeverArrives(SimulatedRobot):
+        def state(self):
+            return dataclasses.replace(super().state(), moving=True)
+
+    stuck = NeverArrives(world, robot.clock)
+    path = tmp_path / "rec.csv"
+    started = stuck.clock.now_s
+    with pytest.raises(
+        AcquisitionStopped, match=r"move 1/\d+ \(\w+\) did not finish within its deadline"
+    ) as stop:
+        acquire(plan, stuck, SimulatedTracker(world, stuck), path, recording_metadata(world))
+    first = plan.moves[0]
+    assert stuck.clock.now_s - started <= 1.5 * first.duration_s + 2.0 + 0.2  # one frame past the deadline
+    assert stuck.commands[-1] == "stop" and stop.value.result.moves_completed == 0
+    assert progress_path(path).is_file()

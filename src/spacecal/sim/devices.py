@@ -110,14 +110,24 @@ class SimulatedRobot:
         self._stream: list[RobotState] | None = [] if stream_states else None
         self._streamed_to_s = np.floor(self.clock.now_s / self._tick_s) * self._tick_s
         self._updated_at_s = -np.inf
+        self._joints_time_s = self.clock.now_s
         self._lock = threading.RLock()
 
+    #: Longest step of the path followed between two looks at the robot (s): a controller
+    #: tracks its path continuously, so a long jump (a blocking move) is followed in steps.
+    PATH_STEP_S = 0.02
+
     def _joints_at(self, motion: tuple, times_s: np.ndarray) -> np.ndarray:
-        """Joint angles (M, 6) of ``motion`` at increasing times (M,)."""
+        """Joint angles (M, 6) of ``motion`` at increasing times (M,), followed continuously
+        from the last look (``self._joints`` at ``self._joints_time_s``)."""
         kind, move, start = motion
         if kind == "linear":
-            elapsed = np.clip(times_s - start, 0.0, move.duration_s)
-            return track_path(self.world.nominal_model, move.poses_at(elapsed), self._joints)
+            since = max(self._joints_time_s, start)
+            steps = np.arange(since + self.PATH_STEP_S, times_s[-1], self.PATH_STEP_S)
+            grid = np.union1d(steps, times_s)
+            elapsed = np.clip(grid - start, 0.0, move.duration_s)
+            path = track_path(self.world.nominal_model, move.poses_at(elapsed), self._joints)
+            return path[np.searchsorted(grid, times_s)]
         q0, q1, _, duration = move
         fraction = np.ones_like(times_s) if duration == 0 else np.clip((times_s - start) / duration, 0.0, 1.0)
         return q0 + fraction[:, None] * (q1 - q0)
@@ -151,7 +161,7 @@ class SimulatedRobot:
         path = self._joints_at(motion, np.append(ticks, now))
         end = self._motion_end_s(motion)
         self._stream_ticks(ticks, path[:-1], moving=ticks < end)
-        self._joints = path[-1]
+        self._joints, self._joints_time_s = path[-1], now
         if now >= end:
             self._finish()
 

@@ -47,6 +47,9 @@ class AcquisitionSettings:
         Frames in the first part of each move (robot clock) are not recorded: a tracker that
         delivers frames late (a streamed OpenIGTLink source) would otherwise label the last
         frames of one move with the next move's segment.
+    deadline_factor, deadline_margin_s : float
+        Every move must end within ``deadline_factor`` times its planned duration plus
+        ``deadline_margin_s`` (robot clock); a move that does not ends the run.
     """
 
     linear_speed_mm_s: float = MotionLimits.linear_speed_mm_s
@@ -54,6 +57,8 @@ class AcquisitionSettings:
     frame_timeout_s: float = 1.0
     stale_robot_s: float = STALE_ROBOT_S
     move_start_guard_s: float = 0.1
+    deadline_factor: float = 1.5
+    deadline_margin_s: float = 2.0
 
 
 @dataclass
@@ -291,8 +296,15 @@ def run_plan(
                     state.base_from_tcp,
                     recorded,
                 )
-            if hold and state.time_s - move_started_at >= move.duration_s:
+            elapsed = state.time_s - move_started_at
+            if hold and elapsed >= move.duration_s:
                 break
+            deadline = settings.deadline_factor * move.duration_s + settings.deadline_margin_s
+            if elapsed > deadline:
+                raise RunFault(
+                    f"move {index + 1}/{len(plan.moves)} ({move.label}) did not finish within its deadline "
+                    f"of {deadline:.1f} s (planned {move.duration_s:.1f} s); the robot was stopped"
+                )
             if not hold and not state.moving:
                 break
         progress.moves_completed = index + 1
