@@ -300,8 +300,8 @@ def acquire(
     progress_file = progress_path(recording_path)
     first_move = 0
     if resume:
-        if not progress_file.is_file() or not recording_path.is_file():
-            raise InvalidInputError(f"nothing to resume: {progress_file} or {recording_path} is missing")
+        if not progress_file.is_file():
+            raise InvalidInputError(f"nothing to resume: {progress_file} is missing")
         progress = read_progress(recording_path)
         if progress is None or progress.plan_fingerprint != plan_fingerprint(plan):
             raise InvalidInputError(f"{recording_path} was recorded with a different plan; cannot resume it")
@@ -309,9 +309,10 @@ def acquire(
     elif recording_path.exists():
         raise InvalidInputError(f"{recording_path} exists; choose another file or pass --resume")
 
-    writer = RecordingWriter(recording_path, metadata, append=resume)
-    result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves))
+    # progress first: an interruption before the first sample leaves a run --resume can start
     _write_progress(progress_file, plan, first_move, None)
+    writer = RecordingWriter(recording_path, metadata, append=resume and recording_path.is_file())
+    result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves))
 
     def fail(reason: str) -> NoReturn:
         robot.stop()
