@@ -1,0 +1,88 @@
+"""Ctrl-C and SIGTERM at seeded random points of ``spacecal acquire`` on simulated devices.
+
+After each interruption every file written must be readable, ``--resume`` must complete the
+recording (time increasing across the resume point, the same columns) and the recording must
+calibrate (``--method ml``).
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from spacecal.io.recording_csv import read_recording
+
+POINTS = 20
+SEED = 20240611
+
+
+def _spacecal(*argv: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "spacecal.cli", *argv], cwd=cwd, capture_output=True, text=True, timeout=180
+    )
+
+
+def _interrupt_then_resume(folder: Path, signum: int, delay_s: float) -> str | None:
+    """None when the run ends in a recording that calibrates; else what went wrong."""
+    folder.mkdir(parents=True)
+    argv = ["acquire", "--scenario", "paper-white", "-o", "rec.csv"]
+    process = subprocess.Popen(
+        [sys.executable, "-m", "spacecal.cli", *argv],
+        cwd=folder,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(delay_s)
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=120)
+    if "Traceback" in err and process.returncode not in (-signum, 128 + signum):
+        return f"traceback after {signal.Signals(signum).name} at {delay_s:.2f} s:\n{err[-1500:]}"
+    header = None
+    if (folder / "rec.csv").is_file():
+        lines = (folder / "rec.csv").read_text().splitlines()
+        header = lines[0] if lines else None
+        if len(lines) > 11:
+            read_recording(folder / "rec.csv")  # what was kept is a readable recording
+    resume = ["--resume"] if (folder / "rec.progress.json").is_file() else []
+    if not resume and (folder / "rec.csv").exists():
+        return f"a recording without a progress file after {delay_s:.2f} s"
+    done = _spacecal(*argv, *resume, cwd=folder)
+    if done.returncode != 0:
+        return (
+            f"acquire {' '.join(resume)} after {delay_s:.2f} s: exit {done.returncode}: {done.stderr[-800:]}"
+        )
+    lines = (folder / "rec.csv").read_text().splitlines()
+    if header is not None and lines[0] != header:
+        return "the resumed recording changed its columns"
+    recording = read_recording(folder / "rec.csv")
+    if not np.all(np.diff(recording.time_s) > 0):
+        return "time not increasing after the resume point"
+    calibrated = _spacecal("calibrate", "rec.csv", "--method", "ml", "-o", "cal.json", cwd=folder)
+    if calibrated.returncode != 0:
+        return f"calibrate after {delay_s:.2f} s: {calibrated.stderr[-800:]}"
+    return None
+
+
+def test_interrupted_acquisitions_resume_into_recordings_that_calibrate(tmp_path):
+    rng = random.Random(SEED)
+    points = [(signal.SIGINT if k % 2 == 0 else signal.SIGTERM, rng.uniform(1.0, 7.0)) for k in range(POINTS)]
+    env_ok = os.environ.get("PYTHONPATH")  # the subprocesses import the installed package
+    _ = env_ok
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        problems = list(
+            pool.map(
+                lambda item: _interrupt_then_resume(tmp_path / f"run{item[0]}", *item[1]),
+                enumerate(points),
+            )
+        )
+    failures = [p for p in problems if p]
+    assert not failures, "\n\n".join(failures)
