@@ -7,7 +7,6 @@ calibrate (``--method ml``).
 
 from __future__ import annotations
 
-import os
 import random
 import signal
 import subprocess
@@ -75,8 +74,6 @@ def _interrupt_then_resume(folder: Path, signum: int, delay_s: float) -> str | N
 def test_interrupted_acquisitions_resume_into_recordings_that_calibrate(tmp_path):
     rng = random.Random(SEED)
     points = [(signal.SIGINT if k % 2 == 0 else signal.SIGTERM, rng.uniform(1.0, 7.0)) for k in range(POINTS)]
-    env_ok = os.environ.get("PYTHONPATH")  # the subprocesses import the installed package
-    _ = env_ok
     with ThreadPoolExecutor(max_workers=2) as pool:
         problems = list(
             pool.map(
@@ -86,3 +83,28 @@ def test_interrupted_acquisitions_resume_into_recordings_that_calibrate(tmp_path
         )
     failures = [p for p in problems if p]
     assert not failures, "\n\n".join(failures)
+
+
+def test_ctrl_c_at_random_samples_then_resume(tmp_path):
+    """The same, in this process: KeyboardInterrupt raised at seeded random samples (a test
+    hook on the progress callback), so every part of the plan is hit whatever the machine's
+    speed."""
+    from spacecal import app
+    from spacecal.core.errors import SpacecalError
+
+    rng = random.Random(SEED + 1)
+    for k, stop_at in enumerate(sorted(rng.sample(range(1, 560), 8))):
+        output = tmp_path / f"rec{k}.csv"
+
+        def hook(samples, visible, move, label, stop_at=stop_at):
+            if samples == stop_at:
+                raise KeyboardInterrupt
+
+        try:
+            app.acquire(app.AcquireSettings(str(output), scenario="paper-white"), on_sample=hook)
+        except SpacecalError as exc:
+            assert "interrupted" in str(exc)
+        app.acquire(app.AcquireSettings(str(output), scenario="paper-white", resume=True))
+        recording = read_recording(output)
+        assert np.all(np.diff(recording.time_s) > 0), f"stopped at sample {stop_at}"
+        app.calibrate(app.CalibrateSettings(str(output), str(tmp_path / f"cal{k}.json"), "ml"))

@@ -188,8 +188,8 @@ def run_plan(
     first_move = progress.moves_completed
     for index in range(first_move, len(plan.moves)):
         move = plan.moves[index]
-        if index == first_move and approach_first_move:
-            robot.move_linear(move.start, settings.linear_speed_mm_s, settings.linear_accel_mm_s2)
+        if index == first_move and approach_first_move and not _at_pose(robot, move.start):
+            _approach(robot, tracker, move.start, settings)
         if streams:
             robot.drain_states()  # states before this move belong to no recorded segment
         # A hold (start = end) is a station: the arm rests while frames are taken for the
@@ -347,6 +347,36 @@ def acquire(
     finally:
         writer.close()
     return result
+
+
+def _approach(
+    robot: Robot, tracker: Tracker, base_from_tcp: np.ndarray, settings: AcquisitionSettings
+) -> None:
+    """Move to where an interrupted move started, watching the robot at the tracker's pace as
+    during a recorded move (so a safety stop or a lost tracker ends the run the same way, and
+    a simulated arm follows the path instead of jumping to its end)."""
+    robot.move_linear(
+        base_from_tcp, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
+    )
+    while True:
+        try:
+            tracker.next_frame(settings.frame_timeout_s)
+        except DeviceError as exc:
+            raise RunFault(f"tracker lost ({exc})") from exc
+        state = robot.state()
+        if state.safety != SAFETY_NORMAL:
+            raise RunFault(f"robot {state.safety.replace('_', ' ')}")
+        if not state.moving:
+            return
+
+
+def _at_pose(robot: Robot, base_from_tcp: np.ndarray) -> bool:
+    """True when the TCP is already at ``base_from_tcp`` (to a micrometre and a microradian)."""
+    here = robot.state().base_from_tcp
+    return bool(
+        np.allclose(here[:3, 3], base_from_tcp[:3, 3], atol=1e-3)
+        and np.allclose(here[:3, :3], base_from_tcp[:3, :3], atol=1e-6)
+    )
 
 
 def _cause(robot: Robot, error: Exception) -> str:
