@@ -5,20 +5,52 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from spacecal.core.errors import InvalidInputError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.records import Provenance, Recording
 
 
-def refuse_overwriting_inputs(output: str | Path | None, *inputs: str | Path | None) -> None:
-    """Raise if ``output`` names one of the command's own input files."""
-    if output is None:
+def is_recording(path: str | Path) -> bool:
+    """True for an existing recording: a CSV whose header has ``time_s`` (paired or raw
+    stream), a recording's ``.meta.json`` or an acquisition's ``.progress.json``."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    if path.name.endswith((".meta.json", ".progress.json")):
+        return True
+    if path.suffix.lower() != ".csv":
+        return False
+    try:
+        with open(path, "rb") as handle:
+            first = handle.readline(4096)
+    except OSError:
+        return False
+    return b"time_s" in first
+
+
+def refuse_overwriting_inputs(
+    output: str | Path | None, *inputs: str | Path | None, force: bool = False, recordings: bool = True
+) -> None:
+    """Raise if ``output`` names one of the command's own input files or an existing
+    recording, unless ``force`` (outputs are written atomically, after the inputs are read)."""
+    if output is None or force:
         return
     target = Path(output).resolve()
     for item in inputs:
         if item is not None and Path(item).resolve() == target:
             raise InvalidInputError(
-                f"{output}: the output would overwrite an input of this command; choose another file"
+                f"{output}: the output would overwrite an input of this command; choose another file "
+                "or pass --force"
             )
+    if recordings and is_recording(target):
+        raise InvalidInputError(
+            f"{output}: an existing recording; choose another file or pass --force to replace it"
+        )
+
+
+def guard_outputs(outputs: list[str | Path | None], inputs: list[str | Path | None], force: bool) -> None:
+    """:func:`refuse_overwriting_inputs` for each of several outputs."""
+    for output in outputs:
+        refuse_overwriting_inputs(output, *inputs, force=force)
 
 
 def provenance_of(
@@ -44,3 +76,34 @@ def provenance_of(
         scenario=scenario if isinstance(scenario, dict) else None,
         devices=devices,
     )
+
+
+#: Largest median residuals of a calibration over its recording: beyond them the recording is
+#: not what it claims (quaternion order, units, swapped columns), whatever the estimator says.
+CONSISTENCY_MM = 5.0
+CONSISTENCY_DEG = 3.0
+
+
+def check_consistent(recording: Recording, tracker_from_base, tcp_from_marker, what: str) -> None:
+    """Refuse a recording that a calibration does not explain: the median distance and angle
+    between each seen marker pose and ``tracker_from_base @ base_from_tcp @ tcp_from_marker``.
+
+    The median ignores outliers (reflections, stale frames); robot kinematic errors leave a
+    millimetre or so.
+    """
+    import numpy as np
+
+    seen = recording.visible
+    predicted = tracker_from_base @ recording.base_from_tcp_stack[seen] @ tcp_from_marker
+    measured = recording.tracker_from_marker_stack[seen]
+    distance = np.linalg.norm(predicted[:, :3, 3] - measured[:, :3, 3], axis=1)
+    relative = np.einsum("nji,njk->nik", predicted[:, :3, :3], measured[:, :3, :3])
+    cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    median_mm = float(np.median(distance))
+    median_deg = float(np.degrees(np.median(np.arccos(cosine))))
+    if not (median_mm <= CONSISTENCY_MM and median_deg <= CONSISTENCY_DEG):
+        raise DegenerateDataError(
+            f"{what}: the calibration does not explain the recording (median residual {median_mm:.1f} mm, "
+            f"{median_deg:.1f} deg): quaternions not w,x,y,z or conjugated, lengths not in mm, or the "
+            "marker and TCP columns swapped?"
+        )

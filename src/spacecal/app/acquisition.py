@@ -21,7 +21,7 @@ from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import Robot, Tracker
 from spacecal.geometry.transforms import make_transform
-from spacecal.io.recording_csv import read_recording
+from spacecal.io.recording_csv import last_time_s, read_recording
 from spacecal.io.results_json import read_calibration, write_json
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import ndi_8700339_like
@@ -44,6 +44,16 @@ from spacecal.workflows.acquisition import (
 )
 from spacecal.workflows.acquisition import acquire as run_acquisition
 from spacecal.workflows.check import append_history, check_with_recording, check_with_robot
+
+#: Accepted ranges of the acquisition's numeric settings (a tiny speed would never finish).
+ACQUIRE_RANGES = {
+    "speed_mm_s": (1.0, 1000.0),
+    "accel_mm_s2": (1.0, 10_000.0),
+    "angular_speed_deg_s": (0.5, 180.0),
+    "tracker_rate_hz": (1.0, 1000.0),
+    "rotation_deg": (1.0, 180.0),
+    "translation_mm": (1.0, 2000.0),
+}
 
 #: Largest distance (mm) between where our model puts the TCP and where the controller reports it.
 TCP_MISMATCH_MM = 1.0
@@ -105,25 +115,23 @@ class AcquireSettings:
     translation_mm: float = PaperSweepSettings.translation_stroke_mm
 
     def __post_init__(self) -> None:
-        for name in (
-            "speed_mm_s",
-            "accel_mm_s2",
-            "angular_speed_deg_s",
-            "tracker_rate_hz",
-            "rotation_deg",
-            "translation_mm",
-        ):
+        for name, (low, high) in ACQUIRE_RANGES.items():
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and 0 < value < 1e5):
-                raise InvalidInputError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high):
+                raise InvalidInputError(
+                    f"--{name.replace('_', '-')} must be a positive number in {low:g}..{high:g}, got {value}"
+                )
         if self.workspace_box is not None:
             box = np.asarray(self.workspace_box, dtype=float)
             if box.shape != (6,) or not np.all(np.isfinite(box)) or np.any(box[0::2] >= box[1::2]):
                 raise InvalidInputError(
                     "--workspace-box takes xmin,xmax,ymin,ymax,zmin,zmax in mm, each min < max"
                 )
-        if not np.all(np.isfinite(self.tool_offset_mm)):
-            raise InvalidInputError("--tool-offset-mm takes finite x,y,z in mm")
+            if np.any(np.abs(box) > 1e5):
+                raise InvalidInputError("--workspace-box: each limit must be within +-100000 mm")
+        offset = np.asarray(self.tool_offset_mm, dtype=float)
+        if offset.shape != (3,) or not np.all(np.isfinite(offset)) or np.any(np.abs(offset) > 2000):
+            raise InvalidInputError("--tool-offset-mm takes finite x,y,z in mm, each within +-2000 mm")
 
 
 @dataclass
@@ -153,10 +161,13 @@ def workspace_problems(plan: MotionPlan, box: Sequence[float] | None) -> list[st
     return problems
 
 
-def simulated_devices(scenario_name: str) -> tuple[World, SimulatedRobot, SimulatedTracker]:
-    """The simulated robot and tracker of a scenario (simulated time), and their world."""
+def simulated_devices(
+    scenario_name: str, start_s: float = 0.0
+) -> tuple[World, SimulatedRobot, SimulatedTracker]:
+    """The simulated robot and tracker of a scenario (simulated time from ``start_s``), and
+    their world."""
     world = build_world(load_scenario(scenario_name))
-    robot = SimulatedRobot(world, SimClock())
+    robot = SimulatedRobot(world, SimClock(start_s))
     return world, robot, SimulatedTracker(world, robot)
 
 
@@ -207,7 +218,10 @@ def opened_devices(settings: AcquireSettings) -> Iterator[tuple[Robot, Tracker, 
     """The devices of the settings, closed again on every way out."""
     world: World | None
     if settings.robot == "sim" and settings.tracker == "sim":
-        world, robot, tracker = simulated_devices(settings.scenario)
+        # a resumed simulated run continues the recording's time (a real clock just goes on)
+        last = last_time_s(settings.output) if settings.resume else None
+        start = 0.0 if last is None else float(np.ceil(last + 1.0))
+        world, robot, tracker = simulated_devices(settings.scenario, start)
     else:
         robot, tracker = open_hardware(settings)
         world = None
@@ -294,7 +308,10 @@ def acquire(
         :mod:`spacecal.report.live`; it must return at once, and a failing one is detached
         with a warning.
     """
-    refuse_overwriting_inputs(settings.output, settings.prior, *settings.rom)
+    # the recording itself: the acquisition refuses an existing one unless resuming it
+    refuse_overwriting_inputs(
+        settings.output, settings.prior, settings.scenario, *settings.rom, recordings=False
+    )
     with opened_devices(settings) as (robot, tracker, world):
         plan = plan_for_world(world) if world is not None else hardware_plan(settings, robot)
         problems = workspace_problems(plan, settings.workspace_box)
@@ -361,7 +378,7 @@ class CheckSettings:
             raise InvalidInputError(f"--poses takes 2 or 3, got {self.poses}")
         for name in ("threshold_mm", "threshold_deg"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and 0 < value < 1e3):
+            if not (math.isfinite(value) and 1e-3 <= value <= 1e3):
                 raise InvalidInputError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
 
 
@@ -438,9 +455,10 @@ class PlanSettings:
     scenario: str = DEFAULT_SCENARIO
     frames_per_station: int = PlannerSettings.frames_per_station
     output: str | None = None
+    force: bool = False
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.budget_s) and 0 < self.budget_s <= 3600):
+        if not (math.isfinite(self.budget_s) and 1 <= self.budget_s <= 3600):
             raise InvalidInputError(f"--budget must be between 0 and 3600 s, got {self.budget_s}")
         if not 1 <= self.frames_per_station <= 1000:
             raise InvalidInputError(f"--frames-per-station must be 1..1000, got {self.frames_per_station}")
@@ -448,6 +466,7 @@ class PlanSettings:
 
 def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
     """Plan the motion and compare it with the paper's sweeps; returns the plan and the file."""
+    refuse_overwriting_inputs(settings.output, settings.scenario, force=settings.force)
     world = build_world(load_scenario(settings.scenario))
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
     planner = PlannerSettings(

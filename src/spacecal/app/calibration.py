@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import provenance_of, refuse_overwriting_inputs
+from spacecal.app._common import check_consistent, provenance_of, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.likelihood import tre_lower_bound
@@ -39,9 +39,12 @@ def check_points(points: Sequence[Sequence[float]], option: str) -> np.ndarray |
     return array
 
 
-def check_positive(value: float | None, option: str, unit: str) -> None:
-    if value is not None and not (math.isfinite(value) and 0 < value < 1e6):
-        raise InvalidInputError(f"{option} must be a positive number of {unit}, got {value}")
+def check_positive(value: float | None, option: str, unit: str, low: float = 1e-6, high: float = 1e6) -> None:
+    """Refuse a value that is not a finite number in ``low..high`` (``option`` names it)."""
+    if value is not None and not (math.isfinite(value) and low <= value <= high):
+        raise InvalidInputError(
+            f"{option} must be a positive number of {unit} in {low:g}..{high:g}, got {value}"
+        )
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,7 @@ class CalibrateSettings:
     time_offset_ms: float | None = None
     targets_in_base: tuple[Point, ...] = ()
     sigma_mm: float | None = None
+    force: bool = False
 
 
 @dataclass(frozen=True)
@@ -89,8 +93,9 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
         settings.recording,
         metadata_path(settings.recording),
         settings.tracker_stream,
+        force=settings.force,
     )
-    check_positive(settings.sigma_mm, "--sigma-mm", "millimetres")
+    check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     targets = check_points(settings.targets_in_base, "--target")
     note = None
     if settings.tracker_stream:
@@ -114,6 +119,7 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
     if settings.sigma_mm is not None:
         options["sigma_mm"] = settings.sigma_mm
     result = estimate(recording, settings.method, **options)
+    check_consistent(recording, result.tracker_from_base, result.tcp_from_marker, str(settings.recording))
     result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))
     if settings.tracker_stream:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
@@ -132,9 +138,12 @@ class BoundSettings:
 
 def bound(settings: BoundSettings) -> dict[str, Any]:
     """The bound at the site, over the cube and at the targets (mm)."""
-    check_positive(settings.sigma_mm, "--sigma-mm", "millimetres")
+    check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     recording = read_recording(settings.recording)
     calibration = read_calibration(settings.calibration)
+    check_consistent(
+        recording, calibration.tracker_from_base, calibration.tcp_from_marker, str(settings.recording)
+    )
     return tre_lower_bound(
         recording,
         calibration.tracker_from_base,
@@ -164,12 +173,18 @@ class PivotSettings:
     method: str = "aos"
     subset: str | None = None
     output: str | None = None
+    force: bool = False
 
 
 def pivot(settings: PivotSettings) -> tuple[PivotResult, Path | None]:
     """Pivot calibration; returns the result and the file written (if any)."""
     source = Path(settings.poses)
-    refuse_overwriting_inputs(settings.output, settings.poses, settings.subset)
+    refuse_overwriting_inputs(settings.output, settings.poses, settings.subset, force=settings.force)
+    if settings.output and source.is_dir() and Path(settings.output).resolve().parent == source.resolve():
+        if Path(settings.output).suffix == ".txt" and not settings.force:
+            raise InvalidInputError(
+                f"{settings.output}: would overwrite a pose file; choose another file or pass --force"
+            )
     if source.is_dir():
         names = None
         if settings.subset:

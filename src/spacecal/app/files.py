@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from spacecal.app._common import refuse_overwriting_inputs
+from spacecal.app._common import check_consistent, guard_outputs, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings
+from spacecal.io.atomic import atomic_path
 from spacecal.io.plus_config import (
     read_plus_landmarks,
     read_plus_transform,
@@ -22,7 +28,7 @@ from spacecal.io.results_json import read_calibration, read_json_object, write_j
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.records import LandmarkRegistrationResult, VerificationResult
 from spacecal.report.html import Report, write_figures, write_report
-from spacecal.workflows.check import read_history
+from spacecal.workflows.check import history_path, read_history
 from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
 
 
@@ -51,6 +57,7 @@ class RegisterLandmarksSettings:
     stylus: str = "Stylus"
     plus_compatible: bool = False
     output: str | None = None
+    force: bool = False
 
 
 def register_landmarks(
@@ -58,7 +65,7 @@ def register_landmarks(
 ) -> tuple[LandmarkRegistrationResult, np.ndarray, Path | None]:
     """Detect the landmark touches and register; returns the result, the sequence's
     timestamps (s) and the file written."""
-    refuse_overwriting_inputs(settings.output, settings.sequence, settings.config)
+    refuse_overwriting_inputs(settings.output, settings.sequence, settings.config, force=settings.force)
     sequence = read_plus_sequence(settings.sequence)
     _, landmarks = read_plus_landmarks(settings.config)
     stylus_from_tip = read_plus_transform(settings.config, "StylusTip", "Stylus")
@@ -92,6 +99,7 @@ class ReportSettings:
     recording: str | None = None
     verification: str | None = None
     png_dir: str | None = None
+    force: bool = False
 
 
 @dataclass(frozen=True)
@@ -105,7 +113,12 @@ class ReportOutput:
 def report(settings: ReportSettings) -> ReportOutput:
     """Write the report of a calibration (with its recording, verification and check history)."""
     refuse_overwriting_inputs(
-        settings.output, settings.calibration, settings.recording, settings.verification
+        settings.output,
+        settings.calibration,
+        settings.recording,
+        settings.verification,
+        history_path(settings.calibration),
+        force=settings.force,
     )
     calibration = read_calibration(settings.calibration)
     notes = []
@@ -113,6 +126,9 @@ def report(settings: ReportSettings) -> ReportOutput:
     recording = None
     if recording_path and Path(recording_path).is_file():
         recording = read_recording(recording_path)
+        check_consistent(
+            recording, calibration.tracker_from_base, calibration.tcp_from_marker, recording_path
+        )
     else:
         notes.append("no recording found (pass --recording): sweeps and residuals are not shown")
     verification = None
@@ -122,9 +138,11 @@ def report(settings: ReportSettings) -> ReportOutput:
     if unreadable:
         notes.append(f"{unreadable} unreadable line(s) in the check history were skipped")
     report_data = Report(calibration, recording, verification, history)
-    path, titles = write_report(report_data, settings.output)
-    figures = write_figures(report_data, settings.png_dir) if settings.png_dir else []
-    return ReportOutput(path, titles, notes, figures)
+    with atomic_path(settings.output) as temporary, _staged_folder(settings.png_dir) as png_dir:
+        _, titles = write_report(report_data, temporary)
+        staged = write_figures(report_data, png_dir) if png_dir else []
+    figures = [Path(settings.png_dir) / Path(f).name for f in staged] if settings.png_dir else []
+    return ReportOutput(Path(settings.output), titles, notes, figures)
 
 
 #: What other spacecal files are, for the one line that refuses them as a verification.
@@ -150,6 +168,24 @@ def _read_verification(path: str) -> VerificationResult:
     return VerificationResult.from_dict(data, what=path)
 
 
+@contextlib.contextmanager
+def _staged_folder(folder: str | None) -> Iterator[str | None]:
+    """A temporary folder beside ``folder`` whose files are moved into it (each by a rename)
+    when the block completes, so figures are never left half-written."""
+    if folder is None:
+        yield None
+        return
+    target = Path(folder)
+    target.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(dir=target, prefix=".staging."))
+    try:
+        yield str(staging)
+        for item in staging.iterdir():
+            os.replace(item, target / item.name)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
 @dataclass(frozen=True)
 class ExportSettings:
     """``spacecal export``: a calibration for 3D Slicer, PLUS, or over OpenIGTLink."""
@@ -158,6 +194,7 @@ class ExportSettings:
     slicer: str | None = None
     plus: str | None = None
     igtl: str | None = None
+    force: bool = False
 
 
 def export(settings: ExportSettings) -> list[str]:
@@ -167,8 +204,7 @@ def export(settings: ExportSettings) -> list[str]:
             "say where to export: --slicer FILE.tfm, --plus FILE.xml, --igtl HOST:PORT, --easy-handeye2, "
             "--ros2-launch, --urdf, --static-tf or --ur-calibration"
         )
-    refuse_overwriting_inputs(settings.slicer, settings.calibration)
-    refuse_overwriting_inputs(settings.plus, settings.calibration)
+    guard_outputs([settings.slicer, settings.plus], [settings.calibration], settings.force)
     calibration = read_calibration(settings.calibration)
     error = (calibration.predicted_tre_mm or {}).get("site")
     done = []
@@ -203,12 +239,12 @@ class ImportPlusSettings:
     marker: str = "MarkerToTracker"
     tcp: str = "TCPToBase"
     segment: str = "static"
+    force: bool = False
 
 
 def import_plus(settings: ImportPlusSettings) -> tuple[Path, int, int]:
     """Convert the sequence; returns the recording written, its frames and visible frames."""
-    refuse_overwriting_inputs(settings.output, settings.sequence)
-    refuse_overwriting_inputs(metadata_path(settings.output), settings.sequence)
+    guard_outputs([settings.output, metadata_path(settings.output)], [settings.sequence], settings.force)
     recording = recording_from_plus_sequence(
         settings.sequence, settings.marker, settings.tcp, settings.segment
     )

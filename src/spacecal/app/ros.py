@@ -6,11 +6,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from spacecal.app._common import refuse_overwriting_inputs
+from spacecal.app._common import guard_outputs, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.io.easy_handeye import read_easy_handeye_samples, write_easy_handeye2_calibration
-from spacecal.io.raw_streams import write_raw_recording
-from spacecal.io.recording_csv import write_recording
+from spacecal.io.raw_streams import stream_paths, write_raw_recording
+from spacecal.io.recording_csv import metadata_path, write_recording
 from spacecal.io.results_json import read_calibration
 from spacecal.io.ros_bag import list_bag_contents, read_ros_bag
 from spacecal.io.ros_exports import (
@@ -53,6 +53,7 @@ class ImportBagSettings:
     joint_states: str | None = None
     marker_topic: str | None = None
     robot_model: str = "UR10"
+    force: bool = False
 
 
 def import_bag(settings: ImportBagSettings) -> str:
@@ -61,7 +62,8 @@ def import_bag(settings: ImportBagSettings) -> str:
         return list_bag_contents(settings.bag).describe()
     if not settings.output:
         raise InvalidInputError("say where to write the streams: -o STEM (or --list to look inside the bag)")
-    refuse_overwriting_inputs(settings.output, settings.bag)
+    stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
+    guard_outputs(list(stream_paths(stem)), [settings.bag], settings.force)
     raw = read_ros_bag(
         settings.bag,
         base_frame=settings.base_frame,
@@ -72,7 +74,6 @@ def import_bag(settings: ImportBagSettings) -> str:
         marker_topic=settings.marker_topic,
         robot_model=settings.robot_model if settings.joint_states else None,
     )
-    stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
     robot_path, tracker_path = write_raw_recording(raw, stem)
     return (
         f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
@@ -81,9 +82,10 @@ def import_bag(settings: ImportBagSettings) -> str:
     )
 
 
-def import_easy_handeye(samples: str, output: str) -> str:
-    """easy_handeye2 saved samples as a recording CSV, to re-solve with spacecal's estimators."""
-    refuse_overwriting_inputs(output, samples)
+def import_easy_handeye(samples: str, output: str, force: bool = False) -> str:
+    """easy_handeye2 saved samples as a recording CSV, to re-solve with spacecal's estimators;
+    an existing recording or the samples file itself is replaced only with ``force``."""
+    guard_outputs([output, metadata_path(output)], [samples], force)
     recording = read_easy_handeye_samples(samples)
     path = write_recording(recording, output)
     return f"wrote {path}: {len(recording)} samples (re-solve with: spacecal calibrate {path} --method ml)"
@@ -107,12 +109,13 @@ class RosExportSettings:
     tool_frame: str = "tool0"
     tracker_frame: str = "tracker"
     marker_frame: str = "marker"
+    force: bool = False
 
 
 def export_ros(settings: RosExportSettings) -> list[str]:
     """Write each ROS export named; returns one line per export."""
     for output in (settings.easy_handeye2, settings.ros2_launch, settings.urdf, settings.ur_calibration):
-        refuse_overwriting_inputs(output, settings.calibration)
+        refuse_overwriting_inputs(output, settings.calibration, force=settings.force)
     calibration = read_calibration(settings.calibration)
     edge = calibration_static_transform(
         calibration.tracker_from_base, base_frame=settings.base_frame, tracker_frame=settings.tracker_frame

@@ -4,17 +4,20 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from spacecal.app._common import guard_outputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.experiments.demo import DemoResult, run_demo
 from spacecal.experiments.phantom import PhantomSettings, run_phantom_experiment
 from spacecal.experiments.simulation import simulate as simulate_run
 from spacecal.experiments.simulation import simulate_raw
 from spacecal.experiments.verification import verify_in_simulation
-from spacecal.io.raw_streams import write_raw_recording
+from spacecal.io.atomic import atomic_path
+from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
 from spacecal.io.results_json import read_calibration, read_json_object, write_calibration, write_json
 from spacecal.records import CalibrationResult, PhantomResult, VerificationResult
@@ -48,6 +51,14 @@ class SimulateSettings:
     seed: int | None = None
     raw: bool = False
     clock_offset_ms: float = 0.0
+    force: bool = False
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.clock_offset_ms) and abs(self.clock_offset_ms) <= 10_000):
+            raise InvalidInputError(
+                f"--clock-offset-ms must be within +-10000 ms, got {self.clock_offset_ms}"
+            )
+        check_seed(self.seed)
 
 
 @dataclass(frozen=True)
@@ -66,22 +77,29 @@ class SimulateOutput:
     simulated: bool = True
 
 
+def check_seed(seed: int | None) -> None:
+    """Refuse a seed numpy cannot take."""
+    if seed is not None and not 0 <= seed < 2**32:
+        raise InvalidInputError(f"--seed must be a whole number 0..{2**32 - 1}, got {seed}")
+
+
 def scenario_with_seed(name: str, seed: int | None) -> Scenario:
     """A scenario (preset or file) with its seed overridden when ``seed`` is given."""
     scenario = load_scenario(name)
     if seed is not None:
-        if seed < 0:
-            raise InvalidInputError(f"--seed must be a whole number >= 0, got {seed}")
+        check_seed(seed)
         scenario = dataclasses.replace(scenario, seed=seed)
     return scenario
 
 
 def simulate(settings: SimulateSettings) -> SimulateOutput:
     """Simulate a calibration run and write its recording (paired CSV, or raw streams)."""
+    stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
+    outputs = list(stream_paths(stem)) if settings.raw else [settings.output, metadata_path(settings.output)]
+    guard_outputs(outputs, [settings.scenario], settings.force)
     scenario = scenario_with_seed(settings.scenario, settings.seed)
     if settings.raw:
         raw, _ = simulate_raw(scenario, settings.clock_offset_ms / 1000.0)
-        stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
         robot_path, tracker_path = write_raw_recording(raw, stem)
         return SimulateOutput(
             (robot_path, tracker_path),
@@ -126,6 +144,7 @@ class VerifySettings:
     points: int = 15
     output: str | None = None
     figure: str | None = None
+    force: bool = False
 
 
 @dataclass(frozen=True)
@@ -154,8 +173,11 @@ def scenario_of_calibration(calibration: CalibrationResult) -> tuple[Scenario | 
 
 def verify(settings: VerifySettings) -> VerifyOutput:
     """Run the verification experiment for a calibration in its simulated world."""
-    if settings.points < 1:
-        raise InvalidInputError(f"--points must be at least 1, got {settings.points}")
+    if not 1 <= settings.points <= 1000:
+        raise InvalidInputError(f"--points must be 1..1000, got {settings.points}")
+    guard_outputs(
+        [settings.output, settings.figure], [settings.calibration, settings.scenario], settings.force
+    )
     calibration = read_calibration(settings.calibration)
     notes = []
     if settings.scenario is not None:
@@ -180,9 +202,9 @@ def verify(settings: VerifySettings) -> VerifyOutput:
     if settings.output:
         paths.append(write_json(result.to_dict(), settings.output))
     if settings.figure:
-        paths.append(
-            plot_verification_errors(result.position_error_mm, result.posture_error_deg, settings.figure)
-        )
+        with atomic_path(settings.figure) as temporary:
+            plot_verification_errors(result.position_error_mm, result.posture_error_deg, temporary)
+        paths.append(Path(settings.figure))
     return VerifyOutput(result, scenario.name, source, tuple(paths), notes)
 
 
@@ -192,6 +214,7 @@ class DemoSettings:
 
     scenario: str = DEFAULT_SCENARIO
     out: str | None = None
+    force: bool = False
 
 
 @dataclass(frozen=True)
@@ -202,6 +225,9 @@ class DemoOutput:
 
 def demo(settings: DemoSettings) -> DemoOutput:
     """The whole chain on the simulated system, with a table beside the paper's figures."""
+    names = ("recording.csv", "recording.meta.json", "calibration.json", "verification.json")
+    if settings.out:
+        guard_outputs([Path(settings.out) / n for n in names], [settings.scenario], settings.force)
     result = run_demo(load_scenario(settings.scenario))
     paths: list[Path] = []
     if settings.out:
@@ -219,12 +245,12 @@ def demo(settings: DemoSettings) -> DemoOutput:
             recording_path,
             write_calibration(calibration, out / "calibration.json"),
             write_json(result.verification.to_dict(), out / "verification.json"),
-            plot_verification_errors(
-                result.verification.position_error_mm,
-                result.verification.posture_error_deg,
-                out / "verification_errors.png",
-            ),
         ]
+        with atomic_path(out / "verification_errors.png") as temporary:
+            plot_verification_errors(
+                result.verification.position_error_mm, result.verification.posture_error_deg, temporary
+            )
+        paths.append(out / "verification_errors.png")
     return DemoOutput(result, tuple(paths))
 
 
@@ -237,12 +263,14 @@ class PhantomCommandSettings:
     cases: int = PhantomSettings.cases
     output: str | None = None
     figure: str | None = None
+    force: bool = False
 
 
 def phantom(settings: PhantomCommandSettings) -> tuple[PhantomResult, tuple[Path, ...]]:
     """Run the phantom experiment; returns its result and the files written."""
-    if settings.cases < 1:
-        raise InvalidInputError(f"--cases must be at least 1, got {settings.cases}")
+    if not 1 <= settings.cases <= 100:
+        raise InvalidInputError(f"--cases must be 1..100, got {settings.cases}")
+    guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force)
     result = run_phantom_experiment(
         load_scenario(settings.scenario), settings.method, PhantomSettings(cases=settings.cases)
     )
@@ -250,11 +278,11 @@ def phantom(settings: PhantomCommandSettings) -> tuple[PhantomResult, tuple[Path
     if settings.output:
         paths.append(write_json(result.to_dict(), settings.output))
     if settings.figure:
-        paths.append(
+        with atomic_path(settings.figure) as temporary:
             plot_phantom_errors(
-                result.entry_error_mm, result.target_error_mm, result.direction_error_deg, settings.figure
+                result.entry_error_mm, result.target_error_mm, result.direction_error_deg, temporary
             )
-        )
+        paths.append(Path(settings.figure))
     return result, tuple(paths)
 
 

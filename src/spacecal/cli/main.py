@@ -8,9 +8,12 @@ codes: 0 success; 1 a known error, printed as one line (``--debug`` shows the tr
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
-import re
+import signal
 import sys
+import threading
+import warnings
 
 from spacecal import app
 from spacecal.cli import parser
@@ -35,16 +38,9 @@ def _points(texts: list[str] | None, option: str = "--target") -> tuple[tuple[fl
     return tuple(_numbers(t, 3, option, "x,y,z in mm") for t in texts or [])
 
 
-def _seconds(text: str) -> float:
-    match = re.fullmatch(r"\s*([-+]?[0-9.eE+-]+)\s*s?\s*", text)
-    try:
-        seconds = float(match.group(1)) if match else float("nan")
-    except ValueError:
-        seconds = float("nan")
-    if seconds != seconds:
-        raise InvalidInputError(f"--budget takes seconds, e.g. 30s; got {text!r}")
+def _seconds(seconds: float) -> float:
     if seconds <= 0:
-        raise InvalidInputError(f"--budget must be positive, got {text!r}")
+        raise InvalidInputError(f"--budget must be positive, got {seconds:g} s")
     return seconds
 
 
@@ -55,7 +51,7 @@ def _print_notes(messages: list[str]) -> None:
 
 # -- commands -------------------------------------------------------------------------------
 def _simulate(a: argparse.Namespace) -> None:
-    out = app.simulate(app.SimulateSettings(a.output, a.scenario, a.seed, a.raw, a.clock_offset_ms))
+    out = app.simulate(app.SimulateSettings(a.output, a.scenario, a.seed, a.raw, a.clock_offset_ms, a.force))
     if a.raw:
         print(
             f"wrote {out.paths[0]} ({out.robot_states} robot states) and {out.paths[1]} "
@@ -81,7 +77,7 @@ def _calibrate(a: argparse.Namespace) -> None:
             raise InvalidInputError("--time-offset-ms takes a number or 'estimate'") from None
     out = app.calibrate(
         app.CalibrateSettings(
-            a.recording, a.output, a.method, a.tracker_stream, offset, _points(a.target), a.sigma_mm
+            a.recording, a.output, a.method, a.tracker_stream, offset, _points(a.target), a.sigma_mm, a.force
         )
     )
     if out.time_offset_note:
@@ -126,7 +122,7 @@ def _bound(a: argparse.Namespace) -> None:
 
 
 def _pivot(a: argparse.Namespace) -> None:
-    result, path = app.pivot(app.PivotSettings(a.poses, a.method, a.subset, a.output))
+    result, path = app.pivot(app.PivotSettings(a.poses, a.method, a.subset, a.output, a.force))
     summary = result.to_dict()
     if path:
         print(f"wrote {path}")
@@ -141,7 +137,7 @@ def _pivot(a: argparse.Namespace) -> None:
 
 
 def _verify(a: argparse.Namespace) -> None:
-    out = app.verify(app.VerifySettings(a.calibration, a.scenario, a.points, a.output, a.figure))
+    out = app.verify(app.VerifySettings(a.calibration, a.scenario, a.points, a.output, a.figure, a.force))
     for path in out.paths:
         print(f"wrote {path}")
     _print_notes(out.notes)
@@ -162,7 +158,7 @@ def _verify(a: argparse.Namespace) -> None:
 
 
 def _demo(a: argparse.Namespace) -> None:
-    out = app.demo(app.DemoSettings(a.scenario, a.out))
+    out = app.demo(app.DemoSettings(a.scenario, a.out, a.force))
     print(out.result.table())
     if out.paths:
         print(f"\nwrote {', '.join(p.name for p in out.paths)} to {a.out}")
@@ -251,7 +247,7 @@ def _acquire(a: argparse.Namespace) -> None:
 def _register_landmarks(a: argparse.Namespace) -> None:
     result, times, path = app.register_landmarks(
         app.RegisterLandmarksSettings(
-            a.sequence, a.config, a.reference, a.stylus, a.plus_compatible, a.output
+            a.sequence, a.config, a.reference, a.stylus, a.plus_compatible, a.output, a.force
         )
     )
     if path:
@@ -274,11 +270,11 @@ def _export(a: argparse.Namespace) -> None:
     ros = (a.easy_handeye2, a.ros2_launch, a.urdf, a.static_tf, a.ur_calibration)
     lines = []
     if a.slicer or a.plus or a.igtl or not any(ros):
-        lines += app.export(app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl))
+        lines += app.export(app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl, a.force))
     if any(ros):
         lines += app.export_ros(
             app.RosExportSettings(
-                a.calibration, *ros, a.base_frame, a.tool_frame, a.tracker_frame, a.marker_frame
+                a.calibration, *ros, a.base_frame, a.tool_frame, a.tracker_frame, a.marker_frame, a.force
             )
         )
     for line in lines:
@@ -299,18 +295,19 @@ def _import_bag(a: argparse.Namespace) -> None:
                 a.joint_states,
                 a.marker_topic,
                 a.robot_model,
+                a.force,
             )
         )
     )
 
 
 def _import_easy_handeye(a: argparse.Namespace) -> None:
-    print(app.import_easy_handeye(a.samples, a.output))
+    print(app.import_easy_handeye(a.samples, a.output, a.force))
 
 
 def _import_plus(a: argparse.Namespace) -> None:
     path, frames, visible = app.import_plus(
-        app.ImportPlusSettings(a.sequence, a.output, a.marker, a.tcp, a.segment)
+        app.ImportPlusSettings(a.sequence, a.output, a.marker, a.tcp, a.segment, a.force)
     )
     print(f"wrote {path}: {frames} frames, {visible} with the marker seen")
 
@@ -337,7 +334,9 @@ def _check(a: argparse.Namespace) -> None:
 def _phantom(a: argparse.Namespace) -> None:
     from spacecal.experiments.phantom import phantom_table
 
-    result, paths = app.phantom(app.PhantomCommandSettings(a.scenario, a.method, a.cases, a.output, a.figure))
+    result, paths = app.phantom(
+        app.PhantomCommandSettings(a.scenario, a.method, a.cases, a.output, a.figure, a.force)
+    )
     print(phantom_table(result))
     print(
         "(simulated; measured errors include the second CT's localisation error, as in the paper's "
@@ -348,7 +347,9 @@ def _phantom(a: argparse.Namespace) -> None:
 
 
 def _report(a: argparse.Namespace) -> None:
-    out = app.report(app.ReportSettings(a.calibration, a.output, a.recording, a.verification, a.png_dir))
+    out = app.report(
+        app.ReportSettings(a.calibration, a.output, a.recording, a.verification, a.png_dir, a.force)
+    )
     print(f"wrote {out.path} ({len(out.titles)} plots: {', '.join(out.titles)})")
     if out.figures:
         print(f"wrote {len(out.figures)} PNG figures: {', '.join(str(p) for p in out.figures)}")
@@ -356,7 +357,9 @@ def _report(a: argparse.Namespace) -> None:
 
 
 def _plan(a: argparse.Namespace) -> None:
-    record, path = app.plan(app.PlanSettings(_seconds(a.budget), a.scenario, a.frames_per_station, a.output))
+    record, path = app.plan(
+        app.PlanSettings(_seconds(a.budget), a.scenario, a.frames_per_station, a.output, a.force)
+    )
     print(
         f"planned for the simulated set-up {a.scenario}: {len(record.station_joints_rad)} stations, "
         f"{record.motion_time_s:.1f} s of motion, predicted tip error at the site "
@@ -405,17 +408,78 @@ def build_parser() -> argparse.ArgumentParser:
     return parser.build_parser(COMMANDS)
 
 
+class _Stop(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, handled like Ctrl-C: the robot stops and files stay readable."""
+
+
+def _raise_interrupt(signum, frame) -> None:
+    raise _Stop(signal.Signals(signum).name)
+
+
+@contextlib.contextmanager
+def _signals_as_interrupts():
+    """SIGTERM and SIGHUP raise KeyboardInterrupt while a command runs (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        number = getattr(signal, name, None)
+        if number is not None:
+            previous[number] = signal.signal(number, _raise_interrupt)
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``spacecal`` console script."""
+    """Entry point of the ``spacecal`` console script.
+
+    Exit codes: 0 success; 1 a known error, an interruption (Ctrl-C, SIGTERM, SIGHUP) or an
+    internal error, each printed as one line (``--debug`` shows the traceback); 2 a usage
+    error (argparse's message: an unknown option, a missing value, a value that does not
+    parse as the option's type).
+    """
     args = build_parser().parse_args(parser.join_negative_coordinates(sys.argv[1:] if argv is None else argv))
     try:
-        args.run(args)
+        with _signals_as_interrupts(), warnings.catch_warnings():
+            if not args.debug:
+                # the one-line error says what went wrong; library warnings (numpy's overflow
+                # notes, an empty file) would only add lines to it
+                warnings.simplefilter("ignore")
+            args.run(args)
     except (SpacecalError, OSError) as exc:
         if args.debug:
             raise
-        print(f"spacecal: error: {exc}", file=sys.stderr)
+        print(f"spacecal: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt as exc:
+        if args.debug:
+            raise
+        what = exc.args[0] if isinstance(exc, _Stop) and exc.args else "Ctrl-C"
+        print(f"spacecal: error: interrupted ({what}); every file written is complete", file=sys.stderr)
+        return 1
+    except RecursionError:
+        if args.debug:
+            raise
+        print("spacecal: error: input nested too deeply", file=sys.stderr)
+        return 1
+    except Exception as exc:
+        if args.debug:
+            raise
+        print(
+            f"spacecal: internal error: {type(exc).__name__}: {_one_line(exc)} "
+            "(please report it; --debug shows the traceback)",
+            file=sys.stderr,
+        )
         return 1
     return 0
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":

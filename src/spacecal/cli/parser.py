@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import math
+import re
 
 from spacecal import __version__, app
 from spacecal.app.simulation import DEFAULT_SCENARIO
@@ -37,6 +39,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     S = app.SimulateSettings
     p = command("simulate", "simulate a calibration run on the simulated system -> recording CSV")
+    add_force(p)
     p.add_argument("--scenario", default=_d(S, "scenario"), help=scenario_help)
     p.add_argument("--seed", type=int, help="override the scenario's seed")
     p.add_argument(
@@ -52,6 +55,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     C = app.CalibrateSettings
     p = command("calibrate", "estimate tracker_from_base from a recording")
+    add_force(p)
     p.add_argument("recording", help="recording CSV (or, with --tracker-stream, the robot stream)")
     p.add_argument("--method", default=_d(C, "method"), help=f"estimator: {', '.join(sorted(METHODS))}")
     p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
@@ -72,6 +76,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
 
     p = command("pivot", "pivot calibration of a pointer or needle tip")
+    add_force(p)
     p.add_argument("poses", help="folder of 4x4 .txt pose files, or a recording CSV")
     p.add_argument(
         "--method", default=_d(app.PivotSettings, "method"), help="aos (algebraic one-step) or sphere"
@@ -89,6 +94,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     V = app.VerifySettings
     p = command("verify", "the paper's verification experiment, in simulation")
+    add_force(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--scenario", help="simulated world (default: the one the calibration's data came from)")
     p.add_argument("--points", type=int, default=_d(V, "points"), help="number of needle poses")
@@ -96,6 +102,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 7)")
 
     p = command("demo", "simulate, calibrate and verify; print a summary table")
+    add_force(p)
     p.add_argument("--scenario", default=_d(app.DemoSettings, "scenario"), help=scenario_help)
     p.add_argument("--out", help="directory to write the recording, calibration, verification and figure to")
 
@@ -146,6 +153,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "register-landmarks",
         "register a phantom to its reference marker from a tracked-stylus PLUS recording",
     )
+    add_force(p)
     p.add_argument(
         "sequence", help="PLUS sequence file (.igs.mha) with <Reference>ToTracker and <Stylus>ToTracker"
     )
@@ -160,6 +168,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="registration JSON to write")
 
     p = command("export", "export a calibration to 3D Slicer, PLUS, or over OpenIGTLink")
+    add_force(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--slicer", help="ITK transform file (.tfm) for 3D Slicer")
     p.add_argument("--plus", help="PLUS CoordinateDefinitions XML")
@@ -184,6 +193,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     I = app.ImportPlusSettings
     p = command("import-plus", "turn a PLUS sequence file (.igs.mha) into a recording CSV")
+    add_force(p)
     p.add_argument("sequence", help="PLUS sequence file")
     p.add_argument("--marker", default=_d(I, "marker"), help="marker transform name")
     p.add_argument("--tcp", default=_d(I, "tcp"), help="robot TCP transform name")
@@ -192,6 +202,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     B = app.ImportBagSettings
     p = command("import-bag", "turn a ROS 1 or ROS 2 bag into a raw two-stream recording (spacecal[ros])")
+    add_force(p)
     p.add_argument("bag", help="ROS 1 .bag, ROS 2 bag folder, or a .db3 / .mcap file")
     p.add_argument("-o", "--output", help="stem of STEM.robot.csv and STEM.tracker.csv")
     p.add_argument("--list", action="store_true", help="show the topics and tf frames found, write nothing")
@@ -210,6 +221,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command(
         "import-easy-handeye", "turn easy_handeye2 saved samples into a recording CSV (spacecal[ros])"
     )
+    add_force(p)
     p.add_argument("samples", help="easy_handeye2 .samples file")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write")
 
@@ -229,6 +241,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     P = app.PhantomCommandSettings
     p = command("phantom", "the paper's phantom needle biopsy (section 5.3) in simulation")
+    add_force(p)
     p.add_argument("--scenario", default=_d(P, "scenario"), help=scenario_help)
     p.add_argument("--method", default=_d(P, "method"), help="calibration method")
     p.add_argument("--cases", type=int, default=_d(P, "cases"), help="needle paths (the paper: 5)")
@@ -236,6 +249,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 9)")
 
     p = command("report", "a self-contained HTML report (works offline) and PNG figures")
+    add_force(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="recording CSV (default: the calibration's own)")
     p.add_argument("--verification", help="verification JSON (from spacecal verify -o)")
@@ -244,7 +258,10 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     L = app.PlanSettings
     p = command("plan", "plan a calibration motion for the smallest predicted error at the site")
-    p.add_argument("--budget", default=f"{_d(L, 'budget_s'):g}s", help="motion time budget, e.g. 30s")
+    add_force(p)
+    p.add_argument(
+        "--budget", type=duration_s, default=_d(L, "budget_s"), help="motion time budget, e.g. 30s"
+    )
     p.add_argument("--scenario", default=_d(L, "scenario"), help="the (simulated) set-up to plan for")
     p.add_argument(
         "--frames-per-station",
@@ -269,6 +286,23 @@ def _ros_frames(p: argparse.ArgumentParser, settings: type) -> None:
         p.add_argument(
             f"--{name}-frame", default=_d(settings, f"{name}_frame"), help=f"ROS frame of the {what}"
         )
+
+
+def duration_s(text: str) -> float:
+    """``30s``, ``30`` or ``1.5e1 s`` -> seconds; anything else is a usage error."""
+    match = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*s?\s*", text)
+    if match is None or not math.isfinite(float(match.group(1))):
+        raise argparse.ArgumentTypeError(f"takes seconds, e.g. 30s; got {text!r}")
+    return float(match.group(1))
+
+
+def add_force(p: argparse.ArgumentParser) -> None:
+    """``--force``: replace an existing recording or an input file named as an output."""
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing recording or an input named as an output (written atomically)",
+    )
 
 
 def join_negative_coordinates(argv: list[str]) -> list[str]:

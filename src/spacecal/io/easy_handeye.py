@@ -46,6 +46,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import invert_transform
+from spacecal.io.atomic import write_text_atomic
 from spacecal.io.ros_common import (
     field,
     load_yaml_mapping,
@@ -299,7 +300,7 @@ def write_easy_handeye2_calibration(path: str | Path, tracker_from_base, **frame
     path = Path(path)
     frames.setdefault("name", path.stem)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(easy_handeye2_calibration_text(tracker_from_base, **frames))
+    write_text_atomic(easy_handeye2_calibration_text(tracker_from_base, **frames), path)
     return path
 
 

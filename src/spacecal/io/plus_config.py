@@ -14,14 +14,17 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.io.atomic import write_text_atomic
+from spacecal.io.text import read_text_file
 
 
 def _parse(path: str | Path) -> ElementTree.Element:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such PLUS configuration file")
+    text = read_text_file(path, "PLUS configuration")
     try:
-        return ElementTree.parse(path).getroot()
+        return ElementTree.fromstring(text)
     except ElementTree.ParseError as exc:
         raise InvalidInputError(f"{path}: not valid XML ({exc})") from None
 
@@ -30,9 +33,14 @@ def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.
     """The ``From``->``To`` transform of a PLUS configuration, as ``to_from_from`` (4, 4)."""
     for element in _parse(path).iter("Transform"):
         if element.get("From") == from_frame and element.get("To") == to_frame:
-            numbers = np.array(element.get("Matrix", "").split(), dtype=float)
-            if numbers.size != 16:
-                raise InvalidInputError(f"{path}: {from_frame}To{to_frame} Matrix does not hold 16 numbers")
+            try:
+                numbers = np.array(element.get("Matrix", "").split(), dtype=float)
+            except ValueError:
+                numbers = np.array([])
+            if numbers.size != 16 or not np.all(np.isfinite(numbers)) or np.max(np.abs(numbers)) > 1e5:
+                raise InvalidInputError(
+                    f"{path}: {from_frame}To{to_frame} Matrix does not hold 16 finite numbers (mm)"
+                )
             return numbers.reshape(4, 4)
     raise InvalidInputError(f"{path}: no {from_frame}To{to_frame} transform in CoordinateDefinitions")
 
@@ -43,7 +51,17 @@ def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
     positions: list[list[float]] = []
     for element in _parse(path).iter("Landmark"):
         names.append(element.get("Name", str(len(names) + 1)))
-        positions.append([float(v) for v in element.get("Position", "").split()])
+        position = element.get("Position", "")
+        try:
+            values = [float(v) for v in position.split()]
+        except ValueError:
+            values = []
+        if len(values) != 3 or not all(abs(v) <= 1e5 for v in values):
+            raise InvalidInputError(
+                f"{path}: landmark {names[-1]!r}: Position {position[:40]!r} is not three finite "
+                "numbers in mm"
+            )
+        positions.append(values)
     if not positions:
         raise InvalidInputError(f"{path}: no <Landmark> elements")
     return names, np.array(positions)
@@ -75,8 +93,9 @@ def write_plus_coordinate_definitions(path: str | Path, transforms: list[tuple])
     (or include in) a PLUS device-set configuration."""
     body = "\n".join(plus_coordinate_definition(t, f, to, e) for t, f, to, e in transforms)
     path = Path(path)
-    path.write_text(
+    write_text_atomic(
         f'<PlusConfiguration version="2.1">\n  <CoordinateDefinitions>\n{body}\n'
-        "  </CoordinateDefinitions>\n</PlusConfiguration>\n"
+        "  </CoordinateDefinitions>\n</PlusConfiguration>\n",
+        path,
     )
     return path

@@ -72,6 +72,8 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
         timestamps = np.array([float(frames[i].get("Timestamp", "nan")) for i in indices])
     except ValueError:
         raise InvalidInputError(f"{path}: a frame timestamp is not a number") from None
+    if not np.all(np.isfinite(timestamps)) or np.any(np.abs(timestamps) > 1e10):
+        raise InvalidInputError(f"{path}: a frame timestamp is missing, not finite or absurd")
     names = sorted({k[: -len("Transform")] for f in frames.values() for k in f if k.endswith("Transform")})
     transforms = {}
     for name in names:
@@ -90,6 +92,10 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
             if numbers.size != 16:
                 raise InvalidInputError(
                     f"{path}: frame {i} {name}Transform has {numbers.size} numbers, not 16"
+                )
+            if not np.all(np.isfinite(numbers)) or np.max(np.abs(numbers)) > 1e5:
+                raise InvalidInputError(
+                    f"{path}: frame {i} {name}Transform holds a value that is not finite or not in mm"
                 )
             stack[row] = numbers.reshape(4, 4)
         transforms[name] = stack

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
+from spacecal.io.atomic import write_text_atomic
 from spacecal.io.recording_csv import (
     JOINT_COLUMNS,
     MARKER_COLUMNS,
@@ -32,8 +32,11 @@ from spacecal.io.recording_csv import (
     _check_quaternions,
     _format,
     _number,
+    check_metadata,
+    check_ranges,
+    check_tcp_against_kinematics,
 )
-from spacecal.io.results_json import read_json_object
+from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.text import read_text_file
 from spacecal.records import RawRecording
 
@@ -54,34 +57,34 @@ def stream_paths(stem: str | Path) -> tuple[Path, Path, Path]:
 def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path]:
     """Write both streams and the metadata; returns the two CSV paths."""
     robot_path, tracker_path, meta_path = stream_paths(stem)
-    robot_path.parent.mkdir(parents=True, exist_ok=True)
-    meta_path.write_text(json.dumps(raw.metadata, indent=2))
-    with open(robot_path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(ROBOT_COLUMNS)
-        positions, quaternions = transform_to_position_quaternion(raw.base_from_tcp_stack)
-        for k in range(len(raw.robot_time_s)):
-            writer.writerow(
-                [_format(raw.robot_time_s[k]), raw.robot_segment[k]]
-                + [_format(v) for v in raw.joints_rad[k]]
-                + [_format(v) for v in positions[k]]
-                + [_format(v) for v in quaternions[k]]
+    robot_text, tracker_text = io.StringIO(), io.StringIO()
+    writer = csv.writer(robot_text)
+    writer.writerow(ROBOT_COLUMNS)
+    positions, quaternions = transform_to_position_quaternion(raw.base_from_tcp_stack)
+    for k in range(len(raw.robot_time_s)):
+        writer.writerow(
+            [_format(raw.robot_time_s[k]), raw.robot_segment[k]]
+            + [_format(v) for v in raw.joints_rad[k]]
+            + [_format(v) for v in positions[k]]
+            + [_format(v) for v in quaternions[k]]
+        )
+    writer = csv.writer(tracker_text)
+    writer.writerow(TRACKER_COLUMNS)
+    for k in range(len(raw.tracker_time_s)):
+        pose = raw.tracker_from_marker_stack[k]
+        if np.all(np.isfinite(pose)):
+            position, quaternion = transform_to_position_quaternion(pose)
+            cells = (
+                [_format(v) for v in position]
+                + [_format(v) for v in quaternion]
+                + [_format(raw.marker_rms_mm[k])]
             )
-    with open(tracker_path, "w", newline="") as handle:
-        writer = csv.writer(handle)
-        writer.writerow(TRACKER_COLUMNS)
-        for k in range(len(raw.tracker_time_s)):
-            pose = raw.tracker_from_marker_stack[k]
-            if np.all(np.isfinite(pose)):
-                position, quaternion = transform_to_position_quaternion(pose)
-                cells = (
-                    [_format(v) for v in position]
-                    + [_format(v) for v in quaternion]
-                    + [_format(raw.marker_rms_mm[k])]
-                )
-            else:
-                cells = [""] * len(MARKER_COLUMNS)
-            writer.writerow([_format(raw.tracker_time_s[k])] + cells)
+        else:
+            cells = [""] * len(MARKER_COLUMNS)
+        writer.writerow([_format(raw.tracker_time_s[k])] + cells)
+    write_json(raw.metadata, meta_path)
+    write_text_atomic(robot_text.getvalue(), robot_path)
+    write_text_atomic(tracker_text.getvalue(), tracker_path)
     return robot_path, tracker_path
 
 
@@ -130,6 +133,8 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     lines = np.arange(2, len(rows) + 2)
     _check_quaternions(values[:, 10:14], lines, "tcp", robot_path)
     check_lengths_in_mm(values[:, 7:10], f"{robot_path}: tcp_x_mm..tcp_z_mm")
+    no_marker = np.full((len(rows), 3), np.nan)
+    check_ranges(robot_path, lines, values[:, 0], values[:, 1:7], values[:, 7:10], no_marker, no_marker[:, 0])
 
     rows, index = _rows(tracker_path, TRACKER_COLUMNS)
     times = np.array([_number(r[index["time_s"]], k + 2, "time_s", tracker_path) for k, r in enumerate(rows)])
@@ -148,15 +153,28 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
         raise InvalidInputError(f"{tracker_path}: the marker was not visible in any frame")
     _check_quaternions(marker[seen, 3:7], np.arange(2, len(rows) + 2)[seen], "marker", tracker_path)
     check_lengths_in_mm(marker[seen, :3], f"{tracker_path}: marker_x_mm..marker_z_mm")
+    tracker_lines = np.arange(2, len(rows) + 2)
+    check_ranges(
+        tracker_path,
+        tracker_lines,
+        times,
+        np.zeros((len(rows), 6)),
+        np.zeros((len(rows), 3)),
+        marker[:, :3],
+        marker[:, 7],
+    )
     tracker_from_marker = np.full((len(rows), 4, 4), np.nan)
     tracker_from_marker[seen] = transform_from_position_quaternion(marker[seen, :3], marker[seen, 3:7])
     meta = robot_path.with_name(robot_path.name.replace(".robot.csv", ".meta.json"))
     metadata = read_json_object(meta, "recording metadata") if meta.is_file() else {}
+    check_metadata(metadata, meta)
+    base_from_tcp = transform_from_position_quaternion(values[:, 7:10], values[:, 10:14])
+    check_tcp_against_kinematics(values[:, 1:7], base_from_tcp, metadata, robot_path)
     return RawRecording(
         values[:, 0],
         segments,
         values[:, 1:7],
-        transform_from_position_quaternion(values[:, 7:10], values[:, 10:14]),
+        base_from_tcp,
         times,
         tracker_from_marker,
         marker[:, 7],

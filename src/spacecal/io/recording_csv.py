@@ -21,9 +21,9 @@ from __future__ import annotations
 import csv
 import difflib
 import io
-import json
 import math
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +31,8 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
-from spacecal.io.results_json import read_json_object
+from spacecal.io.atomic import atomic_path
+from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.text import read_text_file
 from spacecal.records import Recording
 
@@ -53,6 +54,21 @@ COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS + MARKER_COLUMNS
 MIN_SAMPLES = 10
 #: Largest deviation of a quaternion's norm from 1 that is taken for rounding.
 QUATERNION_NORM_TOLERANCE = 1e-3
+#: Plausible ranges of the numeric columns: times (s; ROS stamps are seconds since 1970),
+#: joint angles (rad; UR joints turn +-2 pi, a simulated arm may wind further), positions
+#: (mm), the tracker's fit RMS (mm).
+MAX_ABS_TIME_S = 1e10
+MAX_ABS_JOINT_RAD = 4 * math.pi
+MAX_ABS_POSITION_MM = 1e5
+MAX_MARKER_RMS_MM = 10.0
+#: Largest distance (mm) and angle (deg) between a recorded TCP pose and the forward
+#: kinematics of the recorded joints: beyond them the TCP columns are in another unit, another
+#: quaternion order, or hold the marker's pose. A controller's own calibration moves the TCP
+#: by a few mm at most.
+TCP_KINEMATICS_TOLERANCE_MM = 20.0
+TCP_KINEMATICS_TOLERANCE_DEG = 5.0
+#: Share of rows allowed beyond those tolerances.
+TCP_KINEMATICS_BAD_FRACTION = 0.05
 
 
 def sphere_columns(count: int) -> list[str]:
@@ -97,8 +113,9 @@ class RecordingWriter:
     ):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        if append:
-            header = self.path.read_text().splitlines()[0].split(",")
+        if append and self.path.is_file() and self.path.stat().st_size > 0:
+            _drop_partial_last_row(self.path)
+            header = read_text_file(self.path, "recording").splitlines()[0].split(",")
             self.sphere_count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
             self._file = open(self.path, "a", newline="")
             self._writer = csv.writer(self._file)
@@ -107,7 +124,7 @@ class RecordingWriter:
             sphere_count = len((metadata or {}).get("marker", {}).get("spheres_in_marker_mm", []))
         self.sphere_count = sphere_count
         if metadata is not None:
-            metadata_path(self.path).write_text(json.dumps(metadata, indent=2))
+            write_json(metadata, metadata_path(self.path))
         self._file = open(self.path, "w", newline="")
         self._writer = csv.writer(self._file)
         self._writer.writerow(COLUMNS + sphere_columns(sphere_count))
@@ -165,11 +182,49 @@ class RecordingWriter:
         self.close()
 
 
+def _drop_partial_last_row(path: Path) -> None:
+    """Cut a row that an interruption left half-written (no line end) before appending."""
+    with open(path, "rb+") as handle:
+        data = handle.read()
+        if data and not data.endswith(b"\n"):  # an interrupted row; the header stays
+            if b"\n" not in data:
+                raise InvalidInputError(f"{path}: the recording has no complete header row")
+            handle.truncate(data.rfind(b"\n") + 1)
+
+
+def last_time_s(path: str | Path) -> float | None:
+    """The time of the last complete row of a recording (None without one), to continue it."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    lines = read_text_file(path, "recording").splitlines()
+    if len(lines) < 2:
+        return None
+    header = [h.strip() for h in next(csv.reader([lines[0]]))]
+    if "time_s" not in header:
+        return None
+    column = header.index("time_s")
+    for line in reversed(lines[1:]):
+        cells = next(csv.reader([line]), [])
+        if len(cells) == len(header):
+            try:
+                value = float(cells[column])
+            except ValueError:
+                continue
+            if math.isfinite(value):
+                return value
+    return None
+
+
 def write_recording(recording: Recording, path: str | Path) -> Path:
-    """Write a recording and its metadata (``<stem>.meta.json``); returns the CSV path."""
+    """Write a recording and its metadata (``<stem>.meta.json``), each atomically (a temporary
+    file renamed into place), so an interruption never leaves half a recording; returns the
+    CSV path."""
     spheres = recording.spheres_in_tracker
     count = 0 if spheres is None else spheres.shape[1]
-    with RecordingWriter(path, recording.metadata, count) as writer:
+    if recording.metadata:
+        write_json(recording.metadata, metadata_path(path))
+    with atomic_path(path) as temporary, RecordingWriter(temporary, None, count) as writer:
         for k in range(len(recording)):
             writer.append(
                 recording.time_s[k],
@@ -300,17 +355,120 @@ def read_recording(path: str | Path) -> Recording:
     check_lengths_in_mm(tcp_position, f"{path}: tcp_x_mm..tcp_z_mm")
     check_lengths_in_mm(marker[seen, :3], f"{path}: marker_x_mm..marker_z_mm")
 
+    check_ranges(path, lines, time_s, joints, tcp_position, marker[:, :3], marker[:, 7])
+
     tracker_from_marker = np.full((n, 4, 4), np.nan)
     tracker_from_marker[seen] = transform_from_position_quaternion(marker[seen, :3], marker[seen, 3:7])
     meta_file = metadata_path(path)
     metadata = read_json_object(meta_file, "recording metadata") if meta_file.is_file() else {}
+    check_metadata(metadata, meta_file)
+    base_from_tcp = transform_from_position_quaternion(tcp_position, tcp_quaternion)
+    check_tcp_against_kinematics(joints, base_from_tcp, metadata, path)
     return Recording(
         time_s=time_s,
         segment=np.array(segment),
         joints_rad=joints,
-        base_from_tcp_stack=transform_from_position_quaternion(tcp_position, tcp_quaternion),
+        base_from_tcp_stack=base_from_tcp,
         tracker_from_marker_stack=tracker_from_marker,
         marker_rms_mm=marker[:, 7],
         metadata=metadata,
         spheres_in_tracker=None if spheres is None else spheres.reshape(n, sphere_count, 3),
     )
+
+
+def check_ranges(
+    path: Path,
+    lines: np.ndarray,
+    time_s: np.ndarray,
+    joints_rad: np.ndarray,
+    tcp_in_base_mm: np.ndarray,
+    marker_in_tracker_mm: np.ndarray,
+    marker_rms_mm: np.ndarray,
+) -> None:
+    """Refuse numbers that are finite but absurd (1e308, a joint at 1000 rad, a negative RMS).
+
+    Arrays are rows of the file (NaN where a cell is empty); ``lines`` (N,) are their line
+    numbers.
+    """
+    checks = (
+        ("time_s", time_s[:, None], -MAX_ABS_TIME_S, MAX_ABS_TIME_S, "s"),
+        ("q1_rad..q6_rad", joints_rad, -MAX_ABS_JOINT_RAD, MAX_ABS_JOINT_RAD, "rad"),
+        ("tcp_x_mm..tcp_z_mm", tcp_in_base_mm, -MAX_ABS_POSITION_MM, MAX_ABS_POSITION_MM, "mm"),
+        ("marker_x_mm..marker_z_mm", marker_in_tracker_mm, -MAX_ABS_POSITION_MM, MAX_ABS_POSITION_MM, "mm"),
+        ("marker_rms_mm", marker_rms_mm[:, None], 0.0, MAX_MARKER_RMS_MM, "mm"),
+    )
+    for name, values, low, high, unit in checks:
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(np.any((values < low) | (values > high), axis=1))
+        if len(bad):
+            k = bad[0]
+            value = values[k][(values[k] < low) | (values[k] > high)][0]
+            raise InvalidInputError(
+                f"{path}: line {lines[k]}: {name} {value:.6g} is outside {low:g}..{high:g} {unit} "
+                f"({len(bad)} row(s) affected)"
+            )
+
+
+def check_metadata(metadata: Mapping, path: Path) -> None:
+    """Refuse recording metadata whose known keys have the wrong type or unit."""
+    for key in ("robot", "tracker", "marker", "scenario", "units", "frames"):
+        if key in metadata and metadata[key] is not None and not isinstance(metadata[key], Mapping):
+            raise InvalidInputError(f"{path}: {key!r} must be an object, got {type(metadata[key]).__name__}")
+    if "source" in metadata and not isinstance(metadata["source"], str):
+        raise InvalidInputError(f"{path}: 'source' must be a string, got {type(metadata['source']).__name__}")
+    if "simulated" in metadata and metadata["simulated"] is not None:
+        if not isinstance(metadata["simulated"], bool):
+            raise InvalidInputError(f"{path}: 'simulated' must be true or false")
+    length = (metadata.get("units") or {}).get("length", "mm")
+    if length != "mm":
+        raise InvalidInputError(f"{path}: units.length is {length!r}; spacecal recordings are in 'mm'")
+    robot = metadata.get("robot") or {}
+    if "model" in robot and not isinstance(robot["model"], str):
+        raise InvalidInputError(f"{path}: robot.model must be a string such as 'UR10'")
+    if "flange_from_tcp" in robot:
+        from spacecal.records.fields import as_transform
+
+        as_transform(robot["flange_from_tcp"], "robot.flange_from_tcp", str(path))
+
+
+def check_tcp_against_kinematics(
+    joints_rad: np.ndarray, base_from_tcp_stack: np.ndarray, metadata: Mapping, path: Path
+) -> None:
+    """Refuse TCP columns that disagree with the forward kinematics of the recorded joints.
+
+    The robot model and the TCP in the flange come from the metadata, so the scale is known:
+    TCP positions in cm or inches, quaternions in x, y, z, w order or conjugated, or the
+    marker's pose in the TCP columns all put the recorded TCP far from where the joints put
+    it. Without joints or a known UR model there is nothing to compare with.
+
+    Parameters
+    ----------
+    joints_rad : numpy.ndarray, shape (N, 6)
+        NaN rows where the joints were not recorded.
+    base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
+        The recorded TCP poses, mm.
+    """
+    from spacecal.models.kinematics import UR_TABLES, forward_kinematics, ur_model
+
+    robot = metadata.get("robot") or {}
+    name = robot.get("model")
+    recorded = np.all(np.isfinite(joints_rad), axis=1)
+    if not isinstance(name, str) or name not in UR_TABLES or recorded.sum() == 0:
+        return
+    flange_from_tcp = robot.get("flange_from_tcp")
+    model = ur_model(name, None if flange_from_tcp is None else np.asarray(flange_from_tcp, dtype=float))
+    predicted = forward_kinematics(model, joints_rad[recorded])
+    actual = base_from_tcp_stack[recorded]
+    distance_mm = np.linalg.norm(predicted[:, :3, 3] - actual[:, :3, 3], axis=1)
+    relative = np.einsum("nji,njk->nik", predicted[:, :3, :3], actual[:, :3, :3])
+    cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    angle_deg = np.degrees(np.arccos(cosine))
+    bad = (distance_mm > TCP_KINEMATICS_TOLERANCE_MM) | (angle_deg > TCP_KINEMATICS_TOLERANCE_DEG)
+    # a few rows may be off (a glitch); a conjugated 180 deg rotation is right, so count rows
+    if bad.mean() > TCP_KINEMATICS_BAD_FRACTION:
+        raise InvalidInputError(
+            f"{path}: the TCP columns disagree with the {name}'s forward kinematics of the recorded "
+            f"joints in {int(bad.sum())} of {len(bad)} rows (up to {np.max(distance_mm):.0f} mm, "
+            f"{np.max(angle_deg):.0f} deg): TCP positions not in mm, quaternions not w,x,y,z, or the "
+            "marker and TCP columns swapped?"
+        )

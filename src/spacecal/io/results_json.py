@@ -7,12 +7,12 @@ The content of each file is its record's ``to_dict()``; reading goes through the
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.io.atomic import write_text_atomic
+from spacecal.io.text import read_text_file
 from spacecal.records import CalibrationResult
 from spacecal.records.fields import plain
 
@@ -20,22 +20,19 @@ from spacecal.records.fields import plain
 MAX_JSON_BYTES = 200 * 1024 * 1024
 
 
-def write_text_atomic(text: str, path: str | Path) -> Path:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename,
-    so an interrupted write never leaves a half-written file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            stream.write(text)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-    return path
+class _NotFinite(ValueError):
+    pass
+
+
+def _no_constant(name: str) -> float:
+    raise _NotFinite(name)
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if value in (float("inf"), float("-inf")):
+        raise _NotFinite(text)
+    return value
 
 
 def write_json(data: dict[str, Any], path: str | Path) -> Path:
@@ -47,23 +44,21 @@ def write_json(data: dict[str, Any], path: str | Path) -> Path:
 def read_json_object(path: str | Path, what: str) -> dict[str, Any]:
     """Read a JSON file that must hold an object; one-line errors name the file and ``what`` it is."""
     path = Path(path)
-    if not path.is_file():
-        raise InvalidInputError(f"{path}: no such {what} file")
-    raw = path.read_bytes()
-    if len(raw) > MAX_JSON_BYTES:
-        raise InvalidInputError(f"{path}: too large for a {what} file ({len(raw)} bytes)")
+    if path.is_file() and path.stat().st_size > MAX_JSON_BYTES:
+        raise InvalidInputError(f"{path}: too large for a {what} file ({path.stat().st_size} bytes)")
+    text = read_text_file(path, what)
     try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError:
-        raise InvalidInputError(f"{path}: not UTF-8 text (a {what} file is JSON)") from None
-    try:
-        data = json.loads(text)
+        data = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float)
     except json.JSONDecodeError as exc:
         raise InvalidInputError(f"{path}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
     except RecursionError:
         raise InvalidInputError(f"{path}: JSON nested too deeply for a {what} file") from None
+    except _NotFinite as exc:
+        raise InvalidInputError(
+            f"{path}: {exc.args[0]} is not a number JSON allows (a {what} file)"
+        ) from None
     if not isinstance(data, dict):
-        raise InvalidInputError(f"{path}: a {what} file holds a JSON object")
+        raise InvalidInputError(f"{path}: a {what} file holds a JSON object, not {type(data).__name__}")
     return data
 
 

@@ -88,8 +88,13 @@ def load_yaml_mapping(path, what: str) -> dict:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such {what} file")
+    from spacecal.io.text import read_text_file
+
+    text = read_text_file(path, what)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(text)
+    except RecursionError:
+        raise InvalidInputError(f"{path}: YAML nested too deeply for a {what}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""

@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import invert_transform, is_rigid_transform, make_transform
+from spacecal.io.atomic import write_text_atomic
 from spacecal.io.ros_common import number_text, transform_from_ros, transform_to_ros
 
 #: ur_description: ``base`` is ``base_link`` rotated by pi about z (joint ``base_link-base_fixed_joint``).
@@ -234,7 +235,7 @@ def write_ros2_launch(path: str | Path, edge: StaticTransform, node_name: str | 
     """Write :func:`ros2_launch_text` to ``path`` (conventionally ``*.launch.py``); returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(ros2_launch_text(edge, node_name))
+    write_text_atomic(ros2_launch_text(edge, node_name), path)
     return path
 
 
@@ -316,7 +317,7 @@ def write_urdf_joint(path: str | Path, edge: StaticTransform, joint_name: str | 
     """Write :func:`urdf_joint_text` to ``path`` (an XML fragment to paste or ``xacro:include``)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(urdf_joint_text(edge, joint_name))
+    write_text_atomic(urdf_joint_text(edge, joint_name), path)
     return path
 
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import invert_transform, is_rigid_transform
+from spacecal.io.atomic import write_text_atomic
 from spacecal.io.text import read_text_file
 
 RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -46,9 +47,10 @@ def write_slicer_transform(parent_from_child, path: str | Path) -> Path:
     itk = RAS_FROM_LPS @ invert_transform(matrix) @ RAS_FROM_LPS  # resampling, LPS
     parameters = list(itk[:3, :3].ravel()) + list(itk[:3, 3])
     path = Path(path)
-    path.write_text(
+    write_text_atomic(
         f"{HEADER}\n#Transform 0\nTransform: {TRANSFORM_TYPE}\n"
-        f"Parameters: {' '.join(repr(float(v)) for v in parameters)}\nFixedParameters: 0 0 0\n"
+        f"Parameters: {' '.join(repr(float(v)) for v in parameters)}\nFixedParameters: 0 0 0\n",
+        path,
     )
     return path
 

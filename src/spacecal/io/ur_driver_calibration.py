@@ -58,6 +58,7 @@ from scipy.spatial.transform import Rotation
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.units import metres_to_mm
 from spacecal.geometry.transforms import make_transform
+from spacecal.io.atomic import write_text_atomic
 from spacecal.io.ros_common import load_yaml_mapping, number_field, number_text
 from spacecal.models.kinematics import N_JOINTS, RobotModel
 
@@ -247,7 +248,7 @@ def write_ur_calibration(path: str | Path, model: RobotModel, kinematics_hash: s
     """Write :func:`ur_calibration_text` to ``path``; pass it to the driver as ``kinematics_params_file``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(ur_calibration_text(model, kinematics_hash))
+    write_text_atomic(ur_calibration_text(model, kinematics_hash), path)
     return path
 
 

@@ -33,6 +33,9 @@ from spacecal.records.fields import (
 TRACKER_FROM_BASE = transform_name("tracker", "base")
 TCP_FROM_MARKER = transform_name("tcp", "marker")
 
+#: Larger than this (mm) is not a translation between a robot, a tracker and a marker.
+MAX_TRANSLATION_MM = 1e5
+
 CALIBRATION_SCHEMA = "spacecal.calibration"
 CALIBRATION_SCHEMA_VERSION = 2
 #: Versions :meth:`CalibrationResult.from_dict` reads.
@@ -192,6 +195,13 @@ class CalibrationResult:
         object.__setattr__(
             self, "tcp_from_marker", as_transform(self.tcp_from_marker, "tcp_from_marker", what)
         )
+        for name in ("tracker_from_base", "tcp_from_marker"):
+            translation = getattr(self, name)[:3, 3]
+            if np.max(np.abs(translation)) > MAX_TRANSLATION_MM:
+                raise InvalidInputError(
+                    f"{what}: {name} translation {np.max(np.abs(translation)):.3g} mm is not a distance "
+                    f"in the room (at most {MAX_TRANSLATION_MM:g} mm)"
+                )
         if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, dict):
             raise InvalidInputError(f"{what}: sample_counts and diagnostics must be objects")
 
@@ -258,6 +268,11 @@ class CalibrationResult:
         for key in (TRACKER_FROM_BASE, TCP_FROM_MARKER):
             if key not in data:
                 raise InvalidInputError(f"{what}: missing {key!r}")
+        units = get_mapping(data, "units", what)
+        if units.get("length", "mm") != "mm" or units.get("angle", "rad") != "rad":
+            raise InvalidInputError(
+                f"{what}: units {units!r}; a spacecal calibration is in mm and rad (convert it first)"
+            )
         if version == 1:
             # v1: the robot model in diagnostics, the recording path in "source"
             model_data = diagnostics.get("kinematic_model")

@@ -8,6 +8,7 @@ valid ones.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -117,11 +118,87 @@ PRESETS: dict[str, Scenario] = {
 }
 
 
+#: Accepted range of each numeric scenario field (inclusive); lists are checked element-wise.
+RANGES: dict[str, tuple[float, float]] = {
+    "seed": (0, 2**32 - 1),
+    "white_noise_rms_mm": (0.0, 10.0),
+    "volumetric_error_rms_mm": (0.0, 10.0),
+    "volumetric_length_scale_mm": (1.0, 1e5),
+    "depth_anisotropy": (0.01, 100.0),
+    "dropout_probability": (0.0, 0.9),
+    "outlier_fraction": (0.0, 0.5),
+    "max_view_angle_deg": (1.0, 90.0),
+    "tracker_rate_hz": (1.0, 1000.0),
+    "tool_offset_mm": (-2000.0, 2000.0),
+    "dh_length_error_sd_mm": (0.0, 10.0),
+    "dh_angle_error_sd_deg": (0.0, 5.0),
+    "repeatability_mm": (0.0, 10.0),
+    "home_joints_deg": (-360.0, 360.0),
+    "tracker_distance_mm": (100.0, 10_000.0),
+    "tracker_azimuth_deg": (-360.0, 360.0),
+    "tracker_elevation_deg": (-90.0, 90.0),
+    "marker_offset_mm": (-2000.0, 2000.0),
+    "stations": (3, 10_000),
+    "frames_per_station": (1, 1000),
+    "station_cube_mm": (1.0, 2000.0),
+    "station_tilt_deg": (0.0, 90.0),
+    "rotation_deg": (1.0, 180.0),
+    "translation_mm": (1.0, 2000.0),
+    "rotation_sample_period_s": (0.001, 10.0),
+    "translation_sample_period_s": (0.001, 10.0),
+    "linear_speed_mm_s": (1.0, 1000.0),
+    "angular_speed_deg_s": (0.5, 180.0),
+    "verification_targets": (1, 1000),
+    "target_cube_mm": (0.0, 2000.0),
+    "target_tilt_deg": (0.0, 90.0),
+}
+#: Choices of the text fields.
+MOTIONS = ("paper", "stations")
+
+
+def _check_value(key: str, value, default):
+    """The scenario field ``key`` as its default's type, within its range; one line otherwise."""
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)) or len(value) != len(default):
+            raise InvalidInputError(f"scenario key {key!r} needs a list of {len(default)} numbers")
+        for v in value:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise InvalidInputError(f"scenario key {key!r} needs a list of {len(default)} numbers")
+        value = tuple(float(v) for v in value)
+        numbers = value
+    elif isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InvalidInputError(f"scenario key {key!r} needs true or false, got {value!r}")
+        return value
+    elif isinstance(default, str):
+        if not isinstance(value, str):
+            raise InvalidInputError(f"scenario key {key!r} needs a string, got {value!r}")
+        return value
+    else:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InvalidInputError(f"scenario key {key!r} needs a number, got {value!r}")
+        if isinstance(default, int) and not float(value).is_integer():
+            raise InvalidInputError(f"scenario key {key!r} needs a whole number, got {value!r}")
+        numbers = (float(value),)
+        value = type(default)(value)
+    low, high = RANGES.get(key, (-1e9, 1e9))
+    for v in numbers:
+        if not (math.isfinite(v) and low <= v <= high):
+            raise InvalidInputError(f"scenario key {key!r} must be within {low:g}..{high:g}, got {v!r}")
+    return value
+
+
 def scenario_from_dict(values: dict) -> Scenario:
-    """Build a scenario from a preset (``values["preset"]``, default paper-realistic) and overrides."""
+    """Build a scenario from a preset (``values["preset"]``, default paper-realistic) and overrides.
+
+    Every value is checked: its type, finiteness and range (:data:`RANGES`); one line names
+    the key, the value and what is expected.
+    """
     values = dict(values)
     preset = values.pop("preset", values.get("name", "paper-realistic"))
-    if preset not in PRESETS:
+    if not isinstance(preset, str) or preset not in PRESETS:
+        if not isinstance(preset, str):
+            raise InvalidInputError(f"scenario preset must be a name ({', '.join(PRESETS)})")
         raise InvalidInputError(f"unknown scenario preset {preset!r}; presets: {', '.join(PRESETS)}")
     base = PRESETS[preset]
     fields = {f.name: f for f in dataclasses.fields(Scenario)}
@@ -130,20 +207,18 @@ def scenario_from_dict(values: dict) -> Scenario:
         raise InvalidInputError(
             f"unknown scenario key(s) {', '.join(unknown)}; valid keys: preset, {', '.join(fields)}"
         )
-    cleaned = {}
-    for key, value in values.items():
-        default = getattr(base, key)
-        if isinstance(default, tuple):
-            if not isinstance(value, (list, tuple)) or len(value) != len(default):
-                raise InvalidInputError(f"scenario key {key!r} needs a list of {len(default)} numbers")
-            value = tuple(float(v) for v in value)
-        elif isinstance(default, bool) or isinstance(default, str):
-            value = type(default)(value)
-        elif isinstance(default, (int, float)):
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise InvalidInputError(f"scenario key {key!r} needs a number, got {value!r}")
-            value = type(default)(value)
-        cleaned[key] = value
+    cleaned = {key: _check_value(key, value, getattr(base, key)) for key, value in values.items()}
+    if cleaned.get("motion", base.motion) not in MOTIONS:
+        raise InvalidInputError(
+            f"scenario key 'motion' takes {' or '.join(MOTIONS)}, got {cleaned['motion']!r}"
+        )
+    model = cleaned.get("robot_model", base.robot_model)
+    from spacecal.models.kinematics import UR_TABLES
+
+    if model not in UR_TABLES:
+        raise InvalidInputError(
+            f"scenario key 'robot_model' takes one of {', '.join(UR_TABLES)}, got {model!r}"
+        )
     return dataclasses.replace(base, **cleaned)
 
 

@@ -222,8 +222,8 @@ def run_plan(
     first_move = progress.moves_completed
     for index in range(first_move, len(plan.moves)):
         move = plan.moves[index]
-        if index == first_move and approach_first_move:
-            robot.move_linear(move.start, settings.linear_speed_mm_s, settings.linear_accel_mm_s2)
+        if index == first_move and approach_first_move and not _at_pose(robot, move.start):
+            _approach(robot, tracker, move.start, settings)
         if streams:
             robot.drain_states()  # states before this move belong to no recorded segment
         # A hold (start = end) is a station: the arm rests while frames are taken for the
@@ -355,8 +355,8 @@ def acquire(
     progress_file = progress_path(recording_path)
     first_move = 0
     if resume:
-        if not progress_file.is_file() or not recording_path.is_file():
-            raise InvalidInputError(f"nothing to resume: {progress_file} or {recording_path} is missing")
+        if not progress_file.is_file():
+            raise InvalidInputError(f"nothing to resume: {progress_file} is missing")
         progress = read_progress(recording_path)
         if progress is None or progress.plan_fingerprint != plan_fingerprint(plan):
             raise InvalidInputError(f"{recording_path} was recorded with a different plan; cannot resume it")
@@ -364,9 +364,10 @@ def acquire(
     elif recording_path.exists():
         raise InvalidInputError(f"{recording_path} exists; choose another file or pass --resume")
 
-    writer = RecordingWriter(recording_path, metadata, append=resume)
-    result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves))
+    # progress first: an interruption before the first sample leaves a run --resume can start
     _write_progress(progress_file, plan, first_move, None)
+    writer = RecordingWriter(recording_path, metadata, append=resume and recording_path.is_file())
+    result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves))
 
     def fail(reason: str) -> NoReturn:
         robot.stop()
@@ -402,6 +403,36 @@ def acquire(
     finally:
         writer.close()
     return result
+
+
+def _approach(
+    robot: Robot, tracker: Tracker, base_from_tcp: np.ndarray, settings: AcquisitionSettings
+) -> None:
+    """Move to where an interrupted move started, watching the robot at the tracker's pace as
+    during a recorded move (so a safety stop or a lost tracker ends the run the same way, and
+    a simulated arm follows the path instead of jumping to its end)."""
+    robot.move_linear(
+        base_from_tcp, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
+    )
+    while True:
+        try:
+            tracker.next_frame(settings.frame_timeout_s)
+        except DeviceError as exc:
+            raise RunFault(f"tracker lost ({exc})") from exc
+        state = robot.state()
+        if state.safety != SAFETY_NORMAL:
+            raise RunFault(f"robot {state.safety.replace('_', ' ')}")
+        if not state.moving:
+            return
+
+
+def _at_pose(robot: Robot, base_from_tcp: np.ndarray) -> bool:
+    """True when the TCP is already at ``base_from_tcp`` (to a micrometre and a microradian)."""
+    here = robot.state().base_from_tcp
+    return bool(
+        np.allclose(here[:3, 3], base_from_tcp[:3, 3], atol=1e-3)
+        and np.allclose(here[:3, :3], base_from_tcp[:3, :3], atol=1e-6)
+    )
 
 
 def _cause(robot: Robot, error: Exception) -> str:
