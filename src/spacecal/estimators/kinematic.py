@@ -29,8 +29,7 @@ import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.likelihood import calibrate_ml, report_uncertainty, variance_factor_of
-from spacecal.estimators.observations import build_observations
+from spacecal.estimators.likelihood import fit_ml, report_uncertainty, variance_factor_of
 from spacecal.geometry.arrays import FloatArray
 from spacecal.models.kinematics import (
     RobotModel,
@@ -95,8 +94,8 @@ def calibrate_kinematic(
         Relative size below which a projected, scaled correction counts as unidentifiable.
     """
     model = robot_model_of(recording)
-    start = calibrate_ml(recording, sigma_mm=sigma_mm)
-    obs = build_observations(recording, sigma_mm=sigma_mm)
+    # identification starts from the ML solution (the bare fit, without its diagnostics)
+    obs, start = fit_ml(recording, sigma_mm=sigma_mm)
     joints = recording.joints_rad[obs.rows]
     if not np.all(np.isfinite(joints)):
         raise DegenerateDataError("kinematic identification needs the joint angles of every used frame")
@@ -180,5 +179,7 @@ def calibrate_kinematic(
         targets_in_base,
         extra,
         covariance_note="pose block of the joint (pose + DH) covariance; mm, rad",
+        robot_model=corrected,
+        absorbed_dh=selected.tolist(),
     )
     return result.replace(robot_model=corrected)
