@@ -148,7 +148,7 @@ def export(settings: ExportSettings) -> list[str]:
     refuse_overwriting_inputs(settings.slicer, settings.calibration)
     refuse_overwriting_inputs(settings.plus, settings.calibration)
     calibration = read_calibration(settings.calibration)
-    error = (calibration.predicted_tre_mm or {}).get("site")
+    error = calibration.diagnostics.get("expected_error", {}).get("position_mm")
     done = []
     if settings.slicer:
         path = write_slicer_transform(calibration.tracker_from_base, settings.slicer)
