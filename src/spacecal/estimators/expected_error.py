@@ -325,6 +325,7 @@ def expected_error(
     absorbed_dh: Sequence[int] = (),
     likelihood_based: bool = True,
     refit: Refit = ml_refit,
+    dh_error_scale_mm: float | None = None,
 ) -> dict[str, Any]:
     """The expected position (mm) and posture (deg) error at a target near the site.
 
@@ -348,6 +349,11 @@ def expected_error(
         held-out refits are then ML, and the distance of its tip from ML's is added.
     refit : callable
         How a held-out block's refit is done.
+    dh_error_scale_mm : float, optional
+        The scale of the robot's DH errors when known from elsewhere. Kinematic
+        identification passes the one its ML start shows: after identification the
+        corrections have absorbed the misfit they were fitted to, so the held-out misfit of
+        refits that keep them would understate it.
 
     Returns
     -------
@@ -402,7 +408,10 @@ def expected_error(
             misfit["block_indices"],
             absorbed_dh,
         )
-        scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
+        if dh_error_scale_mm is not None:
+            scale_sq = dh_error_scale_mm**2
+        else:
+            scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
         unseen_ms = scale_sq * unit["tip_position_ms_mm2"]
         unseen_rotation_ms = scale_sq * unit["tip_rotation_ms_rad2"]
         components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))

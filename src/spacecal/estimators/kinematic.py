@@ -29,7 +29,10 @@ import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
+from spacecal.estimators.expected_error import expected_error
 from spacecal.estimators.likelihood import fit_ml, report_uncertainty, variance_factor_of
+from spacecal.estimators.ml import covariance_from_information, information_matrix
+from spacecal.estimators.observations import Observations
 from spacecal.geometry.arrays import FloatArray
 from spacecal.models.kinematics import (
     RobotModel,
@@ -71,6 +74,32 @@ def identifiable_corrections(
     selected = np.sort(order[keep])
     singular = np.linalg.svd(projected[:, selected], compute_uv=False)
     return selected, float(singular[0] / singular[-1])
+
+
+def dh_error_scale_of(
+    recording: Recording,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    model: RobotModel,
+    joints_rad: FloatArray,
+) -> float | None:
+    """Scale (mm) of the robot's DH errors from the held-out misfit of the nominal-model ML fit."""
+    try:
+        covariance = covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
+        expected = expected_error(
+            obs,
+            recording.segment[obs.rows],
+            tracker_from_base,
+            tcp_from_marker,
+            covariance,
+            robot_model=model,
+            joints_rad=joints_rad,
+        )
+    except (DegenerateDataError, np.linalg.LinAlgError):
+        return None
+    scale = expected["components"].get("dh_error_scale_mm")
+    return None if scale is None else float(scale)
 
 
 def calibrate_kinematic(
@@ -168,6 +197,11 @@ def calibrate_kinematic(
             "prior_sd": {"length_mm": prior_length_sd_mm, "angle_rad": prior_angle_sd_rad},
         },
     }
+    # the robot's DH error scale as the ML start's held-out misfit shows it (before the
+    # corrections absorb it)
+    dh_scale = dh_error_scale_of(
+        recording, obs, start.tracker_from_base, start.tcp_from_marker, model, joints
+    )
     result = report_uncertainty(
         "kinematic",
         recording,
@@ -181,5 +215,6 @@ def calibrate_kinematic(
         covariance_note="pose block of the joint (pose + DH) covariance; mm, rad",
         robot_model=corrected,
         absorbed_dh=selected.tolist(),
+        dh_error_scale_mm=dh_scale,
     )
     return result.replace(robot_model=corrected)

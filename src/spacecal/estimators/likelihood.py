@@ -44,6 +44,9 @@ OUTLIER_QUANTILE = 0.999
 #: 3.7x the median. Frames within this factor of the median are never called outliers.
 SYSTEMATIC_TAIL_FACTOR = 4.0
 
+#: More frames flagged as outliers than this share of the kept ones: not one rigid set-up.
+MAX_OUTLIER_FRACTION = 0.25
+
 #: Side of the cube around the site over which TRE is summarised, mm.
 CUBE_SIDE_MM = 200.0
 
@@ -144,12 +147,15 @@ def report_uncertainty(
     covariance_note: str = "",
     robot_model: RobotModel | None = None,
     absorbed_dh: Sequence[int] = (),
+    dh_error_scale_mm: float | None = None,
 ) -> CalibrationResult:
     """A calibration result with covariance, predicted TRE, expected error, residuals, spread
     and verdict.
 
     ``robot_model`` is the model ``obs`` poses come from (default: the nominal model named in
-    the recording's metadata, if any); ``absorbed_dh`` the DH corrections identified with it.
+    the recording's metadata, if any); ``absorbed_dh`` the DH corrections identified with it;
+    ``dh_error_scale_mm`` the robot's DH error scale when known (see
+    :func:`spacecal.estimators.expected_error.expected_error`).
     """
     site = site_in_base(recording, obs.rows)
     tre = tre_summary(tracker_from_base, covariance, site, targets_in_base)
@@ -157,8 +163,22 @@ def report_uncertainty(
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
     expected = expected_error_of(
-        method, recording, obs, tracker_from_base, tcp_from_marker, covariance, robot_model, absorbed_dh
+        method,
+        recording,
+        obs,
+        tracker_from_base,
+        tcp_from_marker,
+        covariance,
+        robot_model,
+        absorbed_dh,
+        dh_error_scale_mm,
     )
+    if len(outlier_rows) > MAX_OUTLIER_FRACTION * len(obs.rows) and "refusal" not in expected:
+        expected = {
+            **expected,
+            "refusal": f"{len(outlier_rows)} frames disagree with the {len(obs.rows)} kept: the recording "
+            "does not describe one rigid set-up (units, a moved marker or tracker?)",
+        }
     diagnostics = {
         "noise": {
             "sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
@@ -210,6 +230,7 @@ def expected_error_of(
     covariance: FloatArray,
     robot_model: RobotModel | None = None,
     absorbed_dh: Sequence[int] = (),
+    dh_error_scale_mm: float | None = None,
 ) -> dict[str, Any]:
     """``diagnostics["expected_error"]`` (see :mod:`spacecal.estimators.expected_error`).
 
@@ -233,6 +254,7 @@ def expected_error_of(
             joints_rad=None if model is None else recording.joints_rad[obs.rows],
             absorbed_dh=absorbed_dh,
             likelihood_based=method in LIKELIHOOD_METHODS,
+            dh_error_scale_mm=dh_error_scale_mm,
         )
     except (DegenerateDataError, np.linalg.LinAlgError) as exc:
         return {"refusal": f"the expected error cannot be cross-validated ({exc})", "basis": "not estimated"}
