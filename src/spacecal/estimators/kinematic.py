@@ -168,10 +168,11 @@ def calibrate_kinematic(
         prior_rows[:, 12:] = np.diag(1.0 / prior_sd[selected])
         jac_all = np.vstack([jac, prior_rows])
         res_all = np.concatenate([residual, delta[selected] / prior_sd[selected]])
-        step, *_ = np.linalg.lstsq(jac_all, -res_all, rcond=None)
+        # normal equations: the whitened Jacobian is tall and well-conditioned by the prior rows
+        step = np.linalg.solve(jac_all.T @ jac_all, -(jac_all.T @ res_all))
         tracker_from_base, tcp_from_marker = apply_pose_step(tracker_from_base, tcp_from_marker, step[:12])
         delta[selected] += step[12:]
-        if np.max(np.abs(step[:12])) < 1e-9 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-9:
+        if np.max(np.abs(step[:12])) < 1e-7 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-6:
             break
 
     corrected = with_dh_corrections(model, delta)
