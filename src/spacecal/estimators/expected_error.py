@@ -374,22 +374,35 @@ def expected_error(
         rotation_deviation_ms = float(
             rotation_angle(tracker_from_base[:3, :3] @ ml_tracker_from_base[:3, :3].T) ** 2
         )
-    misfit = held_out_misfit(obs, segments, ml_tracker_from_base, ml_tcp_from_marker, refit)
+    has_model = robot_model is not None and joints_rad is not None and bool(np.all(np.isfinite(joints_rad)))
+    if dh_error_scale_mm is not None and has_model:
+        # the scale is given: the held-out refits would only be reported, not used
+        block_list = held_out_blocks(segments)
+        misfit: dict[str, Any] = {
+            "frame_sse_mm2": np.full(len(obs.rows), np.nan),
+            "frame_prediction_variance_mm2": np.full(len(obs.rows), np.nan),
+            "blocks": len(block_list),
+            "blocks_refitted": 0,
+            "block_indices": block_list,
+        }
+    else:
+        misfit = held_out_misfit(obs, segments, ml_tracker_from_base, ml_tcp_from_marker, refit)
     sse = misfit["frame_sse_mm2"]
-    held_out_ms = float(np.nanmean(sse))
-    noise_ms = (
-        obs.dof_per_frame * obs.sigma_mm**2 + float(np.nanmean(misfit["frame_prediction_variance_mm2"]))
-        if obs.sigma_known
-        else held_out_ms
-    )
+    computed = bool(np.isfinite(sse).any())
+    held_out_ms = float(np.nanmean(sse)) if computed else 0.0
+    prediction_ms = float(np.nanmean(misfit["frame_prediction_variance_mm2"])) if computed else 0.0
+    noise_ms = obs.dof_per_frame * obs.sigma_mm**2 + prediction_ms if obs.sigma_known else held_out_ms
     # a misfit within two standard errors of the noise's (chi-square, 2 dof sigma^4 per frame) is none
     scored = int(np.isfinite(sse).sum())
     noise_standard_error = obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1))
-    systematic = max(held_out_ms - noise_ms - 2.0 * noise_standard_error, 0.0) if obs.sigma_known else 0.0
+    systematic = (
+        max(held_out_ms - noise_ms - 2.0 * noise_standard_error, 0.0) if obs.sigma_known and computed else 0.0
+    )
+    spheres = len(obs.spheres_in_marker)
     components: dict[str, Any] = {
         "noise_tre_rms_mm": float(np.sqrt(tre_ms)),
-        "held_out_sphere_rms_mm": float(np.sqrt(held_out_ms / len(obs.spheres_in_marker))),
-        "noise_sphere_rms_mm": float(np.sqrt(noise_ms / len(obs.spheres_in_marker))),
+        "held_out_sphere_rms_mm": float(np.sqrt(held_out_ms / spheres)) if computed else None,
+        "noise_sphere_rms_mm": float(np.sqrt(noise_ms / spheres)) if computed else None,
         "blocks": misfit["blocks"],
         "blocks_refitted": misfit["blocks_refitted"],
         "site_frames": int(site.sum()),
@@ -397,7 +410,9 @@ def expected_error(
     }
     refits = "ML refits" if not likelihood_based or absorbed_dh else "refits"
     blocks = f"{misfit['blocks_refitted']} held-out blocks ({refits})"
-    if robot_model is not None and joints_rad is not None and np.all(np.isfinite(joints_rad)):
+    if dh_error_scale_mm is not None and has_model:
+        blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
+    if has_model and robot_model is not None and joints_rad is not None:
         unit = unseen_kinematic_error(
             robot_model,
             joints_rad,
