@@ -94,7 +94,7 @@ def ml_refit(
     obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Levenberg–Marquardt on ``obs`` from a warm start (the full-data solution)."""
-    fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, max_iterations=20, tolerance=1e-9)
+    fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, max_iterations=10, tolerance=1e-6)
     return as_float_array(fit.tracker_from_base), as_float_array(fit.tcp_from_marker)
 
 
