@@ -60,9 +60,14 @@ def test_result_carries_covariance_prediction_and_diagnostics(white_simulation):
 
 
 def test_verdict_warns_when_systematic_errors_dominate(realistic_simulation):
+    # the verdict grades the expected error (which holds the systematic part), not the
+    # noise-only TRE, and says that systematic error dominates
     result = calibrate(realistic_simulation.recording, "ml")
     assert result.diagnostics["variance_factor"] > 1.5
-    assert result.diagnostics["verdict"].startswith("check:")
+    verdict = result.diagnostics["verdict"]
+    assert verdict.split(":")[0] in ("good", "acceptable", "poor", "unusable")
+    assert "systematic error" in verdict
+    assert result.diagnostics["expected_error"]["position_mm"] > 5 * result.predicted_tre_mm["site"]
 
 
 def test_robust_flags_the_injected_outliers_and_keeps_clean_accuracy(

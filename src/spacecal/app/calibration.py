@@ -13,6 +13,7 @@ import numpy as np
 from spacecal.app._common import check_consistent, provenance_of, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate as estimate
+from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.estimators.likelihood import tre_lower_bound
 from spacecal.estimators.pivot import PivotResult, pivot_calibration
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
@@ -67,6 +68,8 @@ class CalibrateSettings:
         Points in the base frame (mm) to predict the TRE at.
     sigma_mm : float or None
         Per-axis sphere noise, mm; default: estimated from the tracker's RMS.
+    error_thresholds : ErrorThresholds or None
+        Limits of the verdict's grades; default 0.5 / 1 / 2 mm.
     """
 
     recording: str
@@ -76,6 +79,7 @@ class CalibrateSettings:
     time_offset_ms: float | None = None
     targets_in_base: tuple[Point, ...] = ()
     sigma_mm: float | None = None
+    error_thresholds: ErrorThresholds | None = None
     force: bool = False
 
 
@@ -118,6 +122,8 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
         options["targets_in_base"] = targets
     if settings.sigma_mm is not None:
         options["sigma_mm"] = settings.sigma_mm
+    if settings.error_thresholds is not None:
+        options["error_thresholds"] = settings.error_thresholds
     result = estimate(recording, settings.method, **options)
     check_consistent(recording, result.tracker_from_base, result.tcp_from_marker, str(settings.recording))
     result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))

@@ -206,7 +206,7 @@ def export(settings: ExportSettings) -> list[str]:
         )
     guard_outputs([settings.slicer, settings.plus], [settings.calibration], settings.force)
     calibration = read_calibration(settings.calibration)
-    error = (calibration.predicted_tre_mm or {}).get("site")
+    error = calibration.diagnostics.get("expected_error", {}).get("position_mm")
     done = []
     if settings.slicer:
         path = write_slicer_transform(calibration.tracker_from_base, settings.slicer)

@@ -18,6 +18,7 @@ import warnings
 from spacecal import app
 from spacecal.cli import parser
 from spacecal.core.errors import InvalidInputError, SpacecalError
+from spacecal.estimators.diagnostics import ErrorThresholds
 
 
 class CheckFailed(SpacecalError):
@@ -77,7 +78,15 @@ def _calibrate(a: argparse.Namespace) -> None:
             raise InvalidInputError("--time-offset-ms takes a number or 'estimate'") from None
     out = app.calibrate(
         app.CalibrateSettings(
-            a.recording, a.output, a.method, a.tracker_stream, offset, _points(a.target), a.sigma_mm, a.force
+            a.recording,
+            a.output,
+            a.method,
+            a.tracker_stream,
+            offset,
+            _points(a.target),
+            a.sigma_mm,
+            ErrorThresholds.parse(a.thresholds_mm) if a.thresholds_mm else None,
+            a.force,
         )
     )
     if out.time_offset_note:
@@ -106,8 +115,17 @@ def _calibrate(a: argparse.Namespace) -> None:
             print(f"  at {target['target_in_base_mm']}: {target['tre_mm']:.3f} mm")
     if "outliers" in d:
         print(f"outliers: {len(d['outliers'])} frames flagged (listed in the result file)")
+    if "position_mm" in d.get("expected_error", {}):
+        e = d["expected_error"]
+        print(
+            f"expected error at a target near the site: {e['position_mm']:.2f} mm, {e['posture_deg']:.2f} deg"
+        )
     if "verdict" in d:
         print(f"verdict: {d['verdict']}")
+        if d["verdict"].startswith("unusable"):
+            raise CheckFailed(
+                f"calibration unusable (written to {out.path}): {d['verdict'][len('unusable: ') :]}"
+            )
 
 
 def _bound(a: argparse.Namespace) -> None:

@@ -74,6 +74,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--sigma-mm", type=float, help="per-axis sphere noise (ml, robust); default: from marker_rms_mm"
     )
+    p.add_argument(
+        "--thresholds-mm",
+        metavar="GOOD,ACCEPTABLE,POOR",
+        help="expected-error limits of the verdict's grades, mm (default 0.5,1,2); above POOR: unusable",
+    )
 
     p = command("pivot", "pivot calibration of a pointer or needle tip")
     add_force(p)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.arrays import ArrayLike, FloatArray, IndexArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
@@ -131,41 +133,110 @@ def residual_table(
     ]
 
 
+@dataclass(frozen=True)
+class ErrorThresholds:
+    """Upper limits (mm) of the expected position error at a target for each grade.
+
+    Above ``poor_mm`` a calibration is ``unusable``.
+    """
+
+    good_mm: float = 0.5
+    acceptable_mm: float = 1.0
+    poor_mm: float = 2.0
+
+    def __post_init__(self) -> None:
+        values = (self.good_mm, self.acceptable_mm, self.poor_mm)
+        if not all(np.isfinite(v) and v > 0 for v in values) or not (
+            self.good_mm <= self.acceptable_mm <= self.poor_mm
+        ):
+            raise InvalidInputError(
+                f"error thresholds must be positive and increasing (good <= acceptable <= poor), got {values}"
+            )
+
+    @classmethod
+    def parse(cls, text: str) -> ErrorThresholds:
+        """From ``"good,acceptable,poor"`` in mm, e.g. ``"0.5,1,2"``."""
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != 3:
+            raise InvalidInputError(f"thresholds take good,acceptable,poor in mm, got {text!r}")
+        return cls(*values)
+
+
+#: The grades, best first.
+GRADES = ("good", "acceptable", "poor", "unusable")
+
+
+def grade(position_mm: float, thresholds: ErrorThresholds) -> str:
+    """The grade of an expected position error (mm)."""
+    if not np.isfinite(position_mm) or position_mm > thresholds.poor_mm:
+        return "unusable"
+    if position_mm <= thresholds.good_mm:
+        return "good"
+    if position_mm <= thresholds.acceptable_mm:
+        return "acceptable"
+    return "poor"
+
+
 def verdict(
-    predicted_tre_site_mm: float | None,
+    expected: dict[str, Any] | None,
     spread: dict[str, Any],
     outlier_fraction: float = 0.0,
     variance_factor: float | None = None,
-    likelihood_based: bool = True,
+    thresholds: ErrorThresholds | None = None,
+    refusal: str | None = None,
 ) -> str:
     """A plain-language judgement of a calibration and what to do about it.
 
-    The headline grades the predicted error at the site, unless the residuals show that
-    systematic errors dominate, in which case the prediction is a lower bound and the
-    headline says so.
+    The first word is the grade of the expected error at a target near the site
+    (``expected["position_mm"]``, see :mod:`spacecal.estimators.expected_error`) against
+    ``thresholds``: good, acceptable, poor or unusable. The reason follows, then notes.
+
+    Parameters
+    ----------
+    expected : dict or None
+        ``position_mm``, ``posture_deg`` and their ``components``; None when it could not be
+        computed (the grade is then ``unusable``).
+    refusal : str, optional
+        A reason the data cannot give a trustworthy calibration whatever the numbers say
+        (e.g. too few frames): the grade is ``unusable``.
     """
+    thresholds = thresholds or ErrorThresholds()
     notes = []
-    factor = 0.0 if variance_factor is None else variance_factor
-    systematic = factor > SYSTEMATIC_VARIANCE_FACTOR
-    if predicted_tre_site_mm is not None:
-        if systematic:
-            notes.append(
-                f"check: predicted error at the site {predicted_tre_site_mm:.2f} mm is a lower bound, "
-                f"because residuals are {np.sqrt(factor):.1f}x the tracker's noise: the model does "
-                "not fit the data (systematic error such as robot kinematics, tracker volume error, time "
-                "offset or a loose marker"
-                + ("" if likelihood_based else ", or an inaccurate estimator: compare with ml")
-                + "); verify on independent targets"
+    if refusal is not None or expected is None:
+        reason = refusal or "the expected error could not be estimated from held-out data"
+        notes.append(f"unusable: {reason}; record again")
+    else:
+        position, posture = expected["position_mm"], expected["posture_deg"]
+        word = grade(position, thresholds)
+        limit = {
+            "good": thresholds.good_mm,
+            "acceptable": thresholds.acceptable_mm,
+            "poor": thresholds.poor_mm,
+            "unusable": thresholds.poor_mm,
+        }[word]
+        relation = "above" if word == "unusable" else "within"
+        text = (
+            f"{word}: expected error at a target near the site {position:.2f} mm, {posture:.2f} deg "
+            f"({relation} {limit:g} mm)"
+        )
+        components = expected.get("components", {})
+        noise = components.get("noise_tre_rms_mm")
+        factor = 0.0 if variance_factor is None else variance_factor
+        if factor > SYSTEMATIC_VARIANCE_FACTOR or (noise is not None and position > 2.0 * noise + 0.05):
+            text += (
+                f"; residuals are {np.sqrt(max(factor, 1.0)):.1f}x the tracker's noise, so systematic "
+                "error (robot kinematics, tracker volume error, time offset or a loose marker) "
+                "dominates the noise-only prediction"
             )
-        elif predicted_tre_site_mm <= 0.2:
-            notes.append(f"good: predicted error at the site {predicted_tre_site_mm:.2f} mm")
-        elif predicted_tre_site_mm <= 0.5:
-            notes.append(f"acceptable: predicted error at the site {predicted_tre_site_mm:.2f} mm")
-        else:
-            notes.append(
-                f"poor: predicted error at the site {predicted_tre_site_mm:.2f} mm; record more, "
-                "and more varied, poses"
+        if word in ("poor", "unusable"):
+            text += (
+                "; check units, the clock offset and that the marker is tight, then record more varied "
+                "poses (or identify the kinematics with --method kinematic)"
             )
+        notes.append(text)
     if spread["rotation_sd_deg"][2] < 5.0:
         notes.append("the tool rotated about fewer than three axes: add rotations about the missing axis")
     if outlier_fraction > 0.05:
@@ -173,7 +244,7 @@ def verdict(
             f"{outlier_fraction:.0%} of frames were outliers: check for reflections, "
             "occlusion or a loose marker"
         )
-    return "; ".join(notes) if notes else "no problems detected"
+    return "; ".join(notes)
 
 
 def site_in_base(recording: Recording, rows: IndexArray | None = None) -> FloatArray:

@@ -29,8 +29,10 @@ import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.likelihood import calibrate_ml, report_uncertainty, variance_factor_of
-from spacecal.estimators.observations import build_observations
+from spacecal.estimators.expected_error import expected_error
+from spacecal.estimators.likelihood import fit_ml, report_uncertainty, variance_factor_of
+from spacecal.estimators.ml import covariance_from_information, information_matrix
+from spacecal.estimators.observations import Observations
 from spacecal.geometry.arrays import FloatArray
 from spacecal.models.kinematics import (
     RobotModel,
@@ -64,14 +66,40 @@ def identifiable_corrections(
     scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
     dh = dh_jacobian.reshape(-1, 24) / scale
     pose = pose_jacobian.reshape(-1, 12)
-    basis, _ = np.linalg.qr(pose)
-    projected = dh - basis @ (basis.T @ dh)
+    # projection off the pose columns by the normal equations (12 columns: cheaper than a QR)
+    projected = dh - pose @ np.linalg.solve(pose.T @ pose, pose.T @ dh)
     _, r, order = qr(projected, mode="economic", pivoting=True)
     diagonal = np.abs(np.diag(r))
     keep = diagonal > rank_tolerance * diagonal[0]
     selected = np.sort(order[keep])
     singular = np.linalg.svd(projected[:, selected], compute_uv=False)
     return selected, float(singular[0] / singular[-1])
+
+
+def dh_error_scale_of(
+    recording: Recording,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    model: RobotModel,
+    joints_rad: FloatArray,
+) -> float | None:
+    """Scale (mm) of the robot's DH errors from the held-out misfit of the nominal-model ML fit."""
+    try:
+        covariance = covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
+        expected = expected_error(
+            obs,
+            recording.segment[obs.rows],
+            tracker_from_base,
+            tcp_from_marker,
+            covariance,
+            robot_model=model,
+            joints_rad=joints_rad,
+        )
+    except (DegenerateDataError, np.linalg.LinAlgError):
+        return None
+    scale = expected["components"].get("dh_error_scale_mm")
+    return None if scale is None else float(scale)
 
 
 def calibrate_kinematic(
@@ -95,8 +123,8 @@ def calibrate_kinematic(
         Relative size below which a projected, scaled correction counts as unidentifiable.
     """
     model = robot_model_of(recording)
-    start = calibrate_ml(recording, sigma_mm=sigma_mm)
-    obs = build_observations(recording, sigma_mm=sigma_mm)
+    # identification starts from the ML solution (the bare fit, without its diagnostics)
+    obs, start = fit_ml(recording, sigma_mm=sigma_mm)
     joints = recording.joints_rad[obs.rows]
     if not np.all(np.isfinite(joints)):
         raise DegenerateDataError("kinematic identification needs the joint angles of every used frame")
@@ -118,6 +146,10 @@ def calibrate_kinematic(
             "this motion identifies no kinematic correction: use more varied joint configurations"
         )
 
+    # The DH columns barely change over the iterations (the corrections are fractions of a
+    # millimetre): Gauss-Newton keeps the first ones (a chord iteration), whose fixed point is
+    # the same optimum, and saves a finite-difference Jacobian per iteration.
+    j_dh_selected = j_dh.reshape(-1, 24)[:, selected] / obs.sigma_mm
     for _ in range(iterations):
         corrected = with_dh_corrections(model, delta)
         obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
@@ -129,21 +161,16 @@ def calibrate_kinematic(
             ).reshape(-1, 12)
             / obs.sigma_mm
         )
-        j_dh = (
-            dh_point_jacobian(corrected, joints, tracker_from_base, tcp_from_marker, spheres).reshape(-1, 24)[
-                :, selected
-            ]
-            / obs.sigma_mm
-        )
-        jac = np.hstack([j_pose, j_dh])
+        jac = np.hstack([j_pose, j_dh_selected])
         prior_rows = np.zeros((len(selected), 12 + len(selected)))
         prior_rows[:, 12:] = np.diag(1.0 / prior_sd[selected])
         jac_all = np.vstack([jac, prior_rows])
         res_all = np.concatenate([residual, delta[selected] / prior_sd[selected]])
-        step, *_ = np.linalg.lstsq(jac_all, -res_all, rcond=None)
+        # normal equations: the whitened Jacobian is tall and well-conditioned by the prior rows
+        step = np.linalg.solve(jac_all.T @ jac_all, -(jac_all.T @ res_all))
         tracker_from_base, tcp_from_marker = apply_pose_step(tracker_from_base, tcp_from_marker, step[:12])
         delta[selected] += step[12:]
-        if np.max(np.abs(step[:12])) < 1e-9 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-9:
+        if np.max(np.abs(step[:12])) < 1e-7 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-6:
             break
 
     corrected = with_dh_corrections(model, delta)
@@ -169,6 +196,11 @@ def calibrate_kinematic(
             "prior_sd": {"length_mm": prior_length_sd_mm, "angle_rad": prior_angle_sd_rad},
         },
     }
+    # the robot's DH error scale as the ML start's held-out misfit shows it (before the
+    # corrections absorb it)
+    dh_scale = dh_error_scale_of(
+        recording, obs, start.tracker_from_base, start.tcp_from_marker, model, joints
+    )
     result = report_uncertainty(
         "kinematic",
         recording,
@@ -180,5 +212,8 @@ def calibrate_kinematic(
         targets_in_base,
         extra,
         covariance_note="pose block of the joint (pose + DH) covariance; mm, rad",
+        robot_model=corrected,
+        absorbed_dh=selected.tolist(),
+        dh_error_scale_mm=dh_scale,
     )
     return result.replace(robot_model=corrected)

@@ -17,6 +17,7 @@ from spacecal.estimators.diagnostics import (
     site_in_base,
     verdict,
 )
+from spacecal.estimators.expected_error import MINIMUM_FRAMES, expected_error, nominal_robot_model
 from spacecal.estimators.ml import (
     PARAMETER_NAMES,
     Fit,
@@ -32,6 +33,7 @@ from spacecal.estimators.robot_world import solve_shah
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IntArray
 from spacecal.geometry.metrics import cube_grid
 from spacecal.geometry.transforms import invert_transform
+from spacecal.models.kinematics import RobotModel
 from spacecal.records import CalibrationResult, Recording
 
 #: Frames beyond this quantile of the inlier error distribution are outliers.
@@ -41,6 +43,9 @@ OUTLIER_QUANTILE = 0.999
 #: tailed than Gaussian: in the realistic scenario the largest inlier frame error is about
 #: 3.7x the median. Frames within this factor of the median are never called outliers.
 SYSTEMATIC_TAIL_FACTOR = 4.0
+
+#: More frames flagged as outliers than this share of the kept ones: not one rigid set-up.
+MAX_OUTLIER_FRACTION = 0.25
 
 #: Side of the cube around the site over which TRE is summarised, mm.
 CUBE_SIDE_MM = 200.0
@@ -140,13 +145,40 @@ def report_uncertainty(
     extra: dict[str, Any],
     outlier_rows: IntArray | Sequence[int] = (),
     covariance_note: str = "",
+    robot_model: RobotModel | None = None,
+    absorbed_dh: Sequence[int] = (),
+    dh_error_scale_mm: float | None = None,
 ) -> CalibrationResult:
-    """A calibration result with covariance, predicted TRE, residuals, spread and verdict."""
+    """A calibration result with covariance, predicted TRE, expected error, residuals, spread
+    and verdict.
+
+    ``robot_model`` is the model ``obs`` poses come from (default: the nominal model named in
+    the recording's metadata, if any); ``absorbed_dh`` the DH corrections identified with it;
+    ``dh_error_scale_mm`` the robot's DH error scale when known (see
+    :func:`spacecal.estimators.expected_error.expected_error`).
+    """
     site = site_in_base(recording, obs.rows)
     tre = tre_summary(tracker_from_base, covariance, site, targets_in_base)
     residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
+    expected = expected_error_of(
+        method,
+        recording,
+        obs,
+        tracker_from_base,
+        tcp_from_marker,
+        covariance,
+        robot_model,
+        absorbed_dh,
+        dh_error_scale_mm,
+    )
+    if len(outlier_rows) > MAX_OUTLIER_FRACTION * len(obs.rows) and "refusal" not in expected:
+        expected = {
+            **expected,
+            "refusal": f"{len(outlier_rows)} frames disagree with the {len(obs.rows)} kept: the recording "
+            "does not describe one rigid set-up (units, a moved marker or tracker?)",
+        }
     diagnostics = {
         "noise": {
             "sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
@@ -161,12 +193,13 @@ def report_uncertainty(
         "residual_position_rms_mm": residuals["position_rms_mm"],
         "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": spread,
+        "expected_error": expected,
         "verdict": verdict(
-            tre["site"],
+            None if "refusal" in expected else expected,
             spread,
             outlier_fraction,
             variance_factor if obs.sigma_known else None,
-            likelihood_based=method in ("ml", "robust"),
+            refusal=expected.get("refusal"),
         ),
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,
@@ -181,6 +214,50 @@ def report_uncertainty(
         covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(), "note": covariance_note},
         predicted_tre_mm=tre,
     )
+
+
+#: Estimators whose solution is the ML fit of their observations (their held-out refits are
+#: their own; the others are compared with ML).
+LIKELIHOOD_METHODS = ("ml", "robust", "kinematic")
+
+
+def expected_error_of(
+    method: str,
+    recording: Recording,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    covariance: FloatArray,
+    robot_model: RobotModel | None = None,
+    absorbed_dh: Sequence[int] = (),
+    dh_error_scale_mm: float | None = None,
+) -> dict[str, Any]:
+    """``diagnostics["expected_error"]`` (see :mod:`spacecal.estimators.expected_error`).
+
+    Holds ``refusal`` (and no numbers) when the data cannot support a calibration: too few
+    frames, or held-out blocks that cannot be refitted.
+    """
+    if len(obs.rows) < MINIMUM_FRAMES:
+        return {
+            "refusal": f"only {len(obs.rows)} frames with the marker visible (at least {MINIMUM_FRAMES})",
+            "basis": "not estimated",
+        }
+    model = robot_model if robot_model is not None else nominal_robot_model(recording)
+    try:
+        return expected_error(
+            obs,
+            recording.segment[obs.rows],
+            tracker_from_base,
+            tcp_from_marker,
+            covariance,
+            robot_model=model,
+            joints_rad=None if model is None else recording.joints_rad[obs.rows],
+            absorbed_dh=absorbed_dh,
+            likelihood_based=method in LIKELIHOOD_METHODS,
+            dh_error_scale_mm=dh_error_scale_mm,
+        )
+    except (DegenerateDataError, np.linalg.LinAlgError) as exc:
+        return {"refusal": f"the expected error cannot be cross-validated ({exc})", "basis": "not estimated"}
 
 
 def calibrate_ml(

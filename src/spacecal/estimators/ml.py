@@ -113,10 +113,11 @@ def levenberg_marquardt(
 
     cost, diff = cost_of(tracker_from_base, tcp_from_marker)
     for iteration in range(1, max_iterations + 1):
-        jac = jacobian(obs, tracker_from_base, tcp_from_marker)
-        w = weights[:, None, None, None]
-        normal = np.einsum("nkia,nkib->ab", w * jac, jac) / obs.sigma_mm**2
-        gradient = np.einsum("nkia,nki->a", w * jac, diff) / obs.sigma_mm**2
+        # flattened products run on BLAS (einsum over four indices does not)
+        jac = jacobian(obs, tracker_from_base, tcp_from_marker).reshape(-1, 12)
+        weighted = jac * np.repeat(weights, jac.shape[0] // len(weights))[:, None]
+        normal = weighted.T @ jac / obs.sigma_mm**2
+        gradient = weighted.T @ diff.reshape(-1) / obs.sigma_mm**2
         while True:
             step = np.linalg.solve(normal + damping * np.diag(np.diag(normal)), -gradient)
             trial_tracker_from_base, trial_tcp_from_marker = apply_pose_step(
@@ -151,9 +152,10 @@ def information_matrix(
     (J^T J of the rigid fit), so the same formula holds.
     """
     sigma = obs.sigma_mm if sigma_mm is None else sigma_mm
-    jac = jacobian(obs, tracker_from_base, tcp_from_marker)
+    jac = jacobian(obs, tracker_from_base, tcp_from_marker).reshape(-1, 12)
     w = np.ones(len(obs.rows)) if frame_weights is None else np.asarray(frame_weights, float)
-    return as_float_array(np.einsum("nkia,nkib->ab", w[:, None, None, None] * jac, jac) / sigma**2)
+    weighted = jac * np.repeat(w, jac.shape[0] // len(w))[:, None]
+    return as_float_array(weighted.T @ jac / sigma**2)
 
 
 def covariance_from_information(information: FloatArray) -> FloatArray:

@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from collections.abc import Callable
 from typing import Any
 
-from spacecal.core.errors import InvalidInputError, UnknownMethodError
+import numpy as np
+
+from spacecal.core.errors import InvalidInputError, SpacecalError, UnknownMethodError
 from spacecal.estimators.closed_form import (
     HAND_EYE_SOLVERS,
     ROBOT_WORLD_SOLVERS,
     hand_eye_method,
     robot_world_method,
 )
+from spacecal.estimators.diagnostics import ErrorThresholds, verdict
 from spacecal.estimators.kinematic import calibrate_kinematic
 from spacecal.estimators.likelihood import (
     calibrate_ml,
@@ -20,6 +24,7 @@ from spacecal.estimators.likelihood import (
     report_uncertainty,
     variance_factor_of,
 )
+from spacecal.estimators.ml import covariance_from_information, information_matrix
 from spacecal.estimators.observations import build_observations
 from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
@@ -49,9 +54,11 @@ def calibrate(
     method : str
         A name from :data:`METHODS`.
     uncertainty : bool
-        For methods without a likelihood, add a bootstrap covariance and predicted TRE
-        (50 re-solves); Monte Carlo studies switch it off.
+        For methods without a likelihood, add a bootstrap covariance, predicted TRE, expected
+        error and verdict (50 re-solves); Monte Carlo studies switch it off.
     **options
+        Passed to the method, except ``targets_in_base`` (any method) and ``error_thresholds``, an
+        :class:`~spacecal.estimators.diagnostics.ErrorThresholds` the verdict is graded against.
         Passed to the method.
 
     Raises
@@ -64,6 +71,9 @@ def calibrate(
     """
     if method not in METHODS:
         raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(METHODS))}")
+    thresholds = options.pop("error_thresholds", None)
+    if thresholds is not None and not isinstance(thresholds, ErrorThresholds):
+        raise InvalidInputError("error_thresholds must be an ErrorThresholds (good, acceptable, poor mm)")
     targets = options.pop("targets_in_base", None)
     if targets is not None:
         targets = check_points(targets, "targets_in_base")
@@ -79,11 +89,62 @@ def calibrate(
             + (f" (methods that do: {', '.join(takers)})" if takers else "")
         )
     if "targets_in_base" in accepted:
-        return METHODS[method](recording, targets_in_base=targets, **options)
-    result = METHODS[method](recording, **options)
-    if not uncertainty:
+        result = METHODS[method](recording, targets_in_base=targets, **options)
+    else:
+        result = METHODS[method](recording, **options)
+        if uncertainty:
+            result = with_bootstrap_uncertainty(result, recording, METHODS[method], targets)
+    return result if thresholds is None else regrade(result, recording, thresholds)
+
+
+def regrade(
+    result: CalibrationResult, recording: Recording, thresholds: ErrorThresholds
+) -> CalibrationResult:
+    """The result with its verdict graded against other thresholds (its numbers unchanged)."""
+    d = result.diagnostics
+    expected = d.get("expected_error")
+    if expected is None or "motion_spread" not in d:
         return result
-    return with_bootstrap_uncertainty(result, recording, METHODS[method], targets)
+    outliers = len(d.get("outliers", []))
+    text = verdict(
+        None if "refusal" in expected else expected,
+        d["motion_spread"],
+        outliers / max(int(recording.visible.sum()), 1),
+        d.get("variance_factor"),
+        thresholds,
+        refusal=expected.get("refusal"),
+    )
+    return result.replace(diagnostics={**d, "verdict": text, "thresholds_mm": dataclasses.asdict(thresholds)})
+
+
+def with_expected_error(result: CalibrationResult, recording: Recording) -> CalibrationResult:
+    """Expected error and verdict for a result without a covariance of its own.
+
+    The noise-only part comes from the ML information at the result's solution, so every
+    method gets a verdict however it was called.
+    """
+    obs = build_observations(recording)
+    try:
+        information = information_matrix(obs, result.tracker_from_base, result.tcp_from_marker)
+        variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
+        scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
+        covariance = covariance_from_information(information) * scale
+    except (SpacecalError, np.linalg.LinAlgError):
+        return result
+    reported = report_uncertainty(
+        result.method,
+        recording,
+        obs,
+        result.tracker_from_base,
+        result.tcp_from_marker,
+        covariance,
+        variance_factor,
+        None,
+        {},
+        covariance_note="ML information at this solution (no bootstrap); mm, rad",
+    )
+    keep = ("expected_error", "verdict", "motion_spread", "variance_factor")
+    return result.replace(diagnostics={**result.diagnostics, **{k: reported.diagnostics[k] for k in keep}})
 
 
 def check_recording_poses(recording: Recording) -> None:
@@ -127,7 +188,7 @@ def with_bootstrap_uncertainty(
     covariance = bootstrap_covariance(recording, solve, result.tracker_from_base, result.tcp_from_marker)
     if covariance is None:
         result.diagnostics["uncertainty"] = "bootstrap failed: too few resamples could be solved"
-        return result
+        return with_expected_error(result, recording)
     obs = build_observations(recording)
     variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
     reported = report_uncertainty(

@@ -5,12 +5,14 @@ clocks are offset, every moving sample is paired with the wrong robot pose (1 ms
 100 mm/s is 0.1 mm). With the raw streams, a tracker frame at tracker time t is paired with
 the robot state interpolated at robot time ``t + offset`` (joints linearly, the TCP pose
 linearly in position and along the geodesic in rotation). The offset is the one whose pairs
-the maximum-likelihood calibration fits best: a coarse scan over ``search_s`` then a bounded
-Brent refinement of the fit's chi-square.
+the maximum-likelihood calibration fits best. A coarse value comes cheaply from matching the
+two streams' angular speeds (both see the tool's rotation rate); a bounded Brent search of
+the fit's chi-square around it, each fit warm-started from the previous one, refines it.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +20,8 @@ from scipy.optimize import minimize_scalar
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.likelihood import calibrate_ml, fit_ml, variance_factor_of
+from spacecal.estimators.ml import levenberg_marquardt
+from spacecal.estimators.observations import build_observations
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, interpolate_transforms
 from spacecal.records import CalibrationResult, RawRecording, Recording
 
@@ -53,23 +57,101 @@ def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
 
 @dataclass
 class OffsetEstimate:
-    """The estimated offset (robot clock minus tracker clock), its fit, and the scan."""
+    """The estimated offset (robot clock minus tracker clock), the coarse scan, and the fit.
+
+    ``scan_speed_mismatch`` is the mean squared difference (rad^2/s^2) of the robot's and the
+    tracker's angular speeds at each ``scan_offsets_s``. :attr:`calibration` is computed on
+    first use (a caller that pairs the streams and calibrates by another method need not pay
+    for it).
+    """
 
     offset_s: float
-    calibration: CalibrationResult
+    raw: RawRecording
     scan_offsets_s: np.ndarray
-    scan_chi_square: np.ndarray
+    scan_speed_mismatch: np.ndarray
+    coarse_offset_s: float
+    search_s: float
+
+    @functools.cached_property
+    def calibration(self) -> CalibrationResult:
+        """The ML calibration of the streams paired at the estimated offset."""
+        calibration = calibrate_ml(pair_streams(self.raw, self.offset_s))
+        calibration.diagnostics["time_offset"] = {
+            "offset_s": self.offset_s,
+            "coarse_offset_s": self.coarse_offset_s,
+            "search_s": self.search_s,
+            "definition": "robot clock minus tracker clock",
+        }
+        return calibration
 
 
-def _fit_cost(raw: RawRecording, offset_s: float) -> float:
-    obs, fit = fit_ml(pair_streams(raw, offset_s))
-    return variance_factor_of(obs, fit.tracker_from_base, fit.tcp_from_marker)
+def angular_speeds(
+    time_s: np.ndarray, rotation_stack: np.ndarray, largest_gap_factor: float = 3.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Angular speed (rad/s) between consecutive samples, at their mid-times.
+
+    Pairs with a missing pose (NaN) or a gap above ``largest_gap_factor`` times the median
+    sample period are left out.
+
+    Parameters
+    ----------
+    time_s : numpy.ndarray, shape (N,)
+    rotation_stack : numpy.ndarray, shape (N, 3, 3)
+
+    Returns
+    -------
+    mid_time_s, speed_rad_s : numpy.ndarray, shape (M,)
+    """
+    dt = np.diff(time_s)
+    finite = np.all(np.isfinite(rotation_stack.reshape(len(rotation_stack), -1)), axis=1)
+    positive = dt[dt > 0]
+    if len(positive) == 0:
+        return np.zeros(0), np.zeros(0)
+    usable = finite[:-1] & finite[1:] & (dt > 0) & (dt <= largest_gap_factor * np.median(positive))
+    first, second = rotation_stack[:-1][usable], rotation_stack[1:][usable]
+    relative = np.swapaxes(first, 1, 2) @ second
+    cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return (time_s[:-1] + 0.5 * dt)[usable], np.arccos(cosine) / dt[usable]
+
+
+def coarse_offset_from_angular_speed(
+    raw: RawRecording, search_s: float, step_s: float = 0.001
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mismatch of the two streams' angular speeds over candidate offsets.
+
+    The marker is rigid on the tool, so both streams see the same angular speed (a frame-
+    free quantity): the tracker's at tracker time t equals the robot's at robot time t + offset.
+
+    Returns
+    -------
+    offsets_s, mismatch : numpy.ndarray
+        Candidate offsets and the mean squared speed difference (rad^2/s^2) at each.
+    """
+    robot_t, robot_speed = angular_speeds(raw.robot_time_s, raw.base_from_tcp_stack[:, :3, :3])
+    tracker_t, tracker_speed = angular_speeds(raw.tracker_time_s, raw.tracker_from_marker_stack[:, :3, :3])
+    offsets = np.arange(-search_s, search_s + 1e-12, step_s)
+    mismatch = np.full(len(offsets), np.inf)
+    if len(robot_t) < 2 or len(tracker_t) < 2:
+        return offsets, mismatch
+    for k, offset in enumerate(offsets):
+        query = tracker_t + offset
+        inside = (query >= robot_t[0]) & (query <= robot_t[-1])
+        if inside.sum() >= 10:
+            difference = np.interp(query[inside], robot_t, robot_speed) - tracker_speed[inside]
+            mismatch[k] = float(np.mean(difference**2))
+    return offsets, mismatch
 
 
 def estimate_time_offset(
-    raw: RawRecording, search_s: float = 0.2, coarse_step_s: float = 0.005
+    raw: RawRecording, search_s: float = 0.2, refine_s: float = 0.01, xatol_s: float = 5e-5
 ) -> OffsetEstimate:
     """Estimate the robot–tracker clock offset jointly with the ML calibration.
+
+    1. Coarse: the offset (1 ms grid over +-``search_s``) at which the robot's angular speed
+       best matches the tracker's (:func:`coarse_offset_from_angular_speed`); no fit needed.
+    2. Fine: a bounded Brent search within +-``refine_s`` of it (four times wider if the
+       optimum lands on the edge) for the offset whose pairs the ML calibration fits best
+       (smallest variance factor), each fit warm-started from the last.
 
     Raises
     ------
@@ -78,7 +160,7 @@ def estimate_time_offset(
         the marker).
     DegenerateDataError
         When the best offset sits at the edge of the search (widen it) or the robot never
-        moved while sampled (no information on the offset).
+        rotated while sampled (no information on the offset).
     """
     check_transform(
         raw.base_from_tcp_stack, "raw.base_from_tcp_stack", stack=True, atol=MEASURED_TRANSFORM_ATOL
@@ -90,28 +172,35 @@ def estimate_time_offset(
         allow_missing=True,
         atol=MEASURED_TRANSFORM_ATOL,
     )
-    offsets = np.arange(-search_s, search_s + 1e-12, coarse_step_s)
-    costs = np.array([_fit_cost(raw, o) for o in offsets])
-    best = int(np.argmin(costs))
+    offsets, mismatch = coarse_offset_from_angular_speed(raw, search_s)
+    _, robot_speed = angular_speeds(raw.robot_time_s, raw.base_from_tcp_stack[:, :3, :3])
+    if len(robot_speed) == 0 or np.max(robot_speed) < np.radians(1.0) or not np.isfinite(mismatch).any():
+        raise DegenerateDataError(
+            "the robot did not rotate while sampled: the clock offset cannot be estimated"
+        )
+    best = int(np.argmin(mismatch))
     if best in (0, len(offsets) - 1):
         raise DegenerateDataError(
             f"the clock offset lies outside +-{search_s * 1000:.0f} ms: widen the search"
         )
-    if np.ptp(costs) < 1e-6 * costs[best]:
-        raise DegenerateDataError(
-            "the robot did not move while sampled: the clock offset cannot be estimated"
+    coarse = float(offsets[best])
+    warm: dict[str, np.ndarray] = {}
+
+    def cost(offset_s: float) -> float:
+        paired = pair_streams(raw, offset_s)
+        if warm:
+            obs = build_observations(paired)
+            fit = levenberg_marquardt(obs, warm["tracker_from_base"], warm["tcp_from_marker"])
+        else:
+            obs, fit = fit_ml(paired)
+        warm["tracker_from_base"], warm["tcp_from_marker"] = fit.tracker_from_base, fit.tcp_from_marker
+        return variance_factor_of(obs, fit.tracker_from_base, fit.tcp_from_marker)
+
+    for width in (refine_s, 4.0 * refine_s):
+        refined = minimize_scalar(
+            cost, bounds=(coarse - width, coarse + width), method="bounded", options={"xatol": xatol_s}
         )
-    refined = minimize_scalar(
-        lambda o: _fit_cost(raw, o),
-        bounds=(offsets[best - 1], offsets[best + 1]),
-        method="bounded",
-        options={"xatol": 1e-5},
-    )
-    offset = float(refined.x)
-    calibration = calibrate_ml(pair_streams(raw, offset))
-    calibration.diagnostics["time_offset"] = {
-        "offset_s": offset,
-        "search_s": search_s,
-        "definition": "robot clock minus tracker clock",
-    }
-    return OffsetEstimate(offset, calibration, offsets, costs)
+        # an optimum at the edge of the bracket: the angular speeds misled, look wider once
+        if abs(float(refined.x) - coarse) < 0.95 * width:
+            break
+    return OffsetEstimate(float(refined.x), raw, offsets, mismatch, coarse, search_s)

@@ -52,8 +52,13 @@ class DemoResult:
                 "",
             ),
             (
-                "ML estimator: predicted TRE, verdict",
-                f"{(self.ml_calibration.predicted_tre_mm or {}).get('cube_rms', float('nan')):.3f} mm, "
+                "ML estimator: predicted TRE (noise only)",
+                f"{(self.ml_calibration.predicted_tre_mm or {}).get('cube_rms', float('nan')):.3f} mm",
+                "",
+            ),
+            (
+                "ML estimator: expected error at a target, verdict",
+                f"{_expected_mm(self.ml_calibration):.2f} mm, "
                 f"{self.ml_calibration.diagnostics['verdict'].split(':')[0]}",
                 "",
             ),
@@ -109,3 +114,8 @@ def run_demo(scenario: Scenario | None = None) -> DemoResult:
         ml,
         calibration_error(ml, simulation.world),
     )
+
+
+def _expected_mm(calibration: CalibrationResult) -> float:
+    """The expected position error at a target a result states (NaN when it has none), mm."""
+    return float(calibration.diagnostics.get("expected_error", {}).get("position_mm", float("nan")))

@@ -1,0 +1,456 @@
+"""The error to expect at a target near the site, from held-out data and the robot's geometry.
+
+The predicted TRE of :mod:`spacecal.estimators.ml` propagates the tracker's white noise
+only. What a user sees when the robot is sent to a target also contains whatever the model
+does not describe: the robot's kinematic error, the tracker's volume error, a clock offset,
+a loose marker. Two facts set the expected error:
+
+1. **Held-out misfit** (cross-validation, as in mrcal). The visible frames are split into
+   blocks: the recording's segments when it has several (the paper's six sweeps), otherwise
+   six contiguous time blocks (blocks of stations). For each block the maximum-likelihood fit
+   is redone on the others, warm-started from the full-data solution, and predicts the
+   held-out frames through the chain ``tracker_from_base @ base_from_tcp @ tcp_from_marker``.
+   The mean squared sphere error of those predictions, less what the tracker's white noise
+   explains (``dof_per_frame * sigma^2`` per frame), is the power of the systematic error
+   ``S``. Robot kinematics, tracker bias and timing all enter it.
+2. **What the marker cannot see** (geometry). Part of any kinematic error moves the needle
+   tip without moving the marker relative to the chain: an error constant in the tool frame
+   is absorbed into ``tcp_from_marker``, yet the tip is off by it (the docs' floor that only a
+   tip calibration removes). For the recording's configurations the DH Jacobian of the
+   marker's spheres and of the tip are projected off the columns the fit absorbs (the 12 pose
+   parameters, plus identified DH corrections); with DH errors of unit scale (lengths 1 mm,
+   angles 0.002 rad, the spread ``kinematic`` assumes) this gives the systematic sphere power
+   per frame ``s1`` and the mean squared tip error at frames near the site ``f1``. The scale
+   the data shows is ``l^2 = S / s1``, so the unseen tip error is ``l^2 f1``.
+
+The expected position error at a target near the site is then the mean length of a 3-D
+error of RMS ``sqrt(TRE^2 + l^2 f1)`` (factor ``sqrt(8 / (3 pi))``), with TRE the noise-only
+prediction at the site; posture likewise from the rotation block of the covariance and the
+tip frame's rotation. A method other than ML adds, in quadrature, how far its solution puts
+the tip from ML's at those frames. Without joint angles or a robot model, the held-out misfit
+per sphere stands in for the tip error and the basis says so.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.ml import jacobian, levenberg_marquardt, predict_spheres, predicted_tre_mm
+from spacecal.estimators.observations import Observations
+from spacecal.geometry.arrays import FloatArray, IntArray, as_float_array
+from spacecal.geometry.rotations import mean_rotation, rotation_angle
+from spacecal.geometry.transforms import invert_transform
+from spacecal.models.kinematics import UR_TABLES, RobotModel, dh_point_jacobian, pose_point_jacobian, ur_model
+from spacecal.records import Recording
+
+#: Fewer frames with the marker visible than this cannot support a calibration: the held-out
+#: blocks would hold a handful of frames each.
+MINIMUM_FRAMES = 30
+
+#: Contiguous blocks a recording without segment labels is split into.
+TIME_BLOCKS = 6
+
+#: Segments with fewer frames than this get no block of their own.
+MINIMUM_BLOCK_FRAMES = 5
+
+#: Frames near the site stand for the targets: TCP within this distance of the site (mm) ...
+SITE_RADIUS_MM = 100.0
+#: ... and within this rotation of the mean orientation of the frames there (deg).
+SITE_TILT_DEG = 30.0
+
+#: Unit scale of the DH errors whose shape sets the unseen tip error: 1 mm for lengths and
+#: 0.002 rad for angles (the ratio of the spreads :mod:`spacecal.estimators.kinematic` assumes).
+UNIT_DH_SD = np.array([1.0] * 12 + [0.002] * 12)
+
+#: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more.
+GEOMETRY_FRAMES = 120
+
+#: Lever (mm) of the points beside the tip whose displacements give the tip frame's rotation.
+ROTATION_LEVER_MM = 100.0
+
+#: Mean over RMS of the length of an isotropic 3-D Gaussian vector, sqrt(8 / (3 pi)).
+MEAN_OVER_RMS_3D = float(np.sqrt(8.0 / (3.0 * np.pi)))
+
+#: A refit: (training observations, start tracker_from_base, start tcp_from_marker)
+#: -> (tracker_from_base, tcp_from_marker).
+Refit = Callable[[Observations, FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
+
+
+def nominal_robot_model(recording: Recording) -> RobotModel | None:
+    """The nominal model named in the recording's metadata (with its TCP), or None."""
+    robot = recording.metadata.get("robot", {})
+    name = robot.get("model") if isinstance(robot, dict) else None
+    if not isinstance(name, str) or name not in UR_TABLES:
+        return None
+    return ur_model(name, np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
+
+
+def ml_refit(
+    obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Levenberg–Marquardt on ``obs`` from a warm start (the full-data solution)."""
+    fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, max_iterations=10, tolerance=1e-6)
+    return as_float_array(fit.tracker_from_base), as_float_array(fit.tcp_from_marker)
+
+
+def held_out_blocks(segments: np.ndarray, minimum_frames: int = MINIMUM_BLOCK_FRAMES) -> list[IntArray]:
+    """Index blocks (into the used frames) to leave out one at a time.
+
+    Parameters
+    ----------
+    segments : numpy.ndarray of str, shape (N,)
+        Segment label of each used frame.
+
+    Returns
+    -------
+    list of numpy.ndarray of int
+        The recording's segments when at least three have ``minimum_frames`` frames each,
+        else :data:`TIME_BLOCKS` contiguous blocks.
+    """
+    labels = list(dict.fromkeys(np.asarray(segments).tolist()))
+    blocks = [np.flatnonzero(segments == label) for label in labels]
+    blocks = [b for b in blocks if len(b) >= minimum_frames]
+    if len(blocks) >= 3:
+        return blocks
+    return [b for b in np.array_split(np.arange(len(segments)), TIME_BLOCKS) if len(b) > 0]
+
+
+def near_site(base_from_tcp_stack: FloatArray, radius_mm: float, tilt_deg: float) -> np.ndarray:
+    """Frames (N,) whose TCP lies within ``radius_mm`` of the site and ``tilt_deg`` of its orientation.
+
+    The site is the centroid of the TCP positions; its orientation the mean orientation of the
+    frames within ``radius_mm`` of it. All frames when fewer than three qualify.
+    """
+    positions = base_from_tcp_stack[:, :3, 3]
+    close = np.linalg.norm(positions - positions.mean(axis=0), axis=1) <= radius_mm
+    if close.sum() < 3:
+        return np.ones(len(positions), dtype=bool)
+    reference = mean_rotation(base_from_tcp_stack[close, :3, :3])
+    tilt = np.degrees(rotation_angle(base_from_tcp_stack[:, :3, :3] @ reference.T))
+    selected = close & (tilt <= tilt_deg)
+    return selected if selected.sum() >= 3 else np.ones(len(positions), dtype=bool)
+
+
+def held_out_misfit(
+    obs: Observations,
+    segments: np.ndarray,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    refit: Refit = ml_refit,
+) -> dict[str, Any]:
+    """Squared sphere errors of held-out frames predicted by refits that left their block out.
+
+    Parameters
+    ----------
+    obs : Observations
+        The used frames (``base_from_tcp_stack`` is what the robot model says).
+    segments : numpy.ndarray of str, shape (N,)
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The full-data solution, the warm start of every refit.
+    refit : callable
+        How a block's refit is done (default :func:`ml_refit`).
+
+    Returns
+    -------
+    dict
+        ``frame_sse_mm2`` (N,): sum over the spheres of the squared held-out error (NaN for
+        frames of blocks that could not be refitted); ``blocks``, ``blocks_refitted``.
+
+    Raises
+    ------
+    DegenerateDataError
+        When fewer than two blocks could be refitted.
+    """
+    n = len(obs.rows)
+    frame_sse = np.full(n, np.nan)
+    prediction_variance = np.full(n, np.nan)
+    blocks = held_out_blocks(segments)
+    refitted = 0
+    # the refit's own noise makes held-out predictions worse than the noise alone: by
+    # sigma^2 tr(J_i (J_train^T J_train)^-1 J_i^T) for frame i
+    whole = jacobian(obs, tracker_from_base, tcp_from_marker).reshape(n, -1, 12)
+    for block in blocks:
+        keep = np.ones(n, dtype=bool)
+        keep[block] = False
+        if keep.sum() < 6:
+            continue
+        training = replace(
+            obs,
+            rows=obs.rows[keep],
+            base_from_tcp_stack=obs.base_from_tcp_stack[keep],
+            spheres_in_tracker=obs.spheres_in_tracker[keep],
+        )
+        try:
+            fitted = refit(training, tracker_from_base, tcp_from_marker)
+        except (DegenerateDataError, np.linalg.LinAlgError):
+            continue
+        held_out = replace(
+            obs,
+            rows=obs.rows[block],
+            base_from_tcp_stack=obs.base_from_tcp_stack[block],
+            spheres_in_tracker=obs.spheres_in_tracker[block],
+        )
+        diff = predict_spheres(held_out, *fitted) - held_out.spheres_in_tracker
+        frame_sse[block] = np.sum(diff**2, axis=(1, 2))
+        train = whole[keep].reshape(-1, 12)
+        covariance = np.linalg.inv(train.T @ train) * obs.sigma_mm**2
+        prediction_variance[block] = np.einsum("nia,ab,nib->n", whole[block], covariance, whole[block])
+        refitted += 1
+    if refitted < 2:
+        raise DegenerateDataError("too few blocks of the recording could be refitted to cross-validate")
+    return {
+        "frame_sse_mm2": frame_sse,
+        "frame_prediction_variance_mm2": prediction_variance,
+        "blocks": len(blocks),
+        "blocks_refitted": refitted,
+        "block_indices": blocks,
+    }
+
+
+def tip_points_in_marker(tcp_from_marker: FloatArray) -> FloatArray:
+    """The tip (TCP origin) and three points ``ROTATION_LEVER_MM`` along the TCP axes, (4, 3) in
+    the marker frame, mm."""
+    in_tcp = np.vstack([np.zeros(3), ROTATION_LEVER_MM * np.eye(3)])
+    marker_from_tcp = invert_transform(tcp_from_marker)
+    return as_float_array(in_tcp @ marker_from_tcp[:3, :3].T + marker_from_tcp[:3, 3])
+
+
+def _least_squares(design: FloatArray, target: FloatArray) -> FloatArray:
+    """Least-squares coefficients by the normal equations (well-posed, small column count)."""
+    normal = design.T @ design
+    ridge = 1e-12 * np.trace(normal) * np.eye(len(normal))
+    return as_float_array(np.linalg.solve(normal + ridge, design.T @ target))
+
+
+def unseen_kinematic_error(
+    model: RobotModel,
+    joints_rad: FloatArray,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    site: np.ndarray,
+    blocks: Sequence[IntArray],
+    absorbed_dh: Sequence[int] = (),
+    frames: int = GEOMETRY_FRAMES,
+) -> dict[str, float]:
+    """How unit-scale DH errors show in held-out sphere errors and at the tip (see the module).
+
+    The same blocks are held out as in :func:`held_out_misfit`, so the held-out misfit and its
+    unit-scale counterpart are alike; at most ``frames`` frames, evenly spread, are used.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The model the poses were computed with.
+    joints_rad : numpy.ndarray, shape (N, 6)
+    obs : Observations
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+    site : numpy.ndarray of bool, shape (N,)
+        Frames that stand for targets.
+    blocks : sequence of numpy.ndarray of int
+        The held-out blocks (indices into the N frames).
+    absorbed_dh : sequence of int
+        DH corrections the estimator fitted (they absorb what they can, like the pose).
+
+    Returns
+    -------
+    dict
+        ``sphere_power_mm2`` (held-out, per frame, summed over spheres), ``tip_position_ms_mm2``
+        and ``tip_rotation_ms_rad2`` (mean squares at the site frames), for unit-scale errors.
+    """
+    n = len(joints_rad)
+    picked = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
+    site_picked = picked[site[picked]]
+    spheres = obs.spheres_in_marker
+    k = len(spheres)
+    points = np.vstack([spheres, tip_points_in_marker(tcp_from_marker)])
+    dh = dh_point_jacobian(model, joints_rad[picked], tracker_from_base, tcp_from_marker, points)
+    pose = pose_point_jacobian(obs.base_from_tcp_stack[picked], tracker_from_base, tcp_from_marker, points)
+    dh = dh * UNIT_DH_SD
+    absorbed_dh = list(absorbed_dh)
+    sphere_dh = dh[:, :k].reshape(len(picked), k * 3, 24)
+    absorbing = np.concatenate(
+        [pose[:, :k].reshape(len(picked), k * 3, 12), sphere_dh[..., absorbed_dh]], axis=-1
+    )
+    # held-out: each block's frames predicted by the absorption fitted on the other blocks
+    block_of = np.full(n, -1)
+    for b, block in enumerate(blocks):
+        block_of[block] = b
+    held_out_power = []
+    for b in range(len(blocks)):
+        out = block_of[picked] == b
+        if out.sum() == 0 or (~out).sum() < 3:
+            continue
+        coefficients = _least_squares(
+            absorbing[~out].reshape(-1, absorbing.shape[-1]), sphere_dh[~out].reshape(-1, 24)
+        )
+        unseen = sphere_dh[out] - absorbing[out] @ coefficients
+        held_out_power.append(np.sum(unseen**2, axis=(1, 2)))
+    sphere_power = float(np.mean(np.concatenate(held_out_power))) if held_out_power else 0.0
+    # at the tip, the fitted tracker_from_base (and identified DH) move it; tcp_from_marker does not
+    coefficients = _least_squares(absorbing.reshape(-1, absorbing.shape[-1]), sphere_dh.reshape(-1, 24))
+    at_site = site[picked]
+    tip_dh = dh[at_site, k:]
+    tip = tip_dh - np.einsum("npia,ab->npib", pose[at_site, k:, :, :6], coefficients[:6])
+    if absorbed_dh:
+        tip -= np.einsum("npia,ab->npib", tip_dh[..., absorbed_dh], coefficients[12:])
+    position_ms = float(np.mean(np.sum(tip[:, 0] ** 2, axis=(1, 2)))) if len(site_picked) else 0.0
+    relative = tip[:, 1:] - tip[:, :1]
+    # three orthogonal lever arms u_j of length L: sum_j |w x u_j|^2 = 2 |w|^2 L^2
+    rotation_ms = (
+        float(np.mean(np.sum(relative**2, axis=(1, 2, 3)))) / (2.0 * ROTATION_LEVER_MM**2)
+        if len(site_picked)
+        else 0.0
+    )
+    return {
+        "sphere_power_mm2": sphere_power,
+        "tip_position_ms_mm2": position_ms,
+        "tip_rotation_ms_rad2": rotation_ms,
+    }
+
+
+def expected_error(
+    obs: Observations,
+    segments: np.ndarray,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    covariance: FloatArray,
+    robot_model: RobotModel | None = None,
+    joints_rad: FloatArray | None = None,
+    absorbed_dh: Sequence[int] = (),
+    likelihood_based: bool = True,
+    refit: Refit = ml_refit,
+    dh_error_scale_mm: float | None = None,
+) -> dict[str, Any]:
+    """The expected position (mm) and posture (deg) error at a target near the site.
+
+    Parameters
+    ----------
+    obs : Observations
+        The frames the estimator used, with the poses its robot model gives.
+    segments : numpy.ndarray of str, shape (N,)
+        Segment label of each used frame (the held-out blocks).
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The estimator's solution.
+    covariance : numpy.ndarray, shape (12, 12)
+        Its covariance in the pose perturbation parameters (mm, rad).
+    robot_model : RobotModel, optional
+        The model ``obs`` poses come from; with ``joints_rad`` it gives the unseen tip error.
+    joints_rad : numpy.ndarray, shape (N, 6), optional
+    absorbed_dh : sequence of int
+        DH corrections the estimator identified.
+    likelihood_based : bool
+        False for an estimator that is not the ML fit of ``obs`` (paper, closed forms): the
+        held-out refits are then ML, and the distance of its tip from ML's is added.
+    refit : callable
+        How a held-out block's refit is done.
+    dh_error_scale_mm : float, optional
+        The scale of the robot's DH errors when known from elsewhere. Kinematic
+        identification passes the one its ML start shows: after identification the
+        corrections have absorbed the misfit they were fitted to, so the held-out misfit of
+        refits that keep them would understate it.
+
+    Returns
+    -------
+    dict
+        ``position_mm``, ``posture_deg``, ``basis`` (one sentence), ``components``.
+    """
+    site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
+    tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
+    tre_ms = float(np.mean(predicted_tre_mm(tracker_from_base, covariance, tip_in_base) ** 2))
+    rotation_noise_ms = float(np.trace(np.asarray(covariance)[3:6, 3:6]))
+    ml_tracker_from_base, ml_tcp_from_marker = tracker_from_base, tcp_from_marker
+    deviation_ms = rotation_deviation_ms = 0.0
+    if not likelihood_based:
+        ml_tracker_from_base, ml_tcp_from_marker = refit(obs, tracker_from_base, tcp_from_marker)
+        method_tip = tracker_from_base @ obs.base_from_tcp_stack[site]
+        ml_tip = ml_tracker_from_base @ obs.base_from_tcp_stack[site]
+        deviation_ms = float(np.mean(np.sum((method_tip[:, :3, 3] - ml_tip[:, :3, 3]) ** 2, axis=1)))
+        rotation_deviation_ms = float(
+            rotation_angle(tracker_from_base[:3, :3] @ ml_tracker_from_base[:3, :3].T) ** 2
+        )
+    has_model = robot_model is not None and joints_rad is not None and bool(np.all(np.isfinite(joints_rad)))
+    if dh_error_scale_mm is not None and has_model:
+        # the scale is given: the held-out refits would only be reported, not used
+        block_list = held_out_blocks(segments)
+        misfit: dict[str, Any] = {
+            "frame_sse_mm2": np.full(len(obs.rows), np.nan),
+            "frame_prediction_variance_mm2": np.full(len(obs.rows), np.nan),
+            "blocks": len(block_list),
+            "blocks_refitted": 0,
+            "block_indices": block_list,
+        }
+    else:
+        misfit = held_out_misfit(obs, segments, ml_tracker_from_base, ml_tcp_from_marker, refit)
+    sse = misfit["frame_sse_mm2"]
+    computed = bool(np.isfinite(sse).any())
+    held_out_ms = float(np.nanmean(sse)) if computed else 0.0
+    prediction_ms = float(np.nanmean(misfit["frame_prediction_variance_mm2"])) if computed else 0.0
+    noise_ms = obs.dof_per_frame * obs.sigma_mm**2 + prediction_ms if obs.sigma_known else held_out_ms
+    # a misfit within two standard errors of the noise's (chi-square, 2 dof sigma^4 per frame) is none
+    scored = int(np.isfinite(sse).sum())
+    noise_standard_error = obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1))
+    systematic = (
+        max(held_out_ms - noise_ms - 2.0 * noise_standard_error, 0.0) if obs.sigma_known and computed else 0.0
+    )
+    spheres = len(obs.spheres_in_marker)
+    components: dict[str, Any] = {
+        "noise_tre_rms_mm": float(np.sqrt(tre_ms)),
+        "held_out_sphere_rms_mm": float(np.sqrt(held_out_ms / spheres)) if computed else None,
+        "noise_sphere_rms_mm": float(np.sqrt(noise_ms / spheres)) if computed else None,
+        "blocks": misfit["blocks"],
+        "blocks_refitted": misfit["blocks_refitted"],
+        "site_frames": int(site.sum()),
+        "method_vs_ml_tip_rms_mm": float(np.sqrt(deviation_ms)),
+    }
+    refits = "ML refits" if not likelihood_based or absorbed_dh else "refits"
+    blocks = f"{misfit['blocks_refitted']} held-out blocks ({refits})"
+    if dh_error_scale_mm is not None and has_model:
+        blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
+    if has_model and robot_model is not None and joints_rad is not None:
+        unit = unseen_kinematic_error(
+            robot_model,
+            joints_rad,
+            obs,
+            ml_tracker_from_base,
+            ml_tcp_from_marker,
+            site,
+            misfit["block_indices"],
+            absorbed_dh,
+        )
+        if dh_error_scale_mm is not None:
+            scale_sq = dh_error_scale_mm**2
+        else:
+            scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
+        unseen_ms = scale_sq * unit["tip_position_ms_mm2"]
+        unseen_rotation_ms = scale_sq * unit["tip_rotation_ms_rad2"]
+        components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
+        components["unseen_tip_rms_mm"] = float(np.sqrt(unseen_ms))
+        basis = (
+            f"{blocks}: systematic misfit beyond the tracker noise, scaled to the tip by the robot's "
+            "kinematic geometry (errors the marker cannot see), plus the noise-only TRE"
+        )
+    else:
+        unseen_ms = systematic / len(obs.spheres_in_marker)
+        unseen_rotation_ms = 0.0
+        basis = (
+            f"{blocks}: systematic misfit per sphere plus the noise-only TRE; no joint angles or "
+            "robot model, so kinematic errors the marker cannot see are not included"
+        )
+    if not obs.sigma_known:
+        basis += "; the tracker's noise is unknown (no marker RMS), so misfit and noise cannot be told apart"
+    if not likelihood_based:
+        basis += "; plus this method's distance from the ML solution"
+    position_rms = np.sqrt(tre_ms + unseen_ms + deviation_ms)
+    posture_rms = np.sqrt(rotation_noise_ms + unseen_rotation_ms + rotation_deviation_ms)
+    return {
+        "position_mm": float(MEAN_OVER_RMS_3D * position_rms),
+        "posture_deg": float(np.degrees(MEAN_OVER_RMS_3D * posture_rms)),
+        "basis": basis,
+        "components": components,
+    }
