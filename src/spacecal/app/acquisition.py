@@ -34,7 +34,7 @@ from spacecal.planning.visibility import VisibilityModel
 from spacecal.records import CheckResult, PlanRecord
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
-from spacecal.sim.scenario import load_scenario
+from spacecal.sim.scenario import Scenario, load_scenario
 from spacecal.sim.world import World, build_world
 from spacecal.workflows.acquisition import (
     AcquisitionResult,
@@ -217,6 +217,8 @@ def _close(device: object) -> None:
 def opened_devices(settings: AcquireSettings) -> Iterator[tuple[Robot, Tracker, World | None]]:
     """The devices of the settings, closed again on every way out."""
     world: World | None
+    robot: Robot
+    tracker: Tracker
     if settings.robot == "sim" and settings.tracker == "sim":
         # a resumed simulated run continues the recording's time (a real clock just goes on)
         last = last_time_s(settings.output) if settings.resume else None
@@ -400,14 +402,14 @@ def check(settings: CheckSettings) -> CheckOutput:
         )
         result = _with(result, simulated=None, devices={"recording": str(Path(settings.recording).resolve())})
     elif settings.robot == "sim":
-        if settings.scenario is not None:
-            scenario = load_scenario(settings.scenario)
-        else:
-            scenario, _ = scenario_of_calibration(calibration)
-            if scenario is None:
-                raise InvalidInputError(
-                    "no scenario given and none found with the calibration; pass --scenario"
-                )
+        found = (
+            load_scenario(settings.scenario)
+            if settings.scenario is not None
+            else scenario_of_calibration(calibration)[0]
+        )
+        if found is None:
+            raise InvalidInputError("no scenario given and none found with the calibration; pass --scenario")
+        scenario: Scenario = found
         world = build_world(scenario)
         robot = SimulatedRobot(world, SimClock())
         result = check_with_robot(

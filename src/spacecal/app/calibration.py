@@ -15,7 +15,8 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.estimators.likelihood import tre_lower_bound
-from spacecal.estimators.pivot import PivotResult, pivot_calibration
+from spacecal.estimators.pivot import pivot_calibration
+from spacecal.records import PivotResult
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording

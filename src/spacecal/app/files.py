@@ -72,7 +72,9 @@ def register_landmarks(
     detection = None
     if settings.plus_compatible:
         times = sequence.timestamps_s
-        spacing = min(np.linalg.norm(a - b) for i, a in enumerate(landmarks) for b in landmarks[i + 1 :])
+        spacing = float(
+            min(np.linalg.norm(a - b) for i, a in enumerate(landmarks) for b in landmarks[i + 1 :])
+        )
         detection = LandmarkDetectionSettings(
             acquisition_rate_hz=1.0 / (times[1] - times[0]),
             min_landmark_spacing_mm=spacing,

@@ -95,7 +95,9 @@ def scenario_with_seed(name: str, seed: int | None) -> Scenario:
 def simulate(settings: SimulateSettings) -> SimulateOutput:
     """Simulate a calibration run and write its recording (paired CSV, or raw streams)."""
     stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
-    outputs = list(stream_paths(stem)) if settings.raw else [settings.output, metadata_path(settings.output)]
+    outputs: list[str | Path | None] = (
+        list(stream_paths(stem)) if settings.raw else [settings.output, metadata_path(settings.output)]
+    )
     guard_outputs(outputs, [settings.scenario], settings.force)
     scenario = scenario_with_seed(settings.scenario, settings.seed)
     if settings.raw:

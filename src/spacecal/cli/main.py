@@ -12,6 +12,7 @@ import contextlib
 import json
 import signal
 import sys
+from typing import Any
 import threading
 import warnings
 
@@ -25,7 +26,7 @@ class CheckFailed(SpacecalError):
     """A calibration check did not pass (exit code 1, like any known failure)."""
 
 
-def _numbers(text: str, count: int, option: str, what: str) -> tuple[float, ...]:
+def _numbers(text: str, count: int, option: str, what: str) -> Any:
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
@@ -35,7 +36,7 @@ def _numbers(text: str, count: int, option: str, what: str) -> tuple[float, ...]
     return values
 
 
-def _points(texts: list[str] | None, option: str = "--target") -> tuple[tuple[float, ...], ...]:
+def _points(texts: list[str] | None, option: str = "--target") -> Any:
     return tuple(_numbers(t, 3, option, "x,y,z in mm") for t in texts or [])
 
 

@@ -336,7 +336,7 @@ def read_recording(path: str | Path) -> Recording:
             marker[k, :7] = [_number(c, line, name, path) for c, name in zip(pose_cells, MARKER_COLUMNS)]
             if cells[7]:
                 marker[k, 7] = _number(cells[7], line, MARKER_COLUMNS[7], path)
-            if sphere_count and any(row[i].strip() for i in sphere_index):
+            if spheres is not None and any(row[i].strip() for i in sphere_index):
                 spheres[k] = [_number(row[i], line, names[i], path) for i in sphere_index]
 
     steps = np.diff(time_s)

@@ -225,7 +225,7 @@ def run_plan(
         if index == first_move and approach_first_move and not _at_pose(robot, move.start):
             _approach(robot, tracker, move.start, settings)
         if streams:
-            robot.drain_states()  # states before this move belong to no recorded segment
+            robot.drain_states()  # type: ignore[attr-defined]  # states before this move are no segment's
         # A hold (start = end) is a station: the arm rests while frames are taken for the
         # move's duration (stop-and-go sampling); there is nothing to command.
         hold = is_hold(move)
@@ -234,7 +234,9 @@ def run_plan(
                 move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
             )
         last_recorded = -np.inf
-        robot_time, robot_time_seen_at, frames_since_robot_update = None, None, 0
+        robot_time: float | None = None
+        robot_time_seen_at = 0.0
+        frames_since_robot_update = 0
         move_started_at = None
         while True:
             try:
