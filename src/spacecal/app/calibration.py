@@ -16,13 +16,12 @@ from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.estimators.likelihood import tre_lower_bound
 from spacecal.estimators.pivot import pivot_calibration
-from spacecal.records import PivotResult
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import metadata_path, read_recording
 from spacecal.io.results_json import read_calibration, write_calibration, write_json
-from spacecal.records import CalibrationResult
+from spacecal.records import CalibrationResult, PivotResult
 
 Point = tuple[float, float, float]
 

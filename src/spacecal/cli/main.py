@@ -12,9 +12,9 @@ import contextlib
 import json
 import signal
 import sys
-from typing import Any
 import threading
 import warnings
+from typing import Any
 
 from spacecal import app
 from spacecal.cli import parser
