@@ -55,6 +55,8 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
     frames: dict[int, dict[str, str]] = {}
     with open(path, "rb") as handle:
         for raw in handle:
+            if b"\x00" in raw:  # binary pixel data only follows ElementDataFile
+                raise InvalidInputError(f"{path}: binary data in the header of a PLUS sequence file")
             line = raw.decode("latin-1").rstrip("\r\n")
             match = _FIELD.match(line)
             if match:
