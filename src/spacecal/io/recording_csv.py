@@ -343,7 +343,8 @@ def read_recording(path: str | Path) -> Recording:
     if np.any(steps <= 0):
         k = int(np.flatnonzero(steps <= 0)[0]) + 1
         raise InvalidInputError(
-            f"{path}: time_s is not increasing at line {k + 2} ({time_s[k]!r} after {time_s[k - 1]!r})"
+            f"{path}: time_s is not increasing at line {k + 2} "
+            f"({float(time_s[k]):g} s after {float(time_s[k - 1]):g} s)"
         )
     joints = values[:, :6]
     tcp_position, tcp_quaternion = values[:, 6:9], values[:, 9:13]
