@@ -45,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from spacecal.io.recording_csv import JOINT_COLUMNS, MARKER_COLUMNS, TCP_COLUMNS
+
 CLASSES = ("encoding", "types", "numbers", "consistency", "overwrite", "arguments", "valid")
 OUTCOMES = (
     "traceback",
@@ -621,25 +623,8 @@ def _write(folder: Path, name: str, content: str | bytes) -> None:
         path.write_bytes(content.encode("utf-8"))
 
 
-REC_NUMERIC = [
-    "time_s",
-    *(f"q{i}_rad" for i in range(1, 7)),
-    "tcp_x_mm",
-    "tcp_y_mm",
-    "tcp_z_mm",
-    "tcp_qw",
-    "tcp_qx",
-    "tcp_qy",
-    "tcp_qz",
-    "marker_x_mm",
-    "marker_y_mm",
-    "marker_z_mm",
-    "marker_qw",
-    "marker_qx",
-    "marker_qy",
-    "marker_qz",
-    "marker_rms_mm",
-]
+#: The numeric columns of a recording, in file order (time, joints, TCP, marker).
+REC_NUMERIC = ["time_s", *JOINT_COLUMNS, *TCP_COLUMNS, *MARKER_COLUMNS]
 CAL_KEYS: dict[str, list] = {
     "tracker_from_base": ["text", [[1, 2], [3, 4]], {"a": 1}, [[0] * 4] * 4, None],
     "tcp_from_marker": ["text", [1, 2, 3], [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 2]]],
