@@ -17,10 +17,36 @@ SAFETY_NORMAL = "normal"
 SAFETY_PROTECTIVE_STOP = "protective_stop"
 SAFETY_EMERGENCY_STOP = "emergency_stop"
 
-#: Tracker frame status values.
+#: Tracker frame status values. Only ``ok`` frames are a plainly seen marker; a pose reported
+#: with any other status is recorded with its status and left out of estimation by default.
 FRAME_OK = "ok"
 FRAME_MISSING = "missing"
 FRAME_OUT_OF_VOLUME = "out_of_volume"
+FRAME_PARTIALLY_OUT_OF_VOLUME = "partially_out_of_volume"
+#: Every status a frame may carry (``ok`` first).
+FRAME_STATUSES = (FRAME_OK, FRAME_MISSING, FRAME_OUT_OF_VOLUME, FRAME_PARTIALLY_OUT_OF_VOLUME)
+
+#: Preflight finding levels, from fine to blocking.
+FINDING_OK, FINDING_WARNING, FINDING_PROBLEM = "ok", "warning", "problem"
+
+
+@dataclass(frozen=True)
+class DeviceFinding:
+    """One thing a read-only preflight found out about a device.
+
+    Attributes
+    ----------
+    level : str
+        ``ok`` (information), ``warning`` (the run can go on) or ``problem`` (it cannot).
+    subject : str
+        What was checked, e.g. ``controller version``, ``remote control``, ``tool status``.
+    text : str
+        What was found and, for a problem, what to do, in a robot operator's words.
+    """
+
+    level: str
+    subject: str
+    text: str
 
 
 @dataclass(frozen=True)
@@ -57,8 +83,10 @@ class TrackerFrame:
         Tracker timestamp, s (its own clock).
     frame_number : int
     status : str
-        ``ok``, ``missing`` or ``out_of_volume``.
-    tracker_from_marker : numpy.ndarray, shape (4, 4), or None when not ``ok``
+        One of :data:`FRAME_STATUSES`.
+    tracker_from_marker : numpy.ndarray, shape (4, 4), or None
+        None when the device reported no pose; a pose reported with a status other than
+        ``ok`` (e.g. partially out of volume) is kept, and its status says it is doubtful.
     rms_mm : float
         The tracker's RMS fit error, NaN when not ``ok``.
     spheres_in_tracker : numpy.ndarray, shape (K, 3), or None
@@ -104,6 +132,14 @@ class Tracker(Protocol):
         spacecal.core.errors.DeviceError
             When no new frame arrives in time (unplugged, stalled stream).
         """
+
+
+@runtime_checkable
+class Preflight(Protocol):
+    """A device that can report on itself without moving anything (``spacecal doctor``)."""
+
+    def preflight(self) -> list[DeviceFinding]:
+        """Read-only checks: version, modes, configuration, what the device sees now."""
 
 
 @runtime_checkable
