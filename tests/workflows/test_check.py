@@ -67,15 +67,37 @@ def test_check_against_a_recording(calibration_file, tmp_path, capsys):
     assert "rot_x" in out and "PASS" in out
 
 
+def _check_run(world, calibration, tracker_factory, poses=2, robot_options=None):
+    from spacecal.experiments.simulation import simulation_settings
+    from spacecal.planning.check_poses import check_plan
+    from spacecal.planning.motion import MotionLimits
+    from spacecal.sim.devices import SimClock, SimulatedRobot
+    from spacecal.workflows.check import check_thresholds, check_with_robot
+
+    robot = SimulatedRobot(world, SimClock(), **(robot_options or {}))
+    plan = check_plan(
+        world.nominal_model, world.home_joints_rad, poses, MotionLimits(), 1 / world.scenario.tracker_rate_hz
+    )
+    threshold_mm, threshold_deg, _ = check_thresholds(calibration, 10)
+    result = check_with_robot(
+        calibration,
+        robot,
+        tracker_factory(world, robot),
+        plan,
+        threshold_mm,
+        threshold_deg,
+        simulation_settings(world.scenario),
+    )
+    return result, robot
+
+
 def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulation):
     # Real trackers number frames from power-up; one missed frame must not end the check.
     from dataclasses import replace as replace_frame
 
     from spacecal.core.errors import DegenerateDataError
     from spacecal.core.ports import FRAME_MISSING
-    from spacecal.planning.check_poses import check_joints
-    from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
-    from spacecal.workflows.check import check_with_robot
+    from spacecal.sim.devices import SimulatedTracker
 
     class LongRunning(SimulatedTracker):
         def __init__(self, *args, hidden_frames):
@@ -89,20 +111,30 @@ def test_a_missed_frame_on_a_long_running_tracker_is_not_an_error(white_simulati
             return frame
 
     world = white_simulation.world
-    calibration = calibrate(white_simulation.recording, "ml", uncertainty=False)
-    robot = SimulatedRobot(world, SimClock())
-    result = check_with_robot(
-        calibration,
-        robot,
-        LongRunning(world, robot, hidden_frames=1),
-        check_joints(world.nominal_model, world.home_joints_rad, 2),
-    )
-    assert result.passed
-    robot = SimulatedRobot(world, SimClock())
-    with pytest.raises(DegenerateDataError, match="not visible"):
-        check_with_robot(
-            calibration,
-            robot,
-            LongRunning(world, robot, hidden_frames=10**6),
-            check_joints(world.nominal_model, world.home_joints_rad, 2),
+    calibration = calibrate(white_simulation.recording, "ml")
+    result, _ = _check_run(world, calibration, lambda w, r: LongRunning(w, r, hidden_frames=1))
+    assert result.passed and result.labels == ["check-1", "check-2"]
+    with pytest.raises(DegenerateDataError, match="the marker was seen in 0 frames"):
+        _check_run(world, calibration, lambda w, r: LongRunning(w, r, hidden_frames=10**6))
+
+
+def test_a_safety_stop_during_the_check_stops_the_robot_and_logs_nothing(white_simulation):
+    from spacecal.core.errors import DeviceError
+    from spacecal.sim.devices import SimulatedTracker
+
+    calibration = calibrate(white_simulation.recording, "ml")
+    with pytest.raises(DeviceError, match="check stopped: robot protective stop"):
+        _check_run(
+            white_simulation.world, calibration, SimulatedTracker, robot_options={"protective_stop_at_s": 1.0}
         )
+
+
+def test_thresholds_follow_the_calibration_and_the_frames_averaged(white_simulation):
+    from spacecal.workflows.check import CHECK_FLOOR_MM, FALLBACK_THRESHOLD_MM, check_thresholds
+
+    calibration = calibrate(white_simulation.recording, "ml")
+    one_frame, _, _ = check_thresholds(calibration, 1)
+    ten_frames, _, basis = check_thresholds(calibration, 10)
+    assert one_frame > ten_frames >= CHECK_FLOOR_MM and "10 frame(s)" in basis
+    bare = calibration.replace(diagnostics={})
+    assert check_thresholds(bare, 10)[0] == FALLBACK_THRESHOLD_MM

@@ -8,6 +8,7 @@ This is where devices are chosen: ``sim`` gives the simulated robot and tracker 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -20,14 +21,16 @@ from spacecal.app._common import refuse_overwriting_inputs
 from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import Robot, Tracker
+from spacecal.experiments.simulation import simulation_settings
+from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform
 from spacecal.io.recording_csv import last_time_s, read_recording
-from spacecal.io.results_json import read_calibration, write_json
+from spacecal.io.results_json import read_calibration, read_json_object, write_json
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import ndi_8700339_like
 from spacecal.models.tracker import TrackerModel
-from spacecal.planning.check_poses import check_joints
-from spacecal.planning.motion import MotionLimits, MotionPlan
+from spacecal.planning.check_poses import check_plan
+from spacecal.planning.motion import MotionLimits, MotionPlan, motion_plan_from_record, planned_moves
 from spacecal.planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
 from spacecal.planning.visibility import VisibilityModel
@@ -40,10 +43,17 @@ from spacecal.workflows.acquisition import (
     AcquisitionResult,
     AcquisitionSettings,
     FrameObserver,
+    raw_stream_paths,
     resume_home_joints,
 )
 from spacecal.workflows.acquisition import acquire as run_acquisition
-from spacecal.workflows.check import append_history, check_with_recording, check_with_robot
+from spacecal.workflows.check import (
+    append_history,
+    check_thresholds,
+    check_with_recording,
+    check_with_robot,
+    history_path,
+)
 
 #: Accepted ranges of the acquisition's numeric settings (a tiny speed would never finish).
 ACQUIRE_RANGES = {
@@ -93,6 +103,9 @@ class AcquireSettings:
         An earlier calibration, to check marker visibility along the plan.
     rotation_deg, translation_mm : float
         Rotation sweep each way; translation sweep stroke.
+    plan : str or None
+        A plan file (``spacecal plan -o``) to run instead of the paper's sweeps from where the
+        robot stands; the robot must stand at the plan's home.
     """
 
     output: str
@@ -113,6 +126,7 @@ class AcquireSettings:
     prior: str | None = None
     rotation_deg: float = PaperSweepSettings.rotation_each_way_deg
     translation_mm: float = PaperSweepSettings.translation_stroke_mm
+    plan: str | None = None
 
     def __post_init__(self) -> None:
         for name, (low, high) in ACQUIRE_RANGES.items():
@@ -162,12 +176,12 @@ def workspace_problems(plan: MotionPlan, box: Sequence[float] | None) -> list[st
 
 
 def simulated_devices(
-    scenario_name: str, start_s: float = 0.0
+    scenario: str | Scenario, start_s: float = 0.0
 ) -> tuple[World, SimulatedRobot, SimulatedTracker]:
-    """The simulated robot and tracker of a scenario (simulated time from ``start_s``), and
-    their world."""
-    world = build_world(load_scenario(scenario_name))
-    robot = SimulatedRobot(world, SimClock(start_s))
+    """The simulated robot and tracker of a scenario (a name, file or the scenario itself;
+    simulated time from ``start_s``), and their world."""
+    world = build_world(load_scenario(scenario) if isinstance(scenario, str) else scenario)
+    robot = SimulatedRobot(world, SimClock(start_s), stream_states=True)
     return world, robot, SimulatedTracker(world, robot)
 
 
@@ -214,16 +228,19 @@ def _close(device: object) -> None:
 
 
 @contextlib.contextmanager
-def opened_devices(settings: AcquireSettings) -> Iterator[tuple[Robot, Tracker, World | None]]:
-    """The devices of the settings, closed again on every way out."""
+def opened_devices(
+    settings: AcquireSettings, scenario: Scenario | None = None
+) -> Iterator[tuple[Robot, Tracker, World | None]]:
+    """The devices of the settings (simulated ones of ``scenario`` when given, else of the
+    settings' scenario), closed again on every way out."""
     world: World | None
     robot: Robot
     tracker: Tracker
     if settings.robot == "sim" and settings.tracker == "sim":
         # a resumed simulated run continues the recording's time (a real clock just goes on)
-        last = last_time_s(settings.output) if settings.resume else None
+        last = last_time_s(raw_stream_paths(settings.output)[0]) if settings.resume else None
         start = 0.0 if last is None else float(np.ceil(last + 1.0))
-        world, robot, tracker = simulated_devices(settings.scenario, start)
+        world, robot, tracker = simulated_devices(scenario or settings.scenario, start)
     else:
         robot, tracker = open_hardware(settings)
         world = None
@@ -276,6 +293,57 @@ def hardware_plan(settings: AcquireSettings, robot: Robot) -> MotionPlan:
     return plan
 
 
+#: How far (joints, rad; TCP, mm) the robot may stand from a plan's home and still run it.
+PLAN_HOME_RAD, PLAN_HOME_MM = 0.01, 1.0
+#: Largest difference between the plan's tool and the configured one (mm, and rad).
+PLAN_TOOL_MM, PLAN_TOOL_RAD = 0.1, 1e-3
+
+
+def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -> MotionPlan:
+    """The plan file of ``settings.plan``, checked against the robot, its tool and where it stands.
+
+    Raises
+    ------
+    InvalidInputError
+        The file holds no runnable plan, was made for another robot or tool, or the robot
+        does not stand at its home (nothing has moved).
+    """
+    assert settings.plan is not None
+    record = PlanRecord.from_dict(read_json_object(settings.plan, "plan"), what=settings.plan)
+    plan = motion_plan_from_record(record)
+    if record.robot_model not in (model.name, "unknown"):
+        raise InvalidInputError(
+            f"{settings.plan} was planned for a {record.robot_model}, not this {model.name}; "
+            "plan again for this robot"
+        )
+    tool_difference = np.linalg.inv(record.flange_from_tcp) @ model.flange_from_tcp
+    if (
+        np.linalg.norm(tool_difference[:3, 3]) > PLAN_TOOL_MM
+        or rotation_angle(tool_difference[:3, :3]) > PLAN_TOOL_RAD
+    ):
+        raise InvalidInputError(
+            f"{settings.plan} was planned for another tool (TCP in flange "
+            f"{np.round(record.flange_from_tcp[:3, 3], 1).tolist()} mm) than the one configured "
+            f"({np.round(model.flange_from_tcp[:3, 3], 1).tolist()} mm); plan again with this tool"
+        )
+    state = robot.state()
+    joints_off = float(np.max(np.abs(state.joints_rad - record.home_joints_rad)))
+    tcp_off = float(np.linalg.norm(state.base_from_tcp[:3, 3] - record.home_base_from_tcp[:3, 3]))
+    if joints_off > PLAN_HOME_RAD or tcp_off > PLAN_HOME_MM:
+        raise InvalidInputError(
+            f"the robot stands {tcp_off:.1f} mm (joints up to {np.degrees(joints_off):.1f} deg) "
+            "from the plan's home; "
+            f"move it to the home joints {np.round(np.degrees(record.home_joints_rad), 2).tolist()} deg, "
+            "or plan from where it stands"
+        )
+    if record.simulated_setup and settings.robot != "sim":
+        plan.messages.append(
+            f"the plan was made for the simulated set-up '{record.scenario}': marker visibility "
+            "was predicted there, not for this tracker"
+        )
+    return plan
+
+
 def hardware_metadata(settings: AcquireSettings) -> dict[str, Any]:
     """Metadata of a recording made on real devices."""
     model = hardware_model(settings)
@@ -312,10 +380,16 @@ def acquire(
     """
     # the recording itself: the acquisition refuses an existing one unless resuming it
     refuse_overwriting_inputs(
-        settings.output, settings.prior, settings.scenario, *settings.rom, recordings=False
+        settings.output, settings.prior, settings.scenario, settings.plan, *settings.rom, recordings=False
     )
     with opened_devices(settings) as (robot, tracker, world):
-        plan = plan_for_world(world) if world is not None else hardware_plan(settings, robot)
+        if settings.plan is not None:
+            model = world.nominal_model if world is not None else hardware_model(settings)
+            plan = planned_motion(settings, robot, model)
+        elif world is not None:
+            plan = plan_for_world(world)
+        else:
+            plan = hardware_plan(settings, robot)
         problems = workspace_problems(plan, settings.workspace_box)
         output = AcquireOutput(
             len(plan.moves), plan.motion_time_s, list(plan.messages) + problems, simulated=world is not None
@@ -330,6 +404,10 @@ def acquire(
                 "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
             )
         metadata = recording_metadata(world) if world is not None else hardware_metadata(settings)
+        metadata["plan"] = {
+            **plan.summary(),
+            "file": None if settings.plan is None else str(Path(settings.plan).resolve()),
+        }
         run_settings = AcquisitionSettings(
             linear_speed_mm_s=settings.speed_mm_s, linear_accel_mm_s2=settings.accel_mm_s2
         )
@@ -356,79 +434,156 @@ class CheckSettings:
     calibration : str
         Calibration JSON.
     recording : str or None
-        Static poses to check against instead of moving the robot.
-    robot : str
-        ``sim``: move the simulated robot of ``scenario``.
+        A recording to check against instead of moving the robot.
+    robot, tracker : str
+        ``sim`` (the simulated system of ``scenario``) or device URLs, as for ``acquire``.
     scenario : str or None
-        Default: the scenario the calibration's data came from.
+        Simulated devices only; default: the scenario the calibration's data came from.
     poses : int
-        Two or three poses.
-    threshold_mm, threshold_deg : float
-        Largest TCP and rotation errors that pass.
+        Two or three poses near where the robot stands (the site).
+    threshold_mm, threshold_deg : float or None
+        Largest TCP and rotation errors that pass; by default from the calibration's expected
+        error and residuals (:func:`spacecal.workflows.check.check_thresholds`).
+    dry_run : bool
+        Plan and check the poses (reach, joint limits) without moving.
+    confirm_robot_motion : bool
+        Required to move a real robot.
+    devices : AcquireSettings or None
+        The hardware options (``rom``, ``tracker_rate_hz``, ``robot_model``, tool, speeds)
+        for real devices; defaults otherwise.
+    frames_per_pose : int
+        Tracker frames averaged at each pose.
     """
 
     calibration: str
     recording: str | None = None
     robot: str = "sim"
+    tracker: str = "sim"
     scenario: str | None = None
     poses: int = 3
-    threshold_mm: float = 1.0
-    threshold_deg: float = 1.0
+    threshold_mm: float | None = None
+    threshold_deg: float | None = None
+    dry_run: bool = False
+    confirm_robot_motion: bool = False
+    devices: AcquireSettings | None = None
+    frames_per_pose: int = 10
 
     def __post_init__(self) -> None:
         if self.poses not in (2, 3):
             raise InvalidInputError(f"--poses takes 2 or 3, got {self.poses}")
         for name in ("threshold_mm", "threshold_deg"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and 1e-3 <= value <= 1e3):
+            if value is not None and not (math.isfinite(value) and 1e-3 <= value <= 1e3):
                 raise InvalidInputError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
+        if not 3 <= self.frames_per_pose <= 1000:
+            raise InvalidInputError(f"--frames-per-pose must be 3..1000, got {self.frames_per_pose}")
 
 
 @dataclass(frozen=True)
 class CheckOutput:
-    result: CheckResult
-    history: Path
+    """The check's result and history file (None after a dry run), and how the thresholds came."""
+
+    result: CheckResult | None
+    history: Path | None
+    threshold_basis: str = ""
+    messages: list[str] = field(default_factory=list)
 
 
 def check(settings: CheckSettings) -> CheckOutput:
-    """Check a calibration at two or three poses (simulated robot) or against a recording;
-    the result is appended to the calibration's check history."""
+    """Check a calibration at two or three poses near where the robot stands (simulated or real
+    devices, with the same safety as ``acquire``) or against a recording; the result, whether
+    real or simulated and on which devices, is appended to the calibration's check history."""
     from spacecal.app.simulation import scenario_of_calibration
 
     calibration = read_calibration(settings.calibration)
+    averaged = 1 if settings.recording else settings.frames_per_pose
+    derived_mm, derived_deg, basis = check_thresholds(calibration, averaged)
+    threshold_mm = settings.threshold_mm if settings.threshold_mm is not None else derived_mm
+    threshold_deg = settings.threshold_deg if settings.threshold_deg is not None else derived_deg
+    if settings.threshold_mm is not None or settings.threshold_deg is not None:
+        basis = (
+            "given on the command line"
+            if None not in (settings.threshold_mm, settings.threshold_deg)
+            else (basis + "; partly given on the command line")
+        )
     if settings.recording:
         result = check_with_recording(
-            calibration, read_recording(settings.recording), settings.threshold_mm, settings.threshold_deg
+            calibration, read_recording(settings.recording), threshold_mm, threshold_deg
         )
         result = _with(result, simulated=None, devices={"recording": str(Path(settings.recording).resolve())})
-    elif settings.robot == "sim":
-        found = (
+        return CheckOutput(result, append_history(settings.calibration, result), basis)
+    scenario: Scenario | None = None
+    if settings.robot == "sim" and settings.tracker == "sim":
+        scenario = (
             load_scenario(settings.scenario)
             if settings.scenario is not None
             else scenario_of_calibration(calibration)[0]
         )
-        if found is None:
+        if scenario is None:
             raise InvalidInputError("no scenario given and none found with the calibration; pass --scenario")
-        scenario: Scenario = found
-        world = build_world(scenario)
-        robot = SimulatedRobot(world, SimClock())
+    devices = dataclasses.replace(
+        settings.devices or AcquireSettings(output=str(history_path(settings.calibration))),
+        output=str(history_path(settings.calibration)),
+        robot=settings.robot,
+        tracker=settings.tracker,
+        dry_run=settings.dry_run,
+        resume=False,
+    )
+    with opened_devices(devices, scenario) as (robot, tracker, world):
+        model = world.nominal_model if world is not None else hardware_model(devices)
+        model = calibration.robot_model_for_ik(model)
+        frame_period = (
+            1.0 / world.scenario.tracker_rate_hz if world is not None else 1.0 / devices.tracker_rate_hz
+        )
+        limits = MotionLimits(
+            linear_speed_mm_s=devices.speed_mm_s,
+            linear_accel_mm_s2=devices.accel_mm_s2,
+            angular_speed_rad_s=np.radians(devices.angular_speed_deg_s),
+        )
+        plan = check_plan(
+            model, robot.state().joints_rad, settings.poses, limits, frame_period, settings.frames_per_pose
+        )
+        messages = workspace_problems(plan, devices.workspace_box)
+        if messages:
+            raise InvalidInputError("the check poses leave the workspace box; nothing was moved")
+        if settings.dry_run:
+            return CheckOutput(
+                None,
+                None,
+                basis,
+                [
+                    f"{settings.poses} check poses planned, {plan.motion_time_s:.1f} s of motion; "
+                    "nothing moved"
+                ],
+            )
+        if world is None and not settings.confirm_robot_motion:
+            raise InvalidInputError(
+                "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
+            )
+        run_settings = (
+            simulation_settings(world.scenario)
+            if world is not None
+            else AcquisitionSettings(
+                linear_speed_mm_s=devices.speed_mm_s, linear_accel_mm_s2=devices.accel_mm_s2
+            )
+        )
         result = check_with_robot(
             calibration,
             robot,
-            SimulatedTracker(world, robot),
-            check_joints(world.nominal_model, world.home_joints_rad, settings.poses),
-            settings.threshold_mm,
-            settings.threshold_deg,
+            tracker,
+            plan,
+            threshold_mm,
+            threshold_deg,
+            run_settings,
+            settings.frames_per_pose,
         )
-        result = _with(
-            result, simulated=True, devices={"robot": "sim", "tracker": "sim", "scenario": scenario.name}
-        )
-    else:
-        raise InvalidInputError(
-            "check on real hardware: record two or three static poses with 'spacecal acquire' and pass "
-            "them with --recording"
-        )
-    return CheckOutput(result, append_history(settings.calibration, result))
+    identity = (
+        {"robot": "sim", "tracker": "sim", "scenario": world.scenario.name}
+        if world is not None
+        else {"robot": settings.robot, "tracker": settings.tracker}
+    )
+    result = _with(result, simulated=world is not None, devices=identity)
+    return CheckOutput(result, append_history(settings.calibration, result), basis)
 
 
 def _with(result: CheckResult, **changes: Any) -> CheckResult:
@@ -446,16 +601,22 @@ class PlanSettings:
     budget_s : float
         Motion time allowed, s.
     scenario : str
-        The (simulated) set-up to plan for.
+        The (simulated) set-up to plan for: tracker placement, marker, robot and its home.
     frames_per_station : int
         Tracker frames held at each station.
+    site_mm : (x, y, z) or None
+        Where the needle tip will work, mm in the robot base; default the TCP at home.
+    paper_sweeps : bool
+        Write the paper's six sweeps (paper §4) from home as the plan instead.
     output : str or None
-        Plan JSON to write.
+        Plan JSON to write (``docs/formats.md``); ``acquire --plan`` and ``simulate --plan`` run it.
     """
 
     budget_s: float = PlannerSettings.budget_s
     scenario: str = DEFAULT_SCENARIO
     frames_per_station: int = PlannerSettings.frames_per_station
+    site_mm: tuple[float, float, float] | None = None
+    paper_sweeps: bool = False
     output: str | None = None
     force: bool = False
 
@@ -464,6 +625,10 @@ class PlanSettings:
             raise InvalidInputError(f"--budget must be between 0 and 3600 s, got {self.budget_s}")
         if not 1 <= self.frames_per_station <= 1000:
             raise InvalidInputError(f"--frames-per-station must be 1..1000, got {self.frames_per_station}")
+        if self.site_mm is not None:
+            site = np.asarray(self.site_mm, dtype=float)
+            if site.shape != (3,) or not np.all(np.isfinite(site)) or np.any(np.abs(site) > 5000):
+                raise InvalidInputError("--site takes finite x,y,z in mm (robot base), each within +-5000 mm")
 
 
 def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
@@ -476,23 +641,43 @@ def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
         frames_per_station=settings.frames_per_station,
         sphere_sigma_mm=world.scenario.white_noise_rms_mm / np.sqrt(3) or 0.1,
     )
-    planned = plan_for_site(
-        world.nominal_model,
-        world.home_joints_rad,
-        visibility,
-        np.random.default_rng([world.scenario.seed, 7]),
-        planner,
-    )
     paper = plan_for_world(world)
-    paper_error = paper_sweep_site_error(world.nominal_model, paper, visibility, planner)
-    record = PlanRecord(
-        budget_s=planner.budget_s,
-        motion_time_s=planned.motion_time_s,
-        predicted_error_mm=planned.predicted_error_mm,
-        paper_sweep={"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
+    site = None if settings.site_mm is None else np.asarray(settings.site_mm, dtype=float)
+    paper_error = paper_sweep_site_error(world.nominal_model, paper, visibility, planner, site_in_base=site)
+    common = dict(
         home_joints_rad=world.home_joints_rad,
-        station_joints_rad=planned.station_joints_rad,
-        moves=planned.plan.summary()["moves"],
+        home_base_from_tcp=paper.home_base_from_tcp,
+        robot_model=world.nominal_model.name,
+        flange_from_tcp=world.nominal_model.flange_from_tcp,
+        site_in_base=site,
+        paper_sweep={"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
+        scenario=world.scenario.name,
     )
+    if settings.paper_sweeps:
+        record = PlanRecord(
+            kind="paper-sweeps",
+            motion_time_s=paper.motion_time_s,
+            moves=planned_moves(paper),
+            predicted_error_mm=paper_error,
+            **common,  # type: ignore[arg-type]
+        )
+    else:
+        planned = plan_for_site(
+            world.nominal_model,
+            world.home_joints_rad,
+            visibility,
+            np.random.default_rng([world.scenario.seed, 7]),
+            planner,
+            site_in_base=site,
+        )
+        record = PlanRecord(
+            kind="site-optimal",
+            motion_time_s=planned.motion_time_s,
+            moves=planned_moves(planned.plan),
+            budget_s=planner.budget_s,
+            predicted_error_mm=planned.predicted_error_mm,
+            station_joints_rad=planned.station_joints_rad,
+            **common,  # type: ignore[arg-type]
+        )
     path = write_json(record.to_dict(), settings.output) if settings.output else None
     return record, path

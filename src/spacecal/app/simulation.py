@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from spacecal.app._common import guard_outputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.experiments.demo import DemoResult, run_demo
@@ -20,9 +22,11 @@ from spacecal.io.atomic import atomic_path
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
 from spacecal.io.results_json import read_calibration, read_json_object, write_calibration, write_json
-from spacecal.records import CalibrationResult, PhantomResult, VerificationResult
+from spacecal.planning.motion import MotionPlan, motion_plan_from_record
+from spacecal.records import CalibrationResult, PhantomResult, PlanRecord, VerificationResult
 from spacecal.report.figures import plot_phantom_errors, plot_verification_errors
 from spacecal.sim.scenario import Scenario, load_scenario, scenario_from_dict
+from spacecal.sim.world import build_world
 
 #: The scenario every simulated command uses unless told otherwise.
 DEFAULT_SCENARIO = "paper-realistic"
@@ -44,6 +48,9 @@ class SimulateSettings:
         Write the two raw streams (``STEM.robot.csv``, ``STEM.tracker.csv``) instead.
     clock_offset_ms : float
         With ``raw``: how far the robot clock runs ahead of the tracker's, ms.
+    plan : str or None
+        A plan file (``spacecal plan -o``) to run instead of the paper's sweeps; it must have
+        been made for this scenario's robot, tool and home.
     """
 
     output: str
@@ -52,6 +59,7 @@ class SimulateSettings:
     raw: bool = False
     clock_offset_ms: float = 0.0
     force: bool = False
+    plan: str | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.clock_offset_ms) and abs(self.clock_offset_ms) <= 10_000):
@@ -92,16 +100,35 @@ def scenario_with_seed(name: str, seed: int | None) -> Scenario:
     return scenario
 
 
+def plan_for_scenario(path: str, scenario: Scenario) -> MotionPlan:
+    """The runnable plan in a plan file, refused unless made for the scenario's robot, tool and home."""
+    record = PlanRecord.from_dict(read_json_object(path, "plan"), what=path)
+    plan = motion_plan_from_record(record)
+    world = build_world(scenario)
+    model = world.nominal_model
+    if (
+        record.robot_model != model.name
+        or not np.allclose(record.flange_from_tcp, model.flange_from_tcp, atol=1e-6)
+        or not np.allclose(record.home_joints_rad, world.home_joints_rad, atol=1e-6)
+    ):
+        raise InvalidInputError(
+            f"{path} was planned for another set-up (robot, tool or home) than scenario '{scenario.name}'; "
+            f"plan it with: spacecal plan --scenario {scenario.name}"
+        )
+    return plan
+
+
 def simulate(settings: SimulateSettings) -> SimulateOutput:
     """Simulate a calibration run and write its recording (paired CSV, or raw streams)."""
     stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
     outputs: list[str | Path | None] = (
         list(stream_paths(stem)) if settings.raw else [settings.output, metadata_path(settings.output)]
     )
-    guard_outputs(outputs, [settings.scenario], settings.force)
+    guard_outputs(outputs, [settings.scenario, settings.plan], settings.force)
     scenario = scenario_with_seed(settings.scenario, settings.seed)
+    plan = None if settings.plan is None else plan_for_scenario(settings.plan, scenario)
     if settings.raw:
-        raw, _ = simulate_raw(scenario, settings.clock_offset_ms / 1000.0)
+        raw, _ = simulate_raw(scenario, settings.clock_offset_ms / 1000.0, plan)
         robot_path, tracker_path = write_raw_recording(raw, stem)
         return SimulateOutput(
             (robot_path, tracker_path),
@@ -111,7 +138,7 @@ def simulate(settings: SimulateSettings) -> SimulateOutput:
             robot_states=len(raw.robot_time_s),
             clock_offset_ms=settings.clock_offset_ms,
         )
-    simulation = simulate_run(scenario)
+    simulation = simulate_run(scenario, plan)
     recording = simulation.recording
     path = write_recording(recording, settings.output)
     return SimulateOutput(

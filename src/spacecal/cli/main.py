@@ -53,7 +53,9 @@ def _print_notes(messages: list[str]) -> None:
 
 # -- commands -------------------------------------------------------------------------------
 def _simulate(a: argparse.Namespace) -> None:
-    out = app.simulate(app.SimulateSettings(a.output, a.scenario, a.seed, a.raw, a.clock_offset_ms, a.force))
+    out = app.simulate(
+        app.SimulateSettings(a.output, a.scenario, a.seed, a.raw, a.clock_offset_ms, a.force, plan=a.plan)
+    )
     if a.raw:
         print(
             f"wrote {out.paths[0]} ({out.robot_states} robot states) and {out.paths[1]} "
@@ -224,6 +226,7 @@ def _acquire(a: argparse.Namespace) -> None:
         a.prior,
         a.rotation_deg,
         a.translation_mm,
+        plan=a.plan,
     )
     holder: dict[str, int] = {}
     view = None
@@ -332,19 +335,44 @@ def _import_plus(a: argparse.Namespace) -> None:
 
 
 def _check(a: argparse.Namespace) -> None:
+    devices = app.AcquireSettings(
+        output="check",
+        rom=tuple(a.rom or ()),
+        tracker_rate_hz=a.tracker_rate_hz,
+        robot_model=a.robot_model,
+        tool_offset_mm=_numbers(a.tool_offset_mm, 3, "--tool-offset-mm", "x,y,z in mm"),
+        workspace_box=_numbers(a.workspace_box, 6, "--workspace-box", "xmin,xmax,ymin,ymax,zmin,zmax in mm")
+        if a.workspace_box
+        else None,
+    )
     out = app.check(
         app.CheckSettings(
-            a.calibration, a.recording, a.robot, a.scenario, a.poses, a.threshold_mm, a.threshold_deg
+            a.calibration,
+            a.recording,
+            a.robot,
+            a.tracker,
+            a.scenario,
+            a.poses,
+            a.threshold_mm,
+            a.threshold_deg,
+            a.dry_run,
+            a.confirm_robot_motion,
+            devices,
+            a.frames_per_pose,
         )
     )
+    _print_notes(out.messages)
     r = out.result
+    if r is None:
+        return
     for label, error, angle in zip(r.labels, r.tcp_error_mm, r.rotation_error_deg):
         print(f"  {label:>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
-    where = {True: "simulated robot", False: "real robot", None: "recording"}[r.simulated]
+    where = {True: "simulated robot and tracker", False: "real robot and tracker", None: "recording"}[
+        r.simulated
+    ]
     print(
-        f"{'PASS' if r.passed else 'FAIL'} ({where}): thresholds {r.threshold_mm} mm and "
-        f"{r.threshold_deg} deg "
-        f"(history: {out.history})"
+        f"{'PASS' if r.passed else 'FAIL'} ({where}): thresholds {r.threshold_mm:.2f} mm and "
+        f"{r.threshold_deg:.2f} deg, {out.threshold_basis} (history: {out.history})"
     )
     if not r.passed:
         raise CheckFailed("the calibration no longer holds: recalibrate (marker bumped, tracker moved?)")
@@ -377,24 +405,43 @@ def _report(a: argparse.Namespace) -> None:
 
 def _plan(a: argparse.Namespace) -> None:
     record, path = app.plan(
-        app.PlanSettings(_seconds(a.budget), a.scenario, a.frames_per_station, a.output, a.force)
+        app.PlanSettings(
+            _seconds(a.budget),
+            a.scenario,
+            a.frames_per_station,
+            _numbers(a.site, 3, "--site", "x,y,z in mm") if a.site else None,
+            a.paper_sweeps,
+            a.output,
+            a.force,
+        )
     )
-    print(
-        f"planned for the simulated set-up {a.scenario}: {len(record.station_joints_rad)} stations, "
-        f"{record.motion_time_s:.1f} s of motion, predicted tip error at the site "
-        f"{record.predicted_error_mm:.3f} mm"
+    site = (
+        "the TCP at home"
+        if record.site_in_base is None
+        else "(" + ", ".join(f"{v:.1f}" for v in record.site_in_base) + ") mm"
     )
-    print(
-        f"paper's sweeps: {record.paper_sweep['motion_time_s']:.1f} s of motion, predicted tip error at "
-        "the site "
-        f"{record.paper_sweep['predicted_error_mm']:.3f} mm"
-    )
+    if record.kind == "paper-sweeps":
+        print(
+            f"the paper's sweeps for the simulated set-up {a.scenario}: {len(record.moves)} moves, "
+            f"{record.motion_time_s:.1f} s of motion, predicted tip error at {site} "
+            f"{record.predicted_error_mm:.3f} mm"
+        )
+    else:
+        print(
+            f"planned for the simulated set-up {a.scenario}: {len(record.station_joints_rad)} stations, "
+            f"{record.motion_time_s:.1f} s of motion, predicted tip error at {site} "
+            f"{record.predicted_error_mm:.3f} mm"
+        )
+        print(
+            f"paper's sweeps: {record.paper_sweep['motion_time_s']:.1f} s of motion, predicted tip error "
+            f"there {record.paper_sweep['predicted_error_mm']:.3f} mm"
+        )
     print(
         "(predicted for a joint fit of the calibration and the robot's DH corrections: "
         "spacecal calibrate --method kinematic)"
     )
     if path:
-        print(f"wrote {path}")
+        print(f"wrote {path}; run it with: spacecal acquire --plan {path} ... (or simulate --plan)")
 
 
 def _scenario(a: argparse.Namespace) -> None:

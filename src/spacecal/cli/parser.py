@@ -51,6 +51,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         default=_d(S, "clock_offset_ms"),
         help="with --raw: robot clock ahead of the tracker's",
     )
+    p.add_argument("--plan", help="a plan file (spacecal plan -o) to run instead of the paper's sweeps")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (with --raw: the stem)")
 
     C = app.CalibrateSettings
@@ -118,6 +119,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--scenario", default=_d(A, "scenario"), help="scenario of the simulated devices")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (each sample flushed)")
     p.add_argument("--dry-run", action="store_true", help="check the plan without moving")
+    p.add_argument("--plan", help="a plan file (spacecal plan -o) to run; the robot must stand at its home")
     p.add_argument("--resume", action="store_true", help="continue a stopped acquisition of the same plan")
     p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
     p.add_argument("--speed-mm-s", type=float, default=_d(A, "speed_mm_s"), help="TCP speed")
@@ -233,15 +235,32 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     K = app.CheckSettings
     p = command("check", "confirm before surgery that a calibration still holds")
     p.add_argument("calibration", help="calibration JSON")
-    p.add_argument("--recording", help="static poses to check against (instead of moving the robot)")
-    p.add_argument("--robot", default=_d(K, "robot"), help="sim: move the simulated robot")
+    p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
+    p.add_argument("--robot", default=_d(K, "robot"), help="sim (default) or ur://HOST")
+    p.add_argument("--tracker", default=_d(K, "tracker"), help="sim, ndi://PORT_OR_HOST or igtl://HOST:PORT")
     p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
     p.add_argument("--poses", type=int, default=_d(K, "poses"), choices=[2, 3], help="number of poses")
     p.add_argument(
-        "--threshold-mm", type=float, default=_d(K, "threshold_mm"), help="largest TCP error that passes"
+        "--frames-per-pose", type=int, default=_d(K, "frames_per_pose"), help="frames averaged per pose"
     )
     p.add_argument(
-        "--threshold-deg", type=float, default=_d(K, "threshold_deg"), help="largest rotation error"
+        "--threshold-mm", type=float, help="largest TCP error that passes (default: from the expected error)"
+    )
+    p.add_argument(
+        "--threshold-deg", type=float, help="largest rotation error (default: from the expected error)"
+    )
+    p.add_argument("--dry-run", action="store_true", help="plan the check poses without moving")
+    p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
+    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
+    p.add_argument("--tracker-rate-hz", type=float, default=_d(A, "tracker_rate_hz"), help="NDI frame rate")
+    p.add_argument("--robot-model", default=_d(A, "robot_model"), help="UR model")
+    p.add_argument(
+        "--tool-offset-mm",
+        default=",".join(str(v) for v in _d(A, "tool_offset_mm")),
+        help="TCP in the flange frame, as set on the robot",
+    )
+    p.add_argument(
+        "--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"
     )
 
     P = app.PhantomCommandSettings
@@ -274,7 +293,13 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         default=_d(L, "frames_per_station"),
         help="tracker frames held at each station",
     )
-    p.add_argument("-o", "--output", help="plan JSON to write")
+    p.add_argument(
+        "--site", metavar="X,Y,Z", help="where the needle tip will work, mm in the robot base (default: home)"
+    )
+    p.add_argument(
+        "--paper-sweeps", action="store_true", help="write the paper's six sweeps from home as the plan"
+    )
+    p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")
 
     p = command("scenario", "print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)

@@ -12,6 +12,7 @@ the fit's chi-square around it, each fit warm-started from the previous one, ref
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -25,15 +26,25 @@ from spacecal.estimators.observations import build_observations
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, interpolate_transforms
 from spacecal.records import CalibrationResult, RawRecording, Recording
 
+#: A frame is paired only between robot states at most this many median robot periods apart
+#: (the robot stream is kept during recorded moves only; nothing is interpolated across a gap).
+LARGEST_GAP_PERIODS = 3.0
+
 
 def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
     """A paired recording: each tracker frame with the robot state at ``tracker time + offset_s``.
 
-    Frames outside the robot stream's time span are dropped.
+    Frames outside the robot stream's time span, or in a gap of it (more than
+    ``LARGEST_GAP_PERIODS`` median periods between states), are dropped.
     """
     robot_t = raw.robot_time_s
     query = raw.tracker_time_s + offset_s
     inside = (query >= robot_t[0]) & (query <= robot_t[-1])
+    if len(robot_t) > 1:
+        periods = np.diff(robot_t)
+        largest = LARGEST_GAP_PERIODS * float(np.median(periods))
+        after = np.clip(np.searchsorted(robot_t, query, side="right"), 1, len(robot_t) - 1)
+        inside &= (robot_t[after] - robot_t[after - 1]) <= largest
     query = query[inside]
     upper = np.clip(np.searchsorted(robot_t, query, side="right"), 1, len(robot_t) - 1)
     lower = upper - 1
@@ -52,7 +63,72 @@ def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
         tracker_from_marker_stack=raw.tracker_from_marker_stack[inside],
         marker_rms_mm=raw.marker_rms_mm[inside],
         metadata={**raw.metadata, "paired_with_offset_s": float(offset_s)},
+        spheres_in_tracker=None if raw.spheres_in_tracker is None else raw.spheres_in_tracker[inside],
     )
+
+
+def clock_link_s(raw: RawRecording) -> float:
+    """A coarse robot-minus-tracker clock offset from when the frames arrived, s (0 without it).
+
+    The two devices may count from unrelated epochs (the controller since it booted, the
+    tracker from its frame counter). Each frame's ``arrival_robot_time_s`` is the newest robot
+    timestamp when the frame reached us; the median of its difference to the frame's own time
+    is the offset to within the transport delays, which :func:`estimate_time_offset` then
+    resolves.
+    """
+    if raw.arrival_robot_time_s is None:
+        return 0.0
+    difference = raw.arrival_robot_time_s - raw.tracker_time_s
+    difference = difference[np.isfinite(difference)]
+    return float(np.median(difference)) if len(difference) else 0.0
+
+
+@dataclass(frozen=True)
+class Pairing:
+    """How two raw streams were paired: the offset used and where it came from."""
+
+    offset_s: float
+    clock_link_s: float
+    estimated: bool
+    note: str
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "offset_s": self.offset_s,
+            "clock_link_s": self.clock_link_s,
+            "estimated": self.estimated,
+            "note": self.note,
+            "definition": "robot clock minus tracker clock",
+        }
+
+
+def pair_at_estimated_offset(raw: RawRecording) -> tuple[Recording, Pairing]:
+    """Pair the streams at the clock offset estimated from them (:func:`estimate_time_offset`),
+    searched around the coarse link of :func:`clock_link_s`.
+
+    When the data hold no information on the offset (the robot never rotated while sampled,
+    e.g. stop-and-go stations, or a run stopped early), the coarse link is used and the note
+    says so: samples taken at rest do not depend on it.
+    """
+    link = clock_link_s(raw)
+    try:
+        offset = link + estimate_time_offset(_shifted(raw, link)).offset_s
+        pairing = Pairing(
+            offset, link, True, f"robot clock {offset * 1000:+.2f} ms from the tracker's (estimated)"
+        )
+    except DegenerateDataError as exc:
+        offset = link
+        pairing = Pairing(
+            offset, link, False, f"clock offset not estimated ({exc}); paired at the arrival-time link"
+        )
+    recording = pair_streams(raw, offset)
+    recording.metadata["pairing"] = pairing.to_dict()
+    return recording, pairing
+
+
+def _shifted(raw: RawRecording, offset_s: float) -> RawRecording:
+    """The streams with the tracker's times moved onto the robot's clock by ``offset_s``."""
+    return dataclasses.replace(raw, tracker_time_s=raw.tracker_time_s + offset_s, arrival_robot_time_s=None)
 
 
 @dataclass

@@ -37,6 +37,7 @@ class MemorySink:
         tracker_from_marker=None,
         marker_rms_mm=float("nan"),
         spheres_in_tracker=None,
+        robot_time_s=float("nan"),
     ) -> None:
         self.rows.append(
             (
@@ -51,7 +52,10 @@ class MemorySink:
         )
 
     def add_robot_states(self, states: list[RobotState], segment: str) -> None:
-        self.robot_states.extend((state, segment) for state in states)
+        """Keep the states newer than the last one kept (the loop may hand one tick twice)."""
+        for state in states:
+            if not self.robot_states or state.time_s > self.robot_states[-1][0].time_s:
+                self.robot_states.append((state, segment))
 
     def recording(self, metadata: dict, sphere_count: int) -> Recording:
         """The paired recording of every sample kept."""
@@ -172,12 +176,15 @@ def _simulation(world: World, plan: MotionPlan) -> Simulation:
     )
 
 
-def simulate(scenario: Scenario) -> Simulation:
+def simulate(scenario: Scenario, plan: MotionPlan | None = None) -> Simulation:
     """Simulate the scenario's automatic calibration run (``spacecal simulate``).
 
     Parameters
     ----------
     scenario : Scenario
+    plan : MotionPlan, optional
+        The motion to run (``spacecal simulate --plan``); default the paper's sweeps from
+        the scenario's home.
 
     Returns
     -------
@@ -185,18 +192,20 @@ def simulate(scenario: Scenario) -> Simulation:
         ``.recording`` is what ``spacecal calibrate`` reads; ``.world`` holds the truth.
     """
     world = build_world(scenario)
-    return _simulation(world, plan_for_world(world))
+    return _simulation(world, plan or plan_for_world(world))
 
 
-def simulate_raw(scenario: Scenario, clock_offset_s: float = 0.0) -> tuple[RawRecording, World]:
-    """The scenario's run recorded as two raw streams on offset clocks.
+def simulate_raw(
+    scenario: Scenario, clock_offset_s: float = 0.0, plan: MotionPlan | None = None
+) -> tuple[RawRecording, World]:
+    """The scenario's run (or ``plan``) recorded as two raw streams on offset clocks.
 
     The robot stream has every controller state during the recorded moves (125 Hz for a
     UR10), stamped on a clock that runs ``clock_offset_s`` ahead of the tracker's; the
     tracker stream has its frames at its rate (20 Hz), stamped on its own clock.
     """
     world = build_world(scenario)
-    plan = plan_for_world(world)
+    plan = plan or plan_for_world(world)
     sink, _ = _run(world, plan, stream_states=True)
     if not sink.rows or not sink.robot_states:
         raise DegenerateDataError("the plan has no sampled moves")

@@ -7,16 +7,21 @@
 ``<stem>.tracker.csv`` — one row per tracker frame (marker cells empty when not seen)::
 
     time_s, marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy, marker_qz, marker_rms_mm
+    [, arrival_robot_time_s] [, sphere1_x_mm, sphere1_y_mm, sphere1_z_mm, ...]
 
-Times are each device's own clock, in seconds; ``spacecal calibrate STEM.robot.csv
---tracker-stream STEM.tracker.csv`` pairs them (estimating the offset) before calibrating.
-The paired format (:mod:`spacecal.io.recording_csv`) is unchanged.
+Times are each device's own clock, in seconds; the optional ``arrival_robot_time_s`` is the
+newest robot timestamp when the frame arrived (written by ``spacecal acquire``), which links
+the two clocks when they count from unrelated epochs. ``spacecal calibrate STEM.robot.csv
+--tracker-stream STEM.tracker.csv`` pairs them (estimating the offset) before calibrating;
+``spacecal acquire`` writes both streams as they arrive (:class:`RawStreamWriter`) and the
+paired recording (:mod:`spacecal.io.recording_csv`) derived from them.
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import os
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +35,13 @@ from spacecal.io.recording_csv import (
     MARKER_COLUMNS,
     TCP_COLUMNS,
     _check_quaternions,
+    _drop_partial_last_row,
     _format,
     _number,
     check_metadata,
     check_ranges,
     check_tcp_against_kinematics,
+    sphere_columns,
 )
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.text import read_text_file
@@ -42,6 +49,7 @@ from spacecal.records import RawRecording
 
 ROBOT_COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS
 TRACKER_COLUMNS = ["time_s"] + MARKER_COLUMNS
+ARRIVAL_COLUMN = "arrival_robot_time_s"
 
 
 def stream_paths(stem: str | Path) -> tuple[Path, Path, Path]:
@@ -86,6 +94,98 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
     write_text_atomic(robot_text.getvalue(), robot_path)
     write_text_atomic(tracker_text.getvalue(), tracker_path)
     return robot_path, tracker_path
+
+
+class RawStreamWriter:
+    """Append both raw streams as the devices deliver them, flushing to disk as it goes.
+
+    Nothing recorded is lost: a fault or a kill mid-run leaves every complete row in readable
+    files (a half-written last row is cut when the run is resumed).
+
+    Parameters
+    ----------
+    stem : str or Path
+        ``STEM.robot.csv``, ``STEM.tracker.csv`` and ``STEM.meta.json`` are written.
+    metadata : dict
+        Written (atomically) to ``STEM.meta.json`` when starting a new pair of streams.
+    sphere_count : int
+        Raw-sphere column triples in the tracker stream (0: none).
+    append : bool
+        Continue existing streams (a resumed run), keeping their headers.
+    """
+
+    def __init__(self, stem: str | Path, metadata: dict, sphere_count: int = 0, append: bool = False):
+        self.robot_path, self.tracker_path, meta_path = stream_paths(stem)
+        self.robot_path.parent.mkdir(parents=True, exist_ok=True)
+        resuming = append and self.robot_path.is_file() and self.tracker_path.is_file()
+        if resuming:
+            for path in (self.robot_path, self.tracker_path):
+                _drop_partial_last_row(path)
+            header = read_text_file(self.tracker_path, "stream").splitlines()[0].split(",")
+            sphere_count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
+        else:
+            write_json(metadata, meta_path)
+        self.sphere_count = sphere_count
+        self._files = [open(path, "a" if resuming else "w", newline="") for path in self.paths]
+        self._robot, self._tracker = (csv.writer(f) for f in self._files)
+        if not resuming:
+            self._robot.writerow(ROBOT_COLUMNS)
+            self._tracker.writerow(TRACKER_COLUMNS + [ARRIVAL_COLUMN] + sphere_columns(sphere_count))
+            self.flush()
+        self._last_robot_time = -np.inf
+
+    @property
+    def paths(self) -> tuple[Path, Path]:
+        return self.robot_path, self.tracker_path
+
+    def add_robot_states(self, states, segment: str) -> None:
+        """Write controller states (``RobotState``), skipping any not newer than the last written."""
+        for state in states:
+            if not state.time_s > self._last_robot_time:
+                continue
+            position, quaternion = transform_to_position_quaternion(state.base_from_tcp)
+            self._robot.writerow(
+                [_format(state.time_s), segment]
+                + [_format(v) for v in state.joints_rad]
+                + [_format(v) for v in position]
+                + [_format(v) for v in quaternion]
+            )
+            self._last_robot_time = state.time_s
+
+    def add_tracker_frame(
+        self,
+        time_s: float,
+        tracker_from_marker: np.ndarray | None,
+        marker_rms_mm: float,
+        arrival_robot_time_s: float,
+        spheres_in_tracker: np.ndarray | None = None,
+    ) -> None:
+        """Write one tracker frame (pose None when the marker was not seen), then flush both streams."""
+        if tracker_from_marker is None or not np.all(np.isfinite(tracker_from_marker)):
+            cells = [""] * len(MARKER_COLUMNS)
+        else:
+            position, quaternion = transform_to_position_quaternion(tracker_from_marker)
+            cells = [_format(v) for v in [*position, *quaternion, marker_rms_mm]]
+        spheres = np.full(3 * self.sphere_count, np.nan)
+        if self.sphere_count and spheres_in_tracker is not None and cells[0]:
+            given = np.asarray(spheres_in_tracker, dtype=float).reshape(-1)
+            spheres[: min(len(given), len(spheres))] = given[: len(spheres)]
+        self._tracker.writerow(
+            [_format(time_s)] + cells + [_format(arrival_robot_time_s)] + [_format(v) for v in spheres]
+        )
+        self.flush()
+
+    def flush(self) -> None:
+        for handle in self._files:
+            handle.flush()
+            os.fsync(handle.fileno())
+
+    def close(self) -> None:
+        for handle in self._files:
+            if not handle.closed:
+                handle.flush()
+                os.fsync(handle.fileno())
+                handle.close()
 
 
 def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict]:
@@ -136,8 +236,10 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     no_marker = np.full((len(rows), 3), np.nan)
     check_ranges(robot_path, lines, values[:, 0], values[:, 1:7], values[:, 7:10], no_marker, no_marker[:, 0])
 
-    rows, index = _rows(tracker_path, TRACKER_COLUMNS)
+    rows, index, header = _rows_with_header(tracker_path, TRACKER_COLUMNS)
     times = np.array([_number(r[index["time_s"]], k + 2, "time_s", tracker_path) for k, r in enumerate(rows)])
+    arrival = _optional_column(rows, header, ARRIVAL_COLUMN, tracker_path)
+    spheres = _optional_spheres(rows, header, tracker_path)
     _increasing(times, tracker_path)
     marker = np.full((len(rows), 8), np.nan)
     for k, r in enumerate(rows):
@@ -179,4 +281,36 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
         tracker_from_marker,
         marker[:, 7],
         metadata,
+        spheres_in_tracker=spheres,
+        arrival_robot_time_s=arrival,
     )
+
+
+def _rows_with_header(path: Path, columns: list[str]) -> tuple[list[list[str]], dict, list[str]]:
+    rows, index = _rows(path, columns)
+    header = [h.strip() for h in read_text_file(path, "stream").splitlines()[0].split(",")]
+    return rows, index, header
+
+
+def _optional_column(rows: list[list[str]], header: list[str], name: str, path: Path) -> np.ndarray | None:
+    """A numeric column that older streams do not have (None then); empty cells are NaN."""
+    if name not in header:
+        return None
+    column = header.index(name)
+    return np.array(
+        [_number(r[column], k + 2, name, path) if r[column].strip() else np.nan for k, r in enumerate(rows)]
+    )
+
+
+def _optional_spheres(rows: list[list[str]], header: list[str], path: Path) -> np.ndarray | None:
+    """The raw sphere centres (T, K, 3), mm, when the stream has sphere columns."""
+    count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
+    if not count:
+        return None
+    columns = [c for c in sphere_columns(count) if c in header]
+    if len(columns) != 3 * count:
+        raise InvalidInputError(f"{path}: the sphere columns are incomplete")
+    values = np.full((len(rows), len(columns)), np.nan)
+    for k, name in enumerate(columns):
+        values[:, k] = _optional_column(rows, header, name, path)
+    return values.reshape(len(rows), count, 3)

@@ -6,6 +6,10 @@ import numpy as np
 
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
+from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move
+
+#: Label of the hold at check pose k (1-based): the frames recorded there are averaged.
+CHECK_LABEL = "check-{}"
 
 
 def check_joints(model: RobotModel, home_joints_rad: np.ndarray, count: int = 3) -> np.ndarray:
@@ -19,3 +23,55 @@ def check_joints(model: RobotModel, home_joints_rad: np.ndarray, count: int = 3)
         pose = make_transform(home[:3, :3] @ tilt_matrix, home[:3, 3] + home[:3, :3] @ offset)
         joints.append(inverse_kinematics(model, pose, home_joints_rad))
     return np.array(joints)
+
+
+def check_plan(
+    model: RobotModel,
+    home_joints_rad: np.ndarray,
+    count: int,
+    limits: MotionLimits,
+    frame_period_s: float,
+    frames_per_pose: int = 10,
+    settle_s: float = 0.3,
+) -> MotionPlan:
+    """The check as a plan: from home, a transit to each check pose, a hold there while
+    ``frames_per_pose`` frames are taken (after ``settle_s``), and back home.
+
+    Running the check through the acquisition loop gives it the same safety as a calibration
+    run: safety stops, a lost tracker and a move past its deadline end it with the robot stopped.
+
+    Parameters
+    ----------
+    model : RobotModel
+    home_joints_rad : numpy.ndarray, shape (6,)
+        Where the robot stands (near the site).
+    count : int
+        Two or three check poses (:func:`check_joints`).
+    limits : MotionLimits
+    frame_period_s : float
+        Tracker frame period, s.
+    frames_per_pose : int
+    settle_s : float
+        Rest before frames count, s (the arm settles after the move).
+
+    Returns
+    -------
+    MotionPlan
+        Holds are labelled ``check-1``, ``check-2``...; transits are not recorded.
+    """
+    home_joints = np.asarray(home_joints_rad, dtype=float)
+    home = forward_kinematics(model, home_joints)
+    moves: list[TimedMove] = []
+    q, pose = home_joints, home
+    for k, joints in enumerate(check_joints(model, home_joints, count)):
+        target = forward_kinematics(model, joints)
+        if not np.allclose(target, pose, atol=1e-9):
+            move, q = time_move(model, "transit", pose, target, q, limits, 0.0)
+            moves.append(move)
+        hold = settle_s + frames_per_pose * frame_period_s
+        moves.append(TimedMove(CHECK_LABEL.format(k + 1), target, target, hold, 0.0, frame_period_s))
+        pose = target
+    if not np.allclose(pose, home, atol=1e-9):
+        move, _ = time_move(model, "transit", pose, home, q, limits, 0.0)
+        moves.append(move)
+    return MotionPlan(home_joints, home, moves, {"check_poses": count}, [])

@@ -12,9 +12,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spacecal.core.errors import UnreachableError
+from spacecal.core.errors import InvalidInputError, UnreachableError
 from spacecal.geometry.transforms import interpolate_transforms, matrix_to_rotvec
 from spacecal.models.kinematics import RobotModel, inverse_kinematics, inverse_kinematics_gauss_newton
+from spacecal.records.plan import PlannedMove, PlanRecord
 
 
 @dataclass(frozen=True)
@@ -208,3 +209,32 @@ class MotionPlan:
             "messages": self.messages,
             "moves": [{"label": m.label, "duration_s": m.duration_s} for m in self.moves],
         }
+
+
+def planned_moves(plan: MotionPlan) -> list[PlannedMove]:
+    """The plan's moves as the plan file's records."""
+    return [
+        PlannedMove(m.label, m.start, m.end, m.duration_s, m.accel_time_s, m.sample_period_s)
+        for m in plan.moves
+    ]
+
+
+def motion_plan_from_record(record: PlanRecord) -> MotionPlan:
+    """The runnable plan a plan file describes.
+
+    Raises
+    ------
+    InvalidInputError
+        For a version-1 file, which kept only a summary of each move.
+    """
+    if not record.runnable:
+        raise InvalidInputError(
+            "this plan file was written by an older spacecal and holds no move poses; "
+            "run 'spacecal plan' again"
+        )
+    moves = [
+        TimedMove(m.label, m.start, m.end, m.duration_s, m.accel_time_s, m.sample_period_s)
+        for m in record.moves
+    ]
+    extents = {"stations": len(record.station_joints_rad)} if record.kind == "site-optimal" else {}
+    return MotionPlan(record.home_joints_rad, record.home_base_from_tcp, moves, extents, [])

@@ -110,14 +110,56 @@ def predicted_site_error(information, site_gradients) -> float:
     return float(np.sqrt(np.mean(np.clip(variances, 0.0, None))))
 
 
+def site_configurations(
+    model: RobotModel, home_joints_rad, site_in_base=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The needle at the site: its pose, and the joints (5, 6) with the tool at the site in the
+    home orientation and tilted by 15 degrees about four axes (where the error is predicted).
+
+    Parameters
+    ----------
+    model : RobotModel
+    home_joints_rad : array_like, shape (6,)
+    site_in_base : array_like, shape (3,), optional
+        The tip's working point, mm in base; default the TCP at home.
+
+    Raises
+    ------
+    DegenerateDataError
+        When the site cannot be reached in the home orientation.
+    """
+    home_joints = np.asarray(home_joints_rad, dtype=float)
+    site = forward_kinematics(model, home_joints)
+    try:
+        if site_in_base is not None:
+            site[:3, 3] = np.asarray(site_in_base, dtype=float)
+            home_joints = inverse_kinematics(model, site, home_joints)
+        tilted = [
+            inverse_kinematics(model, site @ axis_angle_transform(axis, np.radians(15)), home_joints)
+            for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])
+        ]
+    except UnreachableError:
+        raise DegenerateDataError(
+            "the site cannot be reached with the tool in its home orientation (or tilted 15 degrees); "
+            "choose a site nearer home"
+        ) from None
+    return site, np.array([home_joints, *tilted])
+
+
 def plan_for_site(
     model: RobotModel,
     home_joints_rad,
     visibility: VisibilityModel,
     rng: np.random.Generator,
     settings: PlannerSettings | None = None,
+    site_in_base: np.ndarray | None = None,
 ) -> SitePlan:
     """Choose stations that minimise the predicted tip error at the site within the time budget.
+
+    The site is where the needle tip will work: ``site_in_base`` (3,), mm, or by default the
+    TCP at home. Stations are drawn around it (a cube, tilted by up to the settings' tilt),
+    with the home orientation, and the error is predicted for the tip there at that
+    orientation and tilted by 15 degrees about four axes. The tour starts and ends at home.
 
     Raises
     ------
@@ -127,6 +169,7 @@ def plan_for_site(
     s = settings or PlannerSettings()
     home_joints = np.asarray(home_joints_rad, dtype=float)
     home = forward_kinematics(model, home_joints)
+    site, site_joints = site_configurations(model, home_joints, site_in_base)
     spheres = visibility.marker.spheres_in_marker
     t_prior, x_prior = visibility.tracker_from_base, visibility.tcp_from_marker
 
@@ -135,7 +178,7 @@ def plan_for_site(
     for _ in range(s.candidates * 10):
         if len(feasible_poses) >= s.candidates:
             break
-        pose = random_station(home, rng, s.cube_mm, s.tilt_deg)
+        pose = random_station(site, rng, s.cube_mm, s.tilt_deg)
         if not visibility.visible(pose[None])[0]:
             continue
         try:
@@ -155,13 +198,6 @@ def plan_for_site(
     info_each = np.einsum("nka,nkb->nab", jac, jac) * s.frames_per_station / s.sphere_sigma_mm**2
     prior_sd = _prior_sd(s)
     # site: the needle tip at home and at tilted configurations around it
-    site_joints = np.array(
-        [home_joints]
-        + [
-            inverse_kinematics(model, home @ axis_angle_transform(axis, np.radians(15)), home_joints)
-            for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])
-        ]
-    )
     site_gradients = parameter_jacobian(model, site_joints, t_prior, np.eye(4), np.zeros((1, 3)))[:, 0]
 
     hold = s.frames_per_station * s.frame_period_s
@@ -231,7 +267,11 @@ def _timed_tour(model, home_joints, home, station_poses, s: PlannerSettings, hol
 
 
 def paper_sweep_site_error(
-    model: RobotModel, plan: MotionPlan, visibility: VisibilityModel, settings: PlannerSettings | None = None
+    model: RobotModel,
+    plan: MotionPlan,
+    visibility: VisibilityModel,
+    settings: PlannerSettings | None = None,
+    site_in_base: np.ndarray | None = None,
 ) -> float:
     """The same predicted site error for an existing plan (e.g. the paper's sweeps), for comparison."""
     s = settings or PlannerSettings()
@@ -257,15 +297,7 @@ def paper_sweep_site_error(
     ).reshape(int(seen.sum()), -1, 36)
     information = np.einsum("nka,nkb->ab", jac, jac) / s.sphere_sigma_mm**2
     prior_sd = _prior_sd(s)
-    home = plan.home_joints_rad
-    home_pose = forward_kinematics(model, home)
-    site_joints = np.array(
-        [home]
-        + [
-            inverse_kinematics(model, home_pose @ axis_angle_transform(axis, np.radians(15)), home)
-            for axis in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0])
-        ]
-    )
+    _, site_joints = site_configurations(model, plan.home_joints_rad, site_in_base)
     site_gradients = parameter_jacobian(
         model, site_joints, visibility.tracker_from_base, np.eye(4), np.zeros((1, 3))
     )[:, 0]

@@ -111,6 +111,11 @@ class RawRecording:
         NaN where the marker was not seen.
     marker_rms_mm : numpy.ndarray, shape (T,)
     metadata : dict
+    spheres_in_tracker : numpy.ndarray, shape (T, K, 3), optional
+        Raw sphere centres when the tracker reports them, mm; NaN where not seen.
+    arrival_robot_time_s : numpy.ndarray, shape (T,), optional
+        The newest robot timestamp (robot clock) when each frame arrived: a coarse link
+        between the two clocks, which may count from unrelated epochs; NaN where unknown.
     """
 
     robot_time_s: np.ndarray
@@ -121,6 +126,8 @@ class RawRecording:
     tracker_from_marker_stack: np.ndarray
     marker_rms_mm: np.ndarray
     metadata: dict = field(default_factory=dict)
+    spheres_in_tracker: np.ndarray | None = None
+    arrival_robot_time_s: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         r = len(np.atleast_1d(self.robot_time_s))
@@ -135,6 +142,15 @@ class RawRecording:
             self.tracker_from_marker_stack, (t, 4, 4), "tracker_from_marker_stack"
         )
         self.marker_rms_mm = _column(self.marker_rms_mm, (t,), "marker_rms_mm")
+        if self.spheres_in_tracker is not None:
+            spheres = np.asarray(self.spheres_in_tracker, dtype=float)
+            if spheres.ndim != 3 or spheres.shape[::2] != (t, 3):
+                raise InvalidInputError(
+                    f"recording: spheres_in_tracker must have shape ({t}, K, 3), got {spheres.shape}"
+                )
+            self.spheres_in_tracker = spheres
+        if self.arrival_robot_time_s is not None:
+            self.arrival_robot_time_s = _column(self.arrival_robot_time_s, (t,), "arrival_robot_time_s")
 
 
 def _check_shape(array: np.ndarray, shape: tuple[int, ...], name: str) -> None:

@@ -1,10 +1,15 @@
 """Automatic acquisition (paper §4): run a motion plan on the robot while sampling the tracker.
 
-Each sample is written and flushed to the recording as it arrives, so nothing recorded is
-lost. A protective or emergency stop, a lost or stalled tracker, stale robot data, or
-Ctrl-C stops the robot, keeps the file readable, records how far the plan got in a
-progress file next to the recording, and raises with one line saying what happened; the
-run can then be resumed where it stopped.
+Both devices' streams are written as they arrive, each on its own clock: every controller
+state during the recorded moves (``STEM.robot.csv``, at the controller's rate where the robot
+streams its states) and every sampled tracker frame (``STEM.tracker.csv``), flushed to disk,
+so nothing recorded is lost. The paired recording (``STEM.csv``) is derived from them when
+the run ends: each frame with the robot state interpolated at its time on the robot's clock,
+at the estimated clock offset (:func:`spacecal.estimators.time_offset.pair_at_estimated_offset`).
+A safety stop, a lost or stalled tracker, stale robot data, a move past its deadline, or
+Ctrl-C stops the robot, keeps the files readable, records how far the plan got in a progress
+file next to the recording, and raises with one line saying what happened; the run can then
+be resumed where it stopped.
 """
 
 from __future__ import annotations
@@ -20,7 +25,9 @@ import numpy as np
 
 from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
 from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, Tracker
-from spacecal.io.recording_csv import RecordingWriter
+from spacecal.estimators.time_offset import Pairing, pair_at_estimated_offset
+from spacecal.io.raw_streams import RawStreamWriter, read_raw_recording, stream_paths
+from spacecal.io.recording_csv import write_recording
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove
 from spacecal.records import AcquisitionProgress
@@ -44,9 +51,10 @@ class AcquisitionSettings:
     stale_robot_s : float
         Longest age of the robot state while moving before it counts as stale.
     move_start_guard_s : float
-        Frames in the first part of each move (robot clock) are not recorded: a tracker that
-        delivers frames late (a streamed OpenIGTLink source) would otherwise label the last
-        frames of one move with the next move's segment.
+        Frames in the first part of each move (robot clock) are not recorded. Not needed when
+        the streams are paired by time (a frame delivered late, e.g. by a streamed OpenIGTLink
+        source, is paired with the robot state when it was captured, and takes that state's
+        segment), so 0 by default.
     deadline_factor, deadline_margin_s : float
         Every move must end within ``deadline_factor`` times its planned duration plus
         ``deadline_margin_s`` (robot clock); a move that does not ends the run.
@@ -56,7 +64,7 @@ class AcquisitionSettings:
     linear_accel_mm_s2: float = MotionLimits.linear_accel_mm_s2
     frame_timeout_s: float = 1.0
     stale_robot_s: float = STALE_ROBOT_S
-    move_start_guard_s: float = 0.1
+    move_start_guard_s: float = 0.0
     deadline_factor: float = 1.5
     deadline_margin_s: float = 2.0
 
@@ -72,6 +80,10 @@ class AcquisitionResult:
     moves_total: int
     stopped_because: str | None = None
     progress: list = field(default_factory=list)
+    raw_paths: tuple[Path, Path] | None = None
+    pairing: Pairing | None = None
+    #: Why no paired recording could be derived from the raw streams (None when it was).
+    unpaired_because: str | None = None
 
     @property
     def complete(self) -> bool:
@@ -98,6 +110,13 @@ def progress_path(recording_path: str | Path) -> Path:
     """``rec.csv`` -> ``rec.progress.json``."""
     path = Path(recording_path)
     return path.with_name(path.stem + ".progress.json")
+
+
+def raw_stream_paths(recording_path: str | Path) -> tuple[Path, Path]:
+    """``rec.csv`` -> (``rec.robot.csv``, ``rec.tracker.csv``): the raw streams behind it."""
+    path = Path(recording_path)
+    robot, tracker, _ = stream_paths(path.with_name(path.stem))
+    return robot, tracker
 
 
 def _write_progress(path: Path, plan: MotionPlan, completed: int, stopped_because: str | None) -> None:
@@ -138,8 +157,10 @@ class SampleSink(Protocol):
         tracker_from_marker: np.ndarray | None = None,
         marker_rms_mm: float = float("nan"),
         spheres_in_tracker: np.ndarray | None = None,
+        robot_time_s: float = float("nan"),
     ) -> None:
-        """Keep one paired sample (robot state at the frame, tracker frame)."""
+        """Keep one sample: the tracker frame (``time_s`` on the tracker's clock) with the newest
+        robot state when it arrived (``robot_time_s`` on the robot's clock)."""
 
 
 class RobotStreamSink(Protocol):
@@ -203,8 +224,9 @@ def run_plan(
         others are transit.
     robot, tracker : Robot, Tracker
     sink : SampleSink
-        Receives each sample; if it has ``add_robot_states`` and the robot ``drain_states``,
-        it also receives the robot's state stream during recorded moves.
+        Receives each sample; if it has ``add_robot_states`` it also receives the robot's
+        states during recorded moves: every controller state where the robot streams them
+        (``drain_states``), else the state read at each frame.
     settings : AcquisitionSettings
     progress : AcquisitionResult
         Updated in place (samples, moves completed).
@@ -218,14 +240,16 @@ def run_plan(
         Called with every tracker frame (see :data:`FrameObserver`); costs one comparison
         per frame when None.
     """
-    streams = hasattr(sink, "add_robot_states") and hasattr(robot, "drain_states")
+    streams = hasattr(sink, "add_robot_states")
+    drains = streams and hasattr(robot, "drain_states")
     first_move = progress.moves_completed
     for index in range(first_move, len(plan.moves)):
         move = plan.moves[index]
         if index == first_move and approach_first_move and not _at_pose(robot, move.start):
             _approach(robot, tracker, move.start, settings)
-        if streams:
-            robot.drain_states()  # type: ignore[attr-defined]  # states before this move are no segment's
+        # states before this move are no segment's, but the newest of them is where the move
+        # starts: the first frames may fall before the move's first new state
+        carried: list[RobotState] = robot.drain_states()[-1:] if drains else []  # type: ignore[attr-defined]
         # A hold (start = end) is a station: the arm rests while frames are taken for the
         # move's duration (stop-and-go sampling); there is nothing to command.
         hold = is_hold(move)
@@ -245,7 +269,11 @@ def run_plan(
                 raise RunFault(f"tracker lost ({exc})") from exc
             state = robot.state()
             if streams and move.sample_period_s > 0:
-                sink.add_robot_states(robot.drain_states(), move.label)  # type: ignore[attr-defined]
+                # the stream since the last frame, or (a robot that keeps no stream) the state
+                # just read; the sink skips a state not newer than the last it kept
+                states = carried + (robot.drain_states() if drains else [])  # type: ignore[attr-defined]
+                carried = []
+                sink.add_robot_states(states or [state], move.label)  # type: ignore[attr-defined]
             if state.safety != SAFETY_NORMAL:
                 raise RunFault(f"robot {state.safety.replace('_', ' ')}")
             # Stale robot data: its timestamp stands still while the tracker's advances. Each
@@ -283,6 +311,7 @@ def run_plan(
                     frame.tracker_from_marker if seen else None,
                     frame.rms_mm,
                     frame.spheres_in_tracker if seen else None,
+                    robot_time_s=state.time_s,
                 )
                 last_recorded = frame.time_s
                 progress.samples_written += 1
@@ -314,6 +343,31 @@ def run_plan(
             on_move_done(progress.moves_completed)
 
 
+class _RawSink:
+    """The acquisition's sink on disk: both raw streams, as they arrive."""
+
+    def __init__(self, writer: RawStreamWriter):
+        self.writer = writer
+
+    def append(
+        self,
+        time_s: float,
+        segment: str,
+        joints_rad: np.ndarray,
+        base_from_tcp: np.ndarray,
+        tracker_from_marker: np.ndarray | None = None,
+        marker_rms_mm: float = float("nan"),
+        spheres_in_tracker: np.ndarray | None = None,
+        robot_time_s: float = float("nan"),
+    ) -> None:
+        self.writer.add_tracker_frame(
+            time_s, tracker_from_marker, marker_rms_mm, robot_time_s, spheres_in_tracker
+        )
+
+    def add_robot_states(self, states: list[RobotState], segment: str) -> None:
+        self.writer.add_robot_states(states, segment)
+
+
 def acquire(
     plan: MotionPlan,
     robot: Robot,
@@ -325,7 +379,8 @@ def acquire(
     on_sample: Callable[[int, int, int, str], None] | None = None,
     observer: FrameObserver | None = None,
 ) -> AcquisitionResult:
-    """Run ``plan`` on ``robot`` while sampling ``tracker``; write the recording as it goes.
+    """Run ``plan`` on ``robot`` while sampling ``tracker``; write the raw streams as they
+    arrive and the paired recording derived from them.
 
     Parameters
     ----------
@@ -334,13 +389,15 @@ def acquire(
         others are transit.
     robot, tracker : Robot, Tracker
     recording_path : str or Path
-        The recording CSV; its metadata and progress files go next to it.
+        The paired recording CSV, ``STEM.csv``; the raw streams ``STEM.robot.csv`` and
+        ``STEM.tracker.csv``, the metadata ``STEM.meta.json`` and the progress file go next
+        to it.
     metadata : dict
-        Written to ``<stem>.meta.json``.
+        Written to ``STEM.meta.json``.
     settings : AcquisitionSettings, optional
     resume : bool
-        Continue a stopped run of the same plan: append to the recording and start from
-        the move that was interrupted (from its start pose).
+        Continue a stopped run of the same plan: append to the streams and start from the
+        move that was interrupted (from its start pose).
     on_sample : callable, optional
         Called as ``on_sample(samples, visible, move_index, label)`` after each sample
         (progress display).
@@ -350,11 +407,13 @@ def acquire(
     Raises
     ------
     AcquisitionStopped
-        On a fault or Ctrl-C, after stopping the robot; the recording keeps every sample.
+        On a fault or Ctrl-C, after stopping the robot; the streams keep every sample and the
+        paired recording is derived from what was recorded.
     """
     settings = settings or AcquisitionSettings()
     recording_path = Path(recording_path)
     progress_file = progress_path(recording_path)
+    raw_paths = raw_stream_paths(recording_path)
     first_move = 0
     if resume:
         if not progress_file.is_file():
@@ -363,21 +422,33 @@ def acquire(
         if progress is None or progress.plan_fingerprint != plan_fingerprint(plan):
             raise InvalidInputError(f"{recording_path} was recorded with a different plan; cannot resume it")
         first_move = progress.moves_completed
-    elif recording_path.exists():
-        raise InvalidInputError(f"{recording_path} exists; choose another file or pass --resume")
+    else:
+        for path in (recording_path, *raw_paths):
+            if path.exists():
+                raise InvalidInputError(f"{path} exists; choose another file or pass --resume")
 
     # progress first: an interruption before the first sample leaves a run --resume can start
     _write_progress(progress_file, plan, first_move, None)
-    writer = RecordingWriter(recording_path, metadata, append=resume and recording_path.is_file())
-    result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves))
+    sphere_count = len(metadata.get("marker", {}).get("spheres_in_marker_mm", []))
+    writer = RawStreamWriter(
+        recording_path.with_name(recording_path.stem), metadata, sphere_count, append=resume
+    )
+    result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves), raw_paths=raw_paths)
 
     def fail(reason: str) -> NoReturn:
         robot.stop()
         result.stopped_because = reason
         _write_progress(progress_file, plan, result.moves_completed, reason)
+        writer.close()
+        _derive_recording(result)
+        kept = (
+            f"{recording_path}"
+            if result.unpaired_because is None
+            else f"the raw streams {raw_paths[0].name} and {raw_paths[1].name} ({result.unpaired_because})"
+        )
         raise AcquisitionStopped(
-            f"acquisition stopped: {reason}; {result.samples_written} samples kept in {recording_path}; "
-            f"resume with --resume",
+            f"acquisition stopped: {reason}; {result.samples_written} samples kept in {kept}; "
+            "resume with --resume",
             result,
         )
 
@@ -386,7 +457,7 @@ def acquire(
             plan,
             robot,
             tracker,
-            writer,
+            _RawSink(writer),
             settings,
             result,
             approach_first_move=resume,
@@ -404,7 +475,25 @@ def acquire(
         fail(_cause(robot, exc))
     finally:
         writer.close()
+    _derive_recording(result)
+    if result.unpaired_because is not None:
+        raise InvalidInputError(
+            f"the raw streams {raw_paths[0]} and {raw_paths[1]} were recorded, but no paired recording "
+            f"could be derived from them: {result.unpaired_because}"
+        )
     return result
+
+
+def _derive_recording(result: AcquisitionResult) -> None:
+    """Pair the raw streams into ``result.recording_path`` (atomically), at the estimated clock
+    offset; a failure leaves the streams as they are and says why in ``result``."""
+    assert result.raw_paths is not None
+    try:
+        raw = read_raw_recording(*result.raw_paths)
+        recording, result.pairing = pair_at_estimated_offset(raw)
+        write_recording(recording, result.recording_path)
+    except SpacecalError as exc:
+        result.unpaired_because = str(exc)
 
 
 def _approach(

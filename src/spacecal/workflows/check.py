@@ -11,16 +11,82 @@ shows up at once. Each check is appended to a history file next to the calibrati
 from __future__ import annotations
 
 import json
+import math
 import os
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.core.ports import FRAME_OK, Robot, Tracker
+from spacecal.core.errors import DegenerateDataError, DeviceError, InvalidInputError, SpacecalError
+from spacecal.core.ports import Robot, RobotState, Tracker
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.planning.motion import MotionPlan
 from spacecal.records import CalibrationResult, CheckResult, Recording
+from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, RunFault, run_plan
+
+#: A check fails beyond this many standard deviations of what a sound calibration leaves.
+CHECK_SIGMAS = 3.0
+#: Smallest thresholds (a check must not fail on the tracker's own noise): mm, deg.
+CHECK_FLOOR_MM, CHECK_FLOOR_DEG = 0.5, 0.25
+#: Thresholds used when the calibration carries no expected error (older files): mm, deg.
+FALLBACK_THRESHOLD_MM, FALLBACK_THRESHOLD_DEG = 1.0, 1.0
+
+
+def check_thresholds(calibration: CalibrationResult, frames_averaged: int = 1) -> tuple[float, float, str]:
+    """Thresholds (mm at the TCP, deg) a sound calibration passes, from its own numbers.
+
+    A check pose's misfit is the calibration's error there (its expected error,
+    :mod:`spacecal.estimators.expected_error`) plus what its model leaves unexplained in one
+    frame (its residual RMS), shrunk by the frames averaged at the pose. The marker's rotation
+    residual reaches the TCP over the marker-to-TCP lever arm, so a frame's TCP misfit is the
+    root sum of squares of the position residual and that lever times the rotation residual.
+    The threshold is ``CHECK_SIGMAS`` times the total, at least ``CHECK_FLOOR_MM`` /
+    ``CHECK_FLOOR_DEG``.
+
+    Parameters
+    ----------
+    calibration : CalibrationResult
+    frames_averaged : int
+        Frames averaged into each checked pose (1 when single frames are compared).
+
+    Returns
+    -------
+    threshold_mm, threshold_deg : float
+    basis : str
+        Where they came from, for the output.
+    """
+    expected = calibration.diagnostics.get("expected_error") or {}
+    position, posture = expected.get("position_mm"), expected.get("posture_deg")
+    residual_mm = calibration.diagnostics.get("residual_position_rms_mm")
+    residual_deg = calibration.diagnostics.get("residual_rotation_rms_deg")
+    numbers = [position, posture, residual_mm, residual_deg]
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in numbers):
+        return FALLBACK_THRESHOLD_MM, FALLBACK_THRESHOLD_DEG, "fixed (the calibration has no expected error)"
+    lever_mm = float(np.linalg.norm(calibration.tcp_from_marker[:3, 3]))
+    frame_mm = math.hypot(residual_mm, lever_mm * math.radians(residual_deg))  # type: ignore[arg-type]
+    shrink = math.sqrt(max(1, frames_averaged))
+    threshold_mm = max(CHECK_FLOOR_MM, CHECK_SIGMAS * math.hypot(position, frame_mm / shrink))  # type: ignore[arg-type]
+    threshold_deg = max(CHECK_FLOOR_DEG, CHECK_SIGMAS * math.hypot(posture, residual_deg / shrink))  # type: ignore[arg-type]
+    return (
+        threshold_mm,
+        threshold_deg,
+        f"{CHECK_SIGMAS:g} sigma of the calibration's expected error ({position:.2f} mm, {posture:.2f} deg) "
+        f"and its one-frame misfit ({frame_mm:.2f} mm, {residual_deg:.2f} deg) "
+        f"over {frames_averaged} frame(s)",
+    )
+
+
+def robot_pose(
+    calibration: CalibrationResult, state_pose: np.ndarray, joints_rad: np.ndarray | None
+) -> np.ndarray:
+    """The TCP pose the calibration pairs with the marker: from its identified kinematics at the
+    joints when it has them (``--method kinematic``), else the pose the controller reported."""
+    if calibration.robot_model is not None and joints_rad is not None and np.all(np.isfinite(joints_rad)):
+        return forward_kinematics(calibration.robot_model, joints_rad)
+    return np.asarray(state_pose, dtype=float)
 
 
 def pose_errors(calibration: CalibrationResult, base_from_tcp, tracker_from_marker) -> tuple[float, float]:
@@ -32,36 +98,70 @@ def pose_errors(calibration: CalibrationResult, base_from_tcp, tracker_from_mark
     return float(np.linalg.norm(predicted_tcp - measured_tcp)), float(angle)
 
 
+class _CheckSink:
+    """Keeps the frames and robot states of each check pose's hold."""
+
+    def __init__(self) -> None:
+        self.frames: dict[str, list[np.ndarray]] = defaultdict(list)
+        self.states: dict[str, list[RobotState]] = defaultdict(list)
+
+    def append(self, time_s, segment, joints_rad, base_from_tcp, tracker_from_marker=None, *_, **__) -> None:
+        if tracker_from_marker is not None:
+            self.frames[segment].append(np.asarray(tracker_from_marker, dtype=float))
+
+    def add_robot_states(self, states: list[RobotState], segment: str) -> None:
+        self.states[segment].extend(states)
+
+
 def check_with_robot(
     calibration: CalibrationResult,
     robot: Robot,
     tracker: Tracker,
-    joints_list,
-    threshold_mm: float = 1.0,
-    threshold_deg: float = 1.0,
+    plan: MotionPlan,
+    threshold_mm: float,
+    threshold_deg: float,
+    settings: AcquisitionSettings,
     frames_per_pose: int = 10,
-    speed_rad_s: float = 0.3,
-    accel_rad_s2: float = 0.5,
 ) -> CheckResult:
-    """Move to each configuration (P, 6), average ``frames_per_pose`` tracker frames, compare."""
+    """Run the check plan (:func:`spacecal.planning.check_poses.check_plan`), average the
+    frames held at each pose, and compare with the calibration's prediction.
+
+    The plan runs through the acquisition loop: a safety stop, a lost tracker or a move past
+    its deadline stops the robot and raises :class:`~spacecal.core.errors.DeviceError`.
+
+    Raises
+    ------
+    DegenerateDataError
+        When the marker was seen in fewer than half the frames at a check pose.
+    DeviceError
+        On a device fault (the robot was stopped; nothing is logged).
+    """
+    sink = _CheckSink()
+    progress = AcquisitionResult(Path("check"), 0, 0, 0, len(plan.moves))
+    try:
+        run_plan(plan, robot, tracker, sink, settings, progress)
+    except (RunFault, SpacecalError, KeyboardInterrupt) as exc:
+        robot.stop()
+        reason = "interrupted by the user (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else str(exc)
+        raise DeviceError(f"check stopped: {reason}; the robot was stopped and nothing was logged") from None
     errors, angles, labels = [], [], []
-    for k, joints in enumerate(np.asarray(joints_list, dtype=float)):
-        robot.move_joints(joints, speed_rad_s, accel_rad_s2)
-        seen: list[np.ndarray] = []
-        frames_read = 0
-        while len(seen) < frames_per_pose:
-            frame = tracker.next_frame(1.0)
-            frames_read += 1
-            if frame.status == FRAME_OK and frame.tracker_from_marker is not None:
-                seen.append(frame.tracker_from_marker)
-            elif frames_read > 10 * frames_per_pose:
-                raise DegenerateDataError(f"check pose {k + 1}: the marker is not visible")
+    for move in plan.moves:
+        if move.sample_period_s <= 0 or move.label in labels:
+            continue
+        seen, states = sink.frames.get(move.label, []), sink.states.get(move.label, [])
+        if len(seen) < max(3, frames_per_pose // 2) or not states:
+            raise DegenerateDataError(
+                f"check {move.label}: the marker was seen in {len(seen)} frames; "
+                "make sure the tracker sees it"
+            )
         poses = np.array(seen)
         measured = make_transform(mean_rotation(poses[:, :3, :3]), poses[:, :3, 3].mean(axis=0))
-        error, angle = pose_errors(calibration, robot.state().base_from_tcp, measured)
+        at_rest = states[-1]
+        base_from_tcp = robot_pose(calibration, at_rest.base_from_tcp, at_rest.joints_rad)
+        error, angle = pose_errors(calibration, base_from_tcp, measured)
         errors.append(error)
         angles.append(angle)
-        labels.append(f"pose {k + 1}")
+        labels.append(move.label)
     return CheckResult(np.array(errors), np.array(angles), threshold_mm, threshold_deg, labels)
 
 
@@ -80,7 +180,9 @@ def check_with_recording(
         per_frame = np.array(
             [
                 pose_errors(
-                    calibration, recording.base_from_tcp_stack[r], recording.tracker_from_marker_stack[r]
+                    calibration,
+                    robot_pose(calibration, recording.base_from_tcp_stack[r], recording.joints_rad[r]),
+                    recording.tracker_from_marker_stack[r],
                 )
                 for r in rows
             ]
