@@ -59,17 +59,20 @@ def check_thresholds(calibration: CalibrationResult, frames_averaged: int = 1) -
         Where they came from, for the output.
     """
     expected = calibration.diagnostics.get("expected_error") or {}
-    position, posture = expected.get("position_mm"), expected.get("posture_deg")
-    residual_mm = calibration.diagnostics.get("residual_position_rms_mm")
-    residual_deg = calibration.diagnostics.get("residual_rotation_rms_deg")
-    numbers = [position, posture, residual_mm, residual_deg]
-    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in numbers):
+    raw_numbers = [
+        expected.get("position_mm"),
+        expected.get("posture_deg"),
+        calibration.diagnostics.get("residual_position_rms_mm"),
+        calibration.diagnostics.get("residual_rotation_rms_deg"),
+    ]
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in raw_numbers):
         return FALLBACK_THRESHOLD_MM, FALLBACK_THRESHOLD_DEG, "fixed (the calibration has no expected error)"
+    position, posture, residual_mm, residual_deg = (float(v) for v in raw_numbers)  # type: ignore[arg-type]
     lever_mm = float(np.linalg.norm(calibration.tcp_from_marker[:3, 3]))
-    frame_mm = math.hypot(residual_mm, lever_mm * math.radians(residual_deg))  # type: ignore[arg-type]
+    frame_mm = math.hypot(residual_mm, lever_mm * math.radians(residual_deg))
     shrink = math.sqrt(max(1, frames_averaged))
-    threshold_mm = max(CHECK_FLOOR_MM, CHECK_SIGMAS * math.hypot(position, frame_mm / shrink))  # type: ignore[arg-type]
-    threshold_deg = max(CHECK_FLOOR_DEG, CHECK_SIGMAS * math.hypot(posture, residual_deg / shrink))  # type: ignore[arg-type]
+    threshold_mm = max(CHECK_FLOOR_MM, CHECK_SIGMAS * math.hypot(position, frame_mm / shrink))
+    threshold_deg = max(CHECK_FLOOR_DEG, CHECK_SIGMAS * math.hypot(posture, residual_deg / shrink))
     return (
         threshold_mm,
         threshold_deg,
