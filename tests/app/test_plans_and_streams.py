@@ -12,6 +12,7 @@ from spacecal.experiments.truth import calibration_error
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
 from spacecal.records import PlanRecord
+from spacecal.sim.motion import plan_for_world
 from spacecal.sim.scenario import load_scenario
 from spacecal.sim.world import build_world
 
@@ -147,3 +148,20 @@ def test_an_existing_raw_stream_is_never_overwritten(tmp_path):
     with pytest.raises(InvalidInputError, match="exists"):
         app.acquire(app.AcquireSettings(str(tmp_path / "rec.csv"), scenario="paper-white"))
     assert (tmp_path / "rec.tracker.csv").read_text() == "keep me\n"
+
+
+def test_stop_and_go_averages_the_frames_of_each_station(tmp_path):
+    out = app.acquire(app.AcquireSettings(str(tmp_path / "sg.csv"), scenario="paper-white", stop_and_go=5))
+    assert out.result is not None and out.result.complete
+    recording = read_recording(tmp_path / "sg.csv")
+    meta = json.loads((tmp_path / "sg.meta.json").read_text())
+    assert meta["sampling"] == {"mode": "stop-and-go", "frames_per_station": 5, "frame_period_s": 0.05}
+    # six stations along each recorded move of the sweeps, one averaged sample each
+    world = build_world(load_scenario("paper-white"))
+    recorded = [m for m in plan_for_world(world).moves if m.sample_period_s > 0]
+    assert len(recording) == meta["stations_averaged"] == 6 * len(recorded)
+    assert out.result.samples_written >= 5 * len(recording)
+    error = calibration_error(calibrate(recording, "ml", uncertainty=False), world)
+    assert error["tre_rms_mm"] < 0.15
+    with pytest.raises(InvalidInputError, match="--stop-and-go"):
+        app.AcquireSettings("x.csv", stop_and_go=2)

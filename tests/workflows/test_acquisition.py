@@ -122,7 +122,7 @@ def test_faults_stop_the_robot_keep_the_data_and_resume(fault, tmp_path):
     )
     assert result.complete
     resumed = read_recording(path)
-    assert len(resumed) > len(kept) and np.array_equal(resumed.time_s[: len(kept)], kept.time_s)
+    assert len(resumed) > len(kept) and np.isin(kept.time_s, resumed.time_s).all()
     assert set(resumed.segment) == {"rot_x", "rot_y", "rot_z", "lin_x", "lin_y", "lin_z"}
 
 

@@ -33,6 +33,7 @@ from spacecal.planning.check_poses import check_plan
 from spacecal.planning.motion import MotionLimits, MotionPlan, motion_plan_from_record, planned_moves
 from spacecal.planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
+from spacecal.planning.stop_and_go import stop_and_go_plan
 from spacecal.planning.visibility import VisibilityModel
 from spacecal.records import CheckResult, PlanRecord
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
@@ -106,6 +107,9 @@ class AcquireSettings:
     plan : str or None
         A plan file (``spacecal plan -o``) to run instead of the paper's sweeps from where the
         robot stands; the robot must stand at the plan's home.
+    stop_and_go : int
+        0: sample while moving. N > 0: stop at stations along each recorded move, let the arm
+        settle and average N frames per station (no sample depends on the clock offset).
     """
 
     output: str
@@ -127,8 +131,13 @@ class AcquireSettings:
     rotation_deg: float = PaperSweepSettings.rotation_each_way_deg
     translation_mm: float = PaperSweepSettings.translation_stroke_mm
     plan: str | None = None
+    stop_and_go: int = 0
 
     def __post_init__(self) -> None:
+        if not (
+            isinstance(self.stop_and_go, int) and (self.stop_and_go == 0 or 3 <= self.stop_and_go <= 1000)
+        ):
+            raise InvalidInputError(f"--stop-and-go takes 3..1000 frames per station, got {self.stop_and_go}")
         for name, (low, high) in ACQUIRE_RANGES.items():
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and low <= value <= high):
@@ -363,7 +372,7 @@ def hardware_metadata(settings: AcquireSettings) -> dict[str, Any]:
 
 def acquire(
     settings: AcquireSettings,
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: Callable[[int, int, int, int, str], None] | None = None,
     observer: FrameObserver | None = None,
 ) -> AcquireOutput:
     """Plan, check and (unless a dry run) run the calibration motion, writing the recording.
@@ -372,7 +381,7 @@ def acquire(
     ----------
     settings : AcquireSettings
     on_sample : callable, optional
-        Progress callback ``on_sample(samples, visible, move_index, label)``.
+        Progress callback ``on_sample(samples, visible, move_index, moves_total, label)``.
     observer : FrameObserver, optional
         Sees every tracker frame, e.g. ``LiveView(...).observe`` of
         :mod:`spacecal.report.live`; it must return at once, and a failing one is detached
@@ -390,6 +399,21 @@ def acquire(
             plan = plan_for_world(world)
         else:
             plan = hardware_plan(settings, robot)
+        frame_period_s = 1.0 / (
+            world.scenario.tracker_rate_hz if world is not None else settings.tracker_rate_hz
+        )
+        if settings.stop_and_go:
+            plan = stop_and_go_plan(
+                plan,
+                world.nominal_model if world is not None else hardware_model(settings),
+                MotionLimits(
+                    linear_speed_mm_s=settings.speed_mm_s,
+                    linear_accel_mm_s2=settings.accel_mm_s2,
+                    angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
+                ),
+                frame_period_s,
+                settings.stop_and_go,
+            )
         problems = workspace_problems(plan, settings.workspace_box)
         output = AcquireOutput(
             len(plan.moves), plan.motion_time_s, list(plan.messages) + problems, simulated=world is not None
@@ -404,6 +428,15 @@ def acquire(
                 "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
             )
         metadata = recording_metadata(world) if world is not None else hardware_metadata(settings)
+        metadata["sampling"] = (
+            {
+                "mode": "stop-and-go",
+                "frames_per_station": settings.stop_and_go,
+                "frame_period_s": frame_period_s,
+            }
+            if settings.stop_and_go
+            else {"mode": "continuous"}
+        )
         metadata["plan"] = {
             **plan.summary(),
             "file": None if settings.plan is None else str(Path(settings.plan).resolve()),
@@ -419,7 +452,13 @@ def acquire(
             metadata,
             run_settings,
             resume=settings.resume,
-            on_sample=on_sample,
+            on_sample=(
+                None
+                if on_sample is None
+                else lambda samples, visible, index, label: on_sample(
+                    samples, visible, index, len(plan.moves), label
+                )
+            ),
             observer=observer,
         )
         return output

@@ -185,16 +185,16 @@ def _demo(a: argparse.Namespace) -> None:
         print(f"\nwrote {', '.join(p.name for p in out.paths)} to {a.out}")
 
 
-def _progress(total_moves: int):
+def _progress():
     """A one-line progress display on stderr: bar, move, samples, markers seen."""
     tty = sys.stderr.isatty()
 
-    def show(samples: int, visible: int, move_index: int, label: str) -> None:
+    def show(samples: int, visible: int, move_index: int, moves_total: int, label: str) -> None:
         if samples % (10 if tty else 100):
             return
-        done = int(30 * (move_index + 1) / total_moves)
+        done = int(30 * (move_index + 1) / max(1, moves_total))
         print(
-            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{total_moves} {label:8s} samples "
+            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{moves_total} {label:8s} samples "
             f"{samples} (marker seen {visible})",
             end="\r" if tty else "\n",
             file=sys.stderr,
@@ -227,8 +227,8 @@ def _acquire(a: argparse.Namespace) -> None:
         a.rotation_deg,
         a.translation_mm,
         plan=a.plan,
+        stop_and_go=a.stop_and_go,
     )
-    holder: dict[str, int] = {}
     view = None
     if a.live_view is not None and not a.dry_run:
         from spacecal.report.live import LiveView
@@ -241,7 +241,7 @@ def _acquire(a: argparse.Namespace) -> None:
     try:
         out = app.acquire(
             settings,
-            on_sample=lambda *s: _progress(holder.get("moves", 1))(*s),
+            on_sample=_progress(),
             observer=view.observe if view is not None else None,
         )
     finally:

@@ -120,6 +120,13 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (each sample flushed)")
     p.add_argument("--dry-run", action="store_true", help="check the plan without moving")
     p.add_argument("--plan", help="a plan file (spacecal plan -o) to run; the robot must stand at its home")
+    p.add_argument(
+        "--stop-and-go",
+        type=int,
+        default=_d(A, "stop_and_go"),
+        metavar="N",
+        help="stop at stations along each move, average N frames at each (default 0: sample while moving)",
+    )
     p.add_argument("--resume", action="store_true", help="continue a stopped acquisition of the same plan")
     p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
     p.add_argument("--speed-mm-s", type=float, default=_d(A, "speed_mm_s"), help="TCP speed")

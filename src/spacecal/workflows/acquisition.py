@@ -31,6 +31,7 @@ from spacecal.io.recording_csv import write_recording
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove
 from spacecal.records import AcquisitionProgress
+from spacecal.workflows.stations import average_stations
 
 #: A robot state older than this, while moving, counts as stale (UR streams at 125–500 Hz).
 STALE_ROBOT_S = 0.5
@@ -440,7 +441,7 @@ def acquire(
         result.stopped_because = reason
         _write_progress(progress_file, plan, result.moves_completed, reason)
         writer.close()
-        _derive_recording(result)
+        _derive_recording(result, metadata)
         kept = (
             f"{recording_path}"
             if result.unpaired_because is None
@@ -475,7 +476,7 @@ def acquire(
         fail(_cause(robot, exc))
     finally:
         writer.close()
-    _derive_recording(result)
+    _derive_recording(result, metadata)
     if result.unpaired_because is not None:
         raise InvalidInputError(
             f"the raw streams {raw_paths[0]} and {raw_paths[1]} were recorded, but no paired recording "
@@ -484,13 +485,17 @@ def acquire(
     return result
 
 
-def _derive_recording(result: AcquisitionResult) -> None:
+def _derive_recording(result: AcquisitionResult, metadata: dict) -> None:
     """Pair the raw streams into ``result.recording_path`` (atomically), at the estimated clock
-    offset; a failure leaves the streams as they are and says why in ``result``."""
+    offset, one averaged sample per station for a stop-and-go run (``metadata["sampling"]``);
+    a failure leaves the streams as they are and says why in ``result``."""
     assert result.raw_paths is not None
+    sampling = metadata.get("sampling") or {}
     try:
         raw = read_raw_recording(*result.raw_paths)
         recording, result.pairing = pair_at_estimated_offset(raw)
+        if sampling.get("mode") == "stop-and-go":
+            recording = average_stations(recording, float(sampling["frame_period_s"]))
         write_recording(recording, result.recording_path)
     except SpacecalError as exc:
         result.unpaired_because = str(exc)

@@ -1,0 +1,198 @@
+"""Errors against the truth through the hardware path, vs the same motion's noise-only error.
+
+For each tracker path (UR over RTDE + NDI over TCP, UR + OpenIGTLink) and each motion (a
+30 s ``spacecal plan`` motion, the paper's sweeps as a plan file), a fake world (a separate
+process speaking the real protocols to the real client libraries) runs the paper-white
+scenario; ``spacecal acquire --plan`` records it (raw streams on the devices' own clocks,
+paired at the estimated offset), ``spacecal calibrate`` fits it by ML and by kinematic
+identification, and the error of ``tracker_from_base`` over a 200 mm cube around the site is
+measured against the fake's truth.
+
+The reference is what the injected noise alone leaves: the same plan run in the simulator
+(no transport, one clock) and calibrated the same way, RMS over ``--seeds`` noise draws; for
+ML also the Cramér–Rao bound of the recording itself. The ratio is the hardware path's error
+over that reference (1.5 is the target).
+
+    python benchmarks/hardware_paths.py [--runs 2] [--seeds 8] [--paths ndi,igtl] [--motions plan,sweeps]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tests.fakes.client import WorldProcess  # noqa: E402
+
+from spacecal.estimators.likelihood import tre_lower_bound  # noqa: E402
+from spacecal.geometry.metrics import cube_grid, target_registration_errors  # noqa: E402
+from spacecal.io.recording_csv import read_recording  # noqa: E402
+
+SPACECAL = [sys.executable, "-m", "spacecal.cli"]
+SCENARIO = "paper-white"
+#: paper-white: 0.25 mm RMS (3-D) white noise per sphere.
+SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)
+TOOL = "0,0,200"
+METHODS = ("ml", "kinematic")
+
+
+def run(command: list[str], timeout: float = 300.0) -> str:
+    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(command[3:5])} failed: {done.stderr.strip().splitlines()[-1:]}")
+    return done.stdout
+
+
+def make_plan(folder: Path, motion: str) -> Path:
+    path = folder / f"{motion}.json"
+    extra = ["--paper-sweeps"] if motion == "sweeps" else ["--budget", "30s"]
+    run([*SPACECAL, "plan", "--scenario", SCENARIO, *extra, "-o", str(path)])
+    return path
+
+
+def tre_mm(calibration: Path, recording: Path, tracker_from_base: np.ndarray) -> float:
+    estimate = np.array(json.loads(calibration.read_text())["tracker_from_base"])
+    data = read_recording(recording)
+    site = data.base_from_tcp_stack[data.visible, :3, 3].mean(axis=0)
+    errors = target_registration_errors(estimate, tracker_from_base, cube_grid(site))
+    return float(np.sqrt(np.mean(errors**2)))
+
+
+def calibrate_all(recording: Path, folder: Path, truth: np.ndarray) -> dict[str, float]:
+    errors = {}
+    for method in METHODS:
+        out = folder / f"{recording.stem}-{method}.json"
+        run([*SPACECAL, "calibrate", str(recording), "--method", method, "-o", str(out), "--force"])
+        errors[method] = tre_mm(out, recording, truth)
+    return errors
+
+
+def noise_only(plan: Path, folder: Path, seeds: int) -> dict[str, float]:
+    """RMS error per method over simulated runs of the plan (one clock, no transport)."""
+    from spacecal.sim.scenario import load_scenario
+    from spacecal.sim.world import build_world
+
+    truth = build_world(load_scenario(SCENARIO)).tracker_from_base
+    errors: dict[str, list[float]] = {m: [] for m in METHODS}
+    for seed in range(seeds):
+        recording = folder / f"sim-{plan.stem}-{seed}.csv"
+        run(
+            [
+                *SPACECAL,
+                "simulate",
+                "--scenario",
+                SCENARIO,
+                "--seed",
+                str(1000 + seed),
+                "--plan",
+                str(plan),
+                "-o",
+                str(recording),
+                "--force",
+            ]
+        )
+        for method, value in calibrate_all(recording, folder, truth).items():
+            errors[method].append(value)
+    return {m: float(np.sqrt(np.mean(np.square(v)))) for m, v in errors.items()}
+
+
+def hardware_run(world: WorldProcess, path: str, plan: Path, folder: Path, rom: Path, k: int) -> dict:
+    recording = folder / f"hw-{path}-{plan.stem}-{k}.csv"
+    tracker = (
+        f"ndi://{world.info['host']}:{world.info['ndi_port']}"
+        if path == "ndi"
+        else f"igtl://127.0.0.1:{world.info['igtl_port']}"
+    )
+    run(
+        [
+            *SPACECAL,
+            "acquire",
+            "--robot",
+            f"ur://{world.info['host']}",
+            "--tracker",
+            tracker,
+            "--rom",
+            str(rom),
+            "--plan",
+            str(plan),
+            "--tool-offset-mm",
+            TOOL,
+            "--confirm-robot-motion",
+            "-o",
+            str(recording),
+        ],
+        timeout=600,
+    )
+    truth = world.truth()
+    errors = calibrate_all(recording, folder, truth["tracker_from_base"])
+    data = read_recording(recording)
+    errors["crb"] = tre_lower_bound(
+        data, truth["tracker_from_base"], truth["tcp_from_marker"], SPHERE_SIGMA_MM
+    )["cube_rms"]
+    errors["offset_ms"] = (
+        1000
+        * json.loads(recording.with_name(recording.stem + ".meta.json").read_text())["pairing"]["offset_s"]
+    )
+    return errors
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--runs", type=int, default=2, help="hardware-path runs per path and motion")
+    parser.add_argument("--seeds", type=int, default=8, help="simulated noise draws for the reference")
+    parser.add_argument("--paths", default="ndi,igtl")
+    parser.add_argument("--motions", default="plan,sweeps")
+    args = parser.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        rom = folder / "marker.rom"
+        rom.write_bytes(b"passive marker definition for the fake tracker\n" + bytes(200))
+        for motion in args.motions.split(","):
+            plan = make_plan(folder, motion)
+            reference = noise_only(plan, folder, args.seeds)
+            for path in args.paths.split(","):
+                for k in range(args.runs):
+                    world = WorldProcess("--host", f"127.77.0.{10 + len(rows)}", "--scenario", SCENARIO)
+                    try:
+                        result = hardware_run(world, path, plan, folder, rom, k)
+                    finally:
+                        world.stop()
+                    rows.append((motion, path, k, result, reference))
+                    print(
+                        f"{motion:>6} {path:>4} run {k}: "
+                        + ", ".join(
+                            f"{m} {result[m]:.3f} mm ({result[m] / reference[m]:.2f}x)" for m in METHODS
+                        )
+                        + f", CRB {result['crb']:.3f} mm, offset {result['offset_ms']:+.2f} ms",
+                        flush=True,
+                    )
+    print()
+    print("| motion | tracker path | method | hardware path TRE (mm) | noise-only TRE (mm) | ratio |")
+    print("|---|---|---|---|---|---|")
+    for motion in args.motions.split(","):
+        for path in args.paths.split(","):
+            chosen = [r for r in rows if r[0] == motion and r[1] == path]
+            if not chosen:
+                continue
+            reference = chosen[0][4]
+            for method in METHODS:
+                hw = float(np.sqrt(np.mean([r[3][method] ** 2 for r in chosen])))
+                print(
+                    f"| {motion} | UR + {path.upper()} | {method} | {hw:.3f} | {reference[method]:.3f} | "
+                    f"{hw / reference[method]:.2f} |"
+                )
+            crb = float(np.sqrt(np.mean([r[3]["crb"] ** 2 for r in chosen])))
+            print(f"| {motion} | UR + {path.upper()} | (ML Cramér–Rao bound) | {crb:.3f} | | |")
+
+
+if __name__ == "__main__":
+    main()

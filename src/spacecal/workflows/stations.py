@@ -1,0 +1,91 @@
+"""Averaging the frames taken at each station of a stop-and-go run into one sample."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from spacecal.geometry.rotations import mean_rotation
+from spacecal.geometry.transforms import make_transform
+from spacecal.records import Recording
+
+#: A gap longer than this many frame periods between two samples starts a new station.
+STATION_GAP_PERIODS = 2.5
+
+
+def _mean_pose(poses: np.ndarray) -> np.ndarray:
+    """Mean of rigid transforms (K, 4, 4): mean translation, chordal mean rotation."""
+    return make_transform(mean_rotation(poses[:, :3, :3]), poses[:, :3, 3].mean(axis=0))
+
+
+def average_stations(recording: Recording, frame_period_s: float) -> Recording:
+    """One sample per station: the frames with the marker seen at each rest, averaged.
+
+    Stations are the runs of samples of one segment with no gap longer than
+    ``STATION_GAP_PERIODS`` frame periods (the transits between stations are not recorded).
+    The marker pose, the robot's TCP pose and joints, the RMS and the spheres are averaged
+    over the frames where the marker was seen; a station where it never was is kept as one
+    unseen sample.
+
+    Parameters
+    ----------
+    recording : Recording
+        Paired samples of a stop-and-go run.
+    frame_period_s : float
+        Tracker frame period, s.
+
+    Returns
+    -------
+    Recording
+        Time of each station: its first frame's; metadata with ``stations_averaged``.
+    """
+    if len(recording) == 0:
+        return recording
+    new_station = np.concatenate(
+        [
+            [True],
+            (np.diff(recording.time_s) > STATION_GAP_PERIODS * frame_period_s)
+            | (recording.segment[1:] != recording.segment[:-1]),
+        ]
+    )
+    starts = np.flatnonzero(new_station)
+    ends = np.append(starts[1:], len(recording))
+    seen = recording.visible
+    rows = []
+    for start, end in zip(starts, ends):
+        members = np.arange(start, end)
+        used = members[seen[members]] if seen[members].any() else members[:1]
+        marker = (
+            _mean_pose(recording.tracker_from_marker_stack[used])
+            if seen[members].any()
+            else np.full((4, 4), np.nan)
+        )
+        spheres = None
+        if recording.spheres_in_tracker is not None:
+            with np.errstate(invalid="ignore"):
+                spheres = (
+                    np.nanmean(recording.spheres_in_tracker[used], axis=0)
+                    if seen[members].any()
+                    else (np.full(recording.spheres_in_tracker.shape[1:], np.nan))
+                )
+        rows.append(
+            (
+                recording.time_s[start],
+                recording.segment[start],
+                recording.joints_rad[used].mean(axis=0),
+                _mean_pose(recording.base_from_tcp_stack[used]),
+                marker,
+                float(np.nanmean(recording.marker_rms_mm[used])) if seen[members].any() else np.nan,
+                spheres,
+            )
+        )
+    times, labels, joints, tcp, markers, rms, spheres_rows = zip(*rows)
+    return Recording(
+        time_s=np.array(times),
+        segment=np.array(labels),
+        joints_rad=np.array(joints),
+        base_from_tcp_stack=np.array(tcp),
+        tracker_from_marker_stack=np.array(markers),
+        marker_rms_mm=np.array(rms, dtype=float),
+        metadata={**recording.metadata, "stations_averaged": len(rows)},
+        spheres_in_tracker=None if recording.spheres_in_tracker is None else np.array(spheres_rows),
+    )
