@@ -12,6 +12,8 @@ protocol on the control port injects faults and reads the truth:
     unplug                     -> the tracker stops answering / streaming
     stale                      -> the tracker keeps repeating its last frame
     protective_stop | emergency_stop | clear
+    bump_marker DEG            -> the marker turns on the tool by DEG about its x axis
+    move_tracker MM            -> the tracker moves by MM along its x axis
     received NAME              -> the last TRANSFORM a client sent under NAME (JSON), or NONE
     quit
 """
@@ -34,6 +36,7 @@ import ndi
 import rtde
 from net import accept_connections, listen
 
+from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.sim.devices import RealClock, SimulatedRobot
 from spacecal.sim.scenario import load_scenario
 from spacecal.sim.world import build_world
@@ -111,6 +114,8 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                         fake.robot._safety = command
                     elif command == "clear":  # the operator unlocks the stop on the pendant
                         fake.robot._safety = "normal"
+                    elif command in ("bump_marker", "move_tracker"):
+                        change_the_set_up(fake, command, float(words[1]))
                     elif command == "received":
                         matrix = getattr(fake, "received", {}).get(words[1])
                         reply = "NONE" if matrix is None else json.dumps(matrix)
@@ -120,6 +125,18 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                         reply = f"ERROR unknown command {command}"
                 stream.write(reply + "\n")
                 stream.flush()
+
+
+def change_the_set_up(fake: FakeWorld, change: str, amount: float) -> None:
+    """What happens in an operating room between calibration and surgery: the marker is
+    knocked on the tool (``bump_marker`` DEG) or the tracker's stand is pushed (``move_tracker`` MM)."""
+    world = fake.world
+    if change == "bump_marker":
+        world.tcp_from_marker = world.tcp_from_marker @ axis_angle_transform(
+            [1.0, 0.0, 0.0], np.radians(amount)
+        )
+    else:
+        world.tracker_from_base = make_transform(np.eye(3), [amount, 0.0, 0.0]) @ world.tracker_from_base
 
 
 def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float = 20.0) -> None:

@@ -1,0 +1,98 @@
+"""A planned motion and the pre-operative check, on the fake devices through the real clients.
+
+``spacecal plan`` -> ``spacecal acquire --plan`` (UR over RTDE + NDI over TCP) -> ``spacecal
+calibrate --method ml`` -> error against the fake's truth; then ``spacecal check`` moves the
+real-protocol robot to three poses and passes the calibration, fails it after the marker is
+knocked by 1 degree and after the tracker is pushed by 2 mm, and logs every check as real.
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rtde_control")
+pytest.importorskip("ndicapy")
+
+from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.geometry.metrics import cube_grid, target_registration_errors
+from spacecal.io.recording_csv import read_recording
+from spacecal.workflows.check import read_history
+
+SPACECAL = [sys.executable, "-m", "spacecal.cli"]
+#: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
+SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)
+#: ML is efficient here: its cube-RMS error squared is a quadratic form of a Gaussian whose mean
+#: is the bound squared; three times the bound is beyond its 99.5th percentile for any number of
+#: degrees of freedom (chi-square with one: 2.8 times).
+EFFICIENT_SPREAD = 3.0
+
+
+def run(command, timeout):
+    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+
+
+def test_planned_motion_then_checks_on_the_fake_devices(world, rom_file, tmp_path):
+    plan = tmp_path / "plan.json"
+    planned = run([*SPACECAL, "plan", "--scenario", "paper-white", "--budget", "30s", "-o", str(plan)], 120)
+    assert planned.returncode == 0, planned.stderr
+    host = world.info["host"]
+    devices = [
+        "--robot",
+        f"ur://{host}",
+        "--tracker",
+        f"ndi://{host}:{world.info['ndi_port']}",
+        "--rom",
+        str(rom_file),
+        "--tool-offset-mm",
+        "0,0,200",
+    ]
+    recording = tmp_path / "rec.csv"
+    acquired = run(
+        [*SPACECAL, "acquire", *devices, "--plan", str(plan), "--confirm-robot-motion", "-o", str(recording)],
+        180,
+    )
+    assert acquired.returncode == 0, acquired.stderr
+    calibration = tmp_path / "cal.json"
+    calibrated = run([*SPACECAL, "calibrate", str(recording), "--method", "ml", "-o", str(calibration)], 120)
+    assert calibrated.returncode == 0, calibrated.stderr
+
+    truth = world.truth()
+    data = read_recording(recording)
+    estimate = np.array(json.loads(calibration.read_text())["tracker_from_base"])
+    site = data.base_from_tcp_stack[data.visible, :3, 3].mean(axis=0)
+    tre = float(
+        np.sqrt(
+            np.mean(target_registration_errors(estimate, truth["tracker_from_base"], cube_grid(site)) ** 2)
+        )
+    )
+    bound = tre_lower_bound(data, truth["tracker_from_base"], truth["tcp_from_marker"], SPHERE_SIGMA_MM)[
+        "cube_rms"
+    ]
+    print(f"planned motion through UR + NDI: ML TRE {tre:.4f} mm, Cramér–Rao bound {bound:.4f} mm")
+    assert tre < EFFICIENT_SPREAD * bound
+
+    check = [*SPACECAL, "check", str(calibration), *devices, "--confirm-robot-motion"]
+    passed = run(check, 120)
+    assert passed.returncode == 0 and "PASS (real robot and tracker)" in passed.stdout, (
+        passed.stdout + passed.stderr
+    )
+    world.control("bump_marker 1.0")
+    bumped = run(check, 120)
+    assert bumped.returncode == 1 and "FAIL" in bumped.stdout, bumped.stdout + bumped.stderr
+    world.control("bump_marker -1.0")
+    world.control("move_tracker 2.0")
+    moved = run(check, 120)
+    assert moved.returncode == 1 and "FAIL" in moved.stdout, moved.stdout + moved.stderr
+    simulated = run([*SPACECAL, "check", str(calibration), "--scenario", "paper-white"], 120)
+    assert "simulated robot and tracker" in simulated.stdout
+
+    history, unreadable = read_history(calibration)
+    assert unreadable == 0 and [h.passed for h in history] == [True, False, False, simulated.returncode == 0]
+    assert [h.simulated for h in history] == [False, False, False, True]
+    assert history[0].devices == {
+        "robot": f"ur://{host}",
+        "tracker": f"ndi://{host}:{world.info['ndi_port']}",
+    }
