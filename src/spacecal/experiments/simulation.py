@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.core.ports import RobotState
+from spacecal.core.ports import FRAME_OK, RobotState
 from spacecal.planning.motion import MotionPlan
 from spacecal.records import RawRecording, Recording
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
@@ -37,6 +37,7 @@ class MemorySink:
         tracker_from_marker=None,
         marker_rms_mm=float("nan"),
         spheres_in_tracker=None,
+        status=FRAME_OK,
     ) -> None:
         self.rows.append(
             (
@@ -47,6 +48,7 @@ class MemorySink:
                 tracker_from_marker,
                 marker_rms_mm,
                 spheres_in_tracker,
+                status,
             )
         )
 
@@ -57,7 +59,7 @@ class MemorySink:
         """The paired recording of every sample kept."""
         if not self.rows:
             raise DegenerateDataError("the plan has no sampled moves")
-        times, labels, joints, tcp, marker, rms, spheres = zip(*self.rows)
+        times, labels, joints, tcp, marker, rms, spheres, status = zip(*self.rows)
         missing = np.full((4, 4), np.nan)
         no_spheres = np.full((sphere_count, 3), np.nan)
         return Recording(
@@ -71,6 +73,7 @@ class MemorySink:
             spheres_in_tracker=(
                 np.array([no_spheres if s is None else s for s in spheres]) if self.keep_spheres else None
             ),
+            marker_status=np.array(status),
         )
 
 

@@ -138,8 +138,11 @@ class SampleSink(Protocol):
         tracker_from_marker: np.ndarray | None = None,
         marker_rms_mm: float = float("nan"),
         spheres_in_tracker: np.ndarray | None = None,
+        *,
+        status: str = FRAME_OK,
     ) -> None:
-        """Keep one paired sample (robot state at the frame, tracker frame)."""
+        """Keep one paired sample (robot state at the frame, tracker frame); ``status`` is the
+        tracker's frame status, kept with any pose the tracker reported."""
 
 
 class RobotStreamSink(Protocol):
@@ -280,9 +283,10 @@ def run_plan(
                     move.label,
                     state.joints_rad,
                     state.base_from_tcp,
-                    frame.tracker_from_marker if seen else None,
+                    frame.tracker_from_marker,
                     frame.rms_mm,
-                    frame.spheres_in_tracker if seen else None,
+                    frame.spheres_in_tracker,
+                    status=frame.status,
                 )
                 last_recorded = frame.time_s
                 progress.samples_written += 1
