@@ -13,6 +13,8 @@ protocol on the control port injects faults and reads the truth:
     stale                      -> the tracker keeps repeating its last frame
     protective_stop | emergency_stop | clear
     received NAME              -> the last TRANSFORM a client sent under NAME (JSON), or NONE
+    ndi FAULT ...              -> NDI tracker faults (see ``ndi_control``)
+    igtl ...                   -> OpenIGTLink sender switches (see ``igtl_control``)
     quit
 """
 
@@ -116,6 +118,8 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                         reply = "NONE" if matrix is None else json.dumps(matrix)
                     elif command == "quit":
                         stop.set()
+                    elif command in TRACKER_CONTROLS:
+                        reply = TRACKER_CONTROLS[command](fake, words[1:])
                     else:
                         reply = f"ERROR unknown command {command}"
                 stream.write(reply + "\n")
@@ -148,6 +152,26 @@ def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float =
     server.stop()
 
 
+# -- tracker fault switches (NDI generations and faults, OpenIGTLink senders) ----------------
+
+
+def ndi_control(fake: FakeWorld, words: list[str]) -> str:
+    """``ndi crc_error N`` | ``short_reply N`` | ``drop N`` (the next N BX/TX replies get a
+    bad CRC, are cut short, or never come) | ``out_of_volume on|off`` | ``partial_volume on|off``
+    | ``processing_exception on|off`` | ``interference on|off`` | ``disabled on|off`` |
+    ``spoiled`` (how many replies were spoiled so far)."""
+    return fake.ndi_faults.control(words)
+
+
+def igtl_control(fake: FakeWorld, words: list[str]) -> str:
+    """Switches of the OpenIGTLink sender (``tests/fakes/igtl.py``)."""
+    sender = getattr(fake, "igtl_sender", None)
+    return "ERROR no OpenIGTLink sender" if sender is None else sender.control(words)
+
+
+TRACKER_CONTROLS = {"ndi": ndi_control, "igtl": igtl_control}
+
+
 def ndi_frame_source(fake: FakeWorld, rate_hz: float):
     """Frames for the NDI fake: frame numbers count at the tracker rate."""
 
@@ -165,6 +189,7 @@ def main() -> None:
     parser.add_argument("--igtl-port", type=int, default=0)
     parser.add_argument("--ndi-log", action="store_true", help="log NDI commands to stderr")
     parser.add_argument("--ur-log", action="store_true", help="log UR controller traffic to stderr")
+    parser.add_argument("--ndi-generation", default="vicra", choices=sorted(ndi.GENERATIONS))
     args = parser.parse_args()
     fake = FakeWorld(args.scenario)
     stop = threading.Event()
@@ -178,8 +203,9 @@ def main() -> None:
     fake.unplug_event = unplugged
     rate = fake.world.tracker.rate_hz
     log = sys.stderr if args.ndi_log else None
-    ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
-    ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
+    fake.ndi_faults = ndi.NDIFaults()
+    ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
+    ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
     ndi_server = listen(args.host, 0)
     ndi_port = ndi_server.getsockname()[1]
     pty_master, pty_path = ndi.open_pty()
