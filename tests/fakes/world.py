@@ -32,6 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import igtl
 import ndi
 import rtde
 from net import accept_connections, listen
@@ -126,32 +127,6 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                 stream.flush()
 
 
-def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float = 20.0) -> None:
-    """A PLUS-Server-like stream of MarkerToTracker TRANSFORMs with TransformStatus metadata.
-
-    The pyigtl server is made on the main thread (it installs signal handlers)."""
-    import pyigtl
-
-    period = 1.0 / rate_hz
-    next_time = time.monotonic()
-    while not stop.is_set():
-        next_time += period
-        time.sleep(max(next_time - time.monotonic(), 0.0))
-        if fake.unplugged:
-            continue
-        stamp, pose, _, _ = fake.marker_frame()
-        message = pyigtl.TransformMessage(
-            np.eye(4) if pose is None else pose, timestamp=stamp, device_name="MarkerToTracker"
-        )
-        message.header_version = 2
-        message.metadata = {"TransformStatus": "OK" if pose is not None else "INVALID"}
-        server.send_message(message)
-        for received in server.get_latest_messages():
-            fake.received = getattr(fake, "received", {})
-            fake.received[received.device_name] = np.asarray(received.matrix).tolist()
-    server.stop()
-
-
 # -- tracker fault switches (NDI generations and faults, OpenIGTLink senders) ----------------
 
 
@@ -190,15 +165,17 @@ def main() -> None:
     parser.add_argument("--ndi-log", action="store_true", help="log NDI commands to stderr")
     parser.add_argument("--ur-log", action="store_true", help="log UR controller traffic to stderr")
     parser.add_argument("--ndi-generation", default="vicra", choices=sorted(ndi.GENERATIONS))
+    parser.add_argument("--igtl-sender", default="plus", choices=["plus", "slicer", "old"])
+    parser.add_argument("--igtl-marker-name", default="MarkerToTracker")
     args = parser.parse_args()
     fake = FakeWorld(args.scenario)
     stop = threading.Event()
     control_server = listen(args.host, 0)
     control_port = control_server.getsockname()[1]
-    igtl_port = args.igtl_port or free_port("127.0.0.1")
-    import pyigtl
-
-    igtl_server = pyigtl.OpenIGTLinkServer(port=igtl_port, local_server=True)
+    igtl_server = listen("127.0.0.1", args.igtl_port)
+    igtl_port = igtl_server.getsockname()[1]
+    fake.igtl_sender = igtl.FakeIGTLSender(fake, args.igtl_sender, args.igtl_marker_name)
+    fake.received = fake.igtl_sender.received
     unplugged = threading.Event()
     fake.unplug_event = unplugged
     rate = fake.world.tracker.rate_hz
@@ -211,7 +188,9 @@ def main() -> None:
     pty_master, pty_path = ndi.open_pty()
     threads = [
         threading.Thread(target=serve_control, args=(fake, control_server, stop), daemon=True),
-        threading.Thread(target=stream_igtl, args=(fake, igtl_server, stop), daemon=True),
+        threading.Thread(
+            target=fake.igtl_sender.serve, args=(igtl_server, stop, fake.world.tracker.rate_hz), daemon=True
+        ),
         threading.Thread(target=ndi.serve_tcp, args=(ndi_tcp, ndi_server, stop, unplugged), daemon=True),
         threading.Thread(target=ndi.serve_pty, args=(ndi_serial, pty_master, stop, unplugged), daemon=True),
     ]
