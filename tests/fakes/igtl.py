@@ -162,6 +162,10 @@ class FakeIGTLSender:
                 self.placeholder = value
             elif name == "hang_up":
                 for client in self.clients:
+                    try:
+                        client.shutdown(socket.SHUT_RDWR)  # a FIN now, though a reader still waits
+                    except OSError:
+                        pass
                     client.close()
                 self.clients.clear()
             else:
