@@ -58,6 +58,9 @@ PUBLISH_LINGER_S = 0.3
 #: Time given to a server's backlog of old messages on connect before frames are read.
 BACKLOG_DRAIN_S = 0.3
 
+#: Frames lagging the newest by more than this (sender time, s) are skipped, never returned.
+MAX_LAG_S = 0.25
+
 HEADER = struct.Struct(">H12s20sQQQ")
 EXTENDED_HEADER = struct.Struct(">HHII")
 #: A body larger than this is not a tracking message (images are read past, not kept).
@@ -283,6 +286,9 @@ class IGTLTracker:
             )
         # A server may flush a backlog of old messages on connect: let it pass, keep the newest.
         time.sleep(BACKLOG_DRAIN_S)
+        with self._condition:
+            while len(self._frames) > 1:
+                self._frames.popleft()
 
     # -- the reader thread -----------------------------------------------------------------
     def _read_loop(self) -> None:
@@ -369,7 +375,7 @@ class IGTLTracker:
 
     # -- the Tracker protocol ---------------------------------------------------------------
     def next_frame(self, timeout_s: float) -> TrackerFrame:
-        """The newest frame (the marker's pose, or a frame without it) newer than the last one.
+        """The next frame (the marker's pose, or a frame without it) newer than the last one.
 
         Raises
         ------
@@ -380,10 +386,15 @@ class IGTLTracker:
         deadline = time.monotonic() + timeout_s
         with self._condition:
             while True:
-                newer = [f for f in self._frames if f.time_s > self._last_returned_stamp]
-                self._frames.clear()
-                if newer:
-                    frame = newer[-1]
+                # frames in order (a frame without the marker is known one frame late, when
+                # the next frame starts), skipping any that lag the newest by more than MAX_LAG_S
+                while self._frames and (
+                    self._frames[0].time_s <= self._last_returned_stamp
+                    or self._frames[0].time_s < self._frames[-1].time_s - MAX_LAG_S
+                ):
+                    self._frames.popleft()
+                if self._frames:
+                    frame = self._frames.popleft()
                     break
                 if self._fatal is not None:
                     raise DeviceError(self._fatal)
