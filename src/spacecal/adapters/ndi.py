@@ -262,6 +262,8 @@ class NDITracker:
         return self._frame(frame_number, transform, port_status, system_status)
 
     def _frame(self, frame_number: int, transform, port_status: int, system_status: int) -> TrackerFrame:
+        #: The raw status words of the newest frame, for diagnostics.
+        self.last_port_status, self.last_system_status = int(port_status), int(system_status)
         status = frame_status(transform, port_status, system_status)
         time_s = frame_number / self.rate_hz
         if isinstance(transform, str):  # "MISSING" or "DISABLED": no pose

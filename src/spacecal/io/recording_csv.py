@@ -331,7 +331,7 @@ def read_recording(path: str | Path) -> Recording:
     sphere_index = [names.index(c) for c in sphere_columns(sphere_count)]
     status_index = names.index(STATUS_COLUMN) if STATUS_COLUMN in names else None
     n = len(body)
-    status = np.full(n, "", dtype="<U32")
+    status_cells: list[str] = []
     spheres = np.full((n, 3 * sphere_count), np.nan) if sphere_count else None
     numeric = JOINT_COLUMNS + TCP_COLUMNS
     values = np.empty((n, len(numeric)))
@@ -367,9 +367,7 @@ def read_recording(path: str | Path) -> Recording:
                 marker[k, 7] = _number(cells[7], line, MARKER_COLUMNS[7], path)
             if spheres is not None and any(row[i].strip() for i in sphere_index):
                 spheres[k] = [_number(row[i], line, names[i], path) for i in sphere_index]
-        status[k] = _status(
-            row[status_index].strip() if status_index is not None else "", any(cells), line, path
-        )
+        status_cells.append(row[status_index].strip() if status_index is not None else "")
 
     steps = np.diff(time_s)
     if np.any(steps <= 0):
@@ -383,6 +381,8 @@ def read_recording(path: str | Path) -> Recording:
     seen = np.isfinite(marker[:, 0])
     if not seen.any():
         raise InvalidInputError(f"{path}: the marker was not visible in any of the {n} samples")
+    # checked after the rows' own cells, so a file whose marker cells were all blanked says so
+    status = np.array([_status(c, bool(p), int(ln), path) for c, p, ln in zip(status_cells, seen, lines)])
     _check_quaternions(tcp_quaternion, lines, "tcp", path)
     _check_quaternions(marker[seen, 3:7], lines[seen], "marker", path)
     check_lengths_in_mm(tcp_position, f"{path}: tcp_x_mm..tcp_z_mm")
