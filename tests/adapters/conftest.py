@@ -45,3 +45,19 @@ def rom_file(tmp_path):
     path = tmp_path / "marker.rom"
     path.write_bytes(b"passive marker definition for the fake tracker\n" + bytes(200))
     return path
+
+
+@pytest.fixture
+def make_world():
+    """Start fake worlds with extra options (``--ndi-generation vega``, ``--igtl-sender old``...);
+    each on its own loopback address, all stopped after the test."""
+    started = []
+
+    def start(*options: str) -> WorldProcess:
+        process = WorldProcess("--host", f"127.{_NETWORK}.0.{next(_addresses)}", *options)
+        started.append(process)
+        return process
+
+    yield start
+    for process in started:
+        process.stop()

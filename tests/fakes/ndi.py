@@ -5,6 +5,23 @@ Framing: a command is ASCII, followed (when it contains ':') by a 4-hex CRC, the
 ASCII replies are text + 4-hex CRC + CR; errors are ``ERRORxx``. The BX reply is binary:
 ``C4 A5`` + LE u16 body length + LE u16 CRC of those 4 bytes + body + LE u16 CRC of body.
 CRC-16: polynomial x^16 + x^15 + x^2 + 1, reflected (0xA001), initial value 0.
+
+Generations (``--ndi-generation``) differ in what they answer, as the devices do (an
+unsupported command is ``ERROR01``, "invalid command"):
+
+* ``polaris-old``: early Polaris firmware (API G.001.002): no ``BX`` (ASCII ``TX`` only), no
+  ``GET``/``GETINFO``, no ``BX2``.
+* ``vicra``: Polaris Vicra (API G.001.004): ``BX``, ``TX``, ``APIREV``, ``VER``; no ``GET``/
+  ``GETINFO``/``BX2`` (PLUS reads firmware < 3 with ``BX``).
+* ``spectra``: Polaris Spectra (API G.002.005): as the Vicra.
+* ``vega``: Polaris Vega (API G.003.005): also ``GET``/``GETINFO``; ``BX2`` exists on the device,
+  but this fake does not model its payload and says so (``ERROR01``), as nothing we test uses it.
+
+Frames follow the reply option: 0x0001 transforms and status, 0x0800 also the transforms "not
+normally reported": an out-of-volume tool comes with its pose and port-status bit 0x40 when
+0x0800 is asked for, and as plainly missing (handle status 0x02) otherwise. A partially
+out-of-volume tool (bit 0x80) is always reported with its pose. Faults (:class:`NDIFaults`,
+driven from the world's control port) corrupt or drop replies and set status bits.
 """
 
 from __future__ import annotations
@@ -25,7 +42,73 @@ except ImportError:
 from spacecal.geometry.transforms import matrix_to_quaternion_wxyz
 
 PORT_STATUS_OK = 0x00000031  # occupied, initialised, enabled
+PORT_OUT_OF_VOLUME, PORT_PARTIALLY_OUT_OF_VOLUME = 0x40, 0x80
+PORT_IR_INTERFERENCE, PORT_PROCESSING_EXCEPTION = 0x200, 0x1000
+SYSTEM_TOO_MUCH_INFRARED = 0x0002
+HANDLE_VALID, HANDLE_MISSING, HANDLE_DISABLED = 0x01, 0x02, 0x04
+REPLY_NOT_NORMALLY_REPORTED = 0x0800
 ERROR_INVALID_COMMAND = "ERROR01"
+
+#: What each generation answers: its VER text, API revision and optional commands.
+GENERATIONS = {
+    "polaris-old": {"model": "Polaris Control Firmware", "apirev": "G.001.002", "bx": False, "get": False},
+    "vicra": {"model": "Polaris Vicra Control Firmware", "apirev": "G.001.004", "bx": True, "get": False},
+    "spectra": {"model": "Polaris Spectra Control Firmware", "apirev": "G.002.005", "bx": True, "get": False},
+    "vega": {"model": "Polaris Vega Control Firmware", "apirev": "G.003.005", "bx": True, "get": True},
+}
+
+
+class NDIFaults:
+    """Fault switches shared by the serial and the TCP fake (set from the control port).
+
+    ``crc_error``, ``short_reply`` and ``drop`` count down tracking replies (BX/TX) to spoil:
+    a wrong CRC, a reply cut short, no reply at all (a timeout on the client's side). The
+    flags set status bits of the marker (the first enabled tool) or of the whole frame.
+    """
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.crc_error = 0
+        self.short_reply = 0
+        self.drop = 0
+        self.out_of_volume = False
+        self.partial_volume = False
+        self.processing_exception = False
+        self.interference = False
+        self.disabled = False
+        self.spoiled = 0  # replies spoiled so far
+
+    def control(self, words: list[str]) -> str:
+        """``crc_error N``, ``short_reply N``, ``drop N``, ``<flag> on|off``, ``spoiled``."""
+        if not words:
+            return "ERROR ndi needs a fault"
+        name = words[0]
+        with self.lock:
+            if name == "spoiled":
+                return str(self.spoiled)
+            if name in ("crc_error", "short_reply", "drop"):
+                setattr(self, name, int(words[1]) if len(words) > 1 else 1)
+            elif name in (
+                "out_of_volume",
+                "partial_volume",
+                "processing_exception",
+                "interference",
+                "disabled",
+            ):
+                setattr(self, name, words[1:] != ["off"])
+            else:
+                return f"ERROR unknown ndi fault {name}"
+        return "OK"
+
+    def spoil(self) -> str | None:
+        """Which transport fault the next tracking reply gets, if any."""
+        with self.lock:
+            for name in ("drop", "crc_error", "short_reply"):
+                if getattr(self, name) > 0:
+                    setattr(self, name, getattr(self, name) - 1)
+                    self.spoiled += 1
+                    return name
+        return None
 
 
 def crc16(data: bytes) -> int:
@@ -58,23 +141,41 @@ def split_command(raw: bytes) -> str:
 class FakeNDI:
     """Command handling of one tracker; ``frame_source()`` gives (frame_number, pose or None, rms)."""
 
-    def __init__(self, frame_source, log=None):
+    def __init__(self, frame_source, log=None, generation: str = "vicra", faults: NDIFaults | None = None):
         self.frame_source = frame_source
         self.handles: dict[int, dict] = {}
         self.next_handle = 0x0A
         self.tracking = False
         self.log = log
+        self.generation = GENERATIONS[generation]
+        self.faults = faults or NDIFaults()
 
-    def handle(self, command: str) -> bytes:
+    def handle(self, command: str) -> bytes | None:
+        """The reply to one command; None when a fault swallows it."""
         if self.log:
             print(f"ndi <- {command}", file=self.log, flush=True)
         name, _, args = command.partition(":")
         if " " in name:
             name, _, args = command.partition(" ")
-        handler = getattr(self, f"cmd_{name.upper()}", None)
-        if handler is None:
+        name = name.upper()
+        supported = {
+            "BX": self.generation["bx"],
+            "GET": self.generation["get"],
+            "GETINFO": self.generation["get"],
+        }
+        handler = getattr(self, f"cmd_{name}", None)
+        if handler is None or not supported.get(name, True):
             return ascii_reply(ERROR_INVALID_COMMAND)
-        return handler(args)
+        reply = handler(args)
+        if name in ("BX", "TX") and self.tracking and not reply.startswith(b"ERROR"):
+            fault = self.faults.spoil()
+            if fault == "drop":
+                return None
+            if fault == "crc_error":  # flip the last CRC byte (binary) or digit (ASCII)
+                return reply[:-2] + bytes([reply[-2] ^ 0x5A]) + reply[-1:]
+            if fault == "short_reply":  # cut off mid-reply; the ASCII end mark still comes
+                return reply[: len(reply) // 2] + (b"\r" if name == "TX" else b"")
+        return reply
 
     # -- set-up commands ---------------------------------------------------------------
     def cmd_INIT(self, args):
@@ -89,15 +190,24 @@ class FakeNDI:
         return ascii_reply("1")
 
     def cmd_VER(self, args):
+        model = self.generation["model"]
         text = (
-            "Polaris Vicra Control Firmware\nNDI S/N: P6-00042\nCharacterization Date: 01/01/10\n"
-            "Freeze Tag: Polaris Vicra Rev 007.000\nFreeze Date: 01/01/10\n"
+            f"{model}\nNDI S/N: P6-00042\nCharacterization Date: 01/01/10\n"
+            f"Freeze Tag: {model.split(' Control')[0]} Rev 007.000\nFreeze Date: 01/01/10\n"
             "(C) Northern Digital Inc.\n"
         )
         return ascii_reply(text)
 
+    def cmd_APIREV(self, args):
+        return ascii_reply(self.generation["apirev"])
+
+    def cmd_GET(self, args):  # Vega's user parameters: answer the ones PLUS asks for
+        if "API Revision" in args:
+            return ascii_reply(f"Features.Firmware.API Revision={self.generation['apirev']}")
+        return ascii_reply("ERROR35")
+
     def cmd_GETINFO(self, args):
-        return ascii_reply("ERROR01")  # old Vicra firmware: the client falls back to VER
+        return self.cmd_GET(args)
 
     def cmd_PHSR(self, args):
         which = int(args or "00", 16)
@@ -167,27 +277,54 @@ class FakeNDI:
                 tools.append((handle, reference, 0.1, frame))
         return tools
 
+    def _states(self, option: int):
+        """(handle, handle status, pose or None, rms, port status, frame) per tool, and the
+        system status, with the fault flags applied to the marker (the first tool)."""
+        faults = self.faults
+        states = []
+        for i, (handle, pose, rms, frame) in enumerate(self._tools()):
+            port, status = PORT_STATUS_OK, HANDLE_VALID if pose is not None else HANDLE_MISSING
+            if i == 0 and pose is not None:
+                if faults.out_of_volume:
+                    port |= PORT_OUT_OF_VOLUME
+                    if not option & REPLY_NOT_NORMALLY_REPORTED:
+                        status, pose = HANDLE_MISSING, None
+                elif faults.partial_volume:
+                    port |= PORT_PARTIALLY_OUT_OF_VOLUME
+                if faults.processing_exception:
+                    port |= PORT_PROCESSING_EXCEPTION
+            if i == 0 and faults.disabled:
+                status, pose = HANDLE_DISABLED, None
+            states.append((handle, status, pose, rms, port, frame))
+        return states, SYSTEM_TOO_MUCH_INFRARED if faults.interference else 0
+
     def cmd_BX(self, args):
         if not self.tracking:
             return ascii_reply("ERROR0C")
-        body = bytearray([len(self._tools())])
-        for handle, pose, rms, frame in self._tools():
-            if pose is None:
-                body += struct.pack("<BBII", handle, 0x02, PORT_STATUS_OK, frame)
+        states, system = self._states(int(args[:4] or "0001", 16))
+        body = bytearray([len(states)])
+        for handle, status, pose, rms, port, frame in states:
+            if status == HANDLE_DISABLED:  # no data follows a disabled handle
+                body += struct.pack("<BB", handle, status)
+            elif pose is None:
+                body += struct.pack("<BBII", handle, status, port, frame)
             else:
                 q = matrix_to_quaternion_wxyz(pose[:3, :3])
-                body += struct.pack("<BB8fII", handle, 0x01, *q, *pose[:3, 3], rms, PORT_STATUS_OK, frame)
-        body += struct.pack("<H", 0)
+                body += struct.pack("<BB8fII", handle, status, *q, *pose[:3, 3], rms, port, frame)
+        body += struct.pack("<H", system)
         header = struct.pack("<HH", 0xA5C4, len(body))
         return header + struct.pack("<H", crc16(header)) + bytes(body) + struct.pack("<H", crc16(bytes(body)))
 
     def cmd_TX(self, args):
         if not self.tracking:
             return ascii_reply("ERROR0C")
-        tools = self._tools()
-        text = f"{len(tools):02X}"
-        for handle, pose, rms, frame in tools:
+        states, system = self._states(int(args[:4] or "0001", 16))
+        text = f"{len(states):02X}"
+        for handle, status, pose, rms, port, frame in states:
             text += f"{handle:02X}"
+            if status == HANDLE_DISABLED:
+                text += "DISABLED\n"
+                continue
             if pose is None:
                 text += "MISSING"
             else:
@@ -196,8 +333,8 @@ class FakeNDI:
                 text += "".join(f"{int(round(v * 1e4)):+06d}" for v in q)
                 text += "".join(f"{int(round(v * 100)):+07d}" for v in pose[:3, 3])
                 text += f"{int(round(rms * 1e4)):+06d}"
-            text += f"{PORT_STATUS_OK:08X}{frame:08X}\n"
-        text += "0000"
+            text += f"{port:08X}{frame:08X}\n"
+        text += f"{system:04X}"
         return ascii_reply(text)
 
 
@@ -215,8 +352,11 @@ def _read_commands(read, write, device: FakeNDI, stop: threading.Event):
             line, buffer = buffer.split(b"\r", 1)
             if not line.strip():
                 continue
+            reply = device.handle(split_command(line))
+            if reply is None:
+                continue
             try:
-                write(device.handle(split_command(line)))
+                write(reply)
             except OSError:
                 return
 

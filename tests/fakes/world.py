@@ -15,6 +15,8 @@ protocol on the control port injects faults and reads the truth:
     bump_marker DEG            -> the marker turns on the tool by DEG about its x axis
     move_tracker MM            -> the tracker moves by MM along its x axis
     received NAME              -> the last TRANSFORM a client sent under NAME (JSON), or NONE
+    ndi FAULT ...              -> NDI tracker faults (see ``ndi_control``)
+    igtl ...                   -> OpenIGTLink sender switches (see ``igtl_control``)
     quit
 """
 
@@ -32,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import igtl
 import ndi
 import rtde
 from net import accept_connections, listen
@@ -121,6 +124,8 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                         reply = "NONE" if matrix is None else json.dumps(matrix)
                     elif command == "quit":
                         stop.set()
+                    elif command in TRACKER_CONTROLS:
+                        reply = TRACKER_CONTROLS[command](fake, words[1:])
                     else:
                         reply = f"ERROR unknown command {command}"
                 stream.write(reply + "\n")
@@ -139,30 +144,24 @@ def change_the_set_up(fake: FakeWorld, change: str, amount: float) -> None:
         world.tracker_from_base = make_transform(np.eye(3), [amount, 0.0, 0.0]) @ world.tracker_from_base
 
 
-def stream_igtl(fake: FakeWorld, server, stop: threading.Event, rate_hz: float = 20.0) -> None:
-    """A PLUS-Server-like stream of MarkerToTracker TRANSFORMs with TransformStatus metadata.
+# -- tracker fault switches (NDI generations and faults, OpenIGTLink senders) ----------------
 
-    The pyigtl server is made on the main thread (it installs signal handlers)."""
-    import pyigtl
 
-    period = 1.0 / rate_hz
-    next_time = time.monotonic()
-    while not stop.is_set():
-        next_time += period
-        time.sleep(max(next_time - time.monotonic(), 0.0))
-        if fake.unplugged:
-            continue
-        stamp, pose, _, _ = fake.marker_frame()
-        message = pyigtl.TransformMessage(
-            np.eye(4) if pose is None else pose, timestamp=stamp, device_name="MarkerToTracker"
-        )
-        message.header_version = 2
-        message.metadata = {"TransformStatus": "OK" if pose is not None else "INVALID"}
-        server.send_message(message)
-        for received in server.get_latest_messages():
-            fake.received = getattr(fake, "received", {})
-            fake.received[received.device_name] = np.asarray(received.matrix).tolist()
-    server.stop()
+def ndi_control(fake: FakeWorld, words: list[str]) -> str:
+    """``ndi crc_error N`` | ``short_reply N`` | ``drop N`` (the next N BX/TX replies get a
+    bad CRC, are cut short, or never come) | ``out_of_volume on|off`` | ``partial_volume on|off``
+    | ``processing_exception on|off`` | ``interference on|off`` | ``disabled on|off`` |
+    ``spoiled`` (how many replies were spoiled so far)."""
+    return fake.ndi_faults.control(words)
+
+
+def igtl_control(fake: FakeWorld, words: list[str]) -> str:
+    """Switches of the OpenIGTLink sender (``tests/fakes/igtl.py``)."""
+    sender = getattr(fake, "igtl_sender", None)
+    return "ERROR no OpenIGTLink sender" if sender is None else sender.control(words)
+
+
+TRACKER_CONTROLS = {"ndi": ndi_control, "igtl": igtl_control}
 
 
 def ndi_frame_source(fake: FakeWorld, rate_hz: float):
@@ -182,27 +181,33 @@ def main() -> None:
     parser.add_argument("--igtl-port", type=int, default=0)
     parser.add_argument("--ndi-log", action="store_true", help="log NDI commands to stderr")
     parser.add_argument("--ur-log", action="store_true", help="log UR controller traffic to stderr")
+    parser.add_argument("--ndi-generation", default="vicra", choices=sorted(ndi.GENERATIONS))
+    parser.add_argument("--igtl-sender", default="plus", choices=["plus", "slicer", "old"])
+    parser.add_argument("--igtl-marker-name", default="MarkerToTracker")
     args = parser.parse_args()
     fake = FakeWorld(args.scenario)
     stop = threading.Event()
     control_server = listen(args.host, 0)
     control_port = control_server.getsockname()[1]
-    igtl_port = args.igtl_port or free_port("127.0.0.1")
-    import pyigtl
-
-    igtl_server = pyigtl.OpenIGTLinkServer(port=igtl_port, local_server=True)
+    igtl_server = listen("127.0.0.1", args.igtl_port)
+    igtl_port = igtl_server.getsockname()[1]
+    fake.igtl_sender = igtl.FakeIGTLSender(fake, args.igtl_sender, args.igtl_marker_name)
+    fake.received = fake.igtl_sender.received
     unplugged = threading.Event()
     fake.unplug_event = unplugged
     rate = fake.world.tracker.rate_hz
     log = sys.stderr if args.ndi_log else None
-    ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
-    ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
+    fake.ndi_faults = ndi.NDIFaults()
+    ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
+    ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
     ndi_server = listen(args.host, 0)
     ndi_port = ndi_server.getsockname()[1]
     pty_master, pty_path = ndi.open_pty()
     threads = [
         threading.Thread(target=serve_control, args=(fake, control_server, stop), daemon=True),
-        threading.Thread(target=stream_igtl, args=(fake, igtl_server, stop), daemon=True),
+        threading.Thread(
+            target=fake.igtl_sender.serve, args=(igtl_server, stop, fake.world.tracker.rate_hz), daemon=True
+        ),
         threading.Thread(target=ndi.serve_tcp, args=(ndi_tcp, ndi_server, stop, unplugged), daemon=True),
         threading.Thread(target=ndi.serve_pty, args=(ndi_serial, pty_master, stop, unplugged), daemon=True),
     ]

@@ -2,7 +2,14 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.io.recording_csv import COLUMNS, RecordingWriter, metadata_path, read_recording, write_recording
+from spacecal.io.recording_csv import (
+    COLUMNS,
+    STATUS_COLUMN,
+    RecordingWriter,
+    metadata_path,
+    read_recording,
+    write_recording,
+)
 
 
 def test_round_trip_is_exact(tmp_path, white_simulation):
@@ -23,7 +30,7 @@ def test_round_trip_is_exact(tmp_path, white_simulation):
 
 def test_header_is_exactly_the_documented_columns(recording_file):
     header = recording_file.read_text().splitlines()[0].split(",")
-    assert header == COLUMNS
+    assert header == COLUMNS + [STATUS_COLUMN]
 
 
 def test_extra_columns_are_ignored(tmp_path, recording_file):

@@ -5,8 +5,9 @@ Device URLs:
 * ``ur://HOST`` — a Universal Robots controller over RTDE (extra ``ur``: ur-rtde).
 * ``ndi://SERIAL_PORT`` or ``ndi://HOST[:PORT]`` — an NDI tracker over the Combined API,
   serial (Polaris Vicra/Spectra) or TCP (Vega, default port 8765) (extra ``ndi``: ndicapi).
-* ``igtl://HOST:PORT`` — a ``MarkerToTracker`` TRANSFORM stream from PLUS Server or 3D
-  Slicer over OpenIGTLink (extra ``igtl``: pyigtl).
+* ``igtl://HOST:PORT`` — the ``MarkerToTracker`` pose (TRANSFORM, POSITION, TDATA or QTDATA)
+  from PLUS Server, 3D Slicer or another OpenIGTLink sender, read by our own reader; sending a
+  calibration uses pyigtl (extra ``igtl``).
 """
 
 from __future__ import annotations

@@ -1,40 +1,232 @@
-"""OpenIGTLink (PLUS Server, 3D Slicer) through ``pyigtl`` (extra ``igtl``).
+"""OpenIGTLink trackers (PLUS Server, 3D Slicer, any OpenIGTLink sender): a small reader of the
+OpenIGTLink framing of our own; ``pyigtl`` (extra ``igtl``) only sends the calibration.
 
-PLUS names transforms ``<From>To<To>``: ``MarkerToTracker`` maps marker coordinates into
-the tracker frame, i.e. our ``tracker_from_marker``; ``BaseToTracker`` is our
-``tracker_from_base``. Header-version-2 messages may carry ``TransformStatus`` metadata
-(``OK``/``INVALID``), which we map to the frame status. pyigtl keeps only the newest message
-per device name, so frames are read by timestamp, never counted.
+Why our own reader: pyigtl 0.3.4 parses only IMAGE, TRANSFORM, STRING and POINT (POSITION, TDATA
+and QTDATA are dropped as unknown), never checks the CRC, and keeps only the newest message per
+device name, so it cannot tell the silence of one tool from the silence of the stream. The
+framing is small: a 58-byte big-endian header (u16 version, char[12] type, char[20] device
+name, u64 timestamp = seconds << 32 | fraction * 2**32, u64 body size, u64 CRC-64 ECMA-182 of
+the body), then the body; from header version 2 on the body starts with an extended header
+(u16 its size, u16 metadata header size, u32 metadata body size, u32 message id) and ends with
+the metadata (u16 count, count x (u16 key size, u16 encoding, u32 value size), keys and values).
+
+Poses we read (mm), for the marker's device name (PLUS naming, ``MarkerToTracker`` maps marker
+coordinates into the tracker frame, i.e. our ``tracker_from_marker``):
+
+* TRANSFORM: 12 float32, the rotation column by column, then the translation;
+* POSITION: position + quaternion (ox, oy, oz, w), or the 24-byte form without w (w >= 0); the
+  12-byte position-only form has no orientation and is refused with one line;
+* TDATA (several tools per message, 12 float32 each) and QTDATA (position + quaternion): the
+  element whose name is the marker's; a message without it means the marker was not seen.
+
+Status: ``TransformStatus`` metadata (PLUS, header v2) OK -> ``ok``; anything else -> ``invalid``
+with the pose kept, unless the pose is a placeholder. A placeholder (identity, all-zero, NaN,
+or not a rigid transform) is never a pose: it is ``missing``. PLUS by default
+(``SendValidTransformsOnly``) sends nothing at all for an invalid tool while the other
+transforms of the frame keep coming: a tracker frame (a sender timestamp seen on any message)
+that passes without the marker is a ``missing`` frame. Only a closed connection or the silence
+of the whole stream ends the run. A message with a bad CRC is dropped and counted.
 """
 
 from __future__ import annotations
 
+import collections
+import socket
+import struct
+import threading
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from spacecal.adapters import require
 from spacecal.core.errors import DeviceError, InvalidInputError
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK, TrackerFrame
-from spacecal.geometry.transforms import is_rigid_transform
+from spacecal.core.ports import (
+    FINDING_OK,
+    FINDING_PROBLEM,
+    FINDING_WARNING,
+    FRAME_INVALID,
+    FRAME_MISSING,
+    FRAME_OK,
+    DeviceFinding,
+    TrackerFrame,
+)
+from spacecal.geometry.transforms import is_rigid_transform, transform_from_position_quaternion
 
 #: Time the connection stays open after publishing, so the server reads the message.
 PUBLISH_LINGER_S = 0.3
-
 #: Time given to a server's backlog of old messages on connect before frames are read.
 BACKLOG_DRAIN_S = 0.3
 
+#: Frames lagging the newest by more than this (sender time, s) are skipped, never returned.
+MAX_LAG_S = 0.25
+
+HEADER = struct.Struct(">H12s20sQQQ")
+EXTENDED_HEADER = struct.Struct(">HHII")
+#: A body larger than this is not a tracking message (images are read past, not kept).
+MAX_BODY_BYTES = 64 * 1024 * 1024
+TDATA_ELEMENT, QTDATA_ELEMENT = 70, 50
+#: Message types that carry tool poses.
+POSE_TYPES = ("TRANSFORM", "POSITION", "TDATA", "QTDATA")
+
+
+def _crc64_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte << 56
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x42F0E1EBA9EA3693) if crc & (1 << 63) else crc << 1
+        table.append(crc & 0xFFFFFFFFFFFFFFFF)
+    return table
+
+
+_CRC64 = _crc64_table()
+
+
+def crc64(data: bytes) -> int:
+    """OpenIGTLink's CRC-64 (ECMA-182 polynomial, MSB first, initial value 0, no final xor)."""
+    crc = 0
+    for byte in data:
+        crc = _CRC64[((crc >> 56) ^ byte) & 0xFF] ^ ((crc << 8) & 0xFFFFFFFFFFFFFFFF)
+    return crc
+
+
+@dataclass
+class Message:
+    """One OpenIGTLink message: header fields, content (without extended header and
+    metadata), metadata."""
+
+    version: int
+    kind: str
+    device_name: str
+    timestamp_s: float
+    content: bytes
+    metadata: dict = field(default_factory=dict)
+
+
+def parse_message(header: bytes, body: bytes) -> Message:
+    """A message from its 58-byte header and its body (CRC checked by the caller)."""
+    version, kind, name, stamp, _, _ = HEADER.unpack(header)
+    timestamp_s = (stamp >> 32) + (stamp & 0xFFFFFFFF) / 2**32
+    content, metadata = body, {}
+    if version >= 2 and len(body) >= EXTENDED_HEADER.size:
+        extended_size, meta_header_size, meta_size, _ = EXTENDED_HEADER.unpack(body[: EXTENDED_HEADER.size])
+        end = len(body) - meta_header_size - meta_size
+        if extended_size < EXTENDED_HEADER.size or end < extended_size:
+            raise ValueError("inconsistent extended header")
+        content = body[extended_size:end]
+        metadata = _parse_metadata(body[end:], meta_header_size)
+    return Message(
+        version,
+        kind.rstrip(b"\0 ").decode("ascii", "replace"),
+        name.rstrip(b"\0 ").decode("utf-8", "replace"),
+        timestamp_s,
+        content,
+        metadata,
+    )
+
+
+def _parse_metadata(data: bytes, header_size: int) -> dict:
+    if header_size < 2 or len(data) < header_size:
+        return {}
+    (count,) = struct.unpack(">H", data[:2])
+    entries = [struct.unpack(">HHI", data[2 + 8 * k : 10 + 8 * k]) for k in range(count)]
+    offset, metadata = header_size, {}
+    for key_size, _, value_size in entries:
+        key = data[offset : offset + key_size].decode("utf-8", "replace")
+        offset += key_size
+        metadata[key] = data[offset : offset + value_size].decode("utf-8", "replace")
+        offset += value_size
+    return metadata
+
+
+def _matrix_from_transform(values) -> np.ndarray:
+    matrix = np.eye(4)
+    matrix[:3, :3] = np.array(values[:9], dtype=float).reshape(3, 3).T  # sent column by column
+    matrix[:3, 3] = values[9:12]
+    return matrix
+
+
+def _matrix_from_position(position, quaternion_xyzw) -> np.ndarray:
+    x, y, z, w = (float(v) for v in quaternion_xyzw)
+    norm = float(np.sqrt(w * w + x * x + y * y + z * z))
+    if not np.isfinite(norm) or norm < 0.5 or not np.all(np.isfinite(position)):
+        return np.full((4, 4), np.nan)  # a placeholder, not a rotation
+    return transform_from_position_quaternion(
+        np.asarray(position, dtype=float), np.array([w, x, y, z]) / norm
+    )
+
+
+def tool_poses(message: Message) -> dict[str, np.ndarray]:
+    """Every tool pose a message carries, by name (the device name for TRANSFORM/POSITION).
+
+    Raises
+    ------
+    InvalidInputError
+        A pose message in a form that cannot give a pose (wrong size, position only).
+    """
+    data, kind = message.content, message.kind
+    if kind == "TRANSFORM":
+        if len(data) < 48:
+            raise InvalidInputError(
+                f"{message.device_name}: TRANSFORM body of {len(data)} bytes, expected 48"
+            )
+        return {message.device_name: _matrix_from_transform(struct.unpack(">12f", data[:48]))}
+    if kind == "POSITION":
+        if len(data) == 28:
+            values = struct.unpack(">7f", data)
+            return {message.device_name: _matrix_from_position(values[:3], values[3:])}
+        if len(data) == 24:
+            x, y, z = struct.unpack(">6f", data)[3:]
+            w = float(np.sqrt(max(1.0 - (x * x + y * y + z * z), 0.0)))
+            return {message.device_name: _matrix_from_position(struct.unpack(">3f", data[:12]), (x, y, z, w))}
+        raise InvalidInputError(
+            f"{message.device_name}: POSITION of {len(data)} bytes has no orientation; "
+            "a marker pose needs position and quaternion (28 or 24 bytes)"
+        )
+    if kind in ("TDATA", "QTDATA"):
+        size = TDATA_ELEMENT if kind == "TDATA" else QTDATA_ELEMENT
+        if len(data) % size:
+            raise InvalidInputError(
+                f"{message.device_name}: {kind} body of {len(data)} bytes is not n x {size}"
+            )
+        poses = {}
+        for k in range(len(data) // size):
+            element = data[k * size : (k + 1) * size]
+            name = element[:20].rstrip(b"\0 ").decode("utf-8", "replace")
+            values = struct.unpack(">12f" if kind == "TDATA" else ">7f", element[22:])
+            poses[name] = (
+                _matrix_from_transform(values)
+                if kind == "TDATA"
+                else _matrix_from_position(values[:3], values[3:])
+            )
+        return poses
+    return {}
+
+
+def is_placeholder(matrix: np.ndarray) -> bool:
+    """A matrix a sender puts where it has no pose: NaN, all zeros, exactly identity, or not a
+    rigid transform. (A real marker is never exactly at the tracker's origin.)"""
+    matrix = np.asarray(matrix, dtype=float)
+    return (
+        not np.all(np.isfinite(matrix))
+        or not np.any(matrix[:3, :3])
+        or bool(np.array_equal(matrix, np.eye(4)))
+        or not is_rigid_transform(matrix, atol=1e-4)
+    )
+
 
 class IGTLTracker:
-    """A tracker read from an OpenIGTLink TRANSFORM stream (Tracker protocol).
+    """A tracker read from an OpenIGTLink stream (Tracker protocol).
 
     Parameters
     ----------
     host, port : str, int
     device_name : str
-        The stream to follow (PLUS naming), default ``MarkerToTracker``.
+        The marker's name (PLUS naming), default ``MarkerToTracker``: a TRANSFORM or POSITION
+        device name, or a tool name inside TDATA/QTDATA.
     connect_timeout_s : float
-        How long to wait for the first message before giving up.
+        How long to wait for the marker's first message before giving up.
     """
 
     def __init__(
@@ -44,54 +236,239 @@ class IGTLTracker:
         device_name: str = "MarkerToTracker",
         connect_timeout_s: float = 5.0,
     ):
-        pyigtl = require("pyigtl", "igtl")
         self.device_name = device_name
-        self._client = pyigtl.OpenIGTLinkClient(host=host, port=port)
-        self._last_timestamp = -np.inf
+        self.url = f"igtl://{host}:{port}"
+        self._condition = threading.Condition()
+        self._frames: collections.deque = collections.deque(maxlen=64)
+        self._fatal: str | None = None
+        self._closed = False
+        self._last_message_at = time.monotonic()
+        self._last_new_stamp_at = time.monotonic()
+        self._group_stamp: float | None = None
+        self._group_has_marker = False
+        self._last_returned_stamp = -np.inf
         self._frame_number = 0
-        first = self._client.wait_for_message(device_name, timeout=connect_timeout_s)
-        if first is None:
-            self.close()
+        #: What the stream carried: message counts by (type, device name), header versions,
+        #: senders' metadata keys, messages dropped for a bad CRC.
+        self.seen: collections.Counter = collections.Counter()
+        self.header_versions: set[int] = set()
+        self.crc_errors = 0
+        self.stamps: collections.deque = collections.deque(maxlen=256)
+        try:
+            self._socket = socket.create_connection((host, port), timeout=connect_timeout_s)
+        except OSError as exc:
             raise DeviceError(
-                f"no {device_name} message from igtl://{host}:{port} within {connect_timeout_s:.0f} s"
+                f"no {device_name} message from {self.url}: could not connect ({exc})"
+            ) from None
+        self._socket.settimeout(0.2)
+        self._thread = threading.Thread(target=self._read_loop, daemon=True)
+        self._thread.start()
+        deadline = time.monotonic() + connect_timeout_s
+        with self._condition:
+            while not self._frames and self._fatal is None and time.monotonic() < deadline:
+                self._condition.wait(0.05)
+            found = any(f.status != FRAME_MISSING for f in self._frames)
+            while not found and self._fatal is None and time.monotonic() < deadline:
+                self._condition.wait(0.05)
+                found = any(f.status != FRAME_MISSING for f in self._frames)
+        if not found:
+            names = sorted({name for _, name in self.seen})
+            self.close()
+            if self._fatal is not None:
+                raise DeviceError(self._fatal)
+            raise DeviceError(
+                f"no {device_name} message from {self.url} within {connect_timeout_s:.0f} s"
+                + (
+                    f" (it sends {', '.join(names)}; is the marker visible, and is that its name?)"
+                    if names
+                    else ""
+                )
             )
         # A server may flush a backlog of old messages on connect: let it pass, keep the newest.
         time.sleep(BACKLOG_DRAIN_S)
-        self._pending = self._client.wait_for_message(device_name, timeout=0.0) or first
+        with self._condition:
+            while len(self._frames) > 1:
+                self._frames.popleft()
 
+    # -- the reader thread -----------------------------------------------------------------
+    def _read_loop(self) -> None:
+        buffer = bytearray()
+        try:
+            while not self._closed:
+                try:
+                    chunk = self._socket.recv(1 << 16)
+                except TimeoutError:
+                    continue
+                if not chunk:
+                    self._fail(f"{self.url} closed the connection")
+                    return
+                buffer += chunk
+                while len(buffer) >= HEADER.size:
+                    body_size = HEADER.unpack_from(buffer)[4]
+                    if body_size > MAX_BODY_BYTES:
+                        self._fail(f"{self.url} is not an OpenIGTLink stream (a {body_size}-byte message)")
+                        return
+                    if len(buffer) < HEADER.size + body_size:
+                        break
+                    header = bytes(buffer[: HEADER.size])
+                    body = bytes(buffer[HEADER.size : HEADER.size + body_size])
+                    del buffer[: HEADER.size + body_size]
+                    self._receive(header, body)
+        except OSError as exc:
+            if not self._closed:
+                self._fail(f"{self.url} connection lost ({exc})")
+        except InvalidInputError as exc:
+            self._fail(str(exc))
+
+    def _fail(self, reason: str) -> None:
+        with self._condition:
+            self._fatal = reason
+            self._condition.notify_all()
+
+    def _receive(self, header: bytes, body: bytes) -> None:
+        now = time.monotonic()
+        if HEADER.unpack(header)[5] != crc64(body):
+            self.crc_errors += 1
+            return
+        try:
+            message = parse_message(header, body)
+        except (ValueError, struct.error):
+            self.crc_errors += 1
+            return
+        try:
+            poses = tool_poses(message) if message.kind in POSE_TYPES else {}
+        except InvalidInputError:
+            if message.device_name == self.device_name:
+                raise  # the marker in a form that gives no pose: one clear line ends the run
+            poses = {}  # another device's odd message is none of our business
+        with self._condition:
+            self._last_message_at = now
+            self.seen[(message.kind, message.device_name)] += 1
+            for name in poses:
+                if message.kind in ("TDATA", "QTDATA"):
+                    self.seen[(message.kind + " tool", name)] += 1
+            self.header_versions.add(message.version)
+            stamp = message.timestamp_s
+            if stamp != self._group_stamp:
+                # a new tracker frame; the last one closes, and if it never carried the
+                # marker, that frame did not see it (PLUS sends nothing for an invalid tool)
+                if self._group_stamp is not None and stamp > self._group_stamp:
+                    if not self._group_has_marker:
+                        self._push(TrackerFrame(self._group_stamp, 0, FRAME_MISSING, None))
+                if self._group_stamp is None or stamp > self._group_stamp:
+                    self._group_stamp, self._group_has_marker = stamp, False
+                    self._last_new_stamp_at = now
+                    self.stamps.append((now, stamp))
+            if self.device_name in poses and stamp == self._group_stamp:
+                self._group_has_marker = True
+                self._push(self._marker_frame(stamp, poses[self.device_name], message.metadata))
+            self._condition.notify_all()
+
+    def _marker_frame(self, stamp: float, matrix: np.ndarray, metadata: dict) -> TrackerFrame:
+        if is_placeholder(matrix):
+            return TrackerFrame(stamp, 0, FRAME_MISSING, None)
+        status = str(metadata.get("TransformStatus", "OK")).strip().upper()
+        return TrackerFrame(stamp, 0, FRAME_OK if status == "OK" else FRAME_INVALID, matrix)
+
+    def _push(self, frame: TrackerFrame) -> None:
+        self._frames.append(frame)
+
+    # -- the Tracker protocol ---------------------------------------------------------------
     def next_frame(self, timeout_s: float) -> TrackerFrame:
+        """The next frame (the marker's pose, or a frame without it) newer than the last one.
+
+        Raises
+        ------
+        DeviceError
+            The connection closed, the whole stream fell silent or its timestamps stopped
+            advancing for ``timeout_s``, or the marker came in a form that gives no pose.
+        """
         deadline = time.monotonic() + timeout_s
-        repeated = False
-        while True:
-            message = self._pending or self._client.wait_for_message(
-                self.device_name, timeout=max(deadline - time.monotonic(), 0.0)
-            )
-            self._pending = None
-            if message is None:
-                if repeated:
+        with self._condition:
+            while True:
+                # frames in order (a frame without the marker is known one frame late, when
+                # the next frame starts), skipping any that lag the newest by more than MAX_LAG_S
+                while self._frames and (
+                    self._frames[0].time_s <= self._last_returned_stamp
+                    or self._frames[0].time_s < self._frames[-1].time_s - MAX_LAG_S
+                ):
+                    self._frames.popleft()
+                if self._frames:
+                    frame = self._frames.popleft()
+                    break
+                if self._fatal is not None:
+                    raise DeviceError(self._fatal)
+                now = time.monotonic()
+                if now > deadline:
+                    if now - self._last_message_at >= timeout_s:
+                        raise DeviceError(
+                            f"no OpenIGTLink message for {timeout_s:.1f} s: stream stalled or lost"
+                        )
                     raise DeviceError(
-                        f"{self.device_name} timestamps stopped advancing for {timeout_s:.1f} s: stale stream"
+                        f"{self.url}: timestamps stopped advancing for {timeout_s:.1f} s: stale stream"
                     )
-                raise DeviceError(
-                    f"no {self.device_name} message for {timeout_s:.1f} s: stream stalled or lost"
-                )
-            if message.timestamp > self._last_timestamp:
-                break
-            repeated = True
-        self._last_timestamp = message.timestamp
+                self._condition.wait(min(0.05, max(deadline - now, 0.001)))
+        self._last_returned_stamp = frame.time_s
         self._frame_number += 1
-        status = (getattr(message, "metadata", None) or {}).get("TransformStatus", "OK").upper()
-        matrix = np.asarray(message.matrix, dtype=float)
-        ok = status == "OK" and is_rigid_transform(matrix, atol=1e-4)
         return TrackerFrame(
-            time_s=float(message.timestamp),
-            frame_number=self._frame_number,
-            status=FRAME_OK if ok else FRAME_MISSING,
-            tracker_from_marker=matrix if ok else None,
+            frame.time_s, self._frame_number, frame.status, frame.tracker_from_marker, frame.rms_mm
         )
 
+    def preflight(self, duration_s: float = 1.0) -> list[DeviceFinding]:
+        """Read-only checks: what the sender sends (types, device names, header versions), its
+        frame rate over ``duration_s``, and whether the marker's name is among them."""
+        time.sleep(duration_s)
+        with self._condition:
+            seen = dict(self.seen)
+            versions = sorted(self.header_versions)
+            stamps = list(self.stamps)
+            fatal = self._fatal
+        findings = []
+        if fatal is not None:
+            findings.append(DeviceFinding(FINDING_PROBLEM, "connection", fatal))
+        kinds = sorted({kind for kind, _ in seen if not kind.endswith(" tool")})
+        names = sorted({name for kind, name in seen})
+        findings.append(
+            DeviceFinding(
+                FINDING_OK,
+                "sender",
+                f"{self.url}: {', '.join(kinds) or 'no messages'} from {', '.join(names) or 'nobody'}; "
+                f"header version(s) {', '.join(map(str, versions)) or '-'}",
+            )
+        )
+        recent = [(at, stamp) for at, stamp in stamps if at >= stamps[-1][0] - duration_s] if stamps else []
+        if len(recent) >= 2 and recent[-1][0] > recent[0][0]:
+            rate = (len(recent) - 1) / (recent[-1][0] - recent[0][0])
+            findings.append(
+                DeviceFinding(FINDING_OK, "frame rate", f"{rate:.1f} Hz (distinct sender timestamps)")
+            )
+        else:
+            findings.append(
+                DeviceFinding(FINDING_PROBLEM, "frame rate", "the stream's timestamps do not advance")
+            )
+        if self.device_name in names:
+            findings.append(DeviceFinding(FINDING_OK, "marker", f"{self.device_name} is in the stream"))
+        else:
+            findings.append(
+                DeviceFinding(
+                    FINDING_WARNING,
+                    "marker",
+                    f"no {self.device_name} now (PLUS sends nothing while a tool is not seen): "
+                    "make the marker visible, or check its name",
+                )
+            )
+        if self.crc_errors:
+            findings.append(
+                DeviceFinding(FINDING_WARNING, "transport", f"{self.crc_errors} message(s) with a bad CRC")
+            )
+        return findings
+
     def close(self) -> None:
-        self._client.stop()
+        self._closed = True
+        try:
+            self._socket.close()
+        except OSError:
+            pass
 
 
 def publish_transform(host: str, port: int, name: str, a_from_b, timestamp: float | None = None) -> None:

@@ -70,6 +70,9 @@ class CalibrateSettings:
         Per-axis sphere noise, mm; default: estimated from the tracker's RMS.
     error_thresholds : ErrorThresholds or None
         Limits of the verdict's grades; default 0.5 / 1 / 2 mm.
+    include_doubtful_frames : bool
+        Also use poses the tracker reported with a status other than ``ok`` (e.g. partially
+        out of volume); by default they are left out.
     """
 
     recording: str
@@ -81,6 +84,7 @@ class CalibrateSettings:
     sigma_mm: float | None = None
     error_thresholds: ErrorThresholds | None = None
     force: bool = False
+    include_doubtful_frames: bool = False
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,7 @@ class CalibrateOutput:
     calibration: CalibrationResult
     path: Path
     time_offset_note: str | None = None
+    doubtful_note: str | None = None
 
 
 def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
@@ -117,6 +122,17 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
         recording = pair_streams(raw, offset_s)
     else:
         recording = read_recording(settings.recording)
+    doubtful = int(recording.doubtful.sum())
+    doubtful_note = None
+    if doubtful:
+        statuses = ", ".join(sorted(set(np.asarray(recording.marker_status)[recording.doubtful].tolist())))
+        if settings.include_doubtful_frames:
+            recording = recording.trusting_doubtful_frames()
+            doubtful_note = f"{doubtful} doubtful frame(s) ({statuses}) used as asked"
+        else:
+            doubtful_note = (
+                f"{doubtful} doubtful frame(s) ({statuses}) left out; --include-doubtful-frames uses them"
+            )
     options: dict[str, Any] = {}
     if targets is not None:
         options["targets_in_base"] = targets
@@ -129,7 +145,7 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
     result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))
     if settings.tracker_stream:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
-    return CalibrateOutput(result, write_calibration(result, settings.output), note)
+    return CalibrateOutput(result, write_calibration(result, settings.output), note, doubtful_note)
 
 
 @dataclass(frozen=True)

@@ -90,10 +90,13 @@ def _calibrate(a: argparse.Namespace) -> None:
             a.sigma_mm,
             ErrorThresholds.parse(a.thresholds_mm) if a.thresholds_mm else None,
             a.force,
+            include_doubtful_frames=a.include_doubtful_frames,
         )
     )
     if out.time_offset_note:
         print(out.time_offset_note)
+    if out.doubtful_note:
+        print(out.doubtful_note)
     result = out.calibration
     counts, d = result.sample_counts, result.diagnostics
     print(f"wrote {out.path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")

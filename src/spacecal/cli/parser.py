@@ -61,6 +61,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--method", default=_d(C, "method"), help=f"estimator: {', '.join(sorted(METHODS))}")
     p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
     p.add_argument(
+        "--include-doubtful-frames",
+        action="store_true",
+        help="also use poses the tracker flagged (e.g. partially out of volume); left out by default",
+    )
+    p.add_argument(
         "--time-offset-ms",
         default="estimate",
         help="with --tracker-stream: robot clock minus tracker clock, or 'estimate' (default)",

@@ -23,8 +23,27 @@ FRAME_OK = "ok"
 FRAME_MISSING = "missing"
 FRAME_OUT_OF_VOLUME = "out_of_volume"
 FRAME_PARTIALLY_OUT_OF_VOLUME = "partially_out_of_volume"
+#: The tool is not enabled on the tracker (NDI handle status 0x04): no pose.
+FRAME_DISABLED = "disabled"
+#: The tracker flagged its own computation of this frame (NDI port status: processing
+#: exception, algorithm limitation, fell behind): a reported pose is doubtful.
+FRAME_PROCESSING_EXCEPTION = "processing_exception"
+#: Too much infrared light (NDI port status IR interference, or the system status bit).
+FRAME_INTERFERENCE = "interference"
+#: The sender marked the pose invalid but still sent one (OpenIGTLink ``TransformStatus``
+#: other than OK with a real pose); placeholders (identity, zeros, NaN) are never kept.
+FRAME_INVALID = "invalid"
 #: Every status a frame may carry (``ok`` first).
-FRAME_STATUSES = (FRAME_OK, FRAME_MISSING, FRAME_OUT_OF_VOLUME, FRAME_PARTIALLY_OUT_OF_VOLUME)
+FRAME_STATUSES = (
+    FRAME_OK,
+    FRAME_MISSING,
+    FRAME_OUT_OF_VOLUME,
+    FRAME_PARTIALLY_OUT_OF_VOLUME,
+    FRAME_DISABLED,
+    FRAME_PROCESSING_EXCEPTION,
+    FRAME_INTERFERENCE,
+    FRAME_INVALID,
+)
 
 #: Preflight finding levels, from fine to blocking.
 FINDING_OK, FINDING_WARNING, FINDING_PROBLEM = "ok", "warning", "problem"

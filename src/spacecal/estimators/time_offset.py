@@ -64,6 +64,7 @@ def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
         marker_rms_mm=raw.marker_rms_mm[inside],
         metadata={**raw.metadata, "paired_with_offset_s": float(offset_s)},
         spheres_in_tracker=None if raw.spheres_in_tracker is None else raw.spheres_in_tracker[inside],
+        marker_status=None if raw.marker_status is None else raw.marker_status[inside],
     )
 
 

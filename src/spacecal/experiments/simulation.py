@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.core.ports import RobotState
+from spacecal.core.ports import FRAME_OK, RobotState
 from spacecal.planning.motion import MotionPlan
 from spacecal.records import RawRecording, Recording
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
@@ -38,6 +38,7 @@ class MemorySink:
         marker_rms_mm=float("nan"),
         spheres_in_tracker=None,
         robot_time_s=float("nan"),
+        status=FRAME_OK,
     ) -> None:
         self.rows.append(
             (
@@ -48,6 +49,7 @@ class MemorySink:
                 tracker_from_marker,
                 marker_rms_mm,
                 spheres_in_tracker,
+                status,
             )
         )
 
@@ -61,7 +63,7 @@ class MemorySink:
         """The paired recording of every sample kept."""
         if not self.rows:
             raise DegenerateDataError("the plan has no sampled moves")
-        times, labels, joints, tcp, marker, rms, spheres = zip(*self.rows)
+        times, labels, joints, tcp, marker, rms, spheres, status = zip(*self.rows)
         missing = np.full((4, 4), np.nan)
         no_spheres = np.full((sphere_count, 3), np.nan)
         return Recording(
@@ -75,6 +77,7 @@ class MemorySink:
             spheres_in_tracker=(
                 np.array([no_spheres if s is None else s for s in spheres]) if self.keep_spheres else None
             ),
+            marker_status=np.array(status),
         )
 
 
@@ -220,5 +223,6 @@ def simulate_raw(
         tracker_from_marker_stack=frames.tracker_from_marker_stack,
         marker_rms_mm=frames.marker_rms_mm,
         metadata={**recording_metadata(world), "simulated_clock_offset_s": clock_offset_s},
+        marker_status=frames.marker_status,
     )
     return raw, world

@@ -7,7 +7,7 @@
 ``<stem>.tracker.csv`` — one row per tracker frame (marker cells empty when not seen)::
 
     time_s, marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy, marker_qz, marker_rms_mm
-    [, arrival_robot_time_s] [, sphere1_x_mm, sphere1_y_mm, sphere1_z_mm, ...]
+    [, arrival_robot_time_s] [, marker_status] [, sphere1_x_mm, sphere1_y_mm, sphere1_z_mm, ...]
 
 Times are each device's own clock, in seconds; the optional ``arrival_robot_time_s`` is the
 newest robot timestamp when the frame arrived (written by ``spacecal acquire``), which links
@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.atomic import write_text_atomic
@@ -50,6 +51,7 @@ from spacecal.records import RawRecording
 ROBOT_COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS
 TRACKER_COLUMNS = ["time_s"] + MARKER_COLUMNS
 ARRIVAL_COLUMN = "arrival_robot_time_s"
+STATUS_COLUMN = "marker_status"
 
 
 def stream_paths(stem: str | Path) -> tuple[Path, Path, Path]:
@@ -130,7 +132,9 @@ class RawStreamWriter:
         self._robot, self._tracker = (csv.writer(f) for f in self._files)
         if not resuming:
             self._robot.writerow(ROBOT_COLUMNS)
-            self._tracker.writerow(TRACKER_COLUMNS + [ARRIVAL_COLUMN] + sphere_columns(sphere_count))
+            self._tracker.writerow(
+                TRACKER_COLUMNS + [ARRIVAL_COLUMN, STATUS_COLUMN] + sphere_columns(sphere_count)
+            )
             self.flush()
         self._last_robot_time = -np.inf
 
@@ -159,8 +163,13 @@ class RawStreamWriter:
         marker_rms_mm: float,
         arrival_robot_time_s: float,
         spheres_in_tracker: np.ndarray | None = None,
+        status: str = FRAME_OK,
     ) -> None:
-        """Write one tracker frame (pose None when the marker was not seen), then flush both streams."""
+        """Write one tracker frame, then flush both streams.
+
+        ``tracker_from_marker`` is None when the tracker reported no pose; ``status`` is the
+        frame's status (a pose reported as e.g. partially out of volume is kept with it).
+        """
         if tracker_from_marker is None or not np.all(np.isfinite(tracker_from_marker)):
             cells = [""] * len(MARKER_COLUMNS)
         else:
@@ -170,8 +179,13 @@ class RawStreamWriter:
         if self.sphere_count and spheres_in_tracker is not None and cells[0]:
             given = np.asarray(spheres_in_tracker, dtype=float).reshape(-1)
             spheres[: min(len(given), len(spheres))] = given[: len(spheres)]
+        if not cells[0] and status == FRAME_OK:
+            status = FRAME_MISSING
         self._tracker.writerow(
-            [_format(time_s)] + cells + [_format(arrival_robot_time_s)] + [_format(v) for v in spheres]
+            [_format(time_s)]
+            + cells
+            + [_format(arrival_robot_time_s), status]
+            + [_format(v) for v in spheres]
         )
         self.flush()
 
@@ -239,6 +253,16 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     rows, index, header = _rows_with_header(tracker_path, TRACKER_COLUMNS)
     times = np.array([_number(r[index["time_s"]], k + 2, "time_s", tracker_path) for k, r in enumerate(rows)])
     arrival = _optional_column(rows, header, ARRIVAL_COLUMN, tracker_path)
+    status = None
+    if STATUS_COLUMN in header:
+        column = header.index(STATUS_COLUMN)
+        status = np.array([r[column].strip() or FRAME_MISSING for r in rows])
+        unknown = sorted(set(status.tolist()) - set(FRAME_STATUSES))
+        if unknown:
+            raise InvalidInputError(
+                f"{tracker_path}: unknown marker_status {unknown[0]!r}; "
+                f"expected one of {', '.join(FRAME_STATUSES)}"
+            )
     spheres = _optional_spheres(rows, header, tracker_path)
     _increasing(times, tracker_path)
     marker = np.full((len(rows), 8), np.nan)
@@ -283,6 +307,7 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
         metadata,
         spheres_in_tracker=spheres,
         arrival_robot_time_s=arrival,
+        marker_status=status,
     )
 
 

@@ -6,10 +6,16 @@ Columns (extra columns are allowed and ignored)::
     tcp_x_mm, tcp_y_mm, tcp_z_mm, tcp_qw, tcp_qx, tcp_qy, tcp_qz,          base_from_tcp
     marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy,
     marker_qz, marker_rms_mm                                               tracker_from_marker
+    marker_status                                                          (optional)
 
 The six joint cells may all be empty when the joints were not recorded (imports). The
 marker cells are empty when the marker was not seen (``marker_rms_mm`` alone may be empty
-when the tracker does not report it). Optional raw sphere centres
+when the tracker does not report it). ``marker_status`` is the tracker's frame status (one of
+:data:`spacecal.core.ports.FRAME_STATUSES`): ``ok`` needs the marker cells, ``missing`` leaves
+them empty, and any other status (``partially_out_of_volume``, ``out_of_volume``, ...) may keep
+the pose the tracker reported, which estimation then leaves out by default. Files written
+before the column existed read as ``ok`` where a pose is present and ``missing`` elsewhere.
+Optional raw sphere centres
 follow as ``sphere1_x_mm, sphere1_y_mm, sphere1_z_mm, sphere2_x_mm, ...`` (tracker frame,
 empty when not seen); the likelihood estimators use them when present. Metadata (robot model, TCP in
 flange, tracker, marker geometry) lives next to the CSV in ``<stem>.meta.json``; the
@@ -29,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.atomic import atomic_path
@@ -49,6 +56,8 @@ MARKER_COLUMNS = [
     "marker_rms_mm",
 ]
 COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS + MARKER_COLUMNS
+#: The tracker's frame status; optional when reading (older files), always written.
+STATUS_COLUMN = "marker_status"
 
 #: Smallest number of samples a recording must hold to be worth calibrating from.
 MIN_SAMPLES = 10
@@ -117,17 +126,19 @@ class RecordingWriter:
             _drop_partial_last_row(self.path)
             header = read_text_file(self.path, "recording").splitlines()[0].split(",")
             self.sphere_count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
+            self.has_status = STATUS_COLUMN in header  # a file from before the column keeps its layout
             self._file = open(self.path, "a", newline="")
             self._writer = csv.writer(self._file)
             return
         if sphere_count is None:
             sphere_count = len((metadata or {}).get("marker", {}).get("spheres_in_marker_mm", []))
         self.sphere_count = sphere_count
+        self.has_status = True
         if metadata is not None:
             write_json(metadata, metadata_path(self.path))
         self._file = open(self.path, "w", newline="")
         self._writer = csv.writer(self._file)
-        self._writer.writerow(COLUMNS + sphere_columns(sphere_count))
+        self._writer.writerow(COLUMNS + [STATUS_COLUMN] + sphere_columns(sphere_count))
         self._flush()
 
     def _flush(self) -> None:
@@ -144,21 +155,36 @@ class RecordingWriter:
         marker_rms_mm: float = float("nan"),
         spheres_in_tracker=None,
         flush: bool = True,
+        status: str | None = None,
     ) -> None:
         """Write one sample; ``tracker_from_marker`` None (or NaN) when the marker was not seen.
 
         ``spheres_in_tracker`` (K, 3), mm, fills the raw-sphere columns when the writer has them.
+        ``status`` is the tracker's frame status (default: ``ok`` with a pose, ``missing``
+        without); a pose reported with another status is written with it. A ``missing`` frame
+        never carries a pose and an ``ok`` frame without one is ``missing``.
         """
+        has_pose = tracker_from_marker is not None and bool(np.all(np.isfinite(tracker_from_marker)))
+        if status is None or status == FRAME_OK:
+            status = FRAME_OK if has_pose else FRAME_MISSING
+        elif status not in FRAME_STATUSES:
+            raise InvalidInputError(
+                f"unknown marker status {status!r}; expected one of {', '.join(FRAME_STATUSES)}"
+            )
+        if status == FRAME_MISSING:
+            has_pose = False
         tcp_position, tcp_quaternion = transform_to_position_quaternion(base_from_tcp)
         row = [_format(time_s), segment] + [_format(v) for v in joints_rad]
         row += [_format(v) for v in tcp_position] + [_format(v) for v in tcp_quaternion]
-        if tracker_from_marker is None or not np.all(np.isfinite(tracker_from_marker)):
+        if not has_pose:
             row += [""] * len(MARKER_COLUMNS)
         else:
             position, quaternion = transform_to_position_quaternion(tracker_from_marker)
             row += (
                 [_format(v) for v in position] + [_format(v) for v in quaternion] + [_format(marker_rms_mm)]
             )
+        if self.has_status:
+            row.append(status)
         if self.sphere_count:
             spheres = (
                 np.full(3 * self.sphere_count, np.nan)
@@ -235,6 +261,7 @@ def write_recording(recording: Recording, path: str | Path) -> Path:
                 recording.marker_rms_mm[k],
                 None if spheres is None else spheres[k],
                 flush=False,
+                status=str(recording.marker_status[k]) if recording.marker_status is not None else None,
             )
     return Path(path)
 
@@ -302,7 +329,9 @@ def read_recording(path: str | Path) -> Recording:
     while all(c in names for c in sphere_columns(sphere_count + 1)[-3:]):
         sphere_count += 1
     sphere_index = [names.index(c) for c in sphere_columns(sphere_count)]
+    status_index = names.index(STATUS_COLUMN) if STATUS_COLUMN in names else None
     n = len(body)
+    status_cells: list[str] = []
     spheres = np.full((n, 3 * sphere_count), np.nan) if sphere_count else None
     numeric = JOINT_COLUMNS + TCP_COLUMNS
     values = np.empty((n, len(numeric)))
@@ -338,6 +367,7 @@ def read_recording(path: str | Path) -> Recording:
                 marker[k, 7] = _number(cells[7], line, MARKER_COLUMNS[7], path)
             if spheres is not None and any(row[i].strip() for i in sphere_index):
                 spheres[k] = [_number(row[i], line, names[i], path) for i in sphere_index]
+        status_cells.append(row[status_index].strip() if status_index is not None else "")
 
     steps = np.diff(time_s)
     if np.any(steps <= 0):
@@ -351,6 +381,8 @@ def read_recording(path: str | Path) -> Recording:
     seen = np.isfinite(marker[:, 0])
     if not seen.any():
         raise InvalidInputError(f"{path}: the marker was not visible in any of the {n} samples")
+    # checked after the rows' own cells, so a file whose marker cells were all blanked says so
+    status = np.array([_status(c, bool(p), int(ln), path) for c, p, ln in zip(status_cells, seen, lines)])
     _check_quaternions(tcp_quaternion, lines, "tcp", path)
     _check_quaternions(marker[seen, 3:7], lines[seen], "marker", path)
     check_lengths_in_mm(tcp_position, f"{path}: tcp_x_mm..tcp_z_mm")
@@ -374,7 +406,26 @@ def read_recording(path: str | Path) -> Recording:
         marker_rms_mm=marker[:, 7],
         metadata=metadata,
         spheres_in_tracker=None if spheres is None else spheres.reshape(n, sphere_count, 3),
+        marker_status=status,
     )
+
+
+def _status(cell: str, has_pose: bool, line: int, path: Path) -> str:
+    """One ``marker_status`` cell, checked against the marker cells; empty (or no column) means
+    ``ok`` with a pose and ``missing`` without."""
+    if not cell:
+        return FRAME_OK if has_pose else FRAME_MISSING
+    if cell not in FRAME_STATUSES:
+        raise InvalidInputError(
+            f"{path}: line {line}: marker_status {cell!r} is not one of {', '.join(FRAME_STATUSES)}"
+        )
+    if cell == FRAME_OK and not has_pose:
+        raise InvalidInputError(f"{path}: line {line}: marker_status is ok but the marker cells are empty")
+    if cell == FRAME_MISSING and has_pose:
+        raise InvalidInputError(
+            f"{path}: line {line}: marker_status is missing but the marker cells hold a pose"
+        )
+    return cell
 
 
 def check_ranges(

@@ -6,11 +6,12 @@ and writing them is :mod:`spacecal.io` (``recording_csv``, ``raw_streams``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
 
 #: Segment labels of the paper's sweeps (paper §4). Other labels are allowed in a recording.
 ROTATION_SEGMENTS = ("rot_x", "rot_y", "rot_z")
@@ -41,6 +42,13 @@ class Recording:
         scenario (see docs/formats.md).
     spheres_in_tracker : numpy.ndarray, shape (N, K, 3), optional
         Raw sphere centres when the tracker reports them, mm; NaN where not seen.
+    marker_status : numpy.ndarray of str, shape (N,), optional
+        The tracker's frame status per sample, one of
+        :data:`spacecal.core.ports.FRAME_STATUSES`. By default ``ok`` where a pose is present
+        and ``missing`` elsewhere. ``ok`` without a pose becomes ``missing``; ``missing`` has no
+        pose; any other
+        status (e.g. ``partially_out_of_volume``) may keep the pose the tracker reported, which
+        is then doubtful: :attr:`visible` leaves it out.
     """
 
     time_s: np.ndarray
@@ -51,6 +59,7 @@ class Recording:
     marker_rms_mm: np.ndarray
     metadata: dict = field(default_factory=dict)
     spheres_in_tracker: np.ndarray | None = None
+    marker_status: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(np.atleast_1d(self.time_s))
@@ -70,14 +79,52 @@ class Recording:
                     f"recording: spheres_in_tracker must have shape ({n}, K, 3), "
                     f"got {self.spheres_in_tracker.shape}"
                 )
+        has_pose = self.has_pose
+        if self.marker_status is None:
+            self.marker_status = np.where(has_pose, FRAME_OK, FRAME_MISSING)
+        self.marker_status = np.asarray(self.marker_status).astype("<U32")
+        _check_shape(self.marker_status, (n,), "marker_status")
+        unknown = sorted(set(self.marker_status.tolist()) - set(FRAME_STATUSES))
+        if unknown:
+            raise InvalidInputError(
+                f"recording: unknown marker status {unknown[0]!r}; "
+                f"expected one of {', '.join(FRAME_STATUSES)}"
+            )
+        # a pose removed later (e.g. a frame hidden on purpose) cannot stay ``ok``
+        self.marker_status[(self.marker_status == FRAME_OK) & ~has_pose] = FRAME_MISSING
+        bad = np.flatnonzero((self.marker_status == FRAME_MISSING) & has_pose)
+        if len(bad):
+            raise InvalidInputError(
+                f"recording: sample {int(bad[0])} has status 'missing' but a marker pose "
+                f"({len(bad)} sample(s))"
+            )
 
     def __len__(self) -> int:
         return len(self.time_s)
 
     @property
-    def visible(self) -> np.ndarray:
-        """Boolean (N,): the marker was tracked in that frame."""
+    def has_pose(self) -> np.ndarray:
+        """Boolean (N,): the tracker reported a marker pose, whatever its status."""
         return np.all(np.isfinite(self.tracker_from_marker_stack[:, :3, 3]), axis=1)
+
+    @property
+    def visible(self) -> np.ndarray:
+        """Boolean (N,): the marker was plainly seen (a pose with status ``ok``); the mask every
+        estimator uses."""
+        return self.has_pose & (self.marker_status == FRAME_OK)
+
+    @property
+    def doubtful(self) -> np.ndarray:
+        """Boolean (N,): a pose reported with a status other than ``ok`` (e.g. partially out of
+        the measurement volume); left out of estimation unless trusted explicitly."""
+        return self.has_pose & (self.marker_status != FRAME_OK)
+
+    def trusting_doubtful_frames(self) -> Recording:
+        """A copy whose doubtful poses count as seen (status ``ok``), to include them in
+        estimation on purpose; the original statuses are noted in the metadata."""
+        status = np.where(self.has_pose, FRAME_OK, np.asarray(self.marker_status))
+        metadata = {**self.metadata, "doubtful_frames_included": int(self.doubtful.sum())}
+        return replace(self, marker_status=status, metadata=metadata)
 
     def select(self, mask) -> Recording:
         """A new recording holding only the samples where ``mask`` (N,) is true."""
@@ -91,6 +138,7 @@ class Recording:
             marker_rms_mm=self.marker_rms_mm[mask],
             metadata=self.metadata,
             spheres_in_tracker=None if self.spheres_in_tracker is None else self.spheres_in_tracker[mask],
+            marker_status=None if self.marker_status is None else self.marker_status[mask],
         )
 
 
@@ -116,6 +164,8 @@ class RawRecording:
     arrival_robot_time_s : numpy.ndarray, shape (T,), optional
         The newest robot timestamp (robot clock) when each frame arrived: a coarse link
         between the two clocks, which may count from unrelated epochs; NaN where unknown.
+    marker_status : numpy.ndarray of str, shape (T,), optional
+        The tracker's frame status (see :class:`Recording`); by default from the poses.
     """
 
     robot_time_s: np.ndarray
@@ -128,6 +178,7 @@ class RawRecording:
     metadata: dict = field(default_factory=dict)
     spheres_in_tracker: np.ndarray | None = None
     arrival_robot_time_s: np.ndarray | None = None
+    marker_status: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         r = len(np.atleast_1d(self.robot_time_s))
@@ -151,6 +202,9 @@ class RawRecording:
             self.spheres_in_tracker = spheres
         if self.arrival_robot_time_s is not None:
             self.arrival_robot_time_s = _column(self.arrival_robot_time_s, (t,), "arrival_robot_time_s")
+        if self.marker_status is not None:
+            self.marker_status = np.asarray(self.marker_status).astype("<U32")
+            _check_shape(self.marker_status, (t,), "marker_status")
 
 
 def _check_shape(array: np.ndarray, shape: tuple[int, ...], name: str) -> None:

@@ -159,9 +159,12 @@ class SampleSink(Protocol):
         marker_rms_mm: float = float("nan"),
         spheres_in_tracker: np.ndarray | None = None,
         robot_time_s: float = float("nan"),
+        *,
+        status: str = FRAME_OK,
     ) -> None:
-        """Keep one sample: the tracker frame (``time_s`` on the tracker's clock) with the newest
-        robot state when it arrived (``robot_time_s`` on the robot's clock)."""
+        """Keep one sample: the tracker frame (``time_s`` on the tracker's clock, ``status`` its
+        frame status, kept with any pose the tracker reported) with the newest robot state when
+        it arrived (``robot_time_s`` on the robot's clock)."""
 
 
 class RobotStreamSink(Protocol):
@@ -309,10 +312,11 @@ def run_plan(
                     move.label,
                     state.joints_rad,
                     state.base_from_tcp,
-                    frame.tracker_from_marker if seen else None,
+                    frame.tracker_from_marker,
                     frame.rms_mm,
-                    frame.spheres_in_tracker if seen else None,
+                    frame.spheres_in_tracker,
                     robot_time_s=state.time_s,
+                    status=frame.status,
                 )
                 last_recorded = frame.time_s
                 progress.samples_written += 1
@@ -360,9 +364,11 @@ class _RawSink:
         marker_rms_mm: float = float("nan"),
         spheres_in_tracker: np.ndarray | None = None,
         robot_time_s: float = float("nan"),
+        *,
+        status: str = FRAME_OK,
     ) -> None:
         self.writer.add_tracker_frame(
-            time_s, tracker_from_marker, marker_rms_mm, robot_time_s, spheres_in_tracker
+            time_s, tracker_from_marker, marker_rms_mm, robot_time_s, spheres_in_tracker, status
         )
 
     def add_robot_states(self, states: list[RobotState], segment: str) -> None:

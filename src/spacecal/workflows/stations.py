@@ -88,4 +88,4 @@ def average_stations(recording: Recording, frame_period_s: float) -> Recording:
         marker_rms_mm=np.array(rms, dtype=float),
         metadata={**recording.metadata, "stations_averaged": len(rows)},
         spheres_in_tracker=None if recording.spheres_in_tracker is None else np.array(spheres_rows),
-    )
+    )  # statuses follow the poses: ok where a plainly seen frame was averaged, missing elsewhere

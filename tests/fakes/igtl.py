@@ -1,0 +1,255 @@
+"""A fake OpenIGTLink sender: PLUS Server, 3D Slicer or an old sender streaming tool poses, written
+from the OpenIGTLink specification (header v1, and v2 with the extended header and metadata)
+and PLUS's server, independently of the adapter's reader.
+
+Framing: a 58-byte big-endian header (u16 version, char[12] type, char[20] device name, u64
+timestamp = seconds << 32 | fraction of a second * 2**32, u64 body size, u64 CRC-64 ECMA-182 of
+the body), then the body. Header version 2 bodies start with the extended header (u16 its size
+= 12, u16 metadata header size, u32 metadata body size, u32 message id), then the content, then
+the metadata: u16 count, count x (u16 key size, u16 value encoding (3 = US-ASCII), u32 value
+size), then the keys and values.
+
+Contents: TRANSFORM = 12 float32 (R11 R21 R31 R12 R22 R32 R13 R23 R33 TX TY TZ, column by
+column, mm); POSITION = 3 float32 position + 4 float32 quaternion (ox, oy, oz, w) (24 bytes:
+the w-less form; 12 bytes: position only); TDATA = n x 70 bytes (char[20] name, u8 type
+(2 = 6D), u8 reserved, 12 float32 as TRANSFORM); QTDATA = n x 50 bytes (name, type, reserved,
+3 float32 position, 4 float32 quaternion qx, qy, qz, w).
+
+Senders (``--igtl-sender``), as they behave for a tool that is not seen:
+
+* ``plus``: PLUS Server with its default ``SendValidTransformsOnly="TRUE"``: header v2,
+  ``TransformStatus=OK`` metadata, and *nothing* for an invalid tool, while the other
+  transforms of the frame (``ReferenceToTracker``) keep coming. ``igtl send_invalid on`` is
+  ``SendValidTransformsOnly="FALSE"``: the invalid tool comes as identity with
+  ``TransformStatus=INVALID``.
+* ``slicer``: 3D Slicer's OpenIGTLinkIF: header v2 without status metadata; a node that is not
+  updated is not sent.
+* ``old``: an old sender with header v1 and no status at all, which keeps sending a
+  placeholder for an invalid tool (``igtl placeholder identity|zero|nan``).
+
+Control (the world's ``igtl ...`` command): ``form transform|position|position24|position12|
+tdata|qtdata``, ``header 1|2|3``, ``send_invalid on|off``, ``placeholder identity|zero|nan``,
+``mute on|off`` (connection kept, nothing sent), ``hang_up`` (close every connection),
+``reference on|off``. Messages clients send (TRANSFORM) are kept for ``received NAME``.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+import time
+
+import numpy as np
+from crcmod import mkCrcFun
+
+try:
+    from .net import accept_connections
+except ImportError:
+    from net import accept_connections
+
+from spacecal.geometry.transforms import matrix_to_quaternion_wxyz
+
+crc64 = mkCrcFun(0x142F0E1EBA9EA3693, rev=False, initCrc=0, xorOut=0)
+HEADER = struct.Struct(">H12s20sQQQ")
+ENCODING_US_ASCII = 3
+TDATA_6D = 2
+
+
+def igtl_timestamp(seconds: float) -> int:
+    whole = int(seconds)
+    return whole << 32 | int((seconds - whole) * 2**32) & 0xFFFFFFFF
+
+
+def pack_message(
+    message_type: str, device_name: str, content: bytes, timestamp_s: float, version: int = 1, metadata=None
+) -> bytes:
+    """One OpenIGTLink message: header (+ extended header and metadata from version 2 on)."""
+    body = content
+    if version >= 2:
+        items = [(k.encode(), str(v).encode()) for k, v in (metadata or {}).items()]
+        meta_header = struct.pack(">H", len(items)) + b"".join(
+            struct.pack(">HHI", len(k), ENCODING_US_ASCII, len(v)) for k, v in items
+        )
+        meta_body = b"".join(k + v for k, v in items)
+        extended = struct.pack(">HHII", 12, len(meta_header), len(meta_body), 0)
+        body = extended + content + meta_header + meta_body
+    header = HEADER.pack(
+        version,
+        message_type.encode().ljust(12, b"\0"),
+        device_name.encode().ljust(20, b"\0"),
+        igtl_timestamp(timestamp_s),
+        len(body),
+        crc64(body),
+    )
+    return header + body
+
+
+def transform_content(matrix) -> bytes:
+    m = np.asarray(matrix, dtype=float)
+    return struct.pack(">12f", *m[:3, :3].T.reshape(-1), *m[:3, 3])
+
+
+def position_content(matrix, size: int = 28) -> bytes:
+    m = np.asarray(matrix, dtype=float)
+    if not np.all(np.isfinite(m)) or not np.any(m[:3, :3]):
+        w, x, y, z = (np.nan,) * 4 if not np.all(np.isfinite(m)) else (0.0,) * 4
+    else:
+        w, x, y, z = matrix_to_quaternion_wxyz(m[:3, :3])
+    if w < 0:  # the 3-element form assumes w >= 0
+        w, x, y, z = -w, -x, -y, -z
+    values = [*m[:3, 3], x, y, z, w]
+    return struct.pack(f">{size // 4}f", *values[: size // 4])
+
+
+def tdata_content(tools: list[tuple[str, np.ndarray]]) -> bytes:
+    return b"".join(
+        name.encode().ljust(20, b"\0") + struct.pack(">BB", TDATA_6D, 0) + transform_content(matrix)
+        for name, matrix in tools
+    )
+
+
+def qtdata_content(tools: list[tuple[str, np.ndarray]]) -> bytes:
+    out = b""
+    for name, matrix in tools:
+        w, x, y, z = matrix_to_quaternion_wxyz(np.asarray(matrix, dtype=float)[:3, :3])
+        out += name.encode().ljust(20, b"\0") + struct.pack(">BB7f", TDATA_6D, 0, *matrix[:3, 3], x, y, z, w)
+    return out
+
+
+PLACEHOLDERS = {"identity": np.eye(4), "zero": np.zeros((4, 4)), "nan": np.full((4, 4), np.nan)}
+REFERENCE_TO_TRACKER = np.array(
+    [[0.0, -1.0, 0.0, 120.0], [1.0, 0.0, 0.0, -40.0], [0.0, 0.0, 1.0, -1400.0], [0.0, 0.0, 0.0, 1.0]]
+)
+
+
+class FakeIGTLSender:
+    """Streams the marker (and a reference) to every connected client at the tracker rate."""
+
+    def __init__(self, fake_world, sender: str = "plus", marker_name: str = "MarkerToTracker"):
+        self.world = fake_world
+        self.sender = sender
+        self.marker_name = marker_name
+        self.lock = threading.Lock()
+        self.clients: list[socket.socket] = []
+        self.form = "transform"
+        self.header = {"plus": 2, "slicer": 2, "old": 1}[sender]
+        self.send_invalid = False
+        self.placeholder = "identity"
+        self.muted = False
+        self.reference = True
+        self.received: dict[str, list] = {}
+
+    def control(self, words: list[str]) -> str:
+        if not words:
+            return "ERROR igtl needs a switch"
+        name, value = words[0], (words[1] if len(words) > 1 else "on")
+        with self.lock:
+            if name == "form" and value in (
+                "transform",
+                "position",
+                "position24",
+                "position12",
+                "tdata",
+                "qtdata",
+            ):
+                self.form = value
+            elif name == "header" and value in ("1", "2", "3"):
+                self.header = int(value)
+            elif name in ("send_invalid", "mute", "reference"):
+                setattr(self, {"mute": "muted"}.get(name, name), value != "off")
+            elif name == "placeholder" and value in PLACEHOLDERS:
+                self.placeholder = value
+            elif name == "hang_up":
+                for client in self.clients:
+                    try:
+                        client.shutdown(socket.SHUT_RDWR)  # a FIN now, though a reader still waits
+                    except OSError:
+                        pass
+                    client.close()
+                self.clients.clear()
+            else:
+                return f"ERROR unknown igtl switch {' '.join(words)}"
+        return "OK"
+
+    def frame_messages(self, stamp: float, pose) -> list[bytes]:
+        """What this sender sends for one tracker frame."""
+        marker_ok = pose is not None
+        tools: list[tuple[str, np.ndarray, bool]] = []
+        if marker_ok:
+            tools.append((self.marker_name, pose, True))
+        elif self.sender == "old" or (self.sender == "plus" and self.send_invalid):
+            placeholder = PLACEHOLDERS["identity" if self.sender == "plus" else self.placeholder]
+            tools.append((self.marker_name, placeholder, False))
+        if self.reference:
+            tools.append(("ReferenceToTracker", REFERENCE_TO_TRACKER, True))
+        version = self.header
+        if self.form in ("tdata", "qtdata"):
+            if not tools:
+                return []
+            pack = tdata_content if self.form == "tdata" else qtdata_content
+            content = pack([(name, matrix) for name, matrix, _ in tools])
+            return [pack_message(self.form.upper(), "Tracker", content, stamp, version)]
+        messages = []
+        for name, matrix, valid in tools:
+            metadata = {"TransformStatus": "OK" if valid else "INVALID"} if self.sender == "plus" else None
+            if self.form == "transform":
+                content, kind = transform_content(matrix), "TRANSFORM"
+            else:
+                size = {"position": 28, "position24": 24, "position12": 12}[self.form]
+                content, kind = position_content(matrix, size), "POSITION"
+            messages.append(pack_message(kind, name, content, stamp, version, metadata))
+        return messages
+
+    def serve(self, server, stop: threading.Event, rate_hz: float) -> None:
+        threading.Thread(target=self._accept, args=(server, stop), daemon=True).start()
+        period = 1.0 / rate_hz
+        next_time = time.monotonic()
+        while not stop.is_set():
+            next_time += period
+            time.sleep(max(next_time - time.monotonic(), 0.0))
+            if self.world.unplugged:
+                continue
+            stamp, pose, _, _ = self.world.marker_frame()
+            with self.lock:
+                if self.muted:
+                    continue
+                data = b"".join(self.frame_messages(stamp, pose))
+                for client in list(self.clients):
+                    try:
+                        client.sendall(data)
+                    except OSError:
+                        self.clients.remove(client)
+
+    def _accept(self, server, stop: threading.Event) -> None:
+        for connection in accept_connections(server, stop):
+            connection.settimeout(None)
+            with self.lock:
+                self.clients.append(connection)
+            threading.Thread(target=self._read, args=(connection,), daemon=True).start()
+
+    def _read(self, connection: socket.socket) -> None:
+        """Keep TRANSFORMs a client sends (the calibration export)."""
+        buffer = b""
+        try:
+            while True:
+                chunk = connection.recv(65536)
+                if not chunk:
+                    return
+                buffer += chunk
+                while len(buffer) >= HEADER.size:
+                    version, kind, name, _, size, _ = HEADER.unpack(buffer[: HEADER.size])
+                    if len(buffer) < HEADER.size + size:
+                        break
+                    body, buffer = buffer[HEADER.size : HEADER.size + size], buffer[HEADER.size + size :]
+                    if kind.rstrip(b"\0") == b"TRANSFORM":
+                        start = 0
+                        if version >= 2:
+                            start = struct.unpack(">H", body[:2])[0]
+                        values = struct.unpack(">12f", body[start : start + 48])
+                        matrix = np.eye(4)
+                        matrix[:3, :3] = np.array(values[:9]).reshape(3, 3).T
+                        matrix[:3, 3] = values[9:]
+                        self.received[name.rstrip(b"\0").decode()] = matrix.tolist()
+        except OSError:
+            return
