@@ -19,7 +19,10 @@ from .test_end_to_end import SPACECAL, acquire_command
 
 
 def rows_written(recording):
-    return recording.read_bytes().count(b"\n") if recording.is_file() else 0
+    """Frames written so far: ``acquire`` writes the raw tracker stream frame by frame (the
+    paired ``rec.csv`` is derived from the streams when the run ends)."""
+    stream = recording.with_name(recording.stem + ".tracker.csv")
+    return stream.read_bytes().count(b"\n") if stream.is_file() else 0
 
 
 def faults_at_rows(world, recording, plan, timeout_s=120.0):
