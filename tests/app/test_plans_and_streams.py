@@ -165,3 +165,23 @@ def test_stop_and_go_averages_the_frames_of_each_station(tmp_path):
     assert error["tre_rms_mm"] < 0.15
     with pytest.raises(InvalidInputError, match="--stop-and-go"):
         app.AcquireSettings("x.csv", stop_and_go=2)
+
+
+def test_a_plan_for_a_needle_path_plans_for_the_needle_at_its_target(tmp_path):
+    # a target about 110 mm below the TCP at home, approached from above at a slant
+    entry, target = np.array([-560.0, -150.0, 300.0]), np.array([-575.0, -165.0, 230.0])
+    record, _ = app.plan(
+        app.PlanSettings(budget_s=12.0, scenario="paper-white", needle_path_mm=(*entry, *target))
+    )
+    assert record.site_base_from_tcp is not None and np.allclose(record.site_in_base, target)
+    direction = (target - entry) / np.linalg.norm(target - entry)
+    assert np.allclose(record.site_base_from_tcp[:3, 2], direction)  # the needle along the path
+    stations = [m.end[:3, 3] for m in record.moves if m.label == "station"]
+    # the stations are drawn around the target: nearer to it than a plan for home is
+    for_home, _ = app.plan(app.PlanSettings(budget_s=12.0, scenario="paper-white"))
+    home_stations = [m.end[:3, 3] for m in for_home.moves if m.label == "station"]
+    assert np.linalg.norm(np.mean(stations, axis=0) - target) < np.linalg.norm(
+        np.mean(home_stations, axis=0) - target
+    )
+    with pytest.raises(InvalidInputError, match="not both"):
+        app.PlanSettings(site_mm=(0.0, 0.0, 0.0), needle_path_mm=(*entry, *target))

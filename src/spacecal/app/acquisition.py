@@ -31,7 +31,7 @@ from spacecal.models.marker import ndi_8700339_like
 from spacecal.models.tracker import TrackerModel
 from spacecal.planning.check_poses import check_plan
 from spacecal.planning.motion import MotionLimits, MotionPlan, motion_plan_from_record, planned_moves
-from spacecal.planning.optimal import PlannerSettings, paper_sweep_site_error, plan_for_site
+from spacecal.planning.optimal import PlannerSettings, needle_site, paper_sweep_site_error, plan_for_site
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
 from spacecal.planning.stop_and_go import stop_and_go_plan
 from spacecal.planning.visibility import VisibilityModel
@@ -645,6 +645,9 @@ class PlanSettings:
         Tracker frames held at each station.
     site_mm : (x, y, z) or None
         Where the needle tip will work, mm in the robot base; default the TCP at home.
+    needle_path_mm : (entry x, y, z, target x, y, z) or None
+        A planned needle path in the robot base, mm: the site is its target, with the needle
+        along the path (instead of ``site_mm``).
     paper_sweeps : bool
         Write the paper's six sweeps (paper §4) from home as the plan instead.
     output : str or None
@@ -658,6 +661,7 @@ class PlanSettings:
     paper_sweeps: bool = False
     output: str | None = None
     force: bool = False
+    needle_path_mm: tuple[float, float, float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.budget_s) and 1 <= self.budget_s <= 3600):
@@ -668,6 +672,14 @@ class PlanSettings:
             site = np.asarray(self.site_mm, dtype=float)
             if site.shape != (3,) or not np.all(np.isfinite(site)) or np.any(np.abs(site) > 5000):
                 raise InvalidInputError("--site takes finite x,y,z in mm (robot base), each within +-5000 mm")
+        if self.needle_path_mm is not None:
+            path = np.asarray(self.needle_path_mm, dtype=float)
+            if path.shape != (6,) or not np.all(np.isfinite(path)) or np.any(np.abs(path) > 5000):
+                raise InvalidInputError(
+                    "--needle-path takes the entry and target x,y,z in mm (robot base), each within +-5000 mm"
+                )
+            if self.site_mm is not None:
+                raise InvalidInputError("give --site or --needle-path, not both")
 
 
 def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
@@ -681,14 +693,20 @@ def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
         sphere_sigma_mm=world.scenario.white_noise_rms_mm / np.sqrt(3) or 0.1,
     )
     paper = plan_for_world(world)
-    site = None if settings.site_mm is None else np.asarray(settings.site_mm, dtype=float)
+    site: np.ndarray | None = None
+    if settings.site_mm is not None:
+        site = np.asarray(settings.site_mm, dtype=float)
+    elif settings.needle_path_mm is not None:
+        needle = np.asarray(settings.needle_path_mm, dtype=float)
+        site = needle_site(world.nominal_model, world.home_joints_rad, needle[:3], needle[3:])
     paper_error = paper_sweep_site_error(world.nominal_model, paper, visibility, planner, site_in_base=site)
     common = dict(
         home_joints_rad=world.home_joints_rad,
         home_base_from_tcp=paper.home_base_from_tcp,
         robot_model=world.nominal_model.name,
         flange_from_tcp=world.nominal_model.flange_from_tcp,
-        site_in_base=site,
+        site_in_base=None if site is None else (site[:3, 3] if site.shape == (4, 4) else site),
+        site_base_from_tcp=site if site is not None and site.shape == (4, 4) else None,
         paper_sweep={"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
         scenario=world.scenario.name,
     )

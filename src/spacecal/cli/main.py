@@ -416,6 +416,9 @@ def _plan(a: argparse.Namespace) -> None:
             a.paper_sweeps,
             a.output,
             a.force,
+            needle_path_mm=_numbers(a.needle_path, 6, "--needle-path", "entry x,y,z and target x,y,z in mm")
+            if a.needle_path
+            else None,
         )
     )
     site = (

@@ -309,6 +309,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "--site", metavar="X,Y,Z", help="where the needle tip will work, mm in the robot base (default: home)"
     )
     p.add_argument(
+        "--needle-path",
+        metavar="EX,EY,EZ,TX,TY,TZ",
+        help="a planned needle path (entry, target; mm in the robot base): plan for the needle at its target",
+    )
+    p.add_argument(
         "--paper-sweeps", action="store_true", help="write the paper's six sweeps from home as the plan"
     )
     p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")

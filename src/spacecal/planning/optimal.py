@@ -31,6 +31,7 @@ from spacecal.models.kinematics import (
     pose_point_jacobian,
 )
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move, trapezoid_duration
+from spacecal.planning.needle import needle_pose
 from spacecal.planning.stations import random_station
 from spacecal.planning.visibility import VisibilityModel
 
@@ -113,26 +114,32 @@ def predicted_site_error(information, site_gradients) -> float:
 def site_configurations(
     model: RobotModel, home_joints_rad, site_in_base=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The needle at the site: its pose, and the joints (5, 6) with the tool at the site in the
-    home orientation and tilted by 15 degrees about four axes (where the error is predicted).
+    """The needle at the site: its pose, and the joints (5, 6) with the tool at the site and
+    tilted by 15 degrees about four axes (where the error is predicted).
 
     Parameters
     ----------
     model : RobotModel
     home_joints_rad : array_like, shape (6,)
-    site_in_base : array_like, shape (3,), optional
-        The tip's working point, mm in base; default the TCP at home.
+    site_in_base : array_like, shape (3,) or (4, 4), optional
+        The tip's working point, mm in base, with the tool in its home orientation; or the
+        needle's pose there (``base_from_tcp``, e.g. at the target of a planned path,
+        :func:`needle_site`). Default: the TCP at home.
 
     Raises
     ------
     DegenerateDataError
-        When the site cannot be reached in the home orientation.
+        When the site cannot be reached.
     """
     home_joints = np.asarray(home_joints_rad, dtype=float)
     site = forward_kinematics(model, home_joints)
     try:
         if site_in_base is not None:
-            site[:3, 3] = np.asarray(site_in_base, dtype=float)
+            given = np.asarray(site_in_base, dtype=float)
+            if given.shape == (4, 4):
+                site = given.copy()
+            else:
+                site[:3, 3] = given
             home_joints = inverse_kinematics(model, site, home_joints)
         tilted = [
             inverse_kinematics(model, site @ axis_angle_transform(axis, np.radians(15)), home_joints)
@@ -140,10 +147,20 @@ def site_configurations(
         ]
     except UnreachableError:
         raise DegenerateDataError(
-            "the site cannot be reached with the tool in its home orientation (or tilted 15 degrees); "
+            "the site cannot be reached with the tool in that orientation (or tilted 15 degrees); "
             "choose a site nearer home"
         ) from None
     return site, np.array([home_joints, *tilted])
+
+
+def needle_site(model: RobotModel, home_joints_rad, entry_in_base, target_in_base) -> np.ndarray:
+    """The needle (the TCP) at the target of a planned path: ``base_from_tcp`` (4, 4), mm, with
+    its z axis from the entry to the target and its roll nearest the tool's at home."""
+    home = forward_kinematics(model, np.asarray(home_joints_rad, dtype=float))
+    entry, target = np.asarray(entry_in_base, dtype=float), np.asarray(target_in_base, dtype=float)
+    if np.linalg.norm(target - entry) < 1.0:
+        raise DegenerateDataError("the needle path's entry and target are less than 1 mm apart")
+    return needle_pose(target, target - entry, roll_reference=home[:3, 0])
 
 
 def plan_for_site(
@@ -156,15 +173,11 @@ def plan_for_site(
 ) -> SitePlan:
     """Choose stations that minimise the predicted tip error at the site within the time budget.
 
-    The site is where the needle tip will work: ``site_in_base`` (3,), mm, or by default the
-    TCP at home. Stations are drawn around it (a cube, tilted by up to the settings' tilt),
-    with the home orientation, and the error is predicted for the tip there at that
-    orientation and tilted by 15 degrees about four axes. The tour starts and ends at home.
-
-    Raises
-    ------
-    DegenerateDataError
-        If too few feasible candidates exist or the budget buys fewer than three stations.
+    The site is where the needle tip will work: ``site_in_base`` (3,), mm, or the needle's
+    pose there (4, 4) (see :func:`site_configurations`); by default the TCP at home. Stations
+    are drawn around it (a cube, tilted by up to the settings' tilt) with its orientation, and
+    the error is predicted for the tip there and tilted by 15 degrees about four axes. The
+    tour starts and ends at home.
     """
     s = settings or PlannerSettings()
     home_joints = np.asarray(home_joints_rad, dtype=float)

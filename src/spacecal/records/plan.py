@@ -107,6 +107,8 @@ class PlanRecord:
         In execution order; empty for a version-1 file (not runnable).
     site_in_base : numpy.ndarray, shape (3,), or None
         The point (mm, base frame) the plan minimises the error at; None: the TCP at home.
+    site_base_from_tcp : numpy.ndarray, shape (4, 4), or None
+        The needle's pose at the site when planned for a needle path (its target), mm.
     budget_s : float or None
         Motion time allowed, s (site-optimal plans).
     predicted_error_mm : float or None
@@ -129,6 +131,7 @@ class PlanRecord:
     flange_from_tcp: np.ndarray
     moves: list[PlannedMove] = field(default_factory=list)
     site_in_base: np.ndarray | None = None
+    site_base_from_tcp: np.ndarray | None = None
     budget_s: float | None = None
     predicted_error_mm: float | None = None
     paper_sweep: dict[str, Any] = field(default_factory=dict)
@@ -156,6 +159,10 @@ class PlanRecord:
         )
         if self.site_in_base is not None:
             object.__setattr__(self, "site_in_base", as_array(self.site_in_base, (3,), "site_in_base", what))
+        if self.site_base_from_tcp is not None:
+            object.__setattr__(
+                self, "site_base_from_tcp", as_transform(self.site_base_from_tcp, "site_base_from_tcp", what)
+            )
         if not (math.isfinite(self.motion_time_s) and self.motion_time_s >= 0):
             raise InvalidInputError(f"{what}: motion_time_s must not be negative")
         if self.budget_s is not None and not self.budget_s > 0:
@@ -180,6 +187,7 @@ class PlanRecord:
                 "home_joints_rad": self.home_joints_rad,
                 "home_base_from_tcp": self.home_base_from_tcp,
                 "site_in_base_mm": self.site_in_base,
+                "site_base_from_tcp": self.site_base_from_tcp,
                 "budget_s": self.budget_s,
                 "motion_time_s": self.motion_time_s,
                 "predicted_error_mm": self.predicted_error_mm,
@@ -219,6 +227,7 @@ class PlanRecord:
         if len(moves) > 100_000:
             raise InvalidInputError(f"{what}: {len(moves)} moves is more than any plan holds")
         site = data.get("site_in_base_mm")
+        site_pose = data.get("site_base_from_tcp")
         scenario = data.get("scenario")
         if scenario is not None and not isinstance(scenario, str):
             raise InvalidInputError(f"{what}: 'scenario' must be a name or null")
@@ -233,6 +242,9 @@ class PlanRecord:
             flange_from_tcp=as_transform(data.get("flange_from_tcp"), "flange_from_tcp", what),
             moves=[PlannedMove.from_dict(m, f"{what}: move {k + 1}") for k, m in enumerate(moves)],
             site_in_base=None if site is None else as_array(site, (3,), "site_in_base_mm", what),
+            site_base_from_tcp=None
+            if site_pose is None
+            else as_transform(site_pose, "site_base_from_tcp", what),
             budget_s=None if budget is None else get_number(data, "budget_s", what),
             predicted_error_mm=None if predicted is None else get_number(data, "predicted_error_mm", what),
             paper_sweep=get_mapping(data, "paper_sweep", what, default={}),
