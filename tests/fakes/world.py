@@ -12,6 +12,10 @@ protocol on the control port injects faults and reads the truth:
     unplug                     -> the tracker stops answering / streaming
     stale                      -> the tracker keeps repeating its last frame
     protective_stop | emergency_stop | clear
+    ur COMMAND [ARGS]          -> the UR controller: safety stops (safeguard_stop, safeguard_reset,
+                                  fault, violation, ...), program_stop | program_pause, power_off,
+                                  mode NAME, drop_rtde, remote_control on|off, registers_taken
+                                  on|off, mark, stats (JSON); see FakeController.control in rtde.py
     received NAME              -> the last TRANSFORM a client sent under NAME (JSON), or NONE
     quit
 """
@@ -111,6 +115,8 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                         fake.robot._safety = command
                     elif command == "clear":  # the operator unlocks the stop on the pendant
                         fake.robot._safety = "normal"
+                    elif command == "ur":
+                        reply = fake.controller.control(words[1:])
                     elif command == "received":
                         matrix = getattr(fake, "received", {}).get(words[1])
                         reply = "NONE" if matrix is None else json.dumps(matrix)
@@ -158,6 +164,21 @@ def ndi_frame_source(fake: FakeWorld, rate_hz: float):
     return source
 
 
+# -- the UR controller's options ------------------------------------------------------------
+def add_ur_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ur-generation", choices=sorted(rtde.GENERATIONS), default="cb3")
+    parser.add_argument(
+        "--calibrated-kinematics", action="store_true", help="the arm has factory-calibrated DH parameters"
+    )
+    parser.add_argument("--pendant-tcp", help="TCP set on the pendant: x,y,z (mm),rx,ry,rz (rad)")
+
+
+def configure_ur(fake: FakeWorld, args: argparse.Namespace) -> None:
+    fake.scenario_name = args.scenario
+    tcp = [float(v) for v in args.pendant_tcp.split(",")] if args.pendant_tcp else None
+    rtde.configure_world(fake, args.ur_generation, args.calibrated_kinematics, tcp)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--host", default="127.0.0.1")
@@ -165,8 +186,10 @@ def main() -> None:
     parser.add_argument("--igtl-port", type=int, default=0)
     parser.add_argument("--ndi-log", action="store_true", help="log NDI commands to stderr")
     parser.add_argument("--ur-log", action="store_true", help="log UR controller traffic to stderr")
+    add_ur_options(parser)
     args = parser.parse_args()
     fake = FakeWorld(args.scenario)
+    configure_ur(fake, args)
     stop = threading.Event()
     control_server = listen(args.host, 0)
     control_port = control_server.getsockname()[1]

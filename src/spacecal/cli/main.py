@@ -17,6 +17,7 @@ import warnings
 from typing import Any
 
 from spacecal import app
+from spacecal.app.acquisition import finding_line
 from spacecal.cli import parser
 from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.estimators.diagnostics import ErrorThresholds
@@ -202,6 +203,32 @@ def _progress(total_moves: int):
     return show
 
 
+def _tool(a: argparse.Namespace) -> Any:
+    """``--tool controller`` (None) or X,Y,Z,RX,RY,RZ; ``--tool-offset-mm X,Y,Z`` is X,Y,Z,0,0,0."""
+    if a.tool is not None and a.tool_offset_mm is not None:
+        raise InvalidInputError("give --tool or --tool-offset-mm, not both")
+    if a.tool_offset_mm is not None:
+        return (*_numbers(a.tool_offset_mm, 3, "--tool-offset-mm", "x,y,z in mm"), 0.0, 0.0, 0.0)
+    if a.tool is None or a.tool.strip().lower() == "controller":
+        return None
+    return _numbers(a.tool, 6, "--tool", "controller or X,Y,Z,RX,RY,RZ (mm, rotation vector in rad)")
+
+
+def _doctor(a: argparse.Namespace) -> None:
+    out = app.doctor(
+        app.DoctorSettings(a.robot, a.tracker, tuple(a.rom or ()), a.tracker_rate_hz, a.robot_model, _tool(a))
+    )
+    for device, finding in out.findings:
+        print(finding_line(device, finding))
+    if out.problems:
+        count = len(out.problems)
+        raise CheckFailed(
+            f"{count} problem{'s' if count > 1 else ''} found (marked PROBLEM above); fix "
+            f"{'them' if count > 1 else 'it'} before running spacecal acquire"
+        )
+    print("every check passed: spacecal acquire can start")
+
+
 def _acquire(a: argparse.Namespace) -> None:
     settings = app.AcquireSettings(
         a.output,
@@ -220,7 +247,7 @@ def _acquire(a: argparse.Namespace) -> None:
         tuple(a.rom or ()),
         a.tracker_rate_hz,
         a.robot_model,
-        _numbers(a.tool_offset_mm, 3, "--tool-offset-mm", "x,y,z in mm"),
+        _tool(a),
         a.prior,
         a.rotation_deg,
         a.translation_mm,
@@ -409,6 +436,7 @@ COMMANDS = {
     "verify": _verify,
     "demo": _demo,
     "acquire": _acquire,
+    "doctor": _doctor,
     "register-landmarks": _register_landmarks,
     "export": _export,
     "import-plus": _import_plus,

@@ -46,7 +46,7 @@ from spacecal.geometry.arrays import FloatArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform
 from spacecal.models.kinematics import UR_TABLES, RobotModel, dh_point_jacobian, pose_point_jacobian, ur_model
-from spacecal.records import Recording
+from spacecal.records import Recording, robot_model_from_dict
 
 #: Fewer frames with the marker visible than this cannot support a calibration: the held-out
 #: blocks would hold a handful of frames each.
@@ -82,12 +82,28 @@ Refit = Callable[[Observations, FloatArray, FloatArray], tuple[FloatArray, Float
 
 
 def nominal_robot_model(recording: Recording) -> RobotModel | None:
-    """The nominal model named in the recording's metadata (with its TCP), or None."""
+    """The robot model the recording's poses come from, or None: the controller's own model
+    where the metadata carries it (``robot.kinematic_model``, e.g. a factory-calibrated arm),
+    else the nominal model named there (with its TCP)."""
     robot = recording.metadata.get("robot", {})
+    recorded = recorded_robot_model(recording)
+    if recorded is not None:
+        return recorded
     name = robot.get("model") if isinstance(robot, dict) else None
     if not isinstance(name, str) or name not in UR_TABLES:
         return None
     return ur_model(name, np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
+
+
+def recorded_robot_model(recording: Recording) -> RobotModel | None:
+    """The kinematic model the robot itself computed its poses with, if the metadata has it."""
+    robot = recording.metadata.get("robot", {})
+    data = robot.get("kinematic_model") if isinstance(robot, dict) else None
+    if not isinstance(data, dict):
+        return None
+    name = robot.get("model")
+    base = ur_model(name) if isinstance(name, str) and name in UR_TABLES else None
+    return robot_model_from_dict(data, "recording metadata robot.kinematic_model", base)
 
 
 def ml_refit(
