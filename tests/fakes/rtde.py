@@ -534,6 +534,7 @@ class FakeController:
             if self.fault_at is None
             else max(0.0, self.last_motion_at - self.fault_at),
             "scripts_uploaded": self.scripts_uploaded,
+            "tracker_tracking": any(device.tracking for device in getattr(self.fake, "ndi_devices", ())),
             "commands": list(self.commands),
         }
 

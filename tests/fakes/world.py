@@ -203,6 +203,7 @@ def main() -> None:
     log = sys.stderr if args.ndi_log else None
     ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
     ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log)
+    fake.ndi_devices = (ndi_tcp, ndi_serial)  # "ur stats" says whether any is still tracking
     ndi_server = listen(args.host, 0)
     ndi_port = ndi_server.getsockname()[1]
     pty_master, pty_path = ndi.open_pty()

@@ -583,9 +583,21 @@ class URRobot:
             raise DeviceError(f"lost the UR control connection to {self.host}")
         return self._control
 
+    def _refused(self, command: str) -> DeviceError:
+        """Why the controller did not take a command: a connection dropped at that moment is
+        named as such (the stop's own state is read by the caller); else the refusal."""
+        deadline = time.monotonic() + 0.3
+        while time.monotonic() < deadline:
+            if not self._receive.isConnected() or (
+                self._control is not None and not self._control.isConnected()
+            ):
+                return DeviceError(f"lost the RTDE connection to {self.host}")
+            time.sleep(0.02)
+        return DeviceError(f"the UR controller refused or aborted {command}")
+
     def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
         if not self._require_control().moveJ([float(v) for v in joints_rad], speed_rad_s, accel_rad_s2):
-            raise DeviceError("the UR controller refused or aborted moveJ")
+            raise self._refused("moveJ")
 
     def move_linear(
         self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
@@ -595,7 +607,7 @@ class URRobot:
         here = pose_from_ur(self._receive.getActualTCPPose())
         speed_m_s, accel_m_s2 = movel_speed(here, target, speed_mm_s, accel_mm_s2, self.limits)
         if not control.moveL(pose_to_ur(target), speed_m_s, accel_m_s2, asynchronous):
-            raise DeviceError("the UR controller refused or aborted moveL")
+            raise self._refused("moveL")
         self._target = target if asynchronous else None
 
     def stop(self) -> None:
@@ -617,9 +629,30 @@ class URRobot:
             dashboard(self.host, ["stop"], timeout_s=1.0)
 
     def close(self) -> None:
+        dropped = not self._receive.isConnected()
         if self._control is not None:
             with contextlib.suppress(RuntimeError):
                 if self._control.isConnected():
                     self._control.stopScript()
                 self._control.disconnect()
-        self._receive.disconnect()
+            if dropped:
+                _keep_forever(self._control)
+            if not self._program_expected:
+                # stopped: ur_rtde reconnects by itself after a dropped connection and uploads its
+                # program again; end whatever it left running
+                with contextlib.suppress(OSError):
+                    dashboard(self.host, ["stop"], timeout_s=1.0)
+        if dropped:
+            _keep_forever(self._receive)
+        else:
+            self._receive.disconnect()
+
+
+def _keep_forever(interface: object) -> None:
+    """Never destroy ``interface``: ur_rtde 1.6.5's interfaces crash the process (segmentation
+    fault) when they are destroyed after the controller closed the RTDE connection (measured
+    against the fake controller), which would turn a clean "lost the RTDE connection" exit into
+    a crash. Their sockets are closed already; only the objects' memory stays."""
+    import ctypes
+
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(interface))

@@ -456,21 +456,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 class _Stop(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, handled like Ctrl-C: the robot stops and files stay readable."""
+    """Ctrl-C, SIGTERM or SIGHUP: the robot stops and files stay readable."""
+
+
+#: Set once the first signal has been turned into an interruption.
+_interrupted = threading.Event()
 
 
 def _raise_interrupt(signum, frame) -> None:
-    raise _Stop(signal.Signals(signum).name)
+    if _interrupted.is_set():
+        # a second signal while the run stops (Ctrl-C pressed twice, a service manager's
+        # repeated SIGTERM) must not abort the robot's stop half-way: it is ignored
+        return
+    _interrupted.set()
+    raise _Stop("Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name)
 
 
 @contextlib.contextmanager
 def _signals_as_interrupts():
-    """SIGTERM and SIGHUP raise KeyboardInterrupt while a command runs (main thread only)."""
+    """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once while a command runs (main
+    thread only); later ones are ignored until the command has cleaned up."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    _interrupted.clear()
     previous = {}
-    for name in ("SIGTERM", "SIGHUP"):
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         number = getattr(signal, name, None)
         if number is not None:
             previous[number] = signal.signal(number, _raise_interrupt)
@@ -479,6 +490,15 @@ def _signals_as_interrupts():
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
+
+
+def _signal_named(exc: BaseException, text: str) -> str:
+    """A run stopped by SIGTERM or SIGHUP says so (the acquisition names every interruption
+    Ctrl-C)."""
+    cause = exc.__context__
+    if isinstance(cause, _Stop) and cause.args and cause.args[0] != "Ctrl-C":
+        return text.replace("interrupted by the user (Ctrl-C)", f"interrupted ({cause.args[0]})")
+    return text
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -500,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
     except (SpacecalError, OSError) as exc:
         if args.debug:
             raise
-        print(f"spacecal: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"spacecal: error: {_signal_named(exc, _one_line(exc))}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:
         if args.debug:
