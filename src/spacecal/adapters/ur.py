@@ -362,12 +362,15 @@ class URRobot:
             self.kinematics = None
         if control:
             try:
-                self._open_control()
+                self.connect_control()
             except BaseException:
                 self.close()
                 raise
 
-    def _open_control(self) -> None:
+    def connect_control(self) -> None:
+        """Upload the control program (after the read-only checks pass), so the arm can move."""
+        if self._control is not None:
+            return
         problems = [f for f in self.preflight() if f.level == FINDING_PROBLEM]
         if problems:
             raise DeviceError(

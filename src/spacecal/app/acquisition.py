@@ -238,7 +238,8 @@ def open_hardware(settings: AcquireSettings) -> tuple[Robot, Tracker]:
         raise InvalidInputError("use --robot sim with --tracker sim, or real devices for both")
     parse_device_url(settings.robot, ("ur",))
     parse_device_url(settings.tracker, ("ndi", "igtl"))
-    robot = open_robot(settings.robot, settings.robot_model, not settings.dry_run, motion_limits(settings))
+    # read-only until every check has passed and motion is confirmed (see acquire)
+    robot = open_robot(settings.robot, settings.robot_model, False, motion_limits(settings))
     try:
         tracker = open_tracker(settings.tracker, settings.rom, settings.tracker_rate_hz)
     except BaseException:
@@ -479,6 +480,9 @@ def acquire(
         metadata = (
             recording_metadata(world) if world is not None else hardware_metadata(settings, _known(hardware))
         )
+        connect_control = getattr(robot, "connect_control", None)
+        if world is None and connect_control is not None:
+            connect_control()  # the controller's program is uploaded only now
         run_settings = AcquisitionSettings(
             linear_speed_mm_s=settings.speed_mm_s, linear_accel_mm_s2=settings.accel_mm_s2
         )
