@@ -46,6 +46,7 @@ def acquire_argv(
     *extra: str,
     rotation_deg: str = "10",
     translation_mm: str = "100",
+    brisk: bool = True,
 ) -> list[str]:
     return [
         *SPACECAL,
@@ -66,12 +67,7 @@ def acquire_argv(
         "--translation-mm",
         translation_mm,
         # brisk, so each run is short: the smallest sweeps the planner takes, at a fast pace
-        "--speed-mm-s",
-        "400",
-        "--accel-mm-s2",
-        "2000",
-        "--angular-speed-deg-s",
-        "120",
+        *(["--speed-mm-s", "400", "--accel-mm-s2", "2000", "--angular-speed-deg-s", "120"] if brisk else []),
         *extra,
     ]
 

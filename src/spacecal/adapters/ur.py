@@ -353,7 +353,10 @@ class URRobot:
         self._target: np.ndarray | None = None
         self._last_timestamp: float | None = None
         self._last_change = time.monotonic()
-        self._receive = rtde_receive.RTDEReceiveInterface(host, -1.0, RECEIVE_VARIABLES)
+        try:
+            self._receive = rtde_receive.RTDEReceiveInterface(host, -1.0, RECEIVE_VARIABLES)
+        except RuntimeError as exc:  # nothing listens: ur_rtde raises "Could not connect to ..."
+            raise DeviceError(f"no UR controller answers RTDE on {host}:30004 ({exc})") from None
         if not self._receive.isConnected():
             raise DeviceError(f"no UR controller answers RTDE on {host}:30004")
         try:

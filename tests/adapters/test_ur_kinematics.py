@@ -1,0 +1,119 @@
+"""A factory-calibrated arm with a rotated TCP set on its pendant: spacecal reads the
+controller's own model (primary interface ``KinematicsInfo`` + ``CartesianInfo``), plans and
+records with it, and calibrates within the noise bound; and the controller's ``movel``
+semantics give our rotation moves the duration the plan gives them."""
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rtde_control")
+pytest.importorskip("ndicapy")
+
+from spacecal.estimators.kinematic import robot_model_of
+from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.geometry.metrics import cube_grid, target_registration_errors
+from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
+from spacecal.io.recording_csv import read_recording
+from spacecal.models.kinematics import forward_kinematics, ur_model
+
+from .ur_runs import SPACECAL, acquire_argv, assert_everything_closed, run, ur_world
+
+PENDANT_TCP = "5,-3,195,0.02,0.25,-0.1"
+#: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
+SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)
+#: ML's TRE over the Cramér–Rao bound allowed here: the hardware path pairs each frame with the
+#: newest robot state (a timing error the bound does not include), as in test_end_to_end.
+ALLOWED_RATIO = 6.0
+
+
+def test_a_calibrated_arm_with_a_rotated_pendant_tcp_calibrates_within_the_noise(rom_file, tmp_path):
+    world = ur_world("cb3", "--calibrated-kinematics", "--pendant-tcp", PENDANT_TCP)
+    try:
+        recording = tmp_path / "rec.csv"
+        result = run(
+            acquire_argv(
+                world, "cb3", recording, rom_file, rotation_deg="30", translation_mm="200", brisk=False
+            ),
+            timeout_s=200,
+        )
+        assert result.returncode == 0, result.stderr
+        assert "18/18 moves" in result.stdout
+        assert_everything_closed(world)
+        data = read_recording(recording)
+        robot = data.metadata["robot"]
+        assert robot["kinematics_source"].startswith("the controller's calibrated kinematics")
+        recorded = robot_model_of(data)  # the prior of --method kinematic
+        nominal = ur_model("UR10")
+        # the recorded model is the controller's: calibrated DH (a few mm from nominal) ...
+        assert 0.5 < np.max(np.abs(recorded.d_mm - nominal.d_mm)) < 10.0
+        values = np.array([float(v) for v in PENDANT_TCP.split(",")])
+        tcp = make_transform(rotvec_to_matrix(values[3:]), values[:3])
+        # ... with the pendant's rotated TCP, and it reproduces every pose the controller reported
+        np.testing.assert_allclose(recorded.flange_from_tcp, tcp, atol=1e-9)
+        predicted = forward_kinematics(recorded, data.joints_rad)
+        assert np.max(np.linalg.norm(predicted[:, :3, 3] - data.base_from_tcp_stack[:, :3, 3], axis=1)) < 0.01
+        nominal_error = (
+            forward_kinematics(nominal.with_tcp(tcp), data.joints_rad)[:, :3, 3]
+            - (data.base_from_tcp_stack[:, :3, 3])
+        )
+        assert np.max(np.linalg.norm(nominal_error, axis=1)) > 1.0  # what used to be refused
+
+        calibration = tmp_path / "cal.json"
+        result = subprocess.run(
+            [*SPACECAL, "calibrate", str(recording), "--method", "ml", "-o", str(calibration)]
+            + ["--thresholds-mm", "0.5,1,20"],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert result.returncode == 0, result.stderr
+        estimate = np.array(json.loads(calibration.read_text())["tracker_from_base"])
+        truth = world.truth()
+        site = data.base_from_tcp_stack[data.visible, :3, 3].mean(axis=0)
+        errors = target_registration_errors(estimate, truth["tracker_from_base"], cube_grid(site))
+        tre = float(np.sqrt(np.mean(errors**2)))
+        bound = tre_lower_bound(data, truth["tracker_from_base"], truth["tcp_from_marker"], SPHERE_SIGMA_MM)[
+            "cube_rms"
+        ]
+        print(f"calibrated arm, rotated TCP: ML TRE {tre:.4f} mm, bound {bound:.4f} mm ({tre / bound:.1f} x)")
+        assert tre < ALLOWED_RATIO * bound
+    finally:
+        world.stop()
+
+
+def test_rotation_moves_take_the_planned_time_on_the_controller(rom_file, tmp_path):
+    """movel limits the rotation to 4 v rad/s: a pure rotation commanded with the linear speed
+    would take about twice the planned time at our defaults; the adapter commands it so the
+    controller takes the plan's time."""
+    from spacecal.adapters.ur import URRobot
+    from spacecal.geometry.transforms import make_transform as transform
+    from spacecal.planning.motion import MotionLimits, trapezoid_duration
+
+    world = ur_world("eseries")
+    limits = MotionLimits()
+    robot = URRobot(world.info["host"], robot_model="UR10e", limits=limits)
+    try:
+        start = robot.state().base_from_tcp
+        cases = {
+            "rotation": start @ transform(rotvec_to_matrix([0.0, np.radians(20.0), 0.0]), np.zeros(3)),
+            "translation": start @ transform(np.eye(3), [0.0, 0.0, 60.0]),
+        }
+        for label, target in cases.items():
+            before = robot.state().time_s
+            robot.move_linear(target, limits.linear_speed_mm_s, limits.linear_accel_mm_s2)
+            took = robot.state().time_s - before
+            if label == "rotation":
+                planned = trapezoid_duration(
+                    np.radians(20.0), limits.angular_speed_rad_s, limits.angular_accel_rad_s2
+                )
+            else:
+                planned = trapezoid_duration(60.0, limits.linear_speed_mm_s, limits.linear_accel_mm_s2)
+            print(f"{label}: planned {planned[0]:.3f} s, took {took:.3f} s on the controller's clock")
+            assert abs(took - planned[0]) < 0.1
+            robot.move_linear(start, limits.linear_speed_mm_s, limits.linear_accel_mm_s2)
+    finally:
+        robot.close()
+        world.stop()
