@@ -46,7 +46,7 @@ def test_a_ready_system_passes_and_nothing_is_uploaded(world, rom_file):
         "robot: safety: ok: normal",
         "robot: RTDE registers: ok:",
         "robot: kinematics: ok: factory-calibrated (checksums",
-        "robot: tool (TCP): ok: set on the teach pendant: X 0.0 Y 0.0 Z 180.0 mm, RX 0.0000 RY 0.0000 RZ 0.5000",
+        "robot: tool (TCP): ok: set on the teach pendant: X 0.0 Y 0.0 Z 180.0 mm, RX 0.0000 RY 0.0000 RZ 0.5",
     ):
         assert any(line.startswith(expected) for line in lines), (expected, result.stdout)
     assert lines[-1] == "every check passed: spacecal acquire can start"
