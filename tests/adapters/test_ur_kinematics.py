@@ -84,6 +84,35 @@ def test_a_calibrated_arm_with_a_rotated_pendant_tcp_calibrates_within_the_noise
         world.stop()
 
 
+def test_without_the_primary_interface_the_model_is_identified_from_the_reported_poses(rom_file, tmp_path):
+    """The fallback: the controller's kinematics cannot be read (primary interface closed); the
+    run goes on with the nominal DH and a warning, and the recording's own pairs of joints and
+    reported TCP poses identify the controller's model afterwards."""
+    world = ur_world("eseries", "--calibrated-kinematics", "--pendant-tcp", PENDANT_TCP)
+    try:
+        world.control("ur primary off")
+        recording = tmp_path / "rec.csv"
+        dry = run(acquire_argv(world, "eseries", recording, rom_file, "--dry-run"))
+        assert dry.returncode == 0, dry.stderr
+        assert "robot: kinematics: warning: the controller's kinematics could not be read" in dry.stdout
+        result = run(acquire_argv(world, "eseries", recording, rom_file))
+        assert result.returncode == 0, result.stderr
+        data = read_recording(recording)
+        assert data.metadata["robot"]["identify_kinematics_from_poses"] is True
+        identified = robot_model_of(data)
+        predicted = forward_kinematics(identified, data.joints_rad)
+        misfit = np.linalg.norm(predicted[:, :3, 3] - data.base_from_tcp_stack[:, :3, 3], axis=1)
+        nominal = forward_kinematics(ur_model("UR10e").with_tcp(identified.flange_from_tcp), data.joints_rad)
+        print(
+            f"identified from the poses: misfit max {misfit.max():.4f} mm (nominal DH: up to "
+            f"{np.linalg.norm(nominal[:, :3, 3] - data.base_from_tcp_stack[:, :3, 3], axis=1).max():.2f} mm)"
+        )
+        # the brisk run's small sweeps leave some directions weakly determined: 0.05 mm
+        assert misfit.max() < 0.05
+    finally:
+        world.stop()
+
+
 def test_rotation_moves_take_the_planned_time_on_the_controller(rom_file, tmp_path):
     """movel limits the rotation to 4 v rad/s: a pure rotation commanded with the linear speed
     would take about twice the planned time at our defaults; the adapter commands it so the

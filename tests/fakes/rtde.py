@@ -268,6 +268,7 @@ class FakeController:
         self.robot_mode = "RUNNING"
         self.remote_control = True
         self.registers_taken = False
+        self.primary_enabled = True
         self.last_command = 0
         self.pending_done = False
         self.async_running = False
@@ -351,8 +352,9 @@ class FakeController:
     def playing(self) -> bool:
         return self.runtime_state() == RUNTIME_PLAYING
 
-    def value(self, name: str):
-        state, speeds = self.snapshot()
+    def value(self, name: str, snapshot=None):
+        """One output field; every field of one packet comes from one ``snapshot`` (one tick)."""
+        state, speeds = snapshot if snapshot is not None else self.snapshot()
         safety = self.safety
         if name == "timestamp":
             return state.time_s
@@ -578,6 +580,8 @@ class FakeController:
                 self.remote_control = arguments != ["off"]
             elif command == "registers_taken":
                 self.registers_taken = arguments != ["off"]
+            elif command == "primary":  # the primary interface answers (on) or closes at once (off)
+                self.primary_enabled = arguments != ["off"]
             elif command == "mark":  # the test is about to stop the run another way (a signal)
                 self.fault_at = time.monotonic()
             elif command == "stats":
@@ -612,8 +616,9 @@ def serve_rtde_connection(controller: FakeController, connection, stop: threadin
         next_time = time.monotonic()
         while not stop.is_set() and streaming.is_set():
             controller.update()
+            snapshot = controller.snapshot()
             values = b"".join(
-                struct.pack(">" + FORMATS[t], *np.atleast_1d(controller.value(n)))
+                struct.pack(">" + FORMATS[t], *np.atleast_1d(controller.value(n, snapshot)))
                 for n, t in zip(output["names"], output["types"])
             )
             try:
@@ -839,6 +844,8 @@ def serve_primary_connection(controller: FakeController, connection, stop) -> No
     """Version message on connect, then robot-state messages at 10 Hz (what clients parse)."""
     controller.connections["primary"] += 1
     try:
+        if not controller.primary_enabled:
+            return
         connection.sendall(version_message(controller))
         while not stop.is_set():
             connection.sendall(robot_state_message(controller))

@@ -293,6 +293,9 @@ class HardwareModel:
     model: RobotModel
     source: str
     findings: list[DeviceFinding] = field(default_factory=list)
+    #: The controller published its kinematics (else the DH parameters are nominal and the
+    #: recording's pairs of joints and reported poses identify them afterwards).
+    published: bool = False
 
     def problems(self) -> list[DeviceFinding]:
         return [f for f in self.findings if f.level == FINDING_PROBLEM]
@@ -340,7 +343,7 @@ def hardware_model(robot: Robot, robot_model: str, tool: Sequence[float] | None 
                 f"{source} puts the TCP {mismatch:.1f} mm from where the controller reports it",
             )
         )
-    return HardwareModel(model, source, findings)
+    return HardwareModel(model, source, findings, getattr(robot, "kinematics", None) is not None)
 
 
 def tcp_text(flange_from_tcp: np.ndarray) -> str:
@@ -380,7 +383,11 @@ def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dic
             "model": model.name,
             "url": settings.robot,
             "flange_from_tcp": model.flange_from_tcp.tolist(),
-            "kinematic_model": robot_model_to_dict(model),
+            **(
+                {"kinematic_model": robot_model_to_dict(model)}
+                if hardware.published
+                else {"identify_kinematics_from_poses": True}
+            ),
             "kinematics_source": hardware.source,
         },
         "tracker": {"url": settings.tracker, "rate_hz": settings.tracker_rate_hz},
