@@ -143,3 +143,28 @@ def test_signals_stop_the_robot_at_once_and_keep_the_recording_resumable(rom_fil
             resume_and_check(world, generation, recording, rom_file, kept)
     finally:
         world.stop()
+
+
+def test_the_fake_controller_resumes_a_paused_move_when_the_safeguard_is_reset():
+    """The control for the tests above: a program left running after a safeguard stop moves
+    the robot again when the safeguard is reset (as on a real controller), so "still after the
+    reset" there shows spacecal ended its program, not a fake that never resumes."""
+    from spacecal.adapters.ur import URRobot
+    from spacecal.geometry.transforms import make_transform
+
+    world = ur_world("cb3")
+    robot = URRobot(world.info["host"], robot_model="UR10")
+    try:
+        start = robot.state().base_from_tcp
+        robot.move_linear(start @ make_transform(np.eye(3), [0.0, 0.0, 80.0]), 50.0, 200.0, asynchronous=True)
+        time.sleep(0.4)
+        assert world.control("ur safeguard_stop") == "OK"
+        time.sleep(0.5)
+        assert stats(world)["still_for_s"] > 0.3
+        assert world.control("ur safeguard_reset") == "OK"
+        time.sleep(0.3)
+        assert stats(world)["still_for_s"] < 0.1  # moving again: the paused move resumed
+    finally:
+        robot.stop()
+        robot.close()
+        world.stop()

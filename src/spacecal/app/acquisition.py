@@ -426,6 +426,7 @@ def acquire(
     settings: AcquireSettings,
     on_sample: Callable[[int, int, int, str], None] | None = None,
     observer: FrameObserver | None = None,
+    on_plan: Callable[[int], None] | None = None,
 ) -> AcquireOutput:
     """Plan, check and (unless a dry run) run the calibration motion, writing the recording.
 
@@ -434,6 +435,8 @@ def acquire(
     settings : AcquireSettings
     on_sample : callable, optional
         Progress callback ``on_sample(samples, visible, move_index, label)``.
+    on_plan : callable, optional
+        Called with the number of moves once the plan is made (a progress display's total).
     observer : FrameObserver, optional
         Sees every tracker frame, e.g. ``LiveView(...).observe`` of
         :mod:`spacecal.report.live`; it must return at once, and a failing one is detached
@@ -468,6 +471,8 @@ def acquire(
             if world is not None
             else hardware_plan(settings, robot, _known(hardware).model)
         )
+        if on_plan is not None:
+            on_plan(len(plan.moves))
         problems = workspace_problems(plan, settings.workspace_box)
         output = AcquireOutput(
             len(plan.moves),

@@ -267,6 +267,7 @@ def _acquire(a: argparse.Namespace) -> None:
             settings,
             on_sample=lambda *s: _progress(holder.get("moves", 1))(*s),
             observer=view.observe if view is not None else None,
+            on_plan=lambda moves: holder.update(moves=moves),
         )
     finally:
         if view is not None:
