@@ -19,26 +19,27 @@ from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
 from spacecal.io.recording_csv import read_recording
 from spacecal.models.kinematics import forward_kinematics, ur_model
 
-from .ur_runs import SPACECAL, acquire_argv, assert_everything_closed, run, ur_world
+from .ur_runs import SPACECAL, acquire_argv, assert_everything_closed, run, stats, ur_world
 
 PENDANT_TCP = "5,-3,195,0.02,0.25,-0.1"
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
 SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)
 #: ML's TRE over the Cramér–Rao bound allowed here: the hardware path pairs each frame with the
-#: newest robot state (a timing error the bound does not include), as in test_end_to_end.
+#: newest robot state (a timing error the bound does not include), as in test_end_to_end;
+#: measured 1.6-2.3x at these speeds (2-6x at the default ones) on a loaded 2-core machine.
 ALLOWED_RATIO = 6.0
 
 
 def test_a_calibrated_arm_with_a_rotated_pendant_tcp_calibrates_within_the_noise(rom_file, tmp_path):
-    world = ur_world("cb3", "--calibrated-kinematics", "--pendant-tcp", PENDANT_TCP)
+    # e-Series (its 500 Hz state keeps tracker frames close to the robot states they are paired
+    # with) at half the default speeds: the hardware path pairs each frame with the newest robot
+    # state, so the pairing error grows with speed and with the machine's load
+    world = ur_world("eseries", "--calibrated-kinematics", "--pendant-tcp", PENDANT_TCP)
     try:
         recording = tmp_path / "rec.csv"
-        result = run(
-            acquire_argv(
-                world, "cb3", recording, rom_file, rotation_deg="30", translation_mm="200", brisk=False
-            ),
-            timeout_s=200,
-        )
+        slow = ["--speed-mm-s", "50", "--accel-mm-s2", "200", "--angular-speed-deg-s", "20"]
+        argv = acquire_argv(world, "eseries", recording, rom_file, *slow, rotation_deg="25", brisk=False)
+        result = run(argv + ["--translation-mm", "150"], timeout_s=200)
         assert result.returncode == 0, result.stderr
         assert "18/18 moves" in result.stdout
         assert_everything_closed(world)
@@ -46,7 +47,7 @@ def test_a_calibrated_arm_with_a_rotated_pendant_tcp_calibrates_within_the_noise
         robot = data.metadata["robot"]
         assert robot["kinematics_source"].startswith("the controller's calibrated kinematics")
         recorded = robot_model_of(data)  # the prior of --method kinematic
-        nominal = ur_model("UR10")
+        nominal = ur_model("UR10e")
         # the recorded model is the controller's: calibrated DH (a few mm from nominal) ...
         assert 0.5 < np.max(np.abs(recorded.d_mm - nominal.d_mm)) < 10.0
         values = np.array([float(v) for v in PENDANT_TCP.split(",")])
@@ -131,18 +132,20 @@ def test_rotation_moves_take_the_planned_time_on_the_controller(rom_file, tmp_pa
             "translation": start @ transform(np.eye(3), [0.0, 0.0, 60.0]),
         }
         for label, target in cases.items():
-            before = robot.state().time_s
             robot.move_linear(target, limits.linear_speed_mm_s, limits.linear_accel_mm_s2)
-            took = robot.state().time_s - before
+            took = stats(world)["last_movel_s"]  # the duration the controller gave the movel
             if label == "rotation":
                 planned = trapezoid_duration(
                     np.radians(20.0), limits.angular_speed_rad_s, limits.angular_accel_rad_s2
                 )
             else:
                 planned = trapezoid_duration(60.0, limits.linear_speed_mm_s, limits.linear_accel_mm_s2)
-            print(f"{label}: planned {planned[0]:.3f} s, took {took:.3f} s on the controller's clock")
-            assert abs(took - planned[0]) < 0.1
+            print(f"{label}: planned {planned[0]:.3f} s, the controller's movel {took:.3f} s")
+            assert took == pytest.approx(planned[0], rel=0.01)
             robot.move_linear(start, limits.linear_speed_mm_s, limits.linear_accel_mm_s2)
+        # the same rotation commanded with the linear speed (as before) would take 1.4x as long
+        unconverted = trapezoid_duration(np.radians(20.0), 4 * 0.1, 4 * 0.4)[0]
+        assert unconverted > 1.3 * trapezoid_duration(np.radians(20.0), limits.angular_speed_rad_s, 3.14)[0]
     finally:
         robot.close()
         world.stop()

@@ -462,6 +462,8 @@ class FakeController:
             angular_accel_rad_s2=MOVEL_RAD_PER_M * accel_m_s2,
         )
         self.robot.move_linear(pose, speed_m_s * 1000.0, accel_m_s2 * 1000.0, asynchronous=True)
+        motion = self.robot._motion
+        self.last_move_s = motion[1].duration_s if motion is not None else 0.0
 
     def _start(self, begin, asynchronous: bool) -> None:
         begin()
@@ -536,6 +538,7 @@ class FakeController:
             if self.fault_at is None
             else max(0.0, self.last_motion_at - self.fault_at),
             "scripts_uploaded": self.scripts_uploaded,
+            "last_movel_s": getattr(self, "last_move_s", None),
             "tracker_tracking": any(device.tracking for device in getattr(self.fake, "ndi_devices", ())),
             "commands": list(self.commands),
         }
