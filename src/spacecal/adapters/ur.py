@@ -540,7 +540,9 @@ class URRobot:
                 else f"the nominal {self.nominal.name} model (no factory calibration published)",
             )
         add(FINDING_OK, "tool (TCP)", f"set on the teach pendant: {tcp_text(model.flange_from_tcp)}")
-        time.sleep(0.05)
+        deadline = time.monotonic() + 1.0  # a loaded computer may see no new packet for a while
+        while float(self._receive.getTimestamp()) == timestamp and time.monotonic() < deadline:
+            time.sleep(0.01)
         if float(self._receive.getTimestamp()) == timestamp:
             add(FINDING_PROBLEM, "robot state", "the controller's RTDE timestamp does not advance")
         return findings
