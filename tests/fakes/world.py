@@ -14,6 +14,10 @@ protocol on the control port injects faults and reads the truth:
     protective_stop | emergency_stop | clear
     bump_marker DEG            -> the marker turns on the tool by DEG about its x axis
     move_tracker MM            -> the tracker moves by MM along its x axis
+    ur COMMAND [ARGS]          -> the UR controller: safety stops (safeguard_stop, safeguard_reset,
+                                  fault, violation, ...), program_stop | program_pause, power_off,
+                                  mode NAME, drop_rtde, remote_control on|off, registers_taken
+                                  on|off, mark, stats (JSON); see FakeController.control in rtde.py
     received NAME              -> the last TRANSFORM a client sent under NAME (JSON), or NONE
     ndi FAULT ...              -> NDI tracker faults (see ``ndi_control``)
     igtl ...                   -> OpenIGTLink sender switches (see ``igtl_control``)
@@ -119,6 +123,8 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                         fake.robot._safety = "normal"
                     elif command in ("bump_marker", "move_tracker"):
                         change_the_set_up(fake, command, float(words[1]))
+                    elif command == "ur":
+                        reply = fake.controller.control(words[1:])
                     elif command == "received":
                         matrix = getattr(fake, "received", {}).get(words[1])
                         reply = "NONE" if matrix is None else json.dumps(matrix)
@@ -174,6 +180,21 @@ def ndi_frame_source(fake: FakeWorld, rate_hz: float):
     return source
 
 
+# -- the UR controller's options ------------------------------------------------------------
+def add_ur_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ur-generation", choices=sorted(rtde.GENERATIONS), default="cb3")
+    parser.add_argument(
+        "--calibrated-kinematics", action="store_true", help="the arm has factory-calibrated DH parameters"
+    )
+    parser.add_argument("--pendant-tcp", help="TCP set on the pendant: x,y,z (mm),rx,ry,rz (rad)")
+
+
+def configure_ur(fake: FakeWorld, args: argparse.Namespace) -> None:
+    fake.scenario_name = args.scenario
+    tcp = [float(v) for v in args.pendant_tcp.split(",")] if args.pendant_tcp else None
+    rtde.configure_world(fake, args.ur_generation, args.calibrated_kinematics, tcp)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--host", default="127.0.0.1")
@@ -184,8 +205,10 @@ def main() -> None:
     parser.add_argument("--ndi-generation", default="vicra", choices=sorted(ndi.GENERATIONS))
     parser.add_argument("--igtl-sender", default="plus", choices=["plus", "slicer", "old"])
     parser.add_argument("--igtl-marker-name", default="MarkerToTracker")
+    add_ur_options(parser)
     args = parser.parse_args()
     fake = FakeWorld(args.scenario)
+    configure_ur(fake, args)
     stop = threading.Event()
     control_server = listen(args.host, 0)
     control_port = control_server.getsockname()[1]
@@ -200,6 +223,7 @@ def main() -> None:
     fake.ndi_faults = ndi.NDIFaults()
     ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
     ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
+    fake.ndi_devices = (ndi_tcp, ndi_serial)  # "ur stats" says whether any is still tracking
     ndi_server = listen(args.host, 0)
     ndi_port = ndi_server.getsockname()[1]
     pty_master, pty_path = ndi.open_pty()

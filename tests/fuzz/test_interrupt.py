@@ -96,7 +96,7 @@ def test_ctrl_c_at_random_samples_then_resume(tmp_path):
     for k, stop_at in enumerate(sorted(rng.sample(range(1, 560), 8))):
         output = tmp_path / f"rec{k}.csv"
 
-        def hook(samples, visible, move, moves_total, label, stop_at=stop_at):
+        def hook(samples, visible, move, label, stop_at=stop_at):
             if samples == stop_at:
                 raise KeyboardInterrupt
 

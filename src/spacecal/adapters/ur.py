@@ -5,31 +5,138 @@
   in metres with a rotation vector and is converted to mm here, at the boundary.
 * Motion: ``RTDEControlInterface`` (it uploads its URScript and talks to it through
   registers): ``moveJ``, ``moveL`` (optionally asynchronous), ``stopL``.
-* Faults: protective and emergency stops from ``safety_status_bits``; a lost connection
+* What stops the arm, from the receive recipe (RTDE guide): ``safety_status_bits`` (protective,
+  safeguard and emergency stops, violation, fault, stopped by the safety system),
+  ``robot_mode`` (anything but RUNNING = 7), ``runtime_state`` and ``robot_status_bits`` (our
+  control program stopped or paused on the teach pendant). A lost connection
   (``isConnected()`` turns false, but the getters keep returning the last values forever) and
   a controller timestamp that stops advancing are device errors.
+* A stop ends the control program through the dashboard server (``stop``): a safeguard stop
+  only pauses a program, and the controller resumes the paused move when the safeguard is
+  reset; a run spacecal gave up must never move again.
+* ``movel``'s ``v`` and ``a`` are the TCP's linear speed (m/s) and acceleration (m/s^2); the
+  rotation of the same move gets ``4 v`` rad/s and ``4 a`` rad/s^2, and the slower profile sets
+  the duration (Universal Robots' answer on their forum, "MoveL: Tool Angular Speed"). A
+  rotation about the TCP is therefore commanded with ``v = angular speed / 4``.
+* The controller's own kinematics, read-only from the primary client interface (port 30001):
+  the robot-state message's ``KinematicsInfo`` sub-package (the factory-calibrated DH
+  parameters the controller computes ``actual_TCP_pose`` with) and ``CartesianInfo`` (the TCP
+  set on the teach pendant).
+* Read-only checks (:meth:`URRobot.preflight`): dashboard queries (version, robot mode, safety,
+  remote control), an RTDE input-recipe probe for the registers the control script needs, the
+  primary interface. Opening with ``control=False`` never uploads a program.
 * The client constructor returns normally after about 2.5 s with ``isConnected() == False``
   when nothing answers, and ``disconnect()`` sleeps 500 ms per interface.
 """
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import re
+import socket
+import struct
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from spacecal.adapters import require
 from spacecal.core.errors import DeviceError
-from spacecal.core.ports import SAFETY_EMERGENCY_STOP, SAFETY_NORMAL, SAFETY_PROTECTIVE_STOP, RobotState
+from spacecal.core.ports import (
+    FINDING_OK,
+    FINDING_PROBLEM,
+    FINDING_WARNING,
+    SAFETY_EMERGENCY_STOP,
+    SAFETY_FAULT,
+    SAFETY_NORMAL,
+    SAFETY_NOT_RUNNING,
+    SAFETY_POWERED_OFF,
+    SAFETY_PROGRAM_PAUSED,
+    SAFETY_PROGRAM_STOPPED,
+    SAFETY_PROTECTIVE_STOP,
+    SAFETY_RECOVERY,
+    SAFETY_SAFEGUARD_STOP,
+    SAFETY_STOPPED_BY_SAFETY,
+    SAFETY_VIOLATION,
+    DeviceFinding,
+    RobotState,
+)
 from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.rotations import rotation_angle
-from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec, rotvec_to_matrix
+from spacecal.models.kinematics import UR_TABLES, RobotModel, forward_kinematics, ur_model
+from spacecal.planning.motion import MotionLimits, trapezoid_duration
 
-RECEIVE_VARIABLES = ["timestamp", "actual_q", "actual_qd", "actual_TCP_pose", "safety_status_bits"]
+RECEIVE_VARIABLES = [
+    "timestamp",
+    "actual_q",
+    "actual_qd",
+    "actual_TCP_pose",
+    "safety_status_bits",
+    "robot_mode",
+    "runtime_state",
+    "robot_status_bits",
+]
+RTDE_PORT, DASHBOARD_PORT, PRIMARY_PORT = 30004, 29999, 30001
+#: safety_status_bits (RTDE guide), most severe first, and what each means for a run.
+SAFETY_BITS = (
+    (1 << 9, SAFETY_FAULT),
+    (1 << 8, SAFETY_VIOLATION),
+    ((1 << 5) | (1 << 6) | (1 << 7), SAFETY_EMERGENCY_STOP),
+    (1 << 2, SAFETY_PROTECTIVE_STOP),
+    (1 << 4, SAFETY_SAFEGUARD_STOP),
+    (1 << 3, SAFETY_RECOVERY),
+    (1 << 10, SAFETY_STOPPED_BY_SAFETY),
+)
 PROTECTIVE_STOP_BITS = 1 << 2
 EMERGENCY_STOP_BITS = (1 << 5) | (1 << 6) | (1 << 7)
+ROBOT_MODES = {
+    -1: "NO_CONTROLLER",
+    0: "DISCONNECTED",
+    1: "CONFIRM_SAFETY",
+    2: "BOOTING",
+    3: "POWER_OFF",
+    4: "POWER_ON",
+    5: "IDLE",
+    6: "BACKDRIVE",
+    7: "RUNNING",
+    8: "UPDATING_FIRMWARE",
+}
+ROBOT_MODE_RUNNING, ROBOT_MODE_POWER_OFF = 7, 3
+RUNTIME_PLAYING, RUNTIME_PAUSING, RUNTIME_PAUSED = 2, 3, 4
+#: The RTDE inputs ur_rtde 1.6.5's control script reads (lower register range).
+CONTROL_INPUTS = [f"input_int_register_{i}" for i in range(8)] + [
+    f"input_double_register_{i}" for i in range(18)
+]
+#: movel gives the rotation 4 rad/s per m/s of ``v`` (and 4 rad/s^2 per m/s^2 of ``a``).
+MOVEL_RAD_PER_M = 4.0
+#: Deceleration of stopL when a run is stopped, m/s^2.
+STOP_DECEL_M_S2 = 2.0
 #: A move counts as finished within these of its target, with the joints at rest.
 ARRIVAL_MM, ARRIVAL_RAD, REST_RAD_S = 0.05, 1e-4, 1e-3
+#: The controller's model must reproduce its reported TCP pose to this (mm).
+MODEL_CHECK_MM = 0.1
+#: What to do on the pendant, per safety state.
+SAFETY_ADVICE = {
+    SAFETY_PROTECTIVE_STOP: "protective stop: find what the arm hit, then unlock it on the teach pendant",
+    SAFETY_SAFEGUARD_STOP: "safeguard stop: close the safeguard (door, light curtain, safety input) and "
+    "reset it",
+    SAFETY_EMERGENCY_STOP: "emergency stop: release the emergency-stop button and reset the robot on the "
+    "teach pendant",
+    SAFETY_VIOLATION: "safety violation: read the teach pendant's log, fix the cause and restart the robot",
+    SAFETY_FAULT: "safety system fault: read the teach pendant's log and restart the robot",
+    SAFETY_RECOVERY: "safety recovery mode: jog the arm back inside its safety limits on the teach pendant",
+    SAFETY_STOPPED_BY_SAFETY: "stopped by the safety system: read the teach pendant's log and reset it",
+}
+ROBOT_MODE_ADVICE = {
+    "POWER_OFF": "the arm is powered off: power it on and release the brakes on the teach pendant",
+    "POWER_ON": "the arm is powering on: release the brakes on the teach pendant",
+    "IDLE": "the arm is powered on with its brakes engaged: release the brakes on the teach pendant",
+    "BOOTING": "the controller is still booting: wait for it, then power on the arm",
+    "CONFIRM_SAFETY": "the safety configuration waits for confirmation on the teach pendant",
+    "BACKDRIVE": "the arm is in backdrive mode: leave it on the teach pendant",
+}
 
 
 def pose_to_ur(base_from_tcp) -> list[float]:
@@ -44,6 +151,173 @@ def pose_from_ur(ur_pose) -> np.ndarray:
     return make_transform(rotvec_to_matrix(values[3:6]), metres_to_mm(values[:3]))
 
 
+def tcp_text(flange_from_tcp) -> str:
+    """A TCP the way the teach pendant shows it: X, Y, Z in mm, RX, RY, RZ rotation vector in rad."""
+    pose = np.asarray(flange_from_tcp, dtype=float)
+    values = [*pose[:3, 3], *matrix_to_rotvec(pose[:3, :3])]
+    return "X {:.1f} Y {:.1f} Z {:.1f} mm, RX {:.4f} RY {:.4f} RZ {:.4f} rad".format(*values)
+
+
+def controller_condition(
+    safety_bits: int, robot_mode: int, runtime_state: int, program_expected: bool
+) -> str:
+    """What stops the arm now (a ``SAFETY_*`` value), from the RTDE state fields."""
+    for mask, name in SAFETY_BITS:
+        if safety_bits & mask:
+            return name
+    if robot_mode == ROBOT_MODE_POWER_OFF:
+        return SAFETY_POWERED_OFF
+    if robot_mode != ROBOT_MODE_RUNNING:
+        return f"{SAFETY_NOT_RUNNING}_(mode_{ROBOT_MODES.get(robot_mode, str(robot_mode))})"
+    if program_expected and runtime_state != RUNTIME_PLAYING:
+        return (
+            SAFETY_PROGRAM_PAUSED
+            if runtime_state in (RUNTIME_PAUSING, RUNTIME_PAUSED)
+            else SAFETY_PROGRAM_STOPPED
+        )
+    return SAFETY_NORMAL
+
+
+def movel_speed(
+    start, end, speed_mm_s: float, accel_mm_s2: float, limits: MotionLimits
+) -> tuple[float, float]:
+    """``v`` (m/s) and ``a`` (m/s^2) for a movel so the controller takes the time our plan gives
+    the move (:func:`spacecal.planning.motion.time_move`): the linear limits when translation
+    sets the duration, the angular limits divided by :data:`MOVEL_RAD_PER_M` when rotation does."""
+    start, end = np.asarray(start, dtype=float), np.asarray(end, dtype=float)
+    distance = float(np.linalg.norm(end[:3, 3] - start[:3, 3]))
+    angle = float(rotation_angle(start[:3, :3].T @ end[:3, :3]))
+    linear = trapezoid_duration(distance, speed_mm_s, accel_mm_s2)[0]
+    angular = trapezoid_duration(angle, limits.angular_speed_rad_s, limits.angular_accel_rad_s2)[0]
+    if angular > linear:
+        return limits.angular_speed_rad_s / MOVEL_RAD_PER_M, limits.angular_accel_rad_s2 / MOVEL_RAD_PER_M
+    return float(mm_to_metres(speed_mm_s)), float(mm_to_metres(accel_mm_s2))
+
+
+# -- read-only conversations with the controller ---------------------------------------------
+def dashboard(host: str, commands: list[str], timeout_s: float = 2.0) -> list[str]:
+    """Send dashboard-server commands (port 29999), one reply line each."""
+    replies = []
+    with socket.create_connection((host, DASHBOARD_PORT), timeout=timeout_s) as connection:
+        stream = connection.makefile("rw", encoding="utf-8", newline="\n")
+        stream.readline()  # greeting
+        for command in commands:
+            stream.write(command + "\n")
+            stream.flush()
+            replies.append(stream.readline().strip())
+    return replies
+
+
+def _recv_exact(connection: socket.socket, count: int) -> bytes:
+    data = b""
+    while len(data) < count:
+        chunk = connection.recv(count - len(data))
+        if not chunk:
+            raise ConnectionError("closed by the controller")
+        data += chunk
+    return data
+
+
+def registers_in_use(host: str, names: list[str] = CONTROL_INPUTS, timeout_s: float = 2.0) -> list[str]:
+    """RTDE inputs another client holds: set up an input recipe and read which fields answer
+    ``IN_USE`` (nothing is written; the recipe ends with the connection)."""
+
+    def request(connection, kind: str, payload: bytes) -> bytes:
+        connection.sendall(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
+        while True:  # skip anything that is not the answer (there is no stream: never started)
+            size, answer = struct.unpack(">HB", _recv_exact(connection, 3))
+            body = _recv_exact(connection, size - 3)
+            if answer == ord(kind):
+                return body
+
+    with socket.create_connection((host, RTDE_PORT), timeout=timeout_s) as connection:
+        request(connection, "V", struct.pack(">H", 2))
+        reply = request(connection, "I", ",".join(names).encode())
+    types = reply[1:].decode(errors="replace").split(",")
+    return [name for name, kind in zip(names, types) if kind == "IN_USE"]
+
+
+@dataclass(frozen=True)
+class ControllerKinematics:
+    """The controller's kinematic model as its primary interface publishes it.
+
+    Attributes
+    ----------
+    checksums : tuple of 6 int
+        Per-joint calibration checksums (``KinematicsInfo``).
+    theta_rad, a_mm, d_mm, alpha_rad : numpy.ndarray, shape (6,)
+        The DH parameters the controller computes with: nominal plus factory-calibration deltas.
+    calibration_status : int
+    flange_from_tcp : numpy.ndarray, shape (4, 4), or None
+        The TCP set on the teach pendant (``CartesianInfo``), mm; None if not sent.
+    """
+
+    checksums: tuple[int, ...]
+    theta_rad: np.ndarray
+    a_mm: np.ndarray
+    d_mm: np.ndarray
+    alpha_rad: np.ndarray
+    calibration_status: int
+    flange_from_tcp: np.ndarray | None
+
+    def model(self, nominal: RobotModel, flange_from_tcp) -> RobotModel:
+        """``nominal`` (name, limits) with these DH parameters and a TCP (4, 4), mm."""
+        return dataclasses.replace(
+            nominal,
+            a_mm=self.a_mm.copy(),
+            d_mm=self.d_mm.copy(),
+            alpha_rad=self.alpha_rad.copy(),
+            theta_offset_rad=self.theta_rad.copy(),
+            flange_from_tcp=np.asarray(flange_from_tcp, dtype=float),
+        )
+
+
+def read_primary_interface(host: str, timeout_s: float = 2.0) -> ControllerKinematics:
+    """The ``KinematicsInfo`` and ``CartesianInfo`` of the primary interface's robot-state
+    message (type 16; sub-packages 5 and 4), as Universal_Robots_Client_Library parses them."""
+    deadline = time.monotonic() + timeout_s
+    with socket.create_connection((host, PRIMARY_PORT), timeout=timeout_s) as connection:
+        while time.monotonic() < deadline:
+            size, kind = struct.unpack(">iB", _recv_exact(connection, 5))
+            body = _recv_exact(connection, size - 5)
+            if kind != 16:  # version and other robot messages
+                continue
+            found: dict[int, bytes] = {}
+            offset = 0
+            while offset + 5 <= len(body):
+                sub_size, sub_kind = struct.unpack_from(">IB", body, offset)
+                if sub_size < 5:
+                    break
+                found[sub_kind] = body[offset + 5 : offset + sub_size]
+                offset += sub_size
+            if 5 not in found:
+                continue
+            info = found[5]
+            checksums = struct.unpack_from(">6I", info, 0)
+            theta, a, d, alpha = (np.array(struct.unpack_from(">6d", info, 24 + 48 * k)) for k in range(4))
+            status = struct.unpack_from(">I", info, 216)[0] if len(info) >= 220 else 0
+            tcp = None
+            cartesian = found.get(4, b"")
+            if len(cartesian) >= 96:
+                offset_values = np.array(struct.unpack_from(">6d", cartesian, 48))
+                tcp = make_transform(rotvec_to_matrix(offset_values[3:]), metres_to_mm(offset_values[:3]))
+            return ControllerKinematics(
+                tuple(int(c) for c in checksums),
+                theta,
+                metres_to_mm(a),
+                metres_to_mm(d),
+                alpha,
+                int(status),
+                tcp,
+            )
+    raise DeviceError(f"no robot state with kinematics from {host}:{PRIMARY_PORT}")
+
+
+def _version(text: str) -> tuple[int, ...] | None:
+    match = re.search(r"(\d+)\.(\d+)\.(\d+)(?:\.(\d+))?", text)
+    return tuple(int(v) for v in match.groups() if v is not None) if match else None
+
+
 class URRobot:
     """A UR arm behind the Robot protocol.
 
@@ -51,32 +325,253 @@ class URRobot:
     ----------
     host : str
     control : bool
-        Connect the control interface too (not needed to read states, e.g. in a dry run).
+        Connect the control interface too (uploads the control program). Without it nothing
+        is uploaded or written: a dry run and ``spacecal doctor`` use it so.
     stale_after_s : float
         A controller timestamp that does not advance for this long (wall time) is stale.
+    robot_model : str
+        The nominal model (``UR10``, ``UR10e``, ...) the controller's kinematics refine.
+    limits : MotionLimits, optional
+        The plan's rotation limits: rotation-led moves are commanded with them.
     """
 
-    def __init__(self, host: str, control: bool = True, stale_after_s: float = 0.5):
+    def __init__(
+        self,
+        host: str,
+        control: bool = True,
+        stale_after_s: float = 0.5,
+        robot_model: str = "UR10",
+        limits: MotionLimits | None = None,
+    ):
         rtde_receive = require("rtde_receive", "ur")
         self.host = host
         self.stale_after_s = stale_after_s
-        self._receive = rtde_receive.RTDEReceiveInterface(host, -1.0, RECEIVE_VARIABLES)
-        if not self._receive.isConnected():
-            raise DeviceError(f"no UR controller answers RTDE on {host}:30004")
+        self.limits = limits or MotionLimits()
+        self.nominal = ur_model(robot_model)
         self._control = None
-        if control:
-            rtde_control = require("rtde_control", "ur")
-            self._control = rtde_control.RTDEControlInterface(host)
-            if not self._control.isConnected():
-                raise DeviceError(f"the UR control interface on {host} did not connect")
+        self._program_expected = False
         self._target: np.ndarray | None = None
         self._last_timestamp: float | None = None
         self._last_change = time.monotonic()
+        try:
+            self._receive = rtde_receive.RTDEReceiveInterface(host, -1.0, RECEIVE_VARIABLES)
+        except RuntimeError as exc:  # nothing listens: ur_rtde raises "Could not connect to ..."
+            raise DeviceError(f"no UR controller answers RTDE on {host}:30004 ({exc})") from None
+        if not self._receive.isConnected():
+            raise DeviceError(f"no UR controller answers RTDE on {host}:30004")
+        try:
+            self.kinematics: ControllerKinematics | None = read_primary_interface(host)
+        except (OSError, ValueError, struct.error):
+            self.kinematics = None
+        if control:
+            try:
+                self.connect_control()
+            except BaseException:
+                self.close()
+                raise
+
+    def connect_control(self) -> None:
+        """Upload the control program (after the read-only checks pass), so the arm can move."""
+        if self._control is not None:
+            return
+        problems = [f for f in self.preflight() if f.level == FINDING_PROBLEM]
+        if problems:
+            raise DeviceError(
+                f"the robot is not ready ({problems[0].subject}): {problems[0].text}; nothing moved"
+            )
+        rtde_control = require("rtde_control", "ur")
+        try:
+            control = rtde_control.RTDEControlInterface(self.host)
+        except RuntimeError as exc:
+            raise DeviceError(
+                f"the UR controller on {self.host} did not start spacecal's control program ({exc}); "
+                "check the teach pendant (remote control, robot running, no other program holding the RTDE "
+                "registers); nothing moved"
+            ) from None
+        self._control = control
+        if not control.isConnected():
+            raise DeviceError(f"the UR control interface on {self.host} did not connect; nothing moved")
+        self._program_expected = True
+
+    # -- read-only checks --------------------------------------------------------------
+    def controller_model(self) -> tuple[RobotModel, str]:
+        """The model the controller computes ``actual_TCP_pose`` with: its DH parameters
+        (factory-calibrated where it is) and the TCP set on the teach pendant; and where it
+        came from."""
+        state = self._raw_state()
+        if self.kinematics is not None:
+            dh = self.kinematics.model(self.nominal, np.eye(4))
+            source = "the controller's calibrated kinematics (primary interface)"
+            if self.kinematics.flange_from_tcp is not None:
+                return dh.with_tcp(self.kinematics.flange_from_tcp), source
+        else:
+            dh = self.nominal
+            source = "the nominal kinematics (the controller's were not available)"
+        # the TCP from where the controller reports it, relative to the flange by the model
+        flange = forward_kinematics(dh, state[1], to_tcp=False)
+        return dh.with_tcp(
+            invert_transform(flange) @ state[2]
+        ), source + ", TCP derived from the reported pose"
+
+    def _raw_state(self) -> tuple[float, np.ndarray, np.ndarray]:
+        timestamp, joints, pose, *_ = self._read_packet()
+        return timestamp, joints, pose
+
+    def preflight(self) -> list[DeviceFinding]:
+        """Read-only checks of the controller: what a run needs, in a robot operator's words."""
+        findings: list[DeviceFinding] = []
+
+        def add(level: str, subject: str, text: str) -> None:
+            findings.append(DeviceFinding(level, subject, text))
+
+        version: tuple[int, ...] | None = None
+        try:
+            version_text, model_text, remote, program = dashboard(
+                self.host, ["PolyscopeVersion", "get robot model", "is in remote control", "programState"]
+            )
+        except OSError as exc:
+            add(FINDING_PROBLEM, "dashboard", f"no dashboard server answers on {self.host}:29999 ({exc})")
+            version_text = model_text = remote = program = ""
+        else:
+            version = _version(version_text)
+            if version is None:
+                add(FINDING_WARNING, "controller version", f"not understood: {version_text!r}")
+            else:
+                eseries = version[0] >= 5
+                add(
+                    FINDING_OK,
+                    "controller version",
+                    f"PolyScope {'.'.join(map(str, version))} ({'e-Series' if eseries else 'CB3'}), "
+                    f"robot state at {500 if eseries else 125} Hz",
+                )
+                if eseries and "true" not in remote.lower():
+                    add(
+                        FINDING_PROBLEM,
+                        "remote control",
+                        "the teach pendant is in Local control: switch it to Remote Control (the icon at the "
+                        "top right of the pendant) so spacecal may move the robot",
+                    )
+                elif eseries:
+                    add(FINDING_OK, "remote control", "on")
+            reported = model_text.strip()
+            if reported and version is not None and reported + "e" in UR_TABLES and version[0] >= 5:
+                reported += "e"
+            if reported in UR_TABLES and reported != self.nominal.name:
+                add(
+                    FINDING_PROBLEM,
+                    "robot model",
+                    f"the controller says this is a {reported}, but --robot-model is {self.nominal.name}: "
+                    f"pass --robot-model {reported}",
+                )
+            if program.startswith("PLAYING") and not self._program_expected:
+                add(
+                    FINDING_WARNING,
+                    "program",
+                    f"a program is running on the robot ({program}); "
+                    "spacecal's control program will replace it",
+                )
+        timestamp, joints, pose = self._raw_state()
+        mode = int(self._receive.getRobotMode())
+        mode_name = ROBOT_MODES.get(mode, str(mode))
+        if mode == ROBOT_MODE_RUNNING:
+            add(FINDING_OK, "robot mode", "RUNNING (powered on, brakes released)")
+        else:
+            add(
+                FINDING_PROBLEM,
+                "robot mode",
+                ROBOT_MODE_ADVICE.get(
+                    mode_name, f"the arm is in mode {mode_name}: bring it to RUNNING on the teach pendant"
+                ),
+            )
+        safety = controller_condition(
+            int(self._receive.getSafetyStatusBits()), ROBOT_MODE_RUNNING, RUNTIME_PLAYING, False
+        )
+        if safety == SAFETY_NORMAL:
+            add(FINDING_OK, "safety", "normal")
+        else:
+            add(FINDING_PROBLEM, "safety", SAFETY_ADVICE.get(safety, safety.replace("_", " ")))
+        try:
+            taken = registers_in_use(self.host) if not self._program_expected else []
+        except (OSError, ValueError, struct.error) as exc:
+            add(FINDING_WARNING, "RTDE registers", f"could not be checked ({exc})")
+        else:
+            if taken:
+                add(
+                    FINDING_PROBLEM,
+                    "RTDE registers",
+                    f"{len(taken)} RTDE input registers spacecal's control program needs ({taken[0]}, ...) "
+                    "are held by another program: disable the URCap or fieldbus (EtherNet/IP, PROFINET) "
+                    "using them "
+                    "in the Installation tab, or close the other RTDE client",
+                )
+            else:
+                add(FINDING_OK, "RTDE registers", "the input registers spacecal needs are free")
+        model, _ = self.controller_model()
+        predicted = forward_kinematics(model, joints)
+        error_mm = float(np.linalg.norm(predicted[:3, 3] - pose[:3, 3]))
+        nominal = forward_kinematics(self.nominal.with_tcp(model.flange_from_tcp), joints)
+        from_nominal_mm = float(np.linalg.norm(nominal[:3, 3] - pose[:3, 3]))
+        if self.kinematics is None:
+            add(
+                FINDING_WARNING,
+                "kinematics",
+                f"the controller's kinematics could not be read from {self.host}:{PRIMARY_PORT}; "
+                f"spacecal plans with the nominal {self.nominal.name} model "
+                f"(the TCP is {from_nominal_mm:.1f} mm from it here)",
+            )
+        elif error_mm > MODEL_CHECK_MM:
+            add(
+                FINDING_PROBLEM,
+                "kinematics",
+                f"the controller's published kinematics put the TCP {error_mm:.2f} mm from where it "
+                "reports it: "
+                "its model cannot be used",
+            )
+        else:
+            calibrated = from_nominal_mm > 0.01 or any(self.kinematics.checksums)
+            add(
+                FINDING_OK,
+                "kinematics",
+                (
+                    f"factory-calibrated (checksums {' '.join(str(c) for c in self.kinematics.checksums)}); "
+                    f"{from_nominal_mm:.1f} mm from the nominal {self.nominal.name} here"
+                )
+                if calibrated
+                else f"the nominal {self.nominal.name} model (no factory calibration published)",
+            )
+        add(FINDING_OK, "tool (TCP)", f"set on the teach pendant: {tcp_text(model.flange_from_tcp)}")
+        deadline = time.monotonic() + 1.0  # a loaded computer may see no new packet for a while
+        while float(self._receive.getTimestamp()) == timestamp and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if float(self._receive.getTimestamp()) == timestamp:
+            add(FINDING_PROBLEM, "robot state", "the controller's RTDE timestamp does not advance")
+        return findings
+
+    # -- Robot protocol ----------------------------------------------------------------
+    def _read_packet(self) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, int, int, int]:
+        """One RTDE packet's fields. Each ur_rtde getter reads the newest packet on its own, so a
+        packet arriving between two getters would pair one tick's joints with the next tick's
+        pose (0.8 mm apart at 100 mm/s and 125 Hz): read until the timestamp is the same before
+        and after."""
+        receive = self._receive
+        for _ in range(5):
+            timestamp = float(receive.getTimestamp())
+            fields = (
+                np.asarray(receive.getActualQ(), dtype=float),
+                pose_from_ur(receive.getActualTCPPose()),
+                np.asarray(receive.getActualQd(), dtype=float),
+                int(receive.getSafetyStatusBits()),
+                int(receive.getRobotMode()),
+                int(receive.getRuntimeState()),
+            )
+            if float(receive.getTimestamp()) == timestamp:
+                break
+        return (timestamp, *fields)
 
     def state(self) -> RobotState:
         if not self._receive.isConnected():
             raise DeviceError(f"lost the RTDE connection to {self.host}")
-        timestamp = float(self._receive.getTimestamp())
+        timestamp, joints, pose, speeds, safety_bits, mode, runtime = self._read_packet()
         now = time.monotonic()
         if timestamp != self._last_timestamp:
             self._last_timestamp, self._last_change = timestamp, now
@@ -84,16 +579,7 @@ class URRobot:
             raise DeviceError(
                 f"UR state is stale: its timestamp has not advanced for {now - self._last_change:.1f} s"
             )
-        bits = int(self._receive.getSafetyStatusBits())
-        safety = (
-            SAFETY_EMERGENCY_STOP
-            if bits & EMERGENCY_STOP_BITS
-            else SAFETY_PROTECTIVE_STOP
-            if bits & PROTECTIVE_STOP_BITS
-            else SAFETY_NORMAL
-        )
-        pose = pose_from_ur(self._receive.getActualTCPPose())
-        speeds = np.asarray(self._receive.getActualQd(), dtype=float)
+        safety = controller_condition(safety_bits, mode, runtime, self._program_expected)
         moving = False
         if self._target is not None:
             arrived = (
@@ -104,9 +590,7 @@ class URRobot:
             moving = not arrived and safety == SAFETY_NORMAL
             if not moving:
                 self._target = None
-        return RobotState(
-            timestamp, np.asarray(self._receive.getActualQ(), dtype=float), pose, safety, moving
-        )
+        return RobotState(timestamp, joints, pose, safety, moving)
 
     def _require_control(self):
         if self._control is None:
@@ -115,31 +599,76 @@ class URRobot:
             raise DeviceError(f"lost the UR control connection to {self.host}")
         return self._control
 
+    def _refused(self, command: str) -> DeviceError:
+        """Why the controller did not take a command: a connection dropped at that moment is
+        named as such (the stop's own state is read by the caller); else the refusal."""
+        deadline = time.monotonic() + 0.3
+        while time.monotonic() < deadline:
+            if not self._receive.isConnected() or (
+                self._control is not None and not self._control.isConnected()
+            ):
+                return DeviceError(f"lost the RTDE connection to {self.host}")
+            time.sleep(0.02)
+        return DeviceError(f"the UR controller refused or aborted {command}")
+
     def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
         if not self._require_control().moveJ([float(v) for v in joints_rad], speed_rad_s, accel_rad_s2):
-            raise DeviceError("the UR controller refused or aborted moveJ")
+            raise self._refused("moveJ")
 
     def move_linear(
         self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
     ) -> None:
         control = self._require_control()
         target = np.asarray(base_from_tcp, dtype=float)
-        if not control.moveL(
-            pose_to_ur(target),
-            float(mm_to_metres(speed_mm_s)),
-            float(mm_to_metres(accel_mm_s2)),
-            asynchronous,
-        ):
-            raise DeviceError("the UR controller refused or aborted moveL")
+        here = pose_from_ur(self._receive.getActualTCPPose())
+        speed_m_s, accel_m_s2 = movel_speed(here, target, speed_mm_s, accel_mm_s2, self.limits)
+        if not control.moveL(pose_to_ur(target), speed_m_s, accel_m_s2, asynchronous):
+            raise self._refused("moveL")
         self._target = target if asynchronous else None
 
     def stop(self) -> None:
+        """Stop now and end the control program, so nothing (a safeguard reset, an unlocked
+        protective stop, the pendant's play button) can resume a move spacecal gave up."""
         self._target = None
-        if self._control is not None and self._control.isConnected():
-            self._control.stopL(1.0)
+        if self._control is None:
+            return  # read-only: nothing of ours runs on the controller
+        self._program_expected = False
+        with contextlib.suppress(RuntimeError, OSError):
+            if (
+                self._control.isConnected()
+                and self._receive.isConnected()
+                and int(self._receive.getRuntimeState()) == RUNTIME_PLAYING
+                and int(self._receive.getSafetyStatusBits()) & ~0b11 == 0  # normal or reduced
+            ):
+                self._control.stopL(STOP_DECEL_M_S2)
+        with contextlib.suppress(OSError):
+            dashboard(self.host, ["stop"], timeout_s=1.0)
 
     def close(self) -> None:
+        dropped = not self._receive.isConnected()
         if self._control is not None:
-            self._control.stopScript()
-            self._control.disconnect()
-        self._receive.disconnect()
+            with contextlib.suppress(RuntimeError):
+                if self._control.isConnected():
+                    self._control.stopScript()
+                self._control.disconnect()
+            if dropped:
+                _keep_forever(self._control)
+            if not self._program_expected:
+                # stopped: ur_rtde reconnects by itself after a dropped connection and uploads its
+                # program again; end whatever it left running
+                with contextlib.suppress(OSError):
+                    dashboard(self.host, ["stop"], timeout_s=1.0)
+        if dropped:
+            _keep_forever(self._receive)
+        else:
+            self._receive.disconnect()
+
+
+def _keep_forever(interface: object) -> None:
+    """Never destroy ``interface``: ur_rtde 1.6.5's interfaces crash the process (segmentation
+    fault) when they are destroyed after the controller closed the RTDE connection (measured
+    against the fake controller), which would turn a clean "lost the RTDE connection" exit into
+    a crash. Their sockets are closed already; only the objects' memory stays."""
+    import ctypes
+
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(interface))

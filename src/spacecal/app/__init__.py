@@ -27,6 +27,7 @@ from spacecal.app.calibration import (
     calibrate,
     pivot,
 )
+from spacecal.app.doctor import DoctorOutput, DoctorSettings, doctor
 from spacecal.app.files import (
     ExportSettings,
     ImportPlusSettings,
@@ -70,6 +71,8 @@ __all__ = [
     "CheckSettings",
     "DemoOutput",
     "DemoSettings",
+    "DoctorOutput",
+    "DoctorSettings",
     "ExportSettings",
     "ImportBagSettings",
     "ImportPlusSettings",
@@ -89,6 +92,7 @@ __all__ = [
     "calibrate",
     "check",
     "demo",
+    "doctor",
     "export",
     "export_ros",
     "import_bag",

@@ -20,10 +20,18 @@ import numpy as np
 from spacecal.app._common import refuse_overwriting_inputs
 from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.core.errors import InvalidInputError
-from spacecal.core.ports import Robot, Tracker
+from spacecal.core.ports import (
+    FINDING_OK,
+    FINDING_PROBLEM,
+    FINDING_WARNING,
+    DeviceFinding,
+    Preflight,
+    Robot,
+    Tracker,
+)
 from spacecal.experiments.simulation import simulation_settings
 from spacecal.geometry.rotations import rotation_angle
-from spacecal.geometry.transforms import make_transform
+from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 from spacecal.io.recording_csv import last_time_s, read_recording
 from spacecal.io.results_json import read_calibration, read_json_object, write_json
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
@@ -35,7 +43,7 @@ from spacecal.planning.optimal import PlannerSettings, needle_site, paper_sweep_
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
 from spacecal.planning.stop_and_go import stop_and_go_plan
 from spacecal.planning.visibility import VisibilityModel
-from spacecal.records import CheckResult, PlanRecord
+from spacecal.records import CheckResult, PlanRecord, robot_model_to_dict
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import Scenario, load_scenario
@@ -98,8 +106,9 @@ class AcquireSettings:
         NDI frame rate (Vicra 20, Vega 60).
     robot_model : str
         UR model for planning checks.
-    tool_offset_mm : (x, y, z)
-        TCP in the flange frame, as set on the robot.
+    tool : (x, y, z, rx, ry, rz) or None
+        The TCP in the flange frame as the teach pendant shows it: mm and a rotation vector in
+        rad. None (the default) takes the TCP set on the controller; a value must match it.
     prior : str or None
         An earlier calibration, to check marker visibility along the plan.
     rotation_deg, translation_mm : float
@@ -126,7 +135,7 @@ class AcquireSettings:
     rom: tuple[str, ...] = ()
     tracker_rate_hz: float = 20.0
     robot_model: str = "UR10"
-    tool_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tool: tuple[float, float, float, float, float, float] | None = None
     prior: str | None = None
     rotation_deg: float = PaperSweepSettings.rotation_each_way_deg
     translation_mm: float = PaperSweepSettings.translation_stroke_mm
@@ -152,9 +161,18 @@ class AcquireSettings:
                 )
             if np.any(np.abs(box) > 1e5):
                 raise InvalidInputError("--workspace-box: each limit must be within +-100000 mm")
-        offset = np.asarray(self.tool_offset_mm, dtype=float)
-        if offset.shape != (3,) or not np.all(np.isfinite(offset)) or np.any(np.abs(offset) > 2000):
-            raise InvalidInputError("--tool-offset-mm takes finite x,y,z in mm, each within +-2000 mm")
+        if self.tool is not None:
+            tool = np.asarray(self.tool, dtype=float)
+            if (
+                tool.shape != (6,)
+                or not np.all(np.isfinite(tool))
+                or np.any(np.abs(tool[:3]) > 2000)
+                or np.linalg.norm(tool[3:]) > 2 * np.pi
+            ):
+                raise InvalidInputError(
+                    "--tool takes X,Y,Z,RX,RY,RZ: mm within +-2000 and a rotation vector in rad "
+                    "(at most 2 pi)"
+                )
 
 
 @dataclass
@@ -194,37 +212,60 @@ def simulated_devices(
     return world, robot, SimulatedTracker(world, robot)
 
 
+def open_tracker(url: str, rom: Sequence[str], rate_hz: float) -> Tracker:
+    """Open the tracker a URL names (``ndi://...`` with the marker's ROM first, ``igtl://...``)."""
+    from spacecal.adapters import parse_device_url
+
+    scheme, address, port = parse_device_url(url, ("ndi", "igtl"))
+    if scheme == "ndi":
+        from spacecal.adapters.ndi import VEGA_DEFAULT_PORT, NDITracker
+
+        if not rom:
+            raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
+        serial = address.startswith("/")
+        return NDITracker(
+            address, None if serial else (port or VEGA_DEFAULT_PORT), list(rom), rate_hz=rate_hz
+        )
+    from spacecal.adapters.igtl import IGTLTracker
+
+    return IGTLTracker(address, port or 18944)
+
+
+def open_robot(url: str, robot_model: str, control: bool, limits: MotionLimits | None = None) -> Robot:
+    """Open the robot a URL names (``ur://HOST``); ``control=False`` is read-only (nothing is
+    uploaded to the controller)."""
+    from spacecal.adapters import parse_device_url
+    from spacecal.adapters.ur import URRobot
+
+    _, host, _ = parse_device_url(url, ("ur",))
+    return URRobot(host, control=control, robot_model=robot_model, limits=limits)
+
+
+def motion_limits(settings: AcquireSettings) -> MotionLimits:
+    return MotionLimits(
+        linear_speed_mm_s=settings.speed_mm_s,
+        linear_accel_mm_s2=settings.accel_mm_s2,
+        angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
+    )
+
+
 def open_hardware(settings: AcquireSettings) -> tuple[Robot, Tracker]:
-    """Open the robot and tracker named by the settings' URLs (this is where hardware is chosen)."""
+    """Open the robot and tracker named by the settings' URLs (this is where hardware is chosen).
+
+    The robot first: a controller that refuses us (local control, registers in use, not
+    running) ends the command before the tracker is touched."""
     from spacecal.adapters import parse_device_url
 
     if settings.robot == "sim" or settings.tracker == "sim":
         raise InvalidInputError("use --robot sim with --tracker sim, or real devices for both")
-    _, host, _ = parse_device_url(settings.robot, ("ur",))
-    scheme, address, port = parse_device_url(settings.tracker, ("ndi", "igtl"))
-    tracker: Tracker
-    if scheme == "ndi":
-        from spacecal.adapters.ndi import VEGA_DEFAULT_PORT, NDITracker
-
-        if not settings.rom:
-            raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
-        serial = address.startswith("/")
-        tracker = NDITracker(
-            address,
-            None if serial else (port or VEGA_DEFAULT_PORT),
-            list(settings.rom),
-            rate_hz=settings.tracker_rate_hz,
-        )
-    else:
-        from spacecal.adapters.igtl import IGTLTracker
-
-        tracker = IGTLTracker(address, port or 18944)
+    parse_device_url(settings.robot, ("ur",))
+    parse_device_url(settings.tracker, ("ndi", "igtl"))
+    # read-only until every check has passed and motion is confirmed (see acquire)
+    robot = open_robot(settings.robot, settings.robot_model, False, motion_limits(settings))
     try:
-        from spacecal.adapters.ur import URRobot
-
-        robot = URRobot(host, control=not settings.dry_run)
+        tracker = open_tracker(settings.tracker, settings.rom, settings.tracker_rate_hz)
     except BaseException:
-        _close(tracker)
+        _close(robot)
         raise
     return robot, tracker
 
@@ -260,25 +301,86 @@ def opened_devices(
             _close(device)
 
 
-def hardware_model(settings: AcquireSettings) -> RobotModel:
-    """The UR model and tool offset the settings describe."""
-    return ur_model(
-        settings.robot_model, make_transform(np.eye(3), np.asarray(settings.tool_offset_mm, float))
-    )
+#: The user's --tool and the controller's TCP agree within these (mm, rad).
+TOOL_MATCH_MM, TOOL_MATCH_RAD = 0.5, np.radians(0.05)
 
 
-def hardware_plan(settings: AcquireSettings, robot: Robot) -> MotionPlan:
-    """The paper's sweeps from the robot's current configuration (its home)."""
-    model = hardware_model(settings)
+def tool_transform(tool: Sequence[float]) -> np.ndarray:
+    """``flange_from_tcp`` (4, 4, mm) of a pendant-style TCP ``X, Y, Z`` (mm), ``RX, RY, RZ`` (rad)."""
+    values = np.asarray(tool, dtype=float)
+    return make_transform(rotvec_to_matrix(values[3:6]), values[:3])
+
+
+@dataclass
+class HardwareModel:
+    """The robot model spacecal plans, solves IK and records with, and how it was found."""
+
+    model: RobotModel
+    source: str
+    findings: list[DeviceFinding] = field(default_factory=list)
+    #: The controller published its kinematics (else the DH parameters are nominal and the
+    #: recording's pairs of joints and reported poses identify them afterwards).
+    published: bool = False
+
+    def problems(self) -> list[DeviceFinding]:
+        return [f for f in self.findings if f.level == FINDING_PROBLEM]
+
+
+def hardware_model(robot: Robot, robot_model: str, tool: Sequence[float] | None = None) -> HardwareModel:
+    """The controller's kinematic model (its calibrated DH and pendant TCP where it publishes
+    them) checked against what it reports and against ``--robot-model`` / ``--tool`` (None:
+    the controller's TCP)."""
+    nominal = ur_model(robot_model)
+    controller_model = getattr(robot, "controller_model", None)
+    if controller_model is not None:
+        model, source = controller_model()
+    else:  # a robot that cannot say: the nominal model with the user's tool
+        model = nominal.with_tcp(tool_transform(tool if tool is not None else (0.0,) * 6))
+        source = f"the nominal {nominal.name} model"
+    findings = []
+    if tool is not None:
+        wanted = tool_transform(tool)
+        offset_mm = float(np.linalg.norm(wanted[:3, 3] - model.flange_from_tcp[:3, 3]))
+        angle = float(rotation_angle(wanted[:3, :3].T @ model.flange_from_tcp[:3, :3]))
+        if offset_mm > TOOL_MATCH_MM or angle > TOOL_MATCH_RAD:
+            findings.append(
+                DeviceFinding(
+                    FINDING_PROBLEM,
+                    "tool (TCP)",
+                    f"--tool is {offset_mm:.1f} mm and {np.degrees(angle):.2f} deg from the TCP set on the "
+                    "teach "
+                    f"pendant ({tcp_text(model.flange_from_tcp)}): change --tool to match it, pass --tool "
+                    "controller to use the pendant's, or set the right TCP on the pendant",
+                )
+            )
+        else:
+            findings.append(
+                DeviceFinding(FINDING_OK, "tool (TCP)", "--tool matches the TCP set on the pendant")
+            )
     state = robot.state()
-    home_joints = resume_home_joints(settings.output) if settings.resume else None
     predicted = forward_kinematics(model, state.joints_rad)
     mismatch = float(np.linalg.norm(predicted[:3, 3] - state.base_from_tcp[:3, 3]))
     if mismatch > TCP_MISMATCH_MM:
-        raise InvalidInputError(
-            f"--robot-model/--tool-offset-mm put the TCP {mismatch:.1f} mm from where the controller reports "
-            "it; they must match the TCP configured on the robot"
+        findings.append(
+            DeviceFinding(
+                FINDING_PROBLEM,
+                "kinematics",
+                f"{source} puts the TCP {mismatch:.1f} mm from where the controller reports it",
+            )
         )
+    return HardwareModel(model, source, findings, getattr(robot, "kinematics", None) is not None)
+
+
+def tcp_text(flange_from_tcp: np.ndarray) -> str:
+    values = [*flange_from_tcp[:3, 3], *matrix_to_rotvec(flange_from_tcp[:3, :3])]
+    return "{:.1f},{:.1f},{:.1f} mm, {:.4f},{:.4f},{:.4f} rad".format(*values)
+
+
+def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) -> MotionPlan:
+    """The paper's sweeps from the robot's current configuration (its home), planned with the
+    controller's own kinematic model."""
+    state = robot.state()
+    home_joints = resume_home_joints(settings.output) if settings.resume else None
     visibility = None
     if settings.prior:
         prior = read_calibration(settings.prior)
@@ -288,11 +390,7 @@ def hardware_plan(settings: AcquireSettings, robot: Robot) -> MotionPlan:
     sweep = PaperSweepSettings(
         rotation_each_way_deg=settings.rotation_deg,
         translation_stroke_mm=settings.translation_mm,
-        limits=MotionLimits(
-            linear_speed_mm_s=settings.speed_mm_s,
-            linear_accel_mm_s2=settings.accel_mm_s2,
-            angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
-        ),
+        limits=motion_limits(settings),
     )
     # On resume the plan is rebuilt from the home it was made from, not from where the robot stopped.
     start = state.joints_rad if home_joints is None else home_joints
@@ -353,14 +451,20 @@ def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -
     return plan
 
 
-def hardware_metadata(settings: AcquireSettings) -> dict[str, Any]:
-    """Metadata of a recording made on real devices."""
-    model = hardware_model(settings)
+def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dict[str, Any]:
+    """Metadata of a recording made on real devices: the robot's model as it was used."""
+    model = hardware.model
     return {
         "robot": {
             "model": model.name,
             "url": settings.robot,
             "flange_from_tcp": model.flange_from_tcp.tolist(),
+            **(
+                {"kinematic_model": robot_model_to_dict(model)}
+                if hardware.published
+                else {"identify_kinematics_from_poses": True}
+            ),
+            "kinematics_source": hardware.source,
         },
         "tracker": {"url": settings.tracker, "rate_hz": settings.tracker_rate_hz},
         "marker": ndi_8700339_like().to_dict(),
@@ -370,10 +474,35 @@ def hardware_metadata(settings: AcquireSettings) -> dict[str, Any]:
     }
 
 
+def robot_findings(
+    robot: Robot, robot_model: str, tool: Sequence[float] | None = None
+) -> tuple[HardwareModel, list[DeviceFinding]]:
+    """The robot's own read-only checks and spacecal's (model, tool), in that order."""
+    found = list(robot.preflight()) if isinstance(robot, Preflight) else []
+    hardware = hardware_model(robot, robot_model, tool)
+    return hardware, found + hardware.findings
+
+
+def finding_line(device: str, finding: DeviceFinding) -> str:
+    """One line an operator reads: ``robot: remote control: PROBLEM: ...``."""
+    level = {FINDING_OK: "ok", FINDING_WARNING: "warning", FINDING_PROBLEM: "PROBLEM"}[finding.level]
+    return f"{device}: {finding.subject}: {level}: {finding.text}"
+
+
+def _known(hardware: HardwareModel | None) -> HardwareModel:
+    assert hardware is not None  # set for every hardware run
+    return hardware
+
+
+def tracker_findings(tracker: Tracker) -> list[DeviceFinding]:
+    return list(tracker.preflight()) if isinstance(tracker, Preflight) else []
+
+
 def acquire(
     settings: AcquireSettings,
-    on_sample: Callable[[int, int, int, int, str], None] | None = None,
+    on_sample: Callable[[int, int, int, str], None] | None = None,
     observer: FrameObserver | None = None,
+    on_plan: Callable[[int], None] | None = None,
 ) -> AcquireOutput:
     """Plan, check and (unless a dry run) run the calibration motion, writing the recording.
 
@@ -381,7 +510,9 @@ def acquire(
     ----------
     settings : AcquireSettings
     on_sample : callable, optional
-        Progress callback ``on_sample(samples, visible, move_index, moves_total, label)``.
+        Progress callback ``on_sample(samples, visible, move_index, label)``.
+    on_plan : callable, optional
+        Called with the number of moves once the plan is made (a progress display's total).
     observer : FrameObserver, optional
         Sees every tracker frame, e.g. ``LiveView(...).observe`` of
         :mod:`spacecal.report.live`; it must return at once, and a failing one is detached
@@ -392,31 +523,47 @@ def acquire(
         settings.output, settings.prior, settings.scenario, settings.plan, *settings.rom, recordings=False
     )
     with opened_devices(settings) as (robot, tracker, world):
+        checks: list[str] = []
+        hardware = None
+        if world is None:
+            hardware, findings = robot_findings(robot, settings.robot_model, settings.tool)
+            if settings.dry_run:
+                checks = [finding_line("robot", f) for f in findings]
+                checks += [finding_line("tracker", f) for f in tracker_findings(tracker)]
+            blocking = [f for f in findings if f.level == FINDING_PROBLEM]
+            if blocking:
+                raise InvalidInputError(
+                    f"the robot is not ready ({blocking[0].subject}): {blocking[0].text}; nothing moved"
+                )
+            if settings.dry_run and any(
+                line.startswith("tracker") and ": PROBLEM:" in line for line in checks
+            ):
+                raise InvalidInputError(
+                    "the tracker is not ready: "
+                    + next(line for line in checks if line.startswith("tracker") and ": PROBLEM:" in line)
+                )
+        model = world.nominal_model if world is not None else _known(hardware).model
         if settings.plan is not None:
-            model = world.nominal_model if world is not None else hardware_model(settings)
             plan = planned_motion(settings, robot, model)
         elif world is not None:
             plan = plan_for_world(world)
         else:
-            plan = hardware_plan(settings, robot)
+            plan = hardware_plan(settings, robot, model)
         frame_period_s = 1.0 / (
             world.scenario.tracker_rate_hz if world is not None else settings.tracker_rate_hz
         )
         if settings.stop_and_go:
             plan = stop_and_go_plan(
-                plan,
-                world.nominal_model if world is not None else hardware_model(settings),
-                MotionLimits(
-                    linear_speed_mm_s=settings.speed_mm_s,
-                    linear_accel_mm_s2=settings.accel_mm_s2,
-                    angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
-                ),
-                frame_period_s,
-                settings.stop_and_go,
+                plan, model, motion_limits(settings), frame_period_s, settings.stop_and_go
             )
+        if on_plan is not None:
+            on_plan(len(plan.moves))
         problems = workspace_problems(plan, settings.workspace_box)
         output = AcquireOutput(
-            len(plan.moves), plan.motion_time_s, list(plan.messages) + problems, simulated=world is not None
+            len(plan.moves),
+            plan.motion_time_s,
+            checks + list(plan.messages) + problems,
+            simulated=world is not None,
         )
         if problems:
             raise InvalidInputError("the plan leaves the workspace box; nothing was moved")
@@ -427,7 +574,9 @@ def acquire(
             raise InvalidInputError(
                 "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
             )
-        metadata = recording_metadata(world) if world is not None else hardware_metadata(settings)
+        metadata = (
+            recording_metadata(world) if world is not None else hardware_metadata(settings, _known(hardware))
+        )
         metadata["sampling"] = (
             {
                 "mode": "stop-and-go",
@@ -441,6 +590,9 @@ def acquire(
             **plan.summary(),
             "file": None if settings.plan is None else str(Path(settings.plan).resolve()),
         }
+        connect_control = getattr(robot, "connect_control", None)
+        if world is None and connect_control is not None:
+            connect_control()  # the controller's program is uploaded only now
         run_settings = AcquisitionSettings(
             linear_speed_mm_s=settings.speed_mm_s, linear_accel_mm_s2=settings.accel_mm_s2
         )
@@ -452,13 +604,7 @@ def acquire(
             metadata,
             run_settings,
             resume=settings.resume,
-            on_sample=(
-                None
-                if on_sample is None
-                else lambda samples, visible, index, label: on_sample(
-                    samples, visible, index, len(plan.moves), label
-                )
-            ),
+            on_sample=on_sample,
             observer=observer,
         )
         return output
@@ -569,18 +715,27 @@ def check(settings: CheckSettings) -> CheckOutput:
         resume=False,
     )
     with opened_devices(devices, scenario) as (robot, tracker, world):
-        model = world.nominal_model if world is not None else hardware_model(devices)
+        if world is None:
+            hardware, findings = robot_findings(robot, devices.robot_model, devices.tool)
+            blocking = [f for f in findings if f.level == FINDING_PROBLEM]
+            if blocking:
+                raise InvalidInputError(
+                    f"the robot is not ready ({blocking[0].subject}): {blocking[0].text}; nothing moved"
+                )
+            model = hardware.model
+        else:
+            model = world.nominal_model
         model = calibration.robot_model_for_ik(model)
         frame_period = (
             1.0 / world.scenario.tracker_rate_hz if world is not None else 1.0 / devices.tracker_rate_hz
         )
-        limits = MotionLimits(
-            linear_speed_mm_s=devices.speed_mm_s,
-            linear_accel_mm_s2=devices.accel_mm_s2,
-            angular_speed_rad_s=np.radians(devices.angular_speed_deg_s),
-        )
         plan = check_plan(
-            model, robot.state().joints_rad, settings.poses, limits, frame_period, settings.frames_per_pose
+            model,
+            robot.state().joints_rad,
+            settings.poses,
+            motion_limits(devices),
+            frame_period,
+            settings.frames_per_pose,
         )
         messages = workspace_problems(plan, devices.workspace_box)
         if messages:
@@ -599,6 +754,9 @@ def check(settings: CheckSettings) -> CheckOutput:
             raise InvalidInputError(
                 "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
             )
+        connect_control = getattr(robot, "connect_control", None)
+        if world is None and connect_control is not None:
+            connect_control()  # the controller's program is uploaded only now
         run_settings = (
             simulation_settings(world.scenario)
             if world is not None

@@ -17,6 +17,7 @@ import warnings
 from typing import Any
 
 from spacecal import app
+from spacecal.app.acquisition import finding_line
 from spacecal.cli import parser
 from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.estimators.diagnostics import ErrorThresholds
@@ -188,16 +189,16 @@ def _demo(a: argparse.Namespace) -> None:
         print(f"\nwrote {', '.join(p.name for p in out.paths)} to {a.out}")
 
 
-def _progress():
+def _progress(total_moves: int):
     """A one-line progress display on stderr: bar, move, samples, markers seen."""
     tty = sys.stderr.isatty()
 
-    def show(samples: int, visible: int, move_index: int, moves_total: int, label: str) -> None:
+    def show(samples: int, visible: int, move_index: int, label: str) -> None:
         if samples % (10 if tty else 100):
             return
-        done = int(30 * (move_index + 1) / max(1, moves_total))
+        done = int(30 * (move_index + 1) / max(1, total_moves))
         print(
-            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{moves_total} {label:8s} samples "
+            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{total_moves} {label:8s} samples "
             f"{samples} (marker seen {visible})",
             end="\r" if tty else "\n",
             file=sys.stderr,
@@ -205,6 +206,32 @@ def _progress():
         )
 
     return show
+
+
+def _tool(a: argparse.Namespace) -> Any:
+    """``--tool controller`` (None) or X,Y,Z,RX,RY,RZ; ``--tool-offset-mm X,Y,Z`` is X,Y,Z,0,0,0."""
+    if a.tool is not None and a.tool_offset_mm is not None:
+        raise InvalidInputError("give --tool or --tool-offset-mm, not both")
+    if a.tool_offset_mm is not None:
+        return (*_numbers(a.tool_offset_mm, 3, "--tool-offset-mm", "x,y,z in mm"), 0.0, 0.0, 0.0)
+    if a.tool is None or a.tool.strip().lower() == "controller":
+        return None
+    return _numbers(a.tool, 6, "--tool", "controller or X,Y,Z,RX,RY,RZ (mm, rotation vector in rad)")
+
+
+def _doctor(a: argparse.Namespace) -> None:
+    out = app.doctor(
+        app.DoctorSettings(a.robot, a.tracker, tuple(a.rom or ()), a.tracker_rate_hz, a.robot_model, _tool(a))
+    )
+    for device, finding in out.findings:
+        print(finding_line(device, finding))
+    if out.problems:
+        count = len(out.problems)
+        raise CheckFailed(
+            f"{count} problem{'s' if count > 1 else ''} found (marked PROBLEM above); fix "
+            f"{'them' if count > 1 else 'it'} before running spacecal acquire"
+        )
+    print("every check passed: spacecal acquire can start")
 
 
 def _acquire(a: argparse.Namespace) -> None:
@@ -225,13 +252,14 @@ def _acquire(a: argparse.Namespace) -> None:
         tuple(a.rom or ()),
         a.tracker_rate_hz,
         a.robot_model,
-        _numbers(a.tool_offset_mm, 3, "--tool-offset-mm", "x,y,z in mm"),
+        _tool(a),
         a.prior,
         a.rotation_deg,
         a.translation_mm,
         plan=a.plan,
         stop_and_go=a.stop_and_go,
     )
+    holder: dict[str, int] = {}
     view = None
     if a.live_view is not None and not a.dry_run:
         from spacecal.report.live import LiveView
@@ -244,8 +272,9 @@ def _acquire(a: argparse.Namespace) -> None:
     try:
         out = app.acquire(
             settings,
-            on_sample=_progress(),
+            on_sample=lambda *sample: _progress(holder.get("moves", 1))(*sample),
             observer=view.observe if view is not None else None,
+            on_plan=lambda moves: holder.update(moves=moves),
         )
     finally:
         if view is not None:
@@ -343,7 +372,7 @@ def _check(a: argparse.Namespace) -> None:
         rom=tuple(a.rom or ()),
         tracker_rate_hz=a.tracker_rate_hz,
         robot_model=a.robot_model,
-        tool_offset_mm=_numbers(a.tool_offset_mm, 3, "--tool-offset-mm", "x,y,z in mm"),
+        tool=_tool(a),
         workspace_box=_numbers(a.workspace_box, 6, "--workspace-box", "xmin,xmax,ymin,ymax,zmin,zmax in mm")
         if a.workspace_box
         else None,
@@ -462,6 +491,7 @@ COMMANDS = {
     "verify": _verify,
     "demo": _demo,
     "acquire": _acquire,
+    "doctor": _doctor,
     "register-landmarks": _register_landmarks,
     "export": _export,
     "import-plus": _import_plus,
@@ -481,21 +511,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 class _Stop(KeyboardInterrupt):
-    """SIGTERM or SIGHUP, handled like Ctrl-C: the robot stops and files stay readable."""
+    """Ctrl-C, SIGTERM or SIGHUP: the robot stops and files stay readable."""
+
+
+#: Set once the first signal has been turned into an interruption.
+_interrupted = threading.Event()
 
 
 def _raise_interrupt(signum, frame) -> None:
-    raise _Stop(signal.Signals(signum).name)
+    if _interrupted.is_set():
+        # a second signal while the run stops (Ctrl-C pressed twice, a service manager's
+        # repeated SIGTERM) must not abort the robot's stop half-way: it is ignored
+        return
+    _interrupted.set()
+    raise _Stop("Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name)
 
 
 @contextlib.contextmanager
 def _signals_as_interrupts():
-    """SIGTERM and SIGHUP raise KeyboardInterrupt while a command runs (main thread only)."""
+    """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once while a command runs (main
+    thread only); later ones are ignored until the command has cleaned up."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    _interrupted.clear()
     previous = {}
-    for name in ("SIGTERM", "SIGHUP"):
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         number = getattr(signal, name, None)
         if number is not None:
             previous[number] = signal.signal(number, _raise_interrupt)
@@ -504,6 +545,15 @@ def _signals_as_interrupts():
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
+
+
+def _signal_named(exc: BaseException, text: str) -> str:
+    """A run stopped by SIGTERM or SIGHUP says so (the acquisition names every interruption
+    Ctrl-C)."""
+    cause = exc.__context__
+    if isinstance(cause, _Stop) and cause.args and cause.args[0] != "Ctrl-C":
+        return text.replace("interrupted by the user (Ctrl-C)", f"interrupted ({cause.args[0]})")
+    return text
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -525,7 +575,7 @@ def main(argv: list[str] | None = None) -> int:
     except (SpacecalError, OSError) as exc:
         if args.debug:
             raise
-        print(f"spacecal: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"spacecal: error: {_signal_named(exc, _one_line(exc))}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as exc:
         if args.debug:

@@ -11,7 +11,7 @@ from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
 
 #: Options whose values are coordinates, often negative (base-frame positions).
-COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm")
+COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm", "--tool")
 
 
 def _d(settings: type, name: str):
@@ -145,11 +145,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
     p.add_argument("--tracker-rate-hz", type=float, default=_d(A, "tracker_rate_hz"), help="NDI frame rate")
     p.add_argument("--robot-model", default=_d(A, "robot_model"), help="UR model for planning checks")
-    p.add_argument(
-        "--tool-offset-mm",
-        default=",".join(str(v) for v in _d(A, "tool_offset_mm")),
-        help="TCP in the flange frame, as set on the robot",
-    )
+    add_tool(p)
     p.add_argument("--prior", help="an earlier calibration, to check marker visibility along the plan")
     p.add_argument(
         "--rotation-deg", type=float, default=_d(A, "rotation_deg"), help="rotation sweep each way"
@@ -266,11 +262,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
     p.add_argument("--tracker-rate-hz", type=float, default=_d(A, "tracker_rate_hz"), help="NDI frame rate")
     p.add_argument("--robot-model", default=_d(A, "robot_model"), help="UR model")
-    p.add_argument(
-        "--tool-offset-mm",
-        default=",".join(str(v) for v in _d(A, "tool_offset_mm")),
-        help="TCP in the flange frame, as set on the robot",
-    )
+    add_tool(p)
     p.add_argument(
         "--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"
     )
@@ -318,6 +310,8 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")
 
+    add_doctor(command)
+
     p = command("scenario", "print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
     return parser
@@ -341,6 +335,29 @@ def duration_s(text: str) -> float:
     if match is None or not math.isfinite(float(match.group(1))):
         raise argparse.ArgumentTypeError(f"takes seconds, e.g. 30s; got {text!r}")
     return float(match.group(1))
+
+
+def add_tool(p: argparse.ArgumentParser) -> None:
+    """``--tool`` (and its older translation-only form ``--tool-offset-mm``)."""
+    p.add_argument(
+        "--tool",
+        metavar="controller|X,Y,Z,RX,RY,RZ",
+        help="the TCP in the flange frame: 'controller' (default) uses the TCP set on the teach pendant; "
+        "X,Y,Z,RX,RY,RZ (mm, rotation vector in rad, as the pendant shows it) must match it",
+    )
+    p.add_argument("--tool-offset-mm", metavar="X,Y,Z", help="same as --tool X,Y,Z,0,0,0")
+
+
+def add_doctor(command) -> None:
+    """``spacecal doctor``: read-only checks of a robot and a tracker."""
+    D = app.DoctorSettings
+    p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
+    p.add_argument("--robot", help="ur://HOST")
+    p.add_argument("--tracker", help="ndi://PORT_OR_HOST or igtl://HOST:PORT")
+    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
+    p.add_argument("--tracker-rate-hz", type=float, default=_d(D, "tracker_rate_hz"), help="NDI frame rate")
+    p.add_argument("--robot-model", default=_d(D, "robot_model"), help="UR model (UR10, UR10e, ...)")
+    add_tool(p)
 
 
 def add_force(p: argparse.ArgumentParser) -> None:

@@ -12,10 +12,22 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-#: Robot safety states, as the workflows understand them.
+#: Robot safety states, as the workflows understand them. Anything but ``normal`` ends a run;
+#: the workflow names it as ``"robot " + state.replace("_", " ")``, so each value reads as the
+#: end of that sentence ("robot safeguard stop", "robot program stopped on the teach pendant").
 SAFETY_NORMAL = "normal"
 SAFETY_PROTECTIVE_STOP = "protective_stop"
 SAFETY_EMERGENCY_STOP = "emergency_stop"
+SAFETY_SAFEGUARD_STOP = "safeguard_stop"
+SAFETY_VIOLATION = "safety_violation"
+SAFETY_FAULT = "safety_system_fault"
+SAFETY_RECOVERY = "in_safety_recovery_mode"
+SAFETY_STOPPED_BY_SAFETY = "stopped_by_the_safety_system"
+#: Not safety states strictly, but the same for a run: the arm cannot follow its commands.
+SAFETY_POWERED_OFF = "powered_off"
+SAFETY_NOT_RUNNING = "not_running"
+SAFETY_PROGRAM_STOPPED = "program_stopped_on_the_teach_pendant"
+SAFETY_PROGRAM_PAUSED = "program_paused_on_the_teach_pendant"
 
 #: Tracker frame status values. Only ``ok`` frames are a plainly seen marker; a pose reported
 #: with any other status is recorded with its status and left out of estimation by default.
@@ -80,7 +92,9 @@ class RobotState:
     base_from_tcp : numpy.ndarray, shape (4, 4)
         TCP pose from the controller's own kinematics, mm.
     safety : str
-        ``normal``, ``protective_stop`` or ``emergency_stop``.
+        ``normal`` or what stops the arm: one of the ``SAFETY_*`` values (protective,
+        emergency and safeguard stops, safety faults, the arm not running, the control
+        program stopped or paused on the teach pendant).
     moving : bool
         A motion command is still executing.
     """

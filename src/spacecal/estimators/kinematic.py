@@ -29,7 +29,7 @@ import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.expected_error import expected_error
+from spacecal.estimators.expected_error import expected_error, recorded_robot_model
 from spacecal.estimators.likelihood import fit_ml, report_uncertainty, variance_factor_of
 from spacecal.estimators.ml import covariance_from_information, information_matrix
 from spacecal.estimators.observations import Observations
@@ -52,7 +52,12 @@ ANGLE_LEVER_MM = 1000.0
 
 
 def robot_model_of(recording: Recording) -> RobotModel:
-    """The nominal robot model named in the recording's metadata (with its TCP)."""
+    """The robot model the identification starts from (its prior): the controller's own model
+    where the recording's metadata carries it (a factory-calibrated arm), else the nominal
+    model named there (with its TCP)."""
+    recorded = recorded_robot_model(recording)
+    if recorded is not None:
+        return recorded
     robot = recording.metadata.get("robot", {})
     if "model" not in robot:
         raise InvalidInputError("kinematic identification needs the robot model in the recording metadata")

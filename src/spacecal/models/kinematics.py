@@ -392,6 +392,77 @@ def with_dh_corrections(model: RobotModel, delta: ArrayLike) -> RobotModel:
     return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
 
 
+def fit_reported_kinematics(
+    start: RobotModel,
+    joints_rad: ArrayLike,
+    base_from_tcp_stack: ArrayLike,
+    iterations: int = 12,
+    lever_mm: float = 100.0,
+) -> tuple[RobotModel, float]:
+    """The kinematic model a controller computed its reported poses with, from pairs of
+    reported joints and TCP poses (when it does not publish its calibrated DH parameters).
+
+    Gauss–Newton on the 24 DH corrections and the 6 tool parameters from ``start``; the DH
+    parameters of a UR chain are redundant (e.g. the d of parallel joints), so each step is
+    the minimum-norm least-squares step: the model found reproduces the poses, its individual
+    parameters need not be the controller's.
+
+    Parameters
+    ----------
+    start : RobotModel
+        The nominal model with a first guess of the TCP.
+    joints_rad : array_like, shape (N, 6)
+    base_from_tcp_stack : array_like, shape (N, 4, 4)
+        The TCP poses the controller reported at those joints, mm.
+    lever_mm : float
+        Weight of a rotation residual (rad) against a position residual (mm).
+
+    Returns
+    -------
+    model : RobotModel
+    rms_mm : float
+        RMS position misfit of the model on the pairs, mm.
+    """
+    q, _ = _as_joint_array(joints_rad)
+    reported = np.asarray(base_from_tcp_stack, dtype=float).reshape(-1, 4, 4)
+    if len(q) != len(reported) or len(q) < 6:
+        raise InvalidInputError("fitting reported kinematics needs at least 6 pairs of joints and poses")
+
+    def model_of(parameters: FloatArray) -> RobotModel:
+        tool = start.flange_from_tcp @ make_transform(rotvec_to_matrix(parameters[27:30]), parameters[24:27])
+        return with_dh_corrections(start, parameters[:24]).with_tcp(tool)
+
+    def residuals(parameters: FloatArray) -> FloatArray:
+        predicted = forward_kinematics(model_of(parameters), q)
+        error = _pose_error_vector(reported, predicted)
+        return np.concatenate([error[:, :3], lever_mm * error[:, 3:]], axis=1).ravel()
+
+    parameters = np.zeros(30)
+    scale = np.array([1.0] * 12 + [1e-3] * 12 + [1.0] * 3 + [1e-3] * 3)
+    current = residuals(parameters)
+    for _ in range(iterations):
+        jac = np.empty((len(current), 30))
+        for k in range(30):
+            step = np.zeros(30)
+            step[k] = 1e-3 * scale[k]
+            jac[:, k] = (residuals(parameters + step) - current) / step[k]
+        # directions the poses barely determine (small motion, redundant parameters) are left
+        # out of the step (truncated SVD), and a step that does not lower the misfit is halved
+        delta = np.linalg.lstsq(jac * scale, -current, rcond=1e-6)[0] * scale
+        for _ in range(20):
+            trial = residuals(parameters + delta)
+            if trial @ trial <= current @ current:
+                break
+            delta = delta / 2
+        else:
+            break
+        parameters, current = parameters + delta, trial
+        if np.max(np.abs(delta / scale)) < 1e-9:
+            break
+    final = residuals(parameters).reshape(-1, 6)
+    return model_of(parameters), float(np.sqrt(np.mean(np.sum(final[:, :3] ** 2, axis=1))))
+
+
 # -- the calibration chain -----------------------------------------------------------------
 #
 # Every frame i of a calibration sees marker points s_k through (paper eq. 1)

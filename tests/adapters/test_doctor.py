@@ -1,0 +1,83 @@
+"""``spacecal doctor``: read-only checks of a robot and a tracker, one line per finding in an
+operator's words, exit 1 on any problem; nothing uploaded, nothing moved, everything closed."""
+
+import pytest
+
+pytest.importorskip("rtde_control")
+pytest.importorskip("ndicapy")
+
+from .ur_runs import SPACECAL, assert_everything_closed, last_line, run, stats, tracker_url, ur_world
+
+
+@pytest.fixture(scope="module")
+def world():
+    process = ur_world("eseries", "--calibrated-kinematics", "--pendant-tcp", "0,0,180,0,0,0.5")
+    yield process
+    process.stop()
+
+
+def doctor(world, rom, *extra):
+    return run(
+        [
+            *SPACECAL,
+            "doctor",
+            "--robot",
+            f"ur://{world.info['host']}",
+            "--tracker",
+            tracker_url(world),
+            "--rom",
+            str(rom),
+            "--robot-model",
+            "UR10e",
+            *extra,
+        ],
+        timeout_s=60,
+    )
+
+
+def test_a_ready_system_passes_and_nothing_is_uploaded(world, rom_file):
+    result = doctor(world, rom_file)
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = result.stdout.splitlines()
+    for expected in (
+        "robot: controller version: ok: PolyScope 5.11.1.108318 (e-Series), robot state at 500 Hz",
+        "robot: remote control: ok: on",
+        "robot: robot mode: ok: RUNNING",
+        "robot: safety: ok: normal",
+        "robot: RTDE registers: ok:",
+        "robot: kinematics: ok: factory-calibrated (checksums",
+        "robot: tool (TCP): ok: set on the teach pendant: X 0.0 Y 0.0 Z 180.0 mm, RX 0.0000 RY 0.0000 RZ 0.5",
+    ):
+        assert any(line.startswith(expected) for line in lines), (expected, result.stdout)
+    assert lines[-1] == "every check passed: spacecal acquire can start"
+    after = assert_everything_closed(world)
+    assert after["scripts_uploaded"] == 0 and after["commands"] == []
+
+
+def test_problems_are_each_named_and_fail_the_check(world, rom_file):
+    world.control("ur remote_control off")
+    world.control("ur registers_taken on")
+    world.control("ur safeguard_stop")
+    try:
+        result = doctor(world, rom_file, "--tool", "0,0,180,0,0,0")
+    finally:
+        world.control("ur remote_control on")
+        world.control("ur registers_taken off")
+        world.control("ur safeguard_reset")
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    problems = [line for line in result.stdout.splitlines() if ": PROBLEM: " in line]
+    subjects = [line.split(":")[1].strip() for line in problems]
+    assert subjects == ["remote control", "safety", "RTDE registers", "tool (TCP)"], result.stdout
+    assert last_line(result.stderr) == (
+        "spacecal: error: 4 problems found (marked PROBLEM above); fix them before running spacecal acquire"
+    )
+    assert stats(world)["scripts_uploaded"] == 0
+    assert_everything_closed(world)
+
+
+def test_a_robot_that_does_not_answer_is_a_problem_not_a_crash(tmp_path):
+    result = run([*SPACECAL, "doctor", "--robot", "ur://127.0.0.254"], timeout_s=60)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert "robot: connection: PROBLEM: no UR controller answers RTDE on 127.0.0.254:30004" in result.stdout
+    nothing = run([*SPACECAL, "doctor"])
+    assert nothing.returncode == 1 and "name a device to check" in last_line(nothing.stderr)

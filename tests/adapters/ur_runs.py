@@ -1,0 +1,118 @@
+"""Helpers of the UR controller tests: a fake world per controller generation, ``spacecal``
+in a subprocess against it, and what the fake controller says afterwards."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from ..fakes.client import WorldProcess
+
+SPACECAL = [sys.executable, "-m", "spacecal.cli"]
+#: Loopback addresses of these worlds: the conftest's network, last octets from 200 up (the
+#: conftest's own worlds count up from 1), so the two never collide in one process.
+_NETWORK = 20 + os.getpid() % 200
+_addresses = itertools.count(200)
+#: The nominal model each fake generation runs (``tests/fakes/rtde.py`` GENERATIONS).
+ROBOT_MODEL = {"cb3": "UR10", "eseries": "UR10e"}
+
+
+def ur_world(generation: str = "cb3", *options: str) -> WorldProcess:
+    address = next(_addresses)
+    if address > 254:
+        raise RuntimeError("out of loopback addresses for UR worlds")
+    return WorldProcess("--host", f"127.{_NETWORK}.0.{address}", "--ur-generation", generation, *options)
+
+
+def stats(world: WorldProcess) -> dict:
+    return json.loads(world.control("ur stats"))
+
+
+def tracker_url(world: WorldProcess) -> str:
+    return f"ndi://{world.info['host']}:{world.info['ndi_port']}"
+
+
+def acquire_argv(
+    world: WorldProcess,
+    generation: str,
+    output: Path,
+    rom: Path,
+    *extra: str,
+    rotation_deg: str = "10",
+    translation_mm: str = "100",
+    brisk: bool = True,
+) -> list[str]:
+    return [
+        *SPACECAL,
+        "acquire",
+        "--robot",
+        f"ur://{world.info['host']}",
+        "--tracker",
+        tracker_url(world),
+        "--rom",
+        str(rom),
+        "-o",
+        str(output),
+        "--robot-model",
+        ROBOT_MODEL[generation],
+        "--confirm-robot-motion",
+        "--rotation-deg",
+        rotation_deg,
+        "--translation-mm",
+        translation_mm,
+        # brisk, so each run is short: the smallest sweeps the planner takes, at a fast pace
+        *(["--speed-mm-s", "400", "--accel-mm-s2", "2000", "--angular-speed-deg-s", "120"] if brisk else []),
+        *extra,
+    ]
+
+
+def run(argv: list[str], timeout_s: float = 120.0) -> subprocess.CompletedProcess:
+    return subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s)
+
+
+def last_line(text: str) -> str:
+    lines = text.strip().splitlines()
+    return lines[-1] if lines else ""
+
+
+def recorded_rows(recording: Path) -> int:
+    return recording.read_bytes().count(b"\n") if recording.is_file() else 0
+
+
+class WhenRecorded(threading.Thread):
+    """Send a world command once the run has written ``rows`` samples; ``sent_at`` is when the
+    world acknowledged it (``time.monotonic``)."""
+
+    def __init__(self, world: WorldProcess, command: str, recording: Path, rows: int = 12, timeout_s=90.0):
+        super().__init__(daemon=True)
+        self.world, self.command, self.recording = world, command, recording
+        self.rows, self.timeout_s = rows, timeout_s
+        self.sent_at: float | None = None
+        self.reply = ""
+        self.start()
+
+    def run(self) -> None:
+        deadline = time.monotonic() + self.timeout_s
+        while time.monotonic() < deadline and recorded_rows(self.recording) <= self.rows:
+            time.sleep(0.02)
+        self.reply = self.world.control(self.command)
+        self.sent_at = time.monotonic()
+
+
+def assert_everything_closed(world: WorldProcess, timeout_s: float = 3.0) -> dict:
+    """Every controller connection closed and the tracker no longer tracking (the fake's view)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        now = stats(world)
+        closed = not any(now["connections"].values()) and not now["tracker_tracking"]
+        if closed or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    assert closed, now
+    return now
