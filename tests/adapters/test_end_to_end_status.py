@@ -60,7 +60,7 @@ def test_partially_out_of_volume_frames_are_recorded_and_left_out(world, rom_fil
         out = tmp_path / f"cal{len(extra)}.json"
         run = subprocess.run(
             [*SPACECAL, "calibrate", str(recording), "--method", "paper", "-o", str(out)]
-            + ["--thresholds-mm", "0.5,1,50", *extra],
+            + ["--thresholds-mm", "0.5,1,1000", *extra],  # about statuses, not accuracy
             capture_output=True,
             text=True,
             timeout=90,
