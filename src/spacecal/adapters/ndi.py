@@ -81,6 +81,8 @@ NDI_BAD_CRC, NDI_TIMEOUT, NDI_BAD_REPLY = 0x0100, 0x0103, 0x0201
 TRANSPORT_ERRORS = (NDI_BAD_CRC, NDI_TIMEOUT, NDI_BAD_REPLY)
 #: Extra attempts after a transport error before the tracker counts as lost.
 TRANSPORT_RETRIES = 2
+#: Serial probes before "no NDI tracker answers".
+PROBE_ATTEMPTS = 3
 
 
 def frame_status(handle_result, port_status: int, system_status: int) -> str:
@@ -137,7 +139,12 @@ class NDITracker:
         self.serial = port is None
         ndi = self._ndi
         if self.serial:
-            if ndi.ndiProbe(address) != ndi.NDI_OKAY:
+            # ndiProbe gives the first reply only 0.1 s; a tracker busy just after power-up or
+            # a loaded host can miss that, so it is asked again before we give up
+            for _ in range(PROBE_ATTEMPTS):
+                if ndi.ndiProbe(address) == ndi.NDI_OKAY:
+                    break
+            else:
                 raise DeviceError(f"no NDI tracker answers on {address}")
             self._device = ndi.ndiOpen(address)
         else:
