@@ -220,12 +220,11 @@ def simulate_raw(
         joints_rad=np.array([state.joints_rad for state in states]),
         base_from_tcp_stack=np.array([state.base_from_tcp for state in states]),
         tracker_time_s=frames.time_s,
-        # the raw stream has no status column: only plainly seen poses go into it
+        # write_raw_recording keeps no status: only plainly seen poses go into the stream
         tracker_from_marker_stack=np.where(
             frames.visible[:, None, None], frames.tracker_from_marker_stack, np.nan
         ),
         marker_rms_mm=frames.marker_rms_mm,
         metadata={**recording_metadata(world), "simulated_clock_offset_s": clock_offset_s},
-        marker_status=frames.marker_status,
     )
     return raw, world
