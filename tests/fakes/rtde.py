@@ -334,7 +334,7 @@ class FakeController:
             tick = 1.0 / self.generation.max_hz
             if self._snapshot is not None and now - self._snapshot[0] < tick / 2:
                 return self._snapshot[1], self._snapshot[2]
-            state = self.robot.state()
+            state = self.robot.tick_state()  # a packet holds one tick: its time and its joints
             speeds = np.zeros(6)
             if self._snapshot is not None and state.time_s > self._snapshot[1].time_s:
                 previous = self._snapshot[1]

@@ -170,12 +170,25 @@ def igtl_control(fake: FakeWorld, words: list[str]) -> str:
 TRACKER_CONTROLS = {"ndi": ndi_control, "igtl": igtl_control}
 
 
-def ndi_frame_source(fake: FakeWorld, rate_hz: float):
-    """Frames for the NDI fake: frame numbers count at the tracker rate."""
+def ndi_frame_source(fake: FakeWorld, rate_hz: float, stop: threading.Event):
+    """Frames for the NDI fake as a real tracker makes them: captured at its own rate, each
+    numbered by its capture instant; a reply returns the newest captured frame (the pose at
+    that frame's instant, not at the moment of the request)."""
+    latest: dict[str, tuple] = {}
+
+    def capture() -> None:
+        while not stop.is_set():
+            next_capture = (np.floor(fake.clock.now_s * rate_hz) + 1) / rate_hz
+            time.sleep(max(0.0, next_capture - fake.clock.now_s))
+            stamp, pose, rms, _ = fake.marker_frame()
+            latest["frame"] = (int(round(stamp * rate_hz)), pose, (0.0 if np.isnan(rms) else rms))
+
+    threading.Thread(target=capture, name="ndi-capture", daemon=True).start()
 
     def source():
-        stamp, pose, rms, _ = fake.marker_frame()
-        return int(stamp * rate_hz), pose, (0.0 if np.isnan(rms) else rms)
+        while "frame" not in latest:
+            time.sleep(0.001)
+        return latest["frame"]
 
     return source
 
@@ -221,8 +234,9 @@ def main() -> None:
     rate = fake.world.tracker.rate_hz
     log = sys.stderr if args.ndi_log else None
     fake.ndi_faults = ndi.NDIFaults()
-    ndi_tcp = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
-    ndi_serial = ndi.FakeNDI(ndi_frame_source(fake, rate), log, args.ndi_generation, fake.ndi_faults)
+    frames = ndi_frame_source(fake, rate, stop)
+    ndi_tcp = ndi.FakeNDI(frames, log, args.ndi_generation, fake.ndi_faults)
+    ndi_serial = ndi.FakeNDI(frames, log, args.ndi_generation, fake.ndi_faults)
     fake.ndi_devices = (ndi_tcp, ndi_serial)  # "ur stats" says whether any is still tracking
     ndi_server = listen(args.host, 0)
     ndi_port = ndi_server.getsockname()[1]

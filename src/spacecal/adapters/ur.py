@@ -25,18 +25,24 @@
 * Read-only checks (:meth:`URRobot.preflight`): dashboard queries (version, robot mode, safety,
   remote control), an RTDE input-recipe probe for the registers the control script needs, the
   primary interface. Opening with ``control=False`` never uploads a program.
+* Every controller state for the raw robot stream (:meth:`URRobot.drain_states`): a thread
+  polls the receive interface every 0.5 ms (ur_rtde keeps only the newest packet) and keeps
+  each new packet, read as one.
 * The client constructor returns normally after about 2.5 s with ``isConnected() == False``
   when nothing answers, and ``disconnect()`` sleeps 500 ms per interface.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
 import re
 import socket
 import struct
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -318,6 +324,54 @@ def _version(text: str) -> tuple[int, ...] | None:
     return tuple(int(v) for v in match.groups() if v is not None) if match else None
 
 
+#: How often the state stream polls the receive interface for a new controller state, s (the
+#: controller sends one every 8 ms on a CB3 and every 2 ms on an e-Series).
+STREAM_POLL_S = 0.0005
+#: The state stream keeps at most this many states between two drains (a minute at 500 Hz).
+STREAM_CAPACITY = 30_000
+
+
+class StateStream:
+    """Every controller state as the controller sends it, for the raw robot stream.
+
+    ur_rtde's receive interface keeps only the newest packet; a thread polls it at well above
+    the controller's rate and keeps each new packet's timestamp, joints and TCP pose (read as
+    one packet: see :meth:`URRobot._read_packet`). Started on first use, so a dry run and
+    ``spacecal doctor`` never start it.
+    """
+
+    def __init__(self, read_packet: Callable[[], tuple]):
+        self._read_packet = read_packet
+        self._states: collections.deque[RobotState] = collections.deque(maxlen=STREAM_CAPACITY)
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ur-state-stream", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        last = None
+        while not self._stop.is_set():
+            try:
+                timestamp, joints, pose, *_ = self._read_packet()
+            except (RuntimeError, OSError):
+                return  # the connection is gone; state() reports it
+            if timestamp != last:
+                last = timestamp
+                with self._lock:
+                    self._states.append(RobotState(timestamp, joints, pose))
+            time.sleep(STREAM_POLL_S)
+
+    def drain(self) -> list[RobotState]:
+        with self._lock:
+            states = list(self._states)
+            self._states.clear()
+        return states
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+
+
 class URRobot:
     """A UR arm behind the Robot protocol.
 
@@ -353,6 +407,7 @@ class URRobot:
         self._target: np.ndarray | None = None
         self._last_timestamp: float | None = None
         self._last_change = time.monotonic()
+        self._stream: StateStream | None = None
         try:
             self._receive = rtde_receive.RTDEReceiveInterface(host, -1.0, RECEIVE_VARIABLES)
         except RuntimeError as exc:  # nothing listens: ur_rtde raises "Could not connect to ..."
@@ -592,6 +647,13 @@ class URRobot:
                 self._target = None
         return RobotState(timestamp, joints, pose, safety, moving)
 
+    def drain_states(self) -> list[RobotState]:
+        """Every controller state since the last call, oldest first (each with the controller's
+        own timestamp, joints and TCP pose; safety and motion are :meth:`state`'s)."""
+        if self._stream is None:
+            self._stream = StateStream(self._read_packet)
+        return self._stream.drain()
+
     def _require_control(self):
         if self._control is None:
             raise DeviceError("this UR connection was opened read-only")
@@ -645,6 +707,8 @@ class URRobot:
             dashboard(self.host, ["stop"], timeout_s=1.0)
 
     def close(self) -> None:
+        if self._stream is not None:
+            self._stream.close()
         dropped = not self._receive.isConnected()
         if self._control is not None:
             with contextlib.suppress(RuntimeError):

@@ -109,6 +109,7 @@ class SimulatedRobot:
         self._tick_s = 1.0 / world.nominal_model.controller_hz
         self._stream: list[RobotState] | None = [] if stream_states else None
         self._streamed_to_s = np.floor(self.clock.now_s / self._tick_s) * self._tick_s
+        self._newest_tick: tuple[float, np.ndarray] = (float(self._streamed_to_s), self._joints.copy())
         self._updated_at_s = -np.inf
         self._joints_time_s = self.clock.now_s
         self._lock = threading.RLock()
@@ -168,6 +169,7 @@ class SimulatedRobot:
     def _stream_ticks(self, ticks: np.ndarray, joints: np.ndarray, moving) -> None:
         if len(ticks):
             self._streamed_to_s = float(ticks[-1])
+            self._newest_tick = (float(ticks[-1]), joints[-1].copy())
         if self._stream is None or not len(ticks):
             return
         poses = forward_kinematics(self.world.nominal_model, joints)
@@ -187,6 +189,19 @@ class SimulatedRobot:
             time_s=float(np.floor(self.clock.now_s / self._tick_s) * self._tick_s),
             joints_rad=self._joints.copy(),
             base_from_tcp=forward_kinematics(self.world.nominal_model, self._joints),
+            safety=self._safety,
+            moving=self._motion is not None,
+        )
+
+    def tick_state(self) -> RobotState:
+        """The newest controller tick as a controller's packet holds it: the joints at the tick's
+        own time (:meth:`state` gives the joints now, stamped with the tick before)."""
+        self._update()
+        time_s, joints = self._newest_tick
+        return RobotState(
+            time_s=time_s,
+            joints_rad=joints.copy(),
+            base_from_tcp=forward_kinematics(self.world.nominal_model, joints),
             safety=self._safety,
             moving=self._motion is not None,
         )
