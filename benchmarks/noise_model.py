@@ -14,12 +14,12 @@ with translation noise ``--lateral-mm`` across and ``--depth-mm`` along the line
 (at the marker origin) and ``--rotation-deg`` per axis of orientation noise, no spheres and
 no tracker RMS. Every closed form, the isotropic ML (Shah's closed form refined by
 unweighted least squares on the marker's model points) and ML with estimated components,
-over ``--worlds`` x ``--trials`` recordings: median and RMS errors of ``tracker_from_base``
+over ``--worlds`` x ``--pose-trials`` recordings: median and RMS errors of ``tracker_from_base``
 (cube TRE, rotation) and ``tcp_from_marker`` (position, rotation), and the share of
 recordings where ML with estimated components is at least as accurate as the best closed
 form on that recording.
 
-    python benchmarks/noise_model.py [--trials 20] [--worlds 4]
+    python benchmarks/noise_model.py [--trials 20] [--worlds 5] [--pose-trials 6]
 """
 
 from __future__ import annotations
@@ -238,7 +238,8 @@ def pose_only(worlds: int, trials: int, lateral_mm: float, depth_mm: float, rota
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=20)
-    parser.add_argument("--worlds", type=int, default=4)
+    parser.add_argument("--worlds", type=int, default=5)
+    parser.add_argument("--pose-trials", type=int, default=6, help="noise trials per world in (c)")
     parser.add_argument("--lateral-mm", type=float, default=0.05)
     parser.add_argument("--depth-mm", type=float, default=0.20)
     parser.add_argument("--rotation-deg", type=float, default=0.02)
@@ -246,7 +247,7 @@ def main() -> None:
     args = parser.parse_args()
     if not args.skip_spheres:
         white_and_anisotropic_spheres(args.trials)
-    pose_only(args.worlds, max(1, args.trials // 2), args.lateral_mm, args.depth_mm, args.rotation_deg)
+    pose_only(args.worlds, args.pose_trials, args.lateral_mm, args.depth_mm, args.rotation_deg)
 
 
 if __name__ == "__main__":

@@ -150,6 +150,19 @@ def _line_of_sight_projectors(points: FloatArray) -> tuple[FloatArray, FloatArra
     return np.eye(3) - along, along
 
 
+def _inverse_left_jacobian(rotation_vectors: FloatArray) -> FloatArray:
+    """J_l^-1(phi) = I - [phi]x / 2 + (1/a^2 - (1 + cos a) / (2 a sin a)) [phi]x^2, a = |phi|;
+    shape (N, 3, 3) for rotation vectors (N, 3)."""
+    angle = np.linalg.norm(rotation_vectors, axis=1)
+    small = angle < 1e-4
+    safe = np.where(small, 1.0, angle)
+    coefficient = np.where(
+        small, 1.0 / 12.0, 1.0 / safe**2 - (1.0 + np.cos(safe)) / (2.0 * safe * np.sin(safe))
+    )
+    cross = skew(rotation_vectors)
+    return as_float_array(np.eye(3) - 0.5 * cross + coefficient[:, None, None] * (cross @ cross))
+
+
 class NoiseProblem:
     """Residuals, Jacobian and cofactor matrices Q_cm of one recording's observations.
 
@@ -209,9 +222,11 @@ class NoiseProblem:
         jac[:, :3] = pose_point_jacobian(
             obs.base_from_tcp_stack, tracker_from_base, tcp_from_marker, self.centroid[None]
         )[:, 0]
-        # log(exp(w_t) R_t R_A R_x exp(w_x) R_obs^T) ~ w_t + R_pred w_x + log(R_pred R_obs^T)
-        jac[:, 3:, 3:6] = np.eye(3)
-        jac[:, 3:, 9:12] = chain[:, :3, :3]
+        # exp(w_t) R_t R_A R_x exp(w_x) = exp(w_t + R_pred w_x) R_pred to first order, and
+        # log(exp(d) E) = log(E) + J_l^-1(log E) d (the inverse left Jacobian of SO(3))
+        inverse_left = _inverse_left_jacobian(rotation)
+        jac[:, 3:, 3:6] = inverse_left
+        jac[:, 3:, 9:12] = inverse_left @ chain[:, :3, :3]
         values = np.concatenate([predicted - self.observed_centroid, rotation], axis=1)
         return Residuals(as_float_array(values), as_float_array(jac))
 
