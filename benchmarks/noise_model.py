@@ -19,7 +19,12 @@ over ``--worlds`` x ``--pose-trials`` recordings: median and RMS errors of ``tra
 recordings where ML with estimated components is at least as accurate as the best closed
 form on that recording.
 
-    python benchmarks/noise_model.py [--trials 20] [--worlds 5] [--pose-trials 6]
+(d) Systematic errors (paper-realistic, and with ``depth_anisotropy=3``) over
+``--realistic-seeds`` worlds: the two ML variants' TRE, their predicted TRE, and the
+estimated depth-to-lateral ratio.
+
+    python benchmarks/noise_model.py [--trials 20] [--worlds 5] [--pose-trials 6] [--realistic-seeds 10]
+        [--only ab|c|d]
 """
 
 from __future__ import annotations
@@ -235,6 +240,39 @@ def pose_only(worlds: int, trials: int, lateral_mm: float, depth_mm: float, rota
     )
 
 
+def realistic(seeds: int) -> None:
+    """ML with estimated components vs isotropic ML where systematic errors dominate."""
+    print(
+        f"\n(d) Systematic errors (paper-realistic: volumetric tracker error, DH errors, repeatability), "
+        f"{seeds} worlds, one recording each (marker poses)\n"
+    )
+    print(
+        "| scenario | ML estimated TRE median (mm) | ML isotropic TRE median (mm) | estimated / isotropic "
+        "(median of ratios) | predicted TRE est / iso (median, mm) | depth / lateral (median) |"
+    )
+    print("|" + "|".join(["---"] * 6) + "|")
+    for anisotropy in (1.0, 3.0):
+        tre: dict[str, list[float]] = {"estimated": [], "isotropic": []}
+        predicted: dict[str, list[float]] = {"estimated": [], "isotropic": []}
+        ratio = []
+        for seed in range(1, seeds + 1):
+            scenario = dataclasses.replace(PRESETS["paper-realistic"], seed=seed, depth_anisotropy=anisotropy)
+            simulation = simulate(scenario)
+            for model in tre:
+                result = calibrate(simulation.recording, "ml", noise_model=model)
+                tre[model].append(calibration_error(result, simulation.world)["tre_rms_mm"])
+                predicted[model].append(result.predicted_tre_mm["cube_rms"])
+                if model == "estimated":
+                    ratio.append(result.diagnostics["noise_model"]["depth_to_lateral"])
+        label = "paper-realistic" + ("" if anisotropy == 1.0 else f", depth_anisotropy={anisotropy:g}")
+        print(
+            f"| {label} | {np.median(tre['estimated']):.4f} | {np.median(tre['isotropic']):.4f} | "
+            f"{np.median(np.divide(tre['estimated'], tre['isotropic'])):.3f} | "
+            f"{np.median(predicted['estimated']):.4f} / {np.median(predicted['isotropic']):.4f} | "
+            f"{np.median(ratio):.2f} |"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=20)
@@ -243,11 +281,15 @@ def main() -> None:
     parser.add_argument("--lateral-mm", type=float, default=0.05)
     parser.add_argument("--depth-mm", type=float, default=0.20)
     parser.add_argument("--rotation-deg", type=float, default=0.02)
-    parser.add_argument("--skip-spheres", action="store_true", help="only table (c)")
+    parser.add_argument("--realistic-seeds", type=int, default=10, help="worlds in (d)")
+    parser.add_argument("--only", choices=("ab", "c", "d"), help="print one table only")
     args = parser.parse_args()
-    if not args.skip_spheres:
+    if args.only in (None, "ab"):
         white_and_anisotropic_spheres(args.trials)
-    pose_only(args.worlds, args.pose_trials, args.lateral_mm, args.depth_mm, args.rotation_deg)
+    if args.only in (None, "c"):
+        pose_only(args.worlds, args.pose_trials, args.lateral_mm, args.depth_mm, args.rotation_deg)
+    if args.only in (None, "d"):
+        realistic(args.realistic_seeds)
 
 
 if __name__ == "__main__":
