@@ -311,9 +311,14 @@ def calibrate_ml(
         return _package(
             "ml", recording, obs, fit.tracker_from_base, fit.tcp_from_marker, targets_in_base, extra
         )
-    model = fit_with_noise_model(
-        obs, recording.tracker_from_marker_stack[obs.rows], fit.tracker_from_base, fit.tcp_from_marker
-    )
+    # an unidentifiable problem is refused with its reason before any re-weighting
+    covariance_from_information(information_matrix(obs, fit.tracker_from_base, fit.tcp_from_marker))
+    try:
+        model = fit_with_noise_model(
+            obs, recording.tracker_from_marker_stack[obs.rows], fit.tracker_from_base, fit.tcp_from_marker
+        )
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateDataError(f"noise components cannot be estimated from these frames ({exc})") from exc
     return _package(
         "ml",
         recording,

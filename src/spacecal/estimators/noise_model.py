@@ -20,18 +20,18 @@ a few variance components theta_c with known cofactor matrices Q_cm:
   white isotropic sphere noise sigma the model holds the truth (lateral = depth = sigma^2/K,
   sphere_fit = sigma^2, rotation = 0), so nothing is lost where the isotropic model was right.
 
-The components are estimated from the residuals by Förstner's iteration for variance
-component estimation (Förstner 1979; Koch, *Parameter Estimation and Hypothesis Testing in
-Linear Models*, 1999, §3.6), which converges to the REML estimate and keeps every component
-positive:
+The components are estimated from the residuals by least-squares variance component
+estimation (LS-VCE; Teunissen and Amiri-Simkooei, J. Geodesy 82, 2008; see
+:func:`update_components`), whose fixed point is that of Förstner's iteration (Förstner
+1979; Koch, *Parameter Estimation and Hypothesis Testing in Linear Models*, 1999, §3.6):
 
-    theta_c <- theta_c * (v^T W Q_c W v) / tr(W Q_c R),    R = I - J (J^T W J)^-1 J^T W,
+    theta_c = theta_c * (v^T W Q_c W v) / tr(W Q_c R),    R = I - J (J^T W J)^-1 J^T W,
 
-v the residuals and J the Jacobian of the 12 calibration parameters. For components that
-split each block into disjoint parts (lateral/depth) this is Helmert's
+v the residuals and J the Jacobian of the 12 calibration parameters: the REML estimate. For
+components that split each block into disjoint parts (lateral/depth) this is Helmert's
 theta_c = sum of squared residuals of c / sum of their redundancy numbers. It alternates
 with Levenberg–Marquardt on sum_m v_m^T W_m v_m, warm-started from the isotropic fit, until
-the components change by less than 1e-3 (relative) between refits.
+no component changes by more than 1e-3 of the variance it describes between refits.
 """
 
 from __future__ import annotations
