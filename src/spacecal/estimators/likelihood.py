@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from spacecal.core.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.diagnostics import (
     motion_spread,
     residual_table,
@@ -28,6 +28,7 @@ from spacecal.estimators.ml import (
     levenberg_marquardt,
     predicted_tre_mm,
 )
+from spacecal.estimators.noise_model import fit_with_noise_model
 from spacecal.estimators.observations import Observations, build_observations
 from spacecal.estimators.robot_world import solve_shah
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IntArray
@@ -103,12 +104,18 @@ def _package(
     targets_in_base: ArrayLike | None,
     extra: dict[str, Any],
     outlier_rows: IntArray | Sequence[int] = (),
+    noise_information: FloatArray | None = None,
 ) -> CalibrationResult:
-    information = information_matrix(obs, tracker_from_base, tcp_from_marker)
     variance_factor = variance_factor_of(obs, tracker_from_base, tcp_from_marker)
-    # Without a known tracker noise the residuals alone set the scale (no floor at 1).
-    scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
-    covariance = covariance_from_information(information) * scale
+    if noise_information is not None:
+        # the estimated variance components already carry the residuals' scale
+        information = noise_information
+        covariance = covariance_from_information(information)
+    else:
+        information = information_matrix(obs, tracker_from_base, tcp_from_marker)
+        # Without a known tracker noise the residuals alone set the scale (no floor at 1).
+        scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
+        covariance = covariance_from_information(information) * scale
     eigenvalues = np.linalg.eigvalsh(information)
     extra = {
         "conditioning": {
@@ -260,31 +267,67 @@ def expected_error_of(
         return {"refusal": f"the expected error cannot be cross-validated ({exc})", "basis": "not estimated"}
 
 
+#: Choices of ``calibrate(recording, "ml", noise_model=...)``.
+NOISE_MODELS = ("estimated", "isotropic")
+
+
 def calibrate_ml(
-    recording: Recording, sigma_mm: float | None = None, targets_in_base: ArrayLike | None = None
+    recording: Recording,
+    sigma_mm: float | None = None,
+    targets_in_base: ArrayLike | None = None,
+    noise_model: str = "estimated",
 ) -> CalibrationResult:
     """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
 
     Starts from Shah's closed form, then Levenberg–Marquardt on sphere residuals (see
-    :mod:`spacecal.estimators.ml`). Sweeps and static poses count alike.
+    :mod:`spacecal.estimators.ml`). Sweeps and static poses count alike. With the default
+    ``noise_model="estimated"`` the fit is then re-weighted by variance components learnt
+    from its residuals (lateral and depth tracker noise, and for pose-only data an orientation
+    noise; :mod:`spacecal.estimators.noise_model`), and the covariance and predicted TRE use
+    them.
 
     Parameters
     ----------
     recording : Recording
     sigma_mm : float, optional
-        Per-axis sphere noise; estimated from the tracker's RMS fit errors if omitted.
+        Per-axis sphere noise; estimated from the tracker's RMS fit errors if omitted. It sets
+        the variance factor (the verdict's test for systematic error) and, for
+        ``noise_model="isotropic"``, the weights.
     targets_in_base : array_like, shape (M, 3), optional
         Points (mm, base frame) at which to predict the TRE, besides the site.
+    noise_model : {"estimated", "isotropic"}
+        ``"isotropic"``: one sigma for every sphere coordinate, as before.
+
+    Raises
+    ------
+    InvalidInputError
+        For an unknown ``noise_model``.
     """
+    if noise_model not in NOISE_MODELS:
+        raise InvalidInputError(f"noise_model must be one of {', '.join(NOISE_MODELS)}, got {noise_model!r}")
     obs, fit = fit_ml(recording, sigma_mm)
+    extra: dict[str, Any] = {"iterations": fit.iterations, "converged": fit.converged}
+    if noise_model == "isotropic":
+        return _package(
+            "ml", recording, obs, fit.tracker_from_base, fit.tcp_from_marker, targets_in_base, extra
+        )
+    # an unidentifiable problem is refused with its reason before any re-weighting
+    covariance_from_information(information_matrix(obs, fit.tracker_from_base, fit.tcp_from_marker))
+    try:
+        model = fit_with_noise_model(
+            obs, recording.tracker_from_marker_stack[obs.rows], fit.tracker_from_base, fit.tcp_from_marker
+        )
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateDataError(f"noise components cannot be estimated from these frames ({exc})") from exc
     return _package(
         "ml",
         recording,
         obs,
-        fit.tracker_from_base,
-        fit.tcp_from_marker,
+        model.tracker_from_base,
+        model.tcp_from_marker,
         targets_in_base,
-        {"iterations": fit.iterations, "converged": fit.converged},
+        {**extra, "noise_model": model.summary()},
+        noise_information=model.information,
     )
 
 
