@@ -67,8 +67,10 @@ def check_stopped_run(world, run_result, fault_at, recording, cause, count_slack
     assert cause in line and "resume with --resume" in line
     assert "Traceback" not in run_result.stderr
     kept = read_recording(recording)
-    assert len(kept) > 5
-    assert any(f"{len(kept) - slack} samples kept" in line for slack in range(count_slack + 1)), line
+    written = recorded_rows(recording) - 1  # every frame in the raw tracker stream (one header row)
+    # pairing may leave out a frame at either end of the robot's stream
+    assert len(kept) > 5 and written - 2 <= len(kept) <= written
+    assert any(f"{written - slack} samples kept" in line for slack in range(count_slack + 1)), line
     after = assert_everything_closed(world)
     print(
         f"{cause}: still {after['fault_to_still_s']:.3f} s after the fault; "
@@ -84,7 +86,7 @@ def resume_and_check(world, generation, recording, rom, kept):
     resumed = run(acquire_argv(world, generation, recording, rom, "--resume"))
     assert resumed.returncode == 0, resumed.stderr
     again = read_recording(recording)
-    assert len(again) > len(kept) and np.array_equal(again.time_s[: len(kept)], kept.time_s)
+    assert len(again) > len(kept) and np.isin(kept.time_s, again.time_s).all()
     assert "18/18 moves" in resumed.stdout
 
 

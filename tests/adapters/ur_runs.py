@@ -82,7 +82,10 @@ def last_line(text: str) -> str:
 
 
 def recorded_rows(recording: Path) -> int:
-    return recording.read_bytes().count(b"\n") if recording.is_file() else 0
+    """Frames written so far: ``acquire`` writes the raw tracker stream frame by frame (the
+    paired ``rec.csv`` is derived from the streams when the run ends)."""
+    stream = recording.with_name(recording.stem + ".tracker.csv")
+    return stream.read_bytes().count(b"\n") if stream.is_file() else 0
 
 
 class WhenRecorded(threading.Thread):

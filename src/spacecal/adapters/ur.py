@@ -447,6 +447,8 @@ class URRobot:
         if not control.isConnected():
             raise DeviceError(f"the UR control interface on {self.host} did not connect; nothing moved")
         self._program_expected = True
+        if self._stream is None:  # states from before the first move: the first frames pair with them
+            self._stream = StateStream(self._read_packet)
 
     # -- read-only checks --------------------------------------------------------------
     def controller_model(self) -> tuple[RobotModel, str]:

@@ -19,6 +19,15 @@ from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_m
 SETTLE_S = 0.3
 
 
+#: Label of the moves between stations (never a station's).
+TRANSIT = "transit"
+
+
+def station_label(label: str) -> str:
+    """A station's label: its move's, except that a recorded transit's stations are ``station``."""
+    return "station" if label == TRANSIT else label
+
+
 def stop_and_go_plan(
     plan: MotionPlan,
     model: RobotModel,
@@ -48,8 +57,9 @@ def stop_and_go_plan(
     Returns
     -------
     MotionPlan
-        Transits (not recorded) between stations and holds (recorded, labelled with the
-        move's label) at them; moves that were not recorded and holds stay as they were.
+        Transits (``transit``, not recorded) between stations and holds (recorded, labelled
+        with the move's label, :func:`station_label`) at them; moves that were not recorded
+        and holds stay as they were.
     """
     moves: list[TimedMove] = []
     joints = np.asarray(plan.home_joints_rad, dtype=float)
@@ -64,9 +74,9 @@ def stop_and_go_plan(
         # stations evenly spread along the path (s in (0, 1] of the move's interpolation)
         fractions = np.arange(1, stations_per_move + 1) / stations_per_move
         for station in interpolate_transforms(move.start, move.end, fractions):
-            transit, joints = time_move(model, "transit", pose, station, joints, limits, 0.0)
+            transit, joints = time_move(model, TRANSIT, pose, station, joints, limits, 0.0)
             moves.append(transit)
-            moves.append(TimedMove(move.label, station, station, hold_s, 0.0, frame_period_s))
+            moves.append(TimedMove(station_label(move.label), station, station, hold_s, 0.0, frame_period_s))
             pose = station
     extents = {**plan.extents, "stop_and_go": {"frames_per_station": frames_per_station}}
     return MotionPlan(plan.home_joints_rad, plan.home_base_from_tcp, moves, extents, list(plan.messages))

@@ -272,7 +272,7 @@ def run_plan(
             except DeviceError as exc:
                 raise RunFault(f"tracker lost ({exc})") from exc
             state = robot.state()
-            if streams and move.sample_period_s > 0:
+            if streams:  # every move: a frame delivered late pairs with the state it was captured at
                 # the stream since the last frame, or (a robot that keeps no stream) the state
                 # just read; the sink skips a state not newer than the last it kept
                 states = carried + (robot.drain_states() if drains else [])  # type: ignore[attr-defined]

@@ -6,6 +6,7 @@ import numpy as np
 
 from spacecal.geometry.rotations import mean_rotation
 from spacecal.geometry.transforms import make_transform
+from spacecal.planning.stop_and_go import TRANSIT
 from spacecal.records import Recording
 
 #: A gap longer than this many frame periods between two samples starts a new station.
@@ -21,7 +22,9 @@ def average_stations(recording: Recording, frame_period_s: float) -> Recording:
     """One sample per station: the frames with the marker seen at each rest, averaged.
 
     Stations are the runs of samples of one segment with no gap longer than
-    ``STATION_GAP_PERIODS`` frame periods (the transits between stations are not recorded).
+    ``STATION_GAP_PERIODS`` frame periods. Samples paired with a robot state of a transit
+    (a frame captured while the arm was still moving, delivered as it stopped) are not at a
+    station and are left out.
     The marker pose, the robot's TCP pose and joints, the RMS and the spheres are averaged
     over the frames where the marker was seen; a station where it never was is kept as one
     unseen sample.
@@ -38,6 +41,7 @@ def average_stations(recording: Recording, frame_period_s: float) -> Recording:
     Recording
         Time of each station: its first frame's; metadata with ``stations_averaged``.
     """
+    recording = recording.select(recording.segment != TRANSIT)
     if len(recording) == 0:
         return recording
     new_station = np.concatenate(
