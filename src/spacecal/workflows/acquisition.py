@@ -251,9 +251,6 @@ def run_plan(
         move = plan.moves[index]
         if index == first_move and approach_first_move and not _at_pose(robot, move.start):
             _approach(robot, tracker, move.start, settings)
-        # states before this move are no segment's, but the newest of them is where the move
-        # starts: the first frames may fall before the move's first new state
-        carried: list[RobotState] = robot.drain_states()[-1:] if drains else []  # type: ignore[attr-defined]
         # A hold (start = end) is a station: the arm rests while frames are taken for the
         # move's duration (stop-and-go sampling); there is nothing to command.
         hold = is_hold(move)
@@ -272,11 +269,12 @@ def run_plan(
             except DeviceError as exc:
                 raise RunFault(f"tracker lost ({exc})") from exc
             state = robot.state()
-            if streams:  # every move: a frame delivered late pairs with the state it was captured at
-                # the stream since the last frame, or (a robot that keeps no stream) the state
-                # just read; the sink skips a state not newer than the last it kept
-                states = carried + (robot.drain_states() if drains else [])  # type: ignore[attr-defined]
-                carried = []
+            if streams:
+                # The stream since the last frame, through every move and the moments between
+                # them (a frame delivered late pairs with the state it was captured at, and no
+                # gap opens at a move's start); or, for a robot that keeps no stream, the state
+                # just read. The sink skips a state not newer than the last it kept.
+                states = robot.drain_states() if drains else []  # type: ignore[attr-defined]
                 sink.add_robot_states(states or [state], move.label)  # type: ignore[attr-defined]
             if state.safety != SAFETY_NORMAL:
                 raise RunFault(f"robot {state.safety.replace('_', ' ')}")
