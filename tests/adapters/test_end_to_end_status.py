@@ -107,5 +107,6 @@ def test_plus_silence_of_the_marker_is_missing_and_a_silent_stream_ends_the_run(
     last = run.stderr.strip().splitlines()[-1]
     assert "tracker lost" in last and "stalled or lost" in last and "Traceback" not in run.stderr
     data = read_recording(recording)
-    assert len(data) >= 35 and (data.marker_status == FRAME_MISSING).sum() >= 8, last
+    # the run went on through the marker's silence: it ended only after the whole stream fell silent
+    assert rows_written(recording) - 1 >= 40 and (data.marker_status == FRAME_MISSING).sum() >= 8, last
     assert not data.has_pose[~data.visible].any()  # nothing but a plainly seen marker has a pose

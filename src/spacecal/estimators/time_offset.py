@@ -26,23 +26,26 @@ from spacecal.estimators.observations import build_observations
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, interpolate_transforms
 from spacecal.records import CalibrationResult, RawRecording, Recording
 
-#: A frame is paired only between robot states at most this many median robot periods apart
-#: (the robot stream is kept during recorded moves only; nothing is interpolated across a gap).
+#: A frame is paired only between robot states at most this many median robot periods, or
+#: ``LARGEST_GAP_S``, apart, whichever is longer: a state stream read by polling may miss a few
+#: ticks, but nothing is interpolated across a stretch the robot was not recorded (at 400 mm/s^2,
+#: interpolating linearly across 50 ms misplaces the TCP by at most a dt^2 / 8 = 0.13 mm).
 LARGEST_GAP_PERIODS = 3.0
+LARGEST_GAP_S = 0.05
 
 
 def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
     """A paired recording: each tracker frame with the robot state at ``tracker time + offset_s``.
 
-    Frames outside the robot stream's time span, or in a gap of it (more than
-    ``LARGEST_GAP_PERIODS`` median periods between states), are dropped.
+    Frames outside the robot stream's time span, or in a gap of it (see ``LARGEST_GAP_S``),
+    are dropped.
     """
     robot_t = raw.robot_time_s
     query = raw.tracker_time_s + offset_s
     inside = (query >= robot_t[0]) & (query <= robot_t[-1])
     if len(robot_t) > 1:
         periods = np.diff(robot_t)
-        largest = LARGEST_GAP_PERIODS * float(np.median(periods))
+        largest = max(LARGEST_GAP_PERIODS * float(np.median(periods)), LARGEST_GAP_S)
         after = np.clip(np.searchsorted(robot_t, query, side="right"), 1, len(robot_t) - 1)
         inside &= (robot_t[after] - robot_t[after - 1]) <= largest
     query = query[inside]
