@@ -129,7 +129,7 @@ def test_signals_stop_the_robot_at_once_and_keep_the_recording_resumable(rom_fil
             text=True,
         )
         deadline = time.monotonic() + 90
-        while recorded_rows(recording) <= 12 and time.monotonic() < deadline and process.poll() is None:
+        while recorded_rows(recording) <= 20 and time.monotonic() < deadline and process.poll() is None:
             time.sleep(0.02)
         world.control("ur mark")
         sent_at = time.monotonic()

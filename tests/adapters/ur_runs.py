@@ -92,7 +92,7 @@ class WhenRecorded(threading.Thread):
     """Send a world command once the run has written ``rows`` samples; ``sent_at`` is when the
     world acknowledged it (``time.monotonic``)."""
 
-    def __init__(self, world: WorldProcess, command: str, recording: Path, rows: int = 12, timeout_s=90.0):
+    def __init__(self, world: WorldProcess, command: str, recording: Path, rows: int = 20, timeout_s=90.0):
         super().__init__(daemon=True)
         self.world, self.command, self.recording = world, command, recording
         self.rows, self.timeout_s = rows, timeout_s
