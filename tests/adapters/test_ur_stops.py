@@ -93,6 +93,11 @@ def resume_and_check(world, generation, recording, rom, kept):
     assert "18/18 moves" in resumed.stdout
 
 
+#: Stops after which the run is resumed to the end here (resuming is the same after every stop;
+#: these three cover a paused program, an ended one and a new connection; it costs CI time).
+RESUMED = {"safeguard stop", "program stopped on the pendant", "RTDE connection dropped"}
+
+
 @pytest.mark.parametrize("stop", sorted(STOPS))
 def test_each_stop_ends_the_run_and_nothing_moves_after_it(rom_file, tmp_path, stop):
     generation, command, cause, release = STOPS[stop]
@@ -111,7 +116,8 @@ def test_each_stop_ends_the_run_and_nothing_moves_after_it(rom_file, tmp_path, s
             time.sleep(2.0)
             after = stats(world)
             assert after["still_for_s"] > 1.9 and not after["moving"], after
-        resume_and_check(world, generation, recording, rom_file, kept)
+        if stop in RESUMED:
+            resume_and_check(world, generation, recording, rom_file, kept)
     finally:
         world.stop()
 
