@@ -248,7 +248,7 @@ def configure_world(fake_world, generation: str = "cb3", calibrated: bool = Fals
         true_model=true_model,
         tcp_from_marker=invert_transform(tcp) @ flange_from_marker,
     )
-    fake_world.robot = SimulatedRobot(fake_world.world, fake_world.clock)
+    fake_world.robot = SimulatedRobot(fake_world.world, fake_world.clock, stream_states=True)
     fake_world.generation = generation
     fake_world.calibrated = calibrated
 

@@ -27,6 +27,7 @@ protocol on the control port injects faults and reads the truth:
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import socket
 import sys
@@ -55,22 +56,36 @@ class FakeWorld:
     def __init__(self, scenario_name: str):
         self.world = build_world(load_scenario(scenario_name))
         self.clock = RealClock()
-        self.robot = SimulatedRobot(self.world, self.clock)
+        # the robot's ticks are kept so a tracker can see the marker at its frame's own instant
+        self.robot = SimulatedRobot(self.world, self.clock, stream_states=True)
+        self._ticks: collections.deque = collections.deque(maxlen=2000)
         self.lock = threading.RLock()
         self.occluded = False
         self.unplugged = False
         self.stale = False
         self._last_frame = None
 
-    def marker_frame(self):
-        """(time_s, tracker_from_marker or None, rms_mm, spheres or None) now, as the tracker sees it."""
+    def _true_base_from_tcp(self, at_s: float | None) -> np.ndarray:
+        """Where the TCP really was at ``at_s`` (recent; None: now): between two controller
+        ticks the joints are interpolated (a tracker's frame instant is not the moment a thread
+        gets to compute it on a busy machine)."""
+        current = self.robot.true_base_from_tcp()
+        self._ticks.extend((state.time_s, state.joints_rad) for state in self.robot.drain_states())
+        if at_s is None or len(self._ticks) < 2 or at_s >= self._ticks[-1][0] or at_s < self._ticks[0][0]:
+            return current
+        times = np.array([t for t, _ in self._ticks])
+        joints = np.array([q for _, q in self._ticks])
+        at = np.array([np.interp(at_s, times, joints[:, k]) for k in range(6)])
+        return self.world.true_base_from_tcp(at[None])[0]
+
+    def marker_frame(self, at_s: float | None = None):
+        """(time_s, tracker_from_marker or None, rms_mm, spheres or None) at ``at_s`` (a recent
+        instant; None: now), as the tracker sees it."""
         with self.lock:
             if self.stale and self._last_frame is not None:
                 return self._last_frame
-            now = self.clock.now_s
-            truth = (
-                self.world.tracker_from_base @ self.robot.true_base_from_tcp() @ self.world.tcp_from_marker
-            )
+            now = self.clock.now_s if at_s is None else at_s
+            truth = self.world.tracker_from_base @ self._true_base_from_tcp(at_s) @ self.world.tcp_from_marker
             tracked = self.world.track_marker(truth[None])
             pose = tracked.tracker_from_marker[0]
             seen = bool(np.all(np.isfinite(pose))) and not self.occluded
@@ -180,7 +195,7 @@ def ndi_frame_source(fake: FakeWorld, rate_hz: float, stop: threading.Event):
         while not stop.is_set():
             next_capture = (np.floor(fake.clock.now_s * rate_hz) + 1) / rate_hz
             time.sleep(max(0.0, next_capture - fake.clock.now_s))
-            stamp, pose, rms, _ = fake.marker_frame()
+            stamp, pose, rms, _ = fake.marker_frame(at_s=next_capture)
             latest["frame"] = (int(round(stamp * rate_hz)), pose, (0.0 if np.isnan(rms) else rms))
 
     threading.Thread(target=capture, name="ndi-capture", daemon=True).start()
