@@ -483,6 +483,23 @@ def robot_findings(
     return hardware, found + hardware.findings
 
 
+def refuse_when_not_ready(findings: list[DeviceFinding]) -> None:
+    """Raise with the first blocking finding, before anything is uploaded or moved."""
+    blocking = [f for f in findings if f.level == FINDING_PROBLEM]
+    if blocking:
+        raise InvalidInputError(
+            f"the robot is not ready ({blocking[0].subject}): {blocking[0].text}; nothing moved"
+        )
+
+
+def upload_control_program(robot: Robot) -> None:
+    """Connect the robot's control interface (its program is uploaded only now, after every
+    read-only check has passed and motion is confirmed); a robot without one has nothing to do."""
+    connect_control = getattr(robot, "connect_control", None)
+    if connect_control is not None:
+        connect_control()
+
+
 def finding_line(device: str, finding: DeviceFinding) -> str:
     """One line an operator reads: ``robot: remote control: PROBLEM: ...``."""
     level = {FINDING_OK: "ok", FINDING_WARNING: "warning", FINDING_PROBLEM: "PROBLEM"}[finding.level]
@@ -530,11 +547,7 @@ def acquire(
             if settings.dry_run:
                 checks = [finding_line("robot", f) for f in findings]
                 checks += [finding_line("tracker", f) for f in tracker_findings(tracker)]
-            blocking = [f for f in findings if f.level == FINDING_PROBLEM]
-            if blocking:
-                raise InvalidInputError(
-                    f"the robot is not ready ({blocking[0].subject}): {blocking[0].text}; nothing moved"
-                )
+            refuse_when_not_ready(findings)
             if settings.dry_run and any(
                 line.startswith("tracker") and ": PROBLEM:" in line for line in checks
             ):
@@ -590,9 +603,8 @@ def acquire(
             **plan.summary(),
             "file": None if settings.plan is None else str(Path(settings.plan).resolve()),
         }
-        connect_control = getattr(robot, "connect_control", None)
-        if world is None and connect_control is not None:
-            connect_control()  # the controller's program is uploaded only now
+        if world is None:
+            upload_control_program(robot)
         run_settings = AcquisitionSettings(
             linear_speed_mm_s=settings.speed_mm_s, linear_accel_mm_s2=settings.accel_mm_s2
         )
@@ -717,11 +729,7 @@ def check(settings: CheckSettings) -> CheckOutput:
     with opened_devices(devices, scenario) as (robot, tracker, world):
         if world is None:
             hardware, findings = robot_findings(robot, devices.robot_model, devices.tool)
-            blocking = [f for f in findings if f.level == FINDING_PROBLEM]
-            if blocking:
-                raise InvalidInputError(
-                    f"the robot is not ready ({blocking[0].subject}): {blocking[0].text}; nothing moved"
-                )
+            refuse_when_not_ready(findings)
             model = hardware.model
         else:
             model = world.nominal_model
@@ -754,9 +762,8 @@ def check(settings: CheckSettings) -> CheckOutput:
             raise InvalidInputError(
                 "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
             )
-        connect_control = getattr(robot, "connect_control", None)
-        if world is None and connect_control is not None:
-            connect_control()  # the controller's program is uploaded only now
+        if world is None:
+            upload_control_program(robot)
         run_settings = (
             simulation_settings(world.scenario)
             if world is not None

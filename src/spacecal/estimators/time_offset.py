@@ -42,14 +42,12 @@ def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
     """
     robot_t = raw.robot_time_s
     query = raw.tracker_time_s + offset_s
+    upper = np.clip(np.searchsorted(robot_t, query, side="right"), 1, len(robot_t) - 1)
     inside = (query >= robot_t[0]) & (query <= robot_t[-1])
     if len(robot_t) > 1:
-        periods = np.diff(robot_t)
-        largest = max(LARGEST_GAP_PERIODS * float(np.median(periods)), LARGEST_GAP_S)
-        after = np.clip(np.searchsorted(robot_t, query, side="right"), 1, len(robot_t) - 1)
-        inside &= (robot_t[after] - robot_t[after - 1]) <= largest
-    query = query[inside]
-    upper = np.clip(np.searchsorted(robot_t, query, side="right"), 1, len(robot_t) - 1)
+        largest = max(LARGEST_GAP_PERIODS * float(np.median(np.diff(robot_t))), LARGEST_GAP_S)
+        inside &= (robot_t[upper] - robot_t[upper - 1]) <= largest
+    query, upper = query[inside], upper[inside]
     lower = upper - 1
     span = robot_t[upper] - robot_t[lower]
     weight = np.where(span > 0, (query - robot_t[lower]) / np.where(span > 0, span, 1.0), 0.0)

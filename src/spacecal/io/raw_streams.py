@@ -202,7 +202,8 @@ class RawStreamWriter:
                 handle.close()
 
 
-def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict]:
+def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict, list[str]]:
+    """The data rows, the index of each required column, and the header (optional columns)."""
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such stream file")
     text = read_text_file(path, "stream")
@@ -220,7 +221,7 @@ def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict]:
         raise InvalidInputError(
             f"{path}: line {short[0]} has fewer cells than the header's {len(header)} columns"
         )
-    return rows[1:], {c: header.index(c) for c in columns}
+    return rows[1:], {c: header.index(c) for c in columns}, header
 
 
 def _increasing(times: np.ndarray, path: Path) -> None:
@@ -232,7 +233,7 @@ def _increasing(times: np.ndarray, path: Path) -> None:
 def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawRecording:
     """Read and validate the two streams (metadata from the robot stream's stem, if present)."""
     robot_path, tracker_path = Path(robot_path), Path(tracker_path)
-    rows, index = _rows(robot_path, ROBOT_COLUMNS)
+    rows, index, _ = _rows(robot_path, ROBOT_COLUMNS)
     numeric = ["time_s"] + JOINT_COLUMNS + TCP_COLUMNS
     values = np.empty((len(rows), len(numeric)))
     for k, row in enumerate(rows):
@@ -250,7 +251,7 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     no_marker = np.full((len(rows), 3), np.nan)
     check_ranges(robot_path, lines, values[:, 0], values[:, 1:7], values[:, 7:10], no_marker, no_marker[:, 0])
 
-    rows, index, header = _rows_with_header(tracker_path, TRACKER_COLUMNS)
+    rows, index, header = _rows(tracker_path, TRACKER_COLUMNS)
     times = np.array([_number(r[index["time_s"]], k + 2, "time_s", tracker_path) for k, r in enumerate(rows)])
     arrival = _optional_column(rows, header, ARRIVAL_COLUMN, tracker_path)
     status = None
@@ -309,12 +310,6 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
         arrival_robot_time_s=arrival,
         marker_status=status,
     )
-
-
-def _rows_with_header(path: Path, columns: list[str]) -> tuple[list[list[str]], dict, list[str]]:
-    rows, index = _rows(path, columns)
-    header = [h.strip() for h in read_text_file(path, "stream").splitlines()[0].split(",")]
-    return rows, index, header
 
 
 def _optional_column(rows: list[list[str]], header: list[str], name: str, path: Path) -> np.ndarray | None:
