@@ -59,7 +59,7 @@ STOPS = {
 }
 
 
-def check_stopped_run(world, run_result, fault_at, recording, cause, count_slack=0):
+def check_stopped_run(world, run_result, fault_at, recording, cause, count_slack=0, label=None):
     ended_after = time.monotonic() - fault_at
     assert run_result.returncode == 1, run_result.stderr
     line = last_line(run_result.stderr)
@@ -73,7 +73,7 @@ def check_stopped_run(world, run_result, fault_at, recording, cause, count_slack
     assert any(f"{written - slack} samples kept" in line for slack in range(count_slack + 1)), line
     after = assert_everything_closed(world)
     print(
-        f"{cause}: still {after['fault_to_still_s']:.3f} s after the fault; "
+        f"{label or cause}: still {after['fault_to_still_s']:.3f} s after the fault; "
         f"command ended after {ended_after:.2f} s"
     )
     assert after["fault_to_still_s"] is not None and after["fault_to_still_s"] < STILL_WITHIN_S
@@ -147,7 +147,9 @@ def test_signals_stop_the_robot_at_once_and_keep_the_recording_resumable(rom_fil
         what = "Ctrl-C" if signal_name == "SIGINT" else signal_name
         # a signal landing between a row's write and its count makes the line say one sample
         # fewer than the file holds (workflows.acquisition.run_plan); every row is intact
-        kept, _ = check_stopped_run(world, result, sent_at, recording, "interrupted ", count_slack=1)
+        kept, _ = check_stopped_run(
+            world, result, sent_at, recording, "interrupted ", count_slack=1, label=f"interrupted ({what})"
+        )
         assert what in last_line(stderr)
         progress = json.loads(progress_path(recording).read_text())
         assert progress["moves_completed"] < progress["moves_total"] and progress["stopped_because"]
