@@ -711,14 +711,20 @@ class URRobot:
     def close(self) -> None:
         if self._stream is not None:
             self._stream.close()
-        dropped = not self._receive.isConnected()
+        dropped = not self._receive.isConnected() or (
+            self._control is not None and not self._control.isConnected()
+        )
         if self._control is not None:
-            with contextlib.suppress(RuntimeError):
-                if self._control.isConnected():
-                    self._control.stopScript()
-                self._control.disconnect()
             if dropped:
+                # after a drop ur_rtde's own thread is reconnecting the control interface;
+                # disconnect() or stopScript() racing with it can crash the process, so the
+                # interface is left alone (the dashboard below ends the program)
                 _keep_forever(self._control)
+            else:
+                with contextlib.suppress(RuntimeError):
+                    self._control.stopScript()
+                with contextlib.suppress(RuntimeError):
+                    self._control.disconnect()
             if not self._program_expected:
                 # stopped: ur_rtde reconnects by itself after a dropped connection and uploads its
                 # program again; end whatever it left running
@@ -730,6 +736,10 @@ class URRobot:
             self._receive.disconnect()
 
 
+#: Interfaces left alive after a dropped connection (see :func:`_keep_forever`).
+_KEPT_FOREVER: list[object] = []
+
+
 def _keep_forever(interface: object) -> None:
     """Never destroy ``interface``: ur_rtde 1.6.5's interfaces crash the process (segmentation
     fault) when they are destroyed after the controller closed the RTDE connection (measured
@@ -738,3 +748,11 @@ def _keep_forever(interface: object) -> None:
     import ctypes
 
     ctypes.pythonapi.Py_IncRef(ctypes.py_object(interface))
+    _KEPT_FOREVER.append(interface)
+
+
+def interfaces_left_running() -> bool:
+    """Whether a dropped connection left ur_rtde interfaces alive in this process: their
+    threads may still be reconnecting, so the process should end without the interpreter's
+    teardown (which would run C++ destructors under those threads)."""
+    return bool(_KEPT_FOREVER)

@@ -1,8 +1,6 @@
 """``python -m spacecal.cli``."""
 
-import sys
-
-from spacecal.cli.main import main
+from spacecal.cli.main import console_main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    console_main()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import signal
 import sys
 import threading
@@ -604,5 +605,19 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+def console_main() -> None:
+    """The console script: :func:`main`, then the exit. After a dropped robot connection the
+    robot library's own threads may still be reconnecting; everything of ours is closed and
+    written by then, so the process ends without the interpreter's teardown, which would
+    destroy the library's objects under those threads (a crash instead of exit code 1)."""
+    code = main()
+    ur = sys.modules.get("spacecal.adapters.ur")
+    if ur is not None and ur.interfaces_left_running():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console_main()

@@ -114,9 +114,21 @@ class RawStreamWriter:
         Raw-sphere column triples in the tracker stream (0: none).
     append : bool
         Continue existing streams (a resumed run), keeping their headers.
+    durable : bool
+        Force every row to the disk (``fsync``) as it is written, so that a power cut keeps
+        it: what a run on real devices needs. A simulated run (which can be made again from
+        its seed) only flushes to the operating system, which a killed process survives too.
     """
 
-    def __init__(self, stem: str | Path, metadata: dict, sphere_count: int = 0, append: bool = False):
+    def __init__(
+        self,
+        stem: str | Path,
+        metadata: dict,
+        sphere_count: int = 0,
+        append: bool = False,
+        durable: bool = True,
+    ):
+        self.durable = durable
         self.robot_path, self.tracker_path, meta_path = stream_paths(stem)
         self.robot_path.parent.mkdir(parents=True, exist_ok=True)
         resuming = append and self.robot_path.is_file() and self.tracker_path.is_file()
@@ -192,7 +204,8 @@ class RawStreamWriter:
     def flush(self) -> None:
         for handle in self._files:
             handle.flush()
-            os.fsync(handle.fileno())
+            if self.durable:
+                os.fsync(handle.fileno())
 
     def close(self) -> None:
         for handle in self._files:

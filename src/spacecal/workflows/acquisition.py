@@ -436,7 +436,11 @@ def acquire(
     _write_progress(progress_file, plan, first_move, None)
     sphere_count = len(metadata.get("marker", {}).get("spheres_in_marker_mm", []))
     writer = RawStreamWriter(
-        recording_path.with_name(recording_path.stem), metadata, sphere_count, append=resume
+        recording_path.with_name(recording_path.stem),
+        metadata,
+        sphere_count,
+        append=resume,
+        durable=not metadata.get("simulated", False),
     )
     result = AcquisitionResult(recording_path, 0, 0, first_move, len(plan.moves), raw_paths=raw_paths)
 
