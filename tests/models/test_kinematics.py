@@ -135,3 +135,16 @@ def test_pose_step_round_trip_and_analytic_jacobian():
             base_from_tcp, *apply_pose_step(tracker_from_base, tcp_from_marker, -delta), points
         )
         assert np.allclose((plus - minus) / (2 * eps), jac[..., k], atol=1e-4)
+
+
+@pytest.mark.parametrize("angle_rad", [0.0, 1e-9, 1e-4, 0.3, 2.0, 2.99, 3.05, np.pi - 1e-6])
+def test_ik_rotation_error_is_the_rotation_vector(angle_rad):
+    """IK's closed-form log map agrees with scipy's general conversion at every angle."""
+    from scipy.spatial.transform import Rotation
+
+    from spacecal.models.kinematics import _rotation_error_vector
+
+    axes = np.random.default_rng(3).normal(size=(50, 3))
+    vectors = angle_rad * axes / np.linalg.norm(axes, axis=1, keepdims=True)
+    matrices = Rotation.from_rotvec(vectors).as_matrix()
+    np.testing.assert_allclose(_rotation_error_vector(matrices), vectors, atol=1e-9)
