@@ -715,44 +715,56 @@ class URRobot:
             self._control is not None and not self._control.isConnected()
         )
         if self._control is not None:
-            if dropped:
-                # after a drop ur_rtde's own thread is reconnecting the control interface;
-                # disconnect() or stopScript() racing with it can crash the process, so the
-                # interface is left alone (the dashboard below ends the program)
-                _keep_forever(self._control)
-            else:
-                with contextlib.suppress(RuntimeError):
+            with contextlib.suppress(RuntimeError):
+                if not dropped:
                     self._control.stopScript()
-                with contextlib.suppress(RuntimeError):
-                    self._control.disconnect()
+            # after a drop this also ends ur_rtde's own reconnecting thread, which would upload
+            # its control script again
+            with contextlib.suppress(RuntimeError):
+                self._control.disconnect()
+            if dropped:
+                _keep_forever(self._control, self.host)
             if not self._program_expected:
                 # stopped: ur_rtde reconnects by itself after a dropped connection and uploads its
                 # program again; end whatever it left running
                 with contextlib.suppress(OSError):
                     dashboard(self.host, ["stop"], timeout_s=1.0)
         if dropped:
-            _keep_forever(self._receive)
+            _keep_forever(self._receive, self.host)
         else:
             self._receive.disconnect()
 
 
-#: Interfaces left alive after a dropped connection (see :func:`_keep_forever`).
-_KEPT_FOREVER: list[object] = []
+#: Interfaces left alive after a dropped connection, with their controllers' hosts (see
+#: :func:`_keep_forever`).
+_KEPT_FOREVER: list[tuple[object, str]] = []
 
 
-def _keep_forever(interface: object) -> None:
+def _keep_forever(interface: object, host: str) -> None:
     """Never destroy ``interface``: ur_rtde 1.6.5's interfaces crash the process (segmentation
-    fault) when they are destroyed after the controller closed the RTDE connection (measured
-    against the fake controller), which would turn a clean "lost the RTDE connection" exit into
-    a crash. Their sockets are closed already; only the objects' memory stays."""
+    fault) when they are destroyed, or disconnected, while their own thread reconnects after
+    the controller closed the RTDE connection (measured against the fake controller), which
+    would turn a clean "lost the RTDE connection" exit into a crash. Only the objects' memory
+    stays; :func:`end_programs_left_running` ends what their thread may upload again."""
     import ctypes
 
     ctypes.pythonapi.Py_IncRef(ctypes.py_object(interface))
-    _KEPT_FOREVER.append(interface)
+    _KEPT_FOREVER.append((interface, host))
 
 
 def interfaces_left_running() -> bool:
     """Whether a dropped connection left ur_rtde interfaces alive in this process: their
-    threads may still be reconnecting, so the process should end without the interpreter's
+    threads may still be reconnecting (and uploading their control script again), so the
+    process should end with :func:`end_programs_left_running` and without the interpreter's
     teardown (which would run C++ destructors under those threads)."""
     return bool(_KEPT_FOREVER)
+
+
+def end_programs_left_running() -> None:
+    """Stop, through the dashboard, whatever program runs on the controllers whose interfaces
+    were left alive: ur_rtde's reconnecting thread uploads its control script again when the
+    controller answers, so this is the last thing a process does before it ends (the thread
+    ends with it)."""
+    for host in dict.fromkeys(host for _, host in _KEPT_FOREVER):
+        with contextlib.suppress(OSError):
+            dashboard(host, ["stop"], timeout_s=1.0)

@@ -607,14 +607,17 @@ def _one_line(exc: BaseException) -> str:
 
 def console_main() -> None:
     """The console script: :func:`main`, then the exit. After a dropped robot connection the
-    robot library's own threads may still be reconnecting; everything of ours is closed and
-    written by then, so the process ends without the interpreter's teardown, which would
-    destroy the library's objects under those threads (a crash instead of exit code 1)."""
+    robot library's own threads may still be reconnecting (and may upload their program to
+    the controller again); everything of ours is closed and written by then, so the program
+    is stopped once more and the process ends at once, without the interpreter's teardown,
+    which would destroy the library's objects under those threads (a crash instead of exit
+    code 1)."""
     code = main()
     ur = sys.modules.get("spacecal.adapters.ur")
     if ur is not None and ur.interfaces_left_running():
         sys.stdout.flush()
         sys.stderr.flush()
+        ur.end_programs_left_running()
         os._exit(code)
     sys.exit(code)
 
