@@ -65,7 +65,9 @@ def main() -> None:
         failed = [name for _, name in FAILURE_LINE.findall(output)]
         failures.update(failed)
         for match in STOP_LINE.finditer(output):
-            stops[match["cause"].strip()].append((float(match["still"]), float(match["ended"])))
+            # the line follows pytest's progress characters (and the file's name, first in a file)
+            cause = re.sub(r"^(\S+\.py )?[.FEsx]*", "", match["cause"].strip())
+            stops[cause].append((float(match["still"]), float(match["ended"])))
         totals = TOTALS_LINE.findall(output)
         summary = totals[-1][0] if totals else "no pytest summary"
         print(f"run {k + 1}/{args.repeats}: {summary} ({seconds:.0f} s)", flush=True)
