@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.diagnostics import (
@@ -400,7 +400,7 @@ def calibrate_robust(
     # robust (median) estimate of sigma, so systematic errors larger than the tracker's
     # noise do not turn good frames into outliers.
     dof = obs.dof_per_frame
-    median_ratio = np.sqrt(chi2.median(dof) / dof)
+    median_ratio = np.sqrt(chdtri(dof, 0.5) / dof)  # chi-square median
     for _ in range(5):
         errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
         scale = np.median(errors) / median_ratio
@@ -408,7 +408,7 @@ def calibrate_robust(
         fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, frame_weights=weights)
         tracker_from_base, tcp_from_marker = fit.tracker_from_base, fit.tcp_from_marker
     errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
-    gaussian_cutoff = np.median(errors) / median_ratio * np.sqrt(chi2.ppf(OUTLIER_QUANTILE, dof) / dof)
+    gaussian_cutoff = np.median(errors) / median_ratio * np.sqrt(chdtri(dof, 1.0 - OUTLIER_QUANTILE) / dof)
     cutoff = max(gaussian_cutoff, SYSTEMATIC_TAIL_FACTOR * np.median(errors))
     keep = errors <= cutoff
     outlier_rows = obs.rows[~keep]

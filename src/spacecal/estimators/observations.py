@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.geometry.arrays import ArrayLike, FloatArray
@@ -64,7 +64,7 @@ def sphere_noise_from_marker_rms(marker_rms_mm: ArrayLike, sphere_count: int) ->
     rms = rms[np.isfinite(rms)]
     if len(rms) == 0 or np.all(rms == 0):
         return 0.0
-    return float(np.sqrt(sphere_count * np.median(rms**2) / chi2.median(3 * sphere_count - 6)))
+    return float(np.sqrt(sphere_count * np.median(rms**2) / chdtri(3 * sphere_count - 6, 0.5)))
 
 
 def marker_geometry_of(recording: Recording) -> FloatArray:
