@@ -14,20 +14,27 @@ base, the last joint's move the tool); others are weakly determined by a given m
    complement of the 12 pose columns; a column-pivoted QR picks the corrections that add
    independent information; those with a diagonal below ``rank_tolerance`` of the largest are
    *unidentifiable* and stay at zero.
-2. Model selection (``model_selection``, on by default): of those, only the corrections that
-   reduce the held-out misfit are freed. The recording is cut into the same blocks the
-   expected error leaves out (its sweeps, else six time blocks); greedy forward selection adds,
-   one at a time, the correction whose freeing most lowers the summed squared sphere error of
-   the held-out blocks predicted by fits to the other blocks, and stops when none lowers it by
-   more than :data:`SELECTION_MIN_GAIN` (the gain a correction that only fits noise shows by
-   chance). The fits are one Gauss–Newton step from the ML solution, linear in the
-   corrections, so every candidate subset costs a small solve on per-block normal matrices
-   (:func:`select_corrections`). On an arm that matches its model nothing is freed and the
-   result is ML's.
-3. The selected corrections and the pose are refined by Gauss–Newton with a zero-mean
-   Gaussian prior on the corrections (``prior_length_sd_mm``, ``prior_angle_sd_rad``).
+2. How much to correct is set by the data (``prior_from_data``, on by default), an empirical
+   Bayes choice of the prior. The ML fit on the controller's model is cross-validated as for
+   the expected error (:mod:`spacecal.estimators.expected_error`: its sweeps, else six time
+   blocks, left out one at a time); the held-out misfit beyond the tracker's noise, divided
+   by what DH errors of unit scale would show there, is the scale ``l`` (mm) of the arm's DH
+   errors. The prior s.d. of the corrections is ``l`` for lengths and ``0.002 l`` rad for
+   angles. When the held-out misfit shows nothing beyond the noise (``l = 0``: an arm that
+   matches its model) no correction is freed and the result is the ML solution.
+3. The identifiable corrections and the pose are refined by Gauss–Newton with that zero-mean
+   Gaussian prior on the corrections (or ``prior_length_sd_mm``, ``prior_angle_sd_rad`` when
+   ``prior_from_data`` is off or the scale cannot be computed).
 
-The prior is the controller's own model where the recording carries it
+Optional subset selection (``model_selection``, off by default): of the identifiable
+corrections only those that reduce the held-out misfit are freed, by greedy forward selection
+on the held-out sum of squared sphere errors (:func:`select_corrections`; each freed
+correction must lower it by more than :data:`SELECTION_MIN_GAIN`). It was measured
+(``benchmarks/levers.py``) not to pay at the needle tip: the marker's held-out misfit is met
+by a few corrections, which leave the rest of the arm's error to the pose and the tip, while
+all identifiable corrections under a prior of the right scale spread it as the arm does.
+
+The prior model is the controller's own where the recording carries it
 (``robot.kinematic_model``, a factory-calibrated arm), else the nominal model.
 
 The result holds the corrected model (used by IK in verification and planning), the
@@ -44,7 +51,7 @@ from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.expected_error import expected_error, held_out_blocks, recorded_robot_model
-from spacecal.estimators.likelihood import fit_ml, report_uncertainty, variance_factor_of
+from spacecal.estimators.likelihood import calibrate_ml, fit_ml, report_uncertainty, variance_factor_of
 from spacecal.estimators.ml import covariance_from_information, information_matrix
 from spacecal.estimators.observations import Observations
 from spacecal.geometry.arrays import FloatArray, IntArray
@@ -63,6 +70,9 @@ from spacecal.records import CalibrationResult, Recording
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
 DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]
 ANGLE_LEVER_MM = 1000.0
+#: Prior s.d. of the angle corrections per mm of the length corrections' (the ratio of the
+#: unit DH errors of :data:`spacecal.estimators.expected_error.UNIT_DH_SD`).
+ANGLE_PER_LENGTH_RAD_PER_MM = 0.002
 
 #: Least drop of the held-out sum of squared whitened sphere errors (units of the white noise
 #: variance) for which model selection frees one more correction. A correction that fits only
@@ -215,7 +225,8 @@ def calibrate_kinematic(
     prior_angle_sd_rad: float = 0.002,
     rank_tolerance: float = 0.02,
     iterations: int = 15,
-    model_selection: bool = True,
+    model_selection: bool = False,
+    prior_from_data: bool = True,
 ) -> CalibrationResult:
     """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``.
 
@@ -227,11 +238,15 @@ def calibrate_kinematic(
         Prior s.d. of the corrections (the spread of real arms around their nominal model).
     rank_tolerance : float
         Relative size below which a projected, scaled correction counts as unidentifiable.
+        Used as given when ``prior_from_data`` is False or the data's scale cannot be computed.
     iterations : int
         Most Gauss–Newton iterations.
     model_selection : bool
         Free only the identifiable corrections that lower the held-out misfit
-        (:func:`select_corrections`); False frees every identifiable one.
+        (:func:`select_corrections`); False (the default) frees every identifiable one.
+    prior_from_data : bool
+        Take the prior s.d. from the DH error scale the ML fit's held-out misfit shows (see
+        the module); none freed when it shows none.
     """
     model = robot_model_of(recording)
     # identification starts from the ML solution (the bare fit, without its diagnostics)
@@ -242,6 +257,15 @@ def calibrate_kinematic(
     spheres = obs.spheres_in_marker
     tracker_from_base, tcp_from_marker = start.tracker_from_base, start.tcp_from_marker
     delta = np.zeros(24)
+    # the robot's DH error scale as the ML start's held-out misfit shows it (before the
+    # corrections absorb it)
+    dh_scale = dh_error_scale_of(
+        recording, obs, start.tracker_from_base, start.tcp_from_marker, model, joints
+    )
+    if prior_from_data and dh_scale is not None:
+        # zero when the arm matches its model: then nothing is freed below
+        prior_length_sd_mm = dh_scale
+        prior_angle_sd_rad = dh_scale * ANGLE_PER_LENGTH_RAD_PER_MM
     prior_sd = np.array([prior_length_sd_mm] * 12 + [prior_angle_sd_rad] * 12)
 
     corrected = with_dh_corrections(model, delta)
@@ -258,6 +282,24 @@ def calibrate_kinematic(
         )
 
     identifiable = selected
+    if prior_from_data and dh_scale is not None and dh_scale <= 0.0:
+        # the held-out misfit shows nothing beyond the tracker's noise: the arm matches its
+        # model, no correction is freed, and the result is the ML calibration itself
+        ml = calibrate_ml(recording, sigma_mm=sigma_mm, targets_in_base=targets_in_base)
+        report = {
+            "identified": [],
+            "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(identifiable.tolist())],
+            "not_selected": [DH_NAMES[i] for i in identifiable],
+            "rank": int(len(identifiable)),
+            "condition_number": condition,
+            "prior_sd": {"length_mm": 0.0, "angle_rad": 0.0, "from_data": True},
+            "model_selection": None,
+        }
+        return ml.replace(
+            method="kinematic",
+            diagnostics={**ml.diagnostics, "kinematic_identification": report},
+            robot_model=model,
+        )
     selection = None
     if model_selection:
         n_frames = len(joints)
@@ -337,14 +379,13 @@ def calibrate_kinematic(
             "rank": int(len(identifiable)),
             "model_selection": selection,
             "condition_number": condition,
-            "prior_sd": {"length_mm": prior_length_sd_mm, "angle_rad": prior_angle_sd_rad},
+            "prior_sd": {
+                "length_mm": prior_length_sd_mm,
+                "angle_rad": prior_angle_sd_rad,
+                "from_data": bool(prior_from_data and dh_scale is not None),
+            },
         },
     }
-    # the robot's DH error scale as the ML start's held-out misfit shows it (before the
-    # corrections absorb it)
-    dh_scale = dh_error_scale_of(
-        recording, obs, start.tracker_from_base, start.tcp_from_marker, model, joints
-    )
     result = report_uncertainty(
         "kinematic",
         recording,
