@@ -20,8 +20,9 @@ base, the last joint's move the tool); others are weakly determined by a given m
    blocks, left out one at a time); the held-out misfit beyond the tracker's noise, divided
    by what DH errors of unit scale would show there, is the scale ``l`` (mm) of the arm's DH
    errors. The prior s.d. of the corrections is ``l`` for lengths and ``0.002 l`` rad for
-   angles. When the held-out misfit shows nothing beyond the noise (``l = 0``: an arm that
-   matches its model) no correction is freed and the result is the ML solution.
+   angles. When the held-out misfit is within :data:`IDENTIFY_MIN_SIGNIFICANCE` standard
+   errors of what the noise explains (an arm that matches its model) no correction is freed
+   and the result is the ML calibration itself.
 3. The identifiable corrections and the pose are refined by Gauss–Newton with that zero-mean
    Gaussian prior on the corrections (or ``prior_length_sd_mm``, ``prior_angle_sd_rad`` when
    ``prior_from_data`` is off or the scale cannot be computed).
@@ -73,6 +74,13 @@ ANGLE_LEVER_MM = 1000.0
 #: Prior s.d. of the angle corrections per mm of the length corrections' (the ratio of the
 #: unit DH errors of :data:`spacecal.estimators.expected_error.UNIT_DH_SD`).
 ANGLE_PER_LENGTH_RAD_PER_MM = 0.002
+
+#: Least held-out misfit beyond the tracker's noise, in standard errors of the noise's, that
+#: counts as evidence of DH errors (``prior_from_data``). The held-out errors of neighbouring
+#: frames are correlated (every refit moves them together), so the nominal standard error is
+#: too small: on white noise alone the misfit reaches 2.4 of them in ten seeds; the realistic
+#: arm's exceeds 70.
+IDENTIFY_MIN_SIGNIFICANCE = 5.0
 
 #: Least drop of the held-out sum of squared whitened sphere errors (units of the white noise
 #: variance) for which model selection frees one more correction. A correction that fits only
@@ -198,8 +206,19 @@ def dh_error_scale_of(
     tcp_from_marker: FloatArray,
     model: RobotModel,
     joints_rad: FloatArray,
-) -> float | None:
-    """Scale (mm) of the robot's DH errors from the held-out misfit of the nominal-model ML fit."""
+) -> tuple[float | None, float | None]:
+    """The robot's DH error scale from the held-out misfit of the ML fit on ``model``.
+
+    Returns
+    -------
+    scale_mm : float or None
+        ``dh_error_scale_mm`` of :func:`~spacecal.estimators.expected_error.expected_error`:
+        the held-out misfit beyond the tracker's noise over what unit-scale DH errors show.
+    significance : float or None
+        That misfit beyond the noise's, in standard errors of the noise's (chi-square with
+        ``dof_per_frame`` degrees of freedom a frame, frames taken as independent). None
+        when the noise is not known or nothing could be cross-validated.
+    """
     try:
         covariance = covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
         expected = expected_error(
@@ -212,9 +231,16 @@ def dh_error_scale_of(
             joints_rad=joints_rad,
         )
     except (DegenerateDataError, np.linalg.LinAlgError):
-        return None
-    scale = expected["components"].get("dh_error_scale_mm")
-    return None if scale is None else float(scale)
+        return None, None
+    components = expected["components"]
+    scale = components.get("dh_error_scale_mm")
+    significance = None
+    held_out, noise = components.get("held_out_sphere_rms_mm"), components.get("noise_sphere_rms_mm")
+    if obs.sigma_known and held_out is not None and noise is not None:
+        spheres = len(obs.spheres_in_marker)
+        standard_error = obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / len(obs.rows))
+        significance = float((held_out**2 - noise**2) * spheres / standard_error)
+    return (None if scale is None else float(scale)), significance
 
 
 def calibrate_kinematic(
@@ -246,7 +272,8 @@ def calibrate_kinematic(
         (:func:`select_corrections`); False (the default) frees every identifiable one.
     prior_from_data : bool
         Take the prior s.d. from the DH error scale the ML fit's held-out misfit shows (see
-        the module); none freed when it shows none.
+        the module); none freed when that misfit is within :data:`IDENTIFY_MIN_SIGNIFICANCE`
+        standard errors of the noise's. Needs the tracker's noise known (else the fixed prior).
     """
     model = robot_model_of(recording)
     # identification starts from the ML solution (the bare fit, without its diagnostics)
@@ -259,10 +286,13 @@ def calibrate_kinematic(
     delta = np.zeros(24)
     # the robot's DH error scale as the ML start's held-out misfit shows it (before the
     # corrections absorb it)
-    dh_scale = dh_error_scale_of(
+    dh_scale, significance = dh_error_scale_of(
         recording, obs, start.tracker_from_base, start.tcp_from_marker, model, joints
     )
-    if prior_from_data and dh_scale is not None:
+    scale_from_data = prior_from_data and dh_scale is not None and significance is not None
+    if scale_from_data and dh_scale is not None:
+        if significance is not None and significance < IDENTIFY_MIN_SIGNIFICANCE:
+            dh_scale = 0.0  # a misfit the noise explains is no evidence of DH errors
         # zero when the arm matches its model: then nothing is freed below
         prior_length_sd_mm = dh_scale
         prior_angle_sd_rad = dh_scale * ANGLE_PER_LENGTH_RAD_PER_MM
@@ -282,7 +312,7 @@ def calibrate_kinematic(
         )
 
     identifiable = selected
-    if prior_from_data and dh_scale is not None and dh_scale <= 0.0:
+    if scale_from_data and dh_scale is not None and dh_scale <= 0.0:
         # the held-out misfit shows nothing beyond the tracker's noise: the arm matches its
         # model, no correction is freed, and the result is the ML calibration itself
         ml = calibrate_ml(recording, sigma_mm=sigma_mm, targets_in_base=targets_in_base)
@@ -293,6 +323,7 @@ def calibrate_kinematic(
             "rank": int(len(identifiable)),
             "condition_number": condition,
             "prior_sd": {"length_mm": 0.0, "angle_rad": 0.0, "from_data": True},
+            "held_out_significance": significance,
             "model_selection": None,
         }
         return ml.replace(
@@ -382,8 +413,9 @@ def calibrate_kinematic(
             "prior_sd": {
                 "length_mm": prior_length_sd_mm,
                 "angle_rad": prior_angle_sd_rad,
-                "from_data": bool(prior_from_data and dh_scale is not None),
+                "from_data": bool(scale_from_data),
             },
+            "held_out_significance": significance,
         },
     }
     result = report_uncertainty(
