@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.kinematic import SELECTION_MIN_GAIN, select_corrections
+from spacecal.estimators.kinematic import IDENTIFY_MIN_SIGNIFICANCE, SELECTION_MIN_GAIN, select_corrections
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.sim.scenario import PRESETS
@@ -52,6 +52,7 @@ def test_on_an_arm_matching_its_model_kinematic_is_ml(white_simulation):
     # the held-out misfit shows nothing beyond the white noise: nothing is freed ...
     assert report["identified"] == [] and report["rank"] > 0
     assert report["prior_sd"]["length_mm"] == 0.0
+    assert report["held_out_significance"] < IDENTIFY_MIN_SIGNIFICANCE
     # ... and the pose is the ML solution itself
     assert np.allclose(kinematic.tracker_from_base, ml.tracker_from_base, atol=1e-9)
     assert np.allclose(kinematic.tcp_from_marker, ml.tcp_from_marker, atol=1e-9)
@@ -84,6 +85,7 @@ def test_the_prior_scale_follows_the_arm_s_dh_errors():
     recording = simulate(scenario).recording
     result = calibrate(recording, "kinematic", uncertainty=False)
     report = result.diagnostics["kinematic_identification"]
+    assert report["held_out_significance"] > IDENTIFY_MIN_SIGNIFICANCE and report["prior_sd"]["from_data"]
     assert 0.15 < report["prior_sd"]["length_mm"] < 0.6
     assert report["prior_sd"]["angle_rad"] == pytest.approx(0.002 * report["prior_sd"]["length_mm"])
     assert len(report["identified"]) == report["rank"]
