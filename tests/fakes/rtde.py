@@ -245,6 +245,7 @@ def configure_world(fake_world, generation: str = "cb3", calibrated: bool = Fals
     fake_world.world = dataclasses.replace(
         world,
         nominal_model=controller_model,
+        controller_model=controller_model,
         true_model=true_model,
         tcp_from_marker=invert_transform(tcp) @ flange_from_marker,
     )

@@ -555,7 +555,7 @@ def acquire(
                     "the tracker is not ready: "
                     + next(line for line in checks if line.startswith("tracker") and ": PROBLEM:" in line)
                 )
-        model = world.nominal_model if world is not None else _known(hardware).model
+        model = world.controller_model if world is not None else _known(hardware).model
         if settings.plan is not None:
             plan = planned_motion(settings, robot, model)
         elif world is not None:
@@ -732,7 +732,7 @@ def check(settings: CheckSettings) -> CheckOutput:
             refuse_when_not_ready(findings)
             model = hardware.model
         else:
-            model = world.nominal_model
+            model = world.controller_model
         model = calibration.robot_model_for_ik(model)
         frame_period = (
             1.0 / world.scenario.tracker_rate_hz if world is not None else 1.0 / devices.tracker_rate_hz

@@ -14,8 +14,29 @@ base, the last joint's move the tool); others are weakly determined by a given m
    complement of the 12 pose columns; a column-pivoted QR picks the corrections that add
    independent information; those with a diagonal below ``rank_tolerance`` of the largest are
    *unidentifiable* and stay at zero.
-2. The selected corrections and the pose are refined by Gauss–Newton with a zero-mean
-   Gaussian prior on the corrections (``prior_length_sd_mm``, ``prior_angle_sd_rad``).
+2. How much to correct is set by the data (``prior_from_data``, on by default), an empirical
+   Bayes choice of the prior. The ML fit on the controller's model is cross-validated as for
+   the expected error (:mod:`spacecal.estimators.expected_error`: its sweeps, else six time
+   blocks, left out one at a time); the held-out misfit beyond the tracker's noise, divided
+   by what DH errors of unit scale would show there, is the scale ``l`` (mm) of the arm's DH
+   errors. The prior s.d. of the corrections is ``l`` for lengths and ``0.002 l`` rad for
+   angles. When the held-out misfit is within :data:`IDENTIFY_MIN_SIGNIFICANCE` standard
+   errors of what the noise explains (an arm that matches its model) no correction is freed
+   and the result is the ML calibration itself.
+3. The identifiable corrections and the pose are refined by Gauss–Newton with that zero-mean
+   Gaussian prior on the corrections (or ``prior_length_sd_mm``, ``prior_angle_sd_rad`` when
+   ``prior_from_data`` is off or the scale cannot be computed).
+
+Optional subset selection (``model_selection``, off by default): of the identifiable
+corrections only those that reduce the held-out misfit are freed, by greedy forward selection
+on the held-out sum of squared sphere errors (:func:`select_corrections`; each freed
+correction must lower it by more than :data:`SELECTION_MIN_GAIN`). It was measured
+(``benchmarks/levers.py``) not to pay at the needle tip: the marker's held-out misfit is met
+by a few corrections, which leave the rest of the arm's error to the pose and the tip, while
+all identifiable corrections under a prior of the right scale spread it as the arm does.
+
+The prior model is the controller's own where the recording carries it
+(``robot.kinematic_model``, a factory-calibrated arm), else the nominal model.
 
 The result holds the corrected model (used by IK in verification and planning), the
 identified corrections with standard deviations, the rank and the condition number.
@@ -24,16 +45,17 @@ identified corrections with standard deviations, the rank and the condition numb
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.expected_error import expected_error, recorded_robot_model
-from spacecal.estimators.likelihood import fit_ml, report_uncertainty, variance_factor_of
+from spacecal.estimators.expected_error import expected_error, held_out_blocks, recorded_robot_model
+from spacecal.estimators.likelihood import calibrate_ml, fit_ml, report_uncertainty, variance_factor_of
 from spacecal.estimators.ml import covariance_from_information, information_matrix
 from spacecal.estimators.observations import Observations
-from spacecal.geometry.arrays import FloatArray
+from spacecal.geometry.arrays import FloatArray, IntArray
 from spacecal.models.kinematics import (
     RobotModel,
     apply_pose_step,
@@ -49,6 +71,22 @@ from spacecal.records import CalibrationResult, Recording
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
 DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]
 ANGLE_LEVER_MM = 1000.0
+#: Prior s.d. of the angle corrections per mm of the length corrections' (the ratio of the
+#: unit DH errors of :data:`spacecal.estimators.expected_error.UNIT_DH_SD`).
+ANGLE_PER_LENGTH_RAD_PER_MM = 0.002
+
+#: Least held-out misfit beyond the tracker's noise, in standard errors of the noise's, that
+#: counts as evidence of DH errors (``prior_from_data``). The held-out errors of neighbouring
+#: frames are correlated (every refit moves them together), so the nominal standard error is
+#: too small: on white noise alone the misfit reaches 2.4 of them in ten seeds; the realistic
+#: arm's exceeds 70.
+IDENTIFY_MIN_SIGNIFICANCE = 5.0
+
+#: Least drop of the held-out sum of squared whitened sphere errors (units of the white noise
+#: variance) for which model selection frees one more correction. A correction that fits only
+#: noise raises the held-out error by about one unit on average; the best of some twenty such
+#: candidates lowers it by chance by a few units at most.
+SELECTION_MIN_GAIN = 10.0
 
 
 def robot_model_of(recording: Recording) -> RobotModel:
@@ -81,6 +119,86 @@ def identifiable_corrections(
     return selected, float(singular[0] / singular[-1])
 
 
+def select_corrections(
+    pose_jacobian: FloatArray,
+    dh_jacobian: FloatArray,
+    residual: FloatArray,
+    prior_sd: FloatArray,
+    blocks: list[IntArray],
+    min_gain: float = SELECTION_MIN_GAIN,
+) -> tuple[list[int], list[dict[str, Any]]]:
+    """Greedy forward selection of DH corrections by their held-out misfit.
+
+    Linearised at the full-data ML solution: a fit to the training blocks is the Gauss–Newton
+    step ``delta = -(A_t + P)^-1 g_t`` with ``A_t``, ``g_t`` the normal matrix and gradient
+    summed over the training blocks and ``P`` the prior's information on the freed
+    corrections; the held-out block's squared error is then ``c_b + 2 delta.g_b +
+    delta.A_b.delta``. Each block's ``A_b``, ``g_b``, ``c_b`` are formed once.
+
+    Parameters
+    ----------
+    pose_jacobian : numpy.ndarray, shape (N, R, 12)
+        Whitened Jacobian of the R residuals of each of the N frames (spheres x 3) by the pose
+        step (:func:`~spacecal.models.kinematics.pose_point_jacobian` over sigma).
+    dh_jacobian : numpy.ndarray, shape (N, R, M)
+        Whitened Jacobian by the M candidate corrections (mm or rad).
+    residual : numpy.ndarray, shape (N, R)
+        Whitened residuals (predicted minus measured sphere coordinates, over sigma) at the ML
+        solution.
+    prior_sd : numpy.ndarray, shape (M,)
+        Prior s.d. of the candidates (mm or rad).
+    blocks : list of numpy.ndarray of int
+        Frame indices of the held-out blocks.
+    min_gain : float
+        Least drop of the held-out sum of squares that frees one more correction.
+
+    Returns
+    -------
+    chosen : list of int
+        Indices into the M candidates, in the order they were freed.
+    path : list of dict
+        ``{"freed": index or None, "held_out_ss": value}`` per step, starting with no
+        correction freed (whitened units).
+    """
+    n, rows, m = dh_jacobian.shape
+    jac = np.concatenate([pose_jacobian, dh_jacobian], axis=2)
+    gram, gradient, constant = [], [], []
+    for block in blocks:
+        j = jac[block].reshape(-1, 12 + m)
+        r = residual[block].reshape(-1)
+        gram.append(j.T @ j)
+        gradient.append(j.T @ r)
+        constant.append(float(r @ r))
+    gram_total, gradient_total = np.sum(gram, axis=0), np.sum(gradient, axis=0)
+    prior_information = np.concatenate([np.zeros(12), 1.0 / np.asarray(prior_sd, float) ** 2])
+
+    def held_out_ss(freed: list[int]) -> float:
+        columns = np.r_[np.arange(12), 12 + np.asarray(freed, dtype=int)]
+        total = 0.0
+        for a_b, g_b, c_b in zip(gram, gradient, constant):
+            a_t = (gram_total - a_b)[np.ix_(columns, columns)] + np.diag(prior_information[columns])
+            g_t = (gradient_total - g_b)[columns]
+            try:
+                delta = -np.linalg.solve(a_t, g_t)
+            except np.linalg.LinAlgError:
+                return np.inf
+            total += c_b + 2.0 * delta @ g_b[columns] + delta @ a_b[np.ix_(columns, columns)] @ delta
+        return float(total)
+
+    chosen: list[int] = []
+    current = held_out_ss(chosen)
+    path: list[dict[str, Any]] = [{"freed": None, "held_out_ss": current}]
+    while len(chosen) < m:
+        trials = {c: held_out_ss([*chosen, c]) for c in range(m) if c not in chosen}
+        best = min(trials, key=lambda c: trials[c])
+        if not current - trials[best] > min_gain:
+            break
+        chosen.append(best)
+        current = trials[best]
+        path.append({"freed": best, "held_out_ss": current})
+    return chosen, path
+
+
 def dh_error_scale_of(
     recording: Recording,
     obs: Observations,
@@ -88,8 +206,19 @@ def dh_error_scale_of(
     tcp_from_marker: FloatArray,
     model: RobotModel,
     joints_rad: FloatArray,
-) -> float | None:
-    """Scale (mm) of the robot's DH errors from the held-out misfit of the nominal-model ML fit."""
+) -> tuple[float | None, float | None]:
+    """The robot's DH error scale from the held-out misfit of the ML fit on ``model``.
+
+    Returns
+    -------
+    scale_mm : float or None
+        ``dh_error_scale_mm`` of :func:`~spacecal.estimators.expected_error.expected_error`:
+        the held-out misfit beyond the tracker's noise over what unit-scale DH errors show.
+    significance : float or None
+        That misfit beyond the noise's, in standard errors of the noise's (chi-square with
+        ``dof_per_frame`` degrees of freedom a frame, frames taken as independent). None
+        when the noise is not known or nothing could be cross-validated.
+    """
     try:
         covariance = covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
         expected = expected_error(
@@ -102,9 +231,16 @@ def dh_error_scale_of(
             joints_rad=joints_rad,
         )
     except (DegenerateDataError, np.linalg.LinAlgError):
-        return None
-    scale = expected["components"].get("dh_error_scale_mm")
-    return None if scale is None else float(scale)
+        return None, None
+    components = expected["components"]
+    scale = components.get("dh_error_scale_mm")
+    significance = None
+    held_out, noise = components.get("held_out_sphere_rms_mm"), components.get("noise_sphere_rms_mm")
+    if obs.sigma_known and held_out is not None and noise is not None:
+        spheres = len(obs.spheres_in_marker)
+        standard_error = obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / len(obs.rows))
+        significance = float((held_out**2 - noise**2) * spheres / standard_error)
+    return (None if scale is None else float(scale)), significance
 
 
 def calibrate_kinematic(
@@ -115,6 +251,8 @@ def calibrate_kinematic(
     prior_angle_sd_rad: float = 0.002,
     rank_tolerance: float = 0.02,
     iterations: int = 15,
+    model_selection: bool = False,
+    prior_from_data: bool = True,
 ) -> CalibrationResult:
     """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``.
 
@@ -126,6 +264,16 @@ def calibrate_kinematic(
         Prior s.d. of the corrections (the spread of real arms around their nominal model).
     rank_tolerance : float
         Relative size below which a projected, scaled correction counts as unidentifiable.
+        Used as given when ``prior_from_data`` is False or the data's scale cannot be computed.
+    iterations : int
+        Most Gauss–Newton iterations.
+    model_selection : bool
+        Free only the identifiable corrections that lower the held-out misfit
+        (:func:`select_corrections`); False (the default) frees every identifiable one.
+    prior_from_data : bool
+        Take the prior s.d. from the DH error scale the ML fit's held-out misfit shows (see
+        the module); none freed when that misfit is within :data:`IDENTIFY_MIN_SIGNIFICANCE`
+        standard errors of the noise's. Needs the tracker's noise known (else the fixed prior).
     """
     model = robot_model_of(recording)
     # identification starts from the ML solution (the bare fit, without its diagnostics)
@@ -136,6 +284,18 @@ def calibrate_kinematic(
     spheres = obs.spheres_in_marker
     tracker_from_base, tcp_from_marker = start.tracker_from_base, start.tcp_from_marker
     delta = np.zeros(24)
+    # the robot's DH error scale as the ML start's held-out misfit shows it (before the
+    # corrections absorb it)
+    dh_scale, significance = dh_error_scale_of(
+        recording, obs, start.tracker_from_base, start.tcp_from_marker, model, joints
+    )
+    scale_from_data = prior_from_data and dh_scale is not None and significance is not None
+    if scale_from_data and dh_scale is not None:
+        if significance is not None and significance < IDENTIFY_MIN_SIGNIFICANCE:
+            dh_scale = 0.0  # a misfit the noise explains is no evidence of DH errors
+        # zero when the arm matches its model: then nothing is freed below
+        prior_length_sd_mm = dh_scale
+        prior_angle_sd_rad = dh_scale * ANGLE_PER_LENGTH_RAD_PER_MM
     prior_sd = np.array([prior_length_sd_mm] * 12 + [prior_angle_sd_rad] * 12)
 
     corrected = with_dh_corrections(model, delta)
@@ -150,6 +310,56 @@ def calibrate_kinematic(
         raise DegenerateDataError(
             "this motion identifies no kinematic correction: use more varied joint configurations"
         )
+
+    identifiable = selected
+    if scale_from_data and dh_scale is not None and dh_scale <= 0.0:
+        # the held-out misfit shows nothing beyond the tracker's noise: the arm matches its
+        # model, no correction is freed, and the result is the ML calibration itself
+        ml = calibrate_ml(recording, sigma_mm=sigma_mm, targets_in_base=targets_in_base)
+        report = {
+            "identified": [],
+            "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(identifiable.tolist())],
+            "not_selected": [DH_NAMES[i] for i in identifiable],
+            "rank": int(len(identifiable)),
+            "condition_number": condition,
+            "prior_sd": {"length_mm": 0.0, "angle_rad": 0.0, "from_data": True},
+            "held_out_significance": significance,
+            "model_selection": None,
+        }
+        return ml.replace(
+            method="kinematic",
+            diagnostics={**ml.diagnostics, "kinematic_identification": report},
+            robot_model=model,
+        )
+    selection = None
+    if model_selection:
+        n_frames = len(joints)
+        start_residual = (
+            points_in_tracker(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
+            - obs.spheres_in_tracker
+        ).reshape(n_frames, -1) / obs.sigma_mm
+        j_pose_start = pose_point_jacobian(
+            obs_model.base_from_tcp_stack, tracker_from_base, tcp_from_marker, spheres
+        ).reshape(n_frames, -1, 12)
+        chosen, path = select_corrections(
+            j_pose_start / obs.sigma_mm,
+            j_dh.reshape(n_frames, -1, 24)[..., selected] / obs.sigma_mm,
+            start_residual,
+            prior_sd[selected],
+            held_out_blocks(recording.segment[obs.rows]),
+        )
+        selected = np.sort(selected[chosen]).astype(int)
+        selection = {
+            "criterion": "held-out sum of squared whitened sphere errors (blocks left out one at a time)",
+            "min_gain": SELECTION_MIN_GAIN,
+            "path": [
+                {
+                    "freed": None if step["freed"] is None else DH_NAMES[identifiable[step["freed"]]],
+                    "held_out_ss": step["held_out_ss"],
+                }
+                for step in path
+            ],
+        }
 
     # The DH columns barely change over the iterations (the corrections are fractions of a
     # millimetre): Gauss-Newton keeps the first ones (a chord iteration), whose fixed point is
@@ -175,7 +385,7 @@ def calibrate_kinematic(
         step = np.linalg.solve(jac_all.T @ jac_all, -(jac_all.T @ res_all))
         tracker_from_base, tcp_from_marker = apply_pose_step(tracker_from_base, tcp_from_marker, step[:12])
         delta[selected] += step[12:]
-        if np.max(np.abs(step[:12])) < 1e-7 and np.max(np.abs(step[12:] / prior_sd[selected])) < 1e-6:
+        if np.max(np.abs(step[:12])) < 1e-7 and np.all(np.abs(step[12:] / prior_sd[selected]) < 1e-6):
             break
 
     corrected = with_dh_corrections(model, delta)
@@ -195,17 +405,19 @@ def calibrate_kinematic(
     extra = {
         "kinematic_identification": {
             "identified": corrections,
-            "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(selected.tolist())],
-            "rank": int(len(selected)),
+            "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(identifiable.tolist())],
+            "not_selected": [DH_NAMES[i] for i in identifiable if i not in set(selected.tolist())],
+            "rank": int(len(identifiable)),
+            "model_selection": selection,
             "condition_number": condition,
-            "prior_sd": {"length_mm": prior_length_sd_mm, "angle_rad": prior_angle_sd_rad},
+            "prior_sd": {
+                "length_mm": prior_length_sd_mm,
+                "angle_rad": prior_angle_sd_rad,
+                "from_data": bool(scale_from_data),
+            },
+            "held_out_significance": significance,
         },
     }
-    # the robot's DH error scale as the ML start's held-out misfit shows it (before the
-    # corrections absorb it)
-    dh_scale = dh_error_scale_of(
-        recording, obs, start.tracker_from_base, start.tcp_from_marker, model, joints
-    )
     result = report_uncertainty(
         "kinematic",
         recording,

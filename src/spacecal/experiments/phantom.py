@@ -154,7 +154,8 @@ def run_phantom_experiment(
                     target,
                     tracker_from_image_estimate,
                     calibration.tracker_from_base,
-                    world.nominal_model,
+                    # IK as the robot is driven: the identified model, else the controller's
+                    calibration.robot_model_for_ik(world.controller_model),
                     world.home_joints_rad,
                     registration_tre_mm=tuple(reg_tre),
                     calibration_tre_mm=(calibration_tre, calibration_tre),

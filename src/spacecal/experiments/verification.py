@@ -54,6 +54,7 @@ def verify_in_simulation(
     targets = verification_targets(world, count, np.random.default_rng([scenario.seed, 2, seed]))
     robot = SimulatedRobot(world)
     laser = SimulatedLaserTracker(world, robot)
-    # IK with the identified kinematic model when the calibration carries one
-    model = calibration.robot_model_for_ik(world.nominal_model)
+    # IK with the identified kinematic model when the calibration carries one, else with the
+    # controller's own (nominal or factory-calibrated), as spacecal does on real hardware
+    model = calibration.robot_model_for_ik(world.controller_model)
     return run_verification(calibration, robot, laser, model, targets, world.home_joints_rad)

@@ -65,7 +65,8 @@ class RealClock(SimClock):
 
 
 class SimulatedRobot:
-    """The world's robot: moves by its true kinematics, reports by its nominal model.
+    """The world's robot: moves by its true kinematics, reports and plans its moves by its
+    controller's model (:attr:`World.controller_model`: nominal or factory-calibrated).
 
     Linear moves follow the planner's trapezoidal Cartesian profile; joint moves a
     trapezoid on the largest joint distance. States are stamped at controller ticks. Where
@@ -106,7 +107,7 @@ class SimulatedRobot:
         self.protective_stop_at_s = protective_stop_at_s
         self._safety = SAFETY_NORMAL
         self.commands: list[str] = []
-        self._tick_s = 1.0 / world.nominal_model.controller_hz
+        self._tick_s = 1.0 / world.controller_model.controller_hz
         self._stream: list[RobotState] | None = [] if stream_states else None
         self._streamed_to_s = np.floor(self.clock.now_s / self._tick_s) * self._tick_s
         self._newest_tick: tuple[float, np.ndarray] = (float(self._streamed_to_s), self._joints.copy())
@@ -127,7 +128,7 @@ class SimulatedRobot:
             steps = np.arange(since + self.PATH_STEP_S, times_s[-1], self.PATH_STEP_S)
             grid = np.union1d(steps, times_s)
             elapsed = np.clip(grid - start, 0.0, move.duration_s)
-            path = track_path(self.world.nominal_model, move.poses_at(elapsed), self._joints)
+            path = track_path(self.world.controller_model, move.poses_at(elapsed), self._joints)
             return path[np.searchsorted(grid, times_s)]
         q0, q1, _, duration = move
         fraction = np.ones_like(times_s) if duration == 0 else np.clip((times_s - start) / duration, 0.0, 1.0)
@@ -172,7 +173,7 @@ class SimulatedRobot:
             self._newest_tick = (float(ticks[-1]), joints[-1].copy())
         if self._stream is None or not len(ticks):
             return
-        poses = forward_kinematics(self.world.nominal_model, joints)
+        poses = forward_kinematics(self.world.controller_model, joints)
         moving = np.broadcast_to(moving, ticks.shape)
         self._stream.extend(
             RobotState(float(t), q.copy(), pose, self._safety, bool(m))
@@ -188,7 +189,7 @@ class SimulatedRobot:
         return RobotState(
             time_s=float(np.floor(self.clock.now_s / self._tick_s) * self._tick_s),
             joints_rad=self._joints.copy(),
-            base_from_tcp=forward_kinematics(self.world.nominal_model, self._joints),
+            base_from_tcp=forward_kinematics(self.world.controller_model, self._joints),
             safety=self._safety,
             moving=self._motion is not None,
         )
@@ -201,7 +202,7 @@ class SimulatedRobot:
         return RobotState(
             time_s=time_s,
             joints_rad=joints.copy(),
-            base_from_tcp=forward_kinematics(self.world.nominal_model, joints),
+            base_from_tcp=forward_kinematics(self.world.controller_model, joints),
             safety=self._safety,
             moving=self._motion is not None,
         )
@@ -218,12 +219,18 @@ class SimulatedRobot:
         self._update()
         self._require_normal()
         self.commands.append("movel")
-        start_pose = forward_kinematics(self.world.nominal_model, self._joints)
+        start_pose = forward_kinematics(self.world.controller_model, self._joints)
         limits = dataclasses.replace(
             self.limits, linear_speed_mm_s=speed_mm_s, linear_accel_mm_s2=accel_mm_s2
         )
         move, _ = time_move(
-            self.world.nominal_model, "move", start_pose, np.asarray(base_from_tcp), self._joints, limits, 0.0
+            self.world.controller_model,
+            "move",
+            start_pose,
+            np.asarray(base_from_tcp),
+            self._joints,
+            limits,
+            0.0,
         )
         self._motion = ("linear", move, self.clock.now_s)
         self._updated_at_s = -np.inf

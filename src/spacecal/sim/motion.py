@@ -9,6 +9,7 @@ from spacecal.planning.motion import MotionLimits, MotionPlan
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
 from spacecal.planning.stations import StationSettings, plan_stations
 from spacecal.planning.visibility import VisibilityModel
+from spacecal.records.calibration import robot_model_to_dict
 from spacecal.sim.scenario import Scenario
 from spacecal.sim.world import World
 
@@ -28,11 +29,14 @@ def sweep_settings(scenario: Scenario) -> PaperSweepSettings:
 
 
 def plan_for_world(world: World) -> MotionPlan:
-    """Plan the scenario's motion in a world, predicting visibility from its layout."""
+    """Plan the scenario's motion in a world, predicting visibility from its layout.
+
+    The plan is made with the controller's model, as on real hardware spacecal plans with the
+    model the controller publishes (the nominal one where it publishes none)."""
     s = world.scenario
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
     if s.motion == "paper":
-        return plan_paper_sweeps(world.nominal_model, world.home_joints_rad, sweep_settings(s), visibility)
+        return plan_paper_sweeps(world.controller_model, world.home_joints_rad, sweep_settings(s), visibility)
     if s.motion == "stations":
         settings = StationSettings(
             count=s.stations,
@@ -43,7 +47,7 @@ def plan_for_world(world: World) -> MotionPlan:
             limits=sweep_settings(s).limits,
         )
         return plan_stations(
-            world.nominal_model,
+            world.controller_model,
             world.home_joints_rad,
             settings,
             visibility,
@@ -53,13 +57,25 @@ def plan_for_world(world: World) -> MotionPlan:
 
 
 def recording_metadata(world: World) -> dict:
-    """Metadata written next to a recording (the estimator does not need it)."""
+    """Metadata written next to a recording.
+
+    As the UR adapter records a controller that publishes its factory calibration, a
+    calibrated simulated controller's model rides in ``robot.kinematic_model`` (what
+    :func:`spacecal.estimators.expected_error.recorded_robot_model` reads); a nominal one is
+    named only (``robot.model``)."""
     s = world.scenario
+    calibrated = s.controller_kinematics == "calibrated"
     return {
         "robot": {
-            "model": world.nominal_model.name,
-            "flange_from_tcp": world.nominal_model.flange_from_tcp.tolist(),
-            "controller_hz": world.nominal_model.controller_hz,
+            "model": world.controller_model.name,
+            "flange_from_tcp": world.controller_model.flange_from_tcp.tolist(),
+            "controller_hz": world.controller_model.controller_hz,
+            **({"kinematic_model": robot_model_to_dict(world.controller_model)} if calibrated else {}),
+            "kinematics_source": (
+                "the simulated controller's factory calibration"
+                if calibrated
+                else f"the nominal {world.nominal_model.name} model"
+            ),
         },
         "tracker": {"name": world.tracker.name, "rate_hz": world.tracker.rate_hz},
         "marker": world.marker.to_dict(),
