@@ -38,11 +38,18 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from scipy.integrate import quad
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.ml import jacobian, levenberg_marquardt, predict_spheres, predicted_tre_mm
+from spacecal.estimators.ml import (
+    jacobian,
+    levenberg_marquardt,
+    point_covariances,
+    predict_spheres,
+    predicted_tre_mm,
+)
 from spacecal.estimators.observations import Observations
-from spacecal.geometry.arrays import FloatArray, IntArray, as_float_array
+from spacecal.geometry.arrays import ArrayLike, FloatArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform
 from spacecal.models.kinematics import (
@@ -82,6 +89,42 @@ ROTATION_LEVER_MM = 100.0
 
 #: Mean over RMS of the length of an isotropic 3-D Gaussian vector, sqrt(8 / (3 pi)).
 MEAN_OVER_RMS_3D = float(np.sqrt(8.0 / (3.0 * np.pi)))
+
+#: A held-out misfit counts as systematic only when its excess over the noise's is more than
+#: this many standard errors (the larger of the chi-square one and the held-out blocks' scatter).
+DETECTION_STANDARD_ERRORS = 2.0
+
+
+def mean_gaussian_length(covariance: ArrayLike) -> float:
+    """Mean length E|x| of a zero-mean Gaussian vector x ~ N(0, covariance), same unit as x.
+
+    Parameters
+    ----------
+    covariance : array_like, shape (3, 3)
+        Covariance of x (e.g. mm^2 for a tip position error).
+
+    Returns
+    -------
+    float
+        E|x|: ``sqrt(8 / (3 pi))`` times the RMS for an isotropic covariance, ``sqrt(2 / pi)``
+        times it for an error along one direction. With eigenvalues l_i and
+        ``sqrt(q) = (4 pi)^(-1/2) int_0^inf (1 - exp(-t q)) t^(-3/2) dt``,
+        ``E|x| = (4 pi)^(-1/2) int_0^inf (1 - prod_i (1 + 2 t l_i)^(-1/2)) t^(-3/2) dt``,
+        integrated numerically (substituting t = u^2).
+    """
+    eigenvalues = np.clip(np.linalg.eigvalsh(np.asarray(covariance, dtype=float)), 0.0, None)
+    scale = float(eigenvalues.sum())
+    if scale <= 0.0:
+        return 0.0
+    relative = eigenvalues / scale
+
+    def integrand(u: float) -> float:
+        # t = u^2: dt t^(-3/2) = 2 du / u^2
+        return float(2.0 * (1.0 - np.prod(1.0 + 2.0 * u * u * relative) ** -0.5) / (u * u))
+
+    value, _ = quad(integrand, 0.0, np.inf, limit=200)
+    return float(np.sqrt(scale) * value / np.sqrt(4.0 * np.pi))
+
 
 #: A refit: (training observations, start tracker_from_base, start tcp_from_marker)
 #: -> (tracker_from_base, tcp_from_marker).
@@ -303,7 +346,9 @@ def unseen_kinematic_error(
     -------
     dict
         ``sphere_power_mm2`` (held-out, per frame, summed over spheres), ``tip_position_ms_mm2``
-        and ``tip_rotation_ms_rad2`` (mean squares at the site frames), for unit-scale errors.
+        and ``tip_rotation_ms_rad2`` (mean squares at the site frames) and
+        ``tip_position_covariance_mm2`` (3, 3), the tip's error covariance in the tracker frame
+        averaged over the site frames, for unit-scale errors.
     """
     n = len(joints_rad)
     picked = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
@@ -342,6 +387,10 @@ def unseen_kinematic_error(
     if absorbed_dh:
         tip -= np.einsum("npia,ab->npib", tip_dh[..., absorbed_dh], coefficients[12:])
     position_ms = float(np.mean(np.sum(tip[:, 0] ** 2, axis=(1, 2)))) if len(site_picked) else 0.0
+    # independent unit DH errors: the tip's covariance is the mean of J J^T over the site frames
+    position_covariance = (
+        np.mean(tip[:, 0] @ np.swapaxes(tip[:, 0], 1, 2), axis=0) if len(site_picked) else np.zeros((3, 3))
+    )
     relative = tip[:, 1:] - tip[:, :1]
     # three orthogonal lever arms u_j of length L: sum_j |w x u_j|^2 = 2 |w|^2 L^2
     rotation_ms = (
@@ -352,8 +401,40 @@ def unseen_kinematic_error(
     return {
         "sphere_power_mm2": sphere_power,
         "tip_position_ms_mm2": position_ms,
+        "tip_position_covariance_mm2": position_covariance,
         "tip_rotation_ms_rad2": rotation_ms,
     }
+
+
+def block_standard_error(frame_excess: FloatArray, blocks: Sequence[IntArray]) -> float:
+    """Standard error of the frame-weighted mean of ``frame_excess`` from its blocks' scatter.
+
+    Parameters
+    ----------
+    frame_excess : numpy.ndarray, shape (N,)
+        Per frame, the held-out squared error beyond the noise's (mm^2; NaN where not scored).
+    blocks : sequence of numpy.ndarray of int
+        The held-out blocks (indices into the N frames).
+
+    Returns
+    -------
+    float
+        ``sqrt(B / (B - 1) * sum_b n_b^2 (m_b - m)^2) / sum_b n_b`` over the B scored blocks
+        with ``n_b`` frames and mean ``m_b`` (m the frame-weighted mean), mm^2; 0 with fewer
+        than two blocks.
+    """
+    means, counts = [], []
+    for block in blocks:
+        values = frame_excess[block]
+        values = values[np.isfinite(values)]
+        if len(values):
+            means.append(float(values.mean()))
+            counts.append(len(values))
+    if len(means) < 2:
+        return 0.0
+    m, n = np.asarray(means), np.asarray(counts, dtype=float)
+    overall = float(np.sum(n * m) / n.sum())
+    return float(np.sqrt(len(m) / (len(m) - 1) * np.sum(n**2 * (m - overall) ** 2)) / n.sum())
 
 
 def expected_error(
@@ -405,14 +486,22 @@ def expected_error(
     site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
     tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
     tre_ms = float(np.mean(predicted_tre_mm(tracker_from_base, covariance, tip_in_base) ** 2))
+    # the noise-only error's covariance (tracker frame, mm^2), averaged over the site frames
+    noise_covariance = np.mean(
+        point_covariances(tracker_from_base, np.asarray(covariance)[:6, :6], tip_in_base), axis=0
+    )
     rotation_noise_ms = float(np.trace(np.asarray(covariance)[3:6, 3:6]))
     ml_tracker_from_base, ml_tcp_from_marker = tracker_from_base, tcp_from_marker
     deviation_ms = rotation_deviation_ms = 0.0
+    deviation_covariance = np.zeros((3, 3))
     if not likelihood_based:
         ml_tracker_from_base, ml_tcp_from_marker = refit(obs, tracker_from_base, tcp_from_marker)
         method_tip = tracker_from_base @ obs.base_from_tcp_stack[site]
         ml_tip = ml_tracker_from_base @ obs.base_from_tcp_stack[site]
-        deviation_ms = float(np.mean(np.sum((method_tip[:, :3, 3] - ml_tip[:, :3, 3]) ** 2, axis=1)))
+        deviation = method_tip[:, :3, 3] - ml_tip[:, :3, 3]
+        deviation_ms = float(np.mean(np.sum(deviation**2, axis=1)))
+        # its second moment over the site frames, added like a covariance
+        deviation_covariance = deviation.T @ deviation / len(deviation)
         rotation_deviation_ms = float(
             rotation_angle(tracker_from_base[:3, :3] @ ml_tracker_from_base[:3, :3].T) ** 2
         )
@@ -434,11 +523,24 @@ def expected_error(
     held_out_ms = float(np.nanmean(sse)) if computed else 0.0
     prediction_ms = float(np.nanmean(misfit["frame_prediction_variance_mm2"])) if computed else 0.0
     noise_ms = obs.dof_per_frame * obs.sigma_mm**2 + prediction_ms if obs.sigma_known else held_out_ms
-    # a misfit within two standard errors of the noise's (chi-square, 2 dof sigma^4 per frame) is none
+    # a misfit within DETECTION_STANDARD_ERRORS of the noise's is none; the standard error is the
+    # larger of the chi-square one (2 dof sigma^4 per frame) and the held-out blocks' scatter,
+    # since frames of one block share their refit's error and the noise level is itself estimated
     scored = int(np.isfinite(sse).sum())
     noise_standard_error = obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1))
+    if computed and obs.sigma_known:
+        noise_standard_error = max(
+            noise_standard_error,
+            block_standard_error(
+                sse - obs.dof_per_frame * obs.sigma_mm**2 - misfit["frame_prediction_variance_mm2"],
+                misfit["block_indices"],
+            ),
+        )
+    excess = held_out_ms - noise_ms
     systematic = (
-        max(held_out_ms - noise_ms - 2.0 * noise_standard_error, 0.0) if obs.sigma_known and computed else 0.0
+        excess
+        if obs.sigma_known and computed and excess > DETECTION_STANDARD_ERRORS * noise_standard_error
+        else 0.0
     )
     spheres = len(obs.spheres_in_marker)
     components: dict[str, Any] = {
@@ -470,6 +572,7 @@ def expected_error(
         else:
             scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
         unseen_ms = scale_sq * unit["tip_position_ms_mm2"]
+        unseen_covariance = scale_sq * np.asarray(unit["tip_position_covariance_mm2"])
         unseen_rotation_ms = scale_sq * unit["tip_rotation_ms_rad2"]
         components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
         components["unseen_tip_rms_mm"] = float(np.sqrt(unseen_ms))
@@ -479,6 +582,8 @@ def expected_error(
         )
     else:
         unseen_ms = systematic / len(obs.spheres_in_marker)
+        # the misfit per sphere says nothing of its direction at the tip: isotropic
+        unseen_covariance = np.eye(3) * unseen_ms / 3.0
         unseen_rotation_ms = 0.0
         basis = (
             f"{blocks}: systematic misfit per sphere plus the noise-only TRE; no joint angles or "
@@ -488,10 +593,12 @@ def expected_error(
         basis += "; the tracker's noise is unknown (no marker RMS), so misfit and noise cannot be told apart"
     if not likelihood_based:
         basis += "; plus this method's distance from the ML solution"
-    position_rms = np.sqrt(tre_ms + unseen_ms + deviation_ms)
+    components["systematic_detected"] = bool(systematic > 0.0)
+    position_covariance = noise_covariance + unseen_covariance + deviation_covariance
+    components["position_rms_mm"] = float(np.sqrt(tre_ms + unseen_ms + deviation_ms))
     posture_rms = np.sqrt(rotation_noise_ms + unseen_rotation_ms + rotation_deviation_ms)
     return {
-        "position_mm": float(MEAN_OVER_RMS_3D * position_rms),
+        "position_mm": mean_gaussian_length(position_covariance),
         "posture_deg": float(np.degrees(MEAN_OVER_RMS_3D * posture_rms)),
         "basis": basis,
         "components": components,
