@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 from scipy.integrate import quad
+from scipy.stats import chi2
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.ml import (
@@ -90,8 +91,8 @@ ROTATION_LEVER_MM = 100.0
 #: Mean over RMS of the length of an isotropic 3-D Gaussian vector, sqrt(8 / (3 pi)).
 MEAN_OVER_RMS_3D = float(np.sqrt(8.0 / (3.0 * np.pi)))
 
-#: A held-out misfit counts as systematic only when its excess over the noise's is more than
-#: this many standard errors (the larger of the chi-square one and the held-out blocks' scatter).
+#: Standard errors of the noise's held-out misfit (its chi-square scatter and the error of the
+#: noise level) taken off the misfit before the rest is called systematic.
 DETECTION_STANDARD_ERRORS = 2.0
 
 
@@ -406,35 +407,17 @@ def unseen_kinematic_error(
     }
 
 
-def block_standard_error(frame_excess: FloatArray, blocks: Sequence[IntArray]) -> float:
-    """Standard error of the frame-weighted mean of ``frame_excess`` from its blocks' scatter.
+def noise_level_relative_error(sphere_count: int, frames: int) -> float:
+    """Relative standard error of sigma^2 estimated from ``frames`` tracker RMS values.
 
-    Parameters
-    ----------
-    frame_excess : numpy.ndarray, shape (N,)
-        Per frame, the held-out squared error beyond the noise's (mm^2; NaN where not scored).
-    blocks : sequence of numpy.ndarray of int
-        The held-out blocks (indices into the N frames).
-
-    Returns
-    -------
-    float
-        ``sqrt(B / (B - 1) * sum_b n_b^2 (m_b - m)^2) / sum_b n_b`` over the B scored blocks
-        with ``n_b`` frames and mean ``m_b`` (m the frame-weighted mean), mm^2; 0 with fewer
-        than two blocks.
+    :func:`spacecal.estimators.observations.sphere_noise_from_marker_rms` takes sigma^2 from the
+    median of rms^2, a chi-square(3K - 6) variable up to scale; a sample median's variance is
+    ``1 / (4 N f(m)^2)`` with f the density at the median m, so the relative error is
+    ``1 / (2 f(m) m sqrt(N))`` (0.76 / sqrt(N) for four spheres). Dimensionless.
     """
-    means, counts = [], []
-    for block in blocks:
-        values = frame_excess[block]
-        values = values[np.isfinite(values)]
-        if len(values):
-            means.append(float(values.mean()))
-            counts.append(len(values))
-    if len(means) < 2:
-        return 0.0
-    m, n = np.asarray(means), np.asarray(counts, dtype=float)
-    overall = float(np.sum(n * m) / n.sum())
-    return float(np.sqrt(len(m) / (len(m) - 1) * np.sum(n**2 * (m - overall) ** 2)) / n.sum())
+    dof = max(3 * sphere_count - 6, 1)
+    median = float(chi2.median(dof))
+    return float(1.0 / (2.0 * chi2.pdf(median, dof) * median * np.sqrt(max(frames, 1))))
 
 
 def expected_error(
@@ -523,23 +506,22 @@ def expected_error(
     held_out_ms = float(np.nanmean(sse)) if computed else 0.0
     prediction_ms = float(np.nanmean(misfit["frame_prediction_variance_mm2"])) if computed else 0.0
     noise_ms = obs.dof_per_frame * obs.sigma_mm**2 + prediction_ms if obs.sigma_known else held_out_ms
-    # a misfit within DETECTION_STANDARD_ERRORS of the noise's is none; the standard error is the
-    # larger of the chi-square one (2 dof sigma^4 per frame) and the held-out blocks' scatter,
-    # since frames of one block share their refit's error and the noise level is itself estimated
+    # the misfit beyond the noise's, less DETECTION_STANDARD_ERRORS standard errors of it: two
+    # parts, the held-out mean's own (chi-square, 2 dof sigma^4 per frame) and that of the noise
+    # level it is compared with, itself estimated from the tracker's RMS (a median). Frames of
+    # one recording cannot tell a systematic misfit smaller than this from a misjudged noise level.
     scored = int(np.isfinite(sse).sum())
-    noise_standard_error = obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1))
-    if computed and obs.sigma_known:
-        noise_standard_error = max(
-            noise_standard_error,
-            block_standard_error(
-                sse - obs.dof_per_frame * obs.sigma_mm**2 - misfit["frame_prediction_variance_mm2"],
-                misfit["block_indices"],
-            ),
+    noise_standard_error = float(
+        np.hypot(
+            obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1)),
+            obs.dof_per_frame
+            * obs.sigma_mm**2
+            * noise_level_relative_error(len(obs.spheres_in_marker), len(obs.rows)),
         )
-    excess = held_out_ms - noise_ms
+    )
     systematic = (
-        excess
-        if obs.sigma_known and computed and excess > DETECTION_STANDARD_ERRORS * noise_standard_error
+        max(held_out_ms - noise_ms - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
+        if obs.sigma_known and computed
         else 0.0
     )
     spheres = len(obs.spheres_in_marker)
