@@ -323,7 +323,7 @@ def unseen_kinematic_error(
     blocks: Sequence[IntArray],
     absorbed_dh: Sequence[int] = (),
     frames: int = GEOMETRY_FRAMES,
-) -> dict[str, float]:
+) -> dict[str, Any]:
     """How unit-scale DH errors show in held-out sphere errors and at the tip (see the module).
 
     The same blocks are held out as in :func:`held_out_misfit`, so the held-out misfit and its
