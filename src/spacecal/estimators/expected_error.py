@@ -12,7 +12,9 @@ a loose marker. Two facts set the expected error:
    held-out frames through the chain ``tracker_from_base @ base_from_tcp @ tcp_from_marker``.
    The mean squared sphere error of those predictions, less what the tracker's white noise
    explains (``dof_per_frame * sigma^2`` per frame), is the power of the systematic error
-   ``S``. Robot kinematics, tracker bias and timing all enter it.
+   ``S`` (less two standard errors of the noise's misfit, which include the error of the
+   noise level itself, estimated from the tracker's RMS). Robot kinematics, tracker bias and
+   timing all enter it.
 2. **What the marker cannot see** (geometry). Part of any kinematic error moves the needle
    tip without moving the marker relative to the chain: an error constant in the tool frame
    is absorbed into ``tcp_from_marker``, yet the tip is off by it (the docs' floor that only a
@@ -20,14 +22,18 @@ a loose marker. Two facts set the expected error:
    marker's spheres and of the tip are projected off the columns the fit absorbs (the 12 pose
    parameters, plus identified DH corrections); with DH errors of unit scale (lengths 1 mm,
    angles 0.002 rad, the spread ``kinematic`` assumes) this gives the systematic sphere power
-   per frame ``s1`` and the mean squared tip error at frames near the site ``f1``. The scale
-   the data shows is ``l^2 = S / s1``, so the unseen tip error is ``l^2 f1``.
+   per frame ``s1`` and the tip's error covariance ``C1`` (3 x 3, mean square ``f1``) at frames
+   near the site. The scale the data shows is ``l^2 = S / s1``, so the unseen tip error has
+   covariance ``l^2 C1``.
 
-The expected position error at a target near the site is then the mean length of a 3-D
-error of RMS ``sqrt(TRE^2 + l^2 f1)`` (factor ``sqrt(8 / (3 pi))``), with TRE the noise-only
-prediction at the site; posture likewise from the rotation block of the covariance and the
-tip frame's rotation. A method other than ML adds, in quadrature, how far its solution puts
-the tip from ML's at those frames. Without joint angles or a robot model, the held-out misfit
+The expected position error at a target near the site is then the mean length E|x| of a
+Gaussian error x with covariance ``C_TRE + l^2 C1`` (:func:`mean_gaussian_length`), C_TRE the
+noise-only covariance of the tip at the site frames; posture from the RMS of the rotation
+block of the covariance and the tip frame's rotation (factor ``sqrt(8 / (3 pi))``). That is
+the mean a 15-point verification there would show; one verification is one draw around it
+(:mod:`spacecal.experiments.prediction_oracle`). A method other than ML adds, as a second
+moment, how far its solution puts the tip from ML's at those frames. Without joint angles or
+a robot model, the held-out misfit
 per sphere stands in for the tip error and the basis says so.
 """
 
