@@ -33,8 +33,8 @@ block of the covariance and the tip frame's rotation (factor ``sqrt(8 / (3 pi))`
 the mean a 15-point verification there would show; one verification is one draw around it
 (:mod:`spacecal.experiments.prediction_oracle`). A method other than ML adds, as a second
 moment, how far its solution puts the tip from ML's at those frames. Without joint angles or
-a robot model, the held-out misfit
-per sphere stands in for the tip error and the basis says so.
+a robot model, the held-out misfit per sphere stands in for the tip error and the basis says
+so.
 """
 
 from __future__ import annotations
