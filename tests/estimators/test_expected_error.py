@@ -8,7 +8,12 @@ import pytest
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
 from spacecal.estimators.diagnostics import ErrorThresholds, grade
-from spacecal.estimators.expected_error import MEAN_OVER_RMS_3D, held_out_blocks
+from spacecal.estimators.expected_error import (
+    MEAN_OVER_RMS_3D,
+    held_out_blocks,
+    mean_gaussian_length,
+    noise_level_relative_error,
+)
 from spacecal.estimators.registry import METHODS
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.sim.scenario import PRESETS
@@ -70,3 +75,25 @@ def test_blocks_are_segments_or_contiguous_time_blocks():
     assert [len(b) for b in held_out_blocks(segments)] == [10, 10, 10]
     stations = held_out_blocks(np.array(["station"] * 60))
     assert len(stations) == 6 and np.array_equal(np.concatenate(stations), np.arange(60))
+
+
+def test_mean_gaussian_length_matches_closed_forms_and_sampling():
+    # isotropic: sqrt(8 / (3 pi)) * RMS; one direction: sqrt(2 / pi) * s.d.; two: sqrt(pi / 4) * RMS
+    assert mean_gaussian_length(np.eye(3) * 4.0) == pytest.approx(MEAN_OVER_RMS_3D * np.sqrt(12.0), rel=1e-9)
+    assert mean_gaussian_length(np.diag([9.0, 0.0, 0.0])) == pytest.approx(3.0 * np.sqrt(2 / np.pi), rel=1e-9)
+    assert mean_gaussian_length(np.diag([1.0, 1.0, 0.0])) == pytest.approx(np.sqrt(np.pi / 2), rel=1e-9)
+    assert mean_gaussian_length(np.zeros((3, 3))) == 0.0
+    covariance = np.array([[4.0, 1.0, 0.0], [1.0, 1.0, 0.3], [0.0, 0.3, 0.2]])
+    samples = np.random.default_rng(7).normal(size=(200_000, 3)) @ np.linalg.cholesky(covariance).T
+    lengths = np.linalg.norm(samples, axis=1)
+    # 200000 samples: the sample mean is known to 4 standard errors
+    assert mean_gaussian_length(covariance) == pytest.approx(
+        lengths.mean(), abs=4 * lengths.std() / np.sqrt(len(lengths))
+    )
+
+
+def test_noise_level_error_is_that_of_a_median_of_chi_square_values():
+    # sigma^2 from the median of N chi-square(6) values: its relative scatter over many sets
+    rng = np.random.default_rng(11)
+    medians = np.median(rng.chisquare(6, size=(4000, 500)), axis=1)
+    assert noise_level_relative_error(4, 500) == pytest.approx(np.std(medians) / np.mean(medians), rel=0.1)

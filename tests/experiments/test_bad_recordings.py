@@ -1,9 +1,11 @@
 """No spoilt recording may pass as good or acceptable when it is far off.
 
-Each spoilt recording (wrong units, duplicated rows, a handful of frames, a clock offset
-paired naively, a bumped marker, a wrong segment label) is calibrated by every method; the
-verdict may say good or acceptable only if the true mean error at the verification targets is
-within twice the expected error it states plus 0.2 mm.
+Each spoilt recording (robot or tracker in another length unit, duplicated rows, a handful of
+frames, the marker seen in one sweep, clock offsets paired naively, the tracker's rows joined
+late, a bumped or loose marker, wrong or swapped segment labels, tracker poses inverted or their
+rotation transposed) is calibrated by every method; the verdict may say good or acceptable only
+if the true mean error at the verification targets is within twice the expected error it
+states plus 0.2 mm. No method may fail on them with anything but the package's own error.
 """
 
 import json
@@ -31,9 +33,19 @@ def test_no_method_calls_a_spoilt_recording_good_when_it_is_far_off(spoilt, meth
     assert not dishonest
     # wrong units and a clock offset paired naively are never passed, whatever the method
     # (kinematic identification uses the joints, not the reported TCP: units do not touch it)
-    for name in ("100 ms offset, naive pairs",) + (() if method == "kinematic" else ("robot in cm",)):
+    never_passed = (
+        "100 ms offset, naive pairs",
+        "30 ms offset, naive pairs",
+        "tracker rows 3 late",
+        "tracker in m",
+        "tracker poses inverted",
+        "tracker rotation transposed",
+        "marker bumped halfway",
+    ) + (() if method == "kinematic" else ("robot in cm", "robot in inches", "robot in m"))
+    for name in never_passed:
         assert judged[name]["outcome"] in ("refused", "poor", "unusable"), (name, judged[name])
-    assert judged["marker in 8 frames"]["outcome"] in ("refused", "unusable")
+    for name in ("marker in 8 frames", "marker seen in one sweep"):
+        assert judged[name]["outcome"] in ("refused", "unusable"), (name, judged[name])
 
 
 def test_calibrate_exits_1_on_an_unusable_recording_and_still_writes_it(spoilt, tmp_path, capsys):

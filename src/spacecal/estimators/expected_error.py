@@ -12,7 +12,9 @@ a loose marker. Two facts set the expected error:
    held-out frames through the chain ``tracker_from_base @ base_from_tcp @ tcp_from_marker``.
    The mean squared sphere error of those predictions, less what the tracker's white noise
    explains (``dof_per_frame * sigma^2`` per frame), is the power of the systematic error
-   ``S``. Robot kinematics, tracker bias and timing all enter it.
+   ``S`` (less two standard errors of the noise's misfit, which include the error of the
+   noise level itself, estimated from the tracker's RMS). Robot kinematics, tracker bias and
+   timing all enter it.
 2. **What the marker cannot see** (geometry). Part of any kinematic error moves the needle
    tip without moving the marker relative to the chain: an error constant in the tool frame
    is absorbed into ``tcp_from_marker``, yet the tip is off by it (the docs' floor that only a
@@ -20,15 +22,19 @@ a loose marker. Two facts set the expected error:
    marker's spheres and of the tip are projected off the columns the fit absorbs (the 12 pose
    parameters, plus identified DH corrections); with DH errors of unit scale (lengths 1 mm,
    angles 0.002 rad, the spread ``kinematic`` assumes) this gives the systematic sphere power
-   per frame ``s1`` and the mean squared tip error at frames near the site ``f1``. The scale
-   the data shows is ``l^2 = S / s1``, so the unseen tip error is ``l^2 f1``.
+   per frame ``s1`` and the tip's error covariance ``C1`` (3 x 3, mean square ``f1``) at frames
+   near the site. The scale the data shows is ``l^2 = S / s1``, so the unseen tip error has
+   covariance ``l^2 C1``.
 
-The expected position error at a target near the site is then the mean length of a 3-D
-error of RMS ``sqrt(TRE^2 + l^2 f1)`` (factor ``sqrt(8 / (3 pi))``), with TRE the noise-only
-prediction at the site; posture likewise from the rotation block of the covariance and the
-tip frame's rotation. A method other than ML adds, in quadrature, how far its solution puts
-the tip from ML's at those frames. Without joint angles or a robot model, the held-out misfit
-per sphere stands in for the tip error and the basis says so.
+The expected position error at a target near the site is then the mean length E|x| of a
+Gaussian error x with covariance ``C_TRE + l^2 C1`` (:func:`mean_gaussian_length`), C_TRE the
+noise-only covariance of the tip at the site frames; posture from the RMS of the rotation
+block of the covariance and the tip frame's rotation (factor ``sqrt(8 / (3 pi))``). That is
+the mean a 15-point verification there would show; one verification is one draw around it
+(:mod:`spacecal.experiments.prediction_oracle`). A method other than ML adds, as a second
+moment, how far its solution puts the tip from ML's at those frames. Without joint angles or
+a robot model, the held-out misfit per sphere stands in for the tip error and the basis says
+so.
 """
 
 from __future__ import annotations
@@ -38,11 +44,19 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from scipy.integrate import quad
+from scipy.stats import chi2
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.ml import jacobian, levenberg_marquardt, predict_spheres, predicted_tre_mm
+from spacecal.estimators.ml import (
+    jacobian,
+    levenberg_marquardt,
+    point_covariances,
+    predict_spheres,
+    predicted_tre_mm,
+)
 from spacecal.estimators.observations import Observations
-from spacecal.geometry.arrays import FloatArray, IntArray, as_float_array
+from spacecal.geometry.arrays import ArrayLike, FloatArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform
 from spacecal.models.kinematics import (
@@ -82,6 +96,42 @@ ROTATION_LEVER_MM = 100.0
 
 #: Mean over RMS of the length of an isotropic 3-D Gaussian vector, sqrt(8 / (3 pi)).
 MEAN_OVER_RMS_3D = float(np.sqrt(8.0 / (3.0 * np.pi)))
+
+#: Standard errors of the noise's held-out misfit (its chi-square scatter and the error of the
+#: noise level) taken off the misfit before the rest is called systematic.
+DETECTION_STANDARD_ERRORS = 2.0
+
+
+def mean_gaussian_length(covariance: ArrayLike) -> float:
+    """Mean length E|x| of a zero-mean Gaussian vector x ~ N(0, covariance), same unit as x.
+
+    Parameters
+    ----------
+    covariance : array_like, shape (3, 3)
+        Covariance of x (e.g. mm^2 for a tip position error).
+
+    Returns
+    -------
+    float
+        E|x|: ``sqrt(8 / (3 pi))`` times the RMS for an isotropic covariance, ``sqrt(2 / pi)``
+        times it for an error along one direction. With eigenvalues l_i and
+        ``sqrt(q) = (4 pi)^(-1/2) int_0^inf (1 - exp(-t q)) t^(-3/2) dt``,
+        ``E|x| = (4 pi)^(-1/2) int_0^inf (1 - prod_i (1 + 2 t l_i)^(-1/2)) t^(-3/2) dt``,
+        integrated numerically (substituting t = u^2).
+    """
+    eigenvalues = np.clip(np.linalg.eigvalsh(np.asarray(covariance, dtype=float)), 0.0, None)
+    scale = float(eigenvalues.sum())
+    if scale <= 0.0:
+        return 0.0
+    relative = eigenvalues / scale
+
+    def integrand(u: float) -> float:
+        # t = u^2: dt t^(-3/2) = 2 du / u^2
+        return float(2.0 * (1.0 - np.prod(1.0 + 2.0 * u * u * relative) ** -0.5) / (u * u))
+
+    value, _ = quad(integrand, 0.0, np.inf, limit=200)
+    return float(np.sqrt(scale) * value / np.sqrt(4.0 * np.pi))
+
 
 #: A refit: (training observations, start tracker_from_base, start tcp_from_marker)
 #: -> (tracker_from_base, tcp_from_marker).
@@ -279,7 +329,7 @@ def unseen_kinematic_error(
     blocks: Sequence[IntArray],
     absorbed_dh: Sequence[int] = (),
     frames: int = GEOMETRY_FRAMES,
-) -> dict[str, float]:
+) -> dict[str, Any]:
     """How unit-scale DH errors show in held-out sphere errors and at the tip (see the module).
 
     The same blocks are held out as in :func:`held_out_misfit`, so the held-out misfit and its
@@ -303,7 +353,9 @@ def unseen_kinematic_error(
     -------
     dict
         ``sphere_power_mm2`` (held-out, per frame, summed over spheres), ``tip_position_ms_mm2``
-        and ``tip_rotation_ms_rad2`` (mean squares at the site frames), for unit-scale errors.
+        and ``tip_rotation_ms_rad2`` (mean squares at the site frames) and
+        ``tip_position_covariance_mm2`` (3, 3), the tip's error covariance in the tracker frame
+        averaged over the site frames, for unit-scale errors.
     """
     n = len(joints_rad)
     picked = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
@@ -342,6 +394,10 @@ def unseen_kinematic_error(
     if absorbed_dh:
         tip -= np.einsum("npia,ab->npib", tip_dh[..., absorbed_dh], coefficients[12:])
     position_ms = float(np.mean(np.sum(tip[:, 0] ** 2, axis=(1, 2)))) if len(site_picked) else 0.0
+    # independent unit DH errors: the tip's covariance is the mean of J J^T over the site frames
+    position_covariance = (
+        np.mean(tip[:, 0] @ np.swapaxes(tip[:, 0], 1, 2), axis=0) if len(site_picked) else np.zeros((3, 3))
+    )
     relative = tip[:, 1:] - tip[:, :1]
     # three orthogonal lever arms u_j of length L: sum_j |w x u_j|^2 = 2 |w|^2 L^2
     rotation_ms = (
@@ -352,8 +408,22 @@ def unseen_kinematic_error(
     return {
         "sphere_power_mm2": sphere_power,
         "tip_position_ms_mm2": position_ms,
+        "tip_position_covariance_mm2": position_covariance,
         "tip_rotation_ms_rad2": rotation_ms,
     }
+
+
+def noise_level_relative_error(sphere_count: int, frames: int) -> float:
+    """Relative standard error of sigma^2 estimated from ``frames`` tracker RMS values.
+
+    :func:`spacecal.estimators.observations.sphere_noise_from_marker_rms` takes sigma^2 from the
+    median of rms^2, a chi-square(3K - 6) variable up to scale; a sample median's variance is
+    ``1 / (4 N f(m)^2)`` with f the density at the median m, so the relative error is
+    ``1 / (2 f(m) m sqrt(N))`` (0.76 / sqrt(N) for four spheres). Dimensionless.
+    """
+    dof = max(3 * sphere_count - 6, 1)
+    median = float(chi2.median(dof))
+    return float(1.0 / (2.0 * chi2.pdf(median, dof) * median * np.sqrt(max(frames, 1))))
 
 
 def expected_error(
@@ -405,14 +475,22 @@ def expected_error(
     site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
     tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
     tre_ms = float(np.mean(predicted_tre_mm(tracker_from_base, covariance, tip_in_base) ** 2))
+    # the noise-only error's covariance (tracker frame, mm^2), averaged over the site frames
+    noise_covariance = np.mean(
+        point_covariances(tracker_from_base, np.asarray(covariance)[:6, :6], tip_in_base), axis=0
+    )
     rotation_noise_ms = float(np.trace(np.asarray(covariance)[3:6, 3:6]))
     ml_tracker_from_base, ml_tcp_from_marker = tracker_from_base, tcp_from_marker
     deviation_ms = rotation_deviation_ms = 0.0
+    deviation_covariance = np.zeros((3, 3))
     if not likelihood_based:
         ml_tracker_from_base, ml_tcp_from_marker = refit(obs, tracker_from_base, tcp_from_marker)
         method_tip = tracker_from_base @ obs.base_from_tcp_stack[site]
         ml_tip = ml_tracker_from_base @ obs.base_from_tcp_stack[site]
-        deviation_ms = float(np.mean(np.sum((method_tip[:, :3, 3] - ml_tip[:, :3, 3]) ** 2, axis=1)))
+        deviation = method_tip[:, :3, 3] - ml_tip[:, :3, 3]
+        deviation_ms = float(np.mean(np.sum(deviation**2, axis=1)))
+        # its second moment over the site frames, added like a covariance
+        deviation_covariance = deviation.T @ deviation / len(deviation)
         rotation_deviation_ms = float(
             rotation_angle(tracker_from_base[:3, :3] @ ml_tracker_from_base[:3, :3].T) ** 2
         )
@@ -434,11 +512,23 @@ def expected_error(
     held_out_ms = float(np.nanmean(sse)) if computed else 0.0
     prediction_ms = float(np.nanmean(misfit["frame_prediction_variance_mm2"])) if computed else 0.0
     noise_ms = obs.dof_per_frame * obs.sigma_mm**2 + prediction_ms if obs.sigma_known else held_out_ms
-    # a misfit within two standard errors of the noise's (chi-square, 2 dof sigma^4 per frame) is none
+    # the misfit beyond the noise's, less DETECTION_STANDARD_ERRORS standard errors of it: two
+    # parts, the held-out mean's own (chi-square, 2 dof sigma^4 per frame) and that of the noise
+    # level it is compared with, itself estimated from the tracker's RMS (a median). Frames of
+    # one recording cannot tell a systematic misfit smaller than this from a misjudged noise level.
     scored = int(np.isfinite(sse).sum())
-    noise_standard_error = obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1))
+    noise_standard_error = float(
+        np.hypot(
+            obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1)),
+            obs.dof_per_frame
+            * obs.sigma_mm**2
+            * noise_level_relative_error(len(obs.spheres_in_marker), len(obs.rows)),
+        )
+    )
     systematic = (
-        max(held_out_ms - noise_ms - 2.0 * noise_standard_error, 0.0) if obs.sigma_known and computed else 0.0
+        max(held_out_ms - noise_ms - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
+        if obs.sigma_known and computed
+        else 0.0
     )
     spheres = len(obs.spheres_in_marker)
     components: dict[str, Any] = {
@@ -470,6 +560,7 @@ def expected_error(
         else:
             scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
         unseen_ms = scale_sq * unit["tip_position_ms_mm2"]
+        unseen_covariance = scale_sq * np.asarray(unit["tip_position_covariance_mm2"])
         unseen_rotation_ms = scale_sq * unit["tip_rotation_ms_rad2"]
         components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
         components["unseen_tip_rms_mm"] = float(np.sqrt(unseen_ms))
@@ -479,6 +570,8 @@ def expected_error(
         )
     else:
         unseen_ms = systematic / len(obs.spheres_in_marker)
+        # the misfit per sphere says nothing of its direction at the tip: isotropic
+        unseen_covariance = np.eye(3) * unseen_ms / 3.0
         unseen_rotation_ms = 0.0
         basis = (
             f"{blocks}: systematic misfit per sphere plus the noise-only TRE; no joint angles or "
@@ -488,10 +581,12 @@ def expected_error(
         basis += "; the tracker's noise is unknown (no marker RMS), so misfit and noise cannot be told apart"
     if not likelihood_based:
         basis += "; plus this method's distance from the ML solution"
-    position_rms = np.sqrt(tre_ms + unseen_ms + deviation_ms)
+    components["systematic_detected"] = bool(systematic > 0.0)
+    position_covariance = noise_covariance + unseen_covariance + deviation_covariance
+    components["position_rms_mm"] = float(np.sqrt(tre_ms + unseen_ms + deviation_ms))
     posture_rms = np.sqrt(rotation_noise_ms + unseen_rotation_ms + rotation_deviation_ms)
     return {
-        "position_mm": float(MEAN_OVER_RMS_3D * position_rms),
+        "position_mm": mean_gaussian_length(position_covariance),
         "posture_deg": float(np.degrees(MEAN_OVER_RMS_3D * posture_rms)),
         "basis": basis,
         "components": components,

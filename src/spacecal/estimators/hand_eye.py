@@ -119,6 +119,13 @@ def solve_park(tcp_motion_stack: FloatArray, marker_motion_stack: FloatArray) ->
         raise DegenerateDataError("AX = XB: the motions rotate about fewer than two independent axes")
     inverse_sqrt = eigenvectors @ np.diag(eigenvalues**-0.5) @ eigenvectors.T
     rotation = inverse_sqrt @ m.T
+    # (M^T M)^(-1/2) M^T is orthogonal; on motions that no rotation relates (e.g. the tracker's
+    # poses inverted or transposed) it is a reflection, which is no answer
+    if np.linalg.det(rotation) < 0:
+        raise DegenerateDataError(
+            "AX = XB: no rotation relates the robot's and the tracker's motions (the best fit is a "
+            "reflection): check the pose conventions"
+        )
     return make_transform(rotation, _translation(tcp_motion_stack, marker_motion_stack, rotation))
 
 

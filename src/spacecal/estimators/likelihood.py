@@ -392,6 +392,12 @@ def calibrate_robust(
     obs = build_observations(recording, sigma_mm=sigma_mm)
     rng = np.random.default_rng(seed)
     (start_tracker_from_base, start_tcp_from_marker), inliers, threshold = ransac_start(obs, recording, rng)
+    if inliers.sum() < MINIMUM_FRAMES:
+        # the frames agree on no single calibration (units, pose conventions, pairing?)
+        raise DegenerateDataError(
+            f"only {int(inliers.sum())} of {len(obs.rows)} frames agree with any closed-form start "
+            f"(at least {MINIMUM_FRAMES}): the recording does not describe one rigid set-up"
+        )
     fit = levenberg_marquardt(
         obs, start_tracker_from_base, start_tcp_from_marker, frame_weights=inliers.astype(float)
     )

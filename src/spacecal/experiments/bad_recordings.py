@@ -64,6 +64,77 @@ def _mislabelled(recording: Recording) -> Recording:
     return dataclasses.replace(recording, segment=segment)
 
 
+def _swapped_labels(recording: Recording) -> Recording:
+    """The labels of the rotation about x and the translation along x swapped."""
+    segment = recording.segment.copy()
+    rotation, translation = segment == "rot_x", segment == "lin_x"
+    segment[rotation], segment[translation] = "lin_x", "rot_x"
+    return dataclasses.replace(recording, segment=segment)
+
+
+def _tracker_scaled(recording: Recording, factor: float) -> Recording:
+    """Marker positions (and the tracker's RMS) in another length unit than the robot's mm."""
+    stack = recording.tracker_from_marker_stack.copy()
+    stack[:, :3, 3] *= factor
+    return dataclasses.replace(
+        recording, tracker_from_marker_stack=stack, marker_rms_mm=recording.marker_rms_mm * factor
+    )
+
+
+def _tracker_inverted(recording: Recording) -> Recording:
+    """``marker_from_tracker`` written where ``tracker_from_marker`` belongs."""
+    stack = recording.tracker_from_marker_stack.copy()
+    seen = recording.has_pose
+    rotation = np.swapaxes(stack[seen, :3, :3], 1, 2)
+    stack[seen, :3, 3] = -np.einsum("nij,nj->ni", rotation, stack[seen, :3, 3])
+    stack[seen, :3, :3] = rotation
+    return dataclasses.replace(recording, tracker_from_marker_stack=stack)
+
+
+def _rotation_transposed(recording: Recording) -> Recording:
+    """The marker's rotation transposed (a quaternion's sign or order convention mixed up),
+    its position right."""
+    stack = recording.tracker_from_marker_stack.copy()
+    stack[:, :3, :3] = np.swapaxes(stack[:, :3, :3], 1, 2)
+    return dataclasses.replace(recording, tracker_from_marker_stack=stack)
+
+
+def _loose(recording: Recording, angle_deg: float = 1.5, shift_mm: float = 1.0) -> Recording:
+    """The marker loose on the tool from halfway: it creeps, growing to ``angle_deg`` and
+    ``shift_mm`` by the end of the run."""
+    stack = recording.tracker_from_marker_stack.copy()
+    n = len(recording)
+    start = n // 2
+    for i in range(start, n):
+        fraction = (i - start + 1) / (n - start)
+        creep = axis_angle_transform([1.0, -0.4, 0.5], np.radians(angle_deg * fraction))
+        creep[:3, 3] = fraction * shift_mm * np.array([0.0, 0.6, 0.8])
+        stack[i] = stack[i] @ creep
+    return dataclasses.replace(recording, tracker_from_marker_stack=stack)
+
+
+def _one_segment_seen(recording: Recording, label: str = "rot_x") -> Recording:
+    """The marker seen during one sweep only (occluded in the others)."""
+    hidden = recording.segment != label
+    stack = recording.tracker_from_marker_stack.copy()
+    stack[hidden] = np.nan
+    rms = recording.marker_rms_mm.copy()
+    rms[hidden] = np.nan
+    return dataclasses.replace(recording, tracker_from_marker_stack=stack, marker_rms_mm=rms)
+
+
+def _rows_shifted(recording: Recording, rows: int = 3) -> Recording:
+    """The tracker's column paired ``rows`` samples late (an off-by-rows join of two logs)."""
+    keep = np.arange(len(recording) - rows)
+    shifted = recording.select(keep)
+    return dataclasses.replace(
+        shifted,
+        tracker_from_marker_stack=recording.tracker_from_marker_stack[rows:],
+        marker_rms_mm=recording.marker_rms_mm[rows:],
+        marker_status=None if recording.marker_status is None else recording.marker_status[rows:],
+    )
+
+
 def bad_recordings(scenario: Scenario, recording: Recording | None = None) -> dict[str, Recording]:
     """The scenario's recording spoilt in each way (name -> recording).
 
@@ -76,10 +147,22 @@ def bad_recordings(scenario: Scenario, recording: Recording | None = None) -> di
     * ``100 ms offset, naive pairs``: raw streams with the robot clock 100 ms ahead, paired as
       if the clocks agreed;
     * ``marker bumped halfway``: the marker moved on the tool (2 deg, 2.8 mm) halfway through;
-    * ``segment mislabelled``: the rotation about z labelled as the translation along z.
+    * ``segment mislabelled``: the rotation about z labelled as the translation along z;
+    * ``robot in m``: TCP positions in metres;
+    * ``tracker in m``: marker positions (and the tracker's RMS) in metres, the robot in mm;
+    * ``tracker poses inverted``: ``marker_from_tracker`` written as ``tracker_from_marker``;
+    * ``tracker rotation transposed``: the marker's rotation transposed, its position right;
+    * ``marker loose from halfway``: the marker creeping on the tool in the second half, to
+      1.5 deg and 1 mm by the end;
+    * ``marker seen in one sweep``: occluded during every sweep but the rotation about x;
+    * ``two labels swapped``: the rotation about x and the translation along x swapped;
+    * ``tracker rows 3 late``: the tracker's column joined to the robot's three rows late;
+    * ``30 ms offset, naive pairs``: raw streams with the robot clock 30 ms ahead, paired as if
+      the clocks agreed.
     """
     recording = simulate(scenario).recording if recording is None else recording
     raw, _ = simulate_raw(scenario, clock_offset_s=0.100)
+    raw_30ms, _ = simulate_raw(scenario, clock_offset_s=0.030)
     return {
         "robot in cm": _scaled_tcp(recording, 0.1),
         "robot in inches": _scaled_tcp(recording, 1.0 / 25.4),
@@ -90,6 +173,17 @@ def bad_recordings(scenario: Scenario, recording: Recording | None = None) -> di
         ),
         "marker bumped halfway": _bumped(recording),
         "segment mislabelled": _mislabelled(recording),
+        "robot in m": _scaled_tcp(recording, 0.001),
+        "tracker in m": _tracker_scaled(recording, 0.001),
+        "tracker poses inverted": _tracker_inverted(recording),
+        "tracker rotation transposed": _rotation_transposed(recording),
+        "marker loose from halfway": _loose(recording),
+        "marker seen in one sweep": _one_segment_seen(recording),
+        "two labels swapped": _swapped_labels(recording),
+        "tracker rows 3 late": _rows_shifted(recording),
+        "30 ms offset, naive pairs": dataclasses.replace(
+            pair_streams(raw_30ms, 0.0), metadata={**recording.metadata}
+        ),
     }
 
 
