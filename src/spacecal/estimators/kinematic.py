@@ -315,7 +315,7 @@ def calibrate_kinematic(
     if scale_from_data and dh_scale is not None and dh_scale <= 0.0:
         # the held-out misfit shows nothing beyond the tracker's noise: the arm matches its
         # model, no correction is freed, and the result is the ML calibration itself
-        ml = calibrate_ml(recording, sigma_mm=sigma_mm, targets_in_base=targets_in_base)
+        ml = calibrate_ml(recording, sigma_mm=sigma_mm, targets_in_base=targets_in_base, fitted=(obs, start))
         report = {
             "identified": [],
             "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(identifiable.tolist())],

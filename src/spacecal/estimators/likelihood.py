@@ -276,6 +276,7 @@ def calibrate_ml(
     sigma_mm: float | None = None,
     targets_in_base: ArrayLike | None = None,
     noise_model: str = "estimated",
+    fitted: tuple[Observations, Fit] | None = None,
 ) -> CalibrationResult:
     """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
 
@@ -297,6 +298,9 @@ def calibrate_ml(
         Points (mm, base frame) at which to predict the TRE, besides the site.
     noise_model : {"estimated", "isotropic"}
         ``"isotropic"``: one sigma for every sphere coordinate, as before.
+    fitted : (Observations, Fit), optional
+        :func:`fit_ml`'s result for this recording and ``sigma_mm``, when the caller has it
+        already (it is not fitted again).
 
     Raises
     ------
@@ -305,7 +309,7 @@ def calibrate_ml(
     """
     if noise_model not in NOISE_MODELS:
         raise InvalidInputError(f"noise_model must be one of {', '.join(NOISE_MODELS)}, got {noise_model!r}")
-    obs, fit = fit_ml(recording, sigma_mm)
+    obs, fit = fitted if fitted is not None else fit_ml(recording, sigma_mm)
     extra: dict[str, Any] = {"iterations": fit.iterations, "converged": fit.converged}
     if noise_model == "isotropic":
         return _package(

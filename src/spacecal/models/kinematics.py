@@ -183,8 +183,8 @@ _CLOSED_FORM_LOG_RAD = 3.0
 def _rotation_error_vector(rotation: FloatArray) -> FloatArray:
     """Rotation vectors (…, 3) of proper rotations (…, 3, 3), by the closed-form log map
     ``angle / (2 sin angle) * vee(R - R^T)``, with scipy's general conversion only near a half
-    turn. Identical to :func:`matrix_to_rotvec` on rotation matrices, about ten times faster
-    on the single poses Gauss–Newton IK takes one at a time."""
+    turn. Identical to :func:`matrix_to_rotvec` on rotation matrices, about twice as fast on
+    the single poses Gauss–Newton IK takes one at a time (measured: 39 against 86 us)."""
     trace = rotation[..., 0, 0] + rotation[..., 1, 1] + rotation[..., 2, 2]
     angle = np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0))
     vee = np.stack(
