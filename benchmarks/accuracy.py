@@ -105,7 +105,7 @@ def accuracy_table(seeds: int, jobs: int, method: str) -> None:
         oracle, _ = best_fixed_share(values[:, 0])
         print(
             f"| {name} | {values[:, 0].mean():.3f} | {values[:, 1].mean():.3f} | {np.median(ratio):.2f} | "
-            f"{np.mean(np.abs(ratio - 1.0) <= 0.3):.0%} | {oracle:.0%} | "
+            f"{share_within(values[:, 1], values[:, 0]):.0%} | {oracle:.0%} | "
             f"{int(np.sum(ratio < 0.5))} of {len(ratio)} | {values[:, 2].mean():.3f} | "
             f"{values[:, 3].mean():.3f} |"
         )

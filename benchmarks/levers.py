@@ -32,11 +32,9 @@ import dataclasses
 import numpy as np
 
 from spacecal.estimators import calibrate
-from spacecal.experiments.simulation import execute_plan
+from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
-from spacecal.sim.motion import plan_for_world
 from spacecal.sim.scenario import PRESETS
-from spacecal.sim.world import build_world
 
 #: (label, registry method, options)
 ESTIMATORS = (
@@ -64,7 +62,7 @@ def run_seed(seed: int) -> dict[tuple[str, str], tuple[float, ...]]:
     rows: dict[tuple[str, str], tuple[float, ...]] = {}
     for set_up, preset in SET_UPS:
         scenario = dataclasses.replace(PRESETS[preset], seed=seed)
-        recording, _ = execute_plan(build_world(scenario), plan_for_world(build_world(scenario)))
+        recording = simulate(scenario).recording
         for label, method, options in ESTIMATORS:
             calibration = calibrate(recording, method, uncertainty=False, **options)
             result = verify_in_simulation(calibration, scenario)
