@@ -16,7 +16,7 @@ from spacecal.estimators import calibrate
 from spacecal.estimators.time_offset import pair_streams
 from spacecal.experiments.simulation import simulate, simulate_raw
 from spacecal.experiments.verification import verify_in_simulation
-from spacecal.geometry.transforms import axis_angle_transform
+from spacecal.geometry.transforms import axis_angle_transform, invert_transform
 from spacecal.records import Recording
 from spacecal.sim.scenario import Scenario
 
@@ -85,9 +85,7 @@ def _tracker_inverted(recording: Recording) -> Recording:
     """``marker_from_tracker`` written where ``tracker_from_marker`` belongs."""
     stack = recording.tracker_from_marker_stack.copy()
     seen = recording.has_pose
-    rotation = np.swapaxes(stack[seen, :3, :3], 1, 2)
-    stack[seen, :3, 3] = -np.einsum("nij,nj->ni", rotation, stack[seen, :3, 3])
-    stack[seen, :3, :3] = rotation
+    stack[seen] = invert_transform(stack[seen])
     return dataclasses.replace(recording, tracker_from_marker_stack=stack)
 
 
