@@ -182,3 +182,22 @@ def test_the_fake_controller_resumes_a_paused_move_when_the_safeguard_is_reset()
         robot.stop()
         robot.close()
         world.stop()
+
+
+def test_a_late_state_stream_is_not_taken_for_a_stopped_program():
+    """ur_rtde starts the control program and returns once its own RTDE connection shows it
+    running; spacecal reads the robot on a second connection, whose packets may arrive later
+    (a busy thread, a congested link). The first state after the start must not read as "program
+    stopped on the teach pendant" (which ended a pre-operative check on a loaded machine)."""
+    from spacecal.adapters.ur import URRobot
+    from spacecal.core.ports import SAFETY_NORMAL
+
+    world = ur_world("cb3")
+    assert world.control("ur lag_read_only 0.3") == "OK"
+    robot = URRobot(world.info["host"], robot_model="UR10")
+    try:
+        assert robot.state().safety == SAFETY_NORMAL
+    finally:
+        robot.stop()
+        robot.close()
+        world.stop()

@@ -12,6 +12,9 @@ What a real controller does and this fake models (``control()`` injects each):
 * ``robot_mode`` (7 RUNNING, 3 POWER_OFF, 5 IDLE, 2 BOOTING ...), ``runtime_state`` (1 stopped,
   2 playing, 4 paused) and ``robot_status_bits`` (bit 0 power on, bit 1 program running): a
   program stopped or paused on the pendant stops the robot and answers no more commands;
+* two RTDE connections see the same ticks at different moments: a busy client thread or a
+  congested link delivers one stream late (``lag_read_only S`` delays the packets of the
+  clients without an input recipe, the read-only ones, by S seconds);
 * e-Series in local control: ``is in remote control`` answers false and the script port
   refuses programs; RTDE input registers owned by another client: the input setup answers
   ``IN_USE`` for them;
@@ -34,6 +37,7 @@ registers: it writes a command id to ``input_int_register_0`` and arguments to
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import re
@@ -270,6 +274,7 @@ class FakeController:
         self.remote_control = True
         self.registers_taken = False
         self.primary_enabled = True
+        self.read_only_lag_s = 0.0
         self.last_command = 0
         self.pending_done = False
         self.async_running = False
@@ -584,6 +589,8 @@ class FakeController:
                 self.remote_control = arguments != ["off"]
             elif command == "registers_taken":
                 self.registers_taken = arguments != ["off"]
+            elif command == "lag_read_only":  # read-only clients' packets arrive S s late
+                self.read_only_lag_s = float(arguments[0]) if arguments else 0.0
             elif command == "primary":  # the primary interface answers (on) or closes at once (off)
                 self.primary_enabled = arguments != ["off"]
             elif command == "mark":  # the test is about to stop the run another way (a signal)
@@ -618,6 +625,7 @@ def serve_rtde_connection(controller: FakeController, connection, stop: threadin
 
     def stream():
         next_time = time.monotonic()
+        late: collections.deque = collections.deque()  # (send at, packet) of a lagging stream
         while not stop.is_set() and streaming.is_set():
             controller.update()
             snapshot = controller.snapshot()
@@ -625,9 +633,15 @@ def serve_rtde_connection(controller: FakeController, connection, stop: threadin
                 struct.pack(">" + FORMATS[t], *np.atleast_1d(controller.value(n, snapshot)))
                 for n, t in zip(output["names"], output["types"])
             )
+            packet = pack(ord("U"), struct.pack(">B", 1) + values)
+            if controller.read_only_lag_s > 0 and not inputs:  # a read-only client's stream
+                late.append((time.monotonic() + controller.read_only_lag_s, packet))
+                packet = b""
+                while late and late[0][0] <= time.monotonic():
+                    packet += late.popleft()[1]
             try:
                 with send_lock:
-                    connection.sendall(pack(ord("U"), struct.pack(">B", 1) + values))
+                    connection.sendall(packet)
             except OSError:
                 return
             next_time += 1.0 / output["hz"]

@@ -119,6 +119,9 @@ CONTROL_INPUTS = [f"input_int_register_{i}" for i in range(8)] + [
 MOVEL_RAD_PER_M = 4.0
 #: Deceleration of stopL when a run is stopped, m/s^2.
 STOP_DECEL_M_S2 = 2.0
+#: How long spacecal's state stream may take to show the control program running after ur_rtde
+#: started it (s): as long as a loaded computer may go without a new packet.
+PROGRAM_SEEN_TIMEOUT_S = 1.0
 #: A move counts as finished within these of its target, with the joints at rest.
 ARRIVAL_MM, ARRIVAL_RAD, REST_RAD_S = 0.05, 1e-4, 1e-3
 #: The controller's model must reproduce its reported TCP pose to this (mm).
@@ -446,6 +449,13 @@ class URRobot:
         self._control = control
         if not control.isConnected():
             raise DeviceError(f"the UR control interface on {self.host} did not connect; nothing moved")
+        # ur_rtde returns once its own RTDE connection shows the program running; ours is a second
+        # connection read by its own thread, whose newest packet may be older (a busy computer, a
+        # congested link) and would read as "program stopped on the teach pendant". A program
+        # that really stopped still shows as stopped after this wait.
+        deadline = time.monotonic() + PROGRAM_SEEN_TIMEOUT_S
+        while int(self._receive.getRuntimeState()) != RUNTIME_PLAYING and time.monotonic() < deadline:
+            time.sleep(0.004)
         self._program_expected = True
         if self._stream is None:  # states from before the first move: the first frames pair with them
             self._stream = StateStream(self._read_packet)
