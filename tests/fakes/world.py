@@ -65,16 +65,20 @@ class FakeWorld:
         self.stale = False
         self._last_frame = None
 
-    def _true_base_from_tcp(self, at_s: float | None) -> np.ndarray:
-        """Where the TCP really was at ``at_s`` (recent; None: now): between two controller
-        ticks the joints are interpolated (a tracker's frame instant is not the moment a thread
-        gets to compute it on a busy machine)."""
-        current = self.robot.true_base_from_tcp()
-        self._ticks.extend((state.time_s, state.joints_rad) for state in self.robot.drain_states())
-        if at_s is None or len(self._ticks) < 2 or at_s >= self._ticks[-1][0] or at_s < self._ticks[0][0]:
-            return current
-        times = np.array([t for t, _ in self._ticks])
-        joints = np.array([q for _, q in self._ticks])
+    def _true_base_from_tcp(self, at_s: float) -> np.ndarray:
+        """Where the TCP really was at ``at_s`` (a recent instant of the world's clock).
+
+        A tracker's frame shows the marker at the frame's own instant, not at the moment a
+        thread gets to compute it on a busy machine (0.1 ms to a scheduler slice later): the
+        joints are interpolated between the controller ticks around ``at_s``, and past the
+        newest tick towards where the arm is now. Taking the arm "now" instead lagged every
+        frame by that wake-up delay, a jittering clock error no real tracker has."""
+        states, now_s, joints_now = self.robot.drain_states_and_now()
+        self._ticks.extend((state.time_s, state.joints_rad) for state in states)
+        times = np.array([t for t, _ in self._ticks] + [now_s])
+        joints = np.array([q for _, q in self._ticks] + [joints_now])
+        keep = np.append(np.diff(times) > 0, True)  # the newest tick may be the present instant
+        times, joints = times[keep], joints[keep]
         at = np.array([np.interp(at_s, times, joints[:, k]) for k in range(6)])
         return self.world.true_base_from_tcp(at[None])[0]
 
@@ -85,7 +89,7 @@ class FakeWorld:
             if self.stale and self._last_frame is not None:
                 return self._last_frame
             now = self.clock.now_s if at_s is None else at_s
-            truth = self.world.tracker_from_base @ self._true_base_from_tcp(at_s) @ self.world.tcp_from_marker
+            truth = self.world.tracker_from_base @ self._true_base_from_tcp(now) @ self.world.tcp_from_marker
             tracked = self.world.track_marker(truth[None])
             pose = tracked.tracker_from_marker[0]
             seen = bool(np.all(np.isfinite(pose))) and not self.occluded

@@ -213,6 +213,15 @@ class SimulatedRobot:
         states, self._stream = self._stream or [], [] if self._stream is not None else None
         return states
 
+    def drain_states_and_now(self) -> tuple[list[RobotState], float, np.ndarray]:
+        """:meth:`drain_states`, and the time (s) and joints (6,) of the arm at that same look,
+        taken together: the ticks and the present instant bound where the arm really went, for
+        instruments that see it at their own instants (a tracker's frame)."""
+        with self._lock:
+            self._advance()
+            states, self._stream = self._stream or [], [] if self._stream is not None else None
+            return states, float(self._updated_at_s), self._joints.copy()
+
     def move_linear(
         self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
     ) -> None:
