@@ -13,9 +13,11 @@ import pytest
 from ..fakes.client import WorldProcess
 
 #: Longer than any test's own subprocess timeouts, so those report first; the dump goes to a
-#: file (pytest captures stderr) that .ci/run prints when the suite fails.
+#: file (pytest captures stderr), one per test worker, that .ci/run prints when the suite fails.
 WATCHDOG_S = 400
-WATCHDOG_LOG = os.path.join(os.environ.get("TMPDIR", "/tmp"), "spacecal-watchdog.log")
+WATCHDOG_LOG = os.path.join(
+    os.environ.get("TMPDIR", "/tmp"), f"spacecal-watchdog-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}.log"
+)
 #: The UR fake needs fixed ports, so every world gets its own loopback address; the second
 #: octet follows the process id, so concurrent test runs on one machine do not collide.
 _addresses = itertools.count(1)
