@@ -62,6 +62,36 @@ def test_on_an_arm_matching_its_model_kinematic_is_ml(white_simulation):
     )
 
 
+def pose_only(recording):
+    """The recording as a pose-only tracker sends it (PLUS over OpenIGTLink): marker poses,
+    no sphere positions, no fit RMS, so the tracker's noise is unknown."""
+    return dataclasses.replace(
+        recording, spheres_in_tracker=None, marker_rms_mm=np.full(len(recording.time_s), np.nan)
+    )
+
+
+def test_a_pose_only_tracker_on_an_arm_matching_its_model_frees_nothing(white_simulation):
+    # the noise comes from the fit's own residuals; a fixed prior instead frees every
+    # identifiable correction (the test below) and fits noise
+    recording = pose_only(white_simulation.recording)
+    kinematic = calibrate(recording, "kinematic", uncertainty=False)
+    report = kinematic.diagnostics["kinematic_identification"]
+    assert report["identified"] == [] and report["prior_sd"]["from_data"]
+    assert report["held_out_significance"] < IDENTIFY_MIN_SIGNIFICANCE
+    ml = calibrate(recording, "ml", uncertainty=False)
+    assert np.allclose(kinematic.tracker_from_base, ml.tracker_from_base, atol=1e-9)
+
+
+def test_a_pose_only_tracker_still_shows_an_arm_s_dh_errors():
+    scenario = dataclasses.replace(
+        NOISE_FREE, white_noise_rms_mm=0.1, dh_length_error_sd_mm=0.3, dh_angle_error_sd_deg=0.03
+    )
+    recording = pose_only(simulate(scenario).recording)
+    report = calibrate(recording, "kinematic", uncertainty=False).diagnostics["kinematic_identification"]
+    assert report["held_out_significance"] > IDENTIFY_MIN_SIGNIFICANCE and report["prior_sd"]["from_data"]
+    assert len(report["identified"]) == report["rank"]
+
+
 def test_a_fixed_prior_fits_noise_on_an_arm_matching_its_model(white_simulation):
     # what the data-set prior avoids: every identifiable correction freed under the fixed
     # 1 mm / 0.002 rad prior moves the needle by several times ML's error

@@ -217,8 +217,22 @@ def dh_error_scale_of(
     significance : float or None
         That misfit beyond the noise's, in standard errors of the noise's (chi-square with
         ``dof_per_frame`` degrees of freedom a frame, frames taken as independent). None
-        when the noise is not known or nothing could be cross-validated.
+        when nothing could be cross-validated.
+
+    Notes
+    -----
+    A tracker that reports no fit RMS (a pose-only stream, as PLUS sends over OpenIGTLink)
+    leaves the noise unknown. It is then taken from the fit's own residuals (the a posteriori
+    variance factor), so held-out misfit is compared with in-sample misfit: only the misfit that
+    the pose cannot absorb where the fit did not see it counts as DH error. That is weaker
+    evidence than a known noise level gives (in-sample residuals carry part of the systematic
+    error too), but a fixed prior instead frees every correction on every pose-only recording,
+    which on an arm that matches its model multiplied the tip error 3.6 to 6.2 times
+    (``benchmarks/hardware_paths.py``, UR + OpenIGTLink).
     """
+    if not obs.sigma_known:
+        sigma_mm = obs.sigma_mm * np.sqrt(variance_factor_of(obs, tracker_from_base, tcp_from_marker))
+        obs = replace(obs, sigma_mm=float(sigma_mm), sigma_known=True)
     try:
         covariance = covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
         expected = expected_error(
@@ -273,7 +287,8 @@ def calibrate_kinematic(
     prior_from_data : bool
         Take the prior s.d. from the DH error scale the ML fit's held-out misfit shows (see
         the module); none freed when that misfit is within :data:`IDENTIFY_MIN_SIGNIFICANCE`
-        standard errors of the noise's. Needs the tracker's noise known (else the fixed prior).
+        standard errors of the noise's. A tracker that reports no fit RMS has its noise taken
+        from the fit's residuals (:func:`dh_error_scale_of`).
     """
     model = robot_model_of(recording)
     # identification starts from the ML solution (the bare fit, without its diagnostics)
