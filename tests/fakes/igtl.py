@@ -211,6 +211,7 @@ class FakeIGTLSender:
             if self.world.unplugged:
                 continue
             stamp, pose, _, _ = self.world.marker_frame()
+            stamp += self.world.igtl_epoch_s  # the sender's clock, not the robot's
             with self.lock:
                 if self.muted:
                     continue

@@ -64,6 +64,8 @@ class FakeWorld:
         self.unplugged = False
         self.stale = False
         self._last_frame = None
+        #: An OpenIGTLink sender (PLUS) stamps frames with its computer's clock: Unix time.
+        self.igtl_epoch_s = time.time() - self.clock.now_s
 
     def _true_base_from_tcp(self, at_s: float) -> np.ndarray:
         """Where the TCP really was at ``at_s`` (a recent instant of the world's clock).
@@ -104,6 +106,11 @@ class FakeWorld:
 
     def truth(self) -> dict:
         return {
+            # each tracker's clock minus the robot's (the controller's timestamp is the world's
+            # clock): what spacecal's pairing offset ("robot clock minus tracker clock") should be,
+            # negated
+            "ndi_clock_minus_robot_clock_s": NDI_FRAMES_AT_START / self.world.tracker.rate_hz,
+            "igtl_clock_minus_robot_clock_s": self.igtl_epoch_s,
             "tracker_from_base": self.world.tracker_from_base.tolist(),
             "tcp_from_marker": self.world.tcp_from_marker.tolist(),
             "home_joints_rad": self.world.home_joints_rad.tolist(),
@@ -189,10 +196,15 @@ def igtl_control(fake: FakeWorld, words: list[str]) -> str:
 TRACKER_CONTROLS = {"ndi": ndi_control, "igtl": igtl_control}
 
 
+#: The NDI frame counter counts camera frames since the tracker was switched on: here about
+#: an hour before the robot controller's clock (the world's) started.
+NDI_FRAMES_AT_START = 3600 * 60
+
+
 def ndi_frame_source(fake: FakeWorld, rate_hz: float, stop: threading.Event):
     """Frames for the NDI fake as a real tracker makes them: captured at its own rate, each
-    numbered by its capture instant; a reply returns the newest captured frame (the pose at
-    that frame's instant, not at the moment of the request)."""
+    numbered by its capture instant on the tracker's own counter; a reply returns the newest
+    captured frame (the pose at that frame's instant, not at the moment of the request)."""
     latest: dict[str, tuple] = {}
 
     def capture() -> None:
@@ -200,7 +212,8 @@ def ndi_frame_source(fake: FakeWorld, rate_hz: float, stop: threading.Event):
             next_capture = (np.floor(fake.clock.now_s * rate_hz) + 1) / rate_hz
             time.sleep(max(0.0, next_capture - fake.clock.now_s))
             stamp, pose, rms, _ = fake.marker_frame(at_s=next_capture)
-            latest["frame"] = (int(round(stamp * rate_hz)), pose, (0.0 if np.isnan(rms) else rms))
+            number = NDI_FRAMES_AT_START + int(round(stamp * rate_hz))
+            latest["frame"] = (number, pose, (0.0 if np.isnan(rms) else rms))
 
     threading.Thread(target=capture, name="ndi-capture", daemon=True).start()
 
