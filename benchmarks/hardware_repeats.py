@@ -10,7 +10,7 @@ prints two tables:
   to the fake controller's joints standing still and to the end of ``spacecal acquire``:
   median and largest over the repeats, with the cause line the user sees.
 
-    python benchmarks/hardware_repeats.py [--repeats 10] [-- extra pytest arguments]
+    python benchmarks/hardware_repeats.py [--repeats 10] [-- extra pytest arguments, e.g. -n 2]
 """
 
 from __future__ import annotations
@@ -40,8 +40,11 @@ TOTALS_LINE = re.compile(r"=+ (.*) in ([0-9.]+)s")
 
 def one_run(extra: list[str]) -> tuple[str, float]:
     started = time.monotonic()
+    # the stop tests print their times: shown with -s, or (test workers cannot pass -s output on)
+    # in the report of passed tests, -rA
+    shown = "-rA" if any(a == "-n" or a.startswith("-n") for a in extra) else "-s"
     done = subprocess.run(
-        [sys.executable, "-m", "pytest", "tests/adapters", "-s", "-ra", "-p", "no:cacheprovider", *extra],
+        [sys.executable, "-m", "pytest", "tests/adapters", shown, "-ra", "-p", "no:cacheprovider", *extra],
         cwd=ROOT,
         capture_output=True,
         text=True,
