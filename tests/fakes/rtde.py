@@ -15,6 +15,8 @@ What a real controller does and this fake models (``control()`` injects each):
 * two RTDE connections see the same ticks at different moments: a busy client thread or a
   congested link delivers one stream late (``lag_read_only S`` delays the packets of the
   clients without an input recipe, the read-only ones, by S seconds);
+* a controller switched off or cut from the network (``vanish``): every connection falls silent
+  (no data, no replies, no close) and new ones are accepted but never answered;
 * e-Series in local control: ``is in remote control`` answers false and the script port
   refuses programs; RTDE input registers owned by another client: the input setup answers
   ``IN_USE`` for them;
@@ -275,6 +277,8 @@ class FakeController:
         self.registers_taken = False
         self.primary_enabled = True
         self.read_only_lag_s = 0.0
+        self.vanished = False  # switched off or its cable pulled: every connection falls silent
+        self.silent_connections: list = []
         self.last_command = 0
         self.pending_done = False
         self.async_running = False
@@ -306,6 +310,8 @@ class FakeController:
         one and be taken for a repeat, and the client would wait for ever. A controller in local
         control (e-Series), powered off or in a safety stop does not start it."""
         with self.lock:
+            if self.vanished:
+                return
             if not self.can_run_programs():
                 self.say("script refused: the controller cannot run programs now")
                 return
@@ -589,6 +595,9 @@ class FakeController:
                 self.remote_control = arguments != ["off"]
             elif command == "registers_taken":
                 self.registers_taken = arguments != ["off"]
+            elif command == "vanish":  # the controller is switched off or its network cable pulled
+                self.fault_at = time.monotonic()
+                self.vanished = True
             elif command == "lag_read_only":  # read-only clients' packets arrive S s late
                 self.read_only_lag_s = float(arguments[0]) if arguments else 0.0
             elif command == "primary":  # the primary interface answers (on) or closes at once (off)
@@ -627,6 +636,9 @@ def serve_rtde_connection(controller: FakeController, connection, stop: threadin
         next_time = time.monotonic()
         late: collections.deque = collections.deque()  # (send at, packet) of a lagging stream
         while not stop.is_set() and streaming.is_set():
+            if controller.vanished:
+                time.sleep(0.01)
+                continue
             controller.update()
             snapshot = controller.snapshot()
             values = b"".join(
@@ -654,6 +666,8 @@ def serve_rtde_connection(controller: FakeController, connection, stop: threadin
         while not stop.is_set():
             size, kind = struct.unpack(">HB", _recv_exact(connection, 3))
             payload = _recv_exact(connection, size - 3)
+            if controller.vanished:
+                continue  # nobody is there to read it
             kind = chr(kind)
             if kind == "V":
                 reply = pack(ord("V"), struct.pack(">B", 1))
@@ -766,6 +780,8 @@ def serve_dashboard_connection(controller: FakeController, connection, stop) -> 
         stream.write("Connected: Universal Robots Dashboard Server\n")
         stream.flush()
         for line in stream:
+            if controller.vanished:
+                continue
             command = line.strip()
             controller.say(f"dashboard {command}")
             if command == "quit":
@@ -866,7 +882,8 @@ def serve_primary_connection(controller: FakeController, connection, stop) -> No
             return
         connection.sendall(version_message(controller))
         while not stop.is_set():
-            connection.sendall(robot_state_message(controller))
+            if not controller.vanished:
+                connection.sendall(robot_state_message(controller))
             time.sleep(0.1)
     except OSError:
         pass
@@ -877,6 +894,9 @@ def serve_primary_connection(controller: FakeController, connection, stop) -> No
 
 def serve(server, handler, controller: FakeController, stop: threading.Event) -> None:
     for connection in accept_connections(server, stop):
+        if controller.vanished:  # nothing answers: the connection is held open, silent
+            controller.silent_connections.append(connection)
+            continue
         threading.Thread(target=handler, args=(controller, connection, stop), daemon=True).start()
 
 

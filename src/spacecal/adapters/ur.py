@@ -122,6 +122,9 @@ STOP_DECEL_M_S2 = 2.0
 #: How long spacecal's state stream may take to show the control program running after ur_rtde
 #: started it (s): as long as a loaded computer may go without a new packet.
 PROGRAM_SEEN_TIMEOUT_S = 1.0
+#: A controller that sends no new state within this (s) is taken as gone: a live one streams at
+#: 125 or 500 Hz, and a loaded computer has been seen to go 0.1 s without a packet.
+ANSWER_WITHIN_S = 0.3
 #: A move counts as finished within these of its target, with the joints at rest.
 ARRIVAL_MM, ARRIVAL_RAD, REST_RAD_S = 0.05, 1e-4, 1e-3
 #: The controller's model must reproduce its reported TCP pose to this (mm).
@@ -215,6 +218,22 @@ def dashboard(host: str, commands: list[str], timeout_s: float = 2.0) -> list[st
             stream.flush()
             replies.append(stream.readline().strip())
     return replies
+
+
+#: Controllers whose dashboard server stayed silent in this process (switched off, cable pulled):
+#: each further attempt would only wait out its timeout again.
+_SILENT_HOSTS: set[str] = set()
+
+
+def stop_program(host: str) -> None:
+    """Stop the running program through the dashboard server (``stop``), unless this
+    controller has already stayed silent once in this process; never raises."""
+    if host in _SILENT_HOSTS:
+        return
+    try:
+        dashboard(host, ["stop"], timeout_s=1.0)
+    except OSError:
+        _SILENT_HOSTS.add(host)
 
 
 def _recv_exact(connection: socket.socket, count: int) -> bytes:
@@ -407,6 +426,8 @@ class URRobot:
         self.nominal = ur_model(robot_model)
         self._control = None
         self._program_expected = False
+        #: whether the controller answered when the run was stopped (None: not stopped yet)
+        self._answers: bool | None = None
         self._target: np.ndarray | None = None
         self._last_timestamp: float | None = None
         self._last_change = time.monotonic()
@@ -700,6 +721,22 @@ class URRobot:
             raise self._refused("moveL")
         self._target = target if asynchronous else None
 
+    def _controller_answers(self) -> bool:
+        """Whether the controller still streams its state (a new RTDE timestamp within
+        :data:`ANSWER_WITHIN_S`). ur_rtde's ``isConnected()`` stays true while its thread tries
+        to reconnect to a controller that is gone (switched off, its cable pulled) and its getters
+        keep the last values, and a command sent then waits for an answer for ever, where no
+        signal can end it (measured against the fake controller's ``vanish``)."""
+        if not self._receive.isConnected():
+            return False
+        last = float(self._receive.getTimestamp())
+        deadline = time.monotonic() + ANSWER_WITHIN_S
+        while time.monotonic() < deadline:
+            if float(self._receive.getTimestamp()) != last:
+                return True
+            time.sleep(0.002)
+        return False
+
     def stop(self) -> None:
         """Stop now and end the control program, so nothing (a safeguard reset, an unlocked
         protective stop, the pendant's play button) can resume a move spacecal gave up."""
@@ -707,23 +744,22 @@ class URRobot:
         if self._control is None:
             return  # read-only: nothing of ours runs on the controller
         self._program_expected = False
+        self._answers = self._controller_answers()
         with contextlib.suppress(RuntimeError, OSError):
             if (
-                self._control.isConnected()
-                and self._receive.isConnected()
+                self._answers
+                and self._control.isConnected()
                 and int(self._receive.getRuntimeState()) == RUNTIME_PLAYING
                 and int(self._receive.getSafetyStatusBits()) & ~0b11 == 0  # normal or reduced
             ):
                 self._control.stopL(STOP_DECEL_M_S2)
-        with contextlib.suppress(OSError):
-            dashboard(self.host, ["stop"], timeout_s=1.0)
+        stop_program(self.host)
 
     def close(self) -> None:
         if self._stream is not None:
             self._stream.close()
-        dropped = not self._receive.isConnected() or (
-            self._control is not None and not self._control.isConnected()
-        )
+        answers = self._answers if self._answers is not None else self._controller_answers()
+        dropped = not answers or (self._control is not None and not self._control.isConnected())
         if self._control is not None:
             with contextlib.suppress(RuntimeError):
                 if not dropped:
@@ -737,8 +773,7 @@ class URRobot:
             if not self._program_expected:
                 # stopped: ur_rtde reconnects by itself after a dropped connection and uploads its
                 # program again; end whatever it left running
-                with contextlib.suppress(OSError):
-                    dashboard(self.host, ["stop"], timeout_s=1.0)
+                stop_program(self.host)
         if dropped:
             _keep_forever(self._receive, self.host)
         else:
@@ -776,5 +811,4 @@ def end_programs_left_running() -> None:
     controller answers, so this is the last thing a process does before it ends (the thread
     ends with it)."""
     for host in dict.fromkeys(host for _, host in _KEPT_FOREVER):
-        with contextlib.suppress(OSError):
-            dashboard(host, ["stop"], timeout_s=1.0)
+        stop_program(host)
