@@ -59,14 +59,6 @@ SET_UPS = (
 )
 
 
-def pose_only(recording):
-    """The recording as a pose-only tracker sends it (PLUS over OpenIGTLink): marker poses, no
-    sphere positions and no fit RMS, so the tracker's noise is unknown to the estimators."""
-    return dataclasses.replace(
-        recording, spheres_in_tracker=None, marker_rms_mm=np.full(len(recording.time_s), np.nan)
-    )
-
-
 def run_seed(seed: int, poses_only: bool = False) -> dict[tuple[str, str], tuple[float, ...]]:
     """Per (set-up, estimator): verification mean and max position (mm), mean, min and max
     posture (deg), number of DH corrections freed."""
@@ -75,7 +67,7 @@ def run_seed(seed: int, poses_only: bool = False) -> dict[tuple[str, str], tuple
         scenario = dataclasses.replace(PRESETS[preset], seed=seed)
         recording = simulate(scenario).recording
         if poses_only:
-            recording = pose_only(recording)
+            recording = recording.as_pose_only()
         for label, method, options in ESTIMATORS:
             calibration = calibrate(recording, method, uncertainty=False, **options)
             result = verify_in_simulation(calibration, scenario)

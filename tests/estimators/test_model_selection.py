@@ -62,18 +62,10 @@ def test_on_an_arm_matching_its_model_kinematic_is_ml(white_simulation):
     )
 
 
-def pose_only(recording):
-    """The recording as a pose-only tracker sends it (PLUS over OpenIGTLink): marker poses,
-    no sphere positions, no fit RMS, so the tracker's noise is unknown."""
-    return dataclasses.replace(
-        recording, spheres_in_tracker=None, marker_rms_mm=np.full(len(recording.time_s), np.nan)
-    )
-
-
 def test_a_pose_only_tracker_on_an_arm_matching_its_model_frees_nothing(white_simulation):
     # the noise comes from the fit's own residuals; a fixed prior instead frees every
     # identifiable correction (the test below) and fits noise
-    recording = pose_only(white_simulation.recording)
+    recording = white_simulation.recording.as_pose_only()
     kinematic = calibrate(recording, "kinematic", uncertainty=False)
     report = kinematic.diagnostics["kinematic_identification"]
     assert report["identified"] == [] and report["prior_sd"]["from_data"]
@@ -86,7 +78,7 @@ def test_a_pose_only_tracker_still_shows_an_arm_s_dh_errors():
     scenario = dataclasses.replace(
         NOISE_FREE, white_noise_rms_mm=0.1, dh_length_error_sd_mm=0.3, dh_angle_error_sd_deg=0.03
     )
-    recording = pose_only(simulate(scenario).recording)
+    recording = simulate(scenario).recording.as_pose_only()
     report = calibrate(recording, "kinematic", uncertainty=False).diagnostics["kinematic_identification"]
     assert report["held_out_significance"] > IDENTIFY_MIN_SIGNIFICANCE and report["prior_sd"]["from_data"]
     assert len(report["identified"]) == report["rank"]

@@ -36,9 +36,7 @@ def pose_only_recording(simulation, trial: int) -> Recording:
         rotvec_to_matrix(rng.normal(scale=np.radians(ROTATION_DEG), size=sight.shape)) @ truth[:, :3, :3]
     )
     poses[~rec.visible] = np.nan
-    return dataclasses.replace(
-        rec, tracker_from_marker_stack=poses, marker_rms_mm=np.full(len(rec), np.nan), spheres_in_tracker=None
-    )
+    return dataclasses.replace(rec, tracker_from_marker_stack=poses).as_pose_only()
 
 
 @pytest.fixture(scope="module")

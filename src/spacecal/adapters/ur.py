@@ -628,10 +628,8 @@ class URRobot:
                 else f"the nominal {self.nominal.name} model (no factory calibration published)",
             )
         add(FINDING_OK, "tool (TCP)", f"set on the teach pendant: {tcp_text(model.flange_from_tcp)}")
-        deadline = time.monotonic() + 1.0  # a loaded computer may see no new packet for a while
-        while float(self._receive.getTimestamp()) == timestamp and time.monotonic() < deadline:
-            time.sleep(0.01)
-        if float(self._receive.getTimestamp()) == timestamp:
+        # a loaded computer may see no new packet for a while
+        if not self._timestamp_advances(timestamp, within_s=1.0):
             add(FINDING_PROBLEM, "robot state", "the controller's RTDE timestamp does not advance")
         return findings
 
@@ -727,15 +725,18 @@ class URRobot:
         to reconnect to a controller that is gone (switched off, its cable pulled) and its getters
         keep the last values, and a command sent then waits for an answer for ever, where no
         signal can end it (measured against the fake controller's ``vanish``)."""
-        if not self._receive.isConnected():
-            return False
-        last = float(self._receive.getTimestamp())
-        deadline = time.monotonic() + ANSWER_WITHIN_S
-        while time.monotonic() < deadline:
-            if float(self._receive.getTimestamp()) != last:
-                return True
+        return self._receive.isConnected() and self._timestamp_advances(
+            float(self._receive.getTimestamp()), ANSWER_WITHIN_S
+        )
+
+    def _timestamp_advances(self, since: float, within_s: float) -> bool:
+        """Whether the RTDE timestamp moves on from ``since`` (s) within ``within_s`` (s)."""
+        deadline = time.monotonic() + within_s
+        while float(self._receive.getTimestamp()) == since:
+            if time.monotonic() >= deadline:
+                return False
             time.sleep(0.002)
-        return False
+        return True
 
     def stop(self) -> None:
         """Stop now and end the control program, so nothing (a safeguard reset, an unlocked

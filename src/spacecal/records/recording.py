@@ -126,6 +126,12 @@ class Recording:
         metadata = {**self.metadata, "doubtful_frames_included": int(self.doubtful.sum())}
         return replace(self, marker_status=status, metadata=metadata)
 
+    def as_pose_only(self) -> Recording:
+        """The same frames as a pose-only tracker reports them (PLUS over OpenIGTLink): marker
+        poses, without sphere positions or fit RMS, so the tracker's noise is unknown to the
+        estimators."""
+        return replace(self, spheres_in_tracker=None, marker_rms_mm=np.full(len(self), np.nan))
+
     def select(self, mask) -> Recording:
         """A new recording holding only the samples where ``mask`` (N,) is true."""
         mask = np.asarray(mask)

@@ -209,9 +209,7 @@ class SimulatedRobot:
 
     def drain_states(self) -> list[RobotState]:
         """Every controller state since the last call, one per tick (``stream_states``)."""
-        self._update()
-        states, self._stream = self._stream or [], [] if self._stream is not None else None
-        return states
+        return self.drain_states_and_now()[0]
 
     def drain_states_and_now(self) -> tuple[list[RobotState], float, np.ndarray]:
         """:meth:`drain_states`, and the time (s) and joints (6,) of the arm at that same look,
