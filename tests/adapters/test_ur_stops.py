@@ -15,7 +15,9 @@ import pytest
 pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
-from spacecal.io.recording_csv import read_recording
+from spacecal.estimators.time_offset import LARGEST_GAP_PERIODS, LARGEST_GAP_S
+from spacecal.io.raw_streams import read_raw_recording, stream_paths
+from spacecal.io.recording_csv import metadata_path, read_recording
 from spacecal.workflows.acquisition import progress_path
 
 from .ur_runs import (
@@ -86,11 +88,23 @@ def check_stopped_run(world, run_result, fault_at, recording, cause, count_slack
     return kept, after
 
 
-#: A stopped run is paired at the clock offset its few frames show (or at the arrival-time link
-#: when they show none); the resumed run's pairing, from the whole run, may differ by tens of
-#: milliseconds on a loaded machine, so frames this close to either end of the stopped run may
-#: fall outside the robot's stream (before its first state, or into the gap the stop left).
-STOP_EDGE_S = 0.5
+def dropped_by_the_pairing_rule(raw, offset_s, frame_time_s):
+    """Whether each frame, moved onto the robot's clock by ``offset_s``, falls outside the robot
+    stream or into a gap of it (the frames :func:`pair_streams` may not pair).
+
+    A stopped run is paired at the offset its few frames show; the resumed run at the offset
+    the whole run shows, which may differ by tens of milliseconds on a loaded machine. A kept
+    frame may then land before the robot's first state, in the stretch the stop left, or in a
+    few ticks a loaded poller missed: it is still in the raw stream, but not paired.
+    """
+    robot_t = raw.robot_time_s
+    query = frame_time_s + offset_s
+    after = np.searchsorted(robot_t, query)
+    outside = (after == 0) | (after == len(robot_t))
+    inside = np.clip(after, 1, len(robot_t) - 1)
+    largest = max(LARGEST_GAP_PERIODS * float(np.median(np.diff(robot_t))), LARGEST_GAP_S)
+    in_a_gap = robot_t[inside] - robot_t[inside - 1] > largest
+    return outside | in_a_gap
 
 
 def resume_and_check(world, generation, recording, rom, kept):
@@ -102,10 +116,13 @@ def resume_and_check(world, generation, recording, rom, kept):
     assert tracker_stream.read_bytes().startswith(before)
     again = read_recording(recording)
     # the paired recording is derived again from the whole run: every kept frame is in it, but
-    # for those at the stopped run's edges
+    # for those the pairing rule drops at the whole run's offset
     lost = kept.time_s[~np.isin(kept.time_s, again.time_s)]
-    at_an_edge = (lost <= kept.time_s[0] + STOP_EDGE_S) | (lost >= kept.time_s[-1] - STOP_EDGE_S)
-    assert len(again) > len(kept) and np.all(at_an_edge), lost
+    robot_stream, tracker_stream_path, _ = stream_paths(recording.with_suffix(""))
+    raw = read_raw_recording(robot_stream, tracker_stream_path)
+    offset_s = json.loads(metadata_path(recording).read_text())["pairing"]["offset_s"]
+    assert len(again) > len(kept)
+    assert np.all(dropped_by_the_pairing_rule(raw, offset_s, lost)), lost
     assert recorded_rows(recording) - 1 >= len(again)
     assert "18/18 moves" in resumed.stdout
 
