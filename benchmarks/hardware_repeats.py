@@ -41,10 +41,10 @@ TOTALS_LINE = re.compile(r"=+ (.*) in ([0-9.]+)s")
 def one_run(extra: list[str]) -> tuple[str, float]:
     started = time.monotonic()
     # the stop tests print their times: shown with -s, or (test workers cannot pass -s output on)
-    # in the report of passed tests, -rA
-    shown = "-rA" if any(a == "-n" or a.startswith("-n") for a in extra) else "-s"
+    # in the report of passed tests, -rA (a later -ra, as in the project's addopts, would hide it)
+    shown = ["-rA"] if any(a == "-n" or a.startswith("-n") for a in extra) else ["-s", "-ra"]
     done = subprocess.run(
-        [sys.executable, "-m", "pytest", "tests/adapters", shown, "-ra", "-p", "no:cacheprovider", *extra],
+        [sys.executable, "-m", "pytest", "tests/adapters", *shown, "-p", "no:cacheprovider", *extra],
         cwd=ROOT,
         capture_output=True,
         text=True,
