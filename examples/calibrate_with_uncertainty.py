@@ -35,10 +35,13 @@ with tempfile.TemporaryDirectory() as folder:
     print(np.array2string(calibration.tracker_from_base, precision=3, suppress_small=True))
     print("parameter standard deviations:")
     for name, value in zip(calibration.covariance["parameters"], sd):
-        unit = "deg" if name.endswith("_rad") else "mm"
-        print(f"  {name:28s} {np.degrees(value) if unit == 'deg' else value:.4f} {unit}")
+        # rotation parameters are stored in rad and shown in deg, under their name without the unit
+        if name.endswith("_rad"):
+            print(f"  {name.removesuffix('_rad'):28s} {np.degrees(value):.4f} deg")
+        else:
+            print(f"  {name.removesuffix('_mm'):28s} {value:.4f} mm")
     tre = calibration.predicted_tre_mm
     print(
         f"predicted TRE at the site {tre['site']:.3f} mm; at the target {tre['targets'][0]['tre_mm']:.3f} mm"
     )
-    print(f"verdict: {calibration.diagnostics['verdict']}")
+    print(f"verdict: {calibration.verdict.text if calibration.verdict else 'none'}")

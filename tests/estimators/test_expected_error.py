@@ -32,7 +32,7 @@ def test_white_noise_expects_about_the_noise_only_error(white_simulation):
         MEAN_OVER_RMS_3D * components["noise_tre_rms_mm"], rel=0.0, abs=0.05
     )
     assert components["blocks"] == 6 and components["blocks_refitted"] == 6
-    assert "held-out" in expected["basis"] and result.diagnostics["verdict"].startswith("good:")
+    assert "held-out" in expected["basis"] and result.verdict.grade == "good"
 
 
 def test_realistic_expected_error_holds_the_unseen_kinematic_error(realistic_simulation):
@@ -48,14 +48,14 @@ def test_realistic_expected_error_holds_the_unseen_kinematic_error(realistic_sim
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_every_method_gets_a_graded_verdict(white_simulation, method):
     result = calibrate(white_simulation.recording, method)
-    assert result.diagnostics["verdict"].split(":")[0] in GRADES
+    assert result.verdict.grade in GRADES
     assert result.diagnostics["expected_error"]["position_mm"] > 0
 
 
 def test_thresholds_grade_and_are_checked(white_simulation):
     thresholds = ErrorThresholds(0.001, 0.002, 0.003)
     result = calibrate(white_simulation.recording, "ml", error_thresholds=thresholds)
-    assert result.diagnostics["verdict"].startswith("unusable:")
+    assert result.verdict.grade == "unusable"
     assert result.diagnostics["thresholds_mm"] == dataclasses.asdict(thresholds)
     assert [grade(x, ErrorThresholds()) for x in (0.4, 0.9, 1.9, 2.1, np.nan)] == [
         "good",

@@ -56,7 +56,7 @@ def test_result_carries_covariance_prediction_and_diagnostics(white_simulation):
     diagnostics = result.diagnostics
     assert diagnostics["variance_factor"] == pytest.approx(1.0, abs=0.15)
     assert len(diagnostics["per_sample_residuals"]) == int(white_simulation.recording.visible.sum())
-    assert diagnostics["verdict"].startswith("good")
+    assert diagnostics["verdict"]["grade"] == "good"
 
 
 def test_verdict_warns_when_systematic_errors_dominate(realistic_simulation):
@@ -64,9 +64,9 @@ def test_verdict_warns_when_systematic_errors_dominate(realistic_simulation):
     # noise-only TRE, and says that systematic error dominates
     result = calibrate(realistic_simulation.recording, "ml")
     assert result.diagnostics["variance_factor"] > 1.5
-    verdict = result.diagnostics["verdict"]
-    assert verdict.split(":")[0] in ("good", "acceptable", "poor", "unusable")
-    assert "systematic error" in verdict
+    verdict = result.verdict
+    assert verdict.grade in ("good", "acceptable", "poor", "unusable")
+    assert "systematic error" in verdict.text
     assert result.diagnostics["expected_error"]["position_mm"] > 5 * result.predicted_tre_mm["site"]
 
 

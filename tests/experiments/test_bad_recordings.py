@@ -57,4 +57,4 @@ def test_calibrate_exits_1_on_an_unusable_recording_and_still_writes_it(spoilt, 
     code = main(["calibrate", str(recording), "--method", "ml", "-o", str(out)])
     _, err = capsys.readouterr()
     assert code == 1 and "unusable" in err and len(err.strip().splitlines()) == 1
-    assert json.loads(out.read_text())["diagnostics"]["verdict"].startswith("unusable")
+    assert json.loads(out.read_text())["diagnostics"]["verdict"]["grade"] == "unusable"

@@ -35,5 +35,5 @@ def test_thresholds_flag_regrades_and_unusable_exits_1(recording_file, tmp_path,
     )
     _, err = capsys.readouterr()
     assert code == 1 and err.strip().startswith("spacecal: error: calibration unusable")
-    assert json.loads(calibration.read_text())["diagnostics"]["verdict"].startswith("unusable:")
+    assert json.loads(calibration.read_text())["diagnostics"]["verdict"]["grade"] == "unusable"
     assert main(["calibrate", str(recording_file), "-o", str(calibration), "--thresholds-mm", "2,1,3"]) == 1

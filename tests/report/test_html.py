@@ -219,7 +219,7 @@ def test_a_report_for_every_result_type(
 
 def test_a_calibration_11_mm_off_shows_the_red_flag(calibrations, white_simulation, tmp_path):
     good = calibrations["ml"]
-    assert good.diagnostics["verdict"].startswith("good")
+    assert good.verdict.grade == "good"
     path, _ = write_report(Report(good, white_simulation.recording), tmp_path / "good.html")
     assert "class='verdict ok'" in path.read_text()
     # the same file with tracker_from_base moved by 11 mm: its stored verdict still says good

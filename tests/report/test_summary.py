@@ -3,7 +3,7 @@
 import numpy as np
 
 from spacecal.estimators import calibrate
-from spacecal.records import CheckResult
+from spacecal.records import CheckResult, Verdict
 from spacecal.report.evidence import check_series, tick_format, uncertainty
 from spacecal.report.html import (
     Report,
@@ -26,8 +26,13 @@ def test_the_verdict_word_sets_the_colour(white_simulation):
     calibration = calibrate(white_simulation.recording, "ml")
     residuals = residuals_of(calibration, white_simulation.recording)
     assert assess(calibration, residuals).level == "ok"
-    for word, headline in (("check", "Check before use"), ("poor", "Poor"), ("unusable", "Unusable")):
-        flagged = calibration.replace(diagnostics={**calibration.diagnostics, "verdict": f"{word}: because"})
+    for verdict, headline in (
+        (Verdict("poor", 1.5, 0.3, 2.0, ("because",)).to_dict(), "Poor"),
+        (Verdict("unusable", reasons=("because",)).to_dict(), "Unusable"),
+        ("check: an older file's sentence", "Poor"),
+        ("unusable: an older file's sentence", "Unusable"),
+    ):
+        flagged = calibration.replace(diagnostics={**calibration.diagnostics, "verdict": verdict})
         found = assess(flagged, residuals)
         assert (found.level, found.headline) == ("alarm", headline)
     silent = calibration.replace(diagnostics={}, predicted_tre_mm=None, covariance=None)

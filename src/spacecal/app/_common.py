@@ -78,32 +78,26 @@ def provenance_of(
     )
 
 
-#: Largest median residuals of a calibration over its recording: beyond them the recording is
-#: not what it claims (quaternion order, units, swapped columns), whatever the estimator says.
-CONSISTENCY_MM = 5.0
-CONSISTENCY_DEG = 3.0
+def check_consistent(recording: Recording, what: str) -> None:
+    """Refuse a recording that another reading of its conventions explains clearly better
+    (quaternion order, inverted or conjugated poses, metres, swapped columns), naming it.
 
-
-def check_consistent(recording: Recording, tracker_from_base, tcp_from_marker, what: str) -> None:
-    """Refuse a recording that a calibration does not explain: the median distance and angle
-    between each seen marker pose and ``tracker_from_base @ base_from_tcp @ tcp_from_marker``.
-
-    The median ignores outliers (reflections, stale frames); robot kinematic errors leave a
-    millimetre or so.
+    No fixed residual limit: a distant camera leaves several mm and is sound
+    (:mod:`spacecal.estimators.conventions`).
     """
-    import numpy as np
+    from spacecal.estimators.conventions import find_better_convention
 
-    seen = recording.visible
-    predicted = tracker_from_base @ recording.base_from_tcp_stack[seen] @ tcp_from_marker
-    measured = recording.tracker_from_marker_stack[seen]
-    distance = np.linalg.norm(predicted[:, :3, 3] - measured[:, :3, 3], axis=1)
-    relative = np.einsum("nji,njk->nik", predicted[:, :3, :3], measured[:, :3, :3])
-    cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    median_mm = float(np.median(distance))
-    median_deg = float(np.degrees(np.median(np.arccos(cosine))))
-    if not (median_mm <= CONSISTENCY_MM and median_deg <= CONSISTENCY_DEG):
-        raise DegenerateDataError(
-            f"{what}: the calibration does not explain the recording (median residual {median_mm:.1f} mm, "
-            f"{median_deg:.1f} deg): quaternions not w,x,y,z or conjugated, lengths not in mm, or the "
-            "marker and TCP columns swapped?"
-        )
+    finding = find_better_convention(recording)
+    if finding is not None:
+        raise DegenerateDataError(finding.message(what))
+
+
+def check_belongs(recording: Recording, tracker_from_base, tcp_from_marker, what: str) -> None:
+    """Refuse a calibration that does not belong to ``recording`` (it explains it far worse than
+    the recording's own closed-form fit), after :func:`check_consistent`."""
+    from spacecal.estimators.conventions import calibration_mismatch
+
+    check_consistent(recording, what)
+    reason = calibration_mismatch(recording, tracker_from_base, tcp_from_marker)
+    if reason is not None:
+        raise DegenerateDataError(f"{what}: {reason}")

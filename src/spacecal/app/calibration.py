@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import check_consistent, provenance_of, refuse_overwriting_inputs
+from spacecal.app._common import check_belongs, check_consistent, provenance_of, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
@@ -140,8 +140,10 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
         options["sigma_mm"] = settings.sigma_mm
     if settings.error_thresholds is not None:
         options["error_thresholds"] = settings.error_thresholds
+    # a recording that another reading of its conventions explains far better is refused
+    # before any estimate; the rest is judged by its expected error, however large its residuals
+    check_consistent(recording, str(settings.recording))
     result = estimate(recording, settings.method, **options)
-    check_consistent(recording, result.tracker_from_base, result.tcp_from_marker, str(settings.recording))
     result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))
     if settings.tracker_stream:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
@@ -163,7 +165,7 @@ def bound(settings: BoundSettings) -> dict[str, Any]:
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     recording = read_recording(settings.recording)
     calibration = read_calibration(settings.calibration)
-    check_consistent(
+    check_belongs(
         recording, calibration.tracker_from_base, calibration.tcp_from_marker, str(settings.recording)
     )
     return tre_lower_bound(

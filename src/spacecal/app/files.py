@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spacecal.app._common import check_consistent, guard_outputs, refuse_overwriting_inputs
+from spacecal.app._common import check_belongs, guard_outputs, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.io.atomic import atomic_path
@@ -128,9 +128,7 @@ def report(settings: ReportSettings) -> ReportOutput:
     recording = None
     if recording_path and Path(recording_path).is_file():
         recording = read_recording(recording_path)
-        check_consistent(
-            recording, calibration.tracker_from_base, calibration.tcp_from_marker, recording_path
-        )
+        check_belongs(recording, calibration.tracker_from_base, calibration.tcp_from_marker, recording_path)
     else:
         notes.append("no recording found (pass --recording): sweeps and residuals are not shown")
     verification = None

@@ -128,12 +128,11 @@ def _calibrate(a: argparse.Namespace) -> None:
         print(
             f"expected error at a target near the site: {e['position_mm']:.2f} mm, {e['posture_deg']:.2f} deg"
         )
-    if "verdict" in d:
-        print(f"verdict: {d['verdict']}")
-        if d["verdict"].startswith("unusable"):
-            raise CheckFailed(
-                f"calibration unusable (written to {out.path}): {d['verdict'][len('unusable: ') :]}"
-            )
+    judged = result.verdict
+    if judged is not None:
+        print(f"verdict: {judged.text}")
+        if not judged.usable:
+            raise CheckFailed(f"calibration unusable (written to {out.path}): {'; '.join(judged.reasons)}")
 
 
 def _bound(a: argparse.Namespace) -> None:

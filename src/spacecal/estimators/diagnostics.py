@@ -13,6 +13,7 @@ from spacecal.geometry.arrays import ArrayLike, FloatArray, IndexArray, IntArray
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from spacecal.records import Recording
+from spacecal.records.verdict import Verdict
 
 #: A posteriori variance factor above which residuals are called systematic: white noise
 #: gives 1 (measured 0.98–1.02 on the white-noise scenario).
@@ -165,10 +166,6 @@ class ErrorThresholds:
         return cls(*values)
 
 
-#: The grades, best first.
-GRADES = ("good", "acceptable", "poor", "unusable")
-
-
 def grade(position_mm: float, thresholds: ErrorThresholds) -> str:
     """The grade of an expected position error (mm)."""
     if not np.isfinite(position_mm) or position_mm > thresholds.poor_mm:
@@ -187,12 +184,12 @@ def verdict(
     variance_factor: float | None = None,
     thresholds: ErrorThresholds | None = None,
     refusal: str | None = None,
-) -> str:
+) -> Verdict:
     """A plain-language judgement of a calibration and what to do about it.
 
-    The first word is the grade of the expected error at a target near the site
+    The grade is that of the expected error at a target near the site
     (``expected["position_mm"]``, see :mod:`spacecal.estimators.expected_error`) against
-    ``thresholds``: good, acceptable, poor or unusable. The reason follows, then notes.
+    ``thresholds``: good, acceptable, poor or unusable. The reasons follow, then notes.
 
     Parameters
     ----------
@@ -201,15 +198,26 @@ def verdict(
         computed (the grade is then ``unusable``).
     refusal : str, optional
         A reason the data cannot give a trustworthy calibration whatever the numbers say
-        (e.g. too few frames): the grade is ``unusable``.
+        (e.g. held-out blocks that cannot be refitted): the grade is ``unusable``.
+
+    Returns
+    -------
+    Verdict
+        The typed record (grade, expected error, limit, reasons); ``.to_dict()`` is what a
+        calibration file stores.
     """
     thresholds = thresholds or ErrorThresholds()
-    notes = []
+    reasons: list[str] = []
+    position: float | None = None
+    posture: float | None = None
+    limit: float | None = None
     if refusal is not None or expected is None:
-        reason = refusal or "the expected error could not be estimated from held-out data"
-        notes.append(f"unusable: {reason}; record again")
+        word = "unusable"
+        reasons.append(
+            f"{refusal or 'the expected error could not be estimated from held-out data'}; record again"
+        )
     else:
-        position, posture = expected["position_mm"], expected["posture_deg"]
+        position, posture = float(expected["position_mm"]), float(expected["posture_deg"])
         word = grade(position, thresholds)
         limit = {
             "good": thresholds.good_mm,
@@ -218,33 +226,32 @@ def verdict(
             "unusable": thresholds.poor_mm,
         }[word]
         relation = "above" if word == "unusable" else "within"
-        text = (
-            f"{word}: expected error at a target near the site {position:.2f} mm, {posture:.2f} deg "
+        reasons.append(
+            f"expected error at a target near the site {position:.2f} mm, {posture:.2f} deg "
             f"({relation} {limit:g} mm)"
         )
         components = expected.get("components", {})
         noise = components.get("noise_tre_rms_mm")
         factor = 0.0 if variance_factor is None else variance_factor
         if factor > SYSTEMATIC_VARIANCE_FACTOR or (noise is not None and position > 2.0 * noise + 0.05):
-            text += (
-                f"; residuals are {np.sqrt(max(factor, 1.0)):.1f}x the tracker's noise, so systematic "
+            reasons.append(
+                f"residuals are {np.sqrt(max(factor, 1.0)):.1f}x the tracker's noise, so systematic "
                 "error (robot kinematics, tracker volume error, time offset or a loose marker) "
                 "dominates the noise-only prediction"
             )
         if word in ("poor", "unusable"):
-            text += (
-                "; check units, the clock offset and that the marker is tight, then record more varied "
+            reasons.append(
+                "check units, the clock offset and that the marker is tight, then record more varied "
                 "poses (or identify the kinematics with --method kinematic)"
             )
-        notes.append(text)
     if spread["rotation_sd_deg"][2] < 5.0:
-        notes.append("the tool rotated about fewer than three axes: add rotations about the missing axis")
+        reasons.append("the tool rotated about fewer than three axes: add rotations about the missing axis")
     if outlier_fraction > 0.05:
-        notes.append(
+        reasons.append(
             f"{outlier_fraction:.0%} of frames were outliers: check for reflections, "
             "occlusion or a loose marker"
         )
-    return "; ".join(notes)
+    return Verdict(word, position, posture, limit, tuple(reasons))
 
 
 def site_in_base(recording: Recording, rows: IndexArray | None = None) -> FloatArray:

@@ -69,12 +69,18 @@ from spacecal.models.kinematics import (
 )
 from spacecal.records import Recording, robot_model_from_dict
 
-#: Fewer frames with the marker visible than this cannot support a calibration: the held-out
-#: blocks would hold a handful of frames each.
-MINIMUM_FRAMES = 30
-
 #: Contiguous blocks a recording without segment labels is split into.
 TIME_BLOCKS = 6
+
+#: Below this many used frames each frame is its own held-out block (leave-one-out): six time
+#: blocks would hold too few frames each, and leaving one frame out disturbs the refit least.
+#: A count is no verdict: a small set of well-spread poses is judged by its held-out misfit
+#: and its information like any other.
+LEAVE_ONE_OUT_BELOW = 30
+
+#: The fewest frames a held-out refit is done on: two motions determine AX = YB, and the
+#: refit needs a margin over that to be more than an interpolation.
+MINIMUM_TRAINING_FRAMES = 6
 
 #: Segments with fewer frames than this get no block of their own.
 MINIMUM_BLOCK_FRAMES = 5
@@ -202,13 +208,16 @@ def held_out_blocks(segments: np.ndarray, minimum_frames: int = MINIMUM_BLOCK_FR
     -------
     list of numpy.ndarray of int
         The recording's segments when at least three have ``minimum_frames`` frames each,
-        else :data:`TIME_BLOCKS` contiguous blocks.
+        else :data:`TIME_BLOCKS` contiguous blocks, or one block per frame (leave-one-out)
+        when there are fewer than :data:`LEAVE_ONE_OUT_BELOW` frames.
     """
     labels = list(dict.fromkeys(np.asarray(segments).tolist()))
     blocks = [np.flatnonzero(segments == label) for label in labels]
     blocks = [b for b in blocks if len(b) >= minimum_frames]
     if len(blocks) >= 3:
         return blocks
+    if len(segments) < LEAVE_ONE_OUT_BELOW:
+        return [np.array([i]) for i in range(len(segments))]
     return [b for b in np.array_split(np.arange(len(segments)), TIME_BLOCKS) if len(b) > 0]
 
 
@@ -269,7 +278,7 @@ def held_out_misfit(
     for block in blocks:
         keep = np.ones(n, dtype=bool)
         keep[block] = False
-        if keep.sum() < 6:
+        if keep.sum() < MINIMUM_TRAINING_FRAMES:
             continue
         training = replace(
             obs,

@@ -17,7 +17,7 @@ from spacecal.estimators.diagnostics import (
     site_in_base,
     verdict,
 )
-from spacecal.estimators.expected_error import MINIMUM_FRAMES, expected_error, nominal_robot_model
+from spacecal.estimators.expected_error import expected_error, nominal_robot_model
 from spacecal.estimators.ml import (
     PARAMETER_NAMES,
     Fit,
@@ -47,6 +47,10 @@ SYSTEMATIC_TAIL_FACTOR = 4.0
 
 #: More frames flagged as outliers than this share of the kept ones: not one rigid set-up.
 MAX_OUTLIER_FRACTION = 0.25
+
+#: The fewest inliers a robust fit is refined on: the RANSAC subset size, so the refit is
+#: over-determined.
+ROBUST_FEWEST_INLIERS = 6
 
 #: Side of the cube around the site over which TRE is summarised, mm.
 CUBE_SIDE_MM = 200.0
@@ -207,7 +211,7 @@ def report_uncertainty(
             outlier_fraction,
             variance_factor if obs.sigma_known else None,
             refusal=expected.get("refusal"),
-        ),
+        ).to_dict(),
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **extra,
     }
@@ -241,14 +245,10 @@ def expected_error_of(
 ) -> dict[str, Any]:
     """``diagnostics["expected_error"]`` (see :mod:`spacecal.estimators.expected_error`).
 
-    Holds ``refusal`` (and no numbers) when the data cannot support a calibration: too few
-    frames, or held-out blocks that cannot be refitted.
+    Holds ``refusal`` (and no numbers) when the data cannot support a calibration: held-out
+    blocks that cannot be refitted (too few frames to leave any out). The frame count alone
+    is never a refusal: ten well-spread poses are judged by what they say.
     """
-    if len(obs.rows) < MINIMUM_FRAMES:
-        return {
-            "refusal": f"only {len(obs.rows)} frames with the marker visible (at least {MINIMUM_FRAMES})",
-            "basis": "not estimated",
-        }
     model = robot_model if robot_model is not None else nominal_robot_model(recording)
     try:
         return expected_error(
@@ -396,11 +396,12 @@ def calibrate_robust(
     obs = build_observations(recording, sigma_mm=sigma_mm)
     rng = np.random.default_rng(seed)
     (start_tracker_from_base, start_tcp_from_marker), inliers, threshold = ransac_start(obs, recording, rng)
-    if inliers.sum() < MINIMUM_FRAMES:
-        # the frames agree on no single calibration (units, pose conventions, pairing?)
+    if inliers.sum() <= len(obs.rows) / 2 or inliers.sum() < ROBUST_FEWEST_INLIERS:
+        # the frames agree on no single calibration (units, pose conventions, pairing?): a
+        # robust fit needs its inliers to be the majority, whatever the recording's length
         raise DegenerateDataError(
             f"only {int(inliers.sum())} of {len(obs.rows)} frames agree with any closed-form start "
-            f"(at least {MINIMUM_FRAMES}): the recording does not describe one rigid set-up"
+            "(a majority is needed): the recording does not describe one rigid set-up"
         )
     fit = levenberg_marquardt(
         obs, start_tracker_from_base, start_tcp_from_marker, frame_weights=inliers.astype(float)

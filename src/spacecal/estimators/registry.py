@@ -106,7 +106,7 @@ def regrade(
     if expected is None or "motion_spread" not in d:
         return result
     outliers = len(d.get("outliers", []))
-    text = verdict(
+    judged = verdict(
         None if "refusal" in expected else expected,
         d["motion_spread"],
         outliers / max(int(recording.visible.sum()), 1),
@@ -114,7 +114,9 @@ def regrade(
         thresholds,
         refusal=expected.get("refusal"),
     )
-    return result.replace(diagnostics={**d, "verdict": text, "thresholds_mm": dataclasses.asdict(thresholds)})
+    return result.replace(
+        diagnostics={**d, "verdict": judged.to_dict(), "thresholds_mm": dataclasses.asdict(thresholds)}
+    )
 
 
 def with_expected_error(result: CalibrationResult, recording: Recording) -> CalibrationResult:

@@ -201,7 +201,7 @@ def judge(recording: Recording, method: str, scenario: Scenario) -> dict:
         result = calibrate(recording, method)
     except SpacecalError as exc:
         return {"outcome": "refused", "message": str(exc), "honest": True}
-    grade = result.diagnostics["verdict"].split(":")[0]
+    grade = result.verdict.grade if result.verdict is not None else "none"
     expected = result.diagnostics.get("expected_error", {}).get("position_mm", float("nan"))
     try:
         true = float(verify_in_simulation(result, scenario).statistics()["position_mm"]["mean"])

@@ -59,7 +59,7 @@ class DemoResult:
             (
                 "ML estimator: expected error at a target, verdict",
                 f"{_expected_mm(self.ml_calibration):.2f} mm, "
-                f"{self.ml_calibration.diagnostics['verdict'].split(':')[0]}",
+                f"{self.ml_calibration.verdict.grade if self.ml_calibration.verdict else 'none'}",
                 "",
             ),
             (

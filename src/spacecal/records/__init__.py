@@ -42,6 +42,7 @@ from spacecal.records.results import (
     PivotResult,
     VerificationResult,
 )
+from spacecal.records.verdict import GRADES, Verdict
 
 __all__ += [
     "AcquisitionProgress",
@@ -51,4 +52,6 @@ __all__ += [
     "PivotResult",
     "PlanRecord",
     "VerificationResult",
+    "GRADES",
+    "Verdict",
 ]

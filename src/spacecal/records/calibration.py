@@ -28,6 +28,7 @@ from spacecal.records.fields import (
     get_str,
     plain,
 )
+from spacecal.records.verdict import Verdict
 
 #: The file's names of the two transforms, built from the frame table (``<to>_from_<from>``).
 TRACKER_FROM_BASE = transform_name("tracker", "base")
@@ -204,6 +205,12 @@ class CalibrationResult:
                 )
         if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, dict):
             raise InvalidInputError(f"{what}: sample_counts and diagnostics must be objects")
+
+    @property
+    def verdict(self) -> Verdict | None:
+        """The verdict on this calibration (grade, expected error, reasons), None when the
+        method gave none; older files' sentences are read too."""
+        return Verdict.from_value(self.diagnostics.get("verdict"), f"calibration ({self.method})")
 
     def robot_model_for_ik(self, nominal: RobotModel) -> RobotModel:
         """The model to solve IK with: ``nominal`` with the identified DH parameters, if any.
