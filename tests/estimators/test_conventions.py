@@ -77,7 +77,8 @@ def test_a_spoilt_convention_is_named(white_simulation, words):
     assert find_better_convention(recording) is None
     which, spoil = SPOILS[words]
     field = "tracker_from_marker_stack" if which == "tracker" else "base_from_tcp_stack"
-    spoilt = dataclasses.replace(recording, **{field: _on_visible(recording, spoil)(getattr(recording, field))})
+    spoilt_stack = _on_visible(recording, spoil)(getattr(recording, field))
+    spoilt = dataclasses.replace(recording, **{field: spoilt_stack})
     finding = find_better_convention(spoilt)
     assert finding is not None and finding.alternative == words
     # the alternative explains the spoilt data as well as the clean data is explained
@@ -90,10 +91,11 @@ def test_a_spoilt_convention_is_named(white_simulation, words):
 def test_swapped_robot_and_tracker_poses_are_named(white_simulation):
     recording = white_simulation.recording
     visible = recording.visible[:, None, None]
+    robot, tracker = recording.base_from_tcp_stack, recording.tracker_from_marker_stack
     swapped = dataclasses.replace(
         recording,
-        base_from_tcp_stack=np.where(visible, recording.tracker_from_marker_stack, recording.base_from_tcp_stack),
-        tracker_from_marker_stack=np.where(visible, recording.base_from_tcp_stack, np.nan),
+        base_from_tcp_stack=np.where(visible, tracker, robot),
+        tracker_from_marker_stack=np.where(visible, robot, np.nan),
     )
     finding = find_better_convention(swapped)
     assert finding is not None and finding.alternative == SWAPPED
