@@ -1,5 +1,7 @@
 """TUM trajectory files: exact round trips, the frames of an import, and one line for each bad file."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -141,6 +143,11 @@ def test_the_import_keeps_each_clock_and_the_frames(tmp_path):
     assert meta["tum"]["units"] == {"robot": "m", "tracker": "m"} and meta["tum"]["eye_in_hand"] is False
     assert meta["tum"]["robot_file"] == str(robot_path) and meta["tracker"]["pose_only"] is True
     assert "tracker_from_marker" in meta["tum"]["tracker_poses"] and "frames" not in meta
+    # trajectories made in memory (no file) are named as such
+    unnamed = raw_recording_from_tum(dataclasses.replace(robot, path=None), tracker).metadata
+    assert unnamed["tum"]["robot_file"] is None and unnamed["robot"]["name"].startswith(
+        "poses from a trajectory"
+    )
     # eye-in-hand: the camera's trajectory in the target goes in as it is, the frames say so
     eye = raw_recording_from_tum(robot, tracker, eye_in_hand=True)
     assert np.array_equal(eye.tracker_from_marker_stack, tracker.world_from_body_stack)

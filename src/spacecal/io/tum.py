@@ -370,8 +370,8 @@ def raw_recording_from_tum(
     metadata = {
         "source": "TUM import",
         "tum": {
-            "robot_file": str(robot.path),
-            "tracker_file": str(tracker.path),
+            "robot_file": None if robot.path is None else str(robot.path),
+            "tracker_file": None if tracker.path is None else str(tracker.path),
             "units": {"robot": robot.units, "tracker": tracker.units},
             "eye_in_hand": bool(eye_in_hand),
             "time_origin_s": origin,
@@ -380,11 +380,8 @@ def raw_recording_from_tum(
             "tracker_poses": IMPORT_FRAMES[bool(eye_in_hand)]["tracker"],
             "normalised_quaternions": {"robot": robot.normalised, "tracker": tracker.normalised},
         },
-        "robot": {"name": f"poses from {Path(str(robot.path)).name} (TUM), no joints"},
-        "tracker": {
-            "name": f"poses from {Path(str(tracker.path)).name} (TUM), pose-only: no fit RMS",
-            "pose_only": True,
-        },
+        "robot": {"name": f"poses from {_name(robot)} (TUM), no joints"},
+        "tracker": {"name": f"poses from {_name(tracker)} (TUM), pose-only: no fit RMS", "pose_only": True},
         "units": {"length": "mm", "angle": "rad", "time": "s"},
     }
     if eye_in_hand:
@@ -402,3 +399,7 @@ def raw_recording_from_tum(
         marker_rms_mm=np.full(len(tracker), np.nan),
         metadata=metadata,
     )
+
+
+def _name(trajectory: TumTrajectory) -> str:
+    return "a trajectory" if trajectory.path is None else trajectory.path.name
