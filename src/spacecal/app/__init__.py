@@ -39,6 +39,7 @@ from spacecal.app.files import (
     register_landmarks,
     report,
 )
+from spacecal.app.poses import ImportPosesOutput, ImportPosesSettings, import_poses
 from spacecal.app.ros import (
     ImportBagSettings,
     RosExportSettings,
@@ -76,6 +77,8 @@ __all__ = [
     "ExportSettings",
     "ImportBagSettings",
     "ImportPlusSettings",
+    "ImportPosesOutput",
+    "ImportPosesSettings",
     "RosExportSettings",
     "PhantomCommandSettings",
     "PivotSettings",
@@ -98,6 +101,7 @@ __all__ = [
     "import_bag",
     "import_easy_handeye",
     "import_plus",
+    "import_poses",
     "phantom",
     "pivot",
     "plan",

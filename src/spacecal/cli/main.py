@@ -355,6 +355,19 @@ def _import_bag(a: argparse.Namespace) -> None:
     )
 
 
+def _import_poses(a: argparse.Namespace) -> None:
+    out = app.import_poses(
+        app.ImportPosesSettings(a.robot, a.tracker, a.output, a.units, a.eye_in_hand, a.force)
+    )
+    raw = out.raw
+    print(
+        f"wrote {out.robot_path} ({len(raw.robot_time_s)} robot poses) and {out.tracker_path} "
+        f"({len(raw.tracker_time_s)} tracker poses{', eye-in-hand' if a.eye_in_hand else ''}); calibrate "
+        f"with: spacecal calibrate {out.robot_path} --tracker-stream {out.tracker_path} --method ml"
+    )
+    _print_notes(list(out.notes))
+
+
 def _import_easy_handeye(a: argparse.Namespace) -> None:
     print(app.import_easy_handeye(a.samples, a.output, a.force))
 
@@ -497,6 +510,7 @@ COMMANDS = {
     "import-plus": _import_plus,
     "import-bag": _import_bag,
     "import-easy-handeye": _import_easy_handeye,
+    "import-poses": _import_poses,
     "check": _check,
     "phantom": _phantom,
     "report": _report,

@@ -233,6 +233,23 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("--robot-model", default=_d(B, "robot_model"), help="UR model for --joint-states")
 
+    T = app.ImportPosesSettings
+    p = command("import-poses", "turn a robot and a tracker TUM trajectory into a raw two-stream recording")
+    add_force(p)
+    p.add_argument("--robot", required=True, help="TUM file of base_from_tcp (or flange/gripper) poses")
+    p.add_argument(
+        "--tracker",
+        required=True,
+        help="TUM file of tracker_from_marker poses (--eye-in-hand: target_from_camera, camera in target)",
+    )
+    p.add_argument("--units", default=_d(T, "units"), choices=["m", "mm"], help="length unit of both files")
+    p.add_argument(
+        "--eye-in-hand",
+        action="store_true",
+        help="a camera on the tool looking at a target fixed in the world",
+    )
+    p.add_argument("-o", "--output", required=True, help="stem of STEM.robot.csv and STEM.tracker.csv")
+
     p = command(
         "import-easy-handeye", "turn easy_handeye2 saved samples into a recording CSV (spacecal[ros])"
     )

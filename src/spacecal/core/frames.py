@@ -16,6 +16,9 @@ FRAMES: dict[str, str] = {
     "needle": "the needle tip frame, z along the needle; coincides with tcp in the paper's setup",
     "image": "CT image space",
     "reference": "a marker fixed to the patient or phantom",
+    "camera": "a camera on the robot's tool (eye-in-hand); it plays the marker's role",
+    "target": "a calibration target fixed in the robot's world, seen by an eye-in-hand camera; "
+    "it plays the tracker's role",
 }
 
 
