@@ -380,3 +380,28 @@ def test_the_three_commands_a_ros_user_runs(tmp_path, simulated, capsys):
     assert np.allclose(read.tracker_from_base, tracker_from_base, atol=1e-6)
     assert main(["export", str(tmp_path / "cal.json"), "--ur-calibration", str(tmp_path / "ur.yaml")]) == 1
     assert "--method kinematic" in capsys.readouterr().err
+    # report, bound and check open the recording the calibration came from: two raw streams,
+    # paired at the calibration's offset
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "cal.json"), "-o", str(tmp_path / "report.html")]) == 0, (
+        capsys.readouterr().err
+    )
+    out = capsys.readouterr().out
+    assert "raw streams paired at the calibration's clock offset" in out
+    assert "no recording found" not in out
+    assert (
+        main(
+            [
+                "bound",
+                str(tmp_path / "run.robot.csv"),
+                "--calibration",
+                str(tmp_path / "cal.json"),
+                "--sigma-mm",
+                "0.1",
+            ]
+        )
+        == 0
+    ), capsys.readouterr().err
+    assert main(["check", str(tmp_path / "cal.json"), "--recording", str(tmp_path / "run.robot.csv")]) == 0, (
+        capsys.readouterr().err
+    )

@@ -32,7 +32,8 @@ from spacecal.core.ports import (
 from spacecal.experiments.simulation import simulation_settings
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
-from spacecal.io.recording_csv import last_time_s, read_recording
+from spacecal.io.recording_csv import last_time_s
+from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_calibration, read_json_object, write_json
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import ndi_8700339_like
@@ -704,9 +705,10 @@ def check(settings: CheckSettings) -> CheckOutput:
             else (basis + "; partly given on the command line")
         )
     if settings.recording:
-        result = check_with_recording(
-            calibration, read_recording(settings.recording), threshold_mm, threshold_deg
-        )
+        opened = open_calibrated_recording(calibration, settings.recording)
+        if opened is None:
+            raise InvalidInputError(f"{settings.recording}: no such recording")
+        result = check_with_recording(calibration, opened.recording, threshold_mm, threshold_deg)
         result = _with(result, simulated=None, devices={"recording": str(Path(settings.recording).resolve())})
         return CheckOutput(result, append_history(settings.calibration, result), basis)
     scenario: Scenario | None = None

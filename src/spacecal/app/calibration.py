@@ -20,6 +20,7 @@ from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import metadata_path, read_recording
+from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_calibration, write_calibration, write_json
 from spacecal.records import CalibrationResult, PivotResult
 
@@ -163,8 +164,11 @@ class BoundSettings:
 def bound(settings: BoundSettings) -> dict[str, Any]:
     """The bound at the site, over the cube and at the targets (mm)."""
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
-    recording = read_recording(settings.recording)
     calibration = read_calibration(settings.calibration)
+    opened = open_calibrated_recording(calibration, settings.recording)
+    if opened is None:
+        raise InvalidInputError(f"{settings.recording}: no such recording")
+    recording = opened.recording
     check_belongs(
         recording, calibration.tracker_from_base, calibration.tcp_from_marker, str(settings.recording)
     )

@@ -23,7 +23,8 @@ from spacecal.io.plus_config import (
 )
 from spacecal.io.plus_import import recording_from_plus_sequence
 from spacecal.io.plus_sequence import read_plus_sequence
-from spacecal.io.recording_csv import metadata_path, read_recording, write_recording
+from spacecal.io.recording_csv import metadata_path, write_recording
+from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_calibration, read_json_object, write_json
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.records import LandmarkRegistrationResult, VerificationResult
@@ -124,11 +125,13 @@ def report(settings: ReportSettings) -> ReportOutput:
     )
     calibration = read_calibration(settings.calibration)
     notes = []
-    recording_path = settings.recording or calibration.provenance.recording
+    opened = open_calibrated_recording(calibration, settings.recording)
     recording = None
-    if recording_path and Path(recording_path).is_file():
-        recording = read_recording(recording_path)
-        check_belongs(recording, calibration.tracker_from_base, calibration.tcp_from_marker, recording_path)
+    if opened is not None:
+        recording = opened.recording
+        if opened.tracker_stream is not None:
+            notes.append(f"recording: {opened.how}")
+        check_belongs(recording, calibration.tracker_from_base, calibration.tcp_from_marker, str(opened.path))
     else:
         notes.append("no recording found (pass --recording): sweeps and residuals are not shown")
     verification = None

@@ -42,6 +42,7 @@ from spacecal.io.recording_csv import (
     check_metadata,
     check_ranges,
     check_tcp_against_kinematics,
+    metadata_path,
     sphere_columns,
 )
 from spacecal.io.results_json import read_json_object, write_json
@@ -305,7 +306,7 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     )
     tracker_from_marker = np.full((len(rows), 4, 4), np.nan)
     tracker_from_marker[seen] = transform_from_position_quaternion(marker[seen, :3], marker[seen, 3:7])
-    meta = robot_path.with_name(robot_path.name.replace(".robot.csv", ".meta.json"))
+    meta = metadata_path(robot_path)
     metadata = read_json_object(meta, "recording metadata") if meta.is_file() else {}
     check_metadata(metadata, meta)
     base_from_tcp = transform_from_position_quaternion(values[:, 7:10], values[:, 10:14])

@@ -85,9 +85,15 @@ def sphere_columns(count: int) -> list[str]:
     return [f"sphere{k}_{axis}_mm" for k in range(1, count + 1) for axis in "xyz"]
 
 
+#: The raw robot stream's suffix: its metadata is that of the whole stem.
+RAW_ROBOT_SUFFIX = ".robot.csv"
+
+
 def metadata_path(recording_path: str | Path) -> Path:
-    """``rec.csv`` -> ``rec.meta.json``."""
+    """``rec.csv`` -> ``rec.meta.json``; a raw robot stream ``STEM.robot.csv`` -> ``STEM.meta.json``."""
     path = Path(recording_path)
+    if path.name.endswith(RAW_ROBOT_SUFFIX):
+        return path.with_name(path.name[: -len(RAW_ROBOT_SUFFIX)] + ".meta.json")
     return path.with_name(path.stem + ".meta.json")
 
 
