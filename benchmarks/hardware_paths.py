@@ -39,9 +39,11 @@ sys.path.insert(0, str(ROOT))
 from tests.fakes.client import WorldProcess  # noqa: E402
 
 from spacecal.estimators.likelihood import tre_lower_bound  # noqa: E402
+from spacecal.io.ndi_rom import rom_bytes  # noqa: E402
 from spacecal.io.recording_csv import read_recording  # noqa: E402
 from spacecal.io.results_json import read_calibration  # noqa: E402
 from spacecal.models.kinematics import RobotModel, forward_kinematics  # noqa: E402
+from spacecal.models.marker import ndi_8700339_like  # noqa: E402
 from spacecal.sim.scenario import load_scenario  # noqa: E402
 from spacecal.sim.world import build_world  # noqa: E402
 
@@ -179,7 +181,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         rom = folder / "marker.rom"
-        rom.write_bytes(b"passive marker definition for the fake tracker\n" + bytes(200))
+        rom.write_bytes(rom_bytes(ndi_8700339_like().spheres_in_marker))
         for motion in args.motions.split(","):
             plan = make_plan(folder, motion)
             reference = noise_only(plan, folder, args.seeds)

@@ -10,6 +10,9 @@ import os
 
 import pytest
 
+from spacecal.io.ndi_rom import rom_bytes
+from spacecal.models.marker import ndi_8700339_like
+
 from ..fakes.client import WorldProcess
 
 #: Longer than any test's own subprocess timeouts, so those report first; the dump goes to a
@@ -45,7 +48,8 @@ def world():
 @pytest.fixture
 def rom_file(tmp_path):
     path = tmp_path / "marker.rom"
-    path.write_bytes(b"passive marker definition for the fake tracker\n" + bytes(200))
+    # a tool definition of the marker the fake world carries: the recording states its geometry
+    path.write_bytes(rom_bytes(ndi_8700339_like().spheres_in_marker))
     return path
 
 

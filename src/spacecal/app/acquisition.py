@@ -32,6 +32,7 @@ from spacecal.core.ports import (
 from spacecal.experiments.simulation import simulation_settings
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
+from spacecal.io.ndi_rom import read_rom_marker
 from spacecal.io.recording_csv import last_time_s
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_calibration, read_json_object, write_json
@@ -385,9 +386,10 @@ def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) ->
     visibility = None
     if settings.prior:
         prior = read_calibration(settings.prior)
-        visibility = VisibilityModel(
-            TrackerModel(), ndi_8700339_like(), prior.tracker_from_base, prior.tcp_from_marker
-        )
+        # the marker in use when its tool definition is given, else the nominal layout: the
+        # visibility prediction needs only its face and extent
+        marker = read_rom_marker(settings.rom[0]) if settings.rom else ndi_8700339_like()
+        visibility = VisibilityModel(TrackerModel(), marker, prior.tracker_from_base, prior.tcp_from_marker)
     sweep = PaperSweepSettings(
         rotation_each_way_deg=settings.rotation_deg,
         translation_stroke_mm=settings.translation_mm,
@@ -452,6 +454,18 @@ def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -
     return plan
 
 
+def marker_in_use(rom: Sequence[str]) -> dict[str, Any]:
+    """The recording's ``marker`` entry: the geometry of the tool definition the tracker was
+    given (the first ``--rom``), or, for a tracker that sends poses only (OpenIGTLink), a
+    statement that the geometry is not known (the likelihood then places a stand-in layout by
+    the measured pose to weight position against rotation, and learns the noise from the
+    residuals; see :func:`spacecal.estimators.observations.marker_geometry_of`)."""
+    if not rom:
+        return {"name": "unknown (the tracker sends poses only)", "geometry_known": False}
+    marker = read_rom_marker(rom[0])
+    return {**marker.to_dict(), "tool_definition": str(Path(rom[0]).resolve()), "geometry_known": True}
+
+
 def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dict[str, Any]:
     """Metadata of a recording made on real devices: the robot's model as it was used."""
     model = hardware.model
@@ -468,7 +482,7 @@ def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dic
             "kinematics_source": hardware.source,
         },
         "tracker": {"url": settings.tracker, "rate_hz": settings.tracker_rate_hz},
-        "marker": ndi_8700339_like().to_dict(),
+        "marker": marker_in_use(settings.rom),
         "units": {"length": "mm", "angle": "rad", "time": "s"},
         "source": "spacecal acquire",
         "simulated": False,

@@ -68,7 +68,14 @@ def sphere_noise_from_marker_rms(marker_rms_mm: ArrayLike, sphere_count: int) ->
 
 
 def marker_geometry_of(recording: Recording) -> FloatArray:
-    """Sphere centres (K, 3) in the marker frame from the metadata, else an 8700339-like marker."""
+    """Sphere centres (K, 3) in the marker frame from the metadata (the tool definition in use),
+    else an 8700339-like layout.
+
+    The stand-in is used for trackers that send poses only (no geometry is known): placed by
+    each measured pose it weights position against rotation as a tracked marker of that size
+    would, and the noise model learns the actual weights from the residuals
+    (:mod:`spacecal.estimators.noise_model`).
+    """
     marker = recording.metadata.get("marker", {})
     if "spheres_in_marker_mm" in marker:
         return np.asarray(marker["spheres_in_marker_mm"], dtype=float)
