@@ -98,3 +98,27 @@ def test_robust_keeps_a_short_recording_with_a_fifth_of_outliers(white_simulatio
     result = calibrate(dataclasses.replace(recording, tracker_from_marker_stack=spoilt), "robust")
     assert len(result.diagnostics["outliers"]) == 6
     assert sorted(o["row"] for o in result.diagnostics["outliers"]) == list(range(0, 30, 5))
+
+
+def test_the_tracker_kind_is_chosen_from_the_data_or_named(recording_file, tmp_path, capsys):
+    # auto: the recording has the tracker's fit RMS, so the noise level is the tracker's
+    out = tmp_path / "auto.json"
+    assert main(["calibrate", str(recording_file), "--method", "ml", "-o", str(out)]) == 0
+    auto = json.loads(out.read_text())["diagnostics"]
+    assert auto["tracker_kind"] == "auto" and auto["noise"]["sigma_per_axis_mm"] is not None
+    # pose: the same frames as a camera or PLUS sends them; the noise is learnt from residuals
+    out = tmp_path / "pose.json"
+    assert (
+        main(["calibrate", str(recording_file), "--method", "ml", "--tracker-kind", "pose", "-o", str(out)])
+        == 0
+    )
+    pose = json.loads(out.read_text())["diagnostics"]
+    assert pose["tracker_kind"] == "pose" and pose["noise"]["sigma_per_axis_mm"] is None
+    capsys.readouterr()
+    # spheres on a recording without fit RMS: one line naming the other kind
+    recording, _ = _storz()
+    path = tmp_path / "storz.csv"
+    write_recording(recording, path)
+    code = main(["calibrate", str(path), "--tracker-kind", "spheres", "-o", str(tmp_path / "s.json")])
+    err = capsys.readouterr().err
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "--tracker-kind pose" in err

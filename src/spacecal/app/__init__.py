@@ -19,6 +19,7 @@ from spacecal.app.acquisition import (
     plan,
 )
 from spacecal.app.calibration import (
+    TRACKER_KINDS,
     BoundSettings,
     CalibrateOutput,
     CalibrateSettings,
@@ -63,6 +64,7 @@ from spacecal.app.simulation import (
 )
 
 __all__ = [
+    "TRACKER_KINDS",
     "AcquireOutput",
     "AcquireSettings",
     "BoundSettings",

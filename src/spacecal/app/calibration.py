@@ -22,7 +22,7 @@ from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import metadata_path, read_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_calibration, write_calibration, write_json
-from spacecal.records import CalibrationResult, PivotResult
+from spacecal.records import CalibrationResult, PivotResult, Recording
 
 Point = tuple[float, float, float]
 
@@ -74,6 +74,12 @@ class CalibrateSettings:
     include_doubtful_frames : bool
         Also use poses the tracker reported with a status other than ``ok`` (e.g. partially
         out of volume); by default they are left out.
+    tracker_kind : str
+        What the tracker measures (:data:`TRACKER_KINDS`): ``auto`` (spheres when the recording
+        has the tracker's fit RMS or sphere positions, else poses), ``spheres`` (an optical
+        tracker of passive or active spheres reporting its fit RMS: refused without it) or
+        ``pose`` (a tracker or camera that reports poses only: any fit RMS is ignored and the
+        anisotropic noise is learnt from the residuals).
     """
 
     recording: str
@@ -86,6 +92,25 @@ class CalibrateSettings:
     error_thresholds: ErrorThresholds | None = None
     force: bool = False
     include_doubtful_frames: bool = False
+    tracker_kind: str = "auto"
+
+
+#: Choices of ``CalibrateSettings.tracker_kind`` (``--tracker-kind``).
+TRACKER_KINDS = ("auto", "spheres", "pose")
+
+
+def as_tracker_kind(recording: Recording, kind: str) -> Recording:
+    """The recording as a tracker of ``kind`` measures it (see :class:`CalibrateSettings`)."""
+    if kind not in TRACKER_KINDS:
+        raise InvalidInputError(f"--tracker-kind takes one of {', '.join(TRACKER_KINDS)}, got {kind!r}")
+    if kind == "pose":
+        return recording.as_pose_only()
+    if kind == "spheres" and np.isfinite(recording.marker_rms_mm[recording.visible]).sum() < 3:
+        raise InvalidInputError(
+            "--tracker-kind spheres: the recording has no fit RMS of the tracker (a pose-only tracker?); "
+            "use --tracker-kind pose"
+        )
+    return recording
 
 
 @dataclass(frozen=True)
@@ -123,6 +148,7 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
         recording = pair_streams(raw, offset_s)
     else:
         recording = read_recording(settings.recording)
+    recording = as_tracker_kind(recording, settings.tracker_kind)
     doubtful = int(recording.doubtful.sum())
     doubtful_note = None
     if doubtful:
@@ -146,6 +172,7 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
     check_consistent(recording, str(settings.recording))
     result = estimate(recording, settings.method, **options)
     result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))
+    result.diagnostics["tracker_kind"] = settings.tracker_kind
     if settings.tracker_stream:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
     return CalibrateOutput(result, write_calibration(result, settings.output), note, doubtful_note)

@@ -93,6 +93,7 @@ def _calibrate(a: argparse.Namespace) -> None:
             ErrorThresholds.parse(a.thresholds_mm) if a.thresholds_mm else None,
             a.force,
             include_doubtful_frames=a.include_doubtful_frames,
+            tracker_kind=a.tracker_kind,
         )
     )
     if out.time_offset_note:

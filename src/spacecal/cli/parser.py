@@ -85,6 +85,13 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         metavar="GOOD,ACCEPTABLE,POOR",
         help="expected-error limits of the verdict's grades, mm (default 0.5,1,2); above POOR: unusable",
     )
+    p.add_argument(
+        "--tracker-kind",
+        choices=app.TRACKER_KINDS,
+        default=_d(C, "tracker_kind"),
+        help="spheres (optical tracker with fit RMS), pose (poses only: a camera, PLUS); default: "
+        "auto, from what the recording holds",
+    )
 
     p = command("pivot", "pivot calibration of a pointer or needle tip")
     add_force(p)
