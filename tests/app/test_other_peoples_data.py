@@ -122,3 +122,15 @@ def test_the_tracker_kind_is_chosen_from_the_data_or_named(recording_file, tmp_p
     code = main(["calibrate", str(path), "--tracker-kind", "spheres", "-o", str(tmp_path / "s.json")])
     err = capsys.readouterr().err
     assert code == 1 and len(err.strip().splitlines()) == 1 and "--tracker-kind pose" in err
+
+
+def test_bound_takes_the_noise_from_the_recording_when_not_given(recording_file, tmp_path, capsys):
+    calibration = tmp_path / "cal.json"
+    assert main(["calibrate", str(recording_file), "--method", "ml", "-o", str(calibration)]) == 0
+    capsys.readouterr()
+    assert main(["bound", str(recording_file), "--calibration", str(calibration)]) == 0
+    out = capsys.readouterr().out
+    assert "from the tracker's fit RMS in the recording" in out
+    # the white-noise preset's spheres carry 0.25 mm RMS, 0.144 mm per axis
+    sigma = float(out.split("with ")[1].split(" mm")[0])
+    assert 0.12 < sigma < 0.17

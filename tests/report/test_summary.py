@@ -66,6 +66,11 @@ def test_figures_have_units_and_points(white_simulation):
     figure = _check_figure(one_check)
     assert all(trace.mode == "markers" for trace in figure.data)  # a point, not a bar
     assert check_series(one_check).dated
+    # thresholds derived from a calibration print as the check does, to 0.01, not as 1.8862
+    derived = [CheckResult(np.array([0.3]), np.array([0.1]), 1.88623, 0.491178)]
+    labels = [a.text for a in _check_figure(derived).layout.annotations]
+    assert "threshold 1.89 mm" in labels and "threshold 0.49 deg" in labels
+    assert not any("1.8862" in label or "0.4911" in label for label in labels)
 
 
 def test_verification_points_and_the_paper_bound(white_simulation):

@@ -15,6 +15,7 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.estimators.observations import marker_geometry_of, sphere_noise_from_marker_rms
 from spacecal.estimators.pivot import pivot_calibration
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.io.pose_files import read_matrix_folder
@@ -184,12 +185,14 @@ class BoundSettings:
 
     recording: str
     calibration: str
-    sigma_mm: float
+    sigma_mm: float | None = None
     targets_in_base: tuple[Point, ...] = ()
 
 
 def bound(settings: BoundSettings) -> dict[str, Any]:
-    """The bound at the site, over the cube and at the targets (mm)."""
+    """The bound at the site, over the cube and at the targets (mm), and ``sigma_mm``, the
+    per-axis sphere noise it was computed for: as given, else from the recording's tracker fit
+    RMS (the noise the tracker itself reported)."""
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     calibration = read_calibration(settings.calibration)
     opened = open_calibrated_recording(calibration, settings.recording)
@@ -199,13 +202,25 @@ def bound(settings: BoundSettings) -> dict[str, Any]:
     check_belongs(
         recording, calibration.tracker_from_base, calibration.tcp_from_marker, str(settings.recording)
     )
-    return tre_lower_bound(
+    sigma_mm, source = settings.sigma_mm, "given"
+    if sigma_mm is None:
+        rms = recording.marker_rms_mm[recording.visible]
+        if np.isfinite(rms).sum() < 3:
+            raise InvalidInputError(
+                f"{settings.recording}: the recording has no tracker fit RMS to take the noise from "
+                "(a pose-only tracker): pass --sigma-mm, the tracker's per-axis sphere noise in mm (from its "
+                "datasheet's repeatability)"
+            )
+        sigma_mm = sphere_noise_from_marker_rms(rms, len(marker_geometry_of(recording)))
+        source = "from the tracker's fit RMS in the recording"
+    found = tre_lower_bound(
         recording,
         calibration.tracker_from_base,
         calibration.tcp_from_marker,
-        settings.sigma_mm,
+        sigma_mm,
         check_points(settings.targets_in_base, "--target"),
     )
+    return {**found, "sigma_mm": float(sigma_mm), "sigma_source": source}
 
 
 @dataclass(frozen=True)

@@ -138,7 +138,10 @@ def _calibrate(a: argparse.Namespace) -> None:
 
 def _bound(a: argparse.Namespace) -> None:
     bound = app.bound(app.BoundSettings(a.recording, a.calibration, a.sigma_mm, _points(a.target)))
-    print(f"Cramer-Rao lower bound on TRE for {a.recording} with {a.sigma_mm} mm per-axis sphere noise:")
+    print(
+        f"Cramer-Rao lower bound on TRE for {a.recording} with {bound['sigma_mm']:.3g} mm per-axis sphere "
+        f"noise ({bound['sigma_source']}):"
+    )
     print(
         f"  {bound['site']:.4f} mm at the site, {bound['cube_rms']:.4f} mm RMS over a "
         f"{bound['cube_side_mm']:.0f} mm cube around it"

@@ -105,7 +105,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command("bound", "Cramer-Rao lower bound on TRE for a recording")
     p.add_argument("recording", help="recording CSV")
     p.add_argument("--calibration", required=True, help="calibration JSON (where to evaluate the bound)")
-    p.add_argument("--sigma-mm", type=float, required=True, help="per-axis sphere noise, mm")
+    p.add_argument(
+        "--sigma-mm",
+        type=float,
+        help="per-axis sphere noise, mm; default: from the recording's tracker fit RMS",
+    )
     p.add_argument(
         "--target", action="append", metavar="X,Y,Z", help="point in the base frame (mm); repeatable"
     )

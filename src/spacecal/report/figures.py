@@ -224,7 +224,7 @@ def plot_check_history(history: list[CheckResult], path: str | Path) -> Path | N
         (axes[1], series.worst_rotation_deg, series.threshold_deg, "deg", "worst rotation error"),
     ):
         ax.scatter(x, values, c=colours, zorder=3)
-        ax.axhline(threshold, color="tab:red", ls="--", label=f"threshold {threshold:g} {unit}")
+        ax.axhline(threshold, color="tab:red", ls="--", label=f"threshold {threshold:.2f} {unit}")
         ax.set_ylim(0, max(float(values.max()), threshold) * 1.25)
         ax.set_ylabel(f"{title} ({unit})")
         ax.set_title(f"Checks: {title}")

@@ -325,7 +325,7 @@ def _check_figure(history: list[CheckResult]):
         figure.add_hline(
             y=threshold,
             line={"color": "#c8102e", "dash": "dash"},
-            annotation_text=f"threshold {threshold:g} {unit}",
+            annotation_text=f"threshold {threshold:.2f} {unit}",
             annotation_position="top left",
             row=1,
             col=col,

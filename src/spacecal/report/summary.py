@@ -236,7 +236,7 @@ def assess(
             (
                 f"last check ({len(check_history)} in the history)",
                 f"{outcome}: worst TCP error {float(np.max(last.tcp_error_mm)):.2f} mm "
-                f"(threshold {last.threshold_mm:g} mm), {_date(last.checked_utc)}",
+                f"(threshold {last.threshold_mm:.2f} mm), {_date(last.checked_utc)}",
             )
         )
         if not last.passed:
