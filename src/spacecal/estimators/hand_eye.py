@@ -125,10 +125,10 @@ def motion_pairs(
     pairs = np.unique(np.sort(np.column_stack([rows[keep], cols[keep]]), axis=1), axis=0)
     if len(pairs) > max_pairs:
         pairs = pairs[np.sort(np.argsort(-score[pairs[:, 0], pairs[:, 1]], kind="stable")[:max_pairs])]
-    return as_pairs(frames[pairs])
+    return _as_pairs(frames[pairs])
 
 
-def as_pairs(pairs: ArrayLike) -> IntArray:
+def _as_pairs(pairs: ArrayLike) -> IntArray:
     """Pair indices as an int array of shape (K, 2)."""
     return np.asarray(pairs, dtype=np.intp).reshape(-1, 2)
 
@@ -159,7 +159,7 @@ def relative_motions(
     b = np.asarray(tracker_from_marker_stack, dtype=float)
     if pairs is None:
         pairs = np.column_stack([np.arange(len(a) - 1), np.arange(1, len(a))])
-    index = as_pairs(pairs)
+    index = _as_pairs(pairs)
     motion_a = invert_transform(a[index[:, 0]]) @ a[index[:, 1]]
     motion_b = invert_transform(b[index[:, 0]]) @ b[index[:, 1]]
     return motion_a, motion_b
