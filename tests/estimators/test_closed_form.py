@@ -6,7 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
-from spacecal.estimators.hand_eye import relative_motions
+from spacecal.estimators.hand_eye import motion_pairs, relative_motions
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
 
@@ -44,7 +44,9 @@ def test_robot_world_solvers_are_exact_on_exact_data(name):
 @pytest.mark.parametrize("name", sorted(HAND_EYE_SOLVERS))
 def test_hand_eye_solvers_are_exact_on_exact_data(name):
     a, b, x, _ = problem()
-    assert np.allclose(HAND_EYE_SOLVERS[name](*relative_motions(a, b)), x, atol=1e-9)
+    # random orientations: a third of all pairs rotate beyond 150 deg (the sign-aligned ones)
+    for pairs in (None, motion_pairs(a)):
+        assert np.allclose(HAND_EYE_SOLVERS[name](*relative_motions(a, b, pairs)), x, atol=1e-9)
 
 
 @pytest.mark.parametrize("name", sorted(ROBOT_WORLD_SOLVERS))
@@ -115,7 +117,8 @@ def test_robot_world_matches_opencv(name):
 def test_hand_eye_matches_opencv(name):
     """Eye-to-hand through OpenCV's eye-in-hand call: pass gripper_from_base as 'gripper2base'
     and tracker_from_marker as 'target2cam'; 'cam2gripper' is then base_from_tracker. Ours
-    solves the same relative motions (tcp_from_base and marker_from_tracker stacks)."""
+    solves the same problem (tcp_from_base and marker_from_tracker stacks), like OpenCV over
+    every pair of poses."""
     flag = getattr(cv2, HAND_EYE_FLAGS[name])
     for noisy in (False, True):
         a, b, _, y = problem(noisy=noisy)
@@ -128,7 +131,9 @@ def test_hand_eye_matches_opencv(name):
             method=flag,
         )
         theirs = make_transform(rotation, translation.ravel())
-        ours = HAND_EYE_SOLVERS[name](*relative_motions(tcp_from_base, invert_transform(b)))
+        ours = HAND_EYE_SOLVERS[name](
+            *relative_motions(tcp_from_base, invert_transform(b), motion_pairs(tcp_from_base))
+        )
         if not noisy:
             assert np.allclose(ours, theirs, atol=1e-6) and np.allclose(ours, y, atol=1e-6)
         else:  # implementation details differ under noise: both stay within the noise's reach

@@ -13,7 +13,13 @@ from spacecal.estimators.diagnostics import (
     sample_residuals,
     tracker_from_base_from_samples,
 )
-from spacecal.estimators.hand_eye import relative_motions, solve_daniilidis, solve_park, solve_tsai
+from spacecal.estimators.hand_eye import (
+    motion_pairs,
+    relative_motions,
+    solve_daniilidis,
+    solve_park,
+    solve_tsai,
+)
 from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
 from spacecal.geometry.arrays import FloatArray, IntArray
 from spacecal.geometry.transforms import invert_transform
@@ -22,7 +28,8 @@ from spacecal.records import CalibrationResult, Recording
 ROBOT_WORLD_SOLVERS = {"shah": solve_shah, "li": solve_li, "dornaika": solve_dornaika}
 HAND_EYE_SOLVERS = {"tsai": solve_tsai, "park": solve_park, "daniilidis": solve_daniilidis}
 
-#: Hand-eye methods use relative motions between this many frames, spread over the recording.
+#: Hand-eye methods use the motions between every pair of up to this many visible frames; with
+#: more, a spread subset of pairs that rotate far from 0 and 180 deg (hand_eye.motion_pairs).
 HAND_EYE_FRAMES = 60
 
 
@@ -67,15 +74,19 @@ def robot_world_method(name: str) -> Callable[[Recording], CalibrationResult]:
 
 
 def hand_eye_method(name: str) -> Callable[[Recording], CalibrationResult]:
-    """A registry function solving AX = XB from relative motions, then tracker_from_base by averaging."""
+    """A registry function solving AX = XB from relative motions, then tracker_from_base by averaging.
+
+    The motions are those between the pairs of visible frames :func:`motion_pairs` picks (all
+    pairs up to :data:`HAND_EYE_FRAMES` frames); their number is reported as the diagnostic
+    ``hand_eye_motions``.
+    """
     solver = HAND_EYE_SOLVERS[name]
 
     def calibrate_hand_eye(recording: Recording) -> CalibrationResult:
         visible = np.flatnonzero(recording.visible)
-        frames = visible[np.linspace(0, len(visible) - 1, min(HAND_EYE_FRAMES, len(visible))).astype(int)]
-        motions = relative_motions(
-            recording.base_from_tcp_stack[frames], recording.tracker_from_marker_stack[frames]
-        )
+        base_from_tcp_stack = recording.base_from_tcp_stack[visible]
+        pairs = motion_pairs(base_from_tcp_stack, all_pairs_frames=HAND_EYE_FRAMES)
+        motions = relative_motions(base_from_tcp_stack, recording.tracker_from_marker_stack[visible], pairs)
         tcp_from_marker = solver(*motions)
         tracker_from_base = tracker_from_base_from_samples(recording, tcp_from_marker, visible)
         return closed_form_result(
@@ -84,7 +95,7 @@ def hand_eye_method(name: str) -> Callable[[Recording], CalibrationResult]:
             tracker_from_base,
             tcp_from_marker,
             visible,
-            {"hand_eye_motions": len(frames) - 1},
+            {"hand_eye_motions": len(pairs)},
         )
 
     calibrate_hand_eye.__doc__ = f"AX = XB by {_first_line(solver.__doc__)}"

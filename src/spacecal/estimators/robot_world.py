@@ -14,8 +14,9 @@ tracker_from_marker_stack)``, calls them A and B inside, and returns ``(X, Y)``.
   product", J. Mech. Robot. 5(3): rotation from the dominant singular vectors of
   sum_i R_Bi (x) R_Ai, translation by linear least squares.
 * Li, Wang, Wu 2010, "Simultaneous robot-world and hand-eye calibration using
-  dual-quaternions and Kronecker product", Int. J. Phys. Sci. 5(10): rotations and
-  translations from one linear system, rotations orthonormalised.
+  dual-quaternions and Kronecker product", Int. J. Phys. Sci. 5(10): 1530-1536: rotations
+  and translations from one linear system (lengths in units of the poses' RMS translation),
+  rotations orthonormalised.
 * Dornaika, Horaud 1998, "Simultaneous robot-world and hand-eye calibration", IEEE TRA
   14(4), closed-form part: quaternions q_A q_X = q_Y q_B, the 8-vector (q_X, q_Y) from the
   smallest eigenvector of sum_i C_i^T C_i, C_i = [L(q_A), -R(q_B)].
@@ -91,20 +92,64 @@ def solve_shah(
     return make_transform(rotation_x, t_x), make_transform(rotation_y, t_y)
 
 
+def characteristic_length_mm(*translation_stacks: FloatArray) -> float:
+    """RMS length of the given translations (each (N, 3), mm); 1 if they are all zero.
+
+    The unit in which the closed forms that mix rotation (unitless) and translation rows in one
+    linear system measure lengths, so that neither kind swamps the other and the answer does
+    not depend on whether the poses came in mm or m.
+    """
+    squared = np.concatenate(
+        [np.sum(np.asarray(t, dtype=float) ** 2, axis=-1).ravel() for t in translation_stacks]
+    )
+    length = float(np.sqrt(np.mean(squared))) if len(squared) else 0.0
+    return length if np.isfinite(length) and length > 0.0 else 1.0
+
+
 def solve_li(
     base_from_tcp_stack: FloatArray, tracker_from_marker_stack: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Li, Wang, Wu 2010 (simultaneous Kronecker system). Frame mapping in the module docstring.
 
-    Unknowns [vec R_X, vec R_Y, t_X, t_Y] (column-major vec) from
+    A. Li, L. Wang, D. Wu, "Simultaneous robot-world and hand-eye calibration using
+    dual-quaternions and Kronecker product", Int. J. Phys. Sci. 5(10): 1530-1536, 2010, the
+    Kronecker form (eq. 19). Unknowns [vec R_X, vec R_Y, t_X, t_Y] (column-major vec) from
     (I (x) R_A) vec R_X - (R_B^T (x) I) vec R_Y = 0 and
-    R_A t_X - (t_B^T (x) I) vec R_Y - t_Y = -t_A; the rotations are then orthonormalised and
-    the translations re-solved with them.
+    R_A t_X - (t_B^T (x) I) vec R_Y - t_Y = -t_A, one linear least-squares problem over every
+    pose; the rotations are then orthonormalised and the translations re-solved with them.
+
+    Lengths enter the system in units of the RMS translation of the poses
+    (:func:`characteristic_length_mm`). In mm, the coefficients of the translation rows are
+    hundreds of times those of the unitless rotation rows, so translation noise sets the
+    rotations: OpenCV's LI, which keeps the caller's units, lands 44 mm from the authors'
+    hand-eye on the Storz set (docs/methods.md). Scaled, the rotations are the same for poses
+    given in mm or in m, and the translations scale with the unit.
+
+    Parameters
+    ----------
+    base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
+        A_i, TCP pose per sample, mm.
+    tracker_from_marker_stack : numpy.ndarray, shape (N, 4, 4)
+        B_i, marker pose per sample, mm.
+
+    Returns
+    -------
+    tcp_from_marker : numpy.ndarray, shape (4, 4)
+        X, mm.
+    base_from_tracker : numpy.ndarray, shape (4, 4)
+        Y, mm.
+
+    Raises
+    ------
+    DegenerateDataError
+        Fewer than :data:`MIN_POSES` poses, NaN, mismatched stacks, or poses that do not
+        rotate about enough axes to fix the rotations.
     """
     a, b = _check(base_from_tcp_stack, tracker_from_marker_stack)
     n = len(a)
     eye3 = np.eye(3)
-    ra, rb, ta, tb = a[:, :3, :3], b[:, :3, :3], a[:, :3, 3], b[:, :3, 3]
+    length_mm = characteristic_length_mm(a[:, :3, 3], b[:, :3, 3])
+    ra, rb, ta, tb = a[:, :3, :3], b[:, :3, :3], a[:, :3, 3] / length_mm, b[:, :3, 3] / length_mm
     system = np.zeros((n, 12, 24))
     system[:, :9, :9] = np.einsum("ij,nab->niajb", eye3, ra).reshape(n, 9, 9)  # I (x) R_A
     system[:, :9, 9:18] = -np.einsum("nba,ij->naibj", rb, eye3).reshape(n, 9, 9)  # -(R_B^T (x) I)
