@@ -37,6 +37,13 @@ def test_identification_beats_calibration_alone_on_varied_poses(realistic_statio
     # the first joint's d and theta offset only move the base frame: never identifiable
     assert {"d_mm[1]", "theta_offset_rad[1]"} <= set(report["unidentifiable"])
     assert all(c["sd"] > 0 for c in report["identified"])
+    # the residuals it states are those of its own model: what the report recomputes
+    from spacecal.report.summary import residuals_of
+
+    recomputed = residuals_of(identified, simulation.recording)
+    stated = identified.diagnostics["residual_position_rms_mm"]
+    assert abs(recomputed.position_rms_mm - stated) < 1e-6 * max(stated, 1.0)
+    assert abs(recomputed.rotation_rms_deg - identified.diagnostics["residual_rotation_rms_deg"]) < 1e-6
 
 
 def test_identification_recovers_length_errors_without_tracker_error():

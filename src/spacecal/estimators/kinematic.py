@@ -433,9 +433,14 @@ def calibrate_kinematic(
             "held_out_significance": significance,
         },
     }
+    # residuals, site and spread as the identified model places the TCP: what the report
+    # recomputes from the recording with the calibration's robot model
+    as_identified = replace(
+        recording, base_from_tcp_stack=forward_kinematics(corrected, recording.joints_rad)
+    )
     result = report_uncertainty(
         "kinematic",
-        recording,
+        as_identified if bool(np.all(np.isfinite(recording.joints_rad))) else recording,
         obs_model,
         tracker_from_base,
         tcp_from_marker,
