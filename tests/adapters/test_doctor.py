@@ -81,3 +81,25 @@ def test_a_robot_that_does_not_answer_is_a_problem_not_a_crash(tmp_path):
     assert "robot: connection: PROBLEM: no UR controller answers RTDE on 127.0.0.254:30004" in result.stdout
     nothing = run([*SPACECAL, "doctor"])
     assert nothing.returncode == 1 and "name a device to check" in last_line(nothing.stderr)
+
+
+def test_without_a_tool_definition_the_robot_is_still_checked(world):
+    # the missing --rom is the tracker's finding; the robot's findings are reported beside it
+    result = run(
+        [
+            *SPACECAL,
+            "doctor",
+            "--robot",
+            f"ur://{world.info['host']}",
+            "--tracker",
+            tracker_url(world),
+            "--robot-model",
+            "UR10e",
+        ],
+        timeout_s=60,
+    )
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    lines = result.stdout.splitlines()
+    assert any(line.startswith("robot: remote control: ok: on") for line in lines), result.stdout
+    assert any(line.startswith("tracker: tool definition: PROBLEM:") and "--rom" in line for line in lines)
+    assert_everything_closed(world)

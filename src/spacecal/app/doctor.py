@@ -77,6 +77,10 @@ def doctor(settings: DoctorSettings) -> DoctorOutput:
             tracker = open_tracker(settings.tracker, settings.rom, settings.tracker_rate_hz)
         except DeviceError as exc:
             output.findings.append(("tracker", _connection_problem(exc)))
+        except InvalidInputError as exc:
+            # a missing or unreadable tool definition is the tracker's finding: the robot's
+            # findings, already collected, are still reported beside it
+            output.findings.append(("tracker", DeviceFinding(FINDING_PROBLEM, "tool definition", str(exc))))
         else:
             try:
                 output.findings += [("tracker", f) for f in tracker_findings(tracker)]
