@@ -103,3 +103,18 @@ def test_without_a_tool_definition_the_robot_is_still_checked(world):
     assert any(line.startswith("robot: remote control: ok: on") for line in lines), result.stdout
     assert any(line.startswith("tracker: tool definition: PROBLEM:") and "--rom" in line for line in lines)
     assert_everything_closed(world)
+
+
+def test_the_model_is_the_controllers_unless_a_wrong_one_is_named(world, rom_file):
+    # an e-Series controller without --robot-model: the UR10e it names is used
+    argv = [*SPACECAL, "doctor", "--robot", f"ur://{world.info['host']}", "--tracker", tracker_url(world)]
+    taken = run([*argv, "--rom", str(rom_file)], timeout_s=60)
+    assert taken.returncode == 0, taken.stdout + taken.stderr
+    assert "robot: robot model: ok: UR10e, as the controller names it" in taken.stdout.splitlines()
+    # an explicit model that is not the controller's is refused
+    wrong = run([*argv, "--rom", str(rom_file), "--robot-model", "UR10"], timeout_s=60)
+    assert (
+        wrong.returncode == 1
+        and "the controller says this is a UR10e, but --robot-model is UR10" in wrong.stdout
+    )
+    assert_everything_closed(world)

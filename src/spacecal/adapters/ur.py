@@ -207,6 +207,16 @@ def movel_speed(
 
 
 # -- read-only conversations with the controller ---------------------------------------------
+def _reported_model(version_text: str, model_text: str) -> str:
+    """The model a controller names (``get robot model`` says ``UR10`` on an e-Series too; its
+    PolyScope 5 version makes it a ``UR10e``)."""
+    reported = model_text.strip()
+    version = _version(version_text)
+    if reported and version is not None and reported + "e" in UR_TABLES and version[0] >= 5:
+        reported += "e"
+    return reported
+
+
 def dashboard(host: str, commands: list[str], timeout_s: float = 2.0) -> list[str]:
     """Send dashboard-server commands (port 29999), one reply line each."""
     replies = []
@@ -405,8 +415,11 @@ class URRobot:
         is uploaded or written: a dry run and ``spacecal doctor`` use it so.
     stale_after_s : float
         A controller timestamp that does not advance for this long (wall time) is stale.
-    robot_model : str
-        The nominal model (``UR10``, ``UR10e``, ...) the controller's kinematics refine.
+    robot_model : str or None
+        The nominal model (``UR10``, ``UR10e``, ...) the controller's kinematics refine; None
+        takes the one the controller names (dashboard ``get robot model``, with ``e`` for a
+        PolyScope 5 controller). A model given that differs from the controller's is a
+        preflight problem.
     limits : MotionLimits, optional
         The plan's rotation limits: rotation-led moves are commanded with them.
     """
@@ -416,14 +429,16 @@ class URRobot:
         host: str,
         control: bool = True,
         stale_after_s: float = 0.5,
-        robot_model: str = "UR10",
+        robot_model: str | None = None,
         limits: MotionLimits | None = None,
     ):
         rtde_receive = require("rtde_receive", "ur")
         self.host = host
         self.stale_after_s = stale_after_s
         self.limits = limits or MotionLimits()
-        self.nominal = ur_model(robot_model)
+        #: whether the model was given (--robot-model) or taken from the controller
+        self.model_given = robot_model is not None
+        given = ur_model(robot_model) if robot_model is not None else None
         self._control = None
         self._program_expected = False
         #: whether the controller answered when the run was stopped (None: not stopped yet)
@@ -439,6 +454,11 @@ class URRobot:
         if not self._receive.isConnected():
             raise DeviceError(f"no UR controller answers RTDE on {host}:30004")
         try:
+            self.nominal = given if given is not None else ur_model(self._controller_model_name())
+        except BaseException:
+            self.close()
+            raise
+        try:
             self.kinematics: ControllerKinematics | None = read_primary_interface(host)
         except (OSError, ValueError, struct.error):
             self.kinematics = None
@@ -448,6 +468,23 @@ class URRobot:
             except BaseException:
                 self.close()
                 raise
+
+    def _controller_model_name(self) -> str:
+        """The model the controller names, for a run without ``--robot-model``."""
+        try:
+            version_text, model_text = dashboard(self.host, ["PolyscopeVersion", "get robot model"])
+        except OSError as exc:
+            raise DeviceError(
+                f"the UR controller on {self.host} did not say its model (dashboard: {exc}); "
+                "pass --robot-model"
+            ) from None
+        reported = _reported_model(version_text, model_text)
+        if reported not in UR_TABLES:
+            raise DeviceError(
+                f"the UR controller on {self.host} names its model {model_text.strip()[:40]!r}, which "
+                f"spacecal does not know ({', '.join(sorted(UR_TABLES))}); pass --robot-model"
+            )
+        return reported
 
     def connect_control(self) -> None:
         """Upload the control program (after the read-only checks pass), so the arm can move."""
@@ -541,9 +578,9 @@ class URRobot:
                     )
                 elif eseries:
                     add(FINDING_OK, "remote control", "on")
-            reported = model_text.strip()
-            if reported and version is not None and reported + "e" in UR_TABLES and version[0] >= 5:
-                reported += "e"
+            reported = _reported_model(version_text, model_text)
+            if reported in UR_TABLES and reported == self.nominal.name and not self.model_given:
+                add(FINDING_OK, "robot model", f"{reported}, as the controller names it")
             if reported in UR_TABLES and reported != self.nominal.name:
                 add(
                     FINDING_PROBLEM,

@@ -106,8 +106,9 @@ class AcquireSettings:
         NDI tool definitions: the marker first.
     tracker_rate_hz : float
         NDI frame rate (Vicra 20, Vega 60).
-    robot_model : str
-        UR model for planning checks.
+    robot_model : str or None
+        UR model for planning checks; None: the one the controller names (simulated devices:
+        the scenario's).
     tool : (x, y, z, rx, ry, rz) or None
         The TCP in the flange frame as the teach pendant shows it: mm and a rotation vector in
         rad. None (the default) takes the TCP set on the controller; a value must match it.
@@ -136,7 +137,7 @@ class AcquireSettings:
     workspace_box: tuple[float, float, float, float, float, float] | None = None
     rom: tuple[str, ...] = ()
     tracker_rate_hz: float = 20.0
-    robot_model: str = "UR10"
+    robot_model: str | None = None
     tool: tuple[float, float, float, float, float, float] | None = None
     prior: str | None = None
     rotation_deg: float = PaperSweepSettings.rotation_each_way_deg
@@ -233,7 +234,7 @@ def open_tracker(url: str, rom: Sequence[str], rate_hz: float) -> Tracker:
     return IGTLTracker(address, port or 18944)
 
 
-def open_robot(url: str, robot_model: str, control: bool, limits: MotionLimits | None = None) -> Robot:
+def open_robot(url: str, robot_model: str | None, control: bool, limits: MotionLimits | None = None) -> Robot:
     """Open the robot a URL names (``ur://HOST``); ``control=False`` is read-only (nothing is
     uploaded to the controller)."""
     from spacecal.adapters import parse_device_url
@@ -328,11 +329,19 @@ class HardwareModel:
         return [f for f in self.findings if f.level == FINDING_PROBLEM]
 
 
-def hardware_model(robot: Robot, robot_model: str, tool: Sequence[float] | None = None) -> HardwareModel:
+def hardware_model(
+    robot: Robot, robot_model: str | None, tool: Sequence[float] | None = None
+) -> HardwareModel:
     """The controller's kinematic model (its calibrated DH and pendant TCP where it publishes
-    them) checked against what it reports and against ``--robot-model`` / ``--tool`` (None:
-    the controller's TCP)."""
-    nominal = ur_model(robot_model)
+    them) checked against what it reports and against ``--robot-model`` (None: the model the
+    robot names) / ``--tool`` (None: the controller's TCP)."""
+    named = getattr(robot, "nominal", None)
+    if robot_model is not None:
+        nominal = ur_model(robot_model)
+    elif isinstance(named, RobotModel):
+        nominal = named
+    else:
+        raise InvalidInputError("this robot does not name its model: pass --robot-model")
     controller_model = getattr(robot, "controller_model", None)
     if controller_model is not None:
         model, source = controller_model()
@@ -490,7 +499,7 @@ def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dic
 
 
 def robot_findings(
-    robot: Robot, robot_model: str, tool: Sequence[float] | None = None
+    robot: Robot, robot_model: str | None, tool: Sequence[float] | None = None
 ) -> tuple[HardwareModel, list[DeviceFinding]]:
     """The robot's own read-only checks and spacecal's (model, tool), in that order."""
     found = list(robot.preflight()) if isinstance(robot, Preflight) else []

@@ -28,7 +28,8 @@ class DoctorSettings:
     rom : tuple of str
         NDI tool definitions (the marker first).
     tracker_rate_hz : float
-    robot_model : str
+    robot_model : str or None
+        None: the model the controller names.
     tool : (x, y, z, rx, ry, rz) or None
         The TCP spacecal is told (mm, rotation vector in rad); None: the controller's.
     """
@@ -37,7 +38,7 @@ class DoctorSettings:
     tracker: str | None = None
     rom: tuple[str, ...] = ()
     tracker_rate_hz: float = 20.0
-    robot_model: str = "UR10"
+    robot_model: str | None = None
     tool: tuple[float, float, float, float, float, float] | None = None
 
 
