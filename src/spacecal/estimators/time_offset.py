@@ -274,6 +274,9 @@ AMBIGUITY_RATIO = 0.9
 #: A best correlation below this is no match at all (it leaves three quarters of the speeds'
 #: variance unexplained): too little motion seen by both streams.
 MIN_CORRELATION = 0.5
+#: Nor is one that noise alone reaches: this many standard deviations (1 / sqrt(n)) of the
+#: correlation of two unrelated signals over n independent samples.
+NOISE_SIGMAS = 4.0
 #: Shortest window of the angular speeds correlated (or the slower stream's frame period if
 #: longer): differencing poses closer in time than this amplifies the tracker's noise, and the
 #: coarse offset needs only to fall within the +-``search_s`` scan that follows.
@@ -299,6 +302,9 @@ class CoarseOffset:
         How far from the best offset a peak counts as another candidate, s.
     overlap_fraction : float
         Share of the shorter signal that overlaps the other at the peak.
+    independent_samples : float
+        Overlap at the peak over the window: about how many independent speed values the
+        peak's correlation rests on (:attr:`noise_correlation`).
     searched_s : (float, float)
         The offsets searched: every one at which the signals overlap by at least
         ``min_overlap_fraction`` of the shorter, s.
@@ -312,6 +318,7 @@ class CoarseOffset:
     runner_up_correlation: float | None
     separation_s: float
     overlap_fraction: float
+    independent_samples: float
     searched_s: tuple[float, float]
     min_overlap_fraction: float
     step_s: float
@@ -323,6 +330,11 @@ class CoarseOffset:
         if self.runner_up_correlation is None or self.correlation <= 0:
             return 0.0
         return max(self.runner_up_correlation, 0.0) / self.correlation
+
+    @property
+    def noise_correlation(self) -> float:
+        """A correlation that unrelated signals reach by chance (:data:`NOISE_SIGMAS`)."""
+        return NOISE_SIGMAS / float(np.sqrt(max(self.independent_samples, 1.0)))
 
     @property
     def ambiguous(self) -> bool:
@@ -337,10 +349,11 @@ class CoarseOffset:
                 f"{self.runner_up_offset_s:+.3f} s (correlation {self.runner_up_correlation:.2f}) as at "
                 f"{self.offset_s:+.3f} s ({self.correlation:.2f})"
             )
-        if self.correlation < MIN_CORRELATION:
+        if self.correlation < max(MIN_CORRELATION, self.noise_correlation):
             return (
                 f"the clock offset is ambiguous: the angular speeds correlate at best {self.correlation:.2f} "
-                f"(at {self.offset_s:+.3f} s), too little motion seen by both streams"
+                f"(at {self.offset_s:+.3f} s; chance reaches {self.noise_correlation:.2f}), too little "
+                f"motion seen by both streams"
             )
         return None
 
@@ -362,6 +375,7 @@ class CoarseOffset:
             **dataclasses.asdict(self),
             "searched_s": list(self.searched_s),
             "ambiguity": self.ambiguity,
+            "noise_correlation": self.noise_correlation,
             "definition": "robot clock minus tracker clock",
         }
 
@@ -545,6 +559,7 @@ def coarse_offset_by_correlation(
         runner_up_correlation=None if runner is None else float(correlation[runner]),
         separation_s=separation,
         overlap_fraction=float(overlap[best]) / shorter,
+        independent_samples=float(overlap[best]) * step / window,
         searched_s=(float(searched_offsets[0]), float(searched_offsets[-1])),
         min_overlap_fraction=min_overlap_fraction,
         step_s=step,
@@ -577,7 +592,9 @@ def estimate_time_offset(
        best matches the tracker's (:func:`coarse_offset_from_angular_speed`); no fit needed.
     2. Fine: a bounded Brent search within +-``refine_s`` of it (four times wider if the
        optimum lands on the edge) for the offset whose pairs the ML calibration fits best
-       (smallest variance factor), each fit warm-started from the last.
+       (smallest variance factor), each fit warm-started from the last. When the whole-overlap
+       offset lies more than ``refine_s`` from the scan's, the search starts from whichever
+       of the two the fit prefers.
 
     Raises
     ------
@@ -641,6 +658,12 @@ def estimate_time_offset(
         warm["tracker_from_base"], warm["tcp_from_marker"] = fit.tracker_from_base, fit.tcp_from_marker
         return variance_factor_of(obs, fit.tracker_from_base, fit.tcp_from_marker)
 
+    if found is not None and abs(centre + coarse - found.offset_s) > refine_s:
+        # the two coarse values disagree (consecutive poses of a fast, noisy robot stream make
+        # the 1 ms scan's speeds noisy; the correlation's window blurs fast motion): the fit decides
+        candidate = found.offset_s - centre
+        if cost(candidate) < cost(coarse):
+            coarse = candidate
     for width in (refine_s, 4.0 * refine_s):
         refined = minimize_scalar(
             cost, bounds=(coarse - width, coarse + width), method="bounded", options={"xatol": xatol_s}
