@@ -6,8 +6,11 @@ clocks are offset, every moving sample is paired with the wrong robot pose (1 ms
 the robot state interpolated at robot time ``t + offset`` (joints linearly, the TCP pose
 linearly in position and along the geodesic in rotation). The offset is the one whose pairs
 the maximum-likelihood calibration fits best. A coarse value comes cheaply from matching the
-two streams' angular speeds (both see the tool's rotation rate); a bounded Brent search of
-the fit's chi-square around it, each fit warm-started from the previous one, refines it.
+two streams' angular speeds (both see the tool's rotation rate): first by cross-correlation
+over every offset at which the streams overlap (the clocks may count from epochs hours
+apart), then on a 1 ms grid around it; a bounded Brent search of the fit's chi-square
+around that, each fit warm-started from the previous one, refines it. The offset is always
+the robot clock minus the tracker clock.
 """
 
 from __future__ import annotations
