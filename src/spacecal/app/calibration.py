@@ -11,13 +11,13 @@ from typing import Any
 import numpy as np
 
 from spacecal.app._common import check_belongs, check_consistent, provenance_of, refuse_overwriting_inputs
-from spacecal.core.errors import InvalidInputError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.estimators.likelihood import tre_lower_bound
 from spacecal.estimators.observations import marker_geometry_of, sphere_noise_from_marker_rms
 from spacecal.estimators.pivot import pivot_calibration
-from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
+from spacecal.estimators.time_offset import check_overlap, estimate_time_offset, pair_streams
 from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import metadata_path, read_recording
@@ -65,7 +65,8 @@ class CalibrateSettings:
     tracker_stream : str or None
         The raw tracker stream: the two streams are paired first.
     time_offset_ms : float or None
-        With ``tracker_stream``: robot clock minus tracker clock, ms; None = estimate it.
+        With ``tracker_stream``: robot clock minus tracker clock, ms, any finite size (the
+        clocks may count from unrelated epochs); None = estimate it.
     targets_in_base : sequence of (x, y, z)
         Points in the base frame (mm) to predict the TRE at.
     sigma_mm : float or None
@@ -137,14 +138,25 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
     if settings.tracker_stream:
         raw = read_raw_recording(settings.recording, settings.tracker_stream)
         if settings.time_offset_ms is None:
-            offset_s = estimate_time_offset(raw).offset_s
-            note = f"clock offset estimated: robot clock {offset_s * 1000:.2f} ms ahead of the tracker's"
+            try:
+                found = estimate_time_offset(raw)
+            except DegenerateDataError as exc:
+                raise DegenerateDataError(
+                    f"{exc}; pass --time-offset-ms (robot clock minus tracker clock, ms)"
+                ) from None
+            offset_s = found.offset_s
+            note = (
+                f"clock offset estimated: robot clock {offset_s * 1000:.2f} ms ahead of the tracker's "
+                f"({found.describe()})"
+            )
         else:
-            if not (math.isfinite(settings.time_offset_ms) and abs(settings.time_offset_ms) <= 10_000):
+            if not math.isfinite(settings.time_offset_ms):
                 raise InvalidInputError(
-                    "--time-offset-ms takes a number of milliseconds within +-10 s, or 'estimate'"
+                    "--time-offset-ms takes a finite number of milliseconds (robot clock minus "
+                    "tracker clock), or 'estimate'"
                 )
             offset_s = settings.time_offset_ms / 1000.0
+            check_overlap(raw, offset_s, "--time-offset-ms")
             note = f"clock offset given: {offset_s * 1000:.2f} ms"
         recording = pair_streams(raw, offset_s)
     else:

@@ -68,7 +68,9 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--time-offset-ms",
         default="estimate",
-        help="with --tracker-stream: robot clock minus tracker clock, or 'estimate' (default)",
+        help="with --tracker-stream: robot clock minus tracker clock in ms, any size (the clocks may "
+        "count from unrelated epochs), or 'estimate' (default: searched over every offset at which "
+        "the streams overlap)",
     )
     p.add_argument("-o", "--output", required=True, help="calibration JSON to write")
     p.add_argument(
