@@ -14,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import quoted
 from spacecal.io.atomic import write_text_atomic
+from spacecal.io.strict_numbers import parse_floats
 from spacecal.io.text import read_text_file
 
 
@@ -34,7 +36,7 @@ def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.
     for element in _parse(path).iter("Transform"):
         if element.get("From") == from_frame and element.get("To") == to_frame:
             try:
-                numbers = np.array(element.get("Matrix", "").split(), dtype=float)
+                numbers = parse_floats(element.get("Matrix", ""))
             except ValueError:
                 numbers = np.array([])
             if numbers.size != 16 or not np.all(np.isfinite(numbers)) or np.max(np.abs(numbers)) > 1e5:
@@ -53,12 +55,12 @@ def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
         names.append(element.get("Name", str(len(names) + 1)))
         position = element.get("Position", "")
         try:
-            values = [float(v) for v in position.split()]
+            values = list(parse_floats(position))
         except ValueError:
             values = []
         if len(values) != 3 or not all(abs(v) <= 1e5 for v in values):
             raise InvalidInputError(
-                f"{path}: landmark {names[-1]!r}: Position {position[:40]!r} is not three finite "
+                f"{path}: landmark {quoted(names[-1])}: Position {quoted(position, 40)} is not three finite "
                 "numbers in mm"
             )
         positions.append(values)
