@@ -47,8 +47,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from spacecal.core.errors import InvalidInputError, MissingExtraError
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.io.ros_common import transform_from_ros
+from spacecal.io.yaml_text import check_yaml_file
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.records import RawRecording
 
@@ -67,6 +69,8 @@ UR_JOINT_NAMES = (
     "wrist_3_joint",
 )
 ROBOT_SEGMENT = "ros_bag"
+#: Longest topic or frame name shown in full by :meth:`BagContents.describe`.
+NAME_DISPLAY_CHARS = 120
 
 
 def _rosbags():
@@ -80,11 +84,25 @@ def _rosbags():
     return AnyReader, AnyReaderError, Stores, get_typestore
 
 
+def _check_bag_metadata(metadata: Path) -> None:
+    """Refuse YAML anchors and aliases in a ROS 2 bag's ``metadata.yaml`` before rosbags reads it
+    (ROS writes none; a few hundred bytes of aliases can stand for gigabytes). Without PyYAML the
+    file is left to rosbags alone."""
+    try:
+        import yaml  # noqa: F401 - the ros extra brings it with rosbags
+    except ImportError:  # pragma: no cover - the extra installs both
+        return
+    check_yaml_file(metadata, "ROS 2 bag metadata")
+
+
 @contextmanager
 def _open_bag(path: Path, typestore: str | None):
     AnyReader, AnyReaderError, Stores, get_typestore = _rosbags()
     if not path.exists():
         raise InvalidInputError(f"{path}: no such bag")
+    metadata = path / "metadata.yaml"
+    if path.is_dir() and metadata.is_file():
+        _check_bag_metadata(metadata)
     store_name = typestore or ("ros1_noetic" if path.suffix == ".bag" else "ros2_humble")
     try:
         store = get_typestore(Stores(store_name))
@@ -183,19 +201,31 @@ class BagContents:
         return _tf_chains(self.tf_edges)
 
     def describe(self) -> str:
-        """A table for people: topics with types and counts, tf edges, candidate chains."""
-        lines = [f"{self.path}", "topics:"]
-        width = max((len(t.name) for t in self.topics), default=0)
-        for t in self.topics:
-            lines.append(f"  {t.name:<{width}}  {t.msgtype}  ({t.count} messages)")
+        """A table for people: topics with types and counts, tf edges, candidate chains.
+
+        Names come from the bag: each is shown with its control characters escaped and cut to
+        :data:`NAME_DISPLAY_CHARS` characters, so a hostile bag cannot drive the terminal.
+        """
+
+        def show(name: str) -> str:
+            return sanitize_for_terminal(name, NAME_DISPLAY_CHARS)
+
+        lines = [show(self.path), "topics:"]
+        names = [show(t.name) for t in self.topics]
+        width = max((len(n) for n in names), default=0)
+        for name, t in zip(names, self.topics):
+            lines.append(f"  {name:<{width}}  {show(t.msgtype)}  ({t.count} messages)")
         if self.tf_edges:
             lines.append("tf edges (parent -> child):")
             for e in self.tf_edges:
-                lines.append(f"  {e.parent} -> {e.child}  ({e.count}{', static' if e.static else ''})")
+                lines.append(
+                    f"  {show(e.parent)} -> {show(e.child)}  ({e.count}{', static' if e.static else ''})"
+                )
             chains = self.tf_chains()
             if chains:
                 lines.append(
-                    "moving tf chains (root -> leaf): " + "; ".join(f"{a} -> {b}" for a, b in chains)
+                    "moving tf chains (root -> leaf): "
+                    + "; ".join(f"{show(a)} -> {show(b)}" for a, b in chains)
                 )
         return "\n".join(lines)
 
