@@ -21,7 +21,11 @@ from spacecal import app
 from spacecal.app.acquisition import finding_line
 from spacecal.cli import parser
 from spacecal.core.errors import InvalidInputError, SpacecalError
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators.diagnostics import ErrorThresholds
+
+#: Longest error, note or finding line printed (text from files and devices is cut there).
+ERROR_CHARS = 2000
 
 
 class CheckFailed(SpacecalError):
@@ -50,7 +54,7 @@ def _seconds(seconds: float) -> float:
 
 def _print_notes(messages: list[str]) -> None:
     for message in messages:
-        print(f"note: {message}")
+        print(f"note: {sanitize_for_terminal(message, ERROR_CHARS)}")
 
 
 # -- commands -------------------------------------------------------------------------------
@@ -225,7 +229,7 @@ def _doctor(a: argparse.Namespace) -> None:
         app.DoctorSettings(a.robot, a.tracker, tuple(a.rom or ()), a.tracker_rate_hz, a.robot_model, _tool(a))
     )
     for device, finding in out.findings:
-        print(finding_line(device, finding))
+        print(sanitize_for_terminal(finding_line(device, finding), ERROR_CHARS))  # devices name things
     if out.problems:
         count = len(out.problems)
         raise CheckFailed(
@@ -602,7 +606,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    """The error as one bounded line whose control characters are escaped (a message may quote
+    names from files, bags and devices)."""
+    return sanitize_for_terminal(" ".join(str(exc).split()), ERROR_CHARS) or type(exc).__name__
 
 
 def console_main() -> None:
