@@ -49,12 +49,21 @@ def _create_temporary(path: Path) -> Path:
     raise FileExistsError(f"{path.parent}: cannot create a temporary file beside {path.name}")
 
 
+def _check_file_name(path: str | Path) -> None:
+    """One clear line for a name no file system can store (os.open would raise ValueError)."""
+    try:
+        encoded = os.fsencode(path)
+    except UnicodeEncodeError:
+        raise InvalidInputError(f"{quoted(os.fspath(path))}: not a file name this system can store") from None
+    if b"\x00" in encoded:
+        raise InvalidInputError(f"{quoted(os.fspath(path))}: a file name cannot hold a NUL character")
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary path beside ``path`` (same suffix, so writers that infer the format from it
     work) that replaces ``path`` when the block completes; removed if the block raises."""
-    if "\x00" in os.fspath(path):
-        raise InvalidInputError(f"{quoted(os.fspath(path))}: a file name cannot hold a NUL character")
+    _check_file_name(path)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = _create_temporary(path)

@@ -48,12 +48,12 @@ _PLUS_FRAME = re.compile(r"[A-Z][A-Za-z0-9]*", re.ASCII)
 MAX_NAME_CHARS = 100
 
 
-def _ros_name_problem(name: str) -> str:
+def _ros_name_problem(name: str, max_chars: int) -> str:
     """Why ``name`` is not a ROS frame name (one short phrase)."""
     if not name:
         return "it is empty"
-    if len(name) > MAX_ROS_NAME_CHARS:
-        return f"longer than {MAX_ROS_NAME_CHARS} characters"
+    if len(name) > max_chars:
+        return f"longer than {max_chars} characters"
     if name.startswith("/"):
         return "tf2 frame ids cannot start with '/'; drop it"
     if name.endswith("/") or "//" in name:
@@ -64,7 +64,7 @@ def _ros_name_problem(name: str) -> str:
     return "a name must not start with a digit (after '/' neither)"
 
 
-def check_ros_frame_name(name: object, what: str = "frame name") -> str:
+def check_ros_frame_name(name: object, what: str = "frame name", max_chars: int = MAX_ROS_NAME_CHARS) -> str:
     """``name`` if it is a ROS frame name (see the module docstring), else one line naming ``what``.
 
     Parameters
@@ -73,13 +73,15 @@ def check_ros_frame_name(name: object, what: str = "frame name") -> str:
         The name to check (anything but a ``str`` is refused).
     what : str
         Named in the error: the option (``--tracker-frame``) or the field.
+    max_chars : int
+        Longest name accepted (a URDF joint named after two frames may take 255).
     """
     if not isinstance(name, str):
         raise InvalidInputError(f"{what}: expected a ROS frame name, got {type(name).__name__}")
-    if _ROS_NAME.fullmatch(name) and len(name) <= MAX_ROS_NAME_CHARS:
+    if _ROS_NAME.fullmatch(name) and len(name) <= max_chars:
         return name
     raise InvalidInputError(
-        f"{what} {quoted(name)} is not a ROS frame name: {_ros_name_problem(name)} "
+        f"{what} {quoted(name)} is not a ROS frame name: {_ros_name_problem(name, max_chars)} "
         "(see 'names' in docs/formats.md)"
     )
 

@@ -369,10 +369,12 @@ def urdf_joint_text(
     holds ``parent_from_child`` (metres; rpy as URDF defines it). The child link element is
     included unless ``with_child_link`` is false (when the URDF already has that link). The link
     names must be ROS frame names and ``joint_name`` (by default
-    ``<parent>_to_<child>_calibration``) one too.
+    ``<parent>_to_<child>_calibration``) one too, of up to 255 characters.
     """
     parent, child = checked_frames(edge)
-    joint_name = check_ros_frame_name(joint_name or f"{parent}_to_{child}_calibration", "URDF joint name")
+    joint_name = check_ros_frame_name(
+        joint_name or f"{parent}_to_{child}_calibration", "URDF joint name", max_chars=255
+    )
     xyz_m, _ = transform_to_ros(edge.parent_from_child)
     rpy = _rpy_of(edge.parent_from_child[:3, :3])
     comment = (
