@@ -67,7 +67,9 @@ class StaticTransform:
             raise InvalidInputError(f"parent and child frame are both {quoted(self.parent_frame)}")
         matrix = np.asarray(self.parent_from_child, dtype=float)
         if matrix.shape != (4, 4) or not is_rigid_transform(matrix):
-            raise InvalidInputError(f"{self.parent_frame} -> {self.child_frame}: not a rigid 4x4 transform")
+            raise InvalidInputError(
+                f"{quoted(self.parent_frame)} -> {quoted(self.child_frame)}: not a rigid 4x4 transform"
+            )
         object.__setattr__(self, "parent_from_child", matrix)
 
     def inverted(self) -> StaticTransform:
@@ -322,7 +324,7 @@ def rotation_from_rpy(rpy) -> np.ndarray:
 
 def _xml_comment(text: str) -> ET.Element[Any]:
     """An XML comment of ``text`` that cannot end early: one line of printable ASCII without
-    ``--`` (which XML forbids inside a comment) and not ending in ``-``."""
+    ``--`` (which XML forbids inside a comment), padded with spaces so it cannot end in ``-``."""
     text = one_line_ascii(text)
     while "--" in text:
         text = text.replace("--", "- -")
