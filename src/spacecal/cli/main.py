@@ -107,7 +107,9 @@ def _calibrate(a: argparse.Namespace) -> None:
     counts, d = result.sample_counts, result.diagnostics
     print(f"wrote {out.path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
     if d.get("sphere"):
-        lines = ", ".join(f"{k} {v['straightness_rms_mm']:.3f} mm" for k, v in d["lines"].items())
+        lines = ", ".join(
+            f"{sanitize_for_terminal(k, 60)} {v['straightness_rms_mm']:.3f} mm" for k, v in d["lines"].items()
+        )  # segment labels come from the recording file
         print(
             f"sphere: radius {d['sphere']['radius_mm']:.2f} mm, fit RMS {d['sphere']['rms_mm']:.3f} mm; "
             f"line straightness RMS: {lines}"
@@ -403,7 +405,7 @@ def _check(a: argparse.Namespace) -> None:
     if r is None:
         return
     for label, error, angle in zip(r.labels, r.tcp_error_mm, r.rotation_error_deg):
-        print(f"  {label:>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
+        print(f"  {sanitize_for_terminal(label, 60):>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
     where = {True: "simulated robot and tracker", False: "real robot and tracker", None: "recording"}[
         r.simulated
     ]
