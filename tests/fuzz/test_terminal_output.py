@@ -88,3 +88,14 @@ def test_a_bag_listing_with_hostile_names_is_inert(tmp_path, capsys):
     out = capsys.readouterr().out
     assert code == 0 and _inert(out) and "world\\x1b[31m -> tool\\x1b[2J" in out
     assert np.all([len(line) < 400 for line in out.splitlines()])
+
+
+def test_bag_errors_list_few_names_escaped():
+    from spacecal.core.errors import InvalidInputError
+    from spacecal.io import ros_bag
+
+    edges = {(f"world{ESCAPES}", f"frame{k}{ESCAPES}"): ros_bag._EdgeSeries() for k in range(1000)}
+    with pytest.raises(InvalidInputError) as caught:
+        ros_bag._chain(edges, "base", "tool0", "bag")
+    message = str(caught.value)
+    assert _inert(message) and "(1001 in all)" in message and len(message) < 2000
