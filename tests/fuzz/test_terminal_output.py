@@ -99,3 +99,9 @@ def test_bag_errors_list_few_names_escaped():
         ros_bag._chain(edges, "base", "tool0", "bag")
     message = str(caught.value)
     assert _inert(message) and "(1001 in all)" in message and len(message) < 2000
+
+
+def test_progress_shows_a_plan_file_move_label_inert(capsys):
+    cli._progress(3)(0, 0, 1, f"sweep{ESCAPES}" + "x" * 500)
+    err = capsys.readouterr().err
+    assert _inert(err.rstrip("\n")) and "sweep\\x1b[2J" in err and len(err) < 200

@@ -205,7 +205,8 @@ def _progress(total_moves: int):
             return
         done = int(30 * (move_index + 1) / max(1, total_moves))
         print(
-            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{total_moves} {label:8s} samples "
+            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{total_moves} "
+            f"{sanitize_for_terminal(label, 40):8s} samples "  # a plan file names the moves
             f"{samples} (marker seen {visible})",
             end="\r" if tty else "\n",
             file=sys.stderr,
