@@ -122,7 +122,7 @@ def parse_yaml(text: str, where: str, what: str) -> Any:
     try:
         return yaml.load(text, Loader=_strict_loader())  # a SafeLoader subclass
     except _Refused as exc:
-        raise InvalidInputError(f"{where}: {exc} (a {what} file)") from None
+        raise InvalidInputError(f"{where}: {exc} ({what})") from None
     except RecursionError:
         raise InvalidInputError(f"{where}: YAML nested too deeply for a {what}") from None
     except yaml.YAMLError as exc:
