@@ -5,10 +5,12 @@ driver kinematics file). None needs ROS installed; reading bags needs ``spacecal
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from spacecal.app._common import guard_outputs, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.io.easy_handeye import read_easy_handeye_samples, write_easy_handeye2_calibration
+from spacecal.io.names import check_calibration_name, check_ros_frame_name
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
 from spacecal.io.results_json import read_calibration
@@ -112,10 +114,25 @@ class RosExportSettings:
     force: bool = False
 
 
+def _check_names(settings: RosExportSettings) -> None:
+    """Refuse, before anything is read or written, a frame name that is not a ROS frame name
+    (docs/formats.md, "Names"), naming the option that gave it."""
+    frames = [("--base-frame", settings.base_frame), ("--tracker-frame", settings.tracker_frame)]
+    if settings.easy_handeye2:
+        frames += [("--tool-frame", settings.tool_frame), ("--marker-frame", settings.marker_frame)]
+    for flag, value in frames:
+        check_ros_frame_name(value, flag)
+    if settings.easy_handeye2:
+        check_calibration_name(
+            Path(settings.easy_handeye2).stem, "--easy-handeye2: the calibration name (the file's stem)"
+        )
+
+
 def export_ros(settings: RosExportSettings) -> list[str]:
     """Write each ROS export named; returns one line per export."""
     for output in (settings.easy_handeye2, settings.ros2_launch, settings.urdf, settings.ur_calibration):
         refuse_overwriting_inputs(output, settings.calibration, force=settings.force)
+    _check_names(settings)
     calibration = read_calibration(settings.calibration)
     edge = calibration_static_transform(
         calibration.tracker_from_base, base_frame=settings.base_frame, tracker_frame=settings.tracker_frame

@@ -21,7 +21,11 @@ from spacecal import app
 from spacecal.app.acquisition import finding_line
 from spacecal.cli import parser
 from spacecal.core.errors import InvalidInputError, SpacecalError
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators.diagnostics import ErrorThresholds
+
+#: Longest error, note or finding line printed (text from files and devices is cut there).
+ERROR_CHARS = 2000
 
 
 class CheckFailed(SpacecalError):
@@ -50,7 +54,7 @@ def _seconds(seconds: float) -> float:
 
 def _print_notes(messages: list[str]) -> None:
     for message in messages:
-        print(f"note: {message}")
+        print(f"note: {sanitize_for_terminal(message, ERROR_CHARS)}")
 
 
 # -- commands -------------------------------------------------------------------------------
@@ -104,7 +108,9 @@ def _calibrate(a: argparse.Namespace) -> None:
     counts, d = result.sample_counts, result.diagnostics
     print(f"wrote {out.path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
     if d.get("sphere"):
-        lines = ", ".join(f"{k} {v['straightness_rms_mm']:.3f} mm" for k, v in d["lines"].items())
+        lines = ", ".join(
+            f"{sanitize_for_terminal(k, 60)} {v['straightness_rms_mm']:.3f} mm" for k, v in d["lines"].items()
+        )  # segment labels come from the recording file
         print(
             f"sphere: radius {d['sphere']['radius_mm']:.2f} mm, fit RMS {d['sphere']['rms_mm']:.3f} mm; "
             f"line straightness RMS: {lines}"
@@ -202,7 +208,8 @@ def _progress(total_moves: int):
             return
         done = int(30 * (move_index + 1) / max(1, total_moves))
         print(
-            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{total_moves} {label:8s} samples "
+            f"[{'#' * done}{'.' * (30 - done)}] move {move_index + 1}/{total_moves} "
+            f"{sanitize_for_terminal(label, 40):8s} samples "  # a plan file names the moves
             f"{samples} (marker seen {visible})",
             end="\r" if tty else "\n",
             file=sys.stderr,
@@ -228,7 +235,7 @@ def _doctor(a: argparse.Namespace) -> None:
         app.DoctorSettings(a.robot, a.tracker, tuple(a.rom or ()), a.tracker_rate_hz, a.robot_model, _tool(a))
     )
     for device, finding in out.findings:
-        print(finding_line(device, finding))
+        print(sanitize_for_terminal(finding_line(device, finding), ERROR_CHARS))  # devices name things
     if out.problems:
         count = len(out.problems)
         raise CheckFailed(
@@ -415,7 +422,7 @@ def _check(a: argparse.Namespace) -> None:
     if r is None:
         return
     for label, error, angle in zip(r.labels, r.tcp_error_mm, r.rotation_error_deg):
-        print(f"  {label:>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
+        print(f"  {sanitize_for_terminal(label, 60):>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
     where = {True: "simulated robot and tracker", False: "real robot and tracker", None: "recording"}[
         r.simulated
     ]
@@ -619,7 +626,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    """The error as one bounded line whose control characters are escaped (a message may quote
+    names from files, bags and devices)."""
+    return sanitize_for_terminal(" ".join(str(exc).split()), ERROR_CHARS) or type(exc).__name__
 
 
 def console_main() -> None:

@@ -45,16 +45,12 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import quoted
 from spacecal.geometry.transforms import invert_transform
 from spacecal.io.atomic import write_text_atomic
-from spacecal.io.ros_common import (
-    field,
-    load_yaml_mapping,
-    number_field,
-    number_text,
-    transform_from_ros,
-    transform_to_ros,
-)
+from spacecal.io.names import check_calibration_name, check_ros_frame_name
+from spacecal.io.ros_common import field, number_field, transform_from_ros, transform_to_ros
+from spacecal.io.yaml_text import load_yaml_mapping, yaml_comment, yaml_number, yaml_string
 from spacecal.records import Recording
 
 CALIBRATION_TYPES = ("eye_on_base", "eye_in_hand")
@@ -103,7 +99,8 @@ class HandEyeCalibration:
         """spacecal's calibration (4, 4), mm; only for eye-on-base results."""
         if self.calibration_type != "eye_on_base":
             raise InvalidInputError(
-                f"{self.name or 'calibration'}: an {self.calibration_type} result has no tracker_from_base "
+                f"{quoted(self.name) if self.name else 'calibration'}: an {self.calibration_type} result "
+                "has no tracker_from_base "
                 "(spacecal calibrates a fixed tracker: eye_on_base)"
             )
         return invert_transform(self.parent_from_child)
@@ -132,7 +129,7 @@ def _parameters2(parameters, where: str) -> dict:
     kind = field(parameters, "calibration_type", where)
     if kind not in CALIBRATION_TYPES:
         raise InvalidInputError(
-            f"{where}: calibration_type {kind!r}, expected one of {', '.join(CALIBRATION_TYPES)}"
+            f"{where}: calibration_type {quoted(kind)}, expected one of {', '.join(CALIBRATION_TYPES)}"
         )
     return {
         "calibration_type": kind,
@@ -150,7 +147,7 @@ def _parameters1(data: dict, where: str) -> dict:
         raise InvalidInputError(f"{where}: missing field 'eye_on_hand'")
     eye_on_hand = block["eye_on_hand"]
     if not isinstance(eye_on_hand, bool):
-        raise InvalidInputError(f"{where}: eye_on_hand is {eye_on_hand!r}, expected true or false")
+        raise InvalidInputError(f"{where}: eye_on_hand is {quoted(eye_on_hand)}, expected true or false")
     return {
         "calibration_type": "eye_in_hand" if eye_on_hand else "eye_on_base",
         "robot_base_frame": _frame(block, "robot_base_frame", "base_link_frame"),
@@ -197,43 +194,39 @@ def read_easy_handeye_calibration(path: str | Path) -> HandEyeCalibration:
     return HandEyeCalibration(parent_from_child=matrix, source=source, **parameters)
 
 
-def _yaml_string(value: str) -> str:
-    """A YAML scalar for a frame or calibration name: plain when safe, else double-quoted."""
-    plain_safe = value and all(c.isalnum() or c in "_-/." for c in value) and value[0] not in "-."
-    reserved = value.lower() in {"true", "false", "yes", "no", "on", "off", "null", "~", "y", "n"}
-    if plain_safe and not reserved and not _looks_numeric(value):
-        return value
-    return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-
-
-def _looks_numeric(value: str) -> bool:
-    try:
-        float(value)
-    except ValueError:
-        return False
-    return True
-
-
 def _transform_yaml(matrix: np.ndarray, indent: str) -> list[str]:
     translation_m, quaternion_xyzw = transform_to_ros(matrix)
     lines = [f"{indent}translation:"]
-    lines += [f"{indent}  {k}: {number_text(v)}" for k, v in zip("xyz", translation_m)]
+    lines += [f"{indent}  {k}: {yaml_number(v)}" for k, v in zip("xyz", translation_m)]
     lines += [f"{indent}rotation:"]
-    lines += [f"{indent}  {k}: {number_text(v)}" for k, v in zip("xyzw", quaternion_xyzw)]
+    lines += [f"{indent}  {k}: {yaml_number(v)}" for k, v in zip("xyzw", quaternion_xyzw)]
     return lines
 
 
-def _parameters_yaml(
-    name, calibration_type, robot_base_frame, robot_effector_frame, tracking_base_frame, tracking_marker_frame
-) -> list[str]:
+#: The frame parameters of an easy_handeye2 file, in its order.
+FRAME_PARAMETERS = (
+    "robot_base_frame",
+    "robot_effector_frame",
+    "tracking_base_frame",
+    "tracking_marker_frame",
+)
+
+
+def _checked_parameters(name: str, frames: dict[str, str]) -> dict[str, str]:
+    """The name and the four frames (``FRAME_PARAMETERS`` keys), each checked: a portable
+    calibration name, ROS frame names. Raises before anything is written."""
+    checked = {"name": check_calibration_name(name, "easy_handeye2 calibration name")}
+    for key in FRAME_PARAMETERS:
+        checked[key] = check_ros_frame_name(frames[key], f"easy_handeye2 {key}")
+    return checked
+
+
+def _parameters_yaml(parameters: dict, calibration_type: str) -> list[str]:
     return [
         "parameters:",
-        f"  name: {_yaml_string(name)}",
-        f"  calibration_type: {calibration_type}",
-        f"  robot_base_frame: {_yaml_string(robot_base_frame)}",
-        f"  robot_effector_frame: {_yaml_string(robot_effector_frame)}",
-        f"  tracking_base_frame: {_yaml_string(tracking_base_frame)}",
-        f"  tracking_marker_frame: {_yaml_string(tracking_marker_frame)}",
+        f"  name: {yaml_string(parameters['name'])}",
+        f"  calibration_type: {yaml_string(calibration_type)}",
+        *(f"  {key}: {yaml_string(parameters[key])}" for key in FRAME_PARAMETERS),
         "  freehand_robot_movement: true",
         "  move_group_namespace: /",
         "  move_group: manipulator",
@@ -263,30 +256,25 @@ def easy_handeye2_calibration_text(
     robot_base_frame, robot_effector_frame, tracking_base_frame, tracking_marker_frame : str
         ROS frame names: spacecal's base, tcp, tracker and marker frames as named in your tf tree.
     """
-    for label, value in (
-        ("name", name),
-        ("robot_base_frame", robot_base_frame),
-        ("robot_effector_frame", robot_effector_frame),
-        ("tracking_base_frame", tracking_base_frame),
-        ("tracking_marker_frame", tracking_marker_frame),
-    ):
-        if not isinstance(value, str) or not value or "\n" in value:
-            raise InvalidInputError(f"easy_handeye2 calibration: {label} {value!r} is not a usable name")
+    parameters = _checked_parameters(
+        name,
+        {
+            "robot_base_frame": robot_base_frame,
+            "robot_effector_frame": robot_effector_frame,
+            "tracking_base_frame": tracking_base_frame,
+            "tracking_marker_frame": tracking_marker_frame,
+        },
+    )
     base_from_tracker = invert_transform(np.asarray(tracker_from_base, dtype=float))
     lines = [
         "# easy_handeye2 HandeyeCalibration written by spacecal (eye_on_base).",
-        f"# transform = pose of {tracking_base_frame} in {robot_base_frame} "
-        f"({robot_base_frame} -> {tracking_base_frame}, spacecal's base_from_tracker),",
+        yaml_comment(
+            f"transform = pose of {tracking_base_frame} in {robot_base_frame} "
+            f"({robot_base_frame} -> {tracking_base_frame}, spacecal's base_from_tracker),"
+        ),
         "# metres, quaternion x y z w.",
     ]
-    lines += _parameters_yaml(
-        name,
-        "eye_on_base",
-        robot_base_frame,
-        robot_effector_frame,
-        tracking_base_frame,
-        tracking_marker_frame,
-    )
+    lines += _parameters_yaml(parameters, "eye_on_base")
     lines += ["transform:"] + _transform_yaml(base_from_tracker, "  ")
     return "\n".join(lines) + "\n"
 
@@ -404,15 +392,17 @@ def easy_handeye2_samples_text(
     tracker_from_marker_stack = np.asarray(tracker_from_marker_stack, dtype=float)
     if base_from_tcp_stack.shape != tracker_from_marker_stack.shape or base_from_tcp_stack.ndim != 3:
         raise InvalidInputError("easy_handeye2 samples: expected two pose stacks of equal shape (N, 4, 4)")
-    seen = np.all(np.isfinite(tracker_from_marker_stack.reshape(len(tracker_from_marker_stack), -1)), axis=1)
-    lines = _parameters_yaml(
+    parameters = _checked_parameters(
         name,
-        "eye_on_base",
-        robot_base_frame,
-        robot_effector_frame,
-        tracking_base_frame,
-        tracking_marker_frame,
+        {
+            "robot_base_frame": robot_base_frame,
+            "robot_effector_frame": robot_effector_frame,
+            "tracking_base_frame": tracking_base_frame,
+            "tracking_marker_frame": tracking_marker_frame,
+        },
     )
+    seen = np.all(np.isfinite(tracker_from_marker_stack.reshape(len(tracker_from_marker_stack), -1)), axis=1)
+    lines = _parameters_yaml(parameters, "eye_on_base")
     lines.append("samples:")
     for base_from_tcp, tracker_from_marker in zip(base_from_tcp_stack[seen], tracker_from_marker_stack[seen]):
         robot = _transform_yaml(invert_transform(base_from_tcp), "    ")

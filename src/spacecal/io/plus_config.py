@@ -14,15 +14,19 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import quoted
 from spacecal.io.atomic import write_text_atomic
-from spacecal.io.text import read_text_file
+from spacecal.io.names import check_plus_frame_names
+from spacecal.io.ros_common import number_text
+from spacecal.io.strict_numbers import parse_floats
+from spacecal.io.text import read_text_file, refuse_dtd
 
 
 def _parse(path: str | Path) -> ElementTree.Element:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such PLUS configuration file")
-    text = read_text_file(path, "PLUS configuration")
+    text = refuse_dtd(read_text_file(path, "PLUS configuration"), str(path))
     try:
         return ElementTree.fromstring(text)
     except ElementTree.ParseError as exc:
@@ -34,7 +38,7 @@ def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.
     for element in _parse(path).iter("Transform"):
         if element.get("From") == from_frame and element.get("To") == to_frame:
             try:
-                numbers = np.array(element.get("Matrix", "").split(), dtype=float)
+                numbers = parse_floats(element.get("Matrix", ""))
             except ValueError:
                 numbers = np.array([])
             if numbers.size != 16 or not np.all(np.isfinite(numbers)) or np.max(np.abs(numbers)) > 1e5:
@@ -53,18 +57,36 @@ def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
         names.append(element.get("Name", str(len(names) + 1)))
         position = element.get("Position", "")
         try:
-            values = [float(v) for v in position.split()]
+            values = list(parse_floats(position))
         except ValueError:
             values = []
         if len(values) != 3 or not all(abs(v) <= 1e5 for v in values):
             raise InvalidInputError(
-                f"{path}: landmark {names[-1]!r}: Position {position[:40]!r} is not three finite "
+                f"{path}: landmark {quoted(names[-1])}: Position {quoted(position, 40)} is not three finite "
                 "numbers in mm"
             )
         positions.append(values)
     if not positions:
         raise InvalidInputError(f"{path}: no <Landmark> elements")
     return names, np.array(positions)
+
+
+def _transform_element(
+    a_from_b, from_frame: str, to_frame: str, error_mm: float | None, date: datetime.datetime | None
+) -> ElementTree.Element:
+    check_plus_frame_names(from_frame, to_frame)
+    matrix = np.asarray(a_from_b, dtype=float)
+    if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
+        raise InvalidInputError(f"{from_frame}To{to_frame}: expected a finite 4x4 matrix")
+    attributes = {
+        "From": from_frame,
+        "To": to_frame,
+        "Matrix": "  ".join(" ".join(number_text(v) for v in row) for row in matrix),
+    }
+    if error_mm is not None and np.isfinite(error_mm):
+        attributes["Error"] = f"{error_mm:.6g}"
+    attributes["Date"] = (date or datetime.datetime.now()).strftime("%m%d%y_%H%M%S")
+    return ElementTree.Element("Transform", attributes)
 
 
 def plus_coordinate_definition(
@@ -76,26 +98,21 @@ def plus_coordinate_definition(
 ) -> str:
     """A PLUS ``<Transform From=.. To=.. Matrix=.. Error=.. Date=..>`` element as XML text.
 
-    PLUS writes dates as ``mmddyy_HHMMSS``.
+    The frame names must be PLUS frame names (:func:`spacecal.io.names.check_plus_frame_names`);
+    the element is built with ElementTree, so every attribute is escaped. The matrix is written
+    row after row in shortest round-trip form; PLUS writes dates as ``mmddyy_HHMMSS``.
     """
-    matrix = np.asarray(a_from_b, dtype=float)
-    rows = "\n".join("        " + " ".join(f"{v:.10g}" for v in row) for row in matrix)
-    date = date or datetime.datetime.now()
-    error = f' Error="{error_mm:.6g}"' if error_mm is not None else ""
-    return (
-        f'    <Transform From="{from_frame}" To="{to_frame}"\n      Matrix="\n{rows}"\n'
-        f'     {error} Date="{date.strftime("%m%d%y_%H%M%S")}" />'
-    )
+    return ElementTree.tostring(_transform_element(a_from_b, from_frame, to_frame, error_mm, date), "unicode")
 
 
 def write_plus_coordinate_definitions(path: str | Path, transforms: list[tuple]) -> Path:
     """Write ``<CoordinateDefinitions>`` with (a_from_b, from, to, error_mm) entries, to paste into
     (or include in) a PLUS device-set configuration."""
-    body = "\n".join(plus_coordinate_definition(t, f, to, e) for t, f, to, e in transforms)
+    root = ElementTree.Element("PlusConfiguration", {"version": "2.1"})
+    definitions = ElementTree.SubElement(root, "CoordinateDefinitions")
+    for a_from_b, from_frame, to_frame, error_mm in transforms:
+        definitions.append(_transform_element(a_from_b, from_frame, to_frame, error_mm, None))
+    ElementTree.indent(root, "  ")
     path = Path(path)
-    write_text_atomic(
-        f'<PlusConfiguration version="2.1">\n  <CoordinateDefinitions>\n{body}\n'
-        "  </CoordinateDefinitions>\n</PlusConfiguration>\n",
-        path,
-    )
+    write_text_atomic(ElementTree.tostring(root, encoding="unicode") + "\n", path)
     return path

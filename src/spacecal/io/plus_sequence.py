@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.io.strict_numbers import parse_float, parse_floats, parse_int
 
-_FIELD = re.compile(r"^Seq_Frame(\d+)_(\w+?)\s*=\s*(.*)$")
+_FIELD = re.compile(r"^Seq_Frame([0-9]{1,9})_(\w+?)\s*=\s*(.*)$", re.ASCII)
 
 
 @dataclass
@@ -60,7 +61,7 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
             line = raw.decode("latin-1").rstrip("\r\n")
             match = _FIELD.match(line)
             if match:
-                index, key, value = int(match.group(1)), match.group(2), match.group(3).strip()
+                index, key, value = parse_int(match.group(1)), match.group(2), match.group(3).strip()
                 frames.setdefault(index, {})[key] = value
             elif "=" in line:
                 key, _, value = line.partition("=")
@@ -71,7 +72,7 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
         raise InvalidInputError(f"{path}: no Seq_Frame fields; not a PLUS sequence file")
     indices = sorted(frames)
     try:
-        timestamps = np.array([float(frames[i].get("Timestamp", "nan")) for i in indices])
+        timestamps = np.array([parse_float(frames[i].get("Timestamp", "nan")) for i in indices])
     except ValueError:
         raise InvalidInputError(f"{path}: a frame timestamp is not a number") from None
     if not np.all(np.isfinite(timestamps)) or np.any(np.abs(timestamps) > 1e10):
@@ -86,7 +87,7 @@ def read_plus_sequence(path: str | Path) -> PlusSequence:
             if values is None or status != "OK":
                 continue
             try:
-                numbers = np.array(values.split(), dtype=float)
+                numbers = parse_floats(values)
             except ValueError:
                 raise InvalidInputError(
                     f"{path}: frame {i} {name}Transform holds text that is not a number"

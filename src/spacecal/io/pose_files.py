@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import quoted
+from spacecal.io.strict_numbers import parse_floats
 from spacecal.io.text import read_text_file
 
 #: Larger than this (mm) is not a position a tracker reports.
@@ -37,12 +38,24 @@ def read_matrix_folder(folder: str | Path, names=None) -> np.ndarray:
         text = read_text_file(path, "pose")
         if not text.strip():
             raise InvalidInputError(f"{path}: empty; expected a 4x4 matrix")
-        try:
-            matrix = np.loadtxt(io.StringIO(text), dtype=float, ndmin=2)
-        except ValueError as exc:
-            raise InvalidInputError(f"{path}: not a matrix of numbers ({str(exc).splitlines()[0]})") from None
-        if matrix.shape != (4, 4) or not np.all(np.isfinite(matrix)):
-            raise InvalidInputError(f"{path}: expected a finite 4x4 matrix, got shape {matrix.shape}")
+        rows = []
+        for number, line in enumerate(text.split("\n"), start=1):
+            content = line.split("#", 1)[0]  # numpy.loadtxt's comments, which these files may have
+            if not content.strip():
+                continue
+            try:
+                rows.append(parse_floats(content))
+            except ValueError:
+                raise InvalidInputError(
+                    f"{path}: line {number}: {quoted(content.strip())} is not a row of plain decimal numbers"
+                ) from None
+        shape = (len(rows), len(rows[0])) if rows and all(len(r) == len(rows[0]) for r in rows) else None
+        if shape != (4, 4):
+            found = f"shape {shape}" if shape else "rows of different lengths" if rows else "no numbers"
+            raise InvalidInputError(f"{path}: expected a finite 4x4 matrix, got {found}")
+        matrix = np.array(rows)
+        if not np.all(np.isfinite(matrix)):
+            raise InvalidInputError(f"{path}: expected a finite 4x4 matrix, got a value that is not finite")
         if np.max(np.abs(matrix)) > MAX_ABS_POSITION_MM:
             raise InvalidInputError(
                 f"{path}: a value {np.max(np.abs(matrix)):.3g} is not a pose in mm "

@@ -28,6 +28,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
+from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.atomic import write_text_atomic
@@ -275,7 +276,7 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
         unknown = sorted(set(status.tolist()) - set(FRAME_STATUSES))
         if unknown:
             raise InvalidInputError(
-                f"{tracker_path}: unknown marker_status {unknown[0]!r}; "
+                f"{tracker_path}: unknown marker_status {quoted(unknown[0])}; "
                 f"expected one of {', '.join(FRAME_STATUSES)}"
             )
     spheres = _optional_spheres(rows, header, tracker_path)

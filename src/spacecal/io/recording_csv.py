@@ -36,10 +36,12 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
+from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.atomic import atomic_path
 from spacecal.io.results_json import read_json_object, write_json
+from spacecal.io.strict_numbers import parse_float
 from spacecal.io.text import read_text_file
 from spacecal.records import Recording
 
@@ -240,7 +242,7 @@ def last_time_s(path: str | Path) -> float | None:
         cells = next(csv.reader([line]), [])
         if len(cells) == len(header):
             try:
-                value = float(cells[column])
+                value = parse_float(cells[column])
             except ValueError:
                 continue
             if math.isfinite(value):
@@ -280,18 +282,23 @@ def _check_header(header: list[str], path: Path) -> dict[str, int]:
         unrecognised = [n for n in names if n not in COLUMNS]
         for column in missing:
             close = difflib.get_close_matches(column, unrecognised, n=1, cutoff=0.6)
-            hints.append(f"{column} (found {close[0]!r}?)" if close else column)
+            hints.append(f"{column} (found {quoted(close[0])}?)" if close else column)
         raise InvalidInputError(f"{path}: missing column(s): {', '.join(hints)}")
     return {c: names.index(c) for c in COLUMNS}
 
 
 def _number(cell: str, line: int, column: str, path: Path) -> float:
     try:
-        value = float(cell)
+        value = parse_float(cell)
     except ValueError:
-        raise InvalidInputError(f"{path}: line {line}, column {column}: {cell!r} is not a number") from None
+        raise InvalidInputError(
+            f"{path}: line {line}, column {column}: {quoted(cell)} is not a number"
+            + (" (digit groups with '_' are not accepted)" if "_" in cell else "")
+        ) from None
     if not math.isfinite(value):
-        raise InvalidInputError(f"{path}: line {line}, column {column}: {cell!r} is not a finite number")
+        raise InvalidInputError(
+            f"{path}: line {line}, column {column}: {quoted(cell)} is not a finite number"
+        )
     return value
 
 
@@ -423,7 +430,7 @@ def _status(cell: str, has_pose: bool, line: int, path: Path) -> str:
         return FRAME_OK if has_pose else FRAME_MISSING
     if cell not in FRAME_STATUSES:
         raise InvalidInputError(
-            f"{path}: line {line}: marker_status {cell!r} is not one of {', '.join(FRAME_STATUSES)}"
+            f"{path}: line {line}: marker_status {quoted(cell)} is not one of {', '.join(FRAME_STATUSES)}"
         )
     if cell == FRAME_OK and not has_pose:
         raise InvalidInputError(f"{path}: line {line}: marker_status is ok but the marker cells are empty")
@@ -479,7 +486,7 @@ def check_metadata(metadata: Mapping, path: Path) -> None:
             raise InvalidInputError(f"{path}: 'simulated' must be true or false")
     length = (metadata.get("units") or {}).get("length", "mm")
     if length != "mm":
-        raise InvalidInputError(f"{path}: units.length is {length!r}; spacecal recordings are in 'mm'")
+        raise InvalidInputError(f"{path}: units.length is {quoted(length)}; spacecal recordings are in 'mm'")
     robot = metadata.get("robot") or {}
     if "model" in robot and not isinstance(robot["model"], str):
         raise InvalidInputError(f"{path}: robot.model must be a string such as 'UR10'")

@@ -18,6 +18,8 @@ from spacecal.records.fields import plain
 
 #: Larger than this is not a spacecal result file.
 MAX_JSON_BYTES = 200 * 1024 * 1024
+#: Longest integer read from JSON (a count or a seed has a few digits).
+MAX_INT_DIGITS = 100
 
 
 class _NotFinite(ValueError):
@@ -35,6 +37,12 @@ def _finite_float(text: str) -> float:
     return value
 
 
+def _bounded_int(text: str) -> int:
+    if len(text) > MAX_INT_DIGITS:  # int() refuses 4,300 digits with a plain ValueError
+        raise _NotFinite(f"an integer of {len(text)} digits (at most {MAX_INT_DIGITS})")
+    return int(text)
+
+
 def write_json(data: dict[str, Any], path: str | Path) -> Path:
     """Write a dict (numpy values allowed) as indented JSON, atomically; returns the path."""
     text = json.dumps(plain(data), indent=2, allow_nan=False)
@@ -48,7 +56,9 @@ def read_json_object(path: str | Path, what: str) -> dict[str, Any]:
         raise InvalidInputError(f"{path}: too large for a {what} file ({path.stat().st_size} bytes)")
     text = read_text_file(path, what)
     try:
-        data = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float)
+        data = json.loads(
+            text, parse_constant=_no_constant, parse_float=_finite_float, parse_int=_bounded_int
+        )
     except json.JSONDecodeError as exc:
         raise InvalidInputError(f"{path}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
     except RecursionError:

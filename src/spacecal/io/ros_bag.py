@@ -47,8 +47,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from spacecal.core.errors import InvalidInputError, MissingExtraError
+from spacecal.core.text import quoted, sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.io.ros_common import transform_from_ros
+from spacecal.io.yaml_text import check_yaml_file
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.records import RawRecording
 
@@ -67,6 +69,8 @@ UR_JOINT_NAMES = (
     "wrist_3_joint",
 )
 ROBOT_SEGMENT = "ros_bag"
+#: Longest topic or frame name shown in full by :meth:`BagContents.describe`.
+NAME_DISPLAY_CHARS = 120
 
 
 def _rosbags():
@@ -80,11 +84,25 @@ def _rosbags():
     return AnyReader, AnyReaderError, Stores, get_typestore
 
 
+def _check_bag_metadata(metadata: Path) -> None:
+    """Refuse YAML anchors and aliases in a ROS 2 bag's ``metadata.yaml`` before rosbags reads it
+    (ROS writes none; a few hundred bytes of aliases can stand for gigabytes). Without PyYAML the
+    file is left to rosbags alone."""
+    try:
+        import yaml  # noqa: F401 - the ros extra brings it with rosbags
+    except ImportError:  # pragma: no cover - the extra installs both
+        return
+    check_yaml_file(metadata, "ROS 2 bag metadata")
+
+
 @contextmanager
 def _open_bag(path: Path, typestore: str | None):
     AnyReader, AnyReaderError, Stores, get_typestore = _rosbags()
     if not path.exists():
         raise InvalidInputError(f"{path}: no such bag")
+    metadata = path / "metadata.yaml"
+    if path.is_dir() and metadata.is_file():
+        _check_bag_metadata(metadata)
     store_name = typestore or ("ros1_noetic" if path.suffix == ".bag" else "ros2_humble")
     try:
         store = get_typestore(Stores(store_name))
@@ -108,6 +126,12 @@ def _open_bag(path: Path, typestore: str | None):
         yield reader
     finally:
         reader.close()
+
+
+def _listing(names: Sequence[str], count: int = 20) -> str:
+    """Names from a bag for an error message: each escaped and cut, at most ``count`` of them."""
+    shown = ", ".join(sanitize_for_terminal(n, 60) for n in names[:count])
+    return shown + (f", ... ({len(names)} in all)" if len(names) > count else "")
 
 
 def _frame(name: str) -> str:
@@ -183,19 +207,31 @@ class BagContents:
         return _tf_chains(self.tf_edges)
 
     def describe(self) -> str:
-        """A table for people: topics with types and counts, tf edges, candidate chains."""
-        lines = [f"{self.path}", "topics:"]
-        width = max((len(t.name) for t in self.topics), default=0)
-        for t in self.topics:
-            lines.append(f"  {t.name:<{width}}  {t.msgtype}  ({t.count} messages)")
+        """A table for people: topics with types and counts, tf edges, candidate chains.
+
+        Names come from the bag: each is shown with its control characters escaped and cut to
+        :data:`NAME_DISPLAY_CHARS` characters, so a hostile bag cannot drive the terminal.
+        """
+
+        def show(name: str) -> str:
+            return sanitize_for_terminal(name, NAME_DISPLAY_CHARS)
+
+        lines = [show(self.path), "topics:"]
+        names = [show(t.name) for t in self.topics]
+        width = max((len(n) for n in names), default=0)
+        for name, t in zip(names, self.topics):
+            lines.append(f"  {name:<{width}}  {show(t.msgtype)}  ({t.count} messages)")
         if self.tf_edges:
             lines.append("tf edges (parent -> child):")
             for e in self.tf_edges:
-                lines.append(f"  {e.parent} -> {e.child}  ({e.count}{', static' if e.static else ''})")
+                lines.append(
+                    f"  {show(e.parent)} -> {show(e.child)}  ({e.count}{', static' if e.static else ''})"
+                )
             chains = self.tf_chains()
             if chains:
                 lines.append(
-                    "moving tf chains (root -> leaf): " + "; ".join(f"{a} -> {b}" for a, b in chains)
+                    "moving tf chains (root -> leaf): "
+                    + "; ".join(f"{show(a)} -> {show(b)}" for a, b in chains)
                 )
         return "\n".join(lines)
 
@@ -323,19 +359,21 @@ def _chain(
     for parent, child in edges:
         if child in parents and parents[child] != parent:
             raise InvalidInputError(
-                f"{where}: tf frame {child!r} has two parents ({parents[child]}, {parent})"
+                f"{where}: tf frame {quoted(child)} has two parents ({_listing([parents[child], parent])})"
             )
         parents[child] = parent
     frames = set(parents) | set(parents.values())
     for frame in (from_frame, to_frame):
         if frame not in frames:
             raise InvalidInputError(
-                f"{where}: tf has no frame {frame!r}; frames: {', '.join(sorted(frames))}"
+                f"{where}: tf has no frame {quoted(frame)}; frames: {_listing(sorted(frames))}"
             )
     up_from, up_to = _path_to_root(parents, from_frame), _path_to_root(parents, to_frame)
     common = next((f for f in up_from if f in up_to), None)
     if common is None:
-        raise InvalidInputError(f"{where}: tf frames {from_frame!r} and {to_frame!r} are not connected")
+        raise InvalidInputError(
+            f"{where}: tf frames {quoted(from_frame)} and {quoted(to_frame)} are not connected"
+        )
     # edges (parent, child, sign): +1 walked down (parent_from_child), -1 walked up (its inverse)
     walk = [(up_from[k + 1], up_from[k], -1) for k in range(up_from.index(common))]
     walk += [(up_to[k + 1], up_to[k], +1) for k in reversed(range(up_to.index(common)))]
@@ -363,7 +401,7 @@ def _chain(
 def _one(candidates: list, what: str, hint: str, where: str):
     if len(candidates) == 1:
         return candidates[0]
-    listing = ", ".join(str(c) for c in candidates) if candidates else "none"
+    listing = _listing([str(c) for c in candidates]) if candidates else "none"
     raise InvalidInputError(
         f"{where}: cannot choose the {what} ({len(candidates)} candidates: {listing}); {hint}"
     )
@@ -388,11 +426,12 @@ def _marker_from_topic(reader, path: Path, topic: str, msgtype: str, tracker_fra
     for parent, child in frames:
         if tracker_frame and parent != tracker_frame:
             raise InvalidInputError(
-                f"{path}: {topic} is in frame {parent!r}, not the tracker frame {tracker_frame!r}"
+                f"{path}: {topic} is in frame {quoted(parent)}, not the tracker frame {quoted(tracker_frame)}"
             )
         if marker_frame and msgtype in TRANSFORM_TYPES and child != marker_frame:
             raise InvalidInputError(
-                f"{path}: {topic} has child frame {child!r}, not the marker frame {marker_frame!r}"
+                f"{path}: {topic} has child frame {quoted(child)}, "
+                f"not the marker frame {quoted(marker_frame)}"
             )
     translation_array, quaternion_array = np.array(translations, float), np.array(quaternions, float)
     seen = np.all(np.isfinite(translation_array), axis=1) & np.all(np.isfinite(quaternion_array), axis=1)
@@ -413,7 +452,7 @@ def _joint_columns(names: Sequence[str], wanted: Sequence[str], where: str) -> l
         matches = [k for k, n in enumerate(names) if n == joint or n.endswith(joint)]
         if len(matches) != 1:
             raise InvalidInputError(
-                f"{where}: joint {joint!r} found {len(matches)} times in the names {', '.join(names)}"
+                f"{where}: joint {quoted(joint)} found {len(matches)} times in the names {_listing(names)}"
             )
         columns.append(matches[0])
     return columns

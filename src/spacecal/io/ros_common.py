@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacecal.core.errors import InvalidInputError, MissingExtraError
+from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import quoted
 from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
 
@@ -69,41 +70,6 @@ def number_text(value: float) -> str:
     return repr(value + 0.0)  # + 0.0 turns -0.0 into 0.0
 
 
-def require_yaml():
-    """The ``yaml`` module (PyYAML), or :class:`MissingExtraError` naming the extra that brings it."""
-    try:
-        import yaml
-    except ImportError as exc:  # pragma: no cover - the extra is installed in CI
-        raise MissingExtraError(
-            "reading ROS tools' YAML files needs PyYAML: pip install 'spacecal[ros]'"
-        ) from exc
-    return yaml
-
-
-def load_yaml_mapping(path, what: str) -> dict:
-    """Read a YAML file whose top level is a mapping; one clear line when it is not."""
-    from pathlib import Path
-
-    yaml = require_yaml()
-    path = Path(path)
-    if not path.is_file():
-        raise InvalidInputError(f"{path}: no such {what} file")
-    from spacecal.io.text import read_text_file
-
-    text = read_text_file(path, what)
-    try:
-        data = yaml.safe_load(text)
-    except RecursionError:
-        raise InvalidInputError(f"{path}: YAML nested too deeply for a {what}") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise InvalidInputError(f"{path}: not valid YAML{where}; expected a {what}") from exc
-    if not isinstance(data, dict):
-        raise InvalidInputError(f"{path}: expected a {what} (a YAML mapping), found {type(data).__name__}")
-    return data
-
-
 def field(mapping, key: str, where: str):
     """``mapping[key]`` or an InvalidInputError naming the missing field and where it was expected."""
     if not isinstance(mapping, dict) or key not in mapping:
@@ -115,5 +81,5 @@ def number_field(mapping, key: str, where: str) -> float:
     """A finite number from ``mapping[key]``; one clear line otherwise."""
     value = field(mapping, key, where)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise InvalidInputError(f"{where}: field {key!r} is {value!r}, expected a finite number")
+        raise InvalidInputError(f"{where}: field {key!r} is {quoted(value)}, expected a finite number")
     return float(value)

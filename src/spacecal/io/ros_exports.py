@@ -21,19 +21,23 @@ compose with ``base_link_from_base`` if you attach to ``base_link``.
 from __future__ import annotations
 
 import ast
-import json
 import shlex
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import double_quoted_ascii, one_line_ascii, quoted, sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, is_rigid_transform, make_transform
 from spacecal.io.atomic import write_text_atomic
+from spacecal.io.names import check_ros_frame_name, check_ros_node_name, check_xml_text
 from spacecal.io.ros_common import number_text, transform_from_ros, transform_to_ros
+from spacecal.io.strict_numbers import parse_float, parse_floats
+from spacecal.io.text import read_text_file, refuse_dtd
 
 #: ur_description: ``base`` is ``base_link`` rotated by pi about z (joint ``base_link-base_fixed_joint``).
 BASE_LINK_FROM_BASE = make_transform(Rotation.from_euler("z", np.pi).as_matrix(), np.zeros(3))
@@ -58,12 +62,14 @@ class StaticTransform:
     def __post_init__(self):
         for name, value in (("parent_frame", self.parent_frame), ("child_frame", self.child_frame)):
             if not isinstance(value, str) or not value.strip() or any(c.isspace() for c in value):
-                raise InvalidInputError(f"{name} {value!r}: expected a ROS frame name without spaces")
+                raise InvalidInputError(f"{name} {quoted(value)}: expected a ROS frame name without spaces")
         if self.parent_frame == self.child_frame:
-            raise InvalidInputError(f"parent and child frame are both {self.parent_frame!r}")
+            raise InvalidInputError(f"parent and child frame are both {quoted(self.parent_frame)}")
         matrix = np.asarray(self.parent_from_child, dtype=float)
         if matrix.shape != (4, 4) or not is_rigid_transform(matrix):
-            raise InvalidInputError(f"{self.parent_frame} -> {self.child_frame}: not a rigid 4x4 transform")
+            raise InvalidInputError(
+                f"{quoted(self.parent_frame)} -> {quoted(self.child_frame)}: not a rigid 4x4 transform"
+            )
         object.__setattr__(self, "parent_from_child", matrix)
 
     def inverted(self) -> StaticTransform:
@@ -103,8 +109,18 @@ def _meaning(edge: StaticTransform) -> str:
     )
 
 
+def checked_frames(edge: StaticTransform) -> tuple[str, str]:
+    """The edge's parent and child frame names, refused with one line unless both are ROS frame
+    names (:func:`spacecal.io.names.check_ros_frame_name`); every writer here calls it first."""
+    return (
+        check_ros_frame_name(edge.parent_frame, "parent frame"),
+        check_ros_frame_name(edge.child_frame, "child frame"),
+    )
+
+
 def static_transform_publisher_arguments(edge: StaticTransform) -> list[str]:
     """The ROS 2 (Humble and later) ``static_transform_publisher`` arguments for an edge."""
+    checked_frames(edge)
     translation_m, quaternion_xyzw = transform_to_ros(edge.parent_from_child)
     arguments = []
     for flag, value in zip(("--x", "--y", "--z"), translation_m):
@@ -120,8 +136,9 @@ def static_transform_publisher_command(edge: StaticTransform) -> str:
     The line is preceded by a ``#`` comment saying which frame is the parent and what the
     transform means, so it can be pasted into a shell script as it is.
     """
+    arguments = static_transform_publisher_arguments(edge)
     command = shlex.join(["ros2", "run", "tf2_ros", "static_transform_publisher"])
-    return f"# {_meaning(edge)}\n{command} {shlex.join(static_transform_publisher_arguments(edge))}\n"
+    return f"# {one_line_ascii(_meaning(edge))}\n{command} {shlex.join(arguments)}\n"
 
 
 def _edge_from_arguments(arguments: list[str], where: str) -> StaticTransform:
@@ -134,13 +151,15 @@ def _edge_from_arguments(arguments: list[str], where: str) -> StaticTransform:
         while k < len(arguments):
             flag = arguments[k]
             if not flag.startswith("--") or k + 1 >= len(arguments):
-                raise InvalidInputError(f"{where}: unexpected argument {flag!r}")
+                raise InvalidInputError(f"{where}: unexpected argument {quoted(flag)}")
             values[flag[2:].replace("_", "-")] = arguments[k + 1]
             k += 2
         known = {"x", "y", "z", "qx", "qy", "qz", "qw", "roll", "pitch", "yaw", "frame-id", "child-frame-id"}
         unknown = sorted(set(values) - known)
         if unknown:
-            raise InvalidInputError(f"{where}: unknown argument(s) --{', --'.join(unknown)}")
+            raise InvalidInputError(
+                f"{where}: unknown argument(s) {', '.join(quoted('--' + u) for u in unknown[:5])}"
+            )
         for frame in ("frame-id", "child-frame-id"):
             if frame not in values:
                 raise InvalidInputError(f"{where}: missing --{frame}")
@@ -148,9 +167,9 @@ def _edge_from_arguments(arguments: list[str], where: str) -> StaticTransform:
         def number(name, default):
             text = values.get(name, default)
             try:
-                return float(text)
+                return parse_float(text)
             except ValueError:
-                raise InvalidInputError(f"{where}: --{name} {text!r} is not a number") from None
+                raise InvalidInputError(f"{where}: --{name} {quoted(text)} is not a number") from None
 
         translation = [number(n, "0") for n in ("x", "y", "z")]
         if {"qx", "qy", "qz", "qw"} & set(values):
@@ -169,7 +188,7 @@ def _edge_from_arguments(arguments: list[str], where: str) -> StaticTransform:
             f"{where}: expected --x .. --child-frame-id, or 8/9 positional arguments; got {len(arguments)}"
         )
     try:
-        numbers = [float(a) for a in arguments[:-2]]
+        numbers = [parse_float(a) for a in arguments[:-2]]
     except ValueError:
         raise InvalidInputError(f"{where}: the leading positional arguments must be numbers") from None
     if len(numbers) == 7:
@@ -196,11 +215,9 @@ def parse_static_transform_publisher(text: str) -> StaticTransform:
     return _edge_from_arguments(words, "static_transform_publisher command")
 
 
-_LAUNCH_TEMPLATE = '''"""Publish the robot-tracker calibration as a static transform.
+_LAUNCH_TEMPLATE = '''"""Publish the robot-tracker calibration as a static transform. Written by spacecal."""
 
-{meaning}.
-Written by spacecal.
-"""
+# {meaning}
 
 from launch import LaunchDescription
 from launch_ros.actions import Node
@@ -222,19 +239,42 @@ def generate_launch_description():
 '''
 
 
-def ros2_launch_text(edge: StaticTransform, node_name: str | None = None) -> str:
-    """A ROS 2 Python launch file that starts a ``static_transform_publisher`` for the edge."""
-    node_name = node_name or f"{edge.parent_frame}_to_{edge.child_frame}_calibration".replace("/", "_")
-    arguments = static_transform_publisher_arguments(edge)
+def render_launch_text(node_name: str, arguments: list[str], meaning: str) -> str:
+    """The launch file's text with every value a Python literal that evaluates to exactly it.
+
+    Strings enter the code only as double-quoted, escaped, printable-ASCII literals
+    (:func:`spacecal.core.text.double_quoted_ascii`: no content can close one early), and
+    ``meaning`` only as one comment line of printable ASCII; nothing else in the file depends on
+    the values. The callers check the names first; this layer holds even for names that were
+    never checked.
+    """
+    if not all(isinstance(v, str) for v in [node_name, meaning, *arguments]):
+        raise InvalidInputError("a launch file is written from text values only")
     pairs = [arguments[k : k + 2] for k in range(0, len(arguments), 2)]
-    body = "\n".join(f"                    {json.dumps(flag)}, {json.dumps(value)}," for flag, value in pairs)
-    return _LAUNCH_TEMPLATE.format(meaning=_meaning(edge), name=json.dumps(node_name), arguments=body)
+    body = "\n".join(
+        "                    " + " ".join(f"{double_quoted_ascii(v)}," for v in pair) for pair in pairs
+    )
+    return _LAUNCH_TEMPLATE.format(
+        meaning=one_line_ascii(meaning), name=double_quoted_ascii(node_name), arguments=body
+    )
+
+
+def ros2_launch_text(edge: StaticTransform, node_name: str | None = None) -> str:
+    """A ROS 2 Python launch file that starts a ``static_transform_publisher`` for the edge.
+
+    The frame names must be ROS frame names and ``node_name`` a ROS node name (by default
+    ``<parent>_to_<child>_calibration`` with ``/`` as ``_``); anything else is refused.
+    """
+    parent, child = checked_frames(edge)
+    node_name = check_ros_node_name(
+        node_name or f"{parent}_to_{child}_calibration".replace("/", "_"), "launch node name"
+    )
+    return render_launch_text(node_name, static_transform_publisher_arguments(edge), _meaning(edge))
 
 
 def write_ros2_launch(path: str | Path, edge: StaticTransform, node_name: str | None = None) -> Path:
     """Write :func:`ros2_launch_text` to ``path`` (conventionally ``*.launch.py``); returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(ros2_launch_text(edge, node_name), path)
     return path
 
@@ -246,7 +286,7 @@ def read_ros2_launch(path: str | Path) -> StaticTransform:
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such launch file")
     try:
-        tree = ast.parse(path.read_text(), filename=str(path))
+        tree = ast.parse(read_text_file(path, "launch"), filename=str(path))
     except SyntaxError as exc:
         raise InvalidInputError(f"{path}: not a Python launch file (line {exc.lineno}: {exc.msg})") from None
     found = []
@@ -282,6 +322,46 @@ def rotation_from_rpy(rpy) -> np.ndarray:
     return Rotation.from_euler("xyz", np.asarray(rpy, dtype=float)).as_matrix()
 
 
+def _xml_comment(text: str) -> ET.Element[Any]:
+    """An XML comment of ``text`` that cannot end early: one line of printable ASCII without
+    ``--`` (which XML forbids inside a comment), padded with spaces so it cannot end in ``-``."""
+    text = one_line_ascii(text)
+    while "--" in text:
+        text = text.replace("--", "- -")
+    return ET.Comment(f" {text} ")
+
+
+def render_urdf_joint(
+    parent_link: str,
+    child_link: str,
+    joint_name: str,
+    xyz_text: str,
+    rpy_text: str,
+    comment: str,
+    with_child_link: bool = True,
+) -> str:
+    """The URDF snippet, built with ElementTree: every attribute escaped (quotes, ``<``, ``&``,
+    line breaks), a value XML cannot hold at all (NUL, other control characters) refused."""
+    for what, value in (
+        ("parent link", parent_link),
+        ("child link", child_link),
+        ("joint name", joint_name),
+        ("origin xyz", xyz_text),
+        ("origin rpy", rpy_text),
+    ):
+        check_xml_text(value, what)
+    elements = [_xml_comment(comment)]
+    if with_child_link:
+        elements.append(ET.Element("link", {"name": child_link}))
+    joint = ET.Element("joint", {"name": joint_name, "type": "fixed"})
+    ET.SubElement(joint, "parent", {"link": parent_link})
+    ET.SubElement(joint, "child", {"link": child_link})
+    ET.SubElement(joint, "origin", {"xyz": xyz_text, "rpy": rpy_text})
+    ET.indent(joint, "  ")
+    elements.append(joint)
+    return "\n".join(ET.tostring(element, encoding="unicode") for element in elements) + "\n"
+
+
 def urdf_joint_text(
     edge: StaticTransform, joint_name: str | None = None, with_child_link: bool = True
 ) -> str:
@@ -289,34 +369,35 @@ def urdf_joint_text(
 
     ``<origin xyz rpy>`` of a URDF joint is the pose of the child link in the parent link, so it
     holds ``parent_from_child`` (metres; rpy as URDF defines it). The child link element is
-    included unless ``with_child_link`` is false (when the URDF already has that link).
+    included unless ``with_child_link`` is false (when the URDF already has that link). The link
+    names must be ROS frame names and ``joint_name`` (by default
+    ``<parent>_to_<child>_calibration``) one too, of up to 255 characters.
     """
-    joint_name = joint_name or f"{edge.parent_frame}_to_{edge.child_frame}_calibration"
+    parent, child = checked_frames(edge)
+    joint_name = check_ros_frame_name(
+        joint_name or f"{parent}_to_{child}_calibration", "URDF joint name", max_chars=255
+    )
     xyz_m, _ = transform_to_ros(edge.parent_from_child)
     rpy = _rpy_of(edge.parent_from_child[:3, :3])
-    xyz_text = " ".join(number_text(v) for v in xyz_m)
-    rpy_text = " ".join(number_text(v) for v in rpy)
-    lines = [
-        "<!-- Robot-tracker calibration written by spacecal. "
+    comment = (
+        "Robot-tracker calibration written by spacecal. "
         + _meaning(edge).replace("quaternion x y z w", "rpy in rad (fixed axes x, y, z)")
-        + ". -->",
-    ]
-    if with_child_link:
-        lines.append(f'<link name="{edge.child_frame}"/>')
-    lines += [
-        f'<joint name="{joint_name}" type="fixed">',
-        f'  <parent link="{edge.parent_frame}"/>',
-        f'  <child link="{edge.child_frame}"/>',
-        f'  <origin xyz="{xyz_text}" rpy="{rpy_text}"/>',
-        "</joint>",
-    ]
-    return "\n".join(lines) + "\n"
+        + "."
+    )
+    return render_urdf_joint(
+        parent,
+        child,
+        joint_name,
+        " ".join(number_text(v) for v in xyz_m),
+        " ".join(number_text(v) for v in rpy),
+        comment,
+        with_child_link,
+    )
 
 
 def write_urdf_joint(path: str | Path, edge: StaticTransform, joint_name: str | None = None) -> Path:
     """Write :func:`urdf_joint_text` to ``path`` (an XML fragment to paste or ``xacro:include``)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(urdf_joint_text(edge, joint_name), path)
     return path
 
@@ -325,11 +406,11 @@ def _floats(text: str | None, count: int, where: str) -> np.ndarray:
     if text is None:
         return np.zeros(count)
     try:
-        values = np.array([float(v) for v in text.split()])
+        values = parse_floats(text)
     except ValueError:
-        raise InvalidInputError(f"{where}: {text!r} is not {count} numbers") from None
+        raise InvalidInputError(f"{where}: {quoted(text)} is not {count} plain decimal numbers") from None
     if values.shape != (count,):
-        raise InvalidInputError(f"{where}: {text!r} is not {count} numbers")
+        raise InvalidInputError(f"{where}: {quoted(text)} is not {count} numbers")
     return values
 
 
@@ -342,6 +423,7 @@ def parse_urdf_joint(text: str, child_frame: str | None = None, where: str = "UR
     child_frame : str, optional
         Which joint to take, by child link; needed when the text has more than one fixed joint.
     """
+    refuse_dtd(text, where)
     try:
         root = ET.fromstring(f"<spacecal_snippet>{text}</spacecal_snippet>")
     except ET.ParseError:
@@ -356,23 +438,24 @@ def parse_urdf_joint(text: str, child_frame: str | None = None, where: str = "UR
         children = [link for link in (_child_link(j) for j in joints) if link]
         raise InvalidInputError(
             f"{where}: expected one fixed joint"
-            + ("" if child_frame is None else f" with child {child_frame!r}")
+            + ("" if child_frame is None else f" with child {quoted(child_frame)}")
             + f", found {len(joints)}"
-            + (f" (children: {', '.join(children)})" if children else "")
+            + (
+                f" (children: {', '.join(sanitize_for_terminal(c, 60) for c in children[:10])})"
+                if children
+                else ""
+            )
         )
     joint = joints[0]
     parent, child = joint.find("parent"), joint.find("child")
     parent_link = None if parent is None else parent.get("link")
     child_link = None if child is None else child.get("link")
     if not parent_link or not child_link:
-        raise InvalidInputError(f"{where}: joint {joint.get('name')!r} lacks a parent or child link")
+        raise InvalidInputError(f"{where}: joint {quoted(joint.get('name'))} lacks a parent or child link")
     origin = joint.find("origin")
-    xyz = _floats(
-        None if origin is None else origin.get("xyz"), 3, f"{where}: joint {joint.get('name')!r} xyz"
-    )
-    rpy = _floats(
-        None if origin is None else origin.get("rpy"), 3, f"{where}: joint {joint.get('name')!r} rpy"
-    )
+    name = quoted(joint.get("name"))
+    xyz = _floats(None if origin is None else origin.get("xyz"), 3, f"{where}: joint {name} xyz")
+    rpy = _floats(None if origin is None else origin.get("rpy"), 3, f"{where}: joint {name} rpy")
     return StaticTransform(parent_link, child_link, make_transform(rotation_from_rpy(rpy), xyz * 1000.0))
 
 
@@ -386,4 +469,4 @@ def read_urdf_joint(path: str | Path, child_frame: str | None = None) -> StaticT
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such URDF file")
-    return parse_urdf_joint(path.read_text(), child_frame, str(path))
+    return parse_urdf_joint(read_text_file(path, "URDF"), child_frame, str(path))

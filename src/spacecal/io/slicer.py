@@ -27,8 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import quoted
 from spacecal.geometry.transforms import invert_transform, is_rigid_transform
 from spacecal.io.atomic import write_text_atomic
+from spacecal.io.strict_numbers import parse_floats
 from spacecal.io.text import read_text_file
 
 RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -66,11 +68,18 @@ def read_slicer_transform(path: str | Path) -> np.ndarray:
     fields = dict(line.split(":", 1) for line in lines[1:] if ":" in line and not line.startswith("#"))
     kind = fields.get("Transform", "").strip()
     if kind not in (TRANSFORM_TYPE, "AffineTransform_float_3_3", "MatrixOffsetTransformBase_double_3_3"):
-        raise InvalidInputError(f"{path}: transform type {kind!r} is not a 3-D affine transform")
-    parameters = np.array(fields.get("Parameters", "").split(), dtype=float)
-    fixed = np.array(fields.get("FixedParameters", "0 0 0").split(), dtype=float)
+        raise InvalidInputError(f"{path}: transform type {quoted(kind)} is not a 3-D affine transform")
+    try:
+        parameters = parse_floats(fields.get("Parameters", ""))
+        fixed = parse_floats(fields.get("FixedParameters", "0 0 0"))
+    except ValueError:
+        raise InvalidInputError(
+            f"{path}: Parameters and FixedParameters must be plain decimal numbers"
+        ) from None
     if parameters.size != 12 or fixed.size != 3:
         raise InvalidInputError(f"{path}: expected 12 Parameters and 3 FixedParameters")
+    if not (np.all(np.isfinite(parameters)) and np.all(np.isfinite(fixed))):
+        raise InvalidInputError(f"{path}: a transform parameter is not finite")
     itk = np.eye(4)
     itk[:3, :3] = parameters[:9].reshape(3, 3)
     # ITK's offset includes the centre of rotation: t' = t + c - A c

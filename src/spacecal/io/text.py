@@ -6,6 +6,7 @@ one line naming the file and what it looks like, instead of a decoding traceback
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from spacecal.core.errors import InvalidInputError
@@ -40,3 +41,15 @@ def read_text_file(path: str | Path, what: str) -> str:
         raise InvalidInputError(
             f"{path}: not UTF-8 text (byte {exc.start}); save the {what} file as UTF-8"
         ) from None
+
+
+_DTD = re.compile(r"<!\s*(?:DOCTYPE|ENTITY)", re.IGNORECASE)
+
+
+def refuse_dtd(text: str, where: str) -> str:
+    """``text`` unless it declares a DTD or entities (``<!DOCTYPE``, ``<!ENTITY``), which no XML
+    file spacecal reads (PLUS configurations, URDF) needs and which can expand a small file
+    into gigabytes or pull in other files; one clear line then."""
+    if _DTD.search(text):
+        raise InvalidInputError(f"{where}: XML with a document type or entity declaration is not accepted")
+    return text

@@ -56,10 +56,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import quoted
 from spacecal.core.units import metres_to_mm
 from spacecal.geometry.transforms import make_transform
 from spacecal.io.atomic import write_text_atomic
-from spacecal.io.ros_common import load_yaml_mapping, number_field, number_text
+from spacecal.io.ros_common import number_field
+from spacecal.io.yaml_text import load_yaml_mapping, yaml_comment, yaml_number, yaml_string
 from spacecal.models.kinematics import N_JOINTS, RobotModel
 
 #: The ``kinematics`` entries, joint 1 to 6, as ur_calibration names them.
@@ -140,8 +142,8 @@ def ur_joint_origins(model: RobotModel) -> np.ndarray:
     """
     if abs(model.a_mm[5]) > 1e-12 or abs(model.alpha_rad[5]) > 1e-15:
         raise InvalidInputError(
-            f"{model.name}: a_6 = {model.a_mm[5]:.6g} mm, alpha_6 = {model.alpha_rad[5]:.6g} rad; the UR "
-            "description has no place for them (fold them into the tool offset)"
+            f"{quoted(model.name)}: a_6 = {model.a_mm[5]:.6g} mm, alpha_6 = {model.alpha_rad[5]:.6g} rad; "
+            "the UR description has no place for them (fold them into the tool offset)"
         )
     theta = np.asarray(model.theta_offset_rad, dtype=float)
     alpha = np.asarray(model.alpha_rad, dtype=float)
@@ -228,7 +230,9 @@ def ur_calibration_text(model: RobotModel, kinematics_hash: str | None = None) -
     """
     origins = ur_joint_origins(model)
     lines = [
-        f"# UR kinematics for ur_description, written by spacecal from the DH model of {model.name}.",
+        yaml_comment(
+            f"UR kinematics for ur_description, written by spacecal from the DH model of {model.name}."
+        ),
         "# Each entry: URDF joint origin (child link pose in parent link at joint angle 0), metres,",
         "# rpy = fixed axes x, y, z (R = Rz(yaw) Ry(pitch) Rx(roll)); chain starts at base_link_inertia",
         "# (the controller's base frame).",
@@ -239,8 +243,8 @@ def ur_calibration_text(model: RobotModel, kinematics_hash: str | None = None) -
         x, y, z = origin[:3, 3] / 1000.0
         lines.append(f"  {name}:")
         for key, value in (("x", x), ("y", y), ("z", z), ("roll", roll), ("pitch", pitch), ("yaw", yaw)):
-            lines.append(f"    {key}: {number_text(value)}")
-    lines.append(f"  hash: {kinematics_hash or ur_kinematics_hash(model)}")
+            lines.append(f"    {key}: {yaml_number(value)}")
+    lines.append(f"  hash: {yaml_string(kinematics_hash or ur_kinematics_hash(model))}")
     return "\n".join(lines) + "\n"
 
 
@@ -289,4 +293,8 @@ def read_ur_calibration(path: str | Path) -> UrKinematics:
         rpy = [number_field(entry, k, where) for k in ("roll", "pitch", "yaw")]
         origins.append(make_transform(Rotation.from_euler("xyz", rpy).as_matrix(), metres_to_mm(xyz)))
     kinematics_hash = kinematics.get("hash", "")
-    return UrKinematics(np.array(origins), str(kinematics_hash) if kinematics_hash is not None else "")
+    if kinematics_hash is None:
+        kinematics_hash = ""
+    if isinstance(kinematics_hash, bool) or not isinstance(kinematics_hash, (str, int)):
+        raise InvalidInputError(f"{path}: kinematics.hash is {quoted(kinematics_hash)}, expected text")
+    return UrKinematics(np.array(origins), str(kinematics_hash))

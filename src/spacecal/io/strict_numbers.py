@@ -1,0 +1,68 @@
+"""Numbers in text files: the plain decimal forms only, one parser for every reader.
+
+Python's ``float()`` and ``int()`` (and numpy's string conversion) accept more than a
+number in a data file should be: ``1_000`` (digit grouping), digits of other scripts
+(``'١٢'`` is 12), and surrounding Unicode spaces. A cell ``1_000`` is far more likely a
+typing or export error than a thousand, so the readers of recordings, raw streams, pose
+files, PLUS and Slicer files and ROS command lines parse numbers here and refuse those forms.
+
+Accepted: an optional sign, ASCII digits with an optional decimal point, an optional
+exponent (``-12``, ``0.5``, ``.5``, ``5.``, ``1e-05``, ``1.5E+3``), and the spelled-out
+non-finite values (``nan``, ``inf``, ``infinity``, any case, with a sign) so that readers can
+say "not finite" rather than "not a number". ASCII spaces and tabs around the number are
+ignored, as in a CSV written with ``", "`` separators.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
+_NON_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
+_INTEGER = re.compile(r"[+-]?[0-9]+", re.ASCII)
+#: Longer than this is not a number a file of ours holds (and ``int()`` of 4,300 digits raises).
+MAX_NUMBER_CHARS = 400
+_SPACE = " \t"
+#: Separators of a list of numbers: ASCII whitespace only (a no-break space is not one).
+_SEPARATOR = re.compile(r"[ \t\r\n]+")
+
+
+def parse_float(text: str) -> float:
+    """The float of a plain decimal number (see the module docstring).
+
+    Raises
+    ------
+    ValueError
+        For anything else: ``1_000``, ``0x10``, ``1,5``, digits of other scripts, an empty cell.
+        Callers add the file, line and column.
+    """
+    stripped = text.strip(_SPACE) if isinstance(text, str) else ""
+    if len(stripped) <= MAX_NUMBER_CHARS and (
+        _DECIMAL.fullmatch(stripped) or _NON_FINITE.fullmatch(stripped)
+    ):
+        return float(stripped)
+    raise ValueError("not a plain decimal number")
+
+
+def parse_int(text: str) -> int:
+    """The int of a plain decimal integer (optional sign, ASCII digits); ValueError otherwise."""
+    stripped = text.strip(_SPACE) if isinstance(text, str) else ""
+    if len(stripped) <= MAX_NUMBER_CHARS and _INTEGER.fullmatch(stripped):
+        return int(stripped)
+    raise ValueError("not a plain decimal integer")
+
+
+def parse_floats(text: str) -> np.ndarray:
+    """The numbers of a whitespace-separated list (a PLUS ``Matrix``, a URDF ``xyz``), shape (K,).
+
+    Raises
+    ------
+    ValueError
+        When any item is not a plain decimal number.
+    """
+    if not isinstance(text, str):
+        raise ValueError("not a list of numbers")
+    items = _SEPARATOR.split(text.strip(_SPACE + "\r\n"))
+    return np.array([parse_float(item) for item in items if item], dtype=float)
