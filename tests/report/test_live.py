@@ -184,3 +184,27 @@ def test_no_view_started_for_a_dry_run(tmp_path, capfd):
 def _tmp_folders(tmp_path):
     for name in ("plain0", "plain1", "plain2", "viewed0", "viewed1", "viewed2"):
         (tmp_path / name).mkdir()
+
+
+def test_only_loopback_names_are_served_and_a_bad_port_is_a_usage_error(tmp_path, capsys):
+    import http.client
+
+    with LiveView(0) as view:
+        for host, status in (
+            (f"127.0.0.1:{view.port}", 200),
+            (f"localhost:{view.port}", 200),
+            (f"attacker.example:{view.port}", 421),  # DNS rebinding: another site's name
+            ("127.0.0.1:1", 421),
+            ("", 421),
+        ):
+            connection = http.client.HTTPConnection("127.0.0.1", view.port, timeout=5)
+            connection.putrequest("GET", "/data", skip_host=True)
+            if host:
+                connection.putheader("Host", host)
+            connection.endheaders()
+            assert connection.getresponse().status == status, host
+            connection.close()
+    with pytest.raises(SystemExit) as usage:
+        main(["acquire", "-o", str(tmp_path / "rec.csv"), "--live-view", "70000"])
+    assert usage.value.code == 2
+    assert "invalid port_number value: '70000'" in capsys.readouterr().err

@@ -14,6 +14,14 @@ from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
 COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm", "--tool")
 
 
+def port_number(text: str) -> int:
+    """A TCP port 0..65535, 0 meaning any free one (argparse turns the ValueError into a usage error)."""
+    value = int(text)
+    if not 0 <= value <= 65535:
+        raise ValueError(text)
+    return value
+
+
 def _d(settings: type, name: str):
     import dataclasses
 
@@ -169,7 +177,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--live-view",
         nargs="?",
-        type=int,
+        type=port_number,
         const=LIVE_VIEW_PORT,
         metavar="PORT",
         help=f"show the marker, the sweeps and the samples in a web browser at http://127.0.0.1:PORT/ "

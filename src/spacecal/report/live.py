@@ -168,6 +168,10 @@ class LiveView:
 
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:
+                if not _local_host(self.headers.get("Host"), view.port):
+                    # a page served under another name (DNS rebinding) gets nothing
+                    self.send_error(421, "Misdirected Request")
+                    return
                 address = urlparse(self.path)
                 if address.path == "/":
                     self._send(view.page(), "text/html; charset=utf-8")
@@ -191,8 +195,14 @@ class LiveView:
             def log_message(self, format: str, *args: Any) -> None:
                 pass  # the acquisition's progress line owns the terminal
 
+        class Server(ThreadingHTTPServer):
+            def handle_error(self, request: Any, client_address: Any) -> None:
+                # a browser that closes the tab mid-reply is not an error worth a traceback on the
+                # terminal the acquisition's progress line owns
+                pass
+
         try:
-            server = ThreadingHTTPServer(("127.0.0.1", self.port), Handler)
+            server = Server(("127.0.0.1", self.port), Handler)
         except OSError as exc:
             print(
                 f"warning: live view not started: port {self.port} on 127.0.0.1 ({exc.strerror or exc}); "
@@ -226,6 +236,20 @@ class LiveView:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+#: The names the page may be asked for under: the loopback address and ``localhost``.
+LOCAL_HOSTS = ("127.0.0.1", "localhost")
+
+
+def _local_host(header: str | None, port: int) -> bool:
+    """True when a request's ``Host`` header names this server on loopback (``127.0.0.1:PORT``
+    or ``localhost:PORT``): a page of another site that rebinds its name to 127.0.0.1 sends its
+    own name and is refused."""
+    if not header:
+        return False
+    host, _, given_port = header.strip().rpartition(":")
+    return host.lower() in LOCAL_HOSTS and given_port == str(port)
 
 
 def volume_edges(volume: PyramidVolume) -> list[list[float] | None]:
