@@ -12,6 +12,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from spacecal.core.errors import DeviceError
+
 #: Robot safety states, as the workflows understand them. Anything but ``normal`` ends a run;
 #: the workflow names it as ``"robot " + state.replace("_", " ")``, so each value reads as the
 #: end of that sentence ("robot safeguard stop", "robot program stopped on the teach pendant").
@@ -105,6 +107,23 @@ class RobotState:
     safety: str = SAFETY_NORMAL
     moving: bool = False
 
+    def __post_init__(self) -> None:
+        # the device boundary: a controller's values are checked before anything uses them
+        joints = np.asarray(self.joints_rad, dtype=float)
+        pose = np.asarray(self.base_from_tcp, dtype=float)
+        if not np.isfinite(self.time_s):
+            raise DeviceError(f"the robot sent a state time that is not a number ({self.time_s})")
+        if joints.shape != (6,) or not np.all(np.isfinite(joints)) or np.max(np.abs(joints)) > MAX_JOINT_RAD:
+            raise DeviceError(
+                f"the robot sent joint angles that are not an arm's: {np.round(joints, 3).tolist()}"
+            )
+        if (
+            pose.shape != (4, 4)
+            or not np.all(np.isfinite(pose))
+            or np.max(np.abs(pose[:3, 3])) > MAX_ROBOT_REACH_MM
+        ):
+            raise DeviceError("the robot sent a TCP pose that is not finite or not within its reach")
+
 
 @dataclass(frozen=True)
 class TrackerFrame:
@@ -132,6 +151,49 @@ class TrackerFrame:
     tracker_from_marker: np.ndarray | None
     rms_mm: float = float("nan")
     spheres_in_tracker: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        # the device boundary: a pose that is not a rigid transform within the tracker's reach
+        # (NaN, 1e30 mm, a scaled matrix) is kept as an invalid frame without a pose, a gap in
+        # the run, never a sample
+        if not np.isfinite(self.time_s):
+            raise DeviceError(f"the tracker sent a frame time that is not a number ({self.time_s})")
+        if self.tracker_from_marker is not None and not plausible_tracked_pose(self.tracker_from_marker):
+            object.__setattr__(self, "tracker_from_marker", None)
+            object.__setattr__(self, "status", FRAME_INVALID)
+            object.__setattr__(self, "rms_mm", float("nan"))
+            object.__setattr__(self, "spheres_in_tracker", None)
+        if self.spheres_in_tracker is not None and not np.all(np.isfinite(self.spheres_in_tracker)):
+            object.__setattr__(self, "spheres_in_tracker", None)
+        if not (np.isnan(self.rms_mm) or 0.0 <= self.rms_mm <= MAX_FIT_RMS_MM):
+            object.__setattr__(self, "rms_mm", float("nan"))
+
+
+#: Joint angles beyond this (rad) are not a UR's (its joints turn +-2 pi; a margin for wrap).
+MAX_JOINT_RAD = 4.0 * np.pi
+#: A TCP farther than this from the base (mm) is not within any arm's reach.
+MAX_ROBOT_REACH_MM = 10_000.0
+#: A marker farther than this from the tracker (mm) is not within any optical tracker's or
+#: camera's working volume (a Polaris Vega reaches 3 m).
+MAX_TRACKED_DISTANCE_MM = 20_000.0
+#: A fit RMS above this (mm) is not a tracker's figure for a seen marker.
+MAX_FIT_RMS_MM = 100.0
+
+
+def plausible_tracked_pose(pose: np.ndarray) -> bool:
+    """True for a finite rigid transform (4, 4) whose translation is within
+    :data:`MAX_TRACKED_DISTANCE_MM`: rotation orthonormal to 1e-3, last row 0 0 0 1."""
+    pose = np.asarray(pose, dtype=float)
+    if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
+        return False
+    if np.max(np.abs(pose[:3, 3])) > MAX_TRACKED_DISTANCE_MM:
+        return False
+    rotation = pose[:3, :3]
+    return bool(
+        np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3)
+        and np.linalg.det(rotation) > 0
+        and np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9)
+    )
 
 
 @runtime_checkable
