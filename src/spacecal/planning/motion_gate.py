@@ -904,8 +904,8 @@ def _workspace_failures(
             (
                 k,
                 "workspace",
-                f"the {which} goes below the base plane (z = {points[k, :, 2].min():.0f} mm) "
-                f"{_where(k, count)}",
+                f"the {which} goes below the base plane {_where(k, count)} (down to z = "
+                f"{points[..., 2].min():.0f} mm)",
             )
         )
     if inside.any():
