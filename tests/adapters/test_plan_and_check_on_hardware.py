@@ -96,3 +96,58 @@ def test_planned_motion_then_checks_on_the_fake_devices(world, rom_file, tmp_pat
         "robot": f"ur://{host}",
         "tracker": f"ndi://{host}:{world.info['ndi_port']}",
     }
+
+
+def test_a_plan_the_motion_gate_refuses_moves_nothing_on_the_fake_robot(world, rom_file, tmp_path):
+    """A plan file whose last move ends at the robot's base, run for real (confirmed): the gate
+    refuses it in one line before the control program is uploaded or a command is sent."""
+    from .ur_runs import stats
+
+    plan = tmp_path / "plan.json"
+    planned = run([*SPACECAL, "plan", "--scenario", "paper-white", "--paper-sweeps", "-o", str(plan)], 120)
+    assert planned.returncode == 0, planned.stderr
+    data = json.loads(plan.read_text())
+    last = np.array(data["moves"][-1]["end_base_from_tcp"])
+    at_base = last.copy()
+    at_base[:3, 3] = [0.0, 0.0, 50.0]
+    data["moves"].append(
+        {
+            "label": "transit",
+            "start_base_from_tcp": last.tolist(),
+            "end_base_from_tcp": at_base.tolist(),
+            "duration_s": 8.0,
+            "accel_time_s": 0.25,
+            "sample_period_s": 0.0,
+        }
+    )
+    hostile = tmp_path / "hostile.json"
+    hostile.write_text(json.dumps(data))
+    host = world.info["host"]
+    recording = tmp_path / "rec.csv"
+    refused = run(
+        [
+            *SPACECAL,
+            "acquire",
+            "--robot",
+            f"ur://{host}",
+            "--tracker",
+            f"ndi://{host}:{world.info['ndi_port']}",
+            "--rom",
+            str(rom_file),
+            "--tool-offset-mm",
+            "0,0,200",
+            "--plan",
+            str(hostile),
+            "--confirm-robot-motion",
+            "-o",
+            str(recording),
+        ],
+        180,
+    )
+    lines = refused.stderr.strip().splitlines()
+    assert refused.returncode == 1 and len(lines) == 1, refused.stdout + refused.stderr
+    n = len(data["moves"])
+    assert lines[0].startswith(f"spacecal: error: motion refused, nothing moved: move {n}/{n} (transit)")
+    after = stats(world)
+    assert after["scripts_uploaded"] == 0 and after["commands"] == [], after
+    assert not recording.exists()

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.app._common import refuse_overwriting_inputs
+from spacecal.app.gate import COMMANDED_BY, acquisition_gate, gate_plan, plan_workspace, world_visibility
 from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import (
@@ -41,6 +42,7 @@ from spacecal.models.marker import ndi_8700339_like
 from spacecal.models.tracker import TrackerModel
 from spacecal.planning.check_poses import check_plan
 from spacecal.planning.motion import MotionLimits, MotionPlan, motion_plan_from_record, planned_moves
+from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.planning.optimal import PlannerSettings, needle_site, paper_sweep_site_error, plan_for_site
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
 from spacecal.planning.stop_and_go import stop_and_go_plan
@@ -188,21 +190,8 @@ class AcquireOutput:
     dry_run: bool = False
     result: AcquisitionResult | None = None
     simulated: bool = True
-
-
-def workspace_problems(plan: MotionPlan, box: Sequence[float] | None) -> list[str]:
-    """Sampled plan poses outside a base-frame box ``xmin, xmax, ymin, ymax, zmin, zmax`` (mm)."""
-    if box is None:
-        return []
-    limits = np.asarray(box, dtype=float).reshape(3, 2)
-    problems = []
-    for move in plan.moves:
-        positions = move.poses_at(np.linspace(0.0, move.duration_s, 21))[:, :3, 3]
-        outside = (positions < limits[:, 0]) | (positions > limits[:, 1])
-        if outside.any():
-            excess = np.max(np.maximum(limits[:, 0] - positions, positions - limits[:, 1]))
-            problems.append(f"{move.label} move leaves the workspace box (up to {excess:.0f} mm)")
-    return problems
+    #: What the motion gate checked before anything moved (None: nothing was left to run).
+    gate: MotionGateReport | None = None
 
 
 def simulated_devices(
@@ -595,15 +584,14 @@ def acquire(
             )
         if on_plan is not None:
             on_plan(len(plan.moves))
-        problems = workspace_problems(plan, settings.workspace_box)
+        gate = acquisition_gate(settings, plan, model, robot.state(), motion_limits(settings), world)
         output = AcquireOutput(
             len(plan.moves),
             plan.motion_time_s,
-            checks + list(plan.messages) + problems,
+            checks + list(plan.messages),
             simulated=world is not None,
+            gate=gate,
         )
-        if problems:
-            raise InvalidInputError("the plan leaves the workspace box; nothing was moved")
         if settings.dry_run:
             output.dry_run = True
             return output
@@ -626,6 +614,7 @@ def acquire(
         metadata["plan"] = {
             **plan.summary(),
             "file": None if settings.plan is None else str(Path(settings.plan).resolve()),
+            "motion_gate": None if gate is None else gate.to_dict(),
         }
         if world is None:
             upload_control_program(robot)
@@ -708,6 +697,8 @@ class CheckOutput:
     history: Path | None
     threshold_basis: str = ""
     messages: list[str] = field(default_factory=list)
+    #: What the motion gate checked before the robot moved (None: checked against a recording).
+    gate: MotionGateReport | None = None
 
 
 def check(settings: CheckSettings) -> CheckOutput:
@@ -770,9 +761,17 @@ def check(settings: CheckSettings) -> CheckOutput:
             frame_period,
             settings.frames_per_pose,
         )
-        messages = workspace_problems(plan, devices.workspace_box)
-        if messages:
-            raise InvalidInputError("the check poses leave the workspace box; nothing was moved")
+        gate = gate_plan(
+            plan,
+            model,
+            robot.state(),
+            motion_limits(devices),
+            plan_workspace(model, plan, devices.workspace_box),
+            visibility=None if world is None else world_visibility(world),
+            visibility_note="not predicted on real devices (the check poses are within 45 mm and 10 deg "
+            "of where the robot stands)",
+            commanded_by=COMMANDED_BY,
+        )
         if settings.dry_run:
             return CheckOutput(
                 None,
@@ -782,6 +781,7 @@ def check(settings: CheckSettings) -> CheckOutput:
                     f"{settings.poses} check poses planned, {plan.motion_time_s:.1f} s of motion; "
                     "nothing moved"
                 ],
+                gate,
             )
         if world is None and not settings.confirm_robot_motion:
             raise InvalidInputError(
@@ -812,7 +812,7 @@ def check(settings: CheckSettings) -> CheckOutput:
         else {"robot": settings.robot, "tracker": settings.tracker}
     )
     result = _with(result, simulated=world is not None, devices=identity)
-    return CheckOutput(result, append_history(settings.calibration, result), basis)
+    return CheckOutput(result, append_history(settings.calibration, result), basis, gate=gate)
 
 
 def _with(result: CheckResult, **changes: Any) -> CheckResult:

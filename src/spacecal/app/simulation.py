@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.app._common import guard_outputs
+from spacecal.app.gate import default_box_half_mm, gate_plan, plan_workspace, world_visibility
 from spacecal.core.errors import InvalidInputError
 from spacecal.experiments.demo import DemoResult, run_demo
 from spacecal.experiments.phantom import PhantomSettings, run_phantom_experiment
@@ -23,10 +24,12 @@ from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
 from spacecal.io.results_json import read_calibration, read_json_object, write_calibration, write_json
 from spacecal.planning.motion import MotionPlan, motion_plan_from_record
+from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.records import CalibrationResult, PhantomResult, PlanRecord, VerificationResult
 from spacecal.report.figures import plot_phantom_errors, plot_verification_errors
+from spacecal.sim.motion import motion_limits, plan_for_world
 from spacecal.sim.scenario import Scenario, load_scenario, scenario_from_dict
-from spacecal.sim.world import build_world
+from spacecal.sim.world import World, build_world
 
 #: The scenario every simulated command uses unless told otherwise.
 DEFAULT_SCENARIO = "paper-realistic"
@@ -83,6 +86,8 @@ class SimulateOutput:
     clock_offset_ms: float = 0.0
     messages: list[str] = field(default_factory=list)
     simulated: bool = True
+    #: What the motion gate checked before the simulated robot moved.
+    gate: MotionGateReport | None = None
 
 
 def check_seed(seed: int | None) -> None:
@@ -118,6 +123,26 @@ def plan_for_scenario(path: str, scenario: Scenario) -> MotionPlan:
     return plan
 
 
+def simulation_gate(world: World, plan: MotionPlan, from_file: bool) -> MotionGateReport:
+    """Pass a simulated run's plan through the motion gate, as ``acquire`` does on hardware: from
+    the home the simulated robot starts at, with the scenario's limits and its tracker's view.
+    The default box grows to cover the scenario's own sweeps or stations, not a plan file's."""
+    s = world.scenario
+    reach = (s.translation_mm / 2, s.station_cube_mm / 2 if s.motion == "stations" else 0.0)
+    model = world.controller_model
+    return gate_plan(
+        plan,
+        model,
+        None,
+        motion_limits(s),
+        plan_workspace(
+            model, plan, None, default_box_half_mm() if from_file else default_box_half_mm(*reach)
+        ),
+        visibility=world_visibility(world),
+        commanded_by=f"the scenario's linear_speed_mm_s and angular_speed_deg_s ({s.name})",
+    )
+
+
 def simulate(settings: SimulateSettings) -> SimulateOutput:
     """Simulate a calibration run and write its recording (paired CSV, or raw streams)."""
     stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
@@ -126,7 +151,9 @@ def simulate(settings: SimulateSettings) -> SimulateOutput:
     )
     guard_outputs(outputs, [settings.scenario, settings.plan], settings.force)
     scenario = scenario_with_seed(settings.scenario, settings.seed)
-    plan = None if settings.plan is None else plan_for_scenario(settings.plan, scenario)
+    world = build_world(scenario)
+    plan = plan_for_world(world) if settings.plan is None else plan_for_scenario(settings.plan, scenario)
+    gate = simulation_gate(world, plan, from_file=settings.plan is not None)
     if settings.raw:
         raw, _ = simulate_raw(scenario, settings.clock_offset_ms / 1000.0, plan)
         robot_path, tracker_path = write_raw_recording(raw, stem)
@@ -137,6 +164,7 @@ def simulate(settings: SimulateSettings) -> SimulateOutput:
             samples=len(raw.tracker_time_s),
             robot_states=len(raw.robot_time_s),
             clock_offset_ms=settings.clock_offset_ms,
+            gate=gate,
         )
     simulation = simulate_run(scenario, plan)
     recording = simulation.recording
@@ -149,6 +177,7 @@ def simulate(settings: SimulateSettings) -> SimulateOutput:
         visible=int(recording.visible.sum()),
         motion_time_s=simulation.plan.motion_time_s,
         messages=list(simulation.plan.messages),
+        gate=gate,
     )
 
 

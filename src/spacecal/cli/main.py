@@ -75,6 +75,8 @@ def _simulate(a: argparse.Namespace) -> None:
     print(
         f"simulated: scenario {out.scenario}, seed {out.seed}; planned motion time {out.motion_time_s:.1f} s"
     )
+    if out.gate is not None:
+        print(out.gate.summary())
     _print_notes(out.messages)
 
 
@@ -296,11 +298,12 @@ def _acquire(a: argparse.Namespace) -> None:
     )
     _print_notes(out.messages)
     if out.dry_run:
-        print(
-            "dry run: plan checked (reach, joint limits, visibility in the model, workspace box); "
-            "nothing moved"
-        )
+        for line in out.gate.lines() if out.gate is not None else []:
+            print(line)
+        print("dry run: nothing moved")
         return
+    if out.gate is not None:
+        print(out.gate.summary())
     r = out.result
     assert r is not None
     print(
@@ -417,6 +420,10 @@ def _check(a: argparse.Namespace) -> None:
             a.frames_per_pose,
         )
     )
+    if out.gate is not None:
+        # a dry run (no result) shows every check; a run that moved, the verdict
+        for line in out.gate.lines() if out.result is None else [out.gate.summary()]:
+            print(line)
     _print_notes(out.messages)
     r = out.result
     if r is None:

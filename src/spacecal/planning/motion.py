@@ -188,6 +188,9 @@ class MotionPlan:
         ``{"rot_x": [lo_deg, hi_deg], "lin_x": [lo_mm, hi_mm], ...}``.
     messages : list of str
         What was shrunk and why.
+    workspace_box_mm : numpy.ndarray, shape (6,), or None
+        ``xmin, xmax, ymin, ymax, zmin, zmax`` (base frame, mm) the plan keeps the TCP in, when
+        it states one (a plan file's ``workspace_box_mm``).
     """
 
     home_joints_rad: np.ndarray
@@ -195,6 +198,7 @@ class MotionPlan:
     moves: list[TimedMove]
     extents: dict
     messages: list[str]
+    workspace_box_mm: np.ndarray | None = None
 
     @property
     def motion_time_s(self) -> float:
@@ -237,4 +241,6 @@ def motion_plan_from_record(record: PlanRecord) -> MotionPlan:
         for m in record.moves
     ]
     extents = {"stations": len(record.station_joints_rad)} if record.kind == "site-optimal" else {}
-    return MotionPlan(record.home_joints_rad, record.home_base_from_tcp, moves, extents, [])
+    return MotionPlan(
+        record.home_joints_rad, record.home_base_from_tcp, moves, extents, [], record.workspace_box_mm
+    )

@@ -121,6 +121,9 @@ class PlanRecord:
         True when the set-up (tracker placement, marker, home) came from a simulated scenario.
     scenario : str or None
         That scenario's name.
+    workspace_box_mm : numpy.ndarray, shape (6,), or None
+        ``xmin, xmax, ymin, ymax, zmin, zmax`` in the robot base (mm) the TCP must stay in;
+        None: the motion gate's default box around home.
     """
 
     kind: str
@@ -138,6 +141,7 @@ class PlanRecord:
     station_joints_rad: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
     simulated_setup: bool = True
     scenario: str | None = None
+    workspace_box_mm: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         what = "plan"
@@ -163,6 +167,13 @@ class PlanRecord:
             object.__setattr__(
                 self, "site_base_from_tcp", as_transform(self.site_base_from_tcp, "site_base_from_tcp", what)
             )
+        if self.workspace_box_mm is not None:
+            box = as_array(self.workspace_box_mm, (6,), "workspace_box_mm", what)
+            if np.any(box[0::2] >= box[1::2]):
+                raise InvalidInputError(
+                    f"{what}: workspace_box_mm is xmin, xmax, ymin, ymax, zmin, zmax with each min < max"
+                )
+            object.__setattr__(self, "workspace_box_mm", box)
         if not (math.isfinite(self.motion_time_s) and self.motion_time_s >= 0):
             raise InvalidInputError(f"{what}: motion_time_s must not be negative")
         if self.budget_s is not None and not self.budget_s > 0:
@@ -193,6 +204,7 @@ class PlanRecord:
                 "predicted_error_mm": self.predicted_error_mm,
                 "paper_sweep": self.paper_sweep,
                 "station_joints_rad": self.station_joints_rad,
+                "workspace_box_mm": self.workspace_box_mm,
                 "moves": [move.to_dict() for move in self.moves],
             }
         )
@@ -233,6 +245,7 @@ class PlanRecord:
             raise InvalidInputError(f"{what}: 'scenario' must be a name or null")
         budget = data.get("budget_s")
         predicted = data.get("predicted_error_mm")
+        box = data.get("workspace_box_mm")
         return cls(
             kind=get_str(data, "kind", what),
             motion_time_s=get_number(data, "motion_time_s", what),
@@ -253,4 +266,5 @@ class PlanRecord:
             ),
             simulated_setup=simulated,
             scenario=scenario,
+            workspace_box_mm=None if box is None else as_array(box, (6,), "workspace_box_mm", what),
         )

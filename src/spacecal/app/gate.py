@@ -1,0 +1,166 @@
+"""The motion gate as the commands use it: what each command hands it, and its refusal.
+
+``acquire``, ``check`` and ``simulate`` pass every motion (the paper's sweeps planned where the
+robot stands, a plan file, the check poses) through :func:`spacecal.planning.motion_gate.gate_motion`
+before anything moves, dry run or not. This module turns a command's settings and devices into
+the gate's inputs: the workspace box (``--workspace-box``, the plan file's, or the default
+around home), the visibility model where a tracker pose is known, and where the arm stands.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from spacecal.core.errors import InvalidInputError
+from spacecal.core.ports import RobotState
+from spacecal.io.results_json import read_calibration
+from spacecal.models.kinematics import RobotModel
+from spacecal.models.marker import ndi_8700339_like
+from spacecal.models.tracker import TrackerModel
+from spacecal.planning.motion import MotionLimits, MotionPlan
+from spacecal.planning.motion_gate import (
+    DEFAULT_BOX_HALF_MM,
+    MotionGateReport,
+    Workspace,
+    gate_motion,
+    workspace_around,
+)
+from spacecal.planning.visibility import VisibilityModel
+from spacecal.sim.world import World
+from spacecal.workflows.acquisition import plan_fingerprint, read_progress
+
+if TYPE_CHECKING:
+    from spacecal.app.acquisition import AcquireSettings
+
+#: Where the commanded limits of ``acquire`` and ``check`` come from (named in a refusal).
+COMMANDED_BY = "--speed-mm-s, --accel-mm-s2, --angular-speed-deg-s"
+
+#: Margin (mm) added around a stroke the command itself asks for (``--translation-mm``, a
+#: scenario's sweeps or station cube) when that reaches beyond the default box.
+REQUESTED_STROKE_MARGIN_MM = 100.0
+
+
+def default_box_half_mm(*requested_reach_mm: float) -> float:
+    """Half side of the default box: :data:`DEFAULT_BOX_HALF_MM`, or more when the command asks
+    for a longer stroke from home (``requested_reach_mm``: the largest offset it plans)."""
+    return max([DEFAULT_BOX_HALF_MM] + [r + REQUESTED_STROKE_MARGIN_MM for r in requested_reach_mm])
+
+
+def plan_workspace(
+    model: RobotModel,
+    plan: MotionPlan,
+    box_mm: Sequence[float] | None,
+    half_mm: float = DEFAULT_BOX_HALF_MM,
+) -> Workspace:
+    """The workspace a plan is checked in: ``--workspace-box`` and the plan file's box where
+    given (both hold: their intersection), else the default box around the plan's home."""
+    boxes = []
+    if box_mm is not None:
+        boxes.append((np.asarray(box_mm, dtype=float), "--workspace-box"))
+    if plan.workspace_box_mm is not None:
+        boxes.append((np.asarray(plan.workspace_box_mm, dtype=float), "the plan file's box"))
+    if not boxes:
+        return workspace_around(model, plan.home_base_from_tcp, half_mm=half_mm)
+    merged = np.array(boxes[0][0])
+    for box, _ in boxes[1:]:
+        merged[0::2] = np.maximum(merged[0::2], box[0::2])
+        merged[1::2] = np.minimum(merged[1::2], box[1::2])
+    if np.any(merged[0::2] >= merged[1::2]):
+        raise InvalidInputError(
+            "--workspace-box and the plan file's workspace_box_mm do not overlap; nothing moved"
+        )
+    return workspace_around(model, plan.home_base_from_tcp, merged, " and ".join(s for _, s in boxes))
+
+
+def gate_plan(
+    plan: MotionPlan,
+    model: RobotModel,
+    state: RobotState | None,
+    commanded: MotionLimits,
+    workspace: Workspace,
+    *,
+    visibility: VisibilityModel | None = None,
+    visibility_note: str = "",
+    first_move: int = 0,
+    commanded_by: str = "",
+) -> MotionGateReport:
+    """Pass a plan through the motion gate from where the arm stands (``state``; None: at the
+    plan's home joints, as a simulated run starts) and raise its one-line refusal.
+
+    Raises
+    ------
+    spacecal.planning.motion_gate.MotionRefusedError
+        The first check that fails, with the move's index; nothing has moved.
+    """
+    report = gate_motion(
+        model,
+        plan.moves,
+        plan.home_joints_rad if state is None else state.joints_rad,
+        commanded,
+        workspace,
+        start_base_from_tcp=None if state is None else state.base_from_tcp,
+        home_base_from_tcp=plan.home_base_from_tcp if first_move == 0 else None,
+        visibility=visibility,
+        visibility_note=visibility_note,
+        first_move=first_move,
+        commanded_by=commanded_by,
+    )
+    report.raise_if_refused()
+    return report
+
+
+def world_visibility(world: World) -> VisibilityModel:
+    """What a simulated world's tracker sees (its layout is the truth)."""
+    return VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
+
+
+def acquisition_gate(
+    settings: AcquireSettings,
+    plan: MotionPlan,
+    model: RobotModel,
+    state: RobotState,
+    commanded: MotionLimits,
+    world: World | None,
+) -> MotionGateReport | None:
+    """Pass ``acquire``'s plan through the motion gate from where the robot stands; a resumed
+    run from the interrupted move on, after the straight approach to its start. None when a
+    resumed plan has nothing left to run.
+
+    The visibility is predicted in a simulated world, or with ``--prior`` on real devices; the
+    default box grows to cover a stroke the command itself asks for (``--translation-mm``, a
+    scenario's sweeps or stations), never for a plan file's moves.
+    """
+    first = 0
+    if settings.resume:
+        progress = read_progress(settings.output)
+        if progress is not None and progress.plan_fingerprint == plan_fingerprint(plan):
+            first = progress.moves_completed
+        if first >= len(plan.moves):
+            return None
+    visibility: VisibilityModel | None = None
+    if world is not None:
+        s = world.scenario
+        visibility = world_visibility(world)
+        reach = (s.translation_mm / 2, s.station_cube_mm / 2 if s.motion == "stations" else 0.0)
+    else:
+        if settings.prior:
+            prior = read_calibration(settings.prior)
+            visibility = VisibilityModel(
+                TrackerModel(), ndi_8700339_like(), prior.tracker_from_base, prior.tcp_from_marker
+            )
+        reach = (settings.translation_mm / 2, 0.0)
+    half = default_box_half_mm(*reach) if settings.plan is None else default_box_half_mm()
+    return gate_plan(
+        plan,
+        model,
+        state,
+        commanded,
+        plan_workspace(model, plan, settings.workspace_box, half),
+        visibility=visibility,
+        visibility_note="no tracker pose (pass --prior with an earlier calibration)",
+        first_move=first,
+        commanded_by=COMMANDED_BY,
+    )
