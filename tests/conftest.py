@@ -59,3 +59,44 @@ def shared_realdata(name: str):
             pytest.fail(f"real data set {path} is missing")
         pytest.skip(f"real data set {path} is not here")
     return path
+
+
+#: Views in the Storz laparoscope hand-eye set.
+STORZ_VIEWS = 10
+
+
+def storz_handeye():
+    """UCL's Storz laparoscope hand-eye set (../shared/realdata/handeye_storz_sksurgery) as a
+    recording, with the authors' hand-eye (SmartLiver's ``calib.left.handeye.txt``).
+
+    It maps onto ``tracker_from_marker_i = tracker_from_base @ base_from_tcp_i @ tcp_from_marker``
+    with tracker = the camera, base = the laparoscope's marker, tcp = the board's marker and
+    marker = the board pattern: ``base_from_tcp_i = inv(T_dev_i) @ T_obj_i``, ``tracker_from_marker_i
+    = E_i`` (pattern -> camera, from the images); ``tracker_from_base`` is the hand-eye.
+    """
+    import numpy as np
+
+    from spacecal.geometry.transforms import invert_transform
+    from spacecal.records import Recording
+
+    folder = shared_realdata("handeye_storz_sksurgery")
+
+    def load(name: str) -> np.ndarray:
+        return np.loadtxt(folder / name).reshape(4, 4)
+
+    views = range(STORZ_VIEWS)
+    device = np.array([load(f"tracking/calib.device_tracking.{i}.txt") for i in views])
+    board = np.array([load(f"tracking/calib.calib_obj_tracking.{i}.txt") for i in views])
+    camera = np.array(
+        [load(f"derived_sksurgerycalibration_1.2.6/camera/calib.extrinsics.{i}.txt") for i in views]
+    )
+    recording = Recording(
+        time_s=np.arange(float(STORZ_VIEWS)),
+        segment=np.array(["view"] * STORZ_VIEWS),
+        joints_rad=np.full((STORZ_VIEWS, 6), np.nan),
+        base_from_tcp_stack=invert_transform(device) @ board,
+        tracker_from_marker_stack=camera,
+        marker_rms_mm=np.full(STORZ_VIEWS, np.nan),
+        metadata={"source": "Storz hand-eye set"},
+    )
+    return recording, load("authors_reference/calib.left.handeye.txt")

@@ -12,40 +12,14 @@ from scipy.spatial.transform import Rotation
 
 from spacecal.cli.main import main
 from spacecal.estimators import calibrate
-from spacecal.geometry.transforms import invert_transform
 from spacecal.io.recording_csv import write_recording
 from spacecal.records import Recording
 
-from ..conftest import shared_realdata
-
-VIEWS = 10
-
-
-def _storz() -> tuple[Recording, np.ndarray]:
-    folder = shared_realdata("handeye_storz_sksurgery")
-
-    def load(name: str) -> np.ndarray:
-        return np.loadtxt(folder / name).reshape(4, 4)
-
-    device = np.array([load(f"tracking/calib.device_tracking.{i}.txt") for i in range(VIEWS)])
-    board = np.array([load(f"tracking/calib.calib_obj_tracking.{i}.txt") for i in range(VIEWS)])
-    camera = np.array(
-        [load(f"derived_sksurgerycalibration_1.2.6/camera/calib.extrinsics.{i}.txt") for i in range(VIEWS)]
-    )
-    recording = Recording(
-        time_s=np.arange(float(VIEWS)),
-        segment=np.array(["view"] * VIEWS),
-        joints_rad=np.full((VIEWS, 6), np.nan),
-        base_from_tcp_stack=invert_transform(device) @ board,
-        tracker_from_marker_stack=camera,
-        marker_rms_mm=np.full(VIEWS, np.nan),
-        metadata={"source": "Storz hand-eye set"},
-    )
-    return recording, load("authors_reference/calib.left.handeye.txt")
+from ..conftest import storz_handeye
 
 
 def test_the_storz_set_of_ten_views_calibrates_and_is_graded_by_its_expected_error(tmp_path, capsys):
-    recording, authors = _storz()
+    recording, authors = storz_handeye()
     path = tmp_path / "storz.csv"
     write_recording(recording, path)
     out = tmp_path / "cal.json"
@@ -116,7 +90,7 @@ def test_the_tracker_kind_is_chosen_from_the_data_or_named(recording_file, tmp_p
     assert pose["tracker_kind"] == "pose" and pose["noise"]["sigma_per_axis_mm"] is None
     capsys.readouterr()
     # spheres on a recording without fit RMS: one line naming the other kind
-    recording, _ = _storz()
+    recording, _ = storz_handeye()
     path = tmp_path / "storz.csv"
     write_recording(recording, path)
     code = main(["calibrate", str(path), "--tracker-kind", "spheres", "-o", str(tmp_path / "s.json")])

@@ -21,34 +21,14 @@ from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.records import Recording
 
-from ..conftest import shared_realdata
+from ..conftest import STORZ_VIEWS, storz_handeye
 
-VIEWS = 10
+VIEWS = STORZ_VIEWS
 
 
 @pytest.fixture(scope="module")
 def storz():
-    folder = shared_realdata("handeye_storz_sksurgery")
-
-    def load(name: str) -> np.ndarray:
-        return np.loadtxt(folder / name).reshape(4, 4)
-
-    device = np.array([load(f"tracking/calib.device_tracking.{i}.txt") for i in range(VIEWS)])
-    board = np.array([load(f"tracking/calib.calib_obj_tracking.{i}.txt") for i in range(VIEWS)])
-    camera = np.array(
-        [load(f"derived_sksurgerycalibration_1.2.6/camera/calib.extrinsics.{i}.txt") for i in range(VIEWS)]
-    )
-    recording = Recording(
-        time_s=np.arange(float(VIEWS)),
-        segment=np.array(["view"] * VIEWS),
-        joints_rad=np.full((VIEWS, 6), np.nan),
-        base_from_tcp_stack=invert_transform(device) @ board,
-        tracker_from_marker_stack=camera,
-        marker_rms_mm=np.full(VIEWS, np.nan),
-        metadata={"source": "Storz hand-eye set"},
-    )
-    smartliver = load("authors_reference/calib.left.handeye.txt")
-    return recording, smartliver
+    return storz_handeye()
 
 
 def _solve(recording: Recording, method: str):
