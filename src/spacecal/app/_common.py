@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
+from spacecal.io.digest import file_sha256
 from spacecal.records import Provenance, Recording
 
 
@@ -53,10 +54,16 @@ def guard_outputs(outputs: list[str | Path | None], inputs: list[str | Path | No
         refuse_overwriting_inputs(output, *inputs, force=force)
 
 
+#: Device identity keys kept from the recording's metadata (``serial_number`` is read as ``serial``).
+DEVICE_KEYS = ("model", "url", "name", "serial", "firmware", "rate_hz")
+
+
 def provenance_of(
     recording: Recording, recording_path: str | Path | None, tracker_stream: str | Path | None = None
 ) -> Provenance:
-    """Where a recording came from, as far as its metadata says."""
+    """Where a recording came from, as far as its metadata says, and the identities of the
+    files it came from: the sha256 of the recording (and of the raw tracker stream) and of the
+    marker's tool definition the metadata names (``marker.tool_definition``), hashed now."""
     metadata: dict[str, Any] = recording.metadata or {}
     scenario = metadata.get("scenario")
     simulated: bool | None = metadata.get("simulated")
@@ -68,13 +75,30 @@ def provenance_of(
     for role in ("robot", "tracker"):
         entry = metadata.get(role)
         if isinstance(entry, dict):
-            devices[role] = {k: v for k, v in entry.items() if k in ("model", "url", "name", "rate_hz")}
+            known = {**entry}
+            if "serial" not in known and "serial_number" in known:
+                known["serial"] = known["serial_number"]
+            devices[role] = {k: v for k, v in known.items() if k in DEVICE_KEYS}
+    marker = metadata.get("marker")
+    tool_definition = marker.get("tool_definition") if isinstance(marker, dict) else None
+    tool_definition = tool_definition if isinstance(tool_definition, str) and tool_definition else None
+    if tool_definition is not None and recording_path is not None:
+        # a relative path is the recording's neighbour (acquire writes an absolute one)
+        tool_definition = str(Path(recording_path).resolve().parent / tool_definition)
     return Provenance(
         recording=None if recording_path is None else str(Path(recording_path).resolve()),
         tracker_stream=None if tracker_stream is None else str(Path(tracker_stream).resolve()),
         simulated=simulated if isinstance(simulated, bool) else None,
         scenario=scenario if isinstance(scenario, dict) else None,
         devices=devices,
+        recording_sha256=None if recording_path is None else file_sha256(recording_path),
+        tracker_stream_sha256=None if tracker_stream is None else file_sha256(tracker_stream),
+        tool_definition=None if tool_definition is None else str(Path(tool_definition).resolve()),
+        tool_definition_sha256=(
+            file_sha256(tool_definition)
+            if tool_definition is not None and Path(tool_definition).is_file()
+            else None
+        ),
     )
 
 

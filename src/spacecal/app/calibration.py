@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +119,7 @@ class CalibrateOutput:
     path: Path
     time_offset_note: str | None = None
     doubtful_note: str | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
@@ -171,11 +172,18 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
     # before any estimate; the rest is judged by its expected error, however large its residuals
     check_consistent(recording, str(settings.recording))
     result = estimate(recording, settings.method, **options)
-    result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))
+    provenance = provenance_of(recording, settings.recording, settings.tracker_stream)
+    notes = []
+    if provenance.tool_definition is not None and provenance.tool_definition_sha256 is None:
+        notes.append(
+            f"the recording names the tool definition {provenance.tool_definition}, which is not there: "
+            "the calibration records its path but not its sha256"
+        )
+    result = result.replace(provenance=provenance)
     result.diagnostics["tracker_kind"] = settings.tracker_kind
     if settings.tracker_stream:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
-    return CalibrateOutput(result, write_calibration(result, settings.output), note, doubtful_note)
+    return CalibrateOutput(result, write_calibration(result, settings.output), note, doubtful_note, notes)
 
 
 @dataclass(frozen=True)

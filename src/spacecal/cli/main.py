@@ -100,6 +100,7 @@ def _calibrate(a: argparse.Namespace) -> None:
         print(out.time_offset_note)
     if out.doubtful_note:
         print(out.doubtful_note)
+    _print_notes(out.notes)
     result = out.calibration
     counts, d = result.sample_counts, result.diagnostics
     print(f"wrote {out.path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
