@@ -1,4 +1,5 @@
-"""Small helpers the app functions share: outputs that must not overwrite inputs, provenance."""
+"""Small helpers the app functions share: outputs that must not overwrite inputs, provenance,
+and reading a calibration whose content hash is checked."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ from typing import Any
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.io.digest import file_sha256
-from spacecal.records import Provenance, Recording
+from spacecal.io.results_json import read_calibration
+from spacecal.records import CalibrationResult, Provenance, Recording
 
 
 def is_recording(path: str | Path) -> bool:
@@ -52,6 +54,52 @@ def guard_outputs(outputs: list[str | Path | None], inputs: list[str | Path | No
     """:func:`refuse_overwriting_inputs` for each of several outputs."""
     for output in outputs:
         refuse_overwriting_inputs(output, *inputs, force=force)
+
+
+#: How to let an edited calibration through, in the commands that allow it.
+ACCEPT_EDITED = "--accept-edited"
+
+
+def open_calibration(
+    path: str | Path, command: str, accept_edited: bool | None = None
+) -> tuple[CalibrationResult, list[str]]:
+    """Read a calibration and check its content hash; returns it and the notes to show.
+
+    Parameters
+    ----------
+    path : str or Path
+    command : str
+        The command reading it (named when an edited file is refused).
+    accept_edited : bool or None
+        False: refuse an edited file, naming ``--accept-edited``; True: use it with a note;
+        None: the command takes no edited calibration at all (``verify``, ``bound``,
+        ``acquire --prior``), and the refusal says so.
+
+    Raises
+    ------
+    InvalidInputError
+        The file is not a calibration this spacecal reads (a future version is refused,
+        naming the versions it reads), or it has been edited and that is not accepted.
+    """
+    calibration = read_calibration(path)
+    integrity = calibration.integrity
+    if integrity is None or integrity.unverifiable:
+        return calibration, [
+            f"{path} is a version {calibration.schema_version} calibration, written before calibrations "
+            "carried a content hash: it cannot be verified (calibrating again writes one)"
+        ]
+    if not integrity.edited:
+        return calibration, []
+    why = "content hash missing" if integrity.recorded_sha256 is None else "content hash differs"
+    edited = f"{path} has been edited since it was written ({why})"
+    if accept_edited is None:
+        raise InvalidInputError(
+            f"{edited}; {command} does not use an edited calibration (calibrate again, or restore the "
+            "file as calibrate wrote it)"
+        )
+    if not accept_edited:
+        raise InvalidInputError(f"{edited}; pass {ACCEPT_EDITED} to use it anyway")
+    return calibration, [f"{edited}; used as {ACCEPT_EDITED} asks"]
 
 
 #: Device identity keys kept from the recording's metadata (``serial_number`` is read as ``serial``).

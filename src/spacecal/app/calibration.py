@@ -10,7 +10,13 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import check_belongs, check_consistent, provenance_of, refuse_overwriting_inputs
+from spacecal.app._common import (
+    check_belongs,
+    check_consistent,
+    open_calibration,
+    provenance_of,
+    refuse_overwriting_inputs,
+)
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
@@ -21,7 +27,7 @@ from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import metadata_path, read_recording
 from spacecal.io.recording_source import open_calibrated_recording
-from spacecal.io.results_json import read_calibration, write_calibration, write_json
+from spacecal.io.results_json import write_calibration, write_json
 from spacecal.records import CalibrationResult, PivotResult, Recording
 
 Point = tuple[float, float, float]
@@ -197,9 +203,10 @@ class BoundSettings:
 
 
 def bound(settings: BoundSettings) -> dict[str, Any]:
-    """The bound at the site, over the cube and at the targets (mm)."""
+    """The bound at the site, over the cube and at the targets (mm), and ``notes`` (a list of
+    lines: e.g. that the calibration, of an older version, cannot be verified)."""
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
-    calibration = read_calibration(settings.calibration)
+    calibration, notes = open_calibration(settings.calibration, "bound")
     opened = open_calibrated_recording(calibration, settings.recording)
     if opened is None:
         raise InvalidInputError(f"{settings.recording}: no such recording")
@@ -207,13 +214,14 @@ def bound(settings: BoundSettings) -> dict[str, Any]:
     check_belongs(
         recording, calibration.tracker_from_base, calibration.tcp_from_marker, str(settings.recording)
     )
-    return tre_lower_bound(
+    bound = tre_lower_bound(
         recording,
         calibration.tracker_from_base,
         calibration.tcp_from_marker,
         settings.sigma_mm,
         check_points(settings.targets_in_base, "--target"),
     )
+    return {**bound, "notes": notes}
 
 
 @dataclass(frozen=True)

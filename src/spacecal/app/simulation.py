@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import guard_outputs
+from spacecal.app._common import guard_outputs, open_calibration
 from spacecal.core.errors import InvalidInputError
 from spacecal.experiments.demo import DemoResult, run_demo
 from spacecal.experiments.phantom import PhantomSettings, run_phantom_experiment
@@ -21,7 +21,7 @@ from spacecal.experiments.verification import verify_in_simulation
 from spacecal.io.atomic import atomic_path
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
-from spacecal.io.results_json import read_calibration, read_json_object, write_calibration, write_json
+from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.planning.motion import MotionPlan, motion_plan_from_record
 from spacecal.records import CalibrationResult, PhantomResult, PlanRecord, VerificationResult
 from spacecal.report.figures import plot_phantom_errors, plot_verification_errors
@@ -207,8 +207,7 @@ def verify(settings: VerifySettings) -> VerifyOutput:
     guard_outputs(
         [settings.output, settings.figure], [settings.calibration, settings.scenario], settings.force
     )
-    calibration = read_calibration(settings.calibration)
-    notes = []
+    calibration, notes = open_calibration(settings.calibration, "verify")
     if settings.scenario is not None:
         scenario = load_scenario(settings.scenario)
         source = "given"

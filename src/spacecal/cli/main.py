@@ -139,6 +139,7 @@ def _calibrate(a: argparse.Namespace) -> None:
 
 def _bound(a: argparse.Namespace) -> None:
     bound = app.bound(app.BoundSettings(a.recording, a.calibration, a.sigma_mm, _points(a.target)))
+    _print_notes(bound["notes"])
     print(f"Cramer-Rao lower bound on TRE for {a.recording} with {a.sigma_mm} mm per-axis sphere noise:")
     print(
         f"  {bound['site']:.4f} mm at the site, {bound['cube_rms']:.4f} mm RMS over a "
@@ -326,14 +327,23 @@ def _export(a: argparse.Namespace) -> None:
     ros = (a.easy_handeye2, a.ros2_launch, a.urdf, a.static_tf, a.ur_calibration)
     lines = []
     if a.slicer or a.plus or a.igtl or not any(ros):
-        lines += app.export(app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl, a.force))
+        lines += app.export(
+            app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl, a.force, a.accept_edited)
+        )
     if any(ros):
         lines += app.export_ros(
             app.RosExportSettings(
-                a.calibration, *ros, a.base_frame, a.tool_frame, a.tracker_frame, a.marker_frame, a.force
+                a.calibration,
+                *ros,
+                a.base_frame,
+                a.tool_frame,
+                a.tracker_frame,
+                a.marker_frame,
+                a.force,
+                a.accept_edited,
             )
         )
-    for line in lines:
+    for line in dict.fromkeys(lines):  # a note on the calibration is made by both exports
         print(line)
 
 
@@ -406,6 +416,7 @@ def _check(a: argparse.Namespace) -> None:
             a.confirm_robot_motion,
             devices,
             a.frames_per_pose,
+            a.accept_edited,
         )
     )
     _print_notes(out.messages)
@@ -442,7 +453,9 @@ def _phantom(a: argparse.Namespace) -> None:
 
 def _report(a: argparse.Namespace) -> None:
     out = app.report(
-        app.ReportSettings(a.calibration, a.output, a.recording, a.verification, a.png_dir, a.force)
+        app.ReportSettings(
+            a.calibration, a.output, a.recording, a.verification, a.png_dir, a.force, a.accept_edited
+        )
     )
     print(f"wrote {out.path} ({len(out.titles)} plots: {', '.join(out.titles)})")
     if out.figures:
