@@ -36,7 +36,7 @@ def tamper(path, key, change):
 def test_good_calibration_passes_and_is_logged(calibration_file, capsys):
     assert main(["check", str(calibration_file)]) == 0
     assert "PASS" in capsys.readouterr().out
-    history, _ = read_history(calibration_file)
+    history = read_history(calibration_file).checks
     assert len(history) == 1 and history[0].passed and len(history[0].labels) == 3
     assert history[0].simulated is True
     assert history_path(calibration_file).name == "cal.checks.jsonl"

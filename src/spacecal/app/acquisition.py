@@ -732,7 +732,8 @@ def check(settings: CheckSettings) -> CheckOutput:
             raise InvalidInputError(f"{settings.recording}: no such recording")
         result = check_with_recording(calibration, opened.recording, threshold_mm, threshold_deg)
         result = _with(result, simulated=None, devices={"recording": str(Path(settings.recording).resolve())})
-        return CheckOutput(result, append_history(settings.calibration, result), basis, notes)
+        history = append_history(settings.calibration, result, calibration.content_sha256)
+        return CheckOutput(result, history, basis, notes)
     scenario: Scenario | None = None
     if settings.robot == "sim" and settings.tracker == "sim":
         scenario = (
@@ -812,7 +813,8 @@ def check(settings: CheckSettings) -> CheckOutput:
         else {"robot": settings.robot, "tracker": settings.tracker}
     )
     result = _with(result, simulated=world is not None, devices=identity)
-    return CheckOutput(result, append_history(settings.calibration, result), basis, notes)
+    history = append_history(settings.calibration, result, calibration.content_sha256)
+    return CheckOutput(result, history, basis, notes)
 
 
 def _with(result: CheckResult, **changes: Any) -> CheckResult:

@@ -137,9 +137,14 @@ def report(settings: ReportSettings) -> ReportOutput:
     verification = None
     if settings.verification:
         verification = _read_verification(settings.verification)
-    history, unreadable = read_history(settings.calibration)
+    history, unreadable, others = read_history(settings.calibration, calibration.content_sha256)
     if unreadable:
         notes.append(f"{unreadable} unreadable line(s) in the check history were skipped")
+    if others:
+        notes.append(
+            f"{others} check(s) in {history_path(settings.calibration)} are of another calibration (one "
+            "this file replaced, or logged before checks recorded the calibration's hash): not shown"
+        )
     report_data = Report(calibration, recording, verification, history)
     with atomic_path(settings.output) as temporary, _staged_folder(settings.png_dir) as png_dir:
         _, titles = write_report(report_data, temporary)
