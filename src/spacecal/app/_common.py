@@ -102,6 +102,67 @@ def open_calibration(
     return calibration, [f"{edited}; used as {ACCEPT_EDITED} asks"]
 
 
+#: Default ports of device URLs that may omit them (OpenIGTLink, NDI Vega over TCP).
+_DEFAULT_PORTS = {"igtl": 18944, "ndi": 8765}
+
+
+def _url_key(url: str) -> tuple[str, str, int | None]:
+    """A device URL as (scheme, host or device path, port), so ``igtl://Host`` is
+    ``igtl://host:18944``."""
+    from urllib.parse import urlparse
+
+    parsed = urlparse(url.strip())
+    scheme = parsed.scheme.lower()
+    if parsed.path and not parsed.netloc:  # ndi:///dev/ttyUSB0: a serial port, no host
+        return scheme, parsed.path, None
+    try:
+        port = parsed.port
+    except ValueError:
+        port = None
+    return scheme, (parsed.hostname or "").lower(), port or _DEFAULT_PORTS.get(scheme)
+
+
+def other_devices(
+    calibration: CalibrationResult, robot_url: str, tracker_url: str, robot_model: str, accept: bool
+) -> list[str]:
+    """Compare the real devices connected with those the calibration records; returns notes.
+
+    Compared where the calibration records them: the robot's URL and model and the tracker's
+    URL; a calibration of simulated data on real devices is a mismatch too.
+
+    Raises
+    ------
+    InvalidInputError
+        On a mismatch, unless ``accept`` (``--accept-other-devices``): then it is a note.
+    """
+    provenance = calibration.provenance
+    recorded_robot = provenance.devices.get("robot") or {}
+    recorded_tracker = provenance.devices.get("tracker") or {}
+    differences = []
+    if provenance.simulated is True:
+        differences.append("it was calibrated on simulated devices")
+    for what, recorded, connected in (
+        ("robot", recorded_robot.get("url"), robot_url),
+        ("tracker", recorded_tracker.get("url"), tracker_url),
+    ):
+        if isinstance(recorded, str) and _url_key(recorded) != _url_key(connected):
+            differences.append(f"{what} {recorded} recorded, {connected} connected")
+    model = recorded_robot.get("model")
+    if isinstance(model, str) and model.upper() != robot_model.upper():
+        differences.append(f"a {model} recorded, a {robot_model} connected")
+    if not differences:
+        if not (recorded_robot.get("url") or recorded_tracker.get("url")):
+            return ["the calibration records no device URLs: the devices connected were not compared"]
+        return []
+    text = "; ".join(differences)
+    if not accept:
+        raise InvalidInputError(
+            f"the calibration belongs to other devices ({text}); connect those, or pass "
+            "--accept-other-devices to check it on these"
+        )
+    return [f"checked on other devices than the calibration's ({text}), as --accept-other-devices asks"]
+
+
 #: Device identity keys kept from the recording's metadata (``serial_number`` is read as ``serial``).
 DEVICE_KEYS = ("model", "url", "name", "serial", "firmware", "rate_hz")
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import open_calibration, refuse_overwriting_inputs
+from spacecal.app._common import open_calibration, other_devices, refuse_overwriting_inputs
 from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import (
@@ -672,6 +672,8 @@ class CheckSettings:
         Tracker frames averaged at each pose.
     accept_edited : bool
         Check a calibration edited since it was written (its content hash differs).
+    accept_other_devices : bool
+        Check on real devices other than those the calibration records (URLs, robot model).
     """
 
     calibration: str
@@ -687,6 +689,7 @@ class CheckSettings:
     devices: AcquireSettings | None = None
     frames_per_pose: int = 10
     accept_edited: bool = False
+    accept_other_devices: bool = False
 
     def __post_init__(self) -> None:
         if self.poses not in (2, 3):
@@ -756,6 +759,9 @@ def check(settings: CheckSettings) -> CheckOutput:
             hardware, findings = robot_findings(robot, devices.robot_model, devices.tool)
             refuse_when_not_ready(findings)
             model = hardware.model
+            notes += other_devices(
+                calibration, settings.robot, settings.tracker, model.name, settings.accept_other_devices
+            )
         else:
             model = world.controller_model
         model = calibration.robot_model_for_ik(model)

@@ -417,6 +417,7 @@ def _check(a: argparse.Namespace) -> None:
             devices,
             a.frames_per_pose,
             a.accept_edited,
+            a.accept_other_devices,
         )
     )
     _print_notes(out.messages)

@@ -268,6 +268,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     K = app.CheckSettings
     p = command("check", "confirm before surgery that a calibration still holds")
     add_accept_edited(p)
+    p.add_argument(
+        "--accept-other-devices",
+        action="store_true",
+        help="check on other real devices than the calibration records (URLs, robot model)",
+    )
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
     p.add_argument("--robot", default=_d(K, "robot"), help="sim (default) or ur://HOST")
