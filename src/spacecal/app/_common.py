@@ -1,5 +1,5 @@
-"""Small helpers the app functions share: outputs that must not overwrite inputs, provenance,
-and reading a calibration whose content hash is checked."""
+"""Small helpers the app functions share: outputs that must not overwrite inputs or results,
+provenance, and reading a calibration whose content hash is checked."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.io.digest import file_sha256
+from spacecal.io.digest import file_sha256, spacecal_schema_of
 from spacecal.io.results_json import read_calibration
 from spacecal.records import CalibrationResult, Provenance, Recording
 
@@ -30,11 +30,33 @@ def is_recording(path: str | Path) -> bool:
     return b"time_s" in first
 
 
+#: What an existing spacecal file is, by its ``schema``, for the line that refuses to replace it.
+RESULT_KINDS = {
+    "spacecal.calibration": "calibration",
+    "spacecal.verification": "verification result",
+    "spacecal.check": "check history",
+    "spacecal.phantom": "phantom result",
+    "spacecal.landmark_registration": "landmark registration",
+    "spacecal.pivot": "pivot result",
+    "spacecal.plan": "plan",
+    "spacecal.acquisition_progress": "acquisition progress file",
+}
+
+
 def refuse_overwriting_inputs(
-    output: str | Path | None, *inputs: str | Path | None, force: bool = False, recordings: bool = True
+    output: str | Path | None,
+    *inputs: str | Path | None,
+    force: bool = False,
+    recordings: bool = True,
+    any_file: bool = False,
 ) -> None:
-    """Raise if ``output`` names one of the command's own input files or an existing
-    recording, unless ``force`` (outputs are written atomically, after the inputs are read)."""
+    """Raise if ``output`` names one of the command's own input files, an existing recording
+    or an existing spacecal result (a calibration, a check history, ...), unless ``force``
+    (outputs are written atomically, after the inputs are read).
+
+    ``any_file``: the command writes a result file, and replaces no existing file of any kind
+    without ``force`` (a calibration, a verification, a plan: each is evidence of its own).
+    """
     if output is None or force:
         return
     target = Path(output).resolve()
@@ -48,12 +70,20 @@ def refuse_overwriting_inputs(
         raise InvalidInputError(
             f"{output}: an existing recording; choose another file or pass --force to replace it"
         )
+    schema = spacecal_schema_of(target)
+    if schema is not None or (any_file and target.exists()):
+        kind = RESULT_KINDS.get(schema or "", "spacecal file" if schema else "file")
+        raise InvalidInputError(
+            f"{output}: an existing {kind}; choose another file or pass --force to replace it"
+        )
 
 
-def guard_outputs(outputs: list[str | Path | None], inputs: list[str | Path | None], force: bool) -> None:
+def guard_outputs(
+    outputs: list[str | Path | None], inputs: list[str | Path | None], force: bool, any_file: bool = False
+) -> None:
     """:func:`refuse_overwriting_inputs` for each of several outputs."""
     for output in outputs:
-        refuse_overwriting_inputs(output, *inputs, force=force)
+        refuse_overwriting_inputs(output, *inputs, force=force, any_file=any_file)
 
 
 #: How to let an edited calibration through, in the commands that allow it.

@@ -882,7 +882,7 @@ class PlanSettings:
 
 def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
     """Plan the motion and compare it with the paper's sweeps; returns the plan and the file."""
-    refuse_overwriting_inputs(settings.output, settings.scenario, force=settings.force)
+    refuse_overwriting_inputs(settings.output, settings.scenario, force=settings.force, any_file=True)
     world = build_world(load_scenario(settings.scenario))
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
     planner = PlannerSettings(

@@ -136,6 +136,7 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
         metadata_path(settings.recording),
         settings.tracker_stream,
         force=settings.force,
+        any_file=True,
     )
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     targets = check_points(settings.targets_in_base, "--target")
@@ -250,7 +251,9 @@ class PivotSettings:
 def pivot(settings: PivotSettings) -> tuple[PivotResult, Path | None]:
     """Pivot calibration; returns the result and the file written (if any)."""
     source = Path(settings.poses)
-    refuse_overwriting_inputs(settings.output, settings.poses, settings.subset, force=settings.force)
+    refuse_overwriting_inputs(
+        settings.output, settings.poses, settings.subset, force=settings.force, any_file=True
+    )
     if settings.output and source.is_dir() and Path(settings.output).resolve().parent == source.resolve():
         if Path(settings.output).suffix == ".txt" and not settings.force:
             raise InvalidInputError(

@@ -66,7 +66,9 @@ def register_landmarks(
 ) -> tuple[LandmarkRegistrationResult, np.ndarray, Path | None]:
     """Detect the landmark touches and register; returns the result, the sequence's
     timestamps (s) and the file written."""
-    refuse_overwriting_inputs(settings.output, settings.sequence, settings.config, force=settings.force)
+    refuse_overwriting_inputs(
+        settings.output, settings.sequence, settings.config, force=settings.force, any_file=True
+    )
     sequence = read_plus_sequence(settings.sequence)
     _, landmarks = read_plus_landmarks(settings.config)
     stylus_from_tip = read_plus_transform(settings.config, "StylusTip", "Stylus")

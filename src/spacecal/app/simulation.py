@@ -205,7 +205,10 @@ def verify(settings: VerifySettings) -> VerifyOutput:
     if not 1 <= settings.points <= 1000:
         raise InvalidInputError(f"--points must be 1..1000, got {settings.points}")
     guard_outputs(
-        [settings.output, settings.figure], [settings.calibration, settings.scenario], settings.force
+        [settings.output, settings.figure],
+        [settings.calibration, settings.scenario],
+        settings.force,
+        any_file=True,
     )
     calibration, notes = open_calibration(settings.calibration, "verify")
     if settings.scenario is not None:
@@ -253,9 +256,17 @@ class DemoOutput:
 
 def demo(settings: DemoSettings) -> DemoOutput:
     """The whole chain on the simulated system, with a table beside the paper's figures."""
-    names = ("recording.csv", "recording.meta.json", "calibration.json", "verification.json")
+    names = (
+        "recording.csv",
+        "recording.meta.json",
+        "calibration.json",
+        "verification.json",
+        "verification_errors.png",
+    )
     if settings.out:
-        guard_outputs([Path(settings.out) / n for n in names], [settings.scenario], settings.force)
+        guard_outputs(
+            [Path(settings.out) / n for n in names], [settings.scenario], settings.force, any_file=True
+        )
     result = run_demo(load_scenario(settings.scenario))
     paths: list[Path] = []
     if settings.out:
@@ -298,7 +309,7 @@ def phantom(settings: PhantomCommandSettings) -> tuple[PhantomResult, tuple[Path
     """Run the phantom experiment; returns its result and the files written."""
     if not 1 <= settings.cases <= 100:
         raise InvalidInputError(f"--cases must be 1..100, got {settings.cases}")
-    guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force)
+    guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force, any_file=True)
     result = run_phantom_experiment(
         load_scenario(settings.scenario), settings.method, PhantomSettings(cases=settings.cases)
     )

@@ -393,11 +393,13 @@ def add_doctor(command) -> None:
 
 
 def add_force(p: argparse.ArgumentParser) -> None:
-    """``--force``: replace an existing recording or an input file named as an output."""
+    """``--force``: replace an existing output (a recording, a calibration or another result)
+    or an input file named as an output."""
     p.add_argument(
         "--force",
         action="store_true",
-        help="replace an existing recording or an input named as an output (written atomically)",
+        help="replace an existing output (recording, calibration, result) or an input named as an output "
+        "(written atomically)",
     )
 
 
