@@ -318,3 +318,114 @@ def test_plan_command(tmp_path, capsys):
     assert data["motion_time_s"] <= 20.0 and len(data["station_joints_rad"]) >= 3
     code, _, err = run(capsys, "plan", "--budget=-5s")
     assert code == 1 and "must be positive" in err
+
+
+def test_a_replaced_calibration_shows_none_of_the_old_ones_checks(recording_file, tmp_path, capsys):
+    from spacecal.workflows.check import read_history
+
+    calibration = tmp_path / "cal.json"
+    assert run(capsys, "calibrate", str(recording_file), "-o", str(calibration))[0] == 0
+    code, out, _ = run(capsys, "check", str(calibration), "--recording", str(recording_file))
+    assert code == 0 and "PASS" in out
+    assert len(read_history(calibration).checks) == 1
+    code, _, err = run(capsys, "calibrate", str(recording_file), "--method", "ml", "-o", str(calibration))
+    assert code == 1 and err == (
+        f"spacecal: error: {calibration}: an existing calibration; choose another file or pass --force "
+        "to replace it\n"
+    )
+    code, _, _ = run(
+        capsys, "calibrate", str(recording_file), "--method", "ml", "-o", str(calibration), "--force"
+    )
+    assert code == 0
+    history = read_history(calibration)
+    assert history.checks == [] and history.other_calibrations == 1 and history.unreadable == 0
+    code, out, _ = run(capsys, "report", str(calibration), "-o", str(tmp_path / "r.html"))
+    assert code == 0 and "Check history" not in out.splitlines()[0]
+    assert "note: 1 check(s) in" in out and "are of another calibration" in out
+    # the next check is this calibration's first
+    assert run(capsys, "check", str(calibration), "--recording", str(recording_file))[0] == 0
+    assert len(read_history(calibration).checks) == 1
+    code, out, _ = run(capsys, "report", str(calibration), "-o", str(tmp_path / "r.html"))
+    assert code == 0 and "Check history" in out.splitlines()[0]
+
+
+def test_an_edited_calibration_is_one_line_unless_accepted(recording_file, tmp_path, capsys):
+    calibration = tmp_path / "cal.json"
+    assert run(capsys, "calibrate", str(recording_file), "-o", str(calibration))[0] == 0
+    data = json.loads(calibration.read_text())
+    data["tracker_from_base"][0][3] += 2.0  # 2 mm
+    calibration.write_text(json.dumps(data, indent=2))
+    line = (
+        f"spacecal: error: {calibration} has been edited since it was written (content hash differs); "
+        "pass --accept-edited to use it anyway\n"
+    )
+    for argv in (
+        ["check", str(calibration), "--recording", str(recording_file)],
+        ["export", str(calibration), "--slicer", str(tmp_path / "t.tfm")],
+        ["export", str(calibration), "--urdf", str(tmp_path / "t.urdf"), "--plus", str(tmp_path / "t.xml")],
+        ["report", str(calibration), "-o", str(tmp_path / "r.html")],
+    ):
+        code, out, err = run(capsys, *argv)
+        assert (code, out, err) == (1, "", line), argv
+    assert not list(tmp_path.glob("t.*")) and not (tmp_path / "r.html").exists()
+    code, out, err = run(
+        capsys,
+        "export",
+        str(calibration),
+        "--slicer",
+        str(tmp_path / "t.tfm"),
+        "--urdf",
+        str(tmp_path / "t.urdf"),
+        "--accept-edited",
+    )
+    assert code == 0 and out.count("has been edited since it was written") == 1
+    assert out.startswith(f"note: {calibration} has been edited") and "wrote" in out
+    code, out, err = run(
+        capsys, "check", str(calibration), "--recording", str(recording_file), "--accept-edited"
+    )
+    assert "note: " in out and "used as --accept-edited asks" in out
+    code, _, err = run(
+        capsys, "bound", str(recording_file), "--calibration", str(calibration), "--sigma-mm", "0.1"
+    )
+    assert code == 1 and "bound does not use an edited calibration" in err and len(err.splitlines()) == 1
+
+
+def test_future_versions_of_result_files_are_refused_in_one_line(recording_file, tmp_path, capsys):
+    calibration = tmp_path / "cal.json"
+    assert run(capsys, "calibrate", str(recording_file), "-o", str(calibration))[0] == 0
+    verification = tmp_path / "ver.json"
+    verification.write_text(
+        json.dumps({"schema": "spacecal.verification", "schema_version": 3, "points": []})
+    )
+    code, _, err = run(
+        capsys,
+        "report",
+        str(calibration),
+        "--verification",
+        str(verification),
+        "-o",
+        str(tmp_path / "r.html"),
+    )
+    assert code == 1 and err == (
+        f"spacecal: error: {verification}: schema_version 3 is newer than this spacecal reads (1, 2): "
+        "written by a newer spacecal, update it to read this file\n"
+    )
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({"schema": "spacecal.plan", "schema_version": 7}))
+    for argv in (
+        ["simulate", "--plan", str(plan), "-o", str(tmp_path / "s.csv")],
+        ["acquire", "--plan", str(plan), "-o", str(tmp_path / "a.csv")],
+    ):
+        code, _, err = run(capsys, *argv)
+        assert code == 1 and len(err.splitlines()) == 1, err
+        assert "schema_version 7 is newer than this spacecal reads (1, 2)" in err
+    data = json.loads(calibration.read_text())
+    data["schema_version"] = 4
+    calibration.write_text(json.dumps(data))
+    code, _, err = run(
+        capsys, "check", str(calibration), "--recording", str(recording_file), "--accept-edited"
+    )
+    assert code == 1 and err == (
+        f"spacecal: error: {calibration}: schema_version 4 is newer than this spacecal reads (1, 2, 3): "
+        "written by a newer spacecal, update it to read this file\n"
+    )

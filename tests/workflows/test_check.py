@@ -1,14 +1,12 @@
 """The calibration check passes a calibration that holds and fails one that no longer does."""
 
-import json
-
 import numpy as np
 import pytest
 
 from spacecal.cli import main
 from spacecal.estimators import calibrate
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
-from spacecal.io.results_json import write_calibration
+from spacecal.io.results_json import read_calibration, write_calibration
 from spacecal.records import Provenance
 from spacecal.workflows.check import history_path, read_history
 
@@ -28,21 +26,17 @@ def calibration_file(tmp_path, white_simulation):
 
 
 def tamper(path, key, change):
-    data = json.loads(path.read_text())
-    data[key] = (
-        (change @ np.array(data[key])).tolist()
-        if key == "tracker_from_base"
-        else (np.array(data[key]) @ change).tolist()
-    )
-    out = path.with_name(f"tampered_{key}.json")
-    out.write_text(json.dumps(data))
-    return out
+    """A calibration, written by spacecal (its hash holds), that no longer matches the world."""
+    calibration = read_calibration(path)
+    matrix = getattr(calibration, key)
+    moved = change @ matrix if key == "tracker_from_base" else matrix @ change
+    return write_calibration(calibration.replace(**{key: moved}), path.with_name(f"tampered_{key}.json"))
 
 
 def test_good_calibration_passes_and_is_logged(calibration_file, capsys):
     assert main(["check", str(calibration_file)]) == 0
     assert "PASS" in capsys.readouterr().out
-    history, _ = read_history(calibration_file)
+    history = read_history(calibration_file).checks
     assert len(history) == 1 and history[0].passed and len(history[0].labels) == 3
     assert history[0].simulated is True
     assert history_path(calibration_file).name == "cal.checks.jsonl"

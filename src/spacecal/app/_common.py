@@ -1,4 +1,5 @@
-"""Small helpers the app functions share: outputs that must not overwrite inputs, provenance."""
+"""Small helpers the app functions share: outputs that must not overwrite inputs or results,
+provenance, and reading a calibration whose content hash is checked."""
 
 from __future__ import annotations
 
@@ -6,7 +7,9 @@ from pathlib import Path
 from typing import Any
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.records import Provenance, Recording
+from spacecal.io.digest import file_sha256, spacecal_schema_of
+from spacecal.io.results_json import read_calibration
+from spacecal.records import CalibrationResult, Provenance, Recording
 
 
 def is_recording(path: str | Path) -> bool:
@@ -27,11 +30,33 @@ def is_recording(path: str | Path) -> bool:
     return b"time_s" in first
 
 
+#: What an existing spacecal file is, by its ``schema``, for the line that refuses to replace it.
+RESULT_KINDS = {
+    "spacecal.calibration": "calibration",
+    "spacecal.verification": "verification result",
+    "spacecal.check": "check history",
+    "spacecal.phantom": "phantom result",
+    "spacecal.landmark_registration": "landmark registration",
+    "spacecal.pivot": "pivot result",
+    "spacecal.plan": "plan",
+    "spacecal.acquisition_progress": "acquisition progress file",
+}
+
+
 def refuse_overwriting_inputs(
-    output: str | Path | None, *inputs: str | Path | None, force: bool = False, recordings: bool = True
+    output: str | Path | None,
+    *inputs: str | Path | None,
+    force: bool = False,
+    recordings: bool = True,
+    any_file: bool = False,
 ) -> None:
-    """Raise if ``output`` names one of the command's own input files or an existing
-    recording, unless ``force`` (outputs are written atomically, after the inputs are read)."""
+    """Raise if ``output`` names one of the command's own input files, an existing recording
+    or an existing spacecal result (a calibration, a check history, ...), unless ``force``
+    (outputs are written atomically, after the inputs are read).
+
+    ``any_file``: the command writes a result file, and replaces no existing file of any kind
+    without ``force`` (a calibration, a verification, a plan: each is evidence of its own).
+    """
     if output is None or force:
         return
     target = Path(output).resolve()
@@ -45,18 +70,139 @@ def refuse_overwriting_inputs(
         raise InvalidInputError(
             f"{output}: an existing recording; choose another file or pass --force to replace it"
         )
+    schema = spacecal_schema_of(target)
+    if schema is not None or (any_file and target.exists()):
+        kind = RESULT_KINDS.get(schema or "", "spacecal file" if schema else "file")
+        raise InvalidInputError(
+            f"{output}: an existing {kind}; choose another file or pass --force to replace it"
+        )
 
 
-def guard_outputs(outputs: list[str | Path | None], inputs: list[str | Path | None], force: bool) -> None:
+def guard_outputs(
+    outputs: list[str | Path | None], inputs: list[str | Path | None], force: bool, any_file: bool = False
+) -> None:
     """:func:`refuse_overwriting_inputs` for each of several outputs."""
     for output in outputs:
-        refuse_overwriting_inputs(output, *inputs, force=force)
+        refuse_overwriting_inputs(output, *inputs, force=force, any_file=any_file)
+
+
+#: How to let an edited calibration through, in the commands that allow it.
+ACCEPT_EDITED = "--accept-edited"
+
+
+def open_calibration(
+    path: str | Path, command: str, accept_edited: bool | None = None
+) -> tuple[CalibrationResult, list[str]]:
+    """Read a calibration and check its content hash; returns it and the notes to show.
+
+    Parameters
+    ----------
+    path : str or Path
+    command : str
+        The command reading it (named when an edited file is refused).
+    accept_edited : bool or None
+        False: refuse an edited file, naming ``--accept-edited``; True: use it with a note;
+        None: the command takes no edited calibration at all (``verify``, ``bound``,
+        ``acquire --prior``), and the refusal says so.
+
+    Raises
+    ------
+    InvalidInputError
+        The file is not a calibration this spacecal reads (a future version is refused,
+        naming the versions it reads), or it has been edited and that is not accepted.
+    """
+    calibration = read_calibration(path)
+    integrity = calibration.integrity
+    if integrity is None or integrity.unverifiable:
+        return calibration, [
+            f"{path} is a version {calibration.schema_version} calibration, written before calibrations "
+            "carried a content hash: it cannot be verified (calibrating again writes one)"
+        ]
+    if not integrity.edited:
+        return calibration, []
+    why = "content hash missing" if integrity.recorded_sha256 is None else "content hash differs"
+    edited = f"{path} has been edited since it was written ({why})"
+    if accept_edited is None:
+        raise InvalidInputError(
+            f"{edited}; {command} does not use an edited calibration (calibrate again, or restore the "
+            "file as calibrate wrote it)"
+        )
+    if not accept_edited:
+        raise InvalidInputError(f"{edited}; pass {ACCEPT_EDITED} to use it anyway")
+    return calibration, [f"{edited}; used as {ACCEPT_EDITED} asks"]
+
+
+#: Default ports of device URLs that may omit them (OpenIGTLink, NDI Vega over TCP).
+_DEFAULT_PORTS = {"igtl": 18944, "ndi": 8765}
+
+
+def _url_key(url: str) -> tuple[str, str, int | None]:
+    """A device URL as (scheme, host or device path, port), so ``igtl://Host`` is
+    ``igtl://host:18944``."""
+    from urllib.parse import urlparse
+
+    parsed = urlparse(url.strip())
+    scheme = parsed.scheme.lower()
+    if parsed.path and not parsed.netloc:  # ndi:///dev/ttyUSB0: a serial port, no host
+        return scheme, parsed.path, None
+    try:
+        port = parsed.port
+    except ValueError:
+        port = None
+    return scheme, (parsed.hostname or "").lower(), port or _DEFAULT_PORTS.get(scheme)
+
+
+def other_devices(
+    calibration: CalibrationResult, robot_url: str, tracker_url: str, robot_model: str, accept: bool
+) -> list[str]:
+    """Compare the real devices connected with those the calibration records; returns notes.
+
+    Compared where the calibration records them: the robot's URL and model and the tracker's
+    URL; a calibration of simulated data on real devices is a mismatch too.
+
+    Raises
+    ------
+    InvalidInputError
+        On a mismatch, unless ``accept`` (``--accept-other-devices``): then it is a note.
+    """
+    provenance = calibration.provenance
+    recorded_robot = provenance.devices.get("robot") or {}
+    recorded_tracker = provenance.devices.get("tracker") or {}
+    differences = []
+    if provenance.simulated is True:
+        differences.append("it was calibrated on simulated devices")
+    for what, recorded, connected in (
+        ("robot", recorded_robot.get("url"), robot_url),
+        ("tracker", recorded_tracker.get("url"), tracker_url),
+    ):
+        if isinstance(recorded, str) and _url_key(recorded) != _url_key(connected):
+            differences.append(f"{what} {recorded} recorded, {connected} connected")
+    model = recorded_robot.get("model")
+    if isinstance(model, str) and model.upper() != robot_model.upper():
+        differences.append(f"a {model} recorded, a {robot_model} connected")
+    if not differences:
+        if not (recorded_robot.get("url") or recorded_tracker.get("url")):
+            return ["the calibration records no device URLs: the devices connected were not compared"]
+        return []
+    text = "; ".join(differences)
+    if not accept:
+        raise InvalidInputError(
+            f"the calibration belongs to other devices ({text}); connect those, or pass "
+            "--accept-other-devices to check it on these"
+        )
+    return [f"checked on other devices than the calibration's ({text}), as --accept-other-devices asks"]
+
+
+#: Device identity keys kept from the recording's metadata (``serial_number`` is read as ``serial``).
+DEVICE_KEYS = ("model", "url", "name", "serial", "firmware", "rate_hz")
 
 
 def provenance_of(
     recording: Recording, recording_path: str | Path | None, tracker_stream: str | Path | None = None
 ) -> Provenance:
-    """Where a recording came from, as far as its metadata says."""
+    """Where a recording came from, as far as its metadata says, and the identities of the
+    files it came from: the sha256 of the recording (and of the raw tracker stream) and of the
+    marker's tool definition the metadata names (``marker.tool_definition``), hashed now."""
     metadata: dict[str, Any] = recording.metadata or {}
     scenario = metadata.get("scenario")
     simulated: bool | None = metadata.get("simulated")
@@ -68,13 +214,30 @@ def provenance_of(
     for role in ("robot", "tracker"):
         entry = metadata.get(role)
         if isinstance(entry, dict):
-            devices[role] = {k: v for k, v in entry.items() if k in ("model", "url", "name", "rate_hz")}
+            known = {**entry}
+            if "serial" not in known and "serial_number" in known:
+                known["serial"] = known["serial_number"]
+            devices[role] = {k: v for k, v in known.items() if k in DEVICE_KEYS}
+    marker = metadata.get("marker")
+    tool_definition = marker.get("tool_definition") if isinstance(marker, dict) else None
+    tool_definition = tool_definition if isinstance(tool_definition, str) and tool_definition else None
+    if tool_definition is not None and recording_path is not None:
+        # a relative path is the recording's neighbour (acquire writes an absolute one)
+        tool_definition = str(Path(recording_path).resolve().parent / tool_definition)
     return Provenance(
         recording=None if recording_path is None else str(Path(recording_path).resolve()),
         tracker_stream=None if tracker_stream is None else str(Path(tracker_stream).resolve()),
         simulated=simulated if isinstance(simulated, bool) else None,
         scenario=scenario if isinstance(scenario, dict) else None,
         devices=devices,
+        recording_sha256=None if recording_path is None else file_sha256(recording_path),
+        tracker_stream_sha256=None if tracker_stream is None else file_sha256(tracker_stream),
+        tool_definition=None if tool_definition is None else str(Path(tool_definition).resolve()),
+        tool_definition_sha256=(
+            file_sha256(tool_definition)
+            if tool_definition is not None and Path(tool_definition).is_file()
+            else None
+        ),
     )
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import refuse_overwriting_inputs
+from spacecal.app._common import open_calibration, other_devices, refuse_overwriting_inputs
 from spacecal.app.gate import COMMANDED_BY, acquisition_gate, gate_plan, plan_workspace, world_visibility
 from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.core.errors import InvalidInputError
@@ -36,7 +36,7 @@ from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotve
 from spacecal.io.ndi_rom import read_rom_marker
 from spacecal.io.recording_csv import last_time_s
 from spacecal.io.recording_source import open_calibrated_recording
-from spacecal.io.results_json import read_calibration, read_json_object, write_json
+from spacecal.io.results_json import read_json_object, write_json
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import ndi_8700339_like
 from spacecal.models.tracker import TrackerModel
@@ -382,8 +382,9 @@ def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) ->
     state = robot.state()
     home_joints = resume_home_joints(settings.output) if settings.resume else None
     visibility = None
+    prior_notes: list[str] = []
     if settings.prior:
-        prior = read_calibration(settings.prior)
+        prior, prior_notes = open_calibration(settings.prior, "acquire --prior")
         # the marker in use when its tool definition is given, else the nominal layout: the
         # visibility prediction needs only its face and extent
         marker = read_rom_marker(settings.rom[0]) if settings.rom else ndi_8700339_like()
@@ -398,6 +399,8 @@ def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) ->
     plan = plan_paper_sweeps(model, start, sweep, visibility)
     if visibility is None:
         plan.messages.append("no --prior calibration: marker visibility was not checked")
+    else:
+        plan.messages.extend(prior_notes)
     return plan
 
 
@@ -552,6 +555,8 @@ def acquire(
     refuse_overwriting_inputs(
         settings.output, settings.prior, settings.scenario, settings.plan, *settings.rom, recordings=False
     )
+    if settings.prior:
+        open_calibration(settings.prior, "acquire --prior")  # refused before any device is opened
     with opened_devices(settings) as (robot, tracker, world):
         checks: list[str] = []
         hardware = None
@@ -663,6 +668,10 @@ class CheckSettings:
         for real devices; defaults otherwise.
     frames_per_pose : int
         Tracker frames averaged at each pose.
+    accept_edited : bool
+        Check a calibration edited since it was written (its content hash differs).
+    accept_other_devices : bool
+        Check on real devices other than those the calibration records (URLs, robot model).
     """
 
     calibration: str
@@ -677,6 +686,8 @@ class CheckSettings:
     confirm_robot_motion: bool = False
     devices: AcquireSettings | None = None
     frames_per_pose: int = 10
+    accept_edited: bool = False
+    accept_other_devices: bool = False
 
     def __post_init__(self) -> None:
         if self.poses not in (2, 3):
@@ -707,7 +718,7 @@ def check(settings: CheckSettings) -> CheckOutput:
     real or simulated and on which devices, is appended to the calibration's check history."""
     from spacecal.app.simulation import scenario_of_calibration
 
-    calibration = read_calibration(settings.calibration)
+    calibration, notes = open_calibration(settings.calibration, "check", settings.accept_edited)
     averaged = 1 if settings.recording else settings.frames_per_pose
     derived_mm, derived_deg, basis = check_thresholds(calibration, averaged)
     threshold_mm = settings.threshold_mm if settings.threshold_mm is not None else derived_mm
@@ -724,7 +735,8 @@ def check(settings: CheckSettings) -> CheckOutput:
             raise InvalidInputError(f"{settings.recording}: no such recording")
         result = check_with_recording(calibration, opened.recording, threshold_mm, threshold_deg)
         result = _with(result, simulated=None, devices={"recording": str(Path(settings.recording).resolve())})
-        return CheckOutput(result, append_history(settings.calibration, result), basis)
+        history = append_history(settings.calibration, result, calibration.content_sha256)
+        return CheckOutput(result, history, basis, notes)
     scenario: Scenario | None = None
     if settings.robot == "sim" and settings.tracker == "sim":
         scenario = (
@@ -747,6 +759,9 @@ def check(settings: CheckSettings) -> CheckOutput:
             hardware, findings = robot_findings(robot, devices.robot_model, devices.tool)
             refuse_when_not_ready(findings)
             model = hardware.model
+            notes += other_devices(
+                calibration, settings.robot, settings.tracker, model.name, settings.accept_other_devices
+            )
         else:
             model = world.controller_model
         model = calibration.robot_model_for_ik(model)
@@ -778,8 +793,9 @@ def check(settings: CheckSettings) -> CheckOutput:
                 None,
                 basis,
                 [
+                    *notes,
                     f"{settings.poses} check poses planned, {plan.motion_time_s:.1f} s of motion; "
-                    "nothing moved"
+                    "nothing moved",
                 ],
                 gate,
             )
@@ -812,7 +828,8 @@ def check(settings: CheckSettings) -> CheckOutput:
         else {"robot": settings.robot, "tracker": settings.tracker}
     )
     result = _with(result, simulated=world is not None, devices=identity)
-    return CheckOutput(result, append_history(settings.calibration, result), basis, gate=gate)
+    history = append_history(settings.calibration, result, calibration.content_sha256)
+    return CheckOutput(result, history, basis, notes, gate=gate)
 
 
 def _with(result: CheckResult, **changes: Any) -> CheckResult:
@@ -874,7 +891,7 @@ class PlanSettings:
 
 def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
     """Plan the motion and compare it with the paper's sweeps; returns the plan and the file."""
-    refuse_overwriting_inputs(settings.output, settings.scenario, force=settings.force)
+    refuse_overwriting_inputs(settings.output, settings.scenario, force=settings.force, any_file=True)
     world = build_world(load_scenario(settings.scenario))
     visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
     planner = PlannerSettings(

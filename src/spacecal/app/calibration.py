@@ -4,13 +4,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import check_belongs, check_consistent, provenance_of, refuse_overwriting_inputs
+from spacecal.app._common import (
+    check_belongs,
+    check_consistent,
+    open_calibration,
+    provenance_of,
+    refuse_overwriting_inputs,
+)
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
@@ -22,7 +28,7 @@ from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import metadata_path, read_recording
 from spacecal.io.recording_source import open_calibrated_recording
-from spacecal.io.results_json import read_calibration, write_calibration, write_json
+from spacecal.io.results_json import write_calibration, write_json
 from spacecal.records import CalibrationResult, PivotResult, Recording
 
 Point = tuple[float, float, float]
@@ -121,6 +127,7 @@ class CalibrateOutput:
     path: Path
     time_offset_note: str | None = None
     doubtful_note: str | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
@@ -131,6 +138,7 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
         metadata_path(settings.recording),
         settings.tracker_stream,
         force=settings.force,
+        any_file=True,
     )
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     targets = check_points(settings.targets_in_base, "--target")
@@ -184,11 +192,18 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
     # before any estimate; the rest is judged by its expected error, however large its residuals
     check_consistent(recording, str(settings.recording))
     result = estimate(recording, settings.method, **options)
-    result = result.replace(provenance=provenance_of(recording, settings.recording, settings.tracker_stream))
+    provenance = provenance_of(recording, settings.recording, settings.tracker_stream)
+    notes = []
+    if provenance.tool_definition is not None and provenance.tool_definition_sha256 is None:
+        notes.append(
+            f"the recording names the tool definition {provenance.tool_definition}, which is not there: "
+            "the calibration records its path but not its sha256"
+        )
+    result = result.replace(provenance=provenance)
     result.diagnostics["tracker_kind"] = settings.tracker_kind
     if settings.tracker_stream:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
-    return CalibrateOutput(result, write_calibration(result, settings.output), note, doubtful_note)
+    return CalibrateOutput(result, write_calibration(result, settings.output), note, doubtful_note, notes)
 
 
 @dataclass(frozen=True)
@@ -202,11 +217,12 @@ class BoundSettings:
 
 
 def bound(settings: BoundSettings) -> dict[str, Any]:
-    """The bound at the site, over the cube and at the targets (mm), and ``sigma_mm``, the
-    per-axis sphere noise it was computed for: as given, else from the recording's tracker fit
-    RMS (the noise the tracker itself reported)."""
+    """The bound at the site, over the cube and at the targets (mm); ``sigma_mm``, the per-axis
+    sphere noise it was computed for (as given, else from the recording's tracker fit RMS), and
+    ``notes`` (a list of lines: e.g. that the calibration, of an older version, cannot be
+    verified)."""
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
-    calibration = read_calibration(settings.calibration)
+    calibration, notes = open_calibration(settings.calibration, "bound")
     opened = open_calibrated_recording(calibration, settings.recording)
     if opened is None:
         raise InvalidInputError(f"{settings.recording}: no such recording")
@@ -232,7 +248,7 @@ def bound(settings: BoundSettings) -> dict[str, Any]:
         sigma_mm,
         check_points(settings.targets_in_base, "--target"),
     )
-    return {**found, "sigma_mm": float(sigma_mm), "sigma_source": source}
+    return {**found, "sigma_mm": float(sigma_mm), "sigma_source": source, "notes": notes}
 
 
 @dataclass(frozen=True)
@@ -261,7 +277,9 @@ class PivotSettings:
 def pivot(settings: PivotSettings) -> tuple[PivotResult, Path | None]:
     """Pivot calibration; returns the result and the file written (if any)."""
     source = Path(settings.poses)
-    refuse_overwriting_inputs(settings.output, settings.poses, settings.subset, force=settings.force)
+    refuse_overwriting_inputs(
+        settings.output, settings.poses, settings.subset, force=settings.force, any_file=True
+    )
     if settings.output and source.is_dir() and Path(settings.output).resolve().parent == source.resolve():
         if Path(settings.output).suffix == ".txt" and not settings.force:
             raise InvalidInputError(

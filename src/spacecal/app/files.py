@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spacecal.app._common import check_belongs, guard_outputs, refuse_overwriting_inputs
+from spacecal.app._common import check_belongs, guard_outputs, open_calibration, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.io.atomic import atomic_path
@@ -25,7 +25,7 @@ from spacecal.io.plus_import import recording_from_plus_sequence
 from spacecal.io.plus_sequence import read_plus_sequence
 from spacecal.io.recording_csv import metadata_path, write_recording
 from spacecal.io.recording_source import open_calibrated_recording
-from spacecal.io.results_json import read_calibration, read_json_object, write_json
+from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.records import LandmarkRegistrationResult, VerificationResult
 from spacecal.report.html import Report, write_figures, write_report
@@ -66,7 +66,9 @@ def register_landmarks(
 ) -> tuple[LandmarkRegistrationResult, np.ndarray, Path | None]:
     """Detect the landmark touches and register; returns the result, the sequence's
     timestamps (s) and the file written."""
-    refuse_overwriting_inputs(settings.output, settings.sequence, settings.config, force=settings.force)
+    refuse_overwriting_inputs(
+        settings.output, settings.sequence, settings.config, force=settings.force, any_file=True
+    )
     sequence = read_plus_sequence(settings.sequence)
     _, landmarks = read_plus_landmarks(settings.config)
     stylus_from_tip = read_plus_transform(settings.config, "StylusTip", "Stylus")
@@ -103,6 +105,7 @@ class ReportSettings:
     verification: str | None = None
     png_dir: str | None = None
     force: bool = False
+    accept_edited: bool = False
 
 
 @dataclass(frozen=True)
@@ -123,8 +126,7 @@ def report(settings: ReportSettings) -> ReportOutput:
         history_path(settings.calibration),
         force=settings.force,
     )
-    calibration = read_calibration(settings.calibration)
-    notes = []
+    calibration, notes = open_calibration(settings.calibration, "report", settings.accept_edited)
     opened = open_calibrated_recording(calibration, settings.recording)
     recording = None
     if opened is not None:
@@ -137,9 +139,14 @@ def report(settings: ReportSettings) -> ReportOutput:
     verification = None
     if settings.verification:
         verification = _read_verification(settings.verification)
-    history, unreadable = read_history(settings.calibration)
+    history, unreadable, others = read_history(settings.calibration, calibration.content_sha256)
     if unreadable:
         notes.append(f"{unreadable} unreadable line(s) in the check history were skipped")
+    if others:
+        notes.append(
+            f"{others} check(s) in {history_path(settings.calibration)} are of another calibration (one "
+            "this file replaced, or logged before checks recorded the calibration's hash): not shown"
+        )
     report_data = Report(calibration, recording, verification, history)
     with atomic_path(settings.output) as temporary, _staged_folder(settings.png_dir) as png_dir:
         _, titles = write_report(report_data, temporary)
@@ -198,19 +205,21 @@ class ExportSettings:
     plus: str | None = None
     igtl: str | None = None
     force: bool = False
+    accept_edited: bool = False
 
 
 def export(settings: ExportSettings) -> list[str]:
-    """Export the calibration to every target named; returns one line per export done."""
+    """Export the calibration to every target named; returns one line per export done, after
+    a ``note: ...`` line for a calibration that cannot be verified or was accepted edited."""
     if not (settings.slicer or settings.plus or settings.igtl):
         raise InvalidInputError(
             "say where to export: --slicer FILE.tfm, --plus FILE.xml, --igtl HOST:PORT, --easy-handeye2, "
             "--ros2-launch, --urdf, --static-tf or --ur-calibration"
         )
     guard_outputs([settings.slicer, settings.plus], [settings.calibration], settings.force)
-    calibration = read_calibration(settings.calibration)
+    calibration, notes = open_calibration(settings.calibration, "export", settings.accept_edited)
     error = calibration.diagnostics.get("expected_error", {}).get("position_mm")
-    done = []
+    done = [f"note: {note}" for note in notes]
     if settings.slicer:
         path = write_slicer_transform(calibration.tracker_from_base, settings.slicer)
         done.append(f"wrote {path} (loads in 3D Slicer as BaseToTracker; its matrix is tracker_from_base)")

@@ -7,13 +7,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from spacecal.app._common import guard_outputs, refuse_overwriting_inputs
+from spacecal.app._common import guard_outputs, open_calibration, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.io.easy_handeye import read_easy_handeye_samples, write_easy_handeye2_calibration
 from spacecal.io.names import check_calibration_name, check_ros_frame_name
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
-from spacecal.io.results_json import read_calibration
 from spacecal.io.ros_bag import list_bag_contents, read_ros_bag
 from spacecal.io.ros_exports import (
     calibration_static_transform,
@@ -112,6 +111,7 @@ class RosExportSettings:
     tracker_frame: str = "tracker"
     marker_frame: str = "marker"
     force: bool = False
+    accept_edited: bool = False
 
 
 def _check_names(settings: RosExportSettings) -> None:
@@ -129,15 +129,16 @@ def _check_names(settings: RosExportSettings) -> None:
 
 
 def export_ros(settings: RosExportSettings) -> list[str]:
-    """Write each ROS export named; returns one line per export."""
+    """Write each ROS export named; returns one line per export, after a ``note: ...`` line for
+    a calibration that cannot be verified or was accepted edited."""
     for output in (settings.easy_handeye2, settings.ros2_launch, settings.urdf, settings.ur_calibration):
         refuse_overwriting_inputs(output, settings.calibration, force=settings.force)
     _check_names(settings)
-    calibration = read_calibration(settings.calibration)
+    calibration, notes = open_calibration(settings.calibration, "export", settings.accept_edited)
     edge = calibration_static_transform(
         calibration.tracker_from_base, base_frame=settings.base_frame, tracker_frame=settings.tracker_frame
     )
-    done = []
+    done = [f"note: {note}" for note in notes]
     if settings.easy_handeye2:
         path = write_easy_handeye2_calibration(
             settings.easy_handeye2,

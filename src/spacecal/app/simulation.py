@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import guard_outputs
+from spacecal.app._common import guard_outputs, open_calibration
 from spacecal.app.gate import default_box_half_mm, gate_plan, plan_workspace, world_visibility
 from spacecal.core.errors import InvalidInputError
 from spacecal.experiments.demo import DemoResult, run_demo
@@ -22,7 +22,7 @@ from spacecal.experiments.verification import verify_in_simulation
 from spacecal.io.atomic import atomic_path
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
-from spacecal.io.results_json import read_calibration, read_json_object, write_calibration, write_json
+from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.planning.motion import MotionPlan, motion_plan_from_record
 from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.records import CalibrationResult, PhantomResult, PlanRecord, VerificationResult
@@ -234,10 +234,12 @@ def verify(settings: VerifySettings) -> VerifyOutput:
     if not 1 <= settings.points <= 1000:
         raise InvalidInputError(f"--points must be 1..1000, got {settings.points}")
     guard_outputs(
-        [settings.output, settings.figure], [settings.calibration, settings.scenario], settings.force
+        [settings.output, settings.figure],
+        [settings.calibration, settings.scenario],
+        settings.force,
+        any_file=True,
     )
-    calibration = read_calibration(settings.calibration)
-    notes = []
+    calibration, notes = open_calibration(settings.calibration, "verify")
     if settings.scenario is not None:
         scenario = load_scenario(settings.scenario)
         source = "given"
@@ -283,9 +285,17 @@ class DemoOutput:
 
 def demo(settings: DemoSettings) -> DemoOutput:
     """The whole chain on the simulated system, with a table beside the paper's figures."""
-    names = ("recording.csv", "recording.meta.json", "calibration.json", "verification.json")
+    names = (
+        "recording.csv",
+        "recording.meta.json",
+        "calibration.json",
+        "verification.json",
+        "verification_errors.png",
+    )
     if settings.out:
-        guard_outputs([Path(settings.out) / n for n in names], [settings.scenario], settings.force)
+        guard_outputs(
+            [Path(settings.out) / n for n in names], [settings.scenario], settings.force, any_file=True
+        )
     result = run_demo(load_scenario(settings.scenario))
     paths: list[Path] = []
     if settings.out:
@@ -328,7 +338,7 @@ def phantom(settings: PhantomCommandSettings) -> tuple[PhantomResult, tuple[Path
     """Run the phantom experiment; returns its result and the files written."""
     if not 1 <= settings.cases <= 100:
         raise InvalidInputError(f"--cases must be 1..100, got {settings.cases}")
-    guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force)
+    guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force, any_file=True)
     result = run_phantom_experiment(
         load_scenario(settings.scenario), settings.method, PhantomSettings(cases=settings.cases)
     )

@@ -106,6 +106,7 @@ def _calibrate(a: argparse.Namespace) -> None:
         print(out.time_offset_note)
     if out.doubtful_note:
         print(out.doubtful_note)
+    _print_notes(out.notes)
     result = out.calibration
     counts, d = result.sample_counts, result.diagnostics
     print(f"wrote {out.path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
@@ -146,6 +147,7 @@ def _calibrate(a: argparse.Namespace) -> None:
 
 def _bound(a: argparse.Namespace) -> None:
     bound = app.bound(app.BoundSettings(a.recording, a.calibration, a.sigma_mm, _points(a.target)))
+    _print_notes(bound["notes"])
     print(
         f"Cramer-Rao lower bound on TRE for {a.recording} with {bound['sigma_mm']:.3g} mm per-axis sphere "
         f"noise ({bound['sigma_source']}):"
@@ -338,14 +340,23 @@ def _export(a: argparse.Namespace) -> None:
     ros = (a.easy_handeye2, a.ros2_launch, a.urdf, a.static_tf, a.ur_calibration)
     lines = []
     if a.slicer or a.plus or a.igtl or not any(ros):
-        lines += app.export(app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl, a.force))
+        lines += app.export(
+            app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl, a.force, a.accept_edited)
+        )
     if any(ros):
         lines += app.export_ros(
             app.RosExportSettings(
-                a.calibration, *ros, a.base_frame, a.tool_frame, a.tracker_frame, a.marker_frame, a.force
+                a.calibration,
+                *ros,
+                a.base_frame,
+                a.tool_frame,
+                a.tracker_frame,
+                a.marker_frame,
+                a.force,
+                a.accept_edited,
             )
         )
-    for line in lines:
+    for line in dict.fromkeys(lines):  # a note on the calibration is made by both exports
         print(line)
 
 
@@ -418,6 +429,8 @@ def _check(a: argparse.Namespace) -> None:
             a.confirm_robot_motion,
             devices,
             a.frames_per_pose,
+            a.accept_edited,
+            a.accept_other_devices,
         )
     )
     if out.gate is not None:
@@ -458,7 +471,9 @@ def _phantom(a: argparse.Namespace) -> None:
 
 def _report(a: argparse.Namespace) -> None:
     out = app.report(
-        app.ReportSettings(a.calibration, a.output, a.recording, a.verification, a.png_dir, a.force)
+        app.ReportSettings(
+            a.calibration, a.output, a.recording, a.verification, a.png_dir, a.force, a.accept_edited
+        )
     )
     print(f"wrote {out.path} ({len(out.titles)} plots: {', '.join(out.titles)})")
     if out.figures:

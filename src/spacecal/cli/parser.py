@@ -205,6 +205,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     p = command("export", "export a calibration to 3D Slicer, PLUS, or over OpenIGTLink")
     add_force(p)
+    add_accept_edited(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--slicer", help="ITK transform file (.tfm) for 3D Slicer")
     p.add_argument("--plus", help="PLUS CoordinateDefinitions XML")
@@ -280,6 +281,12 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     K = app.CheckSettings
     p = command("check", "confirm before surgery that a calibration still holds")
+    add_accept_edited(p)
+    p.add_argument(
+        "--accept-other-devices",
+        action="store_true",
+        help="check on other real devices than the calibration records (URLs, robot model)",
+    )
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
     p.add_argument("--robot", default=_d(K, "robot"), help="sim (default) or ur://HOST")
@@ -316,6 +323,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     p = command("report", "a self-contained HTML report (works offline) and PNG figures")
     add_force(p)
+    add_accept_edited(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="recording CSV (default: the calibration's own)")
     p.add_argument("--verification", help="verification JSON (from spacecal verify -o)")
@@ -399,11 +407,22 @@ def add_doctor(command) -> None:
 
 
 def add_force(p: argparse.ArgumentParser) -> None:
-    """``--force``: replace an existing recording or an input file named as an output."""
+    """``--force``: replace an existing output (a recording, a calibration or another result)
+    or an input file named as an output."""
     p.add_argument(
         "--force",
         action="store_true",
-        help="replace an existing recording or an input named as an output (written atomically)",
+        help="replace an existing output (recording, calibration, result) or an input named as an output "
+        "(written atomically)",
+    )
+
+
+def add_accept_edited(p: argparse.ArgumentParser) -> None:
+    """``--accept-edited``: use a calibration whose content hash differs (edited since written)."""
+    p.add_argument(
+        "--accept-edited",
+        action="store_true",
+        help="use a calibration edited since it was written (its content hash differs)",
     )
 
 

@@ -73,10 +73,13 @@ def read_json_object(path: str | Path, what: str) -> dict[str, Any]:
 
 
 def write_calibration(result: CalibrationResult, path: str | Path) -> Path:
-    """Write a calibration result file (schema 2)."""
+    """Write a calibration result file (the current schema, with its content hash)."""
     return write_json(result.to_dict(), path)
 
 
 def read_calibration(path: str | Path) -> CalibrationResult:
-    """Read and validate a calibration result file (schema 1 or 2)."""
+    """Read and validate a calibration result file (schema 1, 2 or 3).
+
+    An edited file is read, not refused: its ``integrity`` says how it stands against its
+    content hash, and the app decides (:func:`spacecal.app._common.open_calibration`)."""
     return CalibrationResult.from_dict(read_json_object(path, "calibration"), what=str(path))

@@ -4,7 +4,14 @@ Schema history of the calibration file (``schema: spacecal.calibration``):
 
 * 1: the identified robot model rode in ``diagnostics["kinematic_model"]`` and the origin
   of the data in an untyped ``source`` object (``{"recording": path}``).
-* 2: ``robot_model`` and ``provenance`` are typed fields. Version 1 files are still read.
+* 2: ``robot_model`` and ``provenance`` are typed fields.
+* 3: an ``integrity`` object carries the sha256 of the canonical JSON of every other field
+  (:mod:`spacecal.records.integrity`), so an edited file is detected; ``provenance`` names
+  what the calibration belongs to: the recording's sha256 (and the raw tracker stream's), the
+  marker's tool definition and its sha256, and the devices' serial numbers where known.
+
+Versions 1 and 2 are still read; they carry no hash, so they cannot be verified
+(:attr:`CalibrationResult.integrity` says so).
 """
 
 from __future__ import annotations
@@ -28,6 +35,8 @@ from spacecal.records.fields import (
     get_str,
     plain,
 )
+from spacecal.records.integrity import INTEGRITY_KEY, Integrity, integrity_entry, is_sha256
+from spacecal.records.integrity import content_sha256 as hash_of_content
 from spacecal.records.verdict import Verdict
 
 #: The file's names of the two transforms, built from the frame table (``<to>_from_<from>``).
@@ -38,9 +47,11 @@ TCP_FROM_MARKER = transform_name("tcp", "marker")
 MAX_TRANSLATION_MM = 1e5
 
 CALIBRATION_SCHEMA = "spacecal.calibration"
-CALIBRATION_SCHEMA_VERSION = 2
+CALIBRATION_SCHEMA_VERSION = 3
 #: Versions :meth:`CalibrationResult.from_dict` reads.
-CALIBRATION_READABLE_VERSIONS = (1, 2)
+CALIBRATION_READABLE_VERSIONS = (1, 2, 3)
+#: The first version whose files carry a content hash.
+FIRST_HASHED_VERSION = 3
 
 
 def robot_model_to_dict(model: RobotModel) -> dict[str, Any]:
@@ -97,7 +108,16 @@ class Provenance:
     scenario : dict or None
         The simulation scenario the data came from (simulated data only).
     devices : dict
-        Device identities (``robot``, ``tracker`` URLs, models, firmware) where known.
+        Device identities where known: ``robot`` (``model``, ``url``, ``serial``) and
+        ``tracker`` (``url``, ``name``, ``model``, ``serial``), as the recording's metadata
+        states them.
+    recording_sha256, tracker_stream_sha256 : str or None
+        sha256 of the recording file (the robot stream of a raw recording) and of the raw
+        tracker stream, taken when calibrating.
+    tool_definition : str or None
+        Absolute path of the marker's tool definition (NDI ``.rom``) the recording names.
+    tool_definition_sha256 : str or None
+        Its sha256 when calibrating (None when the recording names none, or it was not there).
     created_utc : str
         ISO time the result was made.
     software : str
@@ -109,6 +129,10 @@ class Provenance:
     simulated: bool | None = None
     scenario: dict[str, Any] | None = None
     devices: dict[str, Any] = field(default_factory=dict)
+    recording_sha256: str | None = None
+    tracker_stream_sha256: str | None = None
+    tool_definition: str | None = None
+    tool_definition_sha256: str | None = None
     created_utc: str = field(
         default_factory=lambda: datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     )
@@ -122,9 +146,23 @@ class Provenance:
         recording = data.get("recording")
         tracker_stream = data.get("tracker_stream")
         simulated = data.get("simulated")
-        for key, value in (("recording", recording), ("tracker_stream", tracker_stream)):
+        tool_definition = data.get("tool_definition")
+        for key, value in (
+            ("recording", recording),
+            ("tracker_stream", tracker_stream),
+            ("tool_definition", tool_definition),
+        ):
             if value is not None and not isinstance(value, str):
                 raise InvalidInputError(f"{what}: provenance {key!r} must be a path string")
+        digests = {
+            key: data.get(key)
+            for key in ("recording_sha256", "tracker_stream_sha256", "tool_definition_sha256")
+        }
+        for key, value in digests.items():
+            if value is not None and not is_sha256(value):
+                raise InvalidInputError(
+                    f"{what}: provenance {key!r} must be a sha256 (64 hex digits) or null"
+                )
         if simulated is not None and not isinstance(simulated, bool):
             raise InvalidInputError(f"{what}: provenance 'simulated' must be true, false or null")
         scenario = data.get("scenario")
@@ -136,6 +174,8 @@ class Provenance:
             simulated=simulated,
             scenario=None if scenario is None else dict(scenario),
             devices=get_mapping(data, "devices", what),
+            tool_definition=tool_definition,
+            **digests,
             created_utc=get_str(data, "created_utc", what, default=""),
             software=get_str(data, "software", what, default=""),
         )
@@ -175,6 +215,11 @@ class CalibrationResult:
     robot_model : RobotModel, optional
         The robot's kinematic model identified with the calibration (``kinematic``); IK
         for this calibration must use it.
+    schema_version : int
+        The version of the file it was read from (the current one for a new result).
+    integrity : Integrity or None
+        How the file it was read from stands against its content hash; None for a result not
+        read from a file. Whether an edited file may be used is the caller's decision.
     """
 
     method: str
@@ -187,6 +232,7 @@ class CalibrationResult:
     predicted_tre_mm: dict[str, Any] | None = None
     robot_model: RobotModel | None = None
     schema_version: int = CALIBRATION_SCHEMA_VERSION
+    integrity: Integrity | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         what = f"calibration ({self.method})"
@@ -212,6 +258,14 @@ class CalibrationResult:
         method gave none; older files' sentences are read too."""
         return Verdict.from_value(self.diagnostics.get("verdict"), f"calibration ({self.method})")
 
+    @property
+    def content_sha256(self) -> str:
+        """The content hash that identifies this calibration (a check history binds to it): of
+        the file as read, or, for a result not read from a file, of what writing it would give."""
+        if self.integrity is not None:
+            return self.integrity.content_sha256
+        return hash_of_content(self.to_dict())
+
     def robot_model_for_ik(self, nominal: RobotModel) -> RobotModel:
         """The model to solve IK with: ``nominal`` with the identified DH parameters, if any.
 
@@ -230,12 +284,14 @@ class CalibrationResult:
         )
 
     def replace(self, **changes: Any) -> CalibrationResult:
-        """A copy with some fields changed (the record itself is immutable)."""
+        """A copy with some fields changed (the record itself is immutable); the copy was not
+        read from a file, so it has no ``integrity`` unless given."""
+        changes.setdefault("integrity", None)
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:
-        """The calibration file's content (schema 2)."""
-        return plain(
+        """The calibration file's content (the current schema), with its content hash."""
+        content = plain(
             {
                 "schema": CALIBRATION_SCHEMA,
                 "schema_version": CALIBRATION_SCHEMA_VERSION,
@@ -253,10 +309,12 @@ class CalibrationResult:
                 "robot_model": None if self.robot_model is None else robot_model_to_dict(self.robot_model),
             }
         )
+        return {**content, INTEGRITY_KEY: integrity_entry(content)}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], what: str = "calibration") -> CalibrationResult:
-        """Read a calibration file's content, version 1 or 2."""
+        """Read a calibration file's content, version 1, 2 or 3, and hash it
+        (:attr:`integrity`; an edited file is read, not refused: the caller decides)."""
         version = check_schema(data, CALIBRATION_SCHEMA, CALIBRATION_READABLE_VERSIONS, what)
         if "schema_version" not in data:
             raise InvalidInputError(f"{what}: missing 'schema_version' (not a spacecal calibration file?)")
@@ -310,6 +368,8 @@ class CalibrationResult:
             covariance=None if covariance is None else dict(covariance),
             predicted_tre_mm=predicted,
             robot_model=robot_model,
+            schema_version=version,
+            integrity=Integrity.of(data, required=version >= FIRST_HASHED_VERSION),
         )
 
 

@@ -103,6 +103,11 @@ def check_schema(data: Mapping[str, Any], schema: str, versions: tuple[int, ...]
         raise InvalidInputError(f"{what}: this is a {name!r} file, not {schema!r}")
     version = data.get("schema_version", versions[0])
     if isinstance(version, bool) or version not in versions:
+        if isinstance(version, (int, float)) and not isinstance(version, bool) and version > max(versions):
+            raise InvalidInputError(
+                f"{what}: schema_version {_describe(version)} is newer than this spacecal reads "
+                f"({', '.join(map(str, versions))}): written by a newer spacecal, update it to read this file"
+            )
         raise InvalidInputError(
             f"{what}: schema_version {_describe(version)} is not supported "
             f"(this spacecal reads {', '.join(map(str, versions))})"

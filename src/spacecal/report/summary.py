@@ -277,6 +277,10 @@ def _describe_device(entry: Any, keys: tuple[str, ...]) -> str | None:
     return ", ".join(dict.fromkeys(parts)) or None
 
 
+def _digest(sha256: str | None) -> str:
+    return f" (sha256 {sha256[:12]}...)" if sha256 else ""
+
+
 def provenance_facts(
     calibration: CalibrationResult, recording: Recording | None = None
 ) -> list[tuple[str, str]]:
@@ -343,7 +347,23 @@ def provenance_facts(
         facts.append(("data", "origin unknown (imported or older file)"))
     recording_path = provenance.recording
     if recording_path:
-        facts.append(("recording", recording_path))
+        facts.append(("recording", recording_path + _digest(provenance.recording_sha256)))
+    if provenance.tracker_stream:
+        stream = provenance.tracker_stream + _digest(provenance.tracker_stream_sha256)
+        facts.append(("tracker stream", stream))
+    if provenance.tool_definition:
+        facts.append(
+            ("tool definition", provenance.tool_definition + _digest(provenance.tool_definition_sha256))
+        )
+    integrity = calibration.integrity
+    if integrity is not None:
+        if integrity.verified:
+            state = f"as written (content hash {integrity.content_sha256[:12]}... verified)"
+        elif integrity.edited:
+            state = "EDITED since it was written (content hash differs): not the calibration as computed"
+        else:
+            state = f"cannot be verified (a version {calibration.schema_version} file: no content hash)"
+        facts.append(("file", state))
     facts.append(("calibrated", _date(provenance.created_utc)))
     facts.append(("software", provenance.software or "unknown"))
     return facts
