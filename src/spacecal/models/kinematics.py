@@ -31,8 +31,6 @@ from spacecal.geometry.transforms import (
 
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 N_JOINTS = 6
-#: No link of a serial arm spacecal drives is longer than this (mm): a UR20's longest is 863 mm.
-MAX_LINK_MM = 5000.0
 
 
 def _load_ur_tables() -> dict:
@@ -73,19 +71,15 @@ class RobotModel:
 
     def __post_init__(self) -> None:
         # a model from a controller or a file is checked here, once: comparisons with NaN are
-        # false, so a NaN DH parameter would pass every later range check and yield NaN poses
+        # false, so a NaN DH parameter would pass every later range check and yield NaN poses.
+        # No bound on the lengths: a UR controller's factory calibration moves d_2 and d_3 by
+        # hundreds of metres that cancel along the nearly parallel shoulder and elbow axes
         for name in ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad", "joint_lower_rad", "joint_upper_rad"):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (N_JOINTS,) or not np.all(np.isfinite(value)):
                 raise InvalidInputError(
                     f"robot model {self.name!r}: {name} must be {N_JOINTS} finite numbers"
                 )
-        lengths = np.concatenate([np.asarray(self.a_mm, float), np.asarray(self.d_mm, float)])
-        if np.max(np.abs(lengths)) > MAX_LINK_MM:
-            raise InvalidInputError(
-                f"robot model {self.name!r}: a link of {np.max(np.abs(lengths)):.3g} mm is not an arm's "
-                f"(at most {MAX_LINK_MM:g} mm)"
-            )
         tool = np.asarray(self.flange_from_tcp, dtype=float)
         if tool.shape != (4, 4) or not np.all(np.isfinite(tool)):
             raise InvalidInputError(
