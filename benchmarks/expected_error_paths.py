@@ -3,9 +3,9 @@
 For each scenario and seed one acquisition reaches ``spacecal calibrate --method ml`` by five
 paths, and the calibration of each is verified in the same simulated world:
 
-* **paired CSV**: the paired recording as ``spacecal acquire`` writes it (joint angles, the
-  tracker's fit RMS, the robot and marker in the metadata), through ``spacecal calibrate
-  REC.csv``;
+* **paired CSV**: the paired recording (joint angles, the tracker's fit RMS, the robot and
+  marker in the metadata): the raw streams below paired on the robot's clock, as acquisition
+  pairs them, through ``spacecal calibrate REC.csv``;
 * **raw streams**: the robot's states and the tracker's frames on their own clocks, through
   ``spacecal calibrate STEM.robot.csv --tracker-stream STEM.tracker.csv`` (the clock offset
   estimated);
@@ -29,8 +29,9 @@ Scenarios: white noise (``paper-white``); realistic with a calibrated controller
 (``paper-realistic``) and with a nominal-reporting one (``paper-realistic-nominal``);
 ``anisotropic`` (3x along the line of sight); a 30 ms clock offset (``paper-realistic``
 with the robot's clock 30 ms ahead: the paired CSV, pose-only and no-joints paths then pair the
-raw streams at the estimated offset); ``camera-grade-pose-tracker``; ``static-15-poses``. The
-named ones are the scenario files in ``src/spacecal/sim/data``.
+raw streams at the estimated offset, as :mod:`benchmarks.accuracy` does);
+``camera-grade-pose-tracker``; ``static-15-poses``. The named ones are the scenario files in
+``src/spacecal/sim/data``.
 
     nice python benchmarks/expected_error_paths.py [--seeds 20] [--jobs 2] [--scenario NAME ...]
         [--path NAME ...] [--rows rows.csv] [--cache FOLDER]
@@ -55,7 +56,7 @@ from spacecal.app.ros import ImportBagSettings, import_bag
 from spacecal.core.errors import SpacecalError
 from spacecal.estimators import calibrate
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
-from spacecal.experiments.simulation import simulate, simulate_raw
+from spacecal.experiments.simulation import simulate_raw
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.geometry.transforms import invert_transform, transform_to_position_quaternion
 from spacecal.io.raw_streams import write_raw_recording
@@ -158,7 +159,7 @@ def scored(result: CalibrationResult, scenario: Scenario) -> tuple[float, float]
 
 def acquisition(label: str, seed: int, cache: str | None) -> tuple[Scenario, RawRecording, Recording]:
     """The scenario, its raw streams and its paired recording (simulated, or from ``cache``:
-    the simulations cost most of a case, and do not change with the estimators)."""
+    the simulation costs most of a case, and does not change with the estimators)."""
     name, offset_s = SCENARIOS[label]
     scenario = dataclasses.replace(load_scenario(name), seed=seed)
     stored = None if cache is None else Path(cache) / f"{name}-{offset_s * 1000:g}ms-{seed}.pickle"
@@ -167,10 +168,8 @@ def acquisition(label: str, seed: int, cache: str | None) -> tuple[Scenario, Raw
             raw, paired = pickle.load(file)
         return scenario, raw, paired
     raw, _ = simulate_raw(scenario, clock_offset_s=offset_s)
-    if offset_s:
-        paired = pair_streams(raw, estimate_time_offset(raw).offset_s)
-    else:
-        paired = simulate(scenario).recording
+    # what acquisition pairs on the controller's clock, or (a clock offset) at the estimated one
+    paired = pair_streams(raw, estimate_time_offset(raw).offset_s if offset_s else 0.0)
     if stored is not None:
         stored.parent.mkdir(parents=True, exist_ok=True)
         with open(stored, "wb") as file:
