@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators import calibrate
+from spacecal.estimators import calibrate, time_offset
 from spacecal.estimators.kinematic import DH_NAMES
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.experiments.simulation import simulate, simulate_raw
@@ -77,6 +77,22 @@ def test_a_30_ms_clock_offset_is_recovered_within_2_ms(offset_streams):
     naive = calibration_error(calibrate(pair_streams(raw, 0.0), "ml", uncertainty=False), world)["tre_rms_mm"]
     corrected = calibration_error(estimate.calibration, world)["tre_rms_mm"]
     assert corrected < 0.1 * naive and corrected < 0.05
+
+
+def test_a_misleading_coarse_offset_is_followed_to_the_fit_s_optimum(offset_streams, monkeypatch):
+    # a noisy tracker's angular speeds can put the coarse offset 60 ms off (a camera-grade
+    # pose tracker did, and the refinement stopped at the edge of its wider bracket, 23 ms off)
+    raw, _ = offset_streams
+    original = time_offset.coarse_offset_from_angular_speed
+
+    def misled(raw, search_s):
+        offsets, _ = original(raw, search_s)
+        return offsets, (offsets - 0.090) ** 2
+
+    monkeypatch.setattr(time_offset, "coarse_offset_from_angular_speed", misled)
+    estimate = estimate_time_offset(raw)
+    assert abs(estimate.coarse_offset_s - 0.090) < 1e-9
+    assert abs(estimate.offset_s - 0.030) < 0.002
 
 
 def test_raw_streams_round_trip(offset_streams, tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spacecal.geometry.transforms import apply_transform
-from spacecal.sim.scenario import PRESETS
+from spacecal.sim.scenario import PRESETS, load_scenario, packaged_scenarios
 from spacecal.sim.world import REPEATABILITY_TO_AXIS_SD, build_world
 
 
@@ -67,3 +67,19 @@ def test_marker_rms_reported_and_invisible_frames_empty(realistic_simulation):
     rec = realistic_simulation.recording
     assert np.all(np.isnan(rec.marker_rms_mm[~rec.visible]))
     assert 0.02 < np.nanmean(rec.marker_rms_mm) < 0.3
+
+
+@pytest.mark.parametrize("name", sorted(packaged_scenarios()))
+def test_packaged_scenario_files_load_by_name(name):
+    scenario = load_scenario(name)
+    assert scenario.name == name
+    assert load_scenario(packaged_scenarios()[name]) == scenario
+
+
+def test_a_pose_only_tracker_reports_no_fit_rms():
+    world = build_world(dataclasses.replace(load_scenario("camera-grade-pose-tracker"), seed=3))
+    home = world.true_base_from_tcp(world.home_joints_rad, jitter=False)[0]
+    truth = np.tile(world.tracker_from_base @ home @ world.tcp_from_marker, (20, 1, 1))
+    frames = world.track_marker(truth)
+    seen = np.all(np.isfinite(frames.tracker_from_marker[:, :3, 3]), axis=1)
+    assert seen.any() and np.all(np.isnan(frames.rms_mm))

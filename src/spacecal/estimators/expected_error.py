@@ -3,19 +3,37 @@
 The predicted TRE of :mod:`spacecal.estimators.ml` propagates the tracker's white noise
 only. What a user sees when the robot is sent to a target also contains whatever the model
 does not describe: the robot's kinematic error, the tracker's volume error, a clock offset,
-a loose marker. Two facts set the expected error:
+a loose marker. Three facts set the expected error, each measured the same way on every path
+a recording takes (paired CSV, raw streams, a ROS bag, a pose-only tracker), with or without
+joint angles or the tracker's fit RMS:
 
 1. **Held-out misfit** (cross-validation, as in mrcal). The visible frames are split into
    blocks: the recording's segments when it has several (the paper's six sweeps), otherwise
    six contiguous time blocks (blocks of stations). For each block the maximum-likelihood fit
    is redone on the others, warm-started from the full-data solution, and predicts the
    held-out frames through the chain ``tracker_from_base @ base_from_tcp @ tcp_from_marker``.
-   The mean squared sphere error of those predictions, less what the tracker's white noise
-   explains (``dof_per_frame * sigma^2`` per frame), is the power of the systematic error
-   ``S`` (less two standard errors of the noise's misfit, which include the error of the
-   noise level itself, estimated from the tracker's RMS). Robot kinematics, tracker bias and
-   timing all enter it.
-2. **What the marker cannot see** (geometry). Part of any kinematic error moves the needle
+   The mean squared sphere error of those predictions, less what the white noise explains
+   (its power per frame plus the refit's own prediction variance), is the power of the
+   systematic error ``S`` (less two standard errors of the noise's misfit: its own scatter
+   and the error of the noise level). Robot kinematics, tracker bias and timing all enter it.
+2. **The white noise, from consecutive frames** (a variogram's nugget;
+   :func:`white_noise_power`). A systematic error is a smooth function of where the arm is
+   (of its joint angles, of the marker's place in the tracker's volume, of its velocity for a
+   clock offset); white noise is independent from frame to frame. Two consecutive frames of a
+   segment, whose marker moved a few mm, carry nearly the same systematic residual, so half
+   the mean squared difference of their residuals is the white noise's power alone, whatever
+   its shape: anisotropic, pose-only, raw spheres, the robot's own jitter. On the paper's
+   sweeps the residual variogram is flat from the 5 mm between consecutive frames to 30 mm,
+   and its nugget is the tracker's noise as its fit RMS gives it, plus the arm's jitter; at
+   static stations the pairs are exact. Neither alternative serves every path: the tracker's
+   fit RMS is missing from pose-only trackers (PLUS over OpenIGTLink, camera trackers, ROS
+   poses) and leaves out white noise from other sources; in-sample residuals hold the part of
+   the systematic error the fit cannot absorb, so comparing held-out with in-sample misfit
+   calls that part noise and understates the error. The pairs' scatter gives the noise level's
+   standard error. Where fewer than :data:`MINIMUM_NUGGET_PAIRS` nearby pairs exist (one frame
+   per pose), the tracker's fit RMS stands in, and without it all of the misfit counts as
+   systematic: the error is widened, never shrunk, and the basis says so.
+3. **What the marker cannot see** (geometry). Part of any kinematic error moves the needle
    tip without moving the marker relative to the chain: an error constant in the tool frame
    is absorbed into ``tcp_from_marker``, yet the tip is off by it (the docs' floor that only a
    tip calibration removes). For the recording's configurations the DH Jacobian of the
@@ -24,7 +42,14 @@ a loose marker. Two facts set the expected error:
    angles 0.002 rad, the spread ``kinematic`` assumes) this gives the systematic sphere power
    per frame ``s1`` and the tip's error covariance ``C1`` (3 x 3, mean square ``f1``) at frames
    near the site. The scale the data shows is ``l^2 = S / s1``, so the unseen tip error has
-   covariance ``l^2 C1``.
+   covariance ``l^2 C1``. The tip's share ``f1 / s1`` is a property of the arm and the motion,
+   about 1 on the paper's sweeps, four times the per-sphere misfit: a recording without joint
+   angles still needs it. Its joint angles are then solved from the reported TCP poses
+   (:func:`solved_joints`): by the robot model the metadata names (which reproduces the
+   recorded angles), or, without one (a ROS bag's tf), by every UR arm of the tables with its
+   flange at the marker, keeping the one whose geometry hides the most (the largest
+   ``f1 / s1``); the basis names it. Only when no arm reaches the poses does the held-out
+   power of a frame stand for the tip's mean square.
 
 The expected position error at a target near the site is then the mean length E|x| of a
 Gaussian error x with covariance ``C_TRE + l^2 C1`` (:func:`mean_gaussian_length`), C_TRE the
@@ -32,9 +57,7 @@ noise-only covariance of the tip at the site frames; posture from the RMS of the
 block of the covariance and the tip frame's rotation (factor ``sqrt(8 / (3 pi))``). That is
 the mean a 15-point verification there would show; one verification is one draw around it
 (:mod:`spacecal.experiments.prediction_oracle`). A method other than ML adds, as a second
-moment, how far its solution puts the tip from ML's at those frames. Without joint angles or
-a robot model, the held-out misfit per sphere stands in for the tip error and the basis says
-so.
+moment, how far its solution puts the tip from ML's at those frames.
 """
 
 from __future__ import annotations
@@ -47,7 +70,7 @@ import numpy as np
 from scipy.integrate import quad
 from scipy.special import chdtri, gammaln
 
-from spacecal.core.errors import DegenerateDataError
+from spacecal.core.errors import DegenerateDataError, UnreachableError
 from spacecal.estimators.ml import (
     jacobian,
     levenberg_marquardt,
@@ -58,12 +81,15 @@ from spacecal.estimators.ml import (
 from spacecal.estimators.observations import Observations
 from spacecal.geometry.arrays import ArrayLike, FloatArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
-from spacecal.geometry.transforms import invert_transform
+from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.models.kinematics import (
     UR_TABLES,
     RobotModel,
     dh_point_jacobian,
     fit_reported_kinematics,
+    forward_kinematics,
+    inverse_kinematics,
+    inverse_kinematics_gauss_newton,
     pose_point_jacobian,
     ur_model,
 )
@@ -97,6 +123,14 @@ UNIT_DH_SD = np.array([1.0] * 12 + [0.002] * 12)
 #: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more.
 GEOMETRY_FRAMES = 120
 
+#: Frames on which each stand-in arm's geometry is evaluated when the recording names no robot
+#: (several arms are tried, and their ratios need no more).
+STAND_IN_FRAMES = 40
+
+#: A UR arm's usual working posture (deg; shoulder lifted, elbow up, wrist down): joint
+#: angles solved for a recording that has none take the branch nearest it.
+WORKING_POSTURE_DEG = (0.0, -90.0, 90.0, -90.0, -90.0, 0.0)
+
 #: Lever (mm) of the points beside the tip whose displacements give the tip frame's rotation.
 ROTATION_LEVER_MM = 100.0
 
@@ -106,6 +140,18 @@ MEAN_OVER_RMS_3D = float(np.sqrt(8.0 / (3.0 * np.pi)))
 #: Standard errors of the noise's held-out misfit (its chi-square scatter and the error of the
 #: noise level) taken off the misfit before the rest is called systematic.
 DETECTION_STANDARD_ERRORS = 2.0
+
+#: Pairs of consecutive frames whose marker moved more than this many times the pairs' median
+#: displacement do not measure the white noise (a jump between stations or sweeps).
+NUGGET_DISPLACEMENT_FACTOR = 2.0
+
+#: Fewer pairs of nearby frames than this cannot measure the white noise.
+MINIMUM_NUGGET_PAIRS = 10
+
+#: Overlapping pairs (i, i + 1), (i + 1, i + 2) share a frame: under Gaussian noise their
+#: half squared differences correlate by 1/4, so the variance of their mean is at most 1.5
+#: times that of as many independent pairs.
+OVERLAPPING_PAIRS_VARIANCE = 1.5
 
 
 def mean_gaussian_length(covariance: ArrayLike) -> float:
@@ -260,7 +306,9 @@ def held_out_misfit(
     -------
     dict
         ``frame_sse_mm2`` (N,): sum over the spheres of the squared held-out error (NaN for
-        frames of blocks that could not be refitted); ``blocks``, ``blocks_refitted``.
+        frames of blocks that could not be refitted); ``frame_prediction_leverage`` (N,):
+        ``tr(J_i (J_train^T J_train)^-1 J_i^T)``, the refit's own prediction variance per unit
+        per-axis noise variance; ``blocks``, ``blocks_refitted``.
 
     Raises
     ------
@@ -269,11 +317,11 @@ def held_out_misfit(
     """
     n = len(obs.rows)
     frame_sse = np.full(n, np.nan)
-    prediction_variance = np.full(n, np.nan)
+    leverage = np.full(n, np.nan)
     blocks = held_out_blocks(segments)
     refitted = 0
     # the refit's own noise makes held-out predictions worse than the noise alone: by
-    # sigma^2 tr(J_i (J_train^T J_train)^-1 J_i^T) for frame i
+    # sigma^2 tr(J_i (J_train^T J_train)^-1 J_i^T) for frame i (its leverage times sigma^2)
     whole = jacobian(obs, tracker_from_base, tcp_from_marker).reshape(n, -1, 12)
     for block in blocks:
         keep = np.ones(n, dtype=bool)
@@ -299,14 +347,15 @@ def held_out_misfit(
         diff = predict_spheres(held_out, *fitted) - held_out.spheres_in_tracker
         frame_sse[block] = np.sum(diff**2, axis=(1, 2))
         train = whole[keep].reshape(-1, 12)
-        covariance = np.linalg.inv(train.T @ train) * obs.sigma_mm**2
-        prediction_variance[block] = np.einsum("nia,ab,nib->n", whole[block], covariance, whole[block])
+        leverage[block] = np.einsum(
+            "nia,ab,nib->n", whole[block], np.linalg.inv(train.T @ train), whole[block]
+        )
         refitted += 1
     if refitted < 2:
         raise DegenerateDataError("too few blocks of the recording could be refitted to cross-validate")
     return {
         "frame_sse_mm2": frame_sse,
-        "frame_prediction_variance_mm2": prediction_variance,
+        "frame_prediction_leverage": leverage,
         "blocks": len(blocks),
         "blocks_refitted": refitted,
         "block_indices": blocks,
@@ -326,6 +375,63 @@ def _least_squares(design: FloatArray, target: FloatArray) -> FloatArray:
     normal = design.T @ design
     ridge = 1e-12 * np.trace(normal) * np.eye(len(normal))
     return as_float_array(np.linalg.solve(normal + ridge, design.T @ target))
+
+
+def geometry_rows(count: int, frames: int = GEOMETRY_FRAMES) -> IntArray:
+    """At most ``frames`` indices (evenly spread) of ``count`` frames, where the kinematic
+    geometry is evaluated."""
+    return np.unique(np.linspace(0, count - 1, min(frames, count)).round().astype(int))
+
+
+def solved_joints(model: RobotModel, base_from_tcp_stack: FloatArray, rows: IntArray) -> FloatArray | None:
+    """Joint angles (N, 6) reaching ``base_from_tcp_stack[rows]`` by ``model`` (NaN at the other
+    frames), on one branch: the first frame's nearest :data:`WORKING_POSTURE_DEG`, then every
+    frame by Gauss–Newton from it (the closed form nearest it where that does not converge on
+    the branch). None when ``model`` cannot reach them all."""
+    targets = base_from_tcp_stack[rows]
+    # a geometry needs joint angles to a micrometre, not to the solver's default nanometre
+    tolerance_mm = 1e-3
+    try:
+        start = inverse_kinematics(model, targets[0], np.radians(WORKING_POSTURE_DEG), tol_mm=tolerance_mm)
+        solved, _ = inverse_kinematics_gauss_newton(
+            model,
+            targets,
+            np.tile(start, (len(rows), 1)),
+            max_iterations=20,
+            position_tol_mm=tolerance_mm,
+            rotation_tol_rad=tolerance_mm * 1e-3,
+        )
+        reached = forward_kinematics(model, solved)
+        missed = (
+            ~np.all(np.isfinite(solved), axis=1)
+            | (np.linalg.norm(reached[:, :3, 3] - targets[:, :3, 3], axis=1) > tolerance_mm)
+            | (
+                rotation_angle(reached[:, :3, :3] @ np.swapaxes(targets[:, :3, :3], 1, 2))
+                > tolerance_mm * 1e-3
+            )
+            | (np.max(np.abs(solved - start), axis=1) > np.pi / 2)
+        )
+        if missed.any():
+            solved[missed] = inverse_kinematics(model, targets[missed], start, tol_mm=tolerance_mm)
+    except UnreachableError:
+        return None
+    joints = np.full((len(base_from_tcp_stack), 6), np.nan)
+    joints[rows] = solved
+    return joints
+
+
+def stand_in_arms(robot_model: RobotModel | None, tcp_from_marker: FloatArray) -> list[RobotModel]:
+    """The arms whose geometry stands in for a recording's missing joint angles.
+
+    The recording's own model where it names one; otherwise every UR arm of
+    :data:`~spacecal.models.kinematics.UR_TABLES`, with its flange at the marker (the tool
+    offset is unknown too: the TCP is placed where the calibration puts it from the marker,
+    with the TCP's orientation).
+    """
+    if robot_model is not None:
+        return [robot_model]
+    flange_from_tcp = make_transform(np.eye(3), -np.asarray(tcp_from_marker, dtype=float)[:3, 3])
+    return [ur_model(name, flange_from_tcp) for name in UR_TABLES]
 
 
 def unseen_kinematic_error(
@@ -367,7 +473,7 @@ def unseen_kinematic_error(
         averaged over the site frames, for unit-scale errors.
     """
     n = len(joints_rad)
-    picked = np.unique(np.linspace(0, n - 1, min(frames, n)).round().astype(int))
+    picked = geometry_rows(n, frames)
     site_picked = picked[site[picked]]
     spheres = obs.spheres_in_marker
     k = len(spheres)
@@ -437,6 +543,69 @@ def noise_level_relative_error(sphere_count: int, frames: int) -> float:
     half = 0.5 * dof
     density = np.exp((half - 1.0) * np.log(median) - 0.5 * median - half * np.log(2.0) - gammaln(half))
     return float(1.0 / (2.0 * density * median * np.sqrt(max(frames, 1))))
+
+
+def white_noise_power(
+    obs: Observations,
+    segments: np.ndarray,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+) -> dict[str, Any]:
+    """The white part of the residuals, from pairs of consecutive frames (a variogram's nugget).
+
+    A systematic error (the arm's kinematics, the tracker's volume error, a clock offset) is a
+    smooth function of where the arm is: two consecutive frames of one segment, whose marker
+    moved a few mm, carry nearly the same systematic residual, and half the squared difference
+    of their residuals is the white noise's power alone (the variogram
+    ``gamma(h) = E|r_i - r_j|^2 / 2`` at small separation h: its nugget). No noise model is
+    assumed: anisotropic, pose-only or raw-sphere noise and the robot's own jitter all enter it
+    as they enter the residuals. Pairs whose marker moved more than
+    :data:`NUGGET_DISPLACEMENT_FACTOR` times the pairs' median are left out (a jump between
+    stations or sweeps), as are pairs of identical observations (a repeated, stale frame).
+
+    Parameters
+    ----------
+    obs : Observations
+        The used frames in time order.
+    segments : numpy.ndarray of str, shape (N,)
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The full-data solution.
+
+    Returns
+    -------
+    dict
+        ``power_mm2``: the white noise's power per frame (sum over the spheres of the squared
+        noise, mm^2); ``variance_mm4``: the variance of one frame's noise power (for standard
+        errors); ``pairs``; ``displacement_mm``: the median RMS displacement of the spheres
+        between the frames of a pair.
+
+    Raises
+    ------
+    DegenerateDataError
+        With fewer than :data:`MINIMUM_NUGGET_PAIRS` pairs of nearby frames.
+    """
+    predicted = predict_spheres(obs, tracker_from_base, tcp_from_marker)
+    residuals = predicted - obs.spheres_in_tracker
+    segments = np.asarray(segments)
+    pairs = segments[1:] == segments[:-1]
+    pairs &= np.any(obs.spheres_in_tracker[1:] != obs.spheres_in_tracker[:-1], axis=(1, 2))
+    first = np.flatnonzero(pairs)
+    displacement = np.sqrt(np.mean(np.sum((predicted[first + 1] - predicted[first]) ** 2, axis=2), axis=1))
+    if len(first):
+        near = displacement <= NUGGET_DISPLACEMENT_FACTOR * np.median(displacement)
+        first, displacement = first[near], displacement[near]
+    if len(first) < MINIMUM_NUGGET_PAIRS:
+        raise DegenerateDataError(
+            f"only {len(first)} pairs of consecutive frames to measure the tracker's noise from "
+            f"(at least {MINIMUM_NUGGET_PAIRS})"
+        )
+    half_squares = 0.5 * np.sum((residuals[first + 1] - residuals[first]) ** 2, axis=(1, 2))
+    return {
+        "power_mm2": float(np.mean(half_squares)),
+        "variance_mm4": float(np.var(half_squares)),
+        "pairs": len(first),
+        "displacement_mm": float(np.median(displacement)),
+    }
 
 
 def expected_error(
@@ -513,7 +682,7 @@ def expected_error(
         block_list = held_out_blocks(segments)
         misfit: dict[str, Any] = {
             "frame_sse_mm2": np.full(len(obs.rows), np.nan),
-            "frame_prediction_variance_mm2": np.full(len(obs.rows), np.nan),
+            "frame_prediction_leverage": np.full(len(obs.rows), np.nan),
             "blocks": len(block_list),
             "blocks_refitted": 0,
             "block_indices": block_list,
@@ -523,24 +692,49 @@ def expected_error(
     sse = misfit["frame_sse_mm2"]
     computed = bool(np.isfinite(sse).any())
     held_out_ms = float(np.nanmean(sse)) if computed else 0.0
-    prediction_ms = float(np.nanmean(misfit["frame_prediction_variance_mm2"])) if computed else 0.0
-    noise_ms = obs.dof_per_frame * obs.sigma_mm**2 + prediction_ms if obs.sigma_known else held_out_ms
-    # the misfit beyond the noise's, less DETECTION_STANDARD_ERRORS standard errors of it: two
-    # parts, the held-out mean's own (chi-square, 2 dof sigma^4 per frame) and that of the noise
-    # level it is compared with, itself estimated from the tracker's RMS (a median). Frames of
-    # one recording cannot tell a systematic misfit smaller than this from a misjudged noise level.
     scored = int(np.isfinite(sse).sum())
-    noise_standard_error = float(
-        np.hypot(
-            obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1)),
-            obs.dof_per_frame
-            * obs.sigma_mm**2
-            * noise_level_relative_error(len(obs.spheres_in_marker), len(obs.rows)),
+    mean_leverage = float(np.nanmean(misfit["frame_prediction_leverage"])) if computed else 0.0
+    # The white noise, from the residuals of consecutive frames where there are enough (the same
+    # on every path, and every white source is in it as it is in the misfit); else from the
+    # tracker's fit RMS; else unknown, and then all the misfit counts as systematic.
+    # Beyond it, the misfit less DETECTION_STANDARD_ERRORS standard errors of the noise's is
+    # systematic: frames of one recording cannot tell a smaller systematic misfit from a
+    # misjudged noise level. The standard error has two parts, the held-out mean's own scatter
+    # and that of the noise level it is compared with.
+    try:
+        white: dict[str, Any] | None = white_noise_power(
+            obs, segments, ml_tracker_from_base, ml_tcp_from_marker
         )
-    )
+    except DegenerateDataError:
+        white = None
+    if white is not None:
+        white_power = float(white["power_mm2"])
+        noise_standard_error = float(
+            np.sqrt(
+                white["variance_mm4"] * (1.0 / max(scored, 1) + OVERLAPPING_PAIRS_VARIANCE / white["pairs"])
+            )
+        )
+        beyond = "beyond the white noise of consecutive frames"
+    elif obs.sigma_known:
+        # chi-square scatter of the held-out mean (2 dof sigma^4 per frame), and the error of
+        # the noise level, a median of the tracker's RMS values
+        white_power = obs.dof_per_frame * obs.sigma_mm**2
+        noise_standard_error = float(
+            np.hypot(
+                obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1)),
+                white_power * noise_level_relative_error(len(obs.spheres_in_marker), len(obs.rows)),
+            )
+        )
+        beyond = (
+            "beyond the tracker's noise from its fit RMS (too few nearby frames to measure the white noise)"
+        )
+    else:
+        white_power = noise_standard_error = 0.0
+        beyond = "(all of it: neither nearby frames nor a tracker fit RMS measure the white noise)"
+    noise_ms = white_power * (1.0 + mean_leverage / obs.dof_per_frame)
     systematic = (
         max(held_out_ms - noise_ms - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
-        if obs.sigma_known and computed
+        if computed
         else 0.0
     )
     spheres = len(obs.spheres_in_marker)
@@ -548,6 +742,12 @@ def expected_error(
         "noise_tre_rms_mm": float(np.sqrt(tre_ms)),
         "held_out_sphere_rms_mm": float(np.sqrt(held_out_ms / spheres)) if computed else None,
         "noise_sphere_rms_mm": float(np.sqrt(noise_ms / spheres)) if computed else None,
+        "white_noise_sphere_rms_mm": None if white is None else float(np.sqrt(white["power_mm2"] / spheres)),
+        "tracker_noise_sphere_rms_mm": (
+            float(np.sqrt(obs.dof_per_frame * obs.sigma_mm**2 / spheres)) if obs.sigma_known else None
+        ),
+        "noise_pairs": 0 if white is None else white["pairs"],
+        "noise_pair_displacement_mm": None if white is None else white["displacement_mm"],
         "blocks": misfit["blocks"],
         "blocks_refitted": misfit["blocks_refitted"],
         "site_frames": int(site.sum()),
@@ -557,17 +757,59 @@ def expected_error(
     blocks = f"{misfit['blocks_refitted']} held-out blocks ({refits})"
     if dh_error_scale_mm is not None and has_model:
         blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
+    geometry = None
     if has_model and robot_model is not None and joints_rad is not None:
-        unit = unseen_kinematic_error(
+        geometry = (
             robot_model,
-            joints_rad,
-            obs,
-            ml_tracker_from_base,
-            ml_tcp_from_marker,
-            site,
-            misfit["block_indices"],
-            absorbed_dh,
+            unseen_kinematic_error(
+                robot_model,
+                joints_rad,
+                obs,
+                ml_tracker_from_base,
+                ml_tcp_from_marker,
+                site,
+                misfit["block_indices"],
+                absorbed_dh,
+            ),
         )
+        scaled_by = "the robot's kinematic geometry"
+    else:
+        # no joint angles: solve them from the reported TCP poses, by the recording's robot
+        # model or, without one, by the UR arm whose geometry hides the most of a given misfit
+        frames = GEOMETRY_FRAMES if robot_model is not None else STAND_IN_FRAMES
+        rows = geometry_rows(len(obs.rows), frames)
+        for arm in stand_in_arms(robot_model, ml_tcp_from_marker):
+            joints = solved_joints(arm, obs.base_from_tcp_stack, rows)
+            if joints is None:
+                continue
+            unit = unseen_kinematic_error(
+                arm,
+                joints,
+                obs,
+                ml_tracker_from_base,
+                ml_tcp_from_marker,
+                site,
+                misfit["block_indices"],
+                frames=frames,
+            )
+            if unit["sphere_power_mm2"] > 0 and (
+                geometry is None
+                or unit["tip_position_ms_mm2"] / unit["sphere_power_mm2"]
+                > geometry[1]["tip_position_ms_mm2"] / geometry[1]["sphere_power_mm2"]
+            ):
+                geometry = (arm, unit)
+        if geometry is not None and robot_model is not None:
+            scaled_by = (
+                f"the {robot_model.name}'s kinematic geometry at joint angles solved from the reported "
+                "TCP poses (the recording has none)"
+            )
+        elif geometry is not None:
+            scaled_by = (
+                f"the kinematic geometry of a {geometry[0].name} with its flange at the marker, the UR arm "
+                "that hides the most of it (the recording has no joint angles or robot model)"
+            )
+    if geometry is not None:
+        arm, unit = geometry
         if dh_error_scale_mm is not None:
             scale_sq = dh_error_scale_mm**2
         else:
@@ -577,21 +819,24 @@ def expected_error(
         unseen_rotation_ms = scale_sq * unit["tip_rotation_ms_rad2"]
         components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
         components["unseen_tip_rms_mm"] = float(np.sqrt(unseen_ms))
+        components["kinematic_geometry"] = arm.name
         basis = (
-            f"{blocks}: systematic misfit beyond the tracker noise, scaled to the tip by the robot's "
-            "kinematic geometry (errors the marker cannot see), plus the noise-only TRE"
+            f"{blocks}: systematic misfit {beyond}, scaled to the tip by {scaled_by} "
+            "(errors the marker cannot see), plus the noise-only TRE"
         )
     else:
-        unseen_ms = systematic / len(obs.spheres_in_marker)
-        # the misfit per sphere says nothing of its direction at the tip: isotropic
+        # no arm reaches the poses: the held-out power of a frame (over all its spheres) stands
+        # for the tip's mean square, as a UR arm's geometry makes it on the paper's sweeps
+        unseen_ms = systematic
+        # the misfit says nothing of its direction at the tip: isotropic
         unseen_covariance = np.eye(3) * unseen_ms / 3.0
         unseen_rotation_ms = 0.0
+        components["kinematic_geometry"] = None
         basis = (
-            f"{blocks}: systematic misfit per sphere plus the noise-only TRE; no joint angles or "
-            "robot model, so kinematic errors the marker cannot see are not included"
+            f"{blocks}: systematic misfit per frame {beyond}, plus the noise-only TRE; "
+            "no joint angles and no UR arm reaches these poses, so the errors the marker cannot see are "
+            "taken as large as the misfit it sees"
         )
-    if not obs.sigma_known:
-        basis += "; the tracker's noise is unknown (no marker RMS), so misfit and noise cannot be told apart"
     if not likelihood_based:
         basis += "; plus this method's distance from the ML solution"
     components["systematic_detected"] = bool(systematic > 0.0)

@@ -38,6 +38,9 @@ from spacecal.records import CalibrationResult, RawRecording, Recording
 LARGEST_GAP_PERIODS = 3.0
 LARGEST_GAP_S = 0.05
 
+#: Brent brackets :func:`estimate_time_offset` tries before it takes an optimum at an edge.
+MAX_BRACKETS = 6
+
 
 def pair_streams(raw: RawRecording, offset_s: float) -> Recording:
     """A paired recording: each tracker frame with the robot state at ``tracker time + offset_s``.
@@ -594,10 +597,11 @@ def estimate_time_offset(
     1. Coarse: the offset (1 ms grid over +-``search_s``) at which the robot's angular speed
        best matches the tracker's (:func:`coarse_offset_from_angular_speed`); no fit needed.
     2. Fine: a bounded Brent search within +-``refine_s`` of it (four times wider if the
-       optimum lands on the edge) for the offset whose pairs the ML calibration fits best
-       (smallest variance factor), each fit warm-started from the last. When the whole-overlap
-       offset lies more than ``refine_s`` from the scan's, the search starts from whichever
-       of the two the fit prefers.
+       optimum lands on the edge, then brackets as wide centred on each edge the optimum
+       reaches, :data:`MAX_BRACKETS` in all) for the offset whose pairs the ML calibration fits
+       best (smallest variance factor), each fit warm-started from the last. When the
+       whole-overlap offset lies more than ``refine_s`` from the scan's, the search starts from
+       whichever of the two the fit prefers.
 
     Raises
     ------
@@ -667,13 +671,20 @@ def estimate_time_offset(
         candidate = found.offset_s - centre
         if cost(candidate) < cost(coarse):
             coarse = candidate
-    for width in (refine_s, 4.0 * refine_s):
+    middle, width = coarse, refine_s
+    for _ in range(MAX_BRACKETS):
         refined = minimize_scalar(
-            cost, bounds=(coarse - width, coarse + width), method="bounded", options={"xatol": xatol_s}
+            cost, bounds=(middle - width, middle + width), method="bounded", options={"xatol": xatol_s}
         )
-        # an optimum at the edge of the bracket: the angular speeds misled, look wider once
-        if abs(float(refined.x) - coarse) < 0.95 * width:
+        if abs(float(refined.x) - middle) < 0.95 * width:
             break
+        # an optimum at the edge of the bracket: the angular speeds misled (a noisy tracker's
+        # orientation adds to its angular speed), so look four times wider, then follow the
+        # fit's descent with brackets centred on each edge it reaches
+        if width == refine_s:
+            width = 4.0 * refine_s
+        else:
+            middle = float(refined.x)
     return OffsetEstimate(
         centre + float(refined.x), raw, centre + offsets, mismatch, centre + coarse, search_s, found, centre
     )

@@ -34,7 +34,10 @@ class Scenario:
         stale frames (the pose of 2–8 frames earlier) and reflections (the marker 5–30 mm
         and 1–5 deg off). ``record_spheres``: also record the raw sphere
         centres. ``max_view_angle_deg``: marker faces turned further away are
-        not tracked. ``tracker_rate_hz``.
+        not tracked. ``tracker_rate_hz``. ``tracker_reports_rms``: the tracker reports its
+        rigid fit's RMS with each pose (as NDI trackers do); false for a pose-only tracker (a
+        camera tracking a printed or LED marker, PLUS over OpenIGTLink), whose noise the
+        estimators then cannot read.
     Robot (paper: UR10, 0.1 mm repeatability)
         ``robot_model``; ``tool_offset_mm``: TCP in the flange frame (needle tip);
         ``dh_length_error_sd_mm`` / ``dh_angle_error_sd_deg``: how far the real arm's DH
@@ -77,6 +80,7 @@ class Scenario:
     dropout_probability: float = 0.01
     outlier_fraction: float = 0.0
     record_spheres: bool = False
+    tracker_reports_rms: bool = True
     max_view_angle_deg: float = 70.0
     tracker_rate_hz: float = 20.0
     # robot
@@ -250,15 +254,23 @@ def scenario_from_dict(values: dict) -> Scenario:
     return dataclasses.replace(base, **cleaned)
 
 
+def packaged_scenarios() -> dict[str, Path]:
+    """The scenario files shipped with the package (``spacecal/sim/data/NAME.json``) by name."""
+    folder = Path(__file__).resolve().parent / "data"
+    return {path.stem: path for path in sorted(folder.glob("*.json"))}
+
+
 def load_scenario(path_or_preset: str | Path | None) -> Scenario:
-    """A scenario from a JSON file path, a preset name, or the default when None."""
+    """A scenario from a JSON file path, a preset name, the name of a packaged scenario file
+    (:func:`packaged_scenarios`), or the default when None."""
     if path_or_preset is None:
         return PRESETS["paper-realistic"]
     if str(path_or_preset) in PRESETS:
         return PRESETS[str(path_or_preset)]
-    path = Path(path_or_preset)
+    packaged = packaged_scenarios()
+    path = packaged.get(str(path_or_preset), Path(path_or_preset))
     if not path.is_file():
         raise InvalidInputError(
-            f"scenario {str(path)!r} is neither a file nor a preset ({', '.join(PRESETS)})"
+            f"scenario {str(path)!r} is neither a file nor a preset ({', '.join([*PRESETS, *packaged])})"
         )
     return scenario_from_dict(read_json_object(path, "scenario"))

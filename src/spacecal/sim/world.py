@@ -241,7 +241,7 @@ class World:
         seen = self.tracker.visible(truth, self.marker.spheres_in_marker, self.marker.face_normal_in_marker)
         seen &= self.noise_rng.random(n) >= self.scenario.dropout_probability
         measured[~seen] = np.nan
-        rms = np.where(seen, rms, np.nan)
+        rms = np.where(seen & self.scenario.tracker_reports_rms, rms, np.nan)
         kind[~seen] = ""
         return TrackedFrames(measured, rms, spheres, kind.astype(str))
 
