@@ -138,3 +138,73 @@ def test_thresholds_follow_the_calibration_and_the_frames_averaged(white_simulat
     assert one_frame > ten_frames >= CHECK_FLOOR_MM and "10 frame(s)" in basis
     bare = calibration.replace(diagnostics={})
     assert check_thresholds(bare, 10)[0] == FALLBACK_THRESHOLD_MM
+
+
+def _expectations(poses):
+    rng = np.random.default_rng(4)
+    return dict(
+        misfit_mm=rng.normal(size=(poses, 3)),
+        expected_misfit_mm=rng.normal(size=(poses, 3)),
+        tolerance_mm=np.full(poses, 0.4),
+        misfit_deg=rng.normal(scale=0.1, size=(poses, 3)),
+        expected_misfit_deg=rng.normal(scale=0.1, size=(poses, 3)),
+        tolerance_deg=np.full(poses, 0.15),
+    )
+
+
+def test_a_check_with_expected_misfits_round_trips_and_passes_on_its_tolerances():
+    from spacecal.records import CheckResult
+
+    values = _expectations(2)
+    # the first pose departs beyond its tolerance, though under the larger common threshold
+    result = CheckResult(
+        np.array([0.5, 0.1]),
+        np.array([0.05, 0.05]),
+        0.6,
+        0.15,
+        ["a", "b"],
+        basis="from the recording",
+        **{**values, "tolerance_mm": np.array([0.4, 0.6])},
+    )
+    assert not result.passed
+    again = CheckResult.from_dict(json.loads(json.dumps(result.to_dict())))
+    assert again.to_dict() == result.to_dict() and not again.passed and again.basis == "from the recording"
+    assert result.to_dict()["schema_version"] == 3
+    assert result.to_dict()["poses"][0]["expected_misfit_mm"] == values["expected_misfit_mm"][0].tolist()
+
+
+def test_expected_misfits_come_whole():
+    from spacecal.core.errors import InvalidInputError
+    from spacecal.records import CheckResult
+
+    values = _expectations(2)
+    with pytest.raises(InvalidInputError, match="or none of them"):
+        CheckResult(np.zeros(2), np.zeros(2), 1.0, 1.0, misfit_mm=values["misfit_mm"])
+    with pytest.raises(InvalidInputError, match="shape"):
+        CheckResult(np.zeros(3), np.zeros(3), 1.0, 1.0, **values)
+
+
+def test_histories_of_every_schema_version_still_read(tmp_path):
+    calibration = tmp_path / "cal.json"
+    old = [
+        # version 1: no schema fields, no "simulated"
+        {"threshold_mm": 1.0, "threshold_deg": 1.0, "checked_utc": "2024-01-01T00:00:00+00:00",
+         "poses": [{"label": "pose 1", "tcp_error_mm": 0.4, "rotation_error_deg": 0.1}]},
+        # version 2
+        {"schema": "spacecal.check", "schema_version": 2, "simulated": True, "devices": {"robot": "sim"},
+         "threshold_mm": 1.0, "threshold_deg": 1.0, "checked_utc": "2025-01-01T00:00:00+00:00",
+         "poses": [{"label": "check-1", "tcp_error_mm": 1.4, "rotation_error_deg": 0.1}]},
+    ]  # fmt: skip
+    history_path(calibration).write_text("".join(json.dumps(line) + "\n" for line in old))
+    from spacecal.records import CheckResult
+    from spacecal.workflows.check import append_history
+
+    append_history(
+        calibration,
+        CheckResult(np.array([0.1]), np.array([0.02]), 0.4, 0.15, ["check-1"], **_expectations(1)),
+    )
+    history, unreadable = read_history(calibration)
+    assert unreadable == 0
+    assert [h.passed for h in history] == [True, False, True]
+    assert [h.has_expectations for h in history] == [False, False, True]
+    assert history[1].simulated is True and history[0].simulated is None
