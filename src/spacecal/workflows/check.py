@@ -277,8 +277,10 @@ def _pose_features(base_from_tcp_stack: np.ndarray) -> np.ndarray:
     """What a misfit is linear in (N, 12): the TCP position, mm, and the tool's rotation matrix
     times ``NEIGHBOUR_LEVER_MM``, both in the base frame.
 
-    Errors of the two transforms put a misfit exactly linear in these (the TCP position and the
-    tool's rotation matrix enter the prediction linearly), however far the tool moved and turned.
+    Errors of the two transforms put a TCP misfit exactly linear in these: with the true
+    ``Y = tracker_from_base``, ``X = tcp_from_marker``, their estimates and ``D = X X_est^-1``,
+    the misfit at the TCP pose (R, t) is ``Y.R R D.t + (Y.R - Y_est.R) t + Y.t - Y_est.t``,
+    however far the tool moved and turned; a rotation misfit is, to first order.
     """
     stack = np.asarray(base_from_tcp_stack, dtype=float).reshape(-1, 4, 4)
     return np.column_stack([stack[:, :3, 3], NEIGHBOUR_LEVER_MM * stack[:, :3, :3].reshape(-1, 9)])
@@ -352,7 +354,7 @@ def expected_misfit(field: MisfitField, base_from_tcp) -> ExpectedMisfit:
     """The misfit a sound set-up shows at a pose, from the misfits recorded around it.
 
     The misfits' linear trend over the whole recording in the pose features (:func:`_pose_features`;
-    it carries the two transforms' errors exactly) plus the weighted average of what the trend
+    it carries the two transforms' errors) plus the weighted average of what the trend
     leaves at the frames within ``NEIGHBOURHOOD_MM`` of the pose (the robot's kinematic and the
     tracker's volumetric errors, smooth and local; tricube weights, nearer frames weighing more).
     The prediction is linear in the recorded misfits, so its variance is a frame's variance
