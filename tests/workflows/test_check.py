@@ -208,3 +208,140 @@ def test_histories_of_every_schema_version_still_read(tmp_path):
     assert [h.passed for h in history] == [True, False, True]
     assert [h.has_expectations for h in history] == [False, False, True]
     assert history[1].simulated is True and history[0].simulated is None
+
+
+def test_the_tolerance_factor_is_the_chi_quantile_of_the_stated_false_alarm_rate():
+    from scipy.stats import chi2
+
+    from spacecal.workflows.check import FALSE_ALARM_RATE, tolerance_factor
+
+    for poses in (2, 3):
+        k = tolerance_factor(poses)
+        # two tests per pose (position, rotation), each at its share of the rate
+        assert 1.0 - (1.0 - chi2.sf(k**2, 3)) ** (2 * poses) == pytest.approx(FALSE_ALARM_RATE)
+    assert tolerance_factor(3) == pytest.approx(3.90, abs=0.01)
+
+
+def _field_around_home(world, misfit, noise_mm=0.0, seed=3):
+    """A misfit field over poses around the world's home (random tilts up to 40 deg, positions in
+    a 300 mm cube), its misfits from ``misfit(poses) -> (N, 6)`` plus white noise."""
+    from spacecal.geometry.transforms import axis_angle_transform
+    from spacecal.models.kinematics import forward_kinematics
+    from spacecal.workflows.check import MisfitField
+
+    rng = np.random.default_rng(seed)
+    home = forward_kinematics(world.nominal_model, world.home_joints_rad)
+    axes = rng.normal(size=(1500, 3))
+    poses = np.array(
+        [
+            make_transform(
+                home[:3, :3] @ axis_angle_transform(axis, np.radians(rng.uniform(0, 40)))[:3, :3],
+                home[:3, 3] + rng.uniform(-150, 150, 3),
+            )
+            for axis in axes
+        ]
+    )
+    values = misfit(poses) + rng.normal(scale=noise_mm, size=(len(poses), 6)) * [1, 1, 1, 0.1, 0.1, 0.1]
+    return MisfitField(poses, values[:, :3], values[:, 3:]), home
+
+
+def _transform_error_misfit(poses):
+    """What errors of the two transforms put in the misfit: the TCP position and the tool's
+    rotation matrix, linearly."""
+    rotation_error = np.array([[0.0, -2e-4, 1e-4], [2e-4, 0.0, -3e-4], [-1e-4, 3e-4, 0.0]])
+    offset_in_tool = np.array([0.3, -0.2, 0.5])
+    position = poses[:, :3, 3] @ rotation_error.T + poses[:, :3, :3] @ offset_in_tool + [0.1, 0.2, -0.3]
+    turn = poses[:, :3, :3] @ np.array([0.02, -0.01, 0.03]) + [0.01, 0.0, -0.01]
+    return np.column_stack([position, turn])
+
+
+def test_a_misfit_the_transforms_put_is_predicted_between_the_recorded_poses(white_simulation):
+    from spacecal.geometry.transforms import axis_angle_transform
+    from spacecal.workflows.check import expected_misfit
+
+    field, home = _field_around_home(white_simulation.world, _transform_error_misfit)
+    pose = home @ make_transform(axis_angle_transform([1, 2, 0], np.radians(12))[:3, :3], [30, -20, 10])
+    expected = expected_misfit(field, pose)
+    truth = _transform_error_misfit(pose[None])[0]
+    # exact but for the small ridge on combinations the poses do not span
+    np.testing.assert_allclose(expected.misfit_mm, truth[:3], atol=1e-4)
+    np.testing.assert_allclose(expected.misfit_deg, truth[3:], atol=1e-5)
+    assert expected.frame_sd_mm < 1e-4 and expected.frames >= 20
+
+
+def test_the_prediction_and_a_frame_s_scatter_follow_the_noise(white_simulation):
+    from spacecal.workflows.check import expected_misfit
+
+    noise = 0.2
+    errors, spreads = [], []
+    for seed in range(20):
+        field, home = _field_around_home(white_simulation.world, _transform_error_misfit, noise, seed)
+        expected = expected_misfit(field, home)
+        errors.append(
+            (expected.misfit_mm - _transform_error_misfit(home[None])[0, :3]) / expected.prediction_sd_mm
+        )
+        spreads.append(expected.frame_sd_mm)
+    # a frame's scatter is the noise's (the worst axis of an estimate: a little above it)
+    assert noise < np.median(spreads) < 1.2 * noise
+    # the prediction's error over its standard deviation: at most about one per axis
+    assert np.sqrt(np.mean(np.square(errors))) < 1.2
+
+
+def test_a_pose_far_from_the_recorded_motion_is_not_predicted(white_simulation):
+    from spacecal.core.errors import DegenerateDataError
+    from spacecal.workflows.check import expected_misfit
+
+    field, home = _field_around_home(white_simulation.world, _transform_error_misfit)
+    with pytest.raises(DegenerateDataError, match="recorded frames within 100 mm of a check pose"):
+        expected_misfit(field, home @ make_transform(np.eye(3), [400.0, 0.0, 0.0]))
+
+
+def test_only_the_recording_a_calibration_was_made_from_gives_its_misfits(white_simulation):
+    import dataclasses
+
+    from spacecal.core.errors import DegenerateDataError
+    from spacecal.workflows.check import misfit_field
+
+    recording = white_simulation.recording
+    calibration = calibrate(recording, "ml")
+    field = misfit_field(calibration, recording)
+    assert len(field) == int(recording.visible.sum())
+    with pytest.raises(DegenerateDataError, match="no per-sample residuals"):
+        misfit_field(calibration.replace(diagnostics={}), recording)
+    # the same recording acquired again after the tracker was pushed
+    moved = make_transform(np.eye(3), [0.5, 0.0, 0.0]) @ recording.tracker_from_marker_stack
+    again = dataclasses.replace(recording, tracker_from_marker_stack=moved)
+    with pytest.raises(DegenerateDataError, match="changed since calibrating"):
+        misfit_field(calibration, again)
+    # a marker turned in the calibration file: positions unchanged, rotations not
+    turned = calibration.replace(
+        tcp_from_marker=calibration.tcp_from_marker @ axis_angle_transform([0, 0, 1], 0.01)
+    )
+    with pytest.raises(DegenerateDataError, match="changed since calibrating"):
+        misfit_field(turned, recording)
+
+
+def test_without_its_recording_the_check_falls_back_and_says_why(calibration_file, tmp_path, capsys):
+    (tmp_path / "rec.csv").unlink()
+    assert main(["check", str(calibration_file), "--poses", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "sigma of the calibration's expected error" in out and "rec.csv is not there" in out
+    history, _ = read_history(calibration_file)
+    assert np.all(history[-1].expected_misfit_mm == 0.0) and "is not there" in history[-1].basis
+
+
+def test_a_calibration_from_raw_streams_has_its_misfits_expected(tmp_path, capsys):
+    from spacecal import app
+
+    app.simulate(app.SimulateSettings(str(tmp_path / "rec"), "paper-white", raw=True, clock_offset_ms=30.0))
+    app.calibrate(
+        app.CalibrateSettings(
+            str(tmp_path / "rec.robot.csv"),
+            str(tmp_path / "cal.json"),
+            "ml",
+            tracker_stream=str(tmp_path / "rec.tracker.csv"),
+        )
+    )
+    checked = app.check(app.CheckSettings(str(tmp_path / "cal.json"), poses=2))
+    assert checked.result is not None and checked.result.passed
+    assert "departures from the misfit the calibration left" in checked.threshold_basis
