@@ -416,10 +416,11 @@ def tolerance_factor(poses: int, rate: float = FALSE_ALARM_RATE) -> float:
     tests per pose (position, rotation); with each at ``1 - (1 - rate) ** (1 / (2 * poses))``,
     a sound set-up fails with probability at most ``rate``: k = 3.90 for three poses at 1 %.
     """
-    from scipy.stats import chi2
+    from scipy.special import gammainccinv
 
     per_test = 1.0 - (1.0 - rate) ** (1.0 / (2 * max(1, poses)))
-    return float(math.sqrt(chi2.isf(per_test, 3)))
+    # the chi-square quantile with 3 degrees of freedom: P(chi2_3 > x) = Q(3/2, x/2)
+    return float(math.sqrt(2.0 * gammainccinv(1.5, per_test)))
 
 
 def pose_tolerances(
