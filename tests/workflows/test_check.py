@@ -345,3 +345,24 @@ def test_a_calibration_from_raw_streams_has_its_misfits_expected(tmp_path, capsy
     checked = app.check(app.CheckSettings(str(tmp_path / "cal.json"), poses=2))
     assert checked.result is not None and checked.result.passed
     assert "departures from the misfit the calibration left" in checked.threshold_basis
+
+
+def test_a_kinematic_calibration_s_misfits_are_at_its_identified_poses_and_older_files_still_read(
+    white_simulation,
+):
+    from spacecal.estimators.diagnostics import residual_table, sample_residuals
+    from spacecal.workflows.check import misfit_field, robot_pose
+
+    recording = white_simulation.recording
+    calibration = calibrate(recording, "kinematic")
+    assert calibration.robot_model is not None
+    field = misfit_field(calibration, recording)
+    first = int(np.flatnonzero(recording.visible)[0])
+    identified = robot_pose(calibration, recording.base_from_tcp_stack[first], recording.joints_rad[first])
+    np.testing.assert_allclose(field.base_from_tcp_stack[0], identified)
+    # files written before kinematic stated its residuals at the identified poses
+    older = sample_residuals(recording, calibration.tracker_from_base, calibration.tcp_from_marker)
+    older_file = calibration.replace(
+        diagnostics={**calibration.diagnostics, "per_sample_residuals": residual_table(recording, older)}
+    )
+    assert len(misfit_field(older_file, recording)) == len(field)

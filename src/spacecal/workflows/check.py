@@ -226,10 +226,10 @@ def misfit_field(calibration: CalibrationResult, recording: Recording, source: s
     """The misfits a calibration leaves at the frames of its own recording.
 
     The calibration's stored per-sample residuals (``diagnostics["per_sample_residuals"]``: the
-    rows it used and their marker position residuals) name the frames and vouch for them: the
-    recording must give the same residuals again, so a recording re-acquired under the same name
-    or a calibration edited since cannot pass for the set-up that was calibrated. Rows flagged as
-    outliers are left out.
+    rows it used, their marker position and rotation residuals) name the frames and vouch for
+    them: the recording must give the same residuals again, so a recording re-acquired under the
+    same name or a calibration edited since cannot pass for the set-up that was calibrated. Rows
+    flagged as outliers are left out.
 
     Raises
     ------
@@ -249,28 +249,31 @@ def misfit_field(calibration: CalibrationResult, recording: Recording, source: s
         raise DegenerateDataError("the calibration's per-sample residuals are not readable") from None
     if np.any(rows < 0) or np.any(rows >= len(recording)) or not np.all(recording.has_pose[rows]):
         raise DegenerateDataError("its recording does not hold the frames the calibration used")
-    # the residuals as the estimators store them: at the reported TCP pose, of the marker pose
-    reported = (
-        calibration.tracker_from_base @ recording.base_from_tcp_stack[rows] @ calibration.tcp_from_marker
-    )
-    tracked = recording.tracker_from_marker_stack[rows]
-    apart_mm = np.abs(np.linalg.norm(reported[:, :3, 3] - tracked[:, :3, 3], axis=1) - stored_mm)
-    turn = reported[:, :3, :3] @ np.swapaxes(tracked[:, :3, :3], 1, 2)
-    apart_deg = np.abs(np.degrees(rotation_angle(turn)) - stored_deg)
-    if not (np.all(apart_mm <= RESIDUAL_MATCH_MM) and np.all(apart_deg <= RESIDUAL_MATCH_DEG)):
-        raise DegenerateDataError(
-            "its recording does not give the calibration's residuals again (up to "
-            f"{float(np.max(apart_mm)):.3g} mm and {float(np.max(apart_deg)):.3g} deg apart): "
-            "the recording or the calibration changed since calibrating"
-        )
-    rows = rows[~outlier]
     base_from_tcp = np.array(
         [robot_pose(calibration, recording.base_from_tcp_stack[r], recording.joints_rad[r]) for r in rows]
     ).reshape(-1, 4, 4)
-    misfit_mm, misfit_deg = pose_misfits(
-        calibration, base_from_tcp, recording.tracker_from_marker_stack[rows]
-    )
-    return MisfitField(base_from_tcp, misfit_mm, misfit_deg, source)
+    tracked = recording.tracker_from_marker_stack[rows]
+
+    def apart(poses: np.ndarray) -> tuple[float, float]:
+        """How far the residuals at these TCP poses lie from the stored ones (mm, deg)."""
+        predicted = calibration.tracker_from_base @ poses @ calibration.tcp_from_marker
+        distance = np.linalg.norm(predicted[:, :3, 3] - tracked[:, :3, 3], axis=1)
+        angle = np.degrees(rotation_angle(predicted[:, :3, :3] @ np.swapaxes(tracked[:, :3, :3], 1, 2)))
+        return float(np.max(np.abs(distance - stored_mm))), float(np.max(np.abs(angle - stored_deg)))
+
+    # the estimators store them at the TCP pose the calibration pairs with the frame; kinematic
+    # calibrations made before that stored them at the reported pose
+    found = [apart(base_from_tcp)]
+    if calibration.robot_model is not None:
+        found.append(apart(recording.base_from_tcp_stack[rows]))
+    if not any(mm <= RESIDUAL_MATCH_MM and deg <= RESIDUAL_MATCH_DEG for mm, deg in found):
+        mm, deg = min(found)
+        raise DegenerateDataError(
+            f"its recording does not give the calibration's residuals again (up to {mm:.3g} mm and "
+            f"{deg:.3g} deg apart): the recording or the calibration changed since calibrating"
+        )
+    misfit_mm, misfit_deg = pose_misfits(calibration, base_from_tcp[~outlier], tracked[~outlier])
+    return MisfitField(base_from_tcp[~outlier], misfit_mm, misfit_deg, source)
 
 
 def _pose_features(base_from_tcp_stack: np.ndarray) -> np.ndarray:
