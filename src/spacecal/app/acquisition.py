@@ -20,7 +20,7 @@ import numpy as np
 from spacecal.app._common import open_calibration, other_devices, refuse_overwriting_inputs
 from spacecal.app.gate import COMMANDED_BY, acquisition_gate, gate_plan, plan_workspace, world_visibility
 from spacecal.app.simulation import DEFAULT_SCENARIO
-from spacecal.core.errors import InvalidInputError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError, SpacecalError
 from spacecal.core.ports import (
     FINDING_OK,
     FINDING_PROBLEM,
@@ -47,7 +47,7 @@ from spacecal.planning.optimal import PlannerSettings, needle_site, paper_sweep_
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
 from spacecal.planning.stop_and_go import stop_and_go_plan
 from spacecal.planning.visibility import VisibilityModel
-from spacecal.records import CheckResult, PlanRecord, robot_model_to_dict
+from spacecal.records import CalibrationResult, CheckResult, PlanRecord, robot_model_to_dict
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import Scenario, load_scenario
@@ -61,11 +61,18 @@ from spacecal.workflows.acquisition import (
 )
 from spacecal.workflows.acquisition import acquire as run_acquisition
 from spacecal.workflows.check import (
+    FALSE_ALARM_RATE,
+    ExpectedMisfit,
+    MisfitField,
     append_history,
     check_thresholds,
     check_with_recording,
     check_with_robot,
+    expected_misfits,
     history_path,
+    misfit_field,
+    robot_repeatability_sd_mm,
+    tolerance_factor,
 )
 
 #: Accepted ranges of the acquisition's numeric settings (a tiny speed would never finish).
@@ -657,8 +664,11 @@ class CheckSettings:
     poses : int
         Two or three poses near where the robot stands (the site).
     threshold_mm, threshold_deg : float or None
-        Largest TCP and rotation errors that pass; by default from the calibration's expected
-        error and residuals (:func:`spacecal.workflows.check.check_thresholds`).
+        Largest TCP and rotation errors that pass: departures from the misfit the calibration
+        left at each pose (predicted from its recording), or the whole misfit where that cannot
+        be predicted. By default each pose's tolerance from the repeatability the recording
+        shows (:func:`spacecal.workflows.check.pose_tolerances`), else from the calibration's
+        expected error and residuals (:func:`spacecal.workflows.check.check_thresholds`).
     dry_run : bool
         Plan and check the poses (reach, joint limits) without moving.
     confirm_robot_motion : bool
@@ -721,6 +731,8 @@ def check(settings: CheckSettings) -> CheckOutput:
     calibration, notes = open_calibration(settings.calibration, "check", settings.accept_edited)
     averaged = 1 if settings.recording else settings.frames_per_pose
     derived_mm, derived_deg, basis = check_thresholds(calibration, averaged)
+    field, unpredicted = (None, "") if settings.recording else calibration_misfits(calibration)
+    derived_basis = basis
     threshold_mm = settings.threshold_mm if settings.threshold_mm is not None else derived_mm
     threshold_deg = settings.threshold_deg if settings.threshold_deg is not None else derived_deg
     if settings.threshold_mm is not None or settings.threshold_deg is not None:
@@ -734,7 +746,12 @@ def check(settings: CheckSettings) -> CheckOutput:
         if opened is None:
             raise InvalidInputError(f"{settings.recording}: no such recording")
         result = check_with_recording(calibration, opened.recording, threshold_mm, threshold_deg)
-        result = _with(result, simulated=None, devices={"recording": str(Path(settings.recording).resolve())})
+        result = _with(
+            result,
+            simulated=None,
+            devices={"recording": str(Path(settings.recording).resolve())},
+            basis=basis,
+        )
         history = append_history(settings.calibration, result, calibration.content_sha256)
         return CheckOutput(result, history, basis, notes)
     scenario: Scenario | None = None
@@ -787,6 +804,9 @@ def check(settings: CheckSettings) -> CheckOutput:
             "of where the robot stands)",
             commanded_by=COMMANDED_BY,
         )
+        expected, basis = expected_at_check_poses(
+            field, unpredicted, plan, settings, model.name, derived_basis
+        )
         if settings.dry_run:
             return CheckOutput(
                 None,
@@ -817,10 +837,13 @@ def check(settings: CheckSettings) -> CheckOutput:
             robot,
             tracker,
             plan,
-            threshold_mm,
-            threshold_deg,
+            settings.threshold_mm if expected is not None else threshold_mm,
+            settings.threshold_deg if expected is not None else threshold_deg,
             run_settings,
             settings.frames_per_pose,
+            expected=expected,
+            robot_sd_mm=robot_repeatability_sd_mm(model.name),
+            basis=basis,
         )
     identity = (
         {"robot": "sim", "tracker": "sim", "scenario": world.scenario.name}
@@ -830,6 +853,57 @@ def check(settings: CheckSettings) -> CheckOutput:
     result = _with(result, simulated=world is not None, devices=identity)
     history = append_history(settings.calibration, result, calibration.content_sha256)
     return CheckOutput(result, history, basis, notes, gate=gate)
+
+
+def calibration_misfits(calibration: CalibrationResult) -> tuple[MisfitField | None, str]:
+    """The misfits the calibration left at the frames of its recording (opened as the calibration
+    paired it: :func:`~spacecal.io.recording_source.open_calibrated_recording`), or None and why
+    not."""
+    try:
+        opened = open_calibrated_recording(calibration)
+        if opened is None:
+            named = calibration.provenance.recording
+            return (
+                None,
+                f"its recording {named} is not there" if named else "the calibration names no recording",
+            )
+        return misfit_field(calibration, opened.recording, str(opened.path)), ""
+    except (SpacecalError, OSError) as exc:
+        return None, str(exc)
+
+
+def expected_at_check_poses(
+    field: MisfitField | None,
+    unpredicted: str,
+    plan: MotionPlan,
+    settings: CheckSettings,
+    robot_model: str,
+    fallback_basis: str,
+) -> tuple[list[ExpectedMisfit] | None, str]:
+    """The misfit expected at each check pose and the thresholds' basis; None and the basis of
+    :func:`~spacecal.workflows.check.check_thresholds` (saying why) when it cannot be predicted."""
+    given = [settings.threshold_mm is not None, settings.threshold_deg is not None]
+    expected = None
+    if field is not None:
+        try:
+            expected = expected_misfits(field, plan)
+        except DegenerateDataError as exc:
+            unpredicted = str(exc)
+    if expected is None:
+        if all(given):
+            return None, "given on the command line"
+        basis = f"{fallback_basis}, as no misfit can be expected at the poses ({unpredicted})"
+        return None, basis + ("; partly given on the command line" if any(given) else "")
+    if all(given):
+        return expected, "departures from the misfit left at each pose, thresholds given on the command line"
+    frames = len(field) if field is not None else 0
+    basis = (
+        f"departures from the misfit the calibration left at each pose (from {frames} frames of its "
+        f"recording) within {tolerance_factor(len(expected)):.2f} s.d. of the repeatability there (the "
+        f"recorded scatter, the tracker's over {settings.frames_per_pose} frames, the {robot_model}'s "
+        f"ISO 9283 repeatability): a sound set-up fails at most {FALSE_ALARM_RATE:.0%} of checks"
+    )
+    return expected, basis + ("; partly given on the command line" if any(given) else "")
 
 
 def _with(result: CheckResult, **changes: Any) -> CheckResult:

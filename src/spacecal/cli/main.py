@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import signal
 import sys
@@ -441,13 +442,25 @@ def _check(a: argparse.Namespace) -> None:
     r = out.result
     if r is None:
         return
-    for label, error, angle in zip(r.labels, r.tcp_error_mm, r.rotation_error_deg):
-        print(f"  {sanitize_for_terminal(label, 60):>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
+    for k, (label, error, angle) in enumerate(zip(r.labels, r.tcp_error_mm, r.rotation_error_deg)):
+        label = sanitize_for_terminal(label, 60)
+        if r.misfit_mm is None or r.expected_misfit_mm is None or r.tolerance_mm is None:
+            print(f"  {label:>10}: TCP {error:.3f} mm, rotation {angle:.3f} deg")
+            continue
+        assert r.misfit_deg is not None and r.expected_misfit_deg is not None and r.tolerance_deg is not None
+        print(
+            f"  {label:>10}: TCP {math.hypot(*r.misfit_mm[k]):.3f} mm off "
+            f"({math.hypot(*r.expected_misfit_mm[k]):.3f} expected), departs {error:.3f} mm "
+            f"(tolerance {r.tolerance_mm[k]:.2f}); rotation {math.hypot(*r.misfit_deg[k]):.3f} deg "
+            f"({math.hypot(*r.expected_misfit_deg[k]):.3f} expected), departs {angle:.3f} deg "
+            f"(tolerance {r.tolerance_deg[k]:.2f})"
+        )
     where = {True: "simulated robot and tracker", False: "real robot and tracker", None: "recording"}[
         r.simulated
     ]
+    limits = "tolerances up to" if r.has_expectations else "thresholds"
     print(
-        f"{'PASS' if r.passed else 'FAIL'} ({where}): thresholds {r.threshold_mm:.2f} mm and "
+        f"{'PASS' if r.passed else 'FAIL'} ({where}): {limits} {r.threshold_mm:.2f} mm and "
         f"{r.threshold_deg:.2f} deg, {out.threshold_basis} (history: {out.history})"
     )
     if not r.passed:

@@ -297,10 +297,14 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "--frames-per-pose", type=int, default=_d(K, "frames_per_pose"), help="frames averaged per pose"
     )
     p.add_argument(
-        "--threshold-mm", type=float, help="largest TCP error that passes (default: from the expected error)"
+        "--threshold-mm",
+        type=float,
+        help="largest TCP error beyond the misfit expected at each pose (default: from the repeatability)",
     )
     p.add_argument(
-        "--threshold-deg", type=float, help="largest rotation error (default: from the expected error)"
+        "--threshold-deg",
+        type=float,
+        help="largest rotation error, beyond the misfit expected (default: from the repeatability)",
     )
     p.add_argument("--dry-run", action="store_true", help="plan the check poses without moving")
     p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")

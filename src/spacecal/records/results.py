@@ -160,17 +160,34 @@ class VerificationResult:
 class CheckResult:
     """Outcome of a calibration check (one entry of the check history).
 
+    Schema history (``schema: spacecal.check``): 1 had no schema fields and no ``simulated``;
+    2 added them; 3 added, per pose, the misfit the calibration left there (predicted from its
+    recording), the misfit measured and their tolerance, and the thresholds' ``basis``. Lines
+    of every version are read.
+
     Attributes
     ----------
     tcp_error_mm, rotation_error_deg : numpy.ndarray, shape (P,)
-        Per checked pose.
+        Per checked pose, the error judged: how far the measured misfit lies from the expected
+        one when the check predicted it (``expected_misfit_mm``), else the whole TCP distance
+        and marker rotation between the calibration and the tracker.
     threshold_mm, threshold_deg : float
+        The largest error that passes (with per-pose tolerances, the largest of them).
     labels : list of str
     simulated : bool or None
         True: checked in the simulator; False: on real devices; None: against a recording.
     devices : dict
         Robot and tracker identities, or the recording checked against.
     checked_utc : str
+    misfit_mm, expected_misfit_mm : numpy.ndarray, shape (P, 3), optional
+        Measured and expected TCP misfit per pose (where the tracked marker puts the TCP minus
+        where the calibration puts it), tracker frame, mm.
+    misfit_deg, expected_misfit_deg : numpy.ndarray, shape (P, 3), optional
+        Measured and expected marker rotation misfit per pose (rotation vector), tracker frame, deg.
+    tolerance_mm, tolerance_deg : numpy.ndarray, shape (P,), optional
+        Per pose, the largest departure from the expected misfit that passes.
+    basis : str
+        How the thresholds came about.
     """
 
     tcp_error_mm: np.ndarray
@@ -183,6 +200,23 @@ class CheckResult:
     checked_utc: str = field(
         default_factory=lambda: datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     )
+    misfit_mm: np.ndarray | None = None
+    expected_misfit_mm: np.ndarray | None = None
+    tolerance_mm: np.ndarray | None = None
+    misfit_deg: np.ndarray | None = None
+    expected_misfit_deg: np.ndarray | None = None
+    tolerance_deg: np.ndarray | None = None
+    basis: str = ""
+
+    #: The per-pose fields of schema 3: all present or none.
+    EXPECTATION_FIELDS = (
+        "misfit_mm",
+        "expected_misfit_mm",
+        "tolerance_mm",
+        "misfit_deg",
+        "expected_misfit_deg",
+        "tolerance_deg",
+    )
 
     def __post_init__(self) -> None:
         what = "check"
@@ -190,6 +224,19 @@ class CheckResult:
         object.__setattr__(
             self, "rotation_error_deg", _finite(self.rotation_error_deg, "rotation_error_deg", what)
         )
+        present = [getattr(self, name) is not None for name in self.EXPECTATION_FIELDS]
+        if any(present) and not all(present):
+            raise InvalidInputError(
+                f"{what}: give all of {', '.join(self.EXPECTATION_FIELDS)} or none of them"
+            )
+        if all(present):
+            poses = len(self.tcp_error_mm)
+            for name in self.EXPECTATION_FIELDS:
+                shape = (poses,) if name.startswith("tolerance") else (poses, 3)
+                object.__setattr__(self, name, as_array(getattr(self, name), shape, name, what))
+            for name in ("tolerance_mm", "tolerance_deg"):
+                if not np.all(getattr(self, name) > 0):
+                    raise InvalidInputError(f"{what}: {name} must be positive")
         for name in ("threshold_mm", "threshold_deg"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
@@ -200,34 +247,54 @@ class CheckResult:
             raise InvalidInputError(f"{what}: one label, TCP error and rotation error per pose")
 
     @property
+    def has_expectations(self) -> bool:
+        """The check predicted each pose's misfit (schema 3 with expectations)."""
+        return self.tolerance_mm is not None
+
+    @property
     def passed(self) -> bool:
+        if self.tolerance_mm is not None and self.tolerance_deg is not None:
+            return bool(
+                np.all(self.tcp_error_mm <= self.tolerance_mm)
+                and np.all(self.rotation_error_deg <= self.tolerance_deg)
+            )
         return bool(
             np.all(self.tcp_error_mm <= self.threshold_mm)
             and np.all(self.rotation_error_deg <= self.threshold_deg)
         )
 
+    def _pose_dict(self, k: int) -> dict[str, Any]:
+        entry: dict[str, Any] = {
+            "label": self.labels[k],
+            "tcp_error_mm": float(self.tcp_error_mm[k]),
+            "rotation_error_deg": float(self.rotation_error_deg[k]),
+        }
+        if self.has_expectations:
+            for name in self.EXPECTATION_FIELDS:
+                value = getattr(self, name)[k]
+                entry[name] = float(value) if np.ndim(value) == 0 else [float(v) for v in value]
+        return entry
+
     def to_dict(self) -> dict[str, Any]:
         return plain(
             {
                 "schema": "spacecal.check",
-                "schema_version": 2,
+                "schema_version": 3,
                 "checked_utc": self.checked_utc,
                 "passed": self.passed,
                 "simulated": self.simulated,
                 "devices": self.devices,
                 "threshold_mm": self.threshold_mm,
                 "threshold_deg": self.threshold_deg,
-                "poses": [
-                    {"label": label, "tcp_error_mm": float(e), "rotation_error_deg": float(a)}
-                    for label, e, a in zip(self.labels, self.tcp_error_mm, self.rotation_error_deg)
-                ],
+                "basis": self.basis,
+                "poses": [self._pose_dict(k) for k in range(len(self.labels))],
             }
         )
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], what: str = "check") -> CheckResult:
-        """One history line, version 1 (no schema fields, no ``simulated``) or 2."""
-        check_schema(data, "spacecal.check", (1, 2), what)
+        """One history line, version 1 (no schema fields, no ``simulated``), 2 or 3."""
+        check_schema(data, "spacecal.check", (1, 2, 3), what)
         poses = _list_of_objects(data, "poses", what)
         simulated = data.get("simulated")
         if simulated is not None and not isinstance(simulated, bool):
@@ -244,7 +311,22 @@ class CheckResult:
             simulated=simulated,
             devices=dict(devices),
             checked_utc=get_str(data, "checked_utc", what, default=""),
+            basis=get_str(data, "basis", what, default=""),
+            **_expectations(poses, what),
         )
+
+
+def _expectations(poses: Sequence[Mapping[str, Any]], what: str) -> dict[str, np.ndarray]:
+    """The per-pose expectation fields of a schema-3 history line (none in older lines)."""
+    if not poses or "expected_misfit_mm" not in poses[0]:
+        return {}
+    values = {}
+    for name in CheckResult.EXPECTATION_FIELDS:
+        if name.startswith("tolerance"):
+            values[name] = _column(poses, name, what)
+        else:
+            values[name] = as_array([p.get(name) for p in poses], (len(poses), 3), name, what)
+    return values
 
 
 @dataclass(frozen=True)
