@@ -76,7 +76,6 @@ from kinhec.metrics import calibration_errors  # noqa: E402
 from spacecal import app  # noqa: E402
 from spacecal.core.errors import SpacecalError  # noqa: E402
 from spacecal.estimators import METHODS  # noqa: E402
-from spacecal.estimators.diagnostics import GRADES  # noqa: E402
 from spacecal.estimators.expected_error import SITE_RADIUS_MM, SITE_TILT_DEG, near_site  # noqa: E402
 from spacecal.io.raw_streams import write_raw_recording  # noqa: E402
 from spacecal.io.recording_csv import write_recording  # noqa: E402
@@ -170,9 +169,20 @@ def _first_line(exc: BaseException, folder: Path) -> str:
     return text.replace(str(folder) + os.sep, "").replace(str(folder), "")
 
 
-def _grade(verdict: str) -> str | None:
-    word = verdict.split(":", 1)[0].strip()
-    return word if word in GRADES else None
+#: spacecal's grades, best first
+GRADES = ("good", "acceptable", "poor", "unusable")
+
+
+def _verdict(result) -> tuple[str | None, str | None, float | None]:
+    """Grade, sentence and graded expected error of a result, whether its verdict is a record
+    or (older results) a sentence whose first word is the grade."""
+    raw = result.diagnostics.get("verdict")
+    if isinstance(raw, dict):
+        grade, text = raw.get("grade"), raw.get("text")
+        return grade, text, _finite(raw.get("expected_error_mm"))
+    text = str(raw or "")
+    word = text.split(":", 1)[0].strip()
+    return (word if word in GRADES else None), text or None, None
 
 
 def _finite(value) -> float | None:
@@ -251,13 +261,14 @@ def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[di
             x, y = conversion.kinhec_from_spacecal(result.tracker_from_base, result.tcp_from_marker)
             row.update(truth.errors(x, y))
             d = result.diagnostics
-            verdict = str(d.get("verdict", ""))
+            grade, verdict, graded_mm = _verdict(result)
             expected = d.get("expected_error") or {}
+            stated = _finite(expected.get("position_mm")) if "position_mm" in expected else graded_mm
             row.update(
                 status="result",
-                grade=_grade(verdict),
+                grade=grade,
                 verdict=verdict.splitlines()[0] if verdict else None,
-                expected_position_mm=_finite(expected.get("position_mm")),
+                expected_position_mm=stated,
                 expected_refusal=expected.get("refusal"),
             )
             if "time_offset_s" in d and "true_offset_s" in notes:
@@ -614,22 +625,21 @@ def print_tables(rows: list[dict], header: str) -> None:
 
 
 def spacecal_commit() -> str:
+    """The last commit of the spacecal package the run imported (and whether it was modified)."""
     import spacecal
 
     folder = Path(spacecal.__file__).resolve().parent
+    git = ["git", "-C", str(folder)]
     try:
         commit = subprocess.run(
-            ["git", "-C", str(folder), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            check=True,
+            git + ["log", "-1", "--format=%h", "--", "."], capture_output=True, text=True, check=True
         ).stdout.strip()
         dirty = subprocess.run(
-            ["git", "-C", str(folder), "status", "--porcelain", "--", "."], capture_output=True, text=True
+            git + ["status", "--porcelain", "--", "."], capture_output=True, text=True, check=True
         ).stdout.strip()
-        return commit + (" (with uncommitted changes to src)" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+        return "at an unknown commit"
+    return f"src at {commit}" + (" with uncommitted changes" if dirty else "")
 
 
 def main() -> None:
