@@ -642,6 +642,14 @@ def spacecal_commit() -> str:
     return f"src at {commit}" + (" with uncommitted changes" if dirty else "")
 
 
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished workers."""
+    import resource
+
+    own, workers = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + workers.ru_utime + workers.ru_stime
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--tier", default="small", help="smoke | small | medium (or a KinHEC tier YAML)")
@@ -680,6 +688,7 @@ def main() -> None:
     )
     rows: list[dict] = []
     evaluated = time.perf_counter()
+    cpu_before = _cpu_s()
 
     def progress(done: int, job: dict, new: list[dict]) -> None:
         elapsed = time.perf_counter() - evaluated
@@ -722,10 +731,12 @@ def main() -> None:
                 progress(k, job, new)
     rows.sort(key=lambda r: (r["sequence_id"], r["source"], r["method"]))
     wall = time.perf_counter() - started
+    evaluation_s, cpu_s = time.perf_counter() - evaluated, _cpu_s() - cpu_before
     header = (
         f"## KinHEC {kinhec.__version__}, tier {tier_name}, {len(jobs)} sequences"
         + (f" (at most {args.limit} per track)" if args.limit else "")
-        + f"; spacecal {spacecal_commit()}; {wall / 60:.1f} min on {args.workers} worker(s)"
+        + f"; spacecal {spacecal_commit()}; evaluated in {evaluation_s / 60:.1f} min "
+        f"({cpu_s / 60:.1f} min CPU) on {args.workers} worker(s)"
     )
     print_tables(rows, header)
     if args.json:
@@ -737,6 +748,8 @@ def main() -> None:
             "data": str(data),
             "arguments": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
             "wall_s": wall,
+            "evaluation_wall_s": evaluation_s,
+            "evaluation_cpu_s": cpu_s,
             "rows": rows,
         }
         args.json.write_text(json.dumps(document, indent=1, default=float), encoding="utf-8")
