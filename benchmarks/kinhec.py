@@ -481,11 +481,11 @@ def ratio_lines(rows: list[dict], reference: str) -> list[str]:
     if not ml or not ref:
         return [f"spacecal ml / {reference}: no common results."]
     both = sorted(set(ml) & set(ref))
+    cases = [(f"the {len(both)} sequences both solved", both, both)]
+    if set(ml) != set(ref):
+        cases.insert(0, (f"all results ({len(ml)} ml, {len(ref)} {reference})", list(ml), list(ref)))
     out = []
-    for label, ids_ml, ids_ref in (
-        (f"all results ({len(ml)} ml, {len(ref)} {reference})", list(ml), list(ref)),
-        (f"the {len(both)} sequences both solved", both, both),
-    ):
+    for label, ids_ml, ids_ref in cases:
         parts = []
         for key, name in (
             ("X_trans_err_mm", "X translation"),
@@ -587,7 +587,9 @@ def temporal_line(rows: list[dict]) -> str | None:
     )
 
 
-def print_tables(rows: list[dict], header: str) -> None:
+def print_tables(rows: list[dict], header: str, compact: bool = False) -> None:
+    """Every track's tables; ``compact`` leaves KinHEC's solvers other than the reference out
+    of the accuracy table."""
     print(header)
     for track in TRACKS:
         mine = [r for r in rows if r["track"] == track]
@@ -596,7 +598,10 @@ def print_tables(rows: list[dict], header: str) -> None:
         sequences = len({r["sequence_id"] for r in mine})
         print(f"\n### Track `{track}` ({sequences} sequences)\n")
         print(conversion_line(mine) + "\n")
-        print("\n".join(accuracy_table(mine)))
+        shown = [
+            r for r in mine if not compact or r["source"] != "kinhec" or r["method"].startswith(REFERENCE)
+        ]
+        print("\n".join(accuracy_table(shown)))
         print()
         for reference in (REFERENCE, REFERENCE + ALL_FRAMES):
             for line in ratio_lines(mine, reference):
@@ -665,7 +670,15 @@ def main() -> None:
     parser.add_argument("--json", type=Path, help="write every row here")
     parser.add_argument("--workers", type=int, default=1, help="processes (generation and evaluation)")
     parser.add_argument("--seed", type=int, default=0, help="seed of KinHEC's RANSAC solver")
+    parser.add_argument("--tables-from", type=Path, help="print the tables of an earlier --json run")
+    parser.add_argument(
+        "--compact", action="store_true", help=f"of KinHEC's solvers, tabulate {REFERENCE} only"
+    )
     args = parser.parse_args()
+    if args.tables_from:
+        document = json.loads(args.tables_from.read_text(encoding="utf-8"))
+        print_tables(document["rows"], document["header"], args.compact)
+        return
     tracks = [TRACK_ALIASES.get(t, t) for t in args.tracks]
     unknown = sorted(set(tracks) - set(TRACKS)) + sorted(set(args.methods) - set(METHODS))
     unknown += sorted(set(args.kinhec_solvers) - set(SOLVERS))
@@ -738,10 +751,11 @@ def main() -> None:
         + f"; spacecal {spacecal_commit()}; evaluated in {evaluation_s / 60:.1f} min "
         f"({cpu_s / 60:.1f} min CPU) on {args.workers} worker(s)"
     )
-    print_tables(rows, header)
+    print_tables(rows, header, args.compact)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         document = {
+            "header": header,
             "kinhec": kinhec.__version__,
             "spacecal": spacecal_commit(),
             "tier": tier_name,
