@@ -1,0 +1,105 @@
+"""The KinHEC benchmark's conversion (``benchmarks/kinhec_conversion.py``) gets the frames right.
+
+On sequences of KinHEC's smoke tier, generated here: KinHEC's noise-free columns fit its ground
+truth through the converted chain exactly, its measurements fit it as closely as the noise it
+injected allows, and spacecal's ML estimator recovers the ground truth within a few standard
+errors of that noise. Skipped without the ``kinhec`` package (the ``test`` extra has it).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("kinhec")
+
+from spacecal.estimators import calibrate
+from spacecal.estimators.time_offset import pair_streams
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def _conversion():
+    """``benchmarks/kinhec_conversion.py``, loaded by path (benchmarks is no package)."""
+    name = "kinhec_conversion"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, BENCHMARKS / "kinhec_conversion.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+conversion = _conversion()
+
+
+def _smoke_sequence(sequence_id: str):
+    """One sequence of KinHEC's smoke tier, generated from its seeded recipe (about a second)."""
+    import kinhec
+    from kinhec.generator import generate_sequence
+    from kinhec.io import Sequence
+    from kinhec.plans import build_plan, load_tier
+
+    track = sequence_id.rsplit("-", 1)[0]
+    tier = load_tier(str(Path(kinhec.__file__).parent / "configs" / "smoke.yaml"))
+    (config,) = [c for c in build_plan(tier, [track])[track] if c.sequence_id == sequence_id]
+    record = generate_sequence(config)
+    return Sequence(record.manifest, record.robot_table, record.camera_table)
+
+
+@pytest.fixture(scope="module", params=["noise-000000", "noise-000004"], ids=["eye-in-hand", "eye-to-hand"])
+def sequence(request):
+    """UR5e, 4 s of joint sinusoids at 30 Hz, robot noise r2 and camera noise c1."""
+    return _smoke_sequence(request.param)
+
+
+def test_noise_free_data_fit_the_ground_truth_exactly(sequence):
+    worst_mm, worst_deg = conversion.check_exact(sequence)
+    assert worst_mm < 1e-9 and worst_deg < conversion.EXACT_TOLERANCE_DEG
+
+
+def test_measurements_fit_the_ground_truth_as_the_injected_noise_allows(sequence):
+    recording = conversion.to_recording(sequence)
+    assert recording.metadata["robot"]["model"] == "UR5e"
+    assert np.all(np.isfinite(recording.joints_rad))
+    assert np.all(np.isnan(recording.marker_rms_mm))  # pose only: no fit RMS
+    distance, angle = conversion.chain_residuals(recording, *conversion.truth(sequence))
+    noise_mm, noise_deg = conversion.expected_residual_rms(sequence)
+    # about 120 frames x 3 axes: the RMS is within a few per cent of the noise's
+    assert 0.8 < np.sqrt(np.mean(distance**2)) / noise_mm < 1.25
+    assert 0.8 < np.sqrt(np.mean(angle**2)) / noise_deg < 1.25
+
+
+def test_ml_recovers_the_ground_truth_within_the_noise(sequence):
+    recording = conversion.to_recording(sequence)
+    true_tracker_from_base, true_tcp_from_marker = conversion.truth(sequence)
+    result = calibrate(recording, "ml")
+    noise_mm, noise_deg = conversion.expected_residual_rms(sequence)
+    frames = int(recording.has_pose.sum())
+    # three standard errors of 12 unknowns fitted to the frames' noise
+    shrink = 3.0 * np.sqrt(12.0 / frames)
+    rotation_x, translation_x = conversion.pose_error(result.tcp_from_marker, true_tcp_from_marker)
+    rotation_y, _ = conversion.pose_error(result.tracker_from_base, true_tracker_from_base)
+    site = recording.base_from_tcp_stack[recording.has_pose, :3, 3]
+    site_mm = conversion.site_error_mm(result.tracker_from_base, true_tracker_from_base, site)
+    assert rotation_x < shrink * noise_deg and rotation_y < shrink * noise_deg
+    assert translation_x < shrink * noise_mm
+    assert site_mm < shrink * noise_mm
+
+
+def test_two_streams_pair_at_the_offset_kinhec_injected():
+    """Temporal track: the camera clock 50 ms ahead. Paired at the converted offset the frames
+    fit the ground truth as the synchronous ones do; at the opposite sign they do not."""
+    sequence = _smoke_sequence("temporal-000000")
+    converted = conversion.to_raw_recording(sequence)
+    assert converted.true_offset_s == pytest.approx(-0.05)
+    truth = conversion.truth(sequence)
+    noise_mm, _ = conversion.expected_residual_rms(sequence)
+    right, _ = conversion.chain_residuals(pair_streams(converted.raw, converted.true_offset_s), *truth)
+    wrong, _ = conversion.chain_residuals(pair_streams(converted.raw, -converted.true_offset_s), *truth)
+    assert np.sqrt(np.mean(right**2)) < 1.25 * noise_mm
+    assert np.sqrt(np.mean(wrong**2)) > 3.0 * noise_mm
