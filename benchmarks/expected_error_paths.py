@@ -1,6 +1,6 @@
 """The stated expected error against the measured error, on every path a recording takes.
 
-For each scenario and seed one acquisition reaches ``spacecal calibrate --method ml`` by five
+For each scenario and seed one acquisition reaches ``spacecal calibrate --method ml`` by six
 paths, and the calibration of each is verified in the same simulated world:
 
 * **paired CSV**: the paired recording (joint angles, the tracker's fit RMS, the robot and
@@ -14,6 +14,10 @@ paths, and the calibration of each is verified in the same simulated world:
   tracker frame) in a ROS 2 bag (sqlite3), then ``spacecal import-bag BAG -o STEM`` and
   calibrate as for raw streams, as the README shows: no joint angles, no fit RMS, no robot
   model or marker geometry;
+* **TUM**: the raw streams as two TUM trajectories (metres, x,y,z,w quaternions), the robot's
+  TCP poses and the tracker's seen marker poses, the tracker's clock :data:`TUM_CLOCK_GAP_S`
+  behind the robot's, through ``spacecal import-poses`` and calibrate as for raw streams: no
+  joint angles, no fit RMS;
 * **pose-only**: the paired recording stripped to what a pose-only tracker sends
   (:meth:`~spacecal.records.Recording.as_pose_only`: no fit RMS, no sphere positions);
 * **no joints**: the paired recording with its joint angles removed (robot metadata kept).
@@ -52,6 +56,7 @@ import numpy as np
 
 from spacecal.app.calibration import CalibrateSettings
 from spacecal.app.calibration import calibrate as calibrate_files
+from spacecal.app.poses import ImportPosesSettings, import_poses
 from spacecal.app.ros import ImportBagSettings, import_bag
 from spacecal.core.errors import SpacecalError
 from spacecal.estimators import calibrate
@@ -61,6 +66,7 @@ from spacecal.experiments.verification import verify_in_simulation
 from spacecal.geometry.transforms import invert_transform, transform_to_position_quaternion
 from spacecal.io.raw_streams import write_raw_recording
 from spacecal.io.recording_csv import write_recording
+from spacecal.io.tum import write_tum
 from spacecal.records import CalibrationResult, RawRecording, Recording
 from spacecal.sim.scenario import Scenario, load_scenario
 
@@ -74,7 +80,11 @@ SCENARIOS: dict[str, tuple[str, float]] = {
     "camera-grade pose tracker": ("camera-grade-pose-tracker", 0.0),
     "15-pose static set": ("static-15-poses", 0.0),
 }
-PATHS = ("paired CSV", "raw streams", "ROS 2 bag", "pose-only", "no joints")
+PATHS = ("paired CSV", "raw streams", "ROS 2 bag", "TUM", "pose-only", "no joints")
+
+#: The TUM path's tracker clock runs this far behind the robot's (s): minutes, as two devices'
+#: own clocks are, found by the whole-overlap search.
+TUM_CLOCK_GAP_S = 180.0
 
 #: Header stamps of the bag start at a realistic ROS time (ns).
 EPOCH_NS = 1_700_000_000 * 1_000_000_000
@@ -206,6 +216,23 @@ def run_case(case: tuple[str, int, tuple[str, ...], str | None]) -> list[tuple[s
                     bag = write_ros2_bag(raw, folder / "bag")
                     import_bag(ImportBagSettings(str(bag), output=str(folder / "imported"), force=True))
                     result = from_files(folder / "imported.robot.csv", folder / "imported.tracker.csv")
+                elif path == "TUM":
+                    seen = np.all(np.isfinite(raw.tracker_from_marker_stack[:, :3, 3]), axis=1)
+                    write_tum(folder / "robot.tum", raw.robot_time_s, raw.base_from_tcp_stack)
+                    write_tum(
+                        folder / "tracker.tum",
+                        raw.tracker_time_s[seen] - TUM_CLOCK_GAP_S,
+                        raw.tracker_from_marker_stack[seen],
+                    )
+                    import_poses(
+                        ImportPosesSettings(
+                            str(folder / "robot.tum"),
+                            str(folder / "tracker.tum"),
+                            output=str(folder / "tum"),
+                            force=True,
+                        )
+                    )
+                    result = from_files(folder / "tum.robot.csv", folder / "tum.tracker.csv")
                 elif path == "pose-only":
                     result = calibrate(paired.as_pose_only(), "ml")
                 else:

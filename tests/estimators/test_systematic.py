@@ -90,9 +90,16 @@ def test_a_misleading_coarse_offset_is_followed_to_the_fit_s_optimum(offset_stre
         return offsets, (offsets - 0.090) ** 2
 
     monkeypatch.setattr(time_offset, "coarse_offset_from_angular_speed", misled)
-    estimate = estimate_time_offset(raw)
-    assert abs(estimate.coarse_offset_s - 0.090) < 1e-9
-    assert abs(estimate.offset_s - 0.030) < 0.002
+    # the scan alone: its 90 ms is the start, and the brackets follow the fit down to 30 ms
+    scan_only = estimate_time_offset(raw, whole_overlap=False)
+    assert abs(scan_only.coarse_offset_s - 0.090) < 1e-9
+    assert abs(scan_only.offset_s - 0.030) < 0.002
+    # with the whole-overlap correlation, the two coarse values disagree and the fit picks
+    # the correlation's, which is within the fine search of the truth
+    both = estimate_time_offset(raw)
+    assert abs(both.coarse_offset_s - 0.090) > 0.01
+    assert abs(both.coarse_offset_s - 0.030) < 0.01
+    assert abs(both.offset_s - 0.030) < 0.002
 
 
 def test_raw_streams_round_trip(offset_streams, tmp_path):

@@ -641,7 +641,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         what = exc.args[0] if isinstance(exc, _Stop) and exc.args else "Ctrl-C"
-        print(f"spacecal: error: interrupted ({what}); every file written is complete", file=sys.stderr)
+        # the same words as an interruption the acquisition catches itself
+        who = "interrupted by the user" if what == "Ctrl-C" else "interrupted"
+        print(f"spacecal: error: {who} ({what}); every file written is complete", file=sys.stderr)
         return 1
     except RecursionError:
         if args.debug:
