@@ -138,7 +138,9 @@ def test_each_stop_ends_the_run_and_nothing_moves_after_it(rom_file, tmp_path, s
     world = ur_world(generation)
     try:
         recording = tmp_path / f"rec-{command.replace(' ', '-')}.csv"
-        fault = WhenRecorded(world, f"ur {command}", recording)
+        # 40 tracker rows: enough that the paired recording keeps its ten samples even when a
+        # loaded machine's robot poller missed ticks around the stop
+        fault = WhenRecorded(world, f"ur {command}", recording, rows=40)
         result = run(acquire_argv(world, generation, recording, rom_file))
         fault.join(5)
         assert fault.reply == "OK" and fault.sent_at is not None

@@ -145,6 +145,12 @@ DETECTION_STANDARD_ERRORS = 2.0
 #: displacement do not measure the white noise (a jump between stations or sweeps).
 NUGGET_DISPLACEMENT_FACTOR = 2.0
 
+#: ... nor do pairs whose marker moved more than this (mm) however the others moved: on the
+#: paper's sweeps the residuals' variogram is flat to about 30 mm, and beyond it two frames
+#: no longer share their systematic error (at static stations whose repeated frames are
+#: identical, the only pairs left are the jumps between stations, 100 mm and more).
+NUGGET_MAX_DISPLACEMENT_MM = 20.0
+
 #: Fewer pairs of nearby frames than this cannot measure the white noise.
 MINIMUM_NUGGET_PAIRS = 10
 
@@ -560,8 +566,9 @@ def white_noise_power(
     ``gamma(h) = E|r_i - r_j|^2 / 2`` at small separation h: its nugget). No noise model is
     assumed: anisotropic, pose-only or raw-sphere noise and the robot's own jitter all enter it
     as they enter the residuals. Pairs whose marker moved more than
-    :data:`NUGGET_DISPLACEMENT_FACTOR` times the pairs' median are left out (a jump between
-    stations or sweeps), as are pairs of identical observations (a repeated, stale frame).
+    :data:`NUGGET_DISPLACEMENT_FACTOR` times the pairs' median, or more than
+    :data:`NUGGET_MAX_DISPLACEMENT_MM`, are left out (a jump between stations or sweeps), as
+    are pairs of identical observations (a repeated, stale frame).
 
     Parameters
     ----------
@@ -592,7 +599,9 @@ def white_noise_power(
     first = np.flatnonzero(pairs)
     displacement = np.sqrt(np.mean(np.sum((predicted[first + 1] - predicted[first]) ** 2, axis=2), axis=1))
     if len(first):
-        near = displacement <= NUGGET_DISPLACEMENT_FACTOR * np.median(displacement)
+        near = (displacement <= NUGGET_DISPLACEMENT_FACTOR * np.median(displacement)) & (
+            displacement <= NUGGET_MAX_DISPLACEMENT_MM
+        )
         first, displacement = first[near], displacement[near]
     if len(first) < MINIMUM_NUGGET_PAIRS:
         raise DegenerateDataError(

@@ -221,6 +221,10 @@ def _two_pass(motions: _Motions, solve: Callable[[_Motions], FloatArray]) -> Flo
 
     Returns ``solve``'s X, shape (4, 4), checked finite.
     """
+    if not _spans_two_axes(motions):
+        # one axis leaves the rotation about it free: a closed form would still return an X,
+        # as far off as it likes
+        raise DegenerateDataError("AX = XB: the motions rotate about fewer than two independent axes")
     safe = np.flatnonzero(motions.angle < SIGN_SAFE_ANGLE_RAD)
     if len(safe) < len(motions):
         first = None
