@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -15,30 +14,12 @@ import numpy as np
 WORLD = Path(__file__).with_name("world.py")
 
 
-#: Scheduling priority of the fake devices' process (lower runs first). A real controller and
-#: tracker run on their own processors: on a busy test machine the fakes must not be the ones
-#: starved, or a test of spacecal's stale-state guard measures the machine's load instead.
-FAKE_DEVICE_NICENESS = -10
-
-
-def _ahead_of_other_work() -> None:
-    """Raise the fake world's priority where the test runner may (as root); else leave it."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, 0, FAKE_DEVICE_NICENESS)
-    except (OSError, AttributeError):
-        pass
-
-
 class WorldProcess:
     """A running fake world (see ``world.py``)."""
 
     def __init__(self, *arguments: str, ready_timeout_s: float = 20.0):
         self.process = subprocess.Popen(
-            [sys.executable, str(WORLD), *arguments],
-            stdout=subprocess.PIPE,
-            stdin=subprocess.PIPE,
-            text=True,
-            preexec_fn=_ahead_of_other_work,
+            [sys.executable, str(WORLD), *arguments], stdout=subprocess.PIPE, stdin=subprocess.PIPE, text=True
         )
         deadline = time.monotonic() + ready_timeout_s
         line = ""
