@@ -9,6 +9,7 @@ from pathlib import Path
 
 from spacecal.app._common import guard_outputs, open_calibration, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.io.easy_handeye import read_easy_handeye_samples, write_easy_handeye2_calibration
 from spacecal.io.names import check_calibration_name, check_ros_frame_name
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
@@ -21,6 +22,9 @@ from spacecal.io.ros_exports import (
     write_urdf_joint,
 )
 from spacecal.io.ur_driver_calibration import write_ur_calibration
+
+#: Longest note line printed (a note quotes topic names from the bag).
+NOTE_CHARS = 400
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,9 @@ class ImportBagSettings:
 
 
 def import_bag(settings: ImportBagSettings) -> str:
-    """Describe the bag (``list_only``) or convert it; returns the text to print."""
+    """Describe the bag (``list_only``) or convert it; returns the text to print: what was
+    written, then a ``note: ...`` line per stream of which messages were skipped (invalid, out
+    of time order, repeated stamps; also in the streams' metadata, ``ros_bag.notes``)."""
     if settings.list_only:
         return list_bag_contents(settings.bag).describe()
     if not settings.output:
@@ -76,10 +82,15 @@ def import_bag(settings: ImportBagSettings) -> str:
         robot_model=settings.robot_model if settings.joint_states else None,
     )
     robot_path, tracker_path = write_raw_recording(raw, stem)
-    return (
-        f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
-        f"({len(raw.tracker_time_s)} tracker poses); calibrate with: spacecal calibrate {robot_path} "
-        f"--tracker-stream {tracker_path} --method ml (the clock offset is estimated)"
+    # what was skipped of a damaged stream; names in it come from the bag
+    notes = [f"note: {sanitize_for_terminal(n, NOTE_CHARS)}" for n in raw.metadata["ros_bag"]["notes"]]
+    return "\n".join(
+        [
+            f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
+            f"({len(raw.tracker_time_s)} tracker poses); calibrate with: spacecal calibrate {robot_path} "
+            f"--tracker-stream {tracker_path} --method ml (the clock offset is estimated)",
+            *notes,
+        ]
     )
 
 

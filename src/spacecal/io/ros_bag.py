@@ -38,18 +38,19 @@ name; for UR robots the controller's base is ur_description's ``base`` (not ``ba
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from collections.abc import Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from spacecal.core.errors import InvalidInputError, MissingExtraError
+from spacecal.core.errors import InvalidInputError, MissingExtraError, SpacecalError
 from spacecal.core.text import quoted, sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, make_transform
-from spacecal.io.ros_common import transform_from_ros
+from spacecal.io.ros_common import QUATERNION_NORM_TOLERANCE, transform_from_ros
 from spacecal.io.yaml_text import check_yaml_file
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.records import RawRecording
@@ -71,6 +72,21 @@ UR_JOINT_NAMES = (
 ROBOT_SEGMENT = "ros_bag"
 #: Longest topic or frame name shown in full by :meth:`BagContents.describe`.
 NAME_DISPLAY_CHARS = 120
+#: Longest clue from a library's exception quoted in an error line.
+CAUSE_CHARS = 200
+#: Most messages read from one topic (a calibration run at 500 Hz for an hour is 1.8 million):
+#: a longer stream is refused as it is read, before it fills the memory.
+MAX_TOPIC_MESSAGES = 2_000_000
+#: Largest serialized message read (a tf message of a few hundred frames is tens of kB).
+MAX_MESSAGE_BYTES = 1 << 20
+#: Largest translation of a pose along an axis accepted, m: no robot or optical tracker of a calibration
+#: set-up spans this; a larger value (1e300, a flipped exponent bit) is a damaged message.
+MAX_TRANSLATION_M = 100.0
+#: Largest joint position accepted, rad (UR joints turn +-360 deg).
+MAX_JOINT_RAD = 4 * np.pi
+#: Largest share of a stream's messages that may be invalid or out of time order and be
+#: skipped (named in the recording's notes); a stream with more is refused.
+MAX_UNUSABLE_FRACTION = 0.05
 
 
 def _rosbags():
@@ -95,6 +111,34 @@ def _check_bag_metadata(metadata: Path) -> None:
     check_yaml_file(metadata, "ROS 2 bag metadata")
 
 
+def _cause(exc: BaseException) -> str:
+    """A library's exception as a short clue for an error line (the full text of some, e.g. a
+    message definition that does not parse, runs to kilobytes)."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return sanitize_for_terminal(text, CAUSE_CHARS)
+
+
+def _check_listing(reader, path: Path) -> None:
+    """Refuse a bag whose index (ROS 2 ``metadata.yaml``, an mcap summary, a ROS 1 index) gives
+    a topic a name, type or count of the wrong kind: rosbags passes them on as found."""
+    for number, connection in enumerate(reader.connections, 1):
+        count = getattr(connection, "msgcount", 0)
+        if not isinstance(connection.topic, str) or not connection.topic:
+            raise InvalidInputError(
+                f"{path}: the bag's index names topic {number} {quoted(connection.topic)}, not a topic name"
+            )
+        if not isinstance(connection.msgtype, str):
+            raise InvalidInputError(
+                f"{path}: the bag's index gives topic {quoted(connection.topic)} the type "
+                f"{quoted(connection.msgtype)}, not a message type name"
+            )
+        if isinstance(count, bool) or not isinstance(count, int) or count < 0:
+            raise InvalidInputError(
+                f"{path}: the bag's index gives topic {quoted(connection.topic)} the message count "
+                f"{quoted(count)}, not a count"
+            )
+
+
 @contextmanager
 def _open_bag(path: Path, typestore: str | None):
     AnyReader, AnyReaderError, Stores, get_typestore = _rosbags()
@@ -112,9 +156,12 @@ def _open_bag(path: Path, typestore: str | None):
     try:
         reader = AnyReader([path], default_typestore=store)
         reader.open()
-    except (AnyReaderError, FileNotFoundError, OSError, KeyError, ValueError) as exc:
-        raise InvalidInputError(f"{path}: not a readable ROS 1 or ROS 2 bag ({exc})") from None
+    except SpacecalError:
+        raise
+    except Exception as exc:  # a damaged file or index: rosbags and sqlite3 raise many kinds
+        raise InvalidInputError(f"{path}: not a readable ROS 1 or ROS 2 bag ({_cause(exc)})") from None
     try:
+        _check_listing(reader, path)
         # Types the bag does not define are taken from the standard store (bags may define some only).
         missing = {k: v for k, v in store.fielddefs.items() if k not in reader.typestore.fielddefs}
         if missing:
@@ -125,7 +172,8 @@ def _open_bag(path: Path, typestore: str | None):
         reader.spacecal_store_name = store_name
         yield reader
     finally:
-        reader.close()
+        with suppress(Exception):  # closing a damaged bag must not hide why it was refused
+            reader.close()
 
 
 def _listing(names: Sequence[str], count: int = 20) -> str:
@@ -135,15 +183,174 @@ def _listing(names: Sequence[str], count: int = 20) -> str:
 
 
 def _frame(name: str) -> str:
-    return str(name).lstrip("/")
+    if not isinstance(name, str):
+        raise TypeError(f"a frame name of type {type(name).__name__}")
+    return name.lstrip("/")
 
 
 def _stamp_ns(header) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    """A header stamp in ns since the epoch; -1 for one that is no time (negative seconds,
+    nanoseconds outside 0..999999999)."""
+    sec, nanosec = int(header.stamp.sec), int(header.stamp.nanosec)
+    if sec < 0 or not 0 <= nanosec < 1_000_000_000:
+        return -1
+    return sec * 1_000_000_000 + nanosec
+
+
+@contextmanager
+def _layout(path: Path, topic: str, index: int, msgtype: str):
+    """Fields of a message read as numbers and names: a bag may define a standard type its own
+    way (a ROS 1 bag embeds the definitions), so a field of the wrong kind is one clear line."""
+    try:
+        yield
+    except (AttributeError, TypeError, ValueError, OverflowError, IndexError) as exc:
+        raise InvalidInputError(
+            f"{path}: message {index} on {topic} is not a {msgtype} as ROS defines it ({_cause(exc)})"
+        ) from None
+
+
+def _pose_problems(
+    translations_m: np.ndarray, quaternions_xyzw: np.ndarray, unseen_ok: bool
+) -> list[str | None]:
+    """Why each pose sample cannot be used (None: it can).
+
+    Parameters
+    ----------
+    translations_m : numpy.ndarray, shape (N, 3)
+        Translations from the messages, metres.
+    quaternions_xyzw : numpy.ndarray, shape (N, 4)
+        Rotations from the messages, ROS order ``x, y, z, w``.
+    unseen_ok : bool
+        A translation of three NaN is a marker the tracker did not see (kept as such).
+    """
+    translations_m = np.asarray(translations_m, dtype=float).reshape(-1, 3)
+    quaternions_xyzw = np.asarray(quaternions_xyzw, dtype=float).reshape(-1, 4)
+    with np.errstate(all="ignore"):
+        finite = np.all(np.isfinite(translations_m), axis=1) & np.all(np.isfinite(quaternions_xyzw), axis=1)
+        unseen = np.all(np.isnan(translations_m), axis=1) if unseen_ok else np.zeros(len(finite), bool)
+        distance = np.max(np.abs(np.where(finite[:, None], translations_m, 0.0)), axis=1)
+        norms = np.linalg.norm(np.where(finite[:, None], quaternions_xyzw, 1.0), axis=1)
+    problems: list[str | None] = []
+    for k in range(len(finite)):
+        if unseen[k]:
+            problems.append(None)
+        elif not finite[k]:
+            problems.append("a value that is not a finite number")
+        elif not distance[k] <= MAX_TRANSLATION_M:
+            problems.append(f"a translation of {distance[k]:.3g} m along an axis")
+        elif not abs(norms[k] - 1.0) <= QUATERNION_NORM_TOLERANCE:
+            problems.append(f"a quaternion of norm {norms[k]:.6g}, not a unit quaternion")
+        else:
+            problems.append(None)
+    return problems
+
+
+def _nondecreasing(values: np.ndarray) -> np.ndarray:
+    """Mask of a longest non-decreasing subsequence of ``values`` (N,): the samples that keep
+    their time order when the fewest are dropped (a lone stamp out of place is the one dropped)."""
+    n = len(values)
+    if n == 0 or np.all(np.diff(values) >= 0):
+        return np.ones(n, dtype=bool)
+    tails: list[int] = []  # value ending the best subsequence of each length
+    ends: list[int] = []  # index of that value
+    previous = np.full(n, -1, dtype=np.int64)
+    for k, value in enumerate(values.tolist()):
+        j = bisect_right(tails, value)
+        if j == len(tails):
+            tails.append(value)
+            ends.append(k)
+        else:
+            tails[j], ends[j] = value, k
+        previous[k] = ends[j - 1] if j > 0 else -1
+    keep = np.zeros(n, dtype=bool)
+    k = ends[-1]
+    while k >= 0:
+        keep[k] = True
+        k = int(previous[k])
+    return keep
+
+
+def _usable(
+    stamps_ns: Sequence[int],
+    problems: Sequence[str | None],
+    sources: Sequence[tuple[str, int]],
+    where: str,
+    notes: list[str],
+) -> np.ndarray:
+    """Indices (K,) of the samples of a stream to keep, in strictly increasing time.
+
+    Dropped, in this order: samples with a problem (``problems[k]``, or a stamp that is no
+    time), samples whose stamp is out of the stream's time order (the fewest that restore it),
+    and samples repeating the stamp of the one before. A stream whose dropped invalid and
+    out-of-order samples exceed :data:`MAX_UNUSABLE_FRACTION` is refused with one line naming
+    the first; otherwise what was dropped is appended to ``notes``.
+
+    Parameters
+    ----------
+    stamps_ns : sequence of int, length N
+        Header stamps in ns since the epoch (-1: not a time), in bag order.
+    problems : sequence of str or None, length N
+        Why a sample's values cannot be used (None: they can).
+    sources : sequence of (str, int), length N
+        The topic and message index (on that topic, from 0) each sample came from.
+    where : str
+        Names the bag and stream in the refusal and the note.
+    notes : list of str
+        Receives one line when anything was dropped.
+    """
+    n = len(stamps_ns)
+    stamps = np.array(stamps_ns, dtype=np.int64)
+    reasons = [
+        p if p is not None else ("a time stamp that is no time" if t < 0 else None)
+        for p, t in zip(problems, stamps_ns)
+    ]
+    valid = np.array([r is None for r in reasons], dtype=bool)
+    ordered = np.zeros(n, dtype=bool)
+    ordered[valid] = _nondecreasing(stamps[valid])
+    keep = np.flatnonzero(ordered)
+    repeated = np.concatenate([[False], np.diff(stamps[keep]) == 0]) if len(keep) else np.zeros(0, bool)
+    invalid = np.flatnonzero(~valid)
+    out_of_order = np.flatnonzero(valid & ~ordered)
+
+    def at(k: int) -> str:
+        topic, index = sources[k]
+        return f"message {index} on {topic}"
+
+    unusable = len(invalid) + len(out_of_order)
+    if unusable > MAX_UNUSABLE_FRACTION * n:
+        first = min(np.concatenate([invalid, out_of_order]).tolist())
+        why = reasons[first] or "a time stamp earlier than the stamps before it"
+        raise InvalidInputError(
+            f"{where}: {unusable} of {n} messages are unusable, too many to skip "
+            f"(the first, {at(first)}, has {why})"
+        )
+    dropped = []
+    if len(invalid):
+        dropped.append(
+            f"{len(invalid)} invalid (the first, {at(int(invalid[0]))}, has {reasons[int(invalid[0])]})"
+        )
+    if len(out_of_order):
+        dropped.append(f"{len(out_of_order)} out of time order (the first: {at(int(out_of_order[0]))})")
+    if repeated.any():
+        first_repeat = int(keep[np.flatnonzero(repeated)[0]])
+        dropped.append(
+            f"{int(repeated.sum())} repeating the time stamp of the one before "
+            f"(the first: {at(first_repeat)})"
+        )
+    if dropped:
+        notes.append(
+            f"{where}: skipped {unusable + int(repeated.sum())} of {n} messages: {'; '.join(dropped)}"
+        )
+    return keep[~repeated]
 
 
 def _messages(reader, path: Path, topics: Sequence[str]):
-    """(topic, log time ns, message) of the named topics, with one clear line for an undecodable type."""
+    """(topic, index on the topic, log time ns, message) of the named topics in bag order.
+
+    A damaged file, an undecodable or oversized message and a topic with more messages than
+    :data:`MAX_TOPIC_MESSAGES` each end the read with one line naming the bag, the topic and
+    the message's index on it (counted from 0), before more is read.
+    """
     connections = [c for c in reader.connections if c.topic in topics]
     for connection in connections:
         if connection.msgtype not in reader.typestore.fielddefs:
@@ -151,14 +358,42 @@ def _messages(reader, path: Path, topics: Sequence[str]):
                 f"{path}: topic {connection.topic} has type {connection.msgtype}, defined neither in the bag "
                 f"nor in the {reader.spacecal_store_name} type store (choose another with typestore=)"
             )
-    for connection, log_ns, raw in reader.messages(connections=connections):
+    counts: dict[str, int] = {}
+    try:
+        stream = iter(reader.messages(connections=connections))
+    except Exception as exc:
+        raise InvalidInputError(f"{path}: cannot read the messages of the bag ({_cause(exc)})") from None
+    while True:
+        try:
+            connection, log_ns, raw = next(stream)
+        except StopIteration:
+            return
+        except Exception as exc:  # a truncated or damaged file, found as it is read
+            done = ", ".join(f"{n} on {t}" for t, n in counts.items()) or "none"
+            raise InvalidInputError(
+                f"{path}: the bag is damaged after {sum(counts.values())} messages read "
+                f"({done}): {_cause(exc)}"
+            ) from None
+        topic = connection.topic
+        index = counts.get(topic, 0)
+        counts[topic] = index + 1
+        if index >= MAX_TOPIC_MESSAGES:
+            raise InvalidInputError(
+                f"{path}: topic {topic} holds more than {MAX_TOPIC_MESSAGES} messages; cut the bag to the "
+                "calibration run (ros2 bag convert, rosbag filter)"
+            )
+        if len(raw) > MAX_MESSAGE_BYTES:
+            raise InvalidInputError(
+                f"{path}: message {index} on {topic} is {len(raw)} bytes, more than a "
+                f"{connection.msgtype} of a calibration can hold ({MAX_MESSAGE_BYTES})"
+            )
         try:
             message = reader.deserialize(raw, connection.msgtype)
         except Exception as exc:  # rosbags raises several kinds here
             raise InvalidInputError(
-                f"{path}: cannot decode a {connection.msgtype} message on {connection.topic} ({exc})"
+                f"{path}: cannot decode message {index} on {topic}, a {connection.msgtype} ({_cause(exc)})"
             ) from None
-        yield connection.topic, log_ns, message
+        yield topic, index, log_ns, message
 
 
 @dataclass(frozen=True)
@@ -265,23 +500,29 @@ def _tf_chains(edges: Sequence[TfEdge]) -> list[tuple[str, str]]:
 
 @dataclass
 class _EdgeSeries:
+    """The samples of one tf edge in bag order: stamps (ns), translations (m), quaternions
+    (x, y, z, w) as the messages hold them, and the (topic, message index) of each."""
+
     times_ns: list[int] = field(default_factory=list)
     translations_m: list[tuple[float, float, float]] = field(default_factory=list)
     quaternions_xyzw: list[tuple[float, float, float, float]] = field(default_factory=list)
+    sources: list[tuple[str, int]] = field(default_factory=list)
     static: bool = False
 
 
 def _read_tf(reader, path: Path, topics: Sequence[str]) -> dict[tuple[str, str], _EdgeSeries]:
     edges: dict[tuple[str, str], _EdgeSeries] = {}
-    for topic, _, message in _messages(reader, path, topics):
-        for ts in message.transforms:
-            key = (_frame(ts.header.frame_id), _frame(ts.child_frame_id))
-            series = edges.setdefault(key, _EdgeSeries())
-            series.static |= topic.rstrip("/").endswith("tf_static")
-            t, r = ts.transform.translation, ts.transform.rotation
-            series.times_ns.append(_stamp_ns(ts.header))
-            series.translations_m.append((t.x, t.y, t.z))
-            series.quaternions_xyzw.append((r.x, r.y, r.z, r.w))
+    for topic, index, _, message in _messages(reader, path, topics):
+        with _layout(path, topic, index, "tf2_msgs/msg/TFMessage"):
+            for ts in message.transforms:
+                key = (_frame(ts.header.frame_id), _frame(ts.child_frame_id))
+                series = edges.setdefault(key, _EdgeSeries())
+                series.static |= topic.rstrip("/").endswith("tf_static")
+                t, r = ts.transform.translation, ts.transform.rotation
+                series.times_ns.append(_stamp_ns(ts.header))
+                series.translations_m.append((float(t.x), float(t.y), float(t.z)))
+                series.quaternions_xyzw.append((float(r.x), float(r.y), float(r.z), float(r.w)))
+                series.sources.append((topic, index))
     return edges
 
 
@@ -316,15 +557,26 @@ def _constant(series: _EdgeSeries) -> bool:
     return bool(np.all(values == values[0]))
 
 
-def _edge_stack(series: _EdgeSeries, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """(times ns (K,), parent_from_child (K, 4, 4) mm), sorted by time, duplicates of a stamp dropped."""
-    times = np.array(series.times_ns, dtype=np.int64)
-    order = np.argsort(times, kind="stable")
-    times = times[order]
-    keep = np.concatenate([[True], np.diff(times) > 0])
-    translations = np.array(series.translations_m)[order][keep]
-    quaternions = np.array(series.quaternions_xyzw)[order][keep]
-    return times[keep], transform_from_ros(translations, quaternions, what)
+def _edge_stack(
+    series: _EdgeSeries, what: str, notes: list[str], moving: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """(times ns (K,), parent_from_child (K, 4, 4) mm) of the usable samples of a tf edge in
+    increasing time (see :func:`_usable`). The stamps of an edge that does not move are not
+    used, so only its values are checked there."""
+    translations = np.array(series.translations_m, dtype=float).reshape(-1, 3)
+    quaternions = np.array(series.quaternions_xyzw, dtype=float).reshape(-1, 4)
+    problems = _pose_problems(translations, quaternions, unseen_ok=False)
+    if moving:
+        keep = _usable(series.times_ns, problems, series.sources, what, notes)
+    else:
+        keep = np.flatnonzero([p is None for p in problems])[-1:]
+        if len(keep) == 0:
+            topic, index = series.sources[-1]
+            raise InvalidInputError(
+                f"{what}: no usable message (message {index} on {topic} has {problems[-1]})"
+            )
+    times = np.array(series.times_ns, dtype=np.int64)[keep]
+    return times, transform_from_ros(translations[keep], quaternions[keep], what)
 
 
 def _interpolate(times_ns, stack, query_ns) -> np.ndarray:
@@ -349,12 +601,18 @@ def _path_to_root(parents: dict[str, str], frame: str) -> list[str]:
 
 
 def _chain(
-    edges: dict[tuple[str, str], _EdgeSeries], from_frame: str, to_frame: str, where: str
+    edges: dict[tuple[str, str], _EdgeSeries],
+    from_frame: str,
+    to_frame: str,
+    where: str,
+    notes: list[str] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """``from_frame <- to_frame`` through the tf tree at the stamps of its most frequent moving edge.
 
-    Returns times (N,) in ns and ``from_from_to`` (N, 4, 4) in mm.
+    Returns times (N,) in ns and ``from_from_to`` (N, 4, 4) in mm; what was skipped of the
+    edges walked is appended to ``notes``.
     """
+    notes = [] if notes is None else notes
     parents: dict[str, str] = {}
     for parent, child in edges:
         if child in parents and parents[child] != parent:
@@ -377,8 +635,11 @@ def _chain(
     # edges (parent, child, sign): +1 walked down (parent_from_child), -1 walked up (its inverse)
     walk = [(up_from[k + 1], up_from[k], -1) for k in range(up_from.index(common))]
     walk += [(up_to[k + 1], up_to[k], +1) for k in reversed(range(up_to.index(common)))]
-    stacks = {key: _edge_stack(edges[key], f"{where}: tf {key[0]} -> {key[1]}") for key in edges}
     moving = [(p, c) for p, c, _ in walk if not (edges[(p, c)].static or _constant(edges[(p, c)]))]
+    stacks = {
+        (p, c): _edge_stack(edges[(p, c)], f"{where}: tf {p} -> {c}", notes, (p, c) in moving)
+        for p, c, _ in walk
+    }
     if not moving:
         raise InvalidInputError(f"{where}: the tf chain {from_frame} -> {to_frame} never moves")
     reference = max(moving, key=lambda key: len(stacks[key][0]))
@@ -407,40 +668,57 @@ def _one(candidates: list, what: str, hint: str, where: str):
     )
 
 
-def _marker_from_topic(reader, path: Path, topic: str, msgtype: str, tracker_frame, marker_frame):
-    times, translations, quaternions, frames = [], [], [], set()
-    for _, _, message in _messages(reader, path, [topic]):
-        times.append(_stamp_ns(message.header))
-        parent = _frame(message.header.frame_id)
-        if msgtype in POSE_TYPES:
-            p, r = message.pose.position, message.pose.orientation
-            child = marker_frame or ""
-        else:
-            p, r = message.transform.translation, message.transform.rotation
-            child = _frame(message.child_frame_id)
-        frames.add((parent, child))
-        translations.append((p.x, p.y, p.z))
-        quaternions.append((r.x, r.y, r.z, r.w))
+def _marker_from_topic(
+    reader, path: Path, topic: str, msgtype: str, tracker_frame, marker_frame, notes: list[str]
+):
+    """Times (K,) ns, ``tracker_from_marker`` (K, 4, 4) mm (NaN where the marker was not seen:
+    a translation of three NaN), the source entry; invalid or misordered messages dropped."""
+    times, translations, quaternions, sources, frames = [], [], [], [], set()
+    for _, index, _, message in _messages(reader, path, [topic]):
+        with _layout(path, topic, index, msgtype):
+            times.append(_stamp_ns(message.header))
+            parent = _frame(message.header.frame_id)
+            if msgtype in POSE_TYPES:
+                p, r = message.pose.position, message.pose.orientation
+                child = marker_frame or ""
+            else:
+                p, r = message.transform.translation, message.transform.rotation
+                child = _frame(message.child_frame_id)
+            translations.append((float(p.x), float(p.y), float(p.z)))
+            quaternions.append((float(r.x), float(r.y), float(r.z), float(r.w)))
+        sources.append((topic, index))
+        if (parent, child) not in frames:
+            frames.add((parent, child))
+            if tracker_frame and parent != tracker_frame:
+                raise InvalidInputError(
+                    f"{path}: {topic} is in frame {quoted(parent)} (message {index}), "
+                    f"not the tracker frame {quoted(tracker_frame)}"
+                )
+            if marker_frame and msgtype in TRANSFORM_TYPES and child != marker_frame:
+                raise InvalidInputError(
+                    f"{path}: {topic} has child frame {quoted(child)} (message {index}), "
+                    f"not the marker frame {quoted(marker_frame)}"
+                )
+            if len(frames) > 1:
+                pairs = [f"{a} -> {b}" if b else a for a, b in sorted(frames)]
+                raise InvalidInputError(
+                    f"{path}: {topic} changes frames at message {index} ({_listing(pairs)}); "
+                    "one stream must keep one tracker and marker frame"
+                )
     if not times:
         raise InvalidInputError(f"{path}: topic {topic} has no messages")
-    for parent, child in frames:
-        if tracker_frame and parent != tracker_frame:
-            raise InvalidInputError(
-                f"{path}: {topic} is in frame {quoted(parent)}, not the tracker frame {quoted(tracker_frame)}"
-            )
-        if marker_frame and msgtype in TRANSFORM_TYPES and child != marker_frame:
-            raise InvalidInputError(
-                f"{path}: {topic} has child frame {quoted(child)}, "
-                f"not the marker frame {quoted(marker_frame)}"
-            )
-    translation_array, quaternion_array = np.array(translations, float), np.array(quaternions, float)
-    seen = np.all(np.isfinite(translation_array), axis=1) & np.all(np.isfinite(quaternion_array), axis=1)
-    stack = np.full((len(times), 4, 4), np.nan)
+    translation_array = np.array(translations, dtype=float).reshape(-1, 3)
+    quaternion_array = np.array(quaternions, dtype=float).reshape(-1, 4)
+    problems = _pose_problems(translation_array, quaternion_array, unseen_ok=True)
+    keep = _usable(times, problems, sources, f"{path}: {topic}", notes)
+    translation_array, quaternion_array = translation_array[keep], quaternion_array[keep]
+    seen = np.all(np.isfinite(translation_array), axis=1)
+    stack = np.full((len(keep), 4, 4), np.nan)
     if seen.any():
         stack[seen] = transform_from_ros(translation_array[seen], quaternion_array[seen], f"{path}: {topic}")
-    parent, child = sorted(frames)[0]
+    ((parent, child),) = frames
     return (
-        np.array(times, dtype=np.int64),
+        np.array(times, dtype=np.int64)[keep],
         stack,
         {"topic": topic, "tracker_frame": parent, "marker_frame": child},
     )
@@ -458,31 +736,45 @@ def _joint_columns(names: Sequence[str], wanted: Sequence[str], where: str) -> l
     return columns
 
 
-def _robot_from_joint_states(reader, path: Path, topic: str, model: RobotModel, joint_names):
+def _robot_from_joint_states(
+    reader, path: Path, topic: str, model: RobotModel, joint_names, notes: list[str]
+):
+    """Times (K,) ns, joints (K, 6) rad, ``base_from_tcp`` (K, 4, 4) mm, the source entry;
+    invalid or misordered messages dropped."""
     where = f"{path}: {topic}"
-    times, log_times, joints = [], [], []
+    times, log_times, joints, sources = [], [], [], []
+    problems: list[str | None] = []
     columns, names_seen = None, None
-    for _, log_ns, message in _messages(reader, path, [topic]):
-        names = list(message.name)
-        if names != names_seen:
-            columns, names_seen = _joint_columns(names, joint_names, where), names
-        positions = np.asarray(message.position, dtype=float)
-        if len(positions) != len(names):
-            raise InvalidInputError(
-                f"{where}: a message has {len(positions)} positions for {len(names)} names"
-            )
-        times.append(_stamp_ns(message.header))
+    for _, index, log_ns, message in _messages(reader, path, [topic]):
+        with _layout(path, topic, index, "sensor_msgs/msg/JointState"):
+            names = [str(n) for n in message.name]
+            if names != names_seen:
+                columns, names_seen = _joint_columns(names, joint_names, f"{where} (message {index})"), names
+            positions = np.asarray(message.position, dtype=float).reshape(-1)
+            if len(positions) != len(names):
+                raise InvalidInputError(
+                    f"{where}: message {index} has {len(positions)} positions for {len(names)} names"
+                )
+            times.append(_stamp_ns(message.header))
         log_times.append(log_ns)
-        joints.append(positions[columns])
+        values = positions[columns]
+        joints.append(values)
+        sources.append((topic, index))
+        if not np.all(np.isfinite(values)):
+            problems.append("a joint position that is not a finite number")
+        elif np.max(np.abs(values)) > MAX_JOINT_RAD:
+            problems.append(f"a joint position of {np.max(np.abs(values)):.3g} rad")
+        else:
+            problems.append(None)
     if not times:
         raise InvalidInputError(f"{where}: no messages")
-    stamps = np.array(times, dtype=np.int64)
     source = "header.stamp"
-    if np.any(stamps == 0):
-        stamps, source = np.array(log_times, dtype=np.int64), "bag receive time (header stamps are zero)"
-    joint_array = np.array(joints)
+    if 0 in times:
+        times, source = log_times, "bag receive time (header stamps are zero)"
+    keep = _usable(times, problems, sources, where, notes)
+    joint_array = np.array(joints, dtype=float).reshape(-1, 6)[keep]
     return (
-        stamps,
+        np.array(times, dtype=np.int64)[keep],
         joint_array,
         forward_kinematics(model, joint_array),
         {"topic": topic, "model": model.name, "time": source},
@@ -539,13 +831,20 @@ def read_ros_bag(
     RawRecording
         Robot stream (R samples, header-stamp times, ``joints_rad`` NaN when read from tf) and
         tracker stream (T frames, ``marker_rms_mm`` NaN: ROS messages do not carry it); times in
-        s since the earliest stamp used; lengths in mm.
+        s since the earliest stamp used; lengths in mm. ``metadata["ros_bag"]["notes"]`` lists,
+        one line per stream, the messages skipped: invalid ones (a NaN or infinite value other
+        than a marker not seen, a translation beyond :data:`MAX_TRANSLATION_M`, a quaternion
+        that is not a unit quaternion, a joint beyond :data:`MAX_JOINT_RAD`, a stamp that is no
+        time), those out of time order, and those repeating a stamp.
 
     Raises
     ------
     InvalidInputError
-        An unreadable bag, a missing or ambiguous stream (the message lists the candidates), an
-        undecodable message type, a frame that is not in the bag.
+        An unreadable or damaged bag, a missing or ambiguous stream (the message lists the
+        candidates), an undecodable message type or message, a frame that is not in the bag, a
+        stream whose invalid and out-of-order messages exceed :data:`MAX_UNUSABLE_FRACTION`,
+        a topic of more than :data:`MAX_TOPIC_MESSAGES` messages. Each names the bag, the topic
+        and the index of the first message at fault.
     MissingExtraError
         Without the ``rosbags`` package (``spacecal[ros]``).
     """
@@ -598,24 +897,25 @@ def read_ros_bag(
         if robot_model is None:
             raise InvalidInputError(f"{where}: joint states need a robot model (e.g. robot_model='UR10')")
 
+    notes: list[str] = []
     with _open_bag(path, typestore) as reader:
         tf = _read_tf(reader, path, tf_topics) if tf_topics else {}
         if marker_topic is not None:
             tracker_ns, tracker_from_marker, marker_source = _marker_from_topic(
-                reader, path, marker_topic, types[marker_topic], tracker_frame, marker_frame
+                reader, path, marker_topic, types[marker_topic], tracker_frame, marker_frame, notes
             )
         else:
             assert tracker_frame is not None and marker_frame is not None  # chosen above
-            tracker_ns, tracker_from_marker = _chain(tf, tracker_frame, marker_frame, where)
+            tracker_ns, tracker_from_marker = _chain(tf, tracker_frame, marker_frame, where, notes)
             marker_source = {"tf": True, "tracker_frame": tracker_frame, "marker_frame": marker_frame}
         if joint_state_topic is not None:
             assert robot_model is not None  # checked above
             robot_ns, joints, base_from_tcp, robot_source = _robot_from_joint_states(
-                reader, path, joint_state_topic, robot_model, joint_names
+                reader, path, joint_state_topic, robot_model, joint_names, notes
             )
         else:
             assert base_frame is not None and tool_frame is not None  # chosen above
-            robot_ns, base_from_tcp = _chain(tf, base_frame, tool_frame, where)
+            robot_ns, base_from_tcp = _chain(tf, base_frame, tool_frame, where, notes)
             joints = np.full((len(robot_ns), 6), np.nan)
             robot_source = {"tf": True, "base_frame": base_frame, "tool_frame": tool_frame}
 
@@ -634,6 +934,7 @@ def read_ros_bag(
             "time": "seconds since time_origin_ns (header stamps)",
             "robot": robot_source,
             "marker": marker_source,
+            "notes": notes,
         },
         "units": {"length": "mm", "angle": "rad", "time": "s"},
     }
