@@ -16,13 +16,16 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from spacecal.io.recording_csv import read_recording
 
 #: Interruption points, one in each of as many equal slices of 1-7 s after the start (each
 #: point costs a whole simulated acquisition); the in-process test below hits every part of
-#: the plan by sample instead.
-POINTS = 6
+#: the plan by sample instead, at as many points.
+POINTS = 20
+#: Samples of the simulated plan the in-process test interrupts (paper-white's sweeps).
+PLAN_SAMPLES = 560
 SEED = 20240611
 
 
@@ -92,27 +95,32 @@ def test_interrupted_acquisitions_resume_into_recordings_that_calibrate(tmp_path
     assert not failures, "\n\n".join(failures)
 
 
-def test_ctrl_c_at_random_samples_then_resume(tmp_path):
+def _stop_samples() -> list[int]:
+    """One seeded sample in each of POINTS equal parts of the plan."""
+    rng = random.Random(SEED + 1)
+    part_samples = PLAN_SAMPLES // POINTS
+    return [1 + part_samples * part + rng.randrange(part_samples) for part in range(POINTS)]
+
+
+@pytest.mark.parametrize("stop_at", _stop_samples())
+def test_ctrl_c_at_random_samples_then_resume(tmp_path, stop_at):
     """The same, in this process: KeyboardInterrupt raised at seeded random samples (a test
     hook on the progress callback), so every part of the plan is hit whatever the machine's
-    speed."""
+    speed (one case per point, so the test workers share them)."""
     from spacecal import app
     from spacecal.core.errors import SpacecalError
 
-    rng = random.Random(SEED + 1)
-    # one sample in each of five equal parts of the plan's 560
-    for k, stop_at in enumerate(1 + 112 * part + rng.randrange(112) for part in range(5)):
-        output = tmp_path / f"rec{k}.csv"
+    output = tmp_path / "rec.csv"
 
-        def hook(samples, visible, move, label, stop_at=stop_at):
-            if samples == stop_at:
-                raise KeyboardInterrupt
+    def hook(samples, visible, move, label):
+        if samples == stop_at:
+            raise KeyboardInterrupt
 
-        try:
-            app.acquire(app.AcquireSettings(str(output), scenario="paper-white"), on_sample=hook)
-        except SpacecalError as exc:
-            assert "interrupted" in str(exc)
-        app.acquire(app.AcquireSettings(str(output), scenario="paper-white", resume=True))
-        recording = read_recording(output)
-        assert np.all(np.diff(recording.time_s) > 0), f"stopped at sample {stop_at}"
-        app.calibrate(app.CalibrateSettings(str(output), str(tmp_path / f"cal{k}.json"), "ml"))
+    try:
+        app.acquire(app.AcquireSettings(str(output), scenario="paper-white"), on_sample=hook)
+    except SpacecalError as exc:
+        assert "interrupted" in str(exc)
+    app.acquire(app.AcquireSettings(str(output), scenario="paper-white", resume=True))
+    recording = read_recording(output)
+    assert np.all(np.diff(recording.time_s) > 0), f"stopped at sample {stop_at}"
+    app.calibrate(app.CalibrateSettings(str(output), str(tmp_path / "cal.json"), "ml"))
