@@ -4,6 +4,7 @@ close in the middle of a message: bounded in time and memory, one line.
 
 The bounds are the deadlines plus a margin for a loaded 2-core machine, never tight times."""
 
+import re
 import time
 
 import numpy as np
@@ -159,7 +160,8 @@ def test_export_to_a_server_that_sends_nothing_whole_ends_after_the_linger(
             "closed mid-message",
             hang_up,
             transform_message("ReferenceToTracker"),
-            "closed the connection in the middle of a message",
+            # closing with our message unread resets the connection, depending on who is first
+            "closed the connection in the middle of a message|reset the connection",
         ),
     ],
 )
@@ -171,7 +173,7 @@ def test_export_to_a_server_that_is_not_one_is_one_line_and_exit_1(
     assert code == 1
     assert took < EXPORT_BOUND_S
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("spacecal: error: ") and message in lines[0]
+    assert len(lines) == 1 and lines[0].startswith("spacecal: error: ") and re.search(message, lines[0])
     assert "BaseToTracker may not have arrived" in lines[0]
 
 
