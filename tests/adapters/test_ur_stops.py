@@ -42,6 +42,23 @@ ENDED_WITHIN_S = 8.0
 #: closed; 5.5 s measured on a quiet machine.
 VANISHED_ENDED_WITHIN_S = 12.0
 
+#: Tracker rows recorded before the stop (the plan is short: 80 rows may be the whole run).
+STOP_AFTER_ROWS = 40
+
+
+def paired_times(recording):
+    """``time_s`` of the paired recording a stopped run wrote, without the reader's floor of
+    samples worth calibrating from: the fake e-Series's 500 Hz stream falls behind in motion on
+    a busy machine, the pairing leaves out frames in its gaps, and a run stopped after 40 frames
+    may keep fewer than ten pairs. What is kept must be intact; how much is the raw streams'
+    (every frame, checked below)."""
+    lines = recording.read_text().splitlines()
+    column = lines[0].split(",").index("time_s")
+    times = np.array([float(line.split(",")[column]) for line in lines[1:]])
+    assert np.all(np.isfinite(times)) and np.all(np.diff(times) > 0)
+    return times
+
+
 #: name -> (generation, fault command, the line's cause, the operator's release command)
 STOPS = {
     "safeguard stop": ("eseries", "safeguard_stop", "robot safeguard stop", "safeguard_reset"),
@@ -72,7 +89,7 @@ def check_stopped_run(world, run_result, fault_at, recording, cause, count_slack
     assert line.startswith("spacecal: error: acquisition stopped: "), run_result.stderr
     assert cause in line and "resume with --resume" in line
     assert "Traceback" not in run_result.stderr
-    kept = read_recording(recording)
+    kept = paired_times(recording)
     written = recorded_rows(recording) - 1  # every frame in the raw tracker stream (one header row)
     # the paired recording holds the frames captured while the robot's stream was kept
     assert len(kept) > 5 and len(kept) <= written
@@ -117,7 +134,7 @@ def resume_and_check(world, generation, recording, rom, kept):
     again = read_recording(recording)
     # the paired recording is derived again from the whole run: every kept frame is in it, but
     # for those the pairing rule drops at the whole run's offset
-    lost = kept.time_s[~np.isin(kept.time_s, again.time_s)]
+    lost = kept[~np.isin(kept, again.time_s)]
     robot_stream, tracker_stream_path, _ = stream_paths(recording.with_suffix(""))
     raw = read_raw_recording(robot_stream, tracker_stream_path)
     offset_s = json.loads(metadata_path(recording).read_text())["pairing"]["offset_s"]
@@ -138,9 +155,7 @@ def test_each_stop_ends_the_run_and_nothing_moves_after_it(rom_file, tmp_path, s
     world = ur_world(generation)
     try:
         recording = tmp_path / f"rec-{command.replace(' ', '-')}.csv"
-        # 40 tracker rows: enough that the paired recording keeps its ten samples even when a
-        # loaded machine's robot poller missed ticks around the stop
-        fault = WhenRecorded(world, f"ur {command}", recording, rows=40)
+        fault = WhenRecorded(world, f"ur {command}", recording, rows=STOP_AFTER_ROWS)
         result = run(acquire_argv(world, generation, recording, rom_file))
         fault.join(5)
         assert fault.reply == "OK" and fault.sent_at is not None
@@ -171,7 +186,11 @@ def test_signals_stop_the_robot_at_once_and_keep_the_recording_resumable(rom_fil
             text=True,
         )
         deadline = time.monotonic() + 90
-        while recorded_rows(recording) <= 20 and time.monotonic() < deadline and process.poll() is None:
+        while (
+            recorded_rows(recording) <= STOP_AFTER_ROWS
+            and time.monotonic() < deadline
+            and process.poll() is None
+        ):
             time.sleep(0.02)
         world.control("ur mark")
         sent_at = time.monotonic()
@@ -255,7 +274,7 @@ def test_a_controller_that_vanishes_mid_run_ends_the_run(rom_file, tmp_path):
         line = last_line(result.stderr)
         assert line.startswith("spacecal: error: acquisition stopped: UR state is stale"), result.stderr
         assert "samples kept" in line and "Traceback" not in result.stderr
-        assert len(read_recording(recording)) > 5
+        assert len(paired_times(recording)) > 5
         assert not stats(world)["tracker_tracking"]
         print(f"controller vanished: command ended after {ended_after:.2f} s")
         assert ended_after < VANISHED_ENDED_WITHIN_S
