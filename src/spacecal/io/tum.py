@@ -246,7 +246,7 @@ def tum_text(time_s, world_from_body_stack, units: str = "m", comments: tuple[st
     units : {"m", "mm"}
         Length unit to write ``tx ty tz`` in.
     comments : tuple of str
-        Lines written first, each after ``# ``.
+        Lines written first, each after ``#`` and a space.
     """
     scale = _check_units(units)
     time_s = np.asarray(time_s, dtype=float)
