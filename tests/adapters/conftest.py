@@ -39,9 +39,9 @@ def watchdog(request):
 
 #: Scheduling priority of a hardware test and of the processes it starts (spacecal, the fake
 #: devices). At the robot, spacecal's poller and the devices have the machine to themselves; a
-#: test of how a run stops must not instead measure how busy the test machine is (at load 5 on
-#: 2 cores a poller at equal priority missed enough ticks that a stopped run kept 6 of 40
-#: frames). Raised only where the runner may (as root in CI); elsewhere left as it is.
+#: test of how a run stops must not instead measure how busy the test machine is (at load 4-5
+#: on 2 cores, runs at equal priority were stopped as "UR state is stale"). Raised only where
+#: the runner may (as root in CI); elsewhere left as it is.
 HARDWARE_TEST_NICENESS = -10
 
 

@@ -24,7 +24,7 @@ from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
 from spacecal.workflows.acquisition import progress_path
 
-from .ur_runs import recorded_rows
+from .ur_runs import wait_for_rows
 
 SPACECAL = [sys.executable, "-m", "spacecal.cli"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
@@ -209,9 +209,7 @@ def test_ctrl_c_stops_the_robot_and_keeps_the_data(world, rom_file, tmp_path):
     )
     # interrupted once frames are being recorded (a fixed sleep interrupted a loaded machine's
     # run before it had opened the devices)
-    deadline = time.monotonic() + 90
-    while recorded_rows(recording) <= 40 and time.monotonic() < deadline and process.poll() is None:
-        time.sleep(0.02)
+    wait_for_rows(recording, 40, process)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 1

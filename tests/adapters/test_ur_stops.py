@@ -29,6 +29,7 @@ from .ur_runs import (
     run,
     stats,
     ur_world,
+    wait_for_rows,
 )
 
 #: From the fault to the robot standing still (the fake's joint angles stop changing), s.
@@ -185,13 +186,7 @@ def test_signals_stop_the_robot_at_once_and_keep_the_recording_resumable(rom_fil
             stderr=subprocess.PIPE,
             text=True,
         )
-        deadline = time.monotonic() + 90
-        while (
-            recorded_rows(recording) <= STOP_AFTER_ROWS
-            and time.monotonic() < deadline
-            and process.poll() is None
-        ):
-            time.sleep(0.02)
+        wait_for_rows(recording, STOP_AFTER_ROWS, process)
         world.control("ur mark")
         sent_at = time.monotonic()
         process.send_signal(getattr(signal, signal_name))

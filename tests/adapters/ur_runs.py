@@ -88,6 +88,16 @@ def recorded_rows(recording: Path) -> int:
     return stream.read_bytes().count(b"\n") if stream.is_file() else 0
 
 
+def wait_for_rows(recording: Path, rows: int, process=None, timeout_s: float = 90.0) -> None:
+    """Wait until the run has written more than ``rows`` tracker frames (or ``process`` ended,
+    or ``timeout_s`` passed)."""
+    deadline = time.monotonic() + timeout_s
+    while recorded_rows(recording) <= rows and time.monotonic() < deadline:
+        if process is not None and process.poll() is not None:
+            return
+        time.sleep(0.02)
+
+
 class WhenRecorded(threading.Thread):
     """Send a world command once the run has written ``rows`` samples; ``sent_at`` is when the
     world acknowledged it (``time.monotonic``)."""
@@ -101,9 +111,7 @@ class WhenRecorded(threading.Thread):
         self.start()
 
     def run(self) -> None:
-        deadline = time.monotonic() + self.timeout_s
-        while time.monotonic() < deadline and recorded_rows(self.recording) <= self.rows:
-            time.sleep(0.02)
+        wait_for_rows(self.recording, self.rows, timeout_s=self.timeout_s)
         self.reply = self.world.control(self.command)
         self.sent_at = time.monotonic()
 
