@@ -8,8 +8,6 @@ import json
 import signal
 import subprocess
 import sys
-import threading
-import time
 
 import numpy as np
 import pytest
@@ -24,7 +22,7 @@ from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
 from spacecal.workflows.acquisition import progress_path
 
-from .ur_runs import wait_for_rows
+from .ur_runs import WhenRecorded, wait_for_rows
 
 SPACECAL = [sys.executable, "-m", "spacecal.cli"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
@@ -131,22 +129,9 @@ def tracker_stream(recording):
     return recording.with_name(recording.stem + ".tracker.csv")
 
 
-def start_fault_when_recorded(world, command, recording, rows=30, timeout_s=90.0):
-    """Inject the fault once the run has written ``rows`` samples (not after a fixed delay: on a
-    loaded machine the command may take seconds to start, and the fault would land first)."""
-    stream = tracker_stream(recording)
-
-    def wait_then_fault():
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if stream.is_file() and stream.read_bytes().count(b"\n") > rows:
-                break
-            time.sleep(0.05)
-        world.control(command)
-
-    thread = threading.Thread(target=wait_then_fault, daemon=True)
-    thread.start()
-    return thread
+#: Frames inside the robot stream before a fault or Ctrl-C is sent (``ur_runs.pairable_rows``):
+#: the kept recording is checked to hold more than ten.
+PAIRABLE_BEFORE_STOP = 20
 
 
 FAULTS = {
@@ -161,7 +146,9 @@ FAULTS = {
 def test_faults_stop_the_run_and_keep_every_sample(world, rom_file, tmp_path, fault):
     kind, command, message = FAULTS[fault]
     recording = tmp_path / "rec.csv"
-    start_fault_when_recorded(world, command, recording)
+    # once samples are recorded, not after a fixed delay: on a loaded machine the command may
+    # take seconds to start, and the fault would land first
+    WhenRecorded(world, command, recording, rows=30, pairable=PAIRABLE_BEFORE_STOP)
     run = subprocess.run(
         acquire_command(world, kind, recording, rom_file, "15", "120"),
         capture_output=True,
@@ -209,7 +196,7 @@ def test_ctrl_c_stops_the_robot_and_keeps_the_data(world, rom_file, tmp_path):
     )
     # interrupted once frames are being recorded (a fixed sleep interrupted a loaded machine's
     # run before it had opened the devices)
-    wait_for_rows(recording, 40, process)
+    wait_for_rows(recording, 40, process, pairable=PAIRABLE_BEFORE_STOP)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 1

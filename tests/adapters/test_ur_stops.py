@@ -45,6 +45,9 @@ VANISHED_ENDED_WITHIN_S = 12.0
 
 #: Tracker rows recorded before the stop (the plan is short: 80 rows may be the whole run).
 STOP_AFTER_ROWS = 40
+#: Of them, frames inside the robot stream so far (``ur_runs.pairable_rows``): on a busy
+#: machine the poller of a 500 Hz stream misses stretches, and 40 rows once held 5 such frames.
+PAIRABLE_BEFORE_STOP = 10
 
 
 def paired_times(recording):
@@ -156,7 +159,9 @@ def test_each_stop_ends_the_run_and_nothing_moves_after_it(rom_file, tmp_path, s
     world = ur_world(generation)
     try:
         recording = tmp_path / f"rec-{command.replace(' ', '-')}.csv"
-        fault = WhenRecorded(world, f"ur {command}", recording, rows=STOP_AFTER_ROWS)
+        fault = WhenRecorded(
+            world, f"ur {command}", recording, rows=STOP_AFTER_ROWS, pairable=PAIRABLE_BEFORE_STOP
+        )
         result = run(acquire_argv(world, generation, recording, rom_file))
         fault.join(5)
         assert fault.reply == "OK" and fault.sent_at is not None
@@ -186,7 +191,7 @@ def test_signals_stop_the_robot_at_once_and_keep_the_recording_resumable(rom_fil
             stderr=subprocess.PIPE,
             text=True,
         )
-        wait_for_rows(recording, STOP_AFTER_ROWS, process)
+        wait_for_rows(recording, STOP_AFTER_ROWS, process, pairable=PAIRABLE_BEFORE_STOP)
         world.control("ur mark")
         sent_at = time.monotonic()
         process.send_signal(getattr(signal, signal_name))
@@ -262,7 +267,7 @@ def test_a_controller_that_vanishes_mid_run_ends_the_run(rom_file, tmp_path):
     world = ur_world("cb3")
     try:
         recording = tmp_path / "rec.csv"
-        fault = WhenRecorded(world, "ur vanish", recording)
+        fault = WhenRecorded(world, "ur vanish", recording, pairable=PAIRABLE_BEFORE_STOP)
         result = run(acquire_argv(world, "cb3", recording, rom_file), timeout_s=60)
         ended_after = time.monotonic() - fault.sent_at
         assert result.returncode == 1, result.stderr

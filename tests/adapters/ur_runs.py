@@ -12,6 +12,11 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
+
+from spacecal.estimators.time_offset import LARGEST_GAP_PERIODS, LARGEST_GAP_S
+from spacecal.io.raw_streams import ARRIVAL_COLUMN
+
 from ..fakes.client import WorldProcess
 
 SPACECAL = [sys.executable, "-m", "spacecal.cli"]
@@ -88,30 +93,75 @@ def recorded_rows(recording: Path) -> int:
     return stream.read_bytes().count(b"\n") if stream.is_file() else 0
 
 
-def wait_for_rows(recording: Path, rows: int, process=None, timeout_s: float = 90.0) -> None:
-    """Wait until the run has written more than ``rows`` tracker frames (or ``process`` ended,
-    or ``timeout_s`` passed)."""
+def _complete_lines(path: Path) -> list[str]:
+    """The rows of a stream being written, without its header and any partly written last row."""
+    if not path.is_file():
+        return []
+    text = path.read_text()
+    return text[: text.rfind("\n") + 1].splitlines()
+
+
+def pairable_rows(recording: Path) -> int:
+    """Tracker frames written so far that arrived inside the robot stream written so far, not in
+    a gap of it (the pairing's rule, ``estimators.time_offset.pair_streams``, at the offset the
+    arrivals show).
+
+    The raw robot stream is the controller's ticks as a poller saw them; on a busy machine it
+    misses stretches, and frames in them are not paired. A stop test needs paired frames to
+    check, so it stops the run once there are some, not after a number of tracker rows alone.
+    """
+    robot = _complete_lines(recording.with_name(recording.stem + ".robot.csv"))[1:]
+    tracker = _complete_lines(recording.with_name(recording.stem + ".tracker.csv"))
+    if len(robot) < 2 or len(tracker) < 2:
+        return 0
+    robot_t = np.array([float(line.split(",", 1)[0]) for line in robot])
+    column = tracker[0].split(",").index(ARRIVAL_COLUMN)
+    cells = [line.split(",")[column] for line in tracker[1:]]
+    arrival = np.array([float(cell) for cell in cells if cell])
+    after = np.searchsorted(robot_t, arrival)
+    inside = (after > 0) & (after < len(robot_t))
+    upper = np.clip(after, 1, len(robot_t) - 1)
+    largest = max(LARGEST_GAP_PERIODS * float(np.median(np.diff(robot_t))), LARGEST_GAP_S)
+    return int(np.sum(inside & (robot_t[upper] - robot_t[upper - 1] <= largest)))
+
+
+def wait_for_rows(
+    recording: Path, rows: int, process=None, timeout_s: float = 90.0, pairable: int = 0
+) -> None:
+    """Wait until the run has written more than ``rows`` tracker frames, ``pairable`` of them
+    inside the robot stream (see :func:`pairable_rows`), or ``process`` ended, or ``timeout_s``
+    passed."""
     deadline = time.monotonic() + timeout_s
-    while recorded_rows(recording) <= rows and time.monotonic() < deadline:
+    while time.monotonic() < deadline:
+        if recorded_rows(recording) > rows and (not pairable or pairable_rows(recording) >= pairable):
+            return
         if process is not None and process.poll() is not None:
             return
         time.sleep(0.02)
 
 
 class WhenRecorded(threading.Thread):
-    """Send a world command once the run has written ``rows`` samples; ``sent_at`` is when the
-    world acknowledged it (``time.monotonic``)."""
+    """Send a world command once the run has written ``rows`` samples, ``pairable`` of them
+    inside the robot stream; ``sent_at`` is when the world acknowledged it (``time.monotonic``)."""
 
-    def __init__(self, world: WorldProcess, command: str, recording: Path, rows: int = 20, timeout_s=90.0):
+    def __init__(
+        self,
+        world: WorldProcess,
+        command: str,
+        recording: Path,
+        rows: int = 20,
+        timeout_s: float = 90.0,
+        pairable: int = 0,
+    ):
         super().__init__(daemon=True)
         self.world, self.command, self.recording = world, command, recording
-        self.rows, self.timeout_s = rows, timeout_s
+        self.rows, self.timeout_s, self.pairable = rows, timeout_s, pairable
         self.sent_at: float | None = None
         self.reply = ""
         self.start()
 
     def run(self) -> None:
-        wait_for_rows(self.recording, self.rows, timeout_s=self.timeout_s)
+        wait_for_rows(self.recording, self.rows, timeout_s=self.timeout_s, pairable=self.pairable)
         self.reply = self.world.control(self.command)
         self.sent_at = time.monotonic()
 
