@@ -26,6 +26,15 @@ or not a rigid transform) is never a pose: it is ``missing``. PLUS by default
 transforms of the frame keep coming: a tracker frame (a sender timestamp seen on any message)
 that passes without the marker is a ``missing`` frame. Only a closed connection or the silence
 of the whole stream ends the run. A message with a bad CRC is dropped and counted.
+
+Bounds, against a sender that is not what it claims: a pose message announcing a body larger
+than :data:`POSE_BODY_MAX_BYTES`, or any message larger than :data:`MAX_BODY_BYTES`, ends the
+connection with one :class:`DeviceError` line; other messages above
+:data:`POSE_BODY_MAX_BYTES` (images) are read past without being kept. Waiting is bounded by
+``connect_timeout_s`` on connecting and by each ``next_frame`` timeout after that, which only
+whole messages renew. The calibration is sent with our own socket (pyigtl packs the message):
+pyigtl's client waits without a deadline for a message the server is still sending, before it
+sends, and its ``stop`` waits for that; see :func:`publish_transform`.
 """
 
 from __future__ import annotations
@@ -55,6 +64,9 @@ from spacecal.geometry.transforms import is_rigid_transform, transform_from_posi
 
 #: Time the connection stays open after publishing, so the server reads the message.
 PUBLISH_LINGER_S = 0.3
+#: Deadline of publishing (s): connecting and handing one 106-byte TRANSFORM to the server, which
+#: takes milliseconds on a local network; the linger (:data:`PUBLISH_LINGER_S`) follows.
+PUBLISH_DEADLINE_S = 5.0
 #: Time given to a server's backlog of old messages on connect before frames are read.
 BACKLOG_DRAIN_S = 0.3
 
@@ -63,11 +75,39 @@ MAX_LAG_S = 0.25
 
 HEADER = struct.Struct(">H12s20sQQQ")
 EXTENDED_HEADER = struct.Struct(">HHII")
-#: A body larger than this is not a tracking message (images are read past, not kept).
+#: Largest body of any message accepted, bytes: an OpenIGTLink sender's largest messages are
+#: images (an ultrasound frame is under 1 MB, a 512 x 512 x 100 16-bit volume 50 MB); a larger
+#: announced size (a length field of another protocol, 612 MB) is not an OpenIGTLink stream.
 MAX_BODY_BYTES = 64 * 1024 * 1024
+#: Largest body of a pose message (TRANSFORM, POSITION, TDATA, QTDATA) accepted, bytes: a
+#: TRANSFORM is 48 bytes, a TDATA 70 per tool, and header v2 metadata a few hundred more; 64 kB
+#: is a TDATA of 900 tools. Other messages larger than this are read past, never kept.
+POSE_BODY_MAX_BYTES = 64 * 1024
 TDATA_ELEMENT, QTDATA_ELEMENT = 70, 50
 #: Message types that carry tool poses.
 POSE_TYPES = ("TRANSFORM", "POSITION", "TDATA", "QTDATA")
+
+
+def oversized(header: bytes, url: str) -> str | None:
+    """Why a message header announces a body too large to accept (one line), or None.
+
+    Parameters
+    ----------
+    header : bytes
+        The 58-byte header.
+    url : str
+        The sender, for the message.
+    """
+    _, kind, _, _, body_size, _ = HEADER.unpack(header)
+    kind_text = kind.rstrip(b"\0 ").decode("ascii", "replace")
+    limit = POSE_BODY_MAX_BYTES if kind_text in POSE_TYPES else MAX_BODY_BYTES
+    if body_size <= limit:
+        return None
+    which = "a pose" if limit == POSE_BODY_MAX_BYTES else "any"
+    return (
+        f"{url} is not an OpenIGTLink stream: it announced a {body_size}-byte {kind_text or '?'} "
+        f"message (at most {limit} bytes are accepted for {which} message)"
+    )
 
 
 def _crc64_table() -> list[int]:
@@ -254,6 +294,7 @@ class IGTLTracker:
         self.header_versions: set[int] = set()
         self.crc_errors = 0
         self.stamps: collections.deque = collections.deque(maxlen=256)
+        deadline = time.monotonic() + connect_timeout_s
         try:
             self._socket = socket.create_connection((host, port), timeout=connect_timeout_s)
         except OSError as exc:
@@ -263,7 +304,6 @@ class IGTLTracker:
         self._socket.settimeout(0.2)
         self._thread = threading.Thread(target=self._read_loop, daemon=True)
         self._thread.start()
-        deadline = time.monotonic() + connect_timeout_s
         with self._condition:
             while not self._frames and self._fatal is None and time.monotonic() < deadline:
                 self._condition.wait(0.05)
@@ -293,6 +333,7 @@ class IGTLTracker:
     # -- the reader thread -----------------------------------------------------------------
     def _read_loop(self) -> None:
         buffer = bytearray()
+        skip = 0  # bytes still to read past of a large message that is not kept
         try:
             while not self._closed:
                 try:
@@ -302,12 +343,23 @@ class IGTLTracker:
                 if not chunk:
                     self._fail(f"{self.url} closed the connection")
                     return
+                if skip:
+                    passed = min(skip, len(chunk))
+                    skip, chunk = skip - passed, chunk[passed:]
                 buffer += chunk
                 while len(buffer) >= HEADER.size:
-                    body_size = HEADER.unpack_from(buffer)[4]
-                    if body_size > MAX_BODY_BYTES:
-                        self._fail(f"{self.url} is not an OpenIGTLink stream (a {body_size}-byte message)")
+                    header = bytes(buffer[: HEADER.size])
+                    refusal = oversized(header, self.url)
+                    if refusal is not None:
+                        self._fail(refusal)
                         return
+                    body_size = HEADER.unpack(header)[4]
+                    if body_size > POSE_BODY_MAX_BYTES:  # an image or the like: read past it
+                        self._read_past(header)
+                        passed = min(len(buffer), HEADER.size + body_size)
+                        skip = HEADER.size + body_size - passed
+                        del buffer[:passed]
+                        continue
                     if len(buffer) < HEADER.size + body_size:
                         break
                     header = bytes(buffer[: HEADER.size])
@@ -319,6 +371,19 @@ class IGTLTracker:
                 self._fail(f"{self.url} connection lost ({exc})")
         except InvalidInputError as exc:
             self._fail(str(exc))
+
+    def _read_past(self, header: bytes) -> None:
+        """Count a large message that is not a pose (its body is not kept)."""
+        version, kind, name, _, _, _ = HEADER.unpack(header)
+        with self._condition:
+            self._last_message_at = time.monotonic()
+            self.seen[
+                (
+                    kind.rstrip(b"\0 ").decode("ascii", "replace"),
+                    name.rstrip(b"\0 ").decode("utf-8", "replace"),
+                )
+            ] += 1
+            self.header_versions.add(version)
 
     def _fail(self, reason: str) -> None:
         with self._condition:
@@ -474,30 +539,82 @@ class IGTLTracker:
 def publish_transform(host: str, port: int, name: str, a_from_b, timestamp: float | None = None) -> None:
     """Send one TRANSFORM (e.g. the calibration as ``BaseToTracker``) to an OpenIGTLink server.
 
+    Connecting and sending take at most :data:`PUBLISH_DEADLINE_S`; the connection then stays
+    open :data:`PUBLISH_LINGER_S` while what the server sends is read past (headers only).
+
     Parameters
     ----------
     name : str
         PLUS-style ``<From>To<To>`` name; ``BaseToTracker`` carries ``tracker_from_base``.
     a_from_b : array_like, shape (4, 4), mm
+
+    Raises
+    ------
+    DeviceError
+        No connection or no send within the deadline, or a server that is not an OpenIGTLink
+        server: a message announced larger than the bounds (:func:`oversized`), or the
+        connection closed in the middle of one of its messages.
     """
     pyigtl = require("pyigtl", "igtl")
     matrix = np.asarray(a_from_b, dtype=float)
     if matrix.shape != (4, 4) or not is_rigid_transform(matrix):
         raise InvalidInputError(f"{name}: not a 4x4 rigid transform")
-    client = pyigtl.OpenIGTLinkClient(host=host, port=port)
+    message = pyigtl.TransformMessage(
+        matrix, timestamp=time.time() if timestamp is None else timestamp, device_name=name
+    ).pack()
+    url = f"igtl://{host}:{port}"
+    deadline = time.monotonic() + PUBLISH_DEADLINE_S
     try:
-        deadline = time.monotonic() + 5.0
-        while not client.is_connected():
-            if time.monotonic() > deadline:
-                raise DeviceError(f"could not connect to igtl://{host}:{port}")
-            time.sleep(0.05)
-        message = pyigtl.TransformMessage(
-            matrix, timestamp=time.time() if timestamp is None else timestamp, device_name=name
-        )
-        if not client.send_message(message, wait=True):
-            raise DeviceError(f"could not send {name} to igtl://{host}:{port}")
+        connection = socket.create_connection((host, port), timeout=PUBLISH_DEADLINE_S)
+    except TimeoutError:
+        raise DeviceError(f"could not connect to {url} within {PUBLISH_DEADLINE_S:g} s") from None
+    except OSError as exc:
+        raise DeviceError(f"could not connect to {url} ({exc.strerror or exc})") from None
+    with connection:
+        try:
+            connection.settimeout(max(deadline - time.monotonic(), 0.001))
+            connection.sendall(message)
+        except TimeoutError:
+            raise DeviceError(f"could not send {name} to {url} within {PUBLISH_DEADLINE_S:g} s") from None
+        except OSError as exc:
+            raise DeviceError(f"could not send {name} to {url} ({exc.strerror or exc})") from None
         # Servers stream to every client: closing at once, with their messages unread, resets the
         # connection and can drop ours before the server has read it.
-        time.sleep(PUBLISH_LINGER_S)
-    finally:
-        client.stop()
+        _read_past_until(connection, url, name, time.monotonic() + PUBLISH_LINGER_S)
+
+
+def _read_past_until(connection: socket.socket, url: str, name: str, until: float) -> None:
+    """Read what the server sends until ``until`` (monotonic s), keeping nothing but the header
+    in hand; a closed connection at a message boundary ends it early."""
+    header = bytearray()
+    skip = 0  # body bytes of the current message still to read past
+    while (remaining := until - time.monotonic()) > 0:
+        connection.settimeout(remaining)
+        try:
+            chunk = connection.recv(1 << 16)
+        except TimeoutError:
+            return
+        except OSError as exc:
+            raise DeviceError(
+                f"{url} reset the connection ({exc.strerror or exc}): {name} may not have arrived"
+            ) from None
+        if not chunk:
+            if skip or header:
+                raise DeviceError(
+                    f"{url} closed the connection in the middle of a message: {name} may not have arrived"
+                )
+            return
+        while chunk:
+            if skip:
+                passed = min(skip, len(chunk))
+                skip, chunk = skip - passed, chunk[passed:]
+                continue
+            taken = min(HEADER.size - len(header), len(chunk))
+            header += chunk[:taken]
+            chunk = chunk[taken:]
+            if len(header) == HEADER.size:
+                refusal = oversized(bytes(header), url)
+                if refusal is not None:
+                    raise DeviceError(f"{refusal}; {name} may not have arrived")
+                skip = HEADER.unpack(bytes(header))[4]
+                header.clear()

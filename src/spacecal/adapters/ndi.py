@@ -3,8 +3,9 @@
 
 * Serial: ``ndiProbe`` + ``ndiOpen`` on the port, ``INIT:``, then ``COMM:`` to 115200 8N1.
   TCP: ``ndiOpenNetwork(host, port)`` (Vega default 8765), ``INIT:``.
-* Each passive tool: ``PHRQ`` a handle, upload its ROM (``ndiPVWRFromFile``), ``PINIT``,
-  ``PENA`` (dynamic). The first ROM is the calibration marker.
+* Each passive tool: ``PHRQ`` a handle, upload its ROM (``PVWR`` in 64-byte pieces, as
+  ``ndiPVWRFromFile`` does), ``PINIT``, ``PENA`` (dynamic). The first ROM is the calibration
+  marker.
 * Frames: ``BX:0801`` (binary): transforms and status (0x0001) plus the transforms "not
   normally reported" (0x0800), so a tool out of the characterised volume still comes with its
   pose and the out-of-volume bit instead of plainly missing. Every generation we support
@@ -22,14 +23,30 @@
   handle with none of those bits is an ``ok`` frame; see :func:`frame_status`.
 * A transport error on one reply (bad CRC, a short or garbled reply, a reply timeout) is
   retried :data:`TRANSPORT_RETRIES` times before the tracker counts as lost. ndicapi waits 5 s
-  for a serial reply; over TCP it sets no receive timeout, so a reply that never comes blocks.
+  for each read of a serial reply; over TCP it sets no receive timeout at all, so a reply that
+  never comes would block for ever, and a reply that comes a byte at a time renews any timeout
+  per read.
+* Every ndicapi call that talks to the tracker therefore runs on a worker thread and the caller
+  waits for it until a deadline per call (:data:`NDI_OPEN_DEADLINE_S`, :data:`NDI_INIT_DEADLINE_S`,
+  :data:`NDI_TCP_REPLY_DEADLINE_S`, :data:`NDI_SERIAL_REPLY_DEADLINE_S`,
+  :data:`NDI_CLOSE_DEADLINE_S`). A call past its deadline is a
+  :class:`DeviceError` naming the command and the deadline, and the tracker counts as lost: no
+  further command is sent, a TCP connection is shut down at once (which ends the blocked read),
+  and the device is closed when the worker returns. ndicapy does not give out its socket; it is
+  found among the process's descriptors by its peer's port (Linux, macOS).
 * ndicapy's getters take the port handle as a 1-byte ``bytes``. A missing marker is the
   string ``"MISSING"``. Frame numbers count camera frames; ``time_s`` is frame number / rate.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+import socket
+import stat
+import threading
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +100,129 @@ TRANSPORT_ERRORS = (NDI_BAD_CRC, NDI_TIMEOUT, NDI_BAD_REPLY)
 TRANSPORT_RETRIES = 2
 #: Serial probes before "no NDI tracker answers".
 PROBE_ATTEMPTS = 3
+#: A tool definition is written as its first kB, zero-padded, in ``PVWR`` commands of 64 bytes.
+ROM_BYTES, PVWR_CHUNK_BYTES = 1024, 64
+
+#: Deadline of opening the tracker (s): ``ndiOpenNetwork`` connects with no timeout of its own
+#: (an address where nothing answers takes about 2 min of TCP retries); one ``ndiProbe`` or
+#: ``ndiOpen`` of a serial port, which waits 5 s at most for the tracker's reset reply. A tracker
+#: that is there answers well within a second.
+NDI_OPEN_DEADLINE_S = 10.0
+#: Deadline of ``INIT:`` (s): a tracker's first initialisation takes up to 5 s (PLUS waits that
+#: long for it); 2 s more for a loaded computer.
+NDI_INIT_DEADLINE_S = 7.0
+#: Deadline of any other command and its reply over TCP (s): the tracker answers within one camera
+#: frame (17 ms on a Vega; PLUS waits 100 ms), and ndicapi sets no receive timeout of its own, so
+#: without this a tracker that stops answering would block ``doctor`` and a run for ever. Generous
+#: for a loaded computer.
+NDI_TCP_REPLY_DEADLINE_S = 3.0
+#: Deadline of any other command and its reply over serial (s): ndicapi times a serial read out
+#: itself after 5 s, a transport error that is retried (:data:`TRANSPORT_RETRIES`); this lets it
+#: say so first, and still ends a reply that keeps coming a byte at a time.
+NDI_SERIAL_REPLY_DEADLINE_S = 7.0
+#: Deadline of ``TSTOP:`` when closing (s): a tracker that does not take it is closed anyway.
+NDI_CLOSE_DEADLINE_S = 2.0
+
+
+class _Call:
+    """One blocking ndicapi call on a daemon thread of its own, so its caller can stop waiting.
+
+    ndicapy releases the GIL while it waits for the tracker, so the caller's wait (and a Ctrl-C)
+    goes on. A daemon thread, not an executor: a call that never returns must not keep the
+    process from exiting.
+    """
+
+    def __init__(self, function: Callable, args: tuple):
+        self.value = None
+        self.error: BaseException | None = None
+        self._done = threading.Event()
+        self._lock = threading.Lock()
+        self._then: Callable[[_Call], None] | None = None
+        self.thread = threading.Thread(target=self._run, args=(function, args), name="ndi-call", daemon=True)
+        self.thread.start()
+
+    def _run(self, function: Callable, args: tuple) -> None:
+        try:
+            self.value = function(*args)
+        except BaseException as exc:  # handed to the caller, who decides
+            self.error = exc
+        with self._lock:
+            self._done.set()
+            then = self._then
+        if then is not None:
+            with contextlib.suppress(Exception):
+                then(self)
+
+    def wait(self, timeout_s: float) -> bool:
+        """Whether the call ended within ``timeout_s`` (s)."""
+        return self._done.wait(timeout_s)
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def result(self):
+        if self.error is not None:
+            raise self.error
+        return self.value
+
+    def then(self, action: Callable[[_Call], None]) -> None:
+        """Run ``action(self)`` when the call ends: now if it has, else on its thread."""
+        with self._lock:
+            if not self._done.is_set():
+                self._then = action
+                return
+        action(self)
+
+
+def _sockets() -> set[tuple[int, int]]:
+    """The process's open sockets as (descriptor, inode): a number closed and reused for another
+    socket is a new one (empty where the system does not list descriptors)."""
+    for folder in ("/proc/self/fd", "/dev/fd"):
+        try:
+            descriptors = [int(name) for name in os.listdir(folder)]
+        except (OSError, ValueError):
+            continue
+        found = set()
+        for descriptor in descriptors:
+            with contextlib.suppress(OSError):  # closed since (the listing's own, for one)
+                status = os.fstat(descriptor)
+                if stat.S_ISSOCK(status.st_mode):
+                    found.add((descriptor, status.st_ino))
+        return found
+    return set()
+
+
+def _connection_to(port: int, descriptors: Iterable[int]) -> socket.socket | None:
+    """A duplicate of the one TCP connection to ``port`` among ``descriptors`` (ndicapi's, opened
+    just now), to shut it down when a call passes its deadline; None if not exactly one."""
+    if socket.getdefaulttimeout() is not None:
+        return None  # a socket object made now would make ndicapi's socket non-blocking
+    found = []
+    for descriptor in sorted(descriptors):
+        try:
+            duplicate = os.dup(descriptor)
+        except OSError:
+            continue
+        try:
+            candidate = socket.socket(fileno=duplicate)
+        except OSError:  # not a socket
+            os.close(duplicate)
+            continue
+        try:
+            peer = candidate.getpeername()
+            matches = candidate.type == socket.SOCK_STREAM and isinstance(peer, tuple) and peer[1] == port
+        except OSError:
+            matches = False
+        if matches:
+            found.append(candidate)
+        else:
+            candidate.close()
+    if len(found) == 1:
+        return found[0]
+    for candidate in found:
+        candidate.close()
+    return None
 
 
 def frame_status(handle_result, port_status: int, system_status: int) -> str:
@@ -137,33 +277,19 @@ class NDITracker:
         self.rate_hz = rate_hz
         self.reply = reply
         self.serial = port is None
-        ndi = self._ndi
-        if self.serial:
-            # ndiProbe gives the first reply only 0.1 s; a tracker busy just after power-up or
-            # a loaded host can miss that, so it is asked again before we give up
-            for _ in range(PROBE_ATTEMPTS):
-                if ndi.ndiProbe(address) == ndi.NDI_OKAY:
-                    break
-            else:
-                raise DeviceError(f"no NDI tracker answers on {address}")
-            self._device = ndi.ndiOpen(address)
-        else:
-            self._device = ndi.ndiOpenNetwork(address, port)
-        if not self._device:
-            raise DeviceError(f"could not open the NDI tracker at {address}" + (f":{port}" if port else ""))
-        self._command("INIT:")
-        if self.serial:
-            self._command(f"COMM:{ndi.NDI_115200:d}{ndi.NDI_8N1:03d}{ndi.NDI_NOHANDSHAKE:d}")
-        self.handles = []
-        for rom in rom_files:
-            self._command("PHRQ:*********1****")
-            handle = ndi.ndiGetPHRQHandle(self._device)
-            ndi.ndiPVWRFromFile(self._device, handle, str(rom))
-            self._check(f"uploading {rom}")
-            self._command(f"PINIT:{handle:02X}")
-            self._command(f"PENA:{handle:02X}D")
-            self.handles.append(handle)
-        self._command("TSTART:")
+        #: Why the tracker counts as lost (a call passed its deadline), or None.
+        self._lost: str | None = None
+        self._device = None
+        self._connection: socket.socket | None = None
+        self._released = False
+        self._release_lock = threading.Lock()
+        self._reply_deadline_s = NDI_SERIAL_REPLY_DEADLINE_S if self.serial else NDI_TCP_REPLY_DEADLINE_S
+        try:
+            self._open(address, port)
+            self._set_up(rom_files)
+        except BaseException:
+            self.close()
+            raise
         self._marker = bytes([self.handles[0]])
         self._last_frame_number = -1
         self._bx_answered = False
@@ -173,14 +299,130 @@ class NDITracker:
         #: How many replies failed in transport (CRC, garbled, timeout) and were asked again.
         self.transport_errors_retried = 0
 
+    def _open(self, address: str, port: int | None) -> None:
+        ndi = self._ndi
+        where = address + (f":{port}" if port else "")
+        close = ndi.ndiClose if self.serial else ndi.ndiCloseNetwork
+
+        def close_late(call: _Call) -> None:  # an open that ends after its deadline
+            if call.value:
+                close(call.value)
+
+        if self.serial:
+            # ndiProbe gives the first reply only 0.1 s; a tracker busy just after power-up or
+            # a loaded host can miss that, so it is asked again before we give up
+            for _ in range(PROBE_ATTEMPTS):
+                if self._call(f"probing {where}", NDI_OPEN_DEADLINE_S, ndi.ndiProbe, address) == ndi.NDI_OKAY:
+                    break
+            else:
+                raise DeviceError(f"no NDI tracker answers on {address}")
+            self._device = self._call(
+                f"opening {where}", NDI_OPEN_DEADLINE_S, ndi.ndiOpen, address, late=close_late
+            )
+        else:
+            before = _sockets()
+            self._device = self._call(
+                f"connecting to {where}",
+                NDI_OPEN_DEADLINE_S,
+                ndi.ndiOpenNetwork,
+                address,
+                port,
+                late=close_late,
+            )
+            if self._device:
+                opened = {descriptor for descriptor, _ in _sockets() - before}
+                self._connection = _connection_to(int(port or 0), opened)
+        if not self._device:
+            raise DeviceError(f"could not open the NDI tracker at {where}")
+
+    def _set_up(self, rom_files) -> None:
+        ndi = self._ndi
+        self._command("INIT:")
+        if self.serial:
+            self._command(f"COMM:{ndi.NDI_115200:d}{ndi.NDI_8N1:03d}{ndi.NDI_NOHANDSHAKE:d}")
+        self.handles = []
+        for rom in rom_files:
+            self._command("PHRQ:*********1****")
+            handle = ndi.ndiGetPHRQHandle(self._device)
+            self._upload(handle, Path(rom))
+            self._command(f"PINIT:{handle:02X}")
+            self._command(f"PENA:{handle:02X}D")
+            self.handles.append(handle)
+        self._command("TSTART:")
+
+    def _upload(self, handle: int, rom: Path) -> None:
+        """Write a tool definition to a port handle: what ``ndiPVWRFromFile`` does (the first
+        1 kB of the file, zero-padded, in 64-byte ``PVWR`` commands), one command at a time so
+        each has its deadline; ndicapy holds the GIL through ``ndiPVWRFromFile``, where no
+        deadline could end it."""
+        data = rom.read_bytes()[:ROM_BYTES].ljust(ROM_BYTES, b"\0")
+        for address in range(0, ROM_BYTES, PVWR_CHUNK_BYTES):
+            chunk = data[address : address + PVWR_CHUNK_BYTES]
+            self._command(
+                f"PVWR:{handle:02X}{address:04X}{chunk.hex().upper()}", what=f"uploading {rom.name}"
+            )
+
+    def _call(self, what: str, deadline_s: float, function: Callable, *args, late=None):
+        """``function(*args)`` (an ndicapi call that talks to the tracker), waited for at most
+        ``deadline_s`` (s).
+
+        Raises
+        ------
+        DeviceError
+            The tracker is lost already, or the call did not end by its deadline (it is lost
+            from then on: its TCP connection is shut down and the device closed once the call
+            returns; ``late(call)`` runs then instead, for a call that opens the device).
+        """
+        if self._lost is not None:
+            raise DeviceError(self._lost)
+        call = _Call(function, args)
+        try:
+            ended = call.wait(deadline_s)
+        except BaseException:  # interrupted while waiting: the call may still be running
+            self._abandon(call, f"NDI tracker lost: interrupted while {what}", late)
+            raise
+        if not ended:
+            self._abandon(
+                call,
+                f"NDI tracker lost: no answer while {what} within {deadline_s:g} s; connection closed",
+                late,
+            )
+            raise DeviceError(self._lost)
+        return call.result()
+
+    def _abandon(self, call: _Call, reason: str, late=None) -> None:
+        """Give up a call still running: nothing more is sent, a TCP connection is shut down
+        (its blocked read ends) and the device is closed when the call returns."""
+        self._lost = reason
+        if self._connection is not None:
+            with contextlib.suppress(OSError):
+                self._connection.shutdown(socket.SHUT_RDWR)
+        call.then(late if late is not None else (lambda _: self._release()))
+
+    def _release(self) -> None:
+        """Close the device, once (only when no call on it runs any more)."""
+        with self._release_lock:
+            if self._released:
+                return
+            self._released = True
+        if self._device:
+            with contextlib.suppress(OSError):
+                (self._ndi.ndiClose if self.serial else self._ndi.ndiCloseNetwork)(self._device)
+        if self._connection is not None:
+            with contextlib.suppress(OSError):
+                self._connection.close()
+
     def _check(self, what: str) -> None:
         error = self._ndi.ndiGetError(self._device)
         if error != self._ndi.NDI_OKAY:
             raise DeviceError(f"NDI tracker error while {what}: {self._ndi.ndiErrorString(error)}")
 
-    def _command(self, text: str) -> str:
-        reply = self._ndi.ndiCommand(self._device, text)
-        self._check(f"sending {text.split(':')[0]}")
+    def _command(self, text: str, what: str | None = None) -> str:
+        name = text.split(":")[0]
+        what = what or f"sending {name}"
+        deadline_s = NDI_INIT_DEADLINE_S if name == "INIT" else self._reply_deadline_s
+        reply = self._call(what, deadline_s, self._ndi.ndiCommand, self._device, text)
+        self._check(what)
         return reply
 
     def _request(self, text: str, retries: int = TRANSPORT_RETRIES) -> tuple[str | None, int]:
@@ -188,16 +430,20 @@ class NDITracker:
 
         ndicapy raises ``OSError`` when ndicapi reports an error; the code is read back here. A
         binary reply that ndicapy cannot decode as text (ndicapi#46) was still parsed on the C
-        side: the reply is None then and the getters hold the frame.
+        side: the reply is None then and the getters hold the frame. A reply that does not come
+        within the reply deadline is no transport error: the tracker is lost (:meth:`_call`).
         """
         ndi = self._ndi
         error = ndi.NDI_OKAY
+        what = f"sending {text.split(':')[0].strip()}"
         for attempt in range(retries + 1):
             reply = None
             try:
-                reply = ndi.ndiCommand(self._device, text)
+                reply = self._call(what, self._reply_deadline_s, ndi.ndiCommand, self._device, text)
             except UnicodeDecodeError:
                 self.decode_faults_handled += 1
+            except DeviceError:
+                raise
             except OSError:
                 pass
             error = ndi.ndiGetError(self._device)
@@ -220,6 +466,8 @@ class NDITracker:
             try:
                 _, error = self._request(f"BX:{REPLY_OPTION}")
             except DeviceError:
+                if self._lost is not None:
+                    raise
                 error = NDI_INVALID_COMMAND
             if error == ndi.NDI_OKAY:
                 self._bx_answered = True
@@ -358,12 +606,14 @@ class NDITracker:
         return findings
 
     def close(self) -> None:
-        """Stop tracking and close; a device that is already gone is not an error here."""
-        try:
-            self._ndi.ndiCommand(self._device, "TSTOP:")
-        except OSError:
-            pass
-        try:
-            (self._ndi.ndiClose if self.serial else self._ndi.ndiCloseNetwork)(self._device)
-        except OSError:
-            pass
+        """Stop tracking and close; a device that is already gone is not an error here. Returns
+        within :data:`NDI_CLOSE_DEADLINE_S`; a lost tracker's device is closed when its last
+        call returns."""
+        if self._lost is not None or not self._device:
+            if not self._device:
+                self._release()
+            return
+        with contextlib.suppress(OSError):
+            self._call("sending TSTOP", NDI_CLOSE_DEADLINE_S, self._ndi.ndiCommand, self._device, "TSTOP:")
+        if self._lost is None:
+            self._release()

@@ -217,60 +217,193 @@ def _reported_model(version_text: str, model_text: str) -> str:
     return reported
 
 
-def dashboard(host: str, commands: list[str], timeout_s: float = 2.0) -> list[str]:
-    """Send dashboard-server commands (port 29999), one reply line each."""
+#: Deadline of one whole dashboard-server conversation (port 29999), s: connecting, the greeting
+#: and one reply line per command (``doctor`` sends four). The server answers a query within
+#: milliseconds; this leaves room for a controller busy loading a program and a loaded computer,
+#: and a port that sends one byte at a time cannot stretch it (the bound is on the whole
+#: conversation, not on each read).
+DASHBOARD_DEADLINE_S = 3.0
+#: Deadline of the dashboard ``stop`` (s), run on every way out of a run, after a fault as well:
+#: a controller that has not taken it within this is taken as gone, and the further stops of
+#: this process skip it (see :func:`stop_program`), so a shutdown never waits on it twice.
+STOP_DEADLINE_S = 1.0
+#: Longest dashboard conversation read, bytes: replies are one short line each (the longest, a
+#: program path or a PolyScope 5 error text, a few hundred bytes).
+DASHBOARD_MAX_BYTES = 16 * 1024
+#: Deadline of reading the kinematics from the primary interface (port 30001), s: the controller
+#: sends its version message on connect and the robot state at 10 Hz, so this is 20 chances.
+PRIMARY_DEADLINE_S = 2.0
+#: Largest primary-interface message accepted, bytes: a robot-state message is about 1.1 kB (CB3)
+#: to 1.5 kB (e-Series); a larger announced size is not the primary interface.
+PRIMARY_MESSAGE_MAX_BYTES = 64 * 1024
+#: Most bytes read from the primary interface in one check: 2 s of robot state at 10 Hz and the
+#: controller's other messages are well under 100 kB.
+PRIMARY_MAX_BYTES = 1024 * 1024
+#: Deadline of the RTDE register check (port 30004), s: a protocol-version request and an input
+#: recipe, each answered at once by the controller.
+REGISTER_CHECK_DEADLINE_S = 2.0
+#: Most bytes read in the RTDE register check: the two answers are a few hundred bytes (an RTDE
+#: package is at most 64 kB, its size being 16 bits).
+REGISTER_CHECK_MAX_BYTES = 256 * 1024
+
+
+class _Exchange:
+    """One short conversation with a controller port, bounded as a whole.
+
+    Every read waits at most until one deadline, fixed when the conversation starts (a timeout
+    per read would be renewed for ever by a port that sends one byte at a time), and at most
+    ``max_bytes`` are read in all. Every failure is a :class:`DeviceError` naming the port.
+
+    Parameters
+    ----------
+    host : str
+    port : int
+    what : str
+        The port's name in messages (``"dashboard server"``).
+    deadline_s : float
+        Time for the whole conversation, from connecting to the last reply, s.
+    max_bytes : int
+        Most bytes read in the whole conversation.
+    """
+
+    def __init__(self, host: str, port: int, what: str, deadline_s: float, max_bytes: int):
+        self.name = f"the {what} on {host}:{port}"
+        self.deadline_s = deadline_s
+        self._deadline = time.monotonic() + deadline_s
+        self._left = max_bytes
+        self._max_bytes = max_bytes
+        self._buffer = bytearray()
+        try:
+            self._socket = socket.create_connection((host, port), timeout=deadline_s)
+        except TimeoutError:
+            raise DeviceError(f"{self.name} did not accept a connection within {deadline_s:g} s") from None
+        except OSError as exc:
+            raise DeviceError(f"{self.name} is not reachable ({exc.strerror or exc})") from None
+
+    def __enter__(self) -> _Exchange:
+        return self
+
+    def __exit__(self, *_) -> None:
+        self.close()
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self._socket.close()
+
+    def _remaining_s(self) -> float:
+        remaining = self._deadline - time.monotonic()
+        if remaining <= 0:
+            raise DeviceError(f"{self.name} did not answer in full within {self.deadline_s:g} s")
+        return remaining
+
+    def send(self, data: bytes) -> None:
+        self._socket.settimeout(self._remaining_s())
+        try:
+            self._socket.sendall(data)
+        except TimeoutError:
+            raise DeviceError(f"{self.name} did not take a request within {self.deadline_s:g} s") from None
+        except OSError as exc:
+            raise DeviceError(f"{self.name} dropped the connection ({exc.strerror or exc})") from None
+
+    def _fill(self) -> None:
+        """Read what has come, waiting at most until the deadline."""
+        if self._left <= 0:
+            raise DeviceError(
+                f"{self.name} sent more than {self._max_bytes} bytes: not a controller's answer"
+            )
+        self._socket.settimeout(self._remaining_s())
+        try:
+            chunk = self._socket.recv(min(self._left, 1 << 16))
+        except TimeoutError:
+            raise DeviceError(f"{self.name} did not answer in full within {self.deadline_s:g} s") from None
+        except OSError as exc:
+            raise DeviceError(f"{self.name} dropped the connection ({exc.strerror or exc})") from None
+        if not chunk:
+            raise DeviceError(f"{self.name} closed the connection in the middle of an answer")
+        self._left -= len(chunk)
+        self._buffer += chunk
+
+    def read_exact(self, count: int) -> bytes:
+        """Exactly ``count`` bytes."""
+        if count > self._max_bytes:
+            raise DeviceError(f"{self.name} announced a {count}-byte message: not a controller's answer")
+        while len(self._buffer) < count:
+            self._fill()
+        data = bytes(self._buffer[:count])
+        del self._buffer[:count]
+        return data
+
+    def read_line(self) -> str:
+        """One line, without its end."""
+        while b"\n" not in self._buffer:
+            self._fill()
+        line, _, rest = bytes(self._buffer).partition(b"\n")
+        self._buffer[:] = rest
+        return line.decode("utf-8", errors="replace").strip()
+
+
+def dashboard(host: str, commands: list[str], deadline_s: float = DASHBOARD_DEADLINE_S) -> list[str]:
+    """Send dashboard-server commands (port 29999), one reply line each.
+
+    Parameters
+    ----------
+    host : str
+    commands : list of str
+    deadline_s : float
+        Time for the whole conversation, s (:data:`DASHBOARD_DEADLINE_S`).
+
+    Raises
+    ------
+    DeviceError
+        Nothing listens, the conversation is not over by the deadline, the server closed the
+        connection, or it sent more than :data:`DASHBOARD_MAX_BYTES`.
+    """
     replies = []
-    with socket.create_connection((host, DASHBOARD_PORT), timeout=timeout_s) as connection:
-        stream = connection.makefile("rw", encoding="utf-8", newline="\n")
-        stream.readline()  # greeting
+    with _Exchange(host, DASHBOARD_PORT, "dashboard server", deadline_s, DASHBOARD_MAX_BYTES) as exchange:
+        exchange.read_line()  # greeting
         for command in commands:
-            stream.write(command + "\n")
-            stream.flush()
-            replies.append(stream.readline().strip())
+            exchange.send((command + "\n").encode())
+            replies.append(exchange.read_line())
     return replies
 
 
 #: Controllers whose dashboard server stayed silent in this process (switched off, cable pulled):
-#: each further attempt would only wait out its timeout again.
+#: each further attempt would only wait out its deadline again.
 _SILENT_HOSTS: set[str] = set()
 
 
 def stop_program(host: str) -> None:
     """Stop the running program through the dashboard server (``stop``), unless this
-    controller has already stayed silent once in this process; never raises."""
+    controller has already failed to take it once in this process; never raises, and returns
+    within :data:`STOP_DEADLINE_S` (plus the time to set up a connection)."""
     if host in _SILENT_HOSTS:
         return
     try:
-        dashboard(host, ["stop"], timeout_s=1.0)
-    except OSError:
+        dashboard(host, ["stop"], deadline_s=STOP_DEADLINE_S)
+    except (OSError, ValueError):
         _SILENT_HOSTS.add(host)
 
 
-def _recv_exact(connection: socket.socket, count: int) -> bytes:
-    data = b""
-    while len(data) < count:
-        chunk = connection.recv(count - len(data))
-        if not chunk:
-            raise ConnectionError("closed by the controller")
-        data += chunk
-    return data
-
-
-def registers_in_use(host: str, names: list[str] = CONTROL_INPUTS, timeout_s: float = 2.0) -> list[str]:
+def registers_in_use(
+    host: str, names: list[str] = CONTROL_INPUTS, deadline_s: float = REGISTER_CHECK_DEADLINE_S
+) -> list[str]:
     """RTDE inputs another client holds: set up an input recipe and read which fields answer
-    ``IN_USE`` (nothing is written; the recipe ends with the connection)."""
+    ``IN_USE`` (nothing is written; the recipe ends with the connection). The whole check ends
+    within ``deadline_s`` (:data:`REGISTER_CHECK_DEADLINE_S`) or raises :class:`DeviceError`."""
 
-    def request(connection, kind: str, payload: bytes) -> bytes:
-        connection.sendall(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
+    def request(exchange: _Exchange, kind: str, payload: bytes) -> bytes:
+        exchange.send(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
         while True:  # skip anything that is not the answer (there is no stream: never started)
-            size, answer = struct.unpack(">HB", _recv_exact(connection, 3))
-            body = _recv_exact(connection, size - 3)
+            size, answer = struct.unpack(">HB", exchange.read_exact(3))
+            if size < 3:
+                raise DeviceError(f"{exchange.name} sent a {size}-byte package: not RTDE")
+            body = exchange.read_exact(size - 3)
             if answer == ord(kind):
                 return body
 
-    with socket.create_connection((host, RTDE_PORT), timeout=timeout_s) as connection:
-        request(connection, "V", struct.pack(">H", 2))
-        reply = request(connection, "I", ",".join(names).encode())
+    with _Exchange(host, RTDE_PORT, "RTDE interface", deadline_s, REGISTER_CHECK_MAX_BYTES) as exchange:
+        request(exchange, "V", struct.pack(">H", 2))
+        reply = request(exchange, "I", ",".join(names).encode())
     types = reply[1:].decode(errors="replace").split(",")
     return [name for name, kind in zip(names, types) if kind == "IN_USE"]
 
@@ -310,14 +443,26 @@ class ControllerKinematics:
         )
 
 
-def read_primary_interface(host: str, timeout_s: float = 2.0) -> ControllerKinematics:
+def read_primary_interface(host: str, deadline_s: float = PRIMARY_DEADLINE_S) -> ControllerKinematics:
     """The ``KinematicsInfo`` and ``CartesianInfo`` of the primary interface's robot-state
-    message (type 16; sub-packages 5 and 4), as Universal_Robots_Client_Library parses them."""
-    deadline = time.monotonic() + timeout_s
-    with socket.create_connection((host, PRIMARY_PORT), timeout=timeout_s) as connection:
-        while time.monotonic() < deadline:
-            size, kind = struct.unpack(">iB", _recv_exact(connection, 5))
-            body = _recv_exact(connection, size - 5)
+    message (type 16; sub-packages 5 and 4), as Universal_Robots_Client_Library parses them.
+
+    Raises
+    ------
+    DeviceError
+        No robot state with kinematics within ``deadline_s`` (:data:`PRIMARY_DEADLINE_S`), a
+        message announced larger than :data:`PRIMARY_MESSAGE_MAX_BYTES`, more than
+        :data:`PRIMARY_MAX_BYTES` read, or the connection closed.
+    """
+    with _Exchange(host, PRIMARY_PORT, "primary interface", deadline_s, PRIMARY_MAX_BYTES) as exchange:
+        while True:
+            size, kind = struct.unpack(">iB", exchange.read_exact(5))
+            if not 5 <= size <= PRIMARY_MESSAGE_MAX_BYTES:
+                raise DeviceError(
+                    f"{exchange.name} announced a {size}-byte message (at most "
+                    f"{PRIMARY_MESSAGE_MAX_BYTES} are accepted): not the primary interface"
+                )
+            body = exchange.read_exact(size - 5)
             if kind != 16:  # version and other robot messages
                 continue
             found: dict[int, bytes] = {}
@@ -348,7 +493,6 @@ def read_primary_interface(host: str, timeout_s: float = 2.0) -> ControllerKinem
                 int(status),
                 tcp,
             )
-    raise DeviceError(f"no robot state with kinematics from {host}:{PRIMARY_PORT}")
 
 
 def _version(text: str) -> tuple[int, ...] | None:
@@ -475,8 +619,7 @@ class URRobot:
             version_text, model_text = dashboard(self.host, ["PolyscopeVersion", "get robot model"])
         except OSError as exc:
             raise DeviceError(
-                f"the UR controller on {self.host} did not say its model (dashboard: {exc}); "
-                "pass --robot-model"
+                f"the UR controller on {self.host} did not say its model ({exc}); pass --robot-model"
             ) from None
         reported = _reported_model(version_text, model_text)
         if reported not in UR_TABLES:
@@ -555,7 +698,7 @@ class URRobot:
                 self.host, ["PolyscopeVersion", "get robot model", "is in remote control", "programState"]
             )
         except OSError as exc:
-            add(FINDING_PROBLEM, "dashboard", f"no dashboard server answers on {self.host}:29999 ({exc})")
+            add(FINDING_PROBLEM, "dashboard", f"no answer: {exc}")
             version_text = model_text = remote = program = ""
         else:
             version = _version(version_text)

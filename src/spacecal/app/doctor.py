@@ -71,6 +71,8 @@ def doctor(settings: DoctorSettings) -> DoctorOutput:
             try:
                 _, found = robot_findings(robot, settings.robot_model, _tool(settings.tool))
                 output.findings += [("robot", f) for f in found]
+            except DeviceError as exc:  # it stopped answering (a call passed its deadline)
+                output.findings.append(("robot", _connection_problem(exc)))
             finally:
                 _close(robot)
     if settings.tracker:
@@ -85,6 +87,8 @@ def doctor(settings: DoctorSettings) -> DoctorOutput:
         else:
             try:
                 output.findings += [("tracker", f) for f in tracker_findings(tracker)]
+            except DeviceError as exc:  # it stopped answering (a call passed its deadline)
+                output.findings.append(("tracker", _connection_problem(exc)))
             finally:
                 _close(tracker)
     return output

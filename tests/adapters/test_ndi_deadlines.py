@@ -1,0 +1,136 @@
+"""Every NDI call over TCP ends by its deadline, against trackers that answer like the Combined API
+fake until one command, then stop answering, answer a byte at a time, announce a huge binary
+reply, or close the connection in the middle of the reply.
+
+The bounds are the deadlines plus a margin for a loaded 2-core machine, never tight times."""
+
+import itertools
+import struct
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("ndicapy")
+
+from spacecal.adapters import ndi
+from spacecal.adapters.ndi import NDITracker
+from spacecal.core.errors import DeviceError
+
+from ..fakes.ndi import FakeNDI, crc16, split_command
+from ..fakes.peers import Peer, announce, drip, hang_up, silent
+
+#: Time on top of a deadline for a loaded machine, s.
+MARGIN_S = 5.0
+
+
+def ndi_peer(trigger: str, behaviour, skip: int = 0):
+    """A tracker that answers like the Combined API fake until the ``skip + 1``-th command
+    starting with ``trigger``, then hands the connection to ``behaviour`` (with the reply the
+    fake would have sent)."""
+    pose = np.eye(4)
+    pose[:3, 3] = [10.0, 20.0, -1500.0]
+    frames = itertools.count(100)
+
+    def serve(connection, peer):
+        device = FakeNDI(lambda: (next(frames), pose, 0.1))
+        seen = 0
+        buffer = b""
+        connection.settimeout(0.1)
+        while not peer.stop.is_set():
+            try:
+                chunk = connection.recv(4096)
+            except TimeoutError:
+                continue
+            if not chunk:
+                peer.ended.set()
+                return
+            buffer += chunk
+            while b"\r" in buffer:
+                line, buffer = buffer.split(b"\r", 1)
+                command = split_command(line)
+                reply = device.handle(command) or b""
+                if command.upper().startswith(trigger):
+                    seen += 1
+                    if seen > skip:
+                        behaviour(connection, peer, reply)
+                        return
+                connection.sendall(reply)
+
+    return serve
+
+
+def huge_binary_reply(connection, peer, honest=b""):
+    """A BX reply header announcing the largest body there is (64 kB), then nothing."""
+    header = struct.pack("<HH", 0xA5C4, 0xFFFF)
+    announce(header + struct.pack("<H", crc16(header)))(connection, peer, honest)
+
+
+def open_tracker(peer, rom_file, **options):
+    return NDITracker(peer.host, peer.port, [rom_file], **options)
+
+
+def test_a_tracker_silent_on_init_ends_by_the_init_deadline(rom_file):
+    with Peer(ndi_peer("INIT", silent)) as peer:
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match=r"INIT within 7 s") as caught:
+            open_tracker(peer, rom_file)
+        assert time.monotonic() - started < ndi.NDI_INIT_DEADLINE_S + MARGIN_S
+        assert "\n" not in str(caught.value)
+        assert peer.ended.wait(MARGIN_S)  # the connection given up is closed
+
+
+@pytest.mark.parametrize(
+    ("name", "behaviour"),
+    [("silent", silent), ("a byte at a time", drip), ("huge length", huge_binary_reply)],
+)
+def test_a_frame_request_ends_by_the_reply_deadline(rom_file, name, behaviour):
+    # the second BX: the first has shown that this firmware answers BX
+    with Peer(ndi_peer("BX", behaviour, skip=1)) as peer:
+        tracker = open_tracker(peer, rom_file)
+        tracker.next_frame(2.0)
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match=r"NDI tracker lost: no answer while sending BX within 3 s"):
+            tracker.next_frame(30.0)
+        assert time.monotonic() - started < ndi.NDI_TCP_REPLY_DEADLINE_S + MARGIN_S
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="NDI tracker lost"):  # lost: nothing more is sent
+            tracker.next_frame(1.0)
+        tracker.close()
+        assert time.monotonic() - started < MARGIN_S
+        assert peer.ended.wait(MARGIN_S)
+
+
+def test_a_reply_cut_off_by_a_closed_connection_is_a_lost_tracker(rom_file):
+    with Peer(ndi_peer("BX", hang_up, skip=1)) as peer:
+        tracker = open_tracker(peer, rom_file)
+        tracker.next_frame(2.0)
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="NDI tracker"):
+            tracker.next_frame(30.0)
+        assert time.monotonic() - started < ndi.NDI_TCP_REPLY_DEADLINE_S + MARGIN_S
+        tracker.close()
+
+
+def test_the_read_only_checks_end_by_the_reply_deadline(rom_file):
+    """``spacecal doctor``'s tracker checks: VER unanswered."""
+    with Peer(ndi_peer("VER", silent)) as peer:
+        tracker = open_tracker(peer, rom_file)
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="VER within 3 s"):
+            tracker.preflight(duration_s=0.5)
+        assert time.monotonic() - started < ndi.NDI_TCP_REPLY_DEADLINE_S + MARGIN_S
+        tracker.close()
+
+
+def test_the_doctor_reports_a_tracker_that_stops_answering_in_one_line(rom_file, capsys):
+    from spacecal.cli.main import main
+
+    with Peer(ndi_peer("VER", silent)) as peer:
+        started = time.monotonic()
+        code = main(["doctor", "--tracker", f"ndi://{peer.host}:{peer.port}", "--rom", str(rom_file)])
+        assert time.monotonic() - started < ndi.NDI_TCP_REPLY_DEADLINE_S + ndi.NDI_CLOSE_DEADLINE_S + MARGIN_S
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert "tracker: connection: PROBLEM: NDI tracker lost: no answer while sending VER within 3 s" in out
+    assert len(err.strip().splitlines()) == 1
