@@ -5,7 +5,10 @@ reply, or close the connection in the middle of the reply.
 The bounds are the deadlines plus a margin for a loaded 2-core machine, never tight times."""
 
 import itertools
+import os
+import signal
 import struct
+import threading
 import time
 
 import numpy as np
@@ -24,10 +27,11 @@ from ..fakes.peers import Peer, announce, drip, hang_up, silent
 MARGIN_S = 5.0
 
 
-def ndi_peer(trigger: str, behaviour, skip: int = 0):
+def ndi_peer(trigger: str, behaviour, skip: int = 0, commands: list | None = None):
     """A tracker that answers like the Combined API fake until the ``skip + 1``-th command
     starting with ``trigger``, then hands the connection to ``behaviour`` (with the reply the
-    fake would have sent)."""
+    fake would have sent); a behaviour that returns True has answered, and the tracker goes on.
+    Every command received is appended to ``commands``."""
     pose = np.eye(4)
     pose[:3, 3] = [10.0, 20.0, -1500.0]
     frames = itertools.count(100)
@@ -49,11 +53,14 @@ def ndi_peer(trigger: str, behaviour, skip: int = 0):
             while b"\r" in buffer:
                 line, buffer = buffer.split(b"\r", 1)
                 command = split_command(line)
+                if commands is not None:
+                    commands.append(command)
                 reply = device.handle(command) or b""
                 if command.upper().startswith(trigger):
                     seen += 1
                     if seen > skip:
-                        behaviour(connection, peer, reply)
+                        if behaviour(connection, peer, reply):
+                            continue
                         return
                 connection.sendall(reply)
 
@@ -64,6 +71,17 @@ def huge_binary_reply(connection, peer, honest=b""):
     """A BX reply header announcing the largest body there is (64 kB), then nothing."""
     header = struct.pack("<HH", 0xA5C4, 0xFFFF)
     announce(header + struct.pack("<H", crc16(header)))(connection, peer, honest)
+
+
+def late(seconds: float):
+    """A behaviour that answers ``seconds`` late (within the deadline), then goes on."""
+
+    def behave(connection, peer, honest=b""):
+        time.sleep(seconds)
+        connection.sendall(honest)
+        return True
+
+    return behave
 
 
 def open_tracker(peer, rom_file, **options):
@@ -134,3 +152,23 @@ def test_the_doctor_reports_a_tracker_that_stops_answering_in_one_line(rom_file,
     assert code == 1
     assert "tracker: connection: PROBLEM: NDI tracker lost: no answer while sending VER within 3 s" in out
     assert len(err.strip().splitlines()) == 1
+
+
+def test_an_interrupted_frame_request_ends_at_once_and_the_tracker_is_still_stopped(rom_file):
+    """Ctrl-C (or a signal) while a frame is on its way: the caller goes on at once (it has a
+    robot to stop), and closing waits for the reply before it sends ``TSTOP``, so the tracker
+    is left stopped, not tracking (an interrupt once made the tracker count as lost, and it was
+    left tracking)."""
+    commands: list = []
+    with Peer(ndi_peer("BX", late(1.5), skip=1, commands=commands)) as peer:
+        tracker = open_tracker(peer, rom_file)
+        tracker.next_frame(2.0)
+        timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
+        timer.start()
+        started = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            tracker.next_frame(30.0)
+        interrupted_after = time.monotonic() - started
+        assert interrupted_after < 1.2, interrupted_after  # not once the late reply came (1.5 s)
+        tracker.close()
+        assert any(command.upper().startswith("TSTOP") for command in commands), commands

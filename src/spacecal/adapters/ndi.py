@@ -279,6 +279,9 @@ class NDITracker:
         self.serial = port is None
         #: Why the tracker counts as lost (a call passed its deadline), or None.
         self._lost: str | None = None
+        #: A call an interruption stopped waiting for: (call, deadline on the monotonic clock,
+        #: what it did, its deadline in s, its ``late`` action), or None.
+        self._pending: tuple | None = None
         self._device = None
         self._connection: socket.socket | None = None
         self._released = False
@@ -373,22 +376,44 @@ class NDITracker:
             from then on: its TCP connection is shut down and the device closed once the call
             returns; ``late(call)`` runs then instead, for a call that opens the device).
         """
-        if self._lost is not None:
-            raise DeviceError(self._lost)
+        self._settle()
         call = _Call(function, args)
+        deadline = time.monotonic() + deadline_s
         try:
             ended = call.wait(deadline_s)
-        except BaseException:  # interrupted while waiting: the call may still be running
-            self._abandon(call, f"NDI tracker lost: interrupted while {what}", late)
+        except BaseException:
+            # Interrupted while waiting (Ctrl-C, a signal): the caller goes on at once (it
+            # stops the robot), and the call is left to end by its deadline; the next call,
+            # closing's TSTOP among them, waits for it first (:meth:`_settle`).
+            self._pending = (call, deadline, what, deadline_s, late)
             raise
         if not ended:
-            self._abandon(
-                call,
-                f"NDI tracker lost: no answer while {what} within {deadline_s:g} s; connection closed",
-                late,
-            )
+            self._abandon(call, self._no_answer(what, deadline_s), late)
             raise DeviceError(self._lost)
         return call.result()
+
+    @staticmethod
+    def _no_answer(what: str, deadline_s: float) -> str:
+        return f"NDI tracker lost: no answer while {what} within {deadline_s:g} s; connection closed"
+
+    def _settle(self) -> None:
+        """Before a call: the tracker is not lost, and a call an interruption left running has
+        ended by its deadline (else the tracker is lost now).
+
+        Raises
+        ------
+        DeviceError
+            The tracker is lost.
+        """
+        if self._lost is not None:
+            raise DeviceError(self._lost)
+        if self._pending is None:
+            return
+        call, deadline, what, deadline_s, late = self._pending
+        self._pending = None
+        if not call.wait(max(0.0, deadline - time.monotonic())):
+            self._abandon(call, self._no_answer(what, deadline_s), late)
+            raise DeviceError(self._lost)
 
     def _abandon(self, call: _Call, reason: str, late=None) -> None:
         """Give up a call still running: nothing more is sent, a TCP connection is shut down
@@ -606,14 +631,17 @@ class NDITracker:
         return findings
 
     def close(self) -> None:
-        """Stop tracking and close; a device that is already gone is not an error here. Returns
-        within :data:`NDI_CLOSE_DEADLINE_S`; a lost tracker's device is closed when its last
-        call returns."""
+        """Stop tracking and close; a device that is already gone is not an error here.
+
+        A call an interruption left running is waited for first, up to its own deadline (an
+        answering tracker ends it within a frame), so that ``TSTOP`` reaches the tracker; then
+        ``TSTOP`` within :data:`NDI_CLOSE_DEADLINE_S`. A lost tracker's device is closed when
+        its last call returns."""
         if self._lost is not None or not self._device:
             if not self._device:
                 self._release()
             return
-        with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError, DeviceError):  # DeviceError: lost by now; closed on return
             self._call("sending TSTOP", NDI_CLOSE_DEADLINE_S, self._ndi.ndiCommand, self._device, "TSTOP:")
         if self._lost is None:
             self._release()
