@@ -25,7 +25,10 @@ from spacecal.core.ports import (
     FINDING_OK,
     FINDING_PROBLEM,
     FINDING_WARNING,
+    Closable,
+    ControlledRobot,
     DeviceFinding,
+    ModelledRobot,
     Preflight,
     Robot,
     Tracker,
@@ -270,10 +273,9 @@ def open_hardware(settings: AcquireSettings) -> tuple[Robot, Tracker]:
 
 
 def _close(device: object) -> None:
-    close = getattr(device, "close", None)
-    if close is not None:
+    if isinstance(device, Closable):
         with contextlib.suppress(OSError):
-            close()  # closing must not mask the error that stopped the run
+            device.close()  # closing must not mask the error that stopped the run
 
 
 @contextlib.contextmanager
@@ -331,16 +333,15 @@ def hardware_model(
     """The controller's kinematic model (its calibrated DH and pendant TCP where it publishes
     them) checked against what it reports and against ``--robot-model`` (None: the model the
     robot names) / ``--tool`` (None: the controller's TCP)."""
-    named = getattr(robot, "nominal", None)
+    modelled = robot if isinstance(robot, ModelledRobot) else None
     if robot_model is not None:
         nominal = ur_model(robot_model)
-    elif isinstance(named, RobotModel):
-        nominal = named
+    elif modelled is not None and isinstance(modelled.nominal, RobotModel):
+        nominal = modelled.nominal
     else:
         raise InvalidInputError("this robot does not name its model: pass --robot-model")
-    controller_model = getattr(robot, "controller_model", None)
-    if controller_model is not None:
-        model, source = controller_model()
+    if modelled is not None:
+        model, source = modelled.controller_model()
     else:  # a robot that cannot say: the nominal model with the user's tool
         model = nominal.with_tcp(tool_transform(tool if tool is not None else (0.0,) * 6))
         source = f"the nominal {nominal.name} model"
@@ -375,7 +376,7 @@ def hardware_model(
                 f"{source} puts the TCP {mismatch:.1f} mm from where the controller reports it",
             )
         )
-    return HardwareModel(model, source, findings, getattr(robot, "kinematics", None) is not None)
+    return HardwareModel(model, source, findings, modelled is not None and modelled.kinematics is not None)
 
 
 def tcp_text(flange_from_tcp: np.ndarray) -> str:
@@ -518,9 +519,8 @@ def refuse_when_not_ready(findings: list[DeviceFinding]) -> None:
 def upload_control_program(robot: Robot) -> None:
     """Connect the robot's control interface (its program is uploaded only now, after every
     read-only check has passed and motion is confirmed); a robot without one has nothing to do."""
-    connect_control = getattr(robot, "connect_control", None)
-    if connect_control is not None:
-        connect_control()
+    if isinstance(robot, ControlledRobot):
+        robot.connect_control()
 
 
 def finding_line(device: str, finding: DeviceFinding) -> str:

@@ -8,7 +8,7 @@ Units at this boundary are spacecal's: mm, rad, seconds.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -213,6 +213,55 @@ class Robot(Protocol):
 
     def stop(self) -> None:
         """Decelerate and stop any motion now."""
+
+
+# Optional robot capabilities: a workflow asks ``isinstance(robot, StreamingRobot)``, never
+# probes for a method's name. A UR controller (spacecal.adapters.ur) has all of them; the
+# simulated arm streams its states; a robot that has none of them is still a Robot.
+
+
+@runtime_checkable
+class StreamingRobot(Protocol):
+    """A robot that keeps every controller state it receives, for the raw robot stream."""
+
+    def drain_states(self) -> list[RobotState]:
+        """The states received since the last call, oldest first (each once)."""
+
+
+@runtime_checkable
+class ModelledRobot(Protocol):
+    """A robot whose controller names its model and publishes the kinematics it runs.
+
+    Attributes
+    ----------
+    nominal : spacecal.models.RobotModel
+        The nominal model (the one the controller names, or the one the user gave).
+    kinematics : object or None
+        What the controller published of its calibrated kinematics (None: nothing).
+    """
+
+    nominal: Any
+    kinematics: Any
+
+    def controller_model(self) -> tuple[Any, str]:
+        """(the RobotModel the controller runs: its DH and TCP, where it came from in words)."""
+
+
+@runtime_checkable
+class ControlledRobot(Protocol):
+    """A robot opened read-only whose control interface is connected (its program uploaded)
+    only after every check has passed and motion is confirmed."""
+
+    def connect_control(self) -> None:
+        """Connect the control interface; nothing moves."""
+
+
+@runtime_checkable
+class Closable(Protocol):
+    """A device holding a connection, closed on every way out."""
+
+    def close(self) -> None:
+        """Release the device; never raises for a device already gone."""
 
 
 @runtime_checkable

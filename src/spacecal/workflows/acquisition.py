@@ -19,12 +19,12 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NoReturn, Protocol
+from typing import Any, NoReturn, Protocol, runtime_checkable
 
 import numpy as np
 
 from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
-from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, Tracker
+from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, StreamingRobot, Tracker
 from spacecal.estimators.time_offset import Pairing, pair_at_estimated_offset
 from spacecal.io.raw_streams import RawStreamWriter, read_raw_recording, stream_paths
 from spacecal.io.recording_csv import write_recording
@@ -167,6 +167,7 @@ class SampleSink(Protocol):
         it arrived (``robot_time_s`` on the robot's clock)."""
 
 
+@runtime_checkable
 class RobotStreamSink(Protocol):
     """A sink that also keeps the robot's own state stream (every controller tick)."""
 
@@ -244,8 +245,8 @@ def run_plan(
         Called with every tracker frame (see :data:`FrameObserver`); costs one comparison
         per frame when None.
     """
-    streams = hasattr(sink, "add_robot_states")
-    drains = streams and hasattr(robot, "drain_states")
+    stream_sink = sink if isinstance(sink, RobotStreamSink) else None
+    streaming_robot = robot if isinstance(robot, StreamingRobot) else None
     first_move = progress.moves_completed
     for index in range(first_move, len(plan.moves)):
         move = plan.moves[index]
@@ -269,13 +270,13 @@ def run_plan(
             except DeviceError as exc:
                 raise RunFault(f"tracker lost ({exc})") from exc
             state = robot.state()
-            if streams:
+            if stream_sink is not None:
                 # The stream since the last frame, through every move and the moments between
                 # them (a frame delivered late pairs with the state it was captured at, and no
                 # gap opens at a move's start); or, for a robot that keeps no stream, the state
                 # just read. The sink skips a state not newer than the last it kept.
-                states = robot.drain_states() if drains else []  # type: ignore[attr-defined]
-                sink.add_robot_states(states or [state], move.label)  # type: ignore[attr-defined]
+                states = streaming_robot.drain_states() if streaming_robot is not None else []
+                stream_sink.add_robot_states(states or [state], move.label)
             if state.safety != SAFETY_NORMAL:
                 raise RunFault(f"robot {state.safety.replace('_', ' ')}")
             # Stale robot data: its timestamp stands still while the tracker's advances. Each
