@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from spacecal.adapters import require
+from spacecal.adapters import IGTL_DEFAULT_PORT, DeviceAddress, DeviceOptions, require
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import (
     FINDING_OK,
@@ -60,6 +60,7 @@ from spacecal.core.ports import (
     DeviceFinding,
     TrackerFrame,
 )
+from spacecal.core.text import one_line_ascii
 from spacecal.geometry.transforms import is_rigid_transform, transform_from_position_quaternion
 
 #: Time the connection stays open after publishing, so the server reads the message.
@@ -105,7 +106,9 @@ def oversized(header: bytes, url: str) -> str | None:
         return None
     which = "a pose" if limit == POSE_BODY_MAX_BYTES else "any"
     return (
-        f"{url} is not an OpenIGTLink stream: it announced a {body_size}-byte {kind_text or '?'} "
+        # the type name is the sender's bytes: escaped, so it cannot break or colour the line
+        f"{url} is not an OpenIGTLink stream: it announced a {body_size}-byte "
+        f"{one_line_ascii(kind_text) or '?'} "
         f"message (at most {limit} bytes are accepted for {which} message)"
     )
 
@@ -272,7 +275,7 @@ class IGTLTracker:
     def __init__(
         self,
         host: str,
-        port: int = 18944,
+        port: int = IGTL_DEFAULT_PORT,
         device_name: str = "MarkerToTracker",
         connect_timeout_s: float = 5.0,
     ):
@@ -618,3 +621,8 @@ def _read_past_until(connection: socket.socket, url: str, name: str, until: floa
                     raise DeviceError(f"{refusal}; {name} may not have arrived")
                 skip = HEADER.unpack(bytes(header))[4]
                 header.clear()
+
+
+def open_device(address: DeviceAddress, options: DeviceOptions) -> IGTLTracker:
+    """The ``igtl://`` row of the URL table (:data:`spacecal.adapters.DEVICE_SCHEMES`)."""
+    return IGTLTracker(address.host, address.port or IGTL_DEFAULT_PORT)

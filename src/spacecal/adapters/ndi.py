@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spacecal.adapters import require
+from spacecal.adapters import NDI_TCP_DEFAULT_PORT, DeviceAddress, DeviceOptions, require
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import (
     FINDING_OK,
@@ -69,7 +69,7 @@ from spacecal.core.ports import (
 )
 from spacecal.geometry.transforms import transform_from_position_quaternion
 
-VEGA_DEFAULT_PORT = 8765
+VEGA_DEFAULT_PORT = NDI_TCP_DEFAULT_PORT
 #: The reply option we ask for: transforms and status, including "not normally reported" ones.
 REPLY_OPTION = "0801"
 
@@ -645,3 +645,16 @@ class NDITracker:
             self._call("sending TSTOP", NDI_CLOSE_DEADLINE_S, self._ndi.ndiCommand, self._device, "TSTOP:")
         if self._lost is None:
             self._release()
+
+
+def open_device(address: DeviceAddress, options: DeviceOptions) -> NDITracker:
+    """The ``ndi://`` row of the URL table (:data:`spacecal.adapters.DEVICE_SCHEMES`): a serial
+    port (``ndi:///dev/ttyUSB0``) or a TCP host (a Vega)."""
+    if not options.rom:
+        raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
+    return NDITracker(
+        address.host,
+        None if address.serial else address.port,
+        list(options.rom),
+        rate_hz=options.tracker_rate_hz,
+    )

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spacecal.adapters import require
+from spacecal.adapters import DeviceAddress, DeviceOptions, require
 from spacecal.core.errors import DeviceError
 from spacecal.core.ports import (
     FINDING_OK,
@@ -993,3 +993,10 @@ def end_programs_left_running() -> None:
     ends with it)."""
     for host in dict.fromkeys(host for _, host in _KEPT_FOREVER):
         stop_program(host)
+
+
+def open_device(address: DeviceAddress, options: DeviceOptions) -> URRobot:
+    """The ``ur://`` row of the URL table (:data:`spacecal.adapters.DEVICE_SCHEMES`)."""
+    return URRobot(
+        address.host, control=options.control, robot_model=options.robot_model, limits=options.limits
+    )

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from spacecal.adapters import canonical_url
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.io.digest import file_sha256, spacecal_schema_of
 from spacecal.io.results_json import read_calibration
@@ -132,26 +133,6 @@ def open_calibration(
     return calibration, [f"{edited}; used as {ACCEPT_EDITED} asks"]
 
 
-#: Default ports of device URLs that may omit them (OpenIGTLink, NDI Vega over TCP).
-_DEFAULT_PORTS = {"igtl": 18944, "ndi": 8765}
-
-
-def _url_key(url: str) -> tuple[str, str, int | None]:
-    """A device URL as (scheme, host or device path, port), so ``igtl://Host`` is
-    ``igtl://host:18944``."""
-    from urllib.parse import urlparse
-
-    parsed = urlparse(url.strip())
-    scheme = parsed.scheme.lower()
-    if parsed.path and not parsed.netloc:  # ndi:///dev/ttyUSB0: a serial port, no host
-        return scheme, parsed.path, None
-    try:
-        port = parsed.port
-    except ValueError:
-        port = None
-    return scheme, (parsed.hostname or "").lower(), port or _DEFAULT_PORTS.get(scheme)
-
-
 def other_devices(
     calibration: CalibrationResult, robot_url: str, tracker_url: str, robot_model: str, accept: bool
 ) -> list[str]:
@@ -175,7 +156,7 @@ def other_devices(
         ("robot", recorded_robot.get("url"), robot_url),
         ("tracker", recorded_tracker.get("url"), tracker_url),
     ):
-        if isinstance(recorded, str) and _url_key(recorded) != _url_key(connected):
+        if isinstance(recorded, str) and canonical_url(recorded) != canonical_url(connected):
             differences.append(f"{what} {recorded} recorded, {connected} connected")
     model = recorded_robot.get("model")
     if isinstance(model, str) and model.upper() != robot_model.upper():

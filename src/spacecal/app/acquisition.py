@@ -215,32 +215,19 @@ def simulated_devices(
 
 
 def open_tracker(url: str, rom: Sequence[str], rate_hz: float) -> Tracker:
-    """Open the tracker a URL names (``ndi://...`` with the marker's ROM first, ``igtl://...``)."""
-    from spacecal.adapters import parse_device_url
+    """Open the tracker a URL names (``ndi://...`` with the marker's ROM first, ``igtl://...``;
+    the URL table is :data:`spacecal.adapters.DEVICE_SCHEMES`)."""
+    from spacecal.adapters import TRACKER, DeviceOptions, open_device
 
-    scheme, address, port = parse_device_url(url, ("ndi", "igtl"))
-    if scheme == "ndi":
-        from spacecal.adapters.ndi import VEGA_DEFAULT_PORT, NDITracker
-
-        if not rom:
-            raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
-        serial = address.startswith("/")
-        return NDITracker(
-            address, None if serial else (port or VEGA_DEFAULT_PORT), list(rom), rate_hz=rate_hz
-        )
-    from spacecal.adapters.igtl import IGTLTracker
-
-    return IGTLTracker(address, port or 18944)
+    return open_device(url, TRACKER, DeviceOptions(rom=tuple(rom), tracker_rate_hz=rate_hz))
 
 
 def open_robot(url: str, robot_model: str | None, control: bool, limits: MotionLimits | None = None) -> Robot:
     """Open the robot a URL names (``ur://HOST``); ``control=False`` is read-only (nothing is
     uploaded to the controller)."""
-    from spacecal.adapters import parse_device_url
-    from spacecal.adapters.ur import URRobot
+    from spacecal.adapters import ROBOT, DeviceOptions, open_device
 
-    _, host, _ = parse_device_url(url, ("ur",))
-    return URRobot(host, control=control, robot_model=robot_model, limits=limits)
+    return open_device(url, ROBOT, DeviceOptions(robot_model=robot_model, control=control, limits=limits))
 
 
 def motion_limits(settings: AcquireSettings) -> MotionLimits:
@@ -256,12 +243,12 @@ def open_hardware(settings: AcquireSettings) -> tuple[Robot, Tracker]:
 
     The robot first: a controller that refuses us (local control, registers in use, not
     running) ends the command before the tracker is touched."""
-    from spacecal.adapters import parse_device_url
+    from spacecal.adapters import ROBOT, TRACKER, device_address
 
     if settings.robot == "sim" or settings.tracker == "sim":
         raise InvalidInputError("use --robot sim with --tracker sim, or real devices for both")
-    parse_device_url(settings.robot, ("ur",))
-    parse_device_url(settings.tracker, ("ndi", "igtl"))
+    device_address(settings.robot, ROBOT)  # both URLs are checked before either device is opened
+    device_address(settings.tracker, TRACKER)
     # read-only until every check has passed and motion is confirmed (see acquire)
     robot = open_robot(settings.robot, settings.robot_model, False, motion_limits(settings))
     try:

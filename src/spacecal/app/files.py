@@ -233,12 +233,14 @@ def export(settings: ExportSettings) -> list[str]:
         )
         done.append(f"wrote {path} (PLUS CoordinateDefinitions: BaseToTracker, MarkerToTCP)")
     if settings.igtl:
-        from spacecal.adapters import parse_device_url
-        from spacecal.adapters.igtl import publish_transform
+        from spacecal.adapters import device_address
+        from spacecal.adapters.igtl import IGTL_DEFAULT_PORT, publish_transform
 
-        _, host, port = parse_device_url("igtl://" + settings.igtl, ("igtl",))
-        publish_transform(host, port or 18944, "BaseToTracker", calibration.tracker_from_base)
-        done.append(f"sent BaseToTracker to igtl://{host}:{port or 18944}")
+        address = device_address("igtl://" + settings.igtl)
+        publish_transform(
+            address.host, address.port or IGTL_DEFAULT_PORT, "BaseToTracker", calibration.tracker_from_base
+        )
+        done.append(f"sent BaseToTracker to {address.url}")
     return done
 
 

@@ -1,0 +1,62 @@
+"""One URL table: every device URL parses through it, default ports are the table's, and a URL
+of the wrong role or form is one clear error naming the forms that are right."""
+
+import pytest
+
+from spacecal.adapters import (
+    DEVICE_SCHEMES,
+    ROBOT,
+    TRACKER,
+    canonical_url,
+    device_address,
+    schemes_of,
+)
+from spacecal.core.errors import InvalidInputError
+
+
+def test_every_row_names_an_adapter_with_an_opener():
+    import importlib
+
+    for scheme, row in DEVICE_SCHEMES.items():
+        try:
+            module = importlib.import_module(f"spacecal.adapters.{row.module}")
+        except ImportError:
+            continue  # its extra is not installed here
+        assert callable(module.open_device), scheme
+        assert row.role in (ROBOT, TRACKER) and row.form.startswith(scheme + "://")
+
+
+@pytest.mark.parametrize(
+    ("url", "role", "expected"),
+    [
+        ("ur://192.168.0.10", ROBOT, "ur://192.168.0.10"),
+        ("ndi://Vega.local", TRACKER, "ndi://vega.local:8765"),
+        ("ndi://10.0.0.5:9000", TRACKER, "ndi://10.0.0.5:9000"),
+        ("ndi:///dev/ttyUSB0", TRACKER, "ndi:///dev/ttyUSB0"),
+        ("igtl://PlusHost", TRACKER, "igtl://plushost:18944"),
+    ],
+)
+def test_urls_take_the_tables_default_ports(url, role, expected):
+    assert device_address(url, role).url == expected
+    assert canonical_url(url) == expected
+
+
+@pytest.mark.parametrize(
+    ("url", "role", "message"),
+    [
+        ("ndi://vega", ROBOT, "expected ur://HOST or sim"),
+        ("ur://robot", TRACKER, "expected ndi://SERIAL_PORT_OR_HOST[:PORT], igtl://HOST[:PORT] or sim"),
+        ("igtl://", TRACKER, "names no host"),
+        ("igtl://host:99999", TRACKER, "invalid port"),
+        ("http://host", None, "expected ur://HOST"),
+    ],
+)
+def test_a_url_of_the_wrong_kind_is_one_clear_error(url, role, message):
+    with pytest.raises(InvalidInputError, match=message.replace("[", r"\[").replace("]", r"\]")) as caught:
+        device_address(url, role)
+    assert "\n" not in str(caught.value)
+
+
+def test_roles_partition_the_table():
+    assert set(schemes_of(ROBOT)) | set(schemes_of(TRACKER)) == set(DEVICE_SCHEMES)
+    assert not set(schemes_of(ROBOT)) & set(schemes_of(TRACKER))
