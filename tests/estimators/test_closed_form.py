@@ -138,3 +138,31 @@ def test_hand_eye_matches_opencv(name):
             assert np.allclose(ours, theirs, atol=1e-6) and np.allclose(ours, y, atol=1e-6)
         else:  # implementation details differ under noise: both stay within the noise's reach
             assert angle_deg(ours, theirs) < np.degrees(ROTATION_NOISE_RAD)
+
+
+@pytest.mark.parametrize("name", sorted(ROBOT_WORLD_SOLVERS))
+@pytest.mark.parametrize("axes", [0, 1])
+def test_robot_world_solvers_refuse_a_robot_that_rotates_about_fewer_than_two_axes(name, axes):
+    """A robot that never rotated (or about one axis only) leaves X's rotation about the free
+    axis undetermined; every closed form still returned an X (graded 'good', 0.00 mm, for a
+    robot that never moved)."""
+    rng = np.random.default_rng(7)
+    count = 12
+    rotations = Rotation.from_rotvec(np.outer(rng.uniform(-0.5, 0.5, count), [0.0, 0.0, 1.0]) * axes)
+    a = make_transform(rotations.as_matrix(), rng.normal(size=(count, 3)) * 200)
+    _, _, x, y = problem()
+    b = invert_transform(y) @ a @ x
+    with pytest.raises(DegenerateDataError, match="fewer than|less than 2 deg about two independent axes"):
+        ROBOT_WORLD_SOLVERS[name](a, b)
+
+
+@pytest.mark.parametrize("name", sorted(ROBOT_WORLD_SOLVERS))
+def test_robot_world_solvers_take_rotations_about_two_axes(name):
+    rng = np.random.default_rng(8)
+    count = 12
+    vectors = np.zeros((count, 3))
+    vectors[:, 0], vectors[:, 1] = rng.uniform(-0.3, 0.3, count), rng.uniform(-0.3, 0.3, count)
+    a = make_transform(Rotation.from_rotvec(vectors).as_matrix(), rng.normal(size=(count, 3)) * 200)
+    _, _, x, y = problem()
+    x_est, y_est = ROBOT_WORLD_SOLVERS[name](a, invert_transform(y) @ a @ x)
+    assert np.allclose(x_est, x, atol=1e-6) and np.allclose(y_est, y, atol=1e-6)

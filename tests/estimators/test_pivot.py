@@ -74,8 +74,22 @@ def test_synthetic_pivot_is_exact():
         assert np.allclose(result.pivot_in_tracker, pivot, atol=1e-8)
 
 
+def test_a_pivot_in_metres_is_refused_not_fitted():
+    """The same pivot with its lengths in metres fits just as well, with a tip and residuals a
+    thousand times too small: it is refused by where the marker is, never fitted."""
+    tip = np.array([1.0, 2.0, 150.0])
+    pivot = np.array([10.0, -20.0, -1500.0])
+    rotations = Rotation.from_rotvec(np.random.default_rng(0).normal(scale=0.4, size=(30, 3))).as_matrix()
+    poses = make_transform(rotations, pivot - rotations @ tip)
+    poses[:, :3, 3] /= 1000.0
+    for method in ("aos", "sphere"):
+        with pytest.raises(InvalidInputError, match="look like metres"):
+            pivot_calibration(poses, method)
+
+
 def test_degenerate_pivots_are_refused():
     still = np.tile(np.eye(4), (10, 1, 1))
+    still[:, :3, 3] = [10.0, -20.0, -1500.0]  # where a tracker sees a marker
     with pytest.raises(DegenerateDataError, match="did not rotate"):
         pivot_calibration(still, "aos")
     with pytest.raises(DegenerateDataError, match="at least 4"):

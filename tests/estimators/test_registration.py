@@ -121,3 +121,25 @@ def test_landmark_touches_are_the_eight_dwell_periods(plus_recording):
     assert np.allclose(
         np.array(result.detected_at_s) - start, [5.7, 12.0, 18.9, 24.7, 35.9, 42.2, 49.0, 56.0], atol=1.5
     )
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "message"),
+    [
+        ('<Landmark Name="#8"', '<Landmark Name="#1"', "'#1' is defined twice"),
+        (
+            '<Landmark Name="#8" Position="-34.3 45.0 0.0"',
+            '<Landmark Name="#8" Position="104.3 5.0 20.4"',
+            "'#1' and '#8' are 0.40 mm apart",
+        ),
+    ],
+)
+def test_a_phantom_with_a_landmark_given_twice_is_refused(tmp_path, old, new, message):
+    """A name or a point given twice would pair one stylus touch with two landmarks."""
+    config = shared_realdata("plus_phantom_landmarks") / "PlusDeviceSet_fCal_Sim_RecordPhantomLandmarks.xml"
+    text = config.read_text()
+    assert old in text
+    path = tmp_path / "phantom.xml"
+    path.write_text(text.replace(old, new))
+    with pytest.raises(InvalidInputError, match=message):
+        read_plus_landmarks(path)

@@ -142,6 +142,8 @@ def _median_residuals(base_from_tcp: FloatArray, tracker_from_marker: FloatArray
 
 def _clearly_better(given: tuple[float, float], other: tuple[float, float]) -> bool:
     (g_mm, g_deg), (o_mm, o_deg) = given, other
+    if not (np.isfinite(o_mm) and np.isfinite(o_deg)):
+        return False  # no reading explains what none can solve (a robot that never rotated)
     by_position = o_mm <= CLEARLY_BETTER * g_mm and o_deg <= NO_WORSE * max(g_deg, EXPLAINED_DEG)
     by_rotation = o_deg <= CLEARLY_BETTER * g_deg and o_mm <= NO_WORSE * max(g_mm, EXPLAINED_MM)
     return by_position or by_rotation

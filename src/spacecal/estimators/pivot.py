@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacecal.core.errors import DegenerateDataError, UnknownMethodError
+from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnknownMethodError
+from spacecal.estimators.conventions import METRES_BELOW_MM
 from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.fitting import fit_sphere
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, transform_points_by_stack
@@ -38,6 +39,14 @@ def _check_poses(tracker_from_marker_stack: ArrayLike) -> FloatArray:
     poses = poses[~np.isnan(poses[:, 0, 0])]
     if len(poses) < 4:
         raise DegenerateDataError(f"pivot calibration needs at least 4 tracked poses, got {len(poses)}")
+    distance_mm = float(np.median(np.linalg.norm(poses[:, :3, 3], axis=1)))
+    if distance_mm < METRES_BELOW_MM:
+        # no tracker sees a marker within 20 mm of its origin: these are metres (the fit
+        # would still succeed, with a tip and residuals a thousand times too small)
+        raise InvalidInputError(
+            f"the marker is {distance_mm:.3g} mm from the tracker (median): the poses look like metres; "
+            "pivot calibration reads millimetres"
+        )
     return poses
 
 

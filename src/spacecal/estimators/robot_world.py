@@ -32,6 +32,10 @@ from spacecal.geometry.rotations import nearest_rotation, quaternion_product_mat
 from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
 
 MIN_POSES = 3
+#: The robot's orientations must differ by more than this (rad) about at least two independent
+#: axes: with less, the rotation about the remaining axis is free, and a closed form still
+#: returns an answer, as far off as it likes (a robot that never moved: any X explains it).
+MIN_ORIENTATION_SPREAD_RAD = np.radians(2.0)
 
 
 def _check(
@@ -47,7 +51,27 @@ def _check(
         raise DegenerateDataError(
             "AX = YB: poses contain NaN (drop the samples where the marker was not seen)"
         )
+    if not _rotates_about_two_axes(a[:, :3, :3]):
+        raise DegenerateDataError(
+            "AX = YB: the robot's orientations differ by less than "
+            f"{np.degrees(MIN_ORIENTATION_SPREAD_RAD):.0f} deg about two independent axes "
+            "(rotate the tool about at least two axes)"
+        )
     return a, b
+
+
+def _rotates_about_two_axes(rotations: FloatArray) -> bool:
+    """Whether orientations (N, 3, 3) spread about two independent axes: their rotation vectors
+    from the first one (2 sin(angle/2) axis, about the angle in rad) extend more than
+    :data:`MIN_ORIENTATION_SPREAD_RAD` along their second principal direction."""
+    relative = np.einsum("nij,kj->nik", rotations, rotations[0])
+    vectors = 2.0 * matrix_to_quaternion_wxyz(relative)[:, 1:]
+    centred = vectors - vectors.mean(axis=0)
+    _, _, directions = np.linalg.svd(centred, full_matrices=False)
+    if len(directions) < 2:
+        return False
+    along = centred @ directions[1]
+    return bool(np.ptp(along) > MIN_ORIENTATION_SPREAD_RAD)
 
 
 def _orthonormal_from_vec(vec9: ArrayLike) -> FloatArray:

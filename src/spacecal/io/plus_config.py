@@ -49,6 +49,11 @@ def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.
     raise InvalidInputError(f"{path}: no {from_frame}To{to_frame} transform in CoordinateDefinitions")
 
 
+#: Two landmarks of a phantom closer than this (mm) are one point given twice: a stylus cannot
+#: tell them apart, and the registration would pair one touch with two positions.
+DUPLICATE_LANDMARK_MM = 1.0
+
+
 def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
     """Names and positions (M, 3), mm, of the ``<Landmarks>`` of a PLUS phantom definition."""
     names: list[str] = []
@@ -68,7 +73,21 @@ def read_plus_landmarks(path: str | Path) -> tuple[list[str], np.ndarray]:
         positions.append(values)
     if not positions:
         raise InvalidInputError(f"{path}: no <Landmark> elements")
-    return names, np.array(positions)
+    points = np.array(positions)
+    seen: dict[str, int] = {}
+    for index, name in enumerate(names):
+        if name in seen:
+            raise InvalidInputError(f"{path}: landmark {quoted(name)} is defined twice; each name once")
+        seen[name] = index
+    gaps = np.linalg.norm(points[:, None, :] - points[None, :, :], axis=2)
+    gaps[np.diag_indices(len(points))] = np.inf
+    first, second = sorted(int(k) for k in np.unravel_index(np.argmin(gaps), gaps.shape))
+    if gaps[first, second] < DUPLICATE_LANDMARK_MM:
+        raise InvalidInputError(
+            f"{path}: landmarks {quoted(names[first])} and {quoted(names[second])} are "
+            f"{gaps[first, second]:.2f} mm apart: the same point twice (landmarks must be distinct points)"
+        )
+    return names, points
 
 
 def _transform_element(
