@@ -121,7 +121,21 @@ BAD_INPUTS = {
     "too few samples": (lambda h, r: (h, r[:4]), "has 4 samples; at least 10"),
     "all invisible": (blank_marker, "marker was not visible in any"),
     "partly empty marker": (set_cell("marker_qx", ""), "marker cells are partly empty"),
+    "a value beyond the last column": (
+        lambda h, r: (h, [row + ["12345"] if k == 5 else row for k, row in enumerate(r)]),
+        "line 7 has .* cells; the header has",
+    ),
+    "a cell short": (
+        lambda h, r: (h, [row[:-1] if k == 5 else row for k, row in enumerate(r)]),
+        "line 7 has .* cells; the header has",
+    ),
 }
+
+
+def test_an_empty_cell_beyond_the_last_column_is_nothing(recording_file, tmp_path):
+    """A spreadsheet's trailing comma adds an empty cell; it holds no value to misplace."""
+    trailing = mutate(recording_file, tmp_path, lambda h, r: (h, [row + [""] for row in r]))
+    assert len(read_recording(trailing)) == len(read_recording(recording_file))
 
 
 @pytest.mark.parametrize("case", sorted(BAD_INPUTS))

@@ -161,6 +161,25 @@ def test_raw_streams_refuse_digit_groups(tmp_path):
     _one_line_refusal(lambda: read_raw_recording(robot, tracker), "tcp_qx")
 
 
+def test_raw_streams_refuse_a_value_beyond_the_last_column(tmp_path):
+    recording = _recording()
+    raw = RawRecording(
+        recording.time_s,
+        recording.segment,
+        recording.joints_rad,
+        recording.base_from_tcp_stack,
+        recording.time_s,
+        recording.tracker_from_marker_stack,
+        recording.marker_rms_mm,
+        {},
+    )
+    robot, tracker = write_raw_recording(raw, tmp_path / "raw")
+    lines = robot.read_text().splitlines()
+    lines[3] += ",12345"
+    robot.write_text("\n".join(lines) + "\n")
+    _one_line_refusal(lambda: read_raw_recording(robot, tracker), "line 4 does not have the header's")
+
+
 def test_pose_folder_refuses_digit_groups(tmp_path):
     folder = tmp_path / "poses"
     folder.mkdir()

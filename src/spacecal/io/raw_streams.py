@@ -231,11 +231,14 @@ def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict, list[s
         raise InvalidInputError(f"{path}: missing column(s): {', '.join(missing)}")
     if len(rows) < 11:
         raise InvalidInputError(f"{path}: the stream has {len(rows) - 1} rows; at least 10 are needed")
-    short = [k + 2 for k, row in enumerate(rows[1:]) if len(row) < len(header)]
-    if short:
-        raise InvalidInputError(
-            f"{path}: line {short[0]} has fewer cells than the header's {len(header)} columns"
-        )
+    # a missing cell, or a value beyond the header's columns (a shifted row), is refused
+    wrong = [
+        k + 2
+        for k, row in enumerate(rows[1:])
+        if len(row) < len(header) or any(cell.strip() for cell in row[len(header) :])
+    ]
+    if wrong:
+        raise InvalidInputError(f"{path}: line {wrong[0]} does not have the header's {len(header)} cells")
     return rows[1:], {c: header.index(c) for c in columns}, header
 
 

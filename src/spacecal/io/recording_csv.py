@@ -354,7 +354,9 @@ def read_recording(path: str | Path) -> Recording:
     lines = np.arange(2, n + 2)
     for k, row in enumerate(body):
         line = k + 2
-        if len(row) < len(rows[0]):
+        # a cell beyond the header is a value without a column (a shifted row): refused, as a
+        # missing cell is; empty ones (a spreadsheet's trailing comma) are nothing
+        if len(row) < len(rows[0]) or any(cell.strip() for cell in row[len(rows[0]) :]):
             raise InvalidInputError(
                 f"{path}: line {line} has {len(row)} cells; the header has {len(rows[0])}"
             )
