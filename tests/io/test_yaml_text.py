@@ -204,3 +204,18 @@ def test_bag_listing_shows_names_inert_and_bounded():
 def test_yaml_comments_stay_comments():
     comment = yaml_comment("a\nb: 1\r\x85\u2028c")
     assert yaml.safe_load(comment + "\nk: 1\n") == {"k": 1}
+
+
+def test_a_yaml_file_beyond_the_bound_is_refused_before_it_is_parsed(tmp_path):
+    """One huge scalar took PyYAML a minute and 730 MB; the file's size is checked first."""
+    from spacecal.io.yaml_text import MAX_YAML_BYTES, load_yaml_mapping
+
+    path = tmp_path / "huge.samples"
+    with path.open("w") as out:
+        out.write("samples: '")
+        out.write("x" * (MAX_YAML_BYTES + 1))
+        out.write("'\n")
+    started = time.monotonic()
+    with pytest.raises(InvalidInputError, match=r"too large for a easy_handeye sample list file"):
+        load_yaml_mapping(path, "easy_handeye sample list")
+    assert time.monotonic() - started < 1.0

@@ -15,7 +15,7 @@ from spacecal.core.errors import InvalidInputError
 MAX_TEXT_BYTES = 2 * 1024**3
 
 
-def read_text_file(path: str | Path, what: str) -> str:
+def read_text_file(path: str | Path, what: str, max_bytes: int | None = None) -> str:
     """The file's text, decoded as UTF-8 (a byte-order mark is dropped).
 
     Raises
@@ -26,8 +26,11 @@ def read_text_file(path: str | Path, what: str) -> str:
     path = Path(path)
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such {what} file")
-    if path.stat().st_size > MAX_TEXT_BYTES:
-        raise InvalidInputError(f"{path}: too large for a {what} file")
+    limit = MAX_TEXT_BYTES if max_bytes is None else min(max_bytes, MAX_TEXT_BYTES)
+    if path.stat().st_size > limit:
+        raise InvalidInputError(
+            f"{path}: too large for a {what} file ({path.stat().st_size} bytes; at most {limit})"
+        )
     raw = path.read_bytes()
     if raw[:2] == b"\x1f\x8b":
         raise InvalidInputError(f"{path}: gzip-compressed; decompress it first (a {what} file is text)")

@@ -39,6 +39,12 @@ _STRICT_FLOAT = re.compile(
 _YAML_NON_FINITE = {".inf": float("inf"), "+.inf": float("inf"), "-.inf": float("-inf"), ".nan": float("nan")}
 
 
+#: The largest YAML file read, bytes: a configuration or an easy_handeye sample list of a few
+#: thousand poses is well under 1 MB; PyYAML's pure-Python parser takes about a minute and
+#: several hundred MB for 200 MB, which no such file needs.
+MAX_YAML_BYTES = 16 * 1024 * 1024
+
+
 def require_yaml() -> Any:
     """The ``yaml`` module (PyYAML), or :class:`MissingExtraError` naming the extra that brings it."""
     try:
@@ -135,7 +141,7 @@ def check_yaml_file(path: str | Path, what: str) -> None:
     """Parse a YAML file only to refuse what :func:`parse_yaml` refuses (aliases, anchors), for
     files another library reads afterwards (a ROS 2 bag's ``metadata.yaml``)."""
     path = Path(path)
-    parse_yaml(read_text_file(path, what), str(path), what)
+    parse_yaml(read_text_file(path, what, MAX_YAML_BYTES), str(path), what)
 
 
 def load_yaml_mapping(path: str | Path, what: str) -> dict:
@@ -144,7 +150,7 @@ def load_yaml_mapping(path: str | Path, what: str) -> dict:
     require_yaml()
     if not path.is_file():
         raise InvalidInputError(f"{path}: no such {what} file")
-    data = parse_yaml(read_text_file(path, what), str(path), what)
+    data = parse_yaml(read_text_file(path, what, MAX_YAML_BYTES), str(path), what)
     if not isinstance(data, dict):
         raise InvalidInputError(f"{path}: expected a {what} (a YAML mapping), found {type(data).__name__}")
     return data
