@@ -10,18 +10,19 @@ from pathlib import Path
 from spacecal.app._common import guard_outputs, open_calibration, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
-from spacecal.io.easy_handeye import read_easy_handeye_samples, write_easy_handeye2_calibration
+from spacecal.io.atomic import write_text_atomic
+from spacecal.io.easy_handeye import easy_handeye2_calibration_text, read_easy_handeye_samples
 from spacecal.io.names import check_calibration_name, check_ros_frame_name
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import metadata_path, write_recording
 from spacecal.io.ros_bag import list_bag_contents, read_ros_bag
 from spacecal.io.ros_exports import (
     calibration_static_transform,
+    ros2_launch_text,
     static_transform_publisher_command,
-    write_ros2_launch,
-    write_urdf_joint,
+    urdf_joint_text,
 )
-from spacecal.io.ur_driver_calibration import write_ur_calibration
+from spacecal.io.ur_driver_calibration import ur_calibration_text
 
 #: Longest note line printed (a note quotes topic names from the bag).
 NOTE_CHARS = 400
@@ -139,9 +140,14 @@ def _check_names(settings: RosExportSettings) -> None:
         )
 
 
-def export_ros(settings: RosExportSettings) -> list[str]:
+def export_ros(settings: RosExportSettings, write: bool = True) -> list[str]:
     """Write each ROS export named; returns one line per export, after a ``note: ...`` line for
-    a calibration that cannot be verified or was accepted edited."""
+    a calibration that cannot be verified or was accepted edited.
+
+    Every file's text is made, and so every name and the calibration checked, before any is
+    written: a refused export leaves no other written. ``write=False`` only checks (the
+    command line does so before it writes the other exports of the same command).
+    """
     for output in (settings.easy_handeye2, settings.ros2_launch, settings.urdf, settings.ur_calibration):
         refuse_overwriting_inputs(output, settings.calibration, force=settings.force)
     _check_names(settings)
@@ -150,36 +156,57 @@ def export_ros(settings: RosExportSettings) -> list[str]:
         calibration.tracker_from_base, base_frame=settings.base_frame, tracker_frame=settings.tracker_frame
     )
     done = [f"note: {note}" for note in notes]
+    files: list[tuple[Path, str, str]] = []  # (path, text, what it is)
     if settings.easy_handeye2:
-        path = write_easy_handeye2_calibration(
-            settings.easy_handeye2,
-            calibration.tracker_from_base,
-            robot_base_frame=settings.base_frame,
-            robot_effector_frame=settings.tool_frame,
-            tracking_base_frame=settings.tracker_frame,
-            tracking_marker_frame=settings.marker_frame,
-        )
-        done.append(
-            f"wrote {path} (easy_handeye2 eye-on-base: {settings.base_frame} -> {settings.tracker_frame})"
+        files.append(
+            (
+                Path(settings.easy_handeye2),
+                easy_handeye2_calibration_text(
+                    calibration.tracker_from_base,
+                    name=Path(settings.easy_handeye2).stem,
+                    robot_base_frame=settings.base_frame,
+                    robot_effector_frame=settings.tool_frame,
+                    tracking_base_frame=settings.tracker_frame,
+                    tracking_marker_frame=settings.marker_frame,
+                ),
+                f"easy_handeye2 eye-on-base: {settings.base_frame} -> {settings.tracker_frame}",
+            )
         )
     if settings.ros2_launch:
-        path = write_ros2_launch(settings.ros2_launch, edge)
-        done.append(
-            f"wrote {path} (ROS 2 launch file: static transform parent {settings.base_frame}, "
-            f"child {settings.tracker_frame})"
+        files.append(
+            (
+                Path(settings.ros2_launch),
+                ros2_launch_text(edge),
+                f"ROS 2 launch file: static transform parent {settings.base_frame}, "
+                f"child {settings.tracker_frame}",
+            )
         )
     if settings.urdf:
-        path = write_urdf_joint(settings.urdf, edge)
-        done.append(f"wrote {path} (URDF fixed joint {settings.base_frame} -> {settings.tracker_frame})")
-    if settings.static_tf:
-        done.append(static_transform_publisher_command(edge))
+        files.append(
+            (
+                Path(settings.urdf),
+                urdf_joint_text(edge),
+                f"URDF fixed joint {settings.base_frame} -> {settings.tracker_frame}",
+            )
+        )
     if settings.ur_calibration:
         if calibration.robot_model is None:
             raise InvalidInputError(
                 "this calibration holds no identified robot model: calibrate with --method kinematic first"
             )
-        path = write_ur_calibration(settings.ur_calibration, calibration.robot_model)
-        done.append(
-            f"wrote {path} (UR ROS driver kinematics of the identified {calibration.robot_model.name})"
+        files.append(
+            (
+                Path(settings.ur_calibration),
+                ur_calibration_text(calibration.robot_model),
+                f"UR ROS driver kinematics of the identified {calibration.robot_model.name}",
+            )
         )
+    if not write:
+        return []
+    for path, text, what in files:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(text, path)
+        done.append(f"wrote {path} ({what})")
+    if settings.static_tf:
+        done.append(static_transform_publisher_command(edge))
     return done
