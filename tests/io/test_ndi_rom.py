@@ -7,7 +7,7 @@ import struct
 import numpy as np
 import pytest
 
-from spacecal.app.acquisition import marker_in_use
+from spacecal.app.devices import marker_in_use
 from spacecal.core.errors import InvalidInputError
 from spacecal.io.ndi_rom import (
     MARKER_COUNT_OFFSET,

@@ -28,6 +28,7 @@ from spacecal.app.calibration import (
     calibrate,
     pivot,
 )
+from spacecal.app.devices import DeviceSettings
 from spacecal.app.doctor import DoctorOutput, DoctorSettings, doctor
 from spacecal.app.files import (
     ExportSettings,
@@ -74,6 +75,7 @@ __all__ = [
     "CheckSettings",
     "DemoOutput",
     "DemoSettings",
+    "DeviceSettings",
     "DoctorOutput",
     "DoctorSettings",
     "ExportSettings",

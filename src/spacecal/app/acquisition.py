@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,29 +18,32 @@ from typing import Any
 import numpy as np
 
 from spacecal.app._common import open_calibration, other_devices, refuse_overwriting_inputs
+from spacecal.app.devices import (
+    DeviceSettings,
+    HardwareModel,
+    close_device,
+    finding_line,
+    marker_in_use,
+    open_hardware,
+    refuse_when_not_ready,
+    robot_findings,
+    tracker_findings,
+    upload_control_program,
+)
 from spacecal.app.gate import COMMANDED_BY, acquisition_gate, gate_plan, plan_workspace, world_visibility
 from spacecal.app.simulation import DEFAULT_SCENARIO
 from spacecal.core.errors import DegenerateDataError, InvalidInputError, SpacecalError
 from spacecal.core.ports import (
-    FINDING_OK,
-    FINDING_PROBLEM,
-    FINDING_WARNING,
-    Closable,
-    ControlledRobot,
-    DeviceFinding,
-    ModelledRobot,
-    Preflight,
     Robot,
     Tracker,
 )
 from spacecal.experiments.simulation import simulation_settings
 from spacecal.geometry.rotations import rotation_angle
-from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 from spacecal.io.ndi_rom import read_rom_marker
 from spacecal.io.recording_csv import last_time_s
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_json_object, write_json
-from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel
 from spacecal.models.marker import ndi_8700339_like
 from spacecal.models.tracker import TrackerModel
 from spacecal.planning.check_poses import check_plan
@@ -83,13 +86,9 @@ ACQUIRE_RANGES = {
     "speed_mm_s": (1.0, 1000.0),
     "accel_mm_s2": (1.0, 10_000.0),
     "angular_speed_deg_s": (0.5, 180.0),
-    "tracker_rate_hz": (1.0, 1000.0),
     "rotation_deg": (1.0, 180.0),
     "translation_mm": (1.0, 2000.0),
 }
-
-#: Largest distance (mm) between where our model puts the TCP and where the controller reports it.
-TCP_MISMATCH_MM = 1.0
 
 
 @dataclass(frozen=True)
@@ -100,8 +99,9 @@ class AcquireSettings:
     ----------
     output : str
         Recording CSV to write (each sample flushed to disk).
-    robot, tracker : str
-        ``sim`` (the simulated system of ``scenario``) or device URLs.
+    devices : DeviceSettings
+        The robot and tracker: ``sim`` (the simulated system of ``scenario``) or device URLs,
+        with the tracker's tool definitions and rate and the robot's model and tool.
     scenario : str
         Scenario of the simulated devices.
     dry_run : bool
@@ -114,16 +114,6 @@ class AcquireSettings:
         TCP limits of every move.
     workspace_box : tuple of 6 floats or None
         ``xmin, xmax, ymin, ymax, zmin, zmax`` in base (mm) the TCP must stay in.
-    rom : tuple of str
-        NDI tool definitions: the marker first.
-    tracker_rate_hz : float
-        NDI frame rate (Vicra 20, Vega 60).
-    robot_model : str or None
-        UR model for planning checks; None: the one the controller names (simulated devices:
-        the scenario's).
-    tool : (x, y, z, rx, ry, rz) or None
-        The TCP in the flange frame as the teach pendant shows it: mm and a rotation vector in
-        rad. None (the default) takes the TCP set on the controller; a value must match it.
     prior : str or None
         An earlier calibration, to check marker visibility along the plan.
     rotation_deg, translation_mm : float
@@ -137,8 +127,7 @@ class AcquireSettings:
     """
 
     output: str
-    robot: str = "sim"
-    tracker: str = "sim"
+    devices: DeviceSettings = field(default_factory=DeviceSettings)
     scenario: str = DEFAULT_SCENARIO
     dry_run: bool = False
     resume: bool = False
@@ -147,10 +136,6 @@ class AcquireSettings:
     accel_mm_s2: float = AcquisitionSettings.linear_accel_mm_s2
     angular_speed_deg_s: float = float(np.degrees(MotionLimits.angular_speed_rad_s))
     workspace_box: tuple[float, float, float, float, float, float] | None = None
-    rom: tuple[str, ...] = ()
-    tracker_rate_hz: float = 20.0
-    robot_model: str | None = None
-    tool: tuple[float, float, float, float, float, float] | None = None
     prior: str | None = None
     rotation_deg: float = PaperSweepSettings.rotation_each_way_deg
     translation_mm: float = PaperSweepSettings.translation_stroke_mm
@@ -176,18 +161,6 @@ class AcquireSettings:
                 )
             if np.any(np.abs(box) > 1e5):
                 raise InvalidInputError("--workspace-box: each limit must be within +-100000 mm")
-        if self.tool is not None:
-            tool = np.asarray(self.tool, dtype=float)
-            if (
-                tool.shape != (6,)
-                or not np.all(np.isfinite(tool))
-                or np.any(np.abs(tool[:3]) > 2000)
-                or np.linalg.norm(tool[3:]) > 2 * np.pi
-            ):
-                raise InvalidInputError(
-                    "--tool takes X,Y,Z,RX,RY,RZ: mm within +-2000 and a rotation vector in rad "
-                    "(at most 2 pi)"
-                )
 
 
 @dataclass
@@ -214,55 +187,12 @@ def simulated_devices(
     return world, robot, SimulatedTracker(world, robot)
 
 
-def open_tracker(url: str, rom: Sequence[str], rate_hz: float) -> Tracker:
-    """Open the tracker a URL names (``ndi://...`` with the marker's ROM first, ``igtl://...``;
-    the URL table is :data:`spacecal.adapters.DEVICE_SCHEMES`)."""
-    from spacecal.adapters import TRACKER, DeviceOptions, open_device
-
-    return open_device(url, TRACKER, DeviceOptions(rom=tuple(rom), tracker_rate_hz=rate_hz))
-
-
-def open_robot(url: str, robot_model: str | None, control: bool, limits: MotionLimits | None = None) -> Robot:
-    """Open the robot a URL names (``ur://HOST``); ``control=False`` is read-only (nothing is
-    uploaded to the controller)."""
-    from spacecal.adapters import ROBOT, DeviceOptions, open_device
-
-    return open_device(url, ROBOT, DeviceOptions(robot_model=robot_model, control=control, limits=limits))
-
-
 def motion_limits(settings: AcquireSettings) -> MotionLimits:
     return MotionLimits(
         linear_speed_mm_s=settings.speed_mm_s,
         linear_accel_mm_s2=settings.accel_mm_s2,
         angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
     )
-
-
-def open_hardware(settings: AcquireSettings) -> tuple[Robot, Tracker]:
-    """Open the robot and tracker named by the settings' URLs (this is where hardware is chosen).
-
-    The robot first: a controller that refuses us (local control, registers in use, not
-    running) ends the command before the tracker is touched."""
-    from spacecal.adapters import ROBOT, TRACKER, device_address
-
-    if settings.robot == "sim" or settings.tracker == "sim":
-        raise InvalidInputError("use --robot sim with --tracker sim, or real devices for both")
-    device_address(settings.robot, ROBOT)  # both URLs are checked before either device is opened
-    device_address(settings.tracker, TRACKER)
-    # read-only until every check has passed and motion is confirmed (see acquire)
-    robot = open_robot(settings.robot, settings.robot_model, False, motion_limits(settings))
-    try:
-        tracker = open_tracker(settings.tracker, settings.rom, settings.tracker_rate_hz)
-    except BaseException:
-        _close(robot)
-        raise
-    return robot, tracker
-
-
-def _close(device: object) -> None:
-    if isinstance(device, Closable):
-        with contextlib.suppress(OSError):
-            device.close()  # closing must not mask the error that stopped the run
 
 
 @contextlib.contextmanager
@@ -274,101 +204,19 @@ def opened_devices(
     world: World | None
     robot: Robot
     tracker: Tracker
-    if settings.robot == "sim" and settings.tracker == "sim":
+    if settings.devices.simulated:
         # a resumed simulated run continues the recording's time (a real clock just goes on)
         last = last_time_s(raw_stream_paths(settings.output)[0]) if settings.resume else None
         start = 0.0 if last is None else float(np.ceil(last + 1.0))
         world, robot, tracker = simulated_devices(scenario or settings.scenario, start)
     else:
-        robot, tracker = open_hardware(settings)
+        robot, tracker = open_hardware(settings.devices, motion_limits(settings))
         world = None
     try:
         yield robot, tracker, world
     finally:
         for device in (robot, tracker):
-            _close(device)
-
-
-#: The user's --tool and the controller's TCP agree within these (mm, rad).
-TOOL_MATCH_MM, TOOL_MATCH_RAD = 0.5, np.radians(0.05)
-
-
-def tool_transform(tool: Sequence[float]) -> np.ndarray:
-    """``flange_from_tcp`` (4, 4, mm) of a pendant-style TCP ``X, Y, Z`` (mm), ``RX, RY, RZ`` (rad)."""
-    values = np.asarray(tool, dtype=float)
-    return make_transform(rotvec_to_matrix(values[3:6]), values[:3])
-
-
-@dataclass
-class HardwareModel:
-    """The robot model spacecal plans, solves IK and records with, and how it was found."""
-
-    model: RobotModel
-    source: str
-    findings: list[DeviceFinding] = field(default_factory=list)
-    #: The controller published its kinematics (else the DH parameters are nominal and the
-    #: recording's pairs of joints and reported poses identify them afterwards).
-    published: bool = False
-
-    def problems(self) -> list[DeviceFinding]:
-        return [f for f in self.findings if f.level == FINDING_PROBLEM]
-
-
-def hardware_model(
-    robot: Robot, robot_model: str | None, tool: Sequence[float] | None = None
-) -> HardwareModel:
-    """The controller's kinematic model (its calibrated DH and pendant TCP where it publishes
-    them) checked against what it reports and against ``--robot-model`` (None: the model the
-    robot names) / ``--tool`` (None: the controller's TCP)."""
-    modelled = robot if isinstance(robot, ModelledRobot) else None
-    if robot_model is not None:
-        nominal = ur_model(robot_model)
-    elif modelled is not None and isinstance(modelled.nominal, RobotModel):
-        nominal = modelled.nominal
-    else:
-        raise InvalidInputError("this robot does not name its model: pass --robot-model")
-    if modelled is not None:
-        model, source = modelled.controller_model()
-    else:  # a robot that cannot say: the nominal model with the user's tool
-        model = nominal.with_tcp(tool_transform(tool if tool is not None else (0.0,) * 6))
-        source = f"the nominal {nominal.name} model"
-    findings = []
-    if tool is not None:
-        wanted = tool_transform(tool)
-        offset_mm = float(np.linalg.norm(wanted[:3, 3] - model.flange_from_tcp[:3, 3]))
-        angle = float(rotation_angle(wanted[:3, :3].T @ model.flange_from_tcp[:3, :3]))
-        if offset_mm > TOOL_MATCH_MM or angle > TOOL_MATCH_RAD:
-            findings.append(
-                DeviceFinding(
-                    FINDING_PROBLEM,
-                    "tool (TCP)",
-                    f"--tool is {offset_mm:.1f} mm and {np.degrees(angle):.2f} deg from the TCP set on the "
-                    "teach "
-                    f"pendant ({tcp_text(model.flange_from_tcp)}): change --tool to match it, pass --tool "
-                    "controller to use the pendant's, or set the right TCP on the pendant",
-                )
-            )
-        else:
-            findings.append(
-                DeviceFinding(FINDING_OK, "tool (TCP)", "--tool matches the TCP set on the pendant")
-            )
-    state = robot.state()
-    predicted = forward_kinematics(model, state.joints_rad)
-    mismatch = float(np.linalg.norm(predicted[:3, 3] - state.base_from_tcp[:3, 3]))
-    if mismatch > TCP_MISMATCH_MM:
-        findings.append(
-            DeviceFinding(
-                FINDING_PROBLEM,
-                "kinematics",
-                f"{source} puts the TCP {mismatch:.1f} mm from where the controller reports it",
-            )
-        )
-    return HardwareModel(model, source, findings, modelled is not None and modelled.kinematics is not None)
-
-
-def tcp_text(flange_from_tcp: np.ndarray) -> str:
-    values = [*flange_from_tcp[:3, 3], *matrix_to_rotvec(flange_from_tcp[:3, :3])]
-    return "{:.1f},{:.1f},{:.1f} mm, {:.4f},{:.4f},{:.4f} rad".format(*values)
+            close_device(device)
 
 
 def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) -> MotionPlan:
@@ -382,7 +230,7 @@ def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) ->
         prior, prior_notes = open_calibration(settings.prior, "acquire --prior")
         # the marker in use when its tool definition is given, else the nominal layout: the
         # visibility prediction needs only its face and extent
-        marker = read_rom_marker(settings.rom[0]) if settings.rom else ndi_8700339_like()
+        marker = read_rom_marker(settings.devices.rom[0]) if settings.devices.rom else ndi_8700339_like()
         visibility = VisibilityModel(TrackerModel(), marker, prior.tracker_from_base, prior.tcp_from_marker)
     sweep = PaperSweepSettings(
         rotation_each_way_deg=settings.rotation_deg,
@@ -442,24 +290,12 @@ def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -
             f"move it to the home joints {np.round(np.degrees(record.home_joints_rad), 2).tolist()} deg, "
             "or plan from where it stands"
         )
-    if record.simulated_setup and settings.robot != "sim":
+    if record.simulated_setup and not settings.devices.simulated:
         plan.messages.append(
             f"the plan was made for the simulated set-up '{record.scenario}': marker visibility "
             "was predicted there, not for this tracker"
         )
     return plan
-
-
-def marker_in_use(rom: Sequence[str]) -> dict[str, Any]:
-    """The recording's ``marker`` entry: the geometry of the tool definition the tracker was
-    given (the first ``--rom``), or, for a tracker that sends poses only (OpenIGTLink), a
-    statement that the geometry is not known (the likelihood then places a stand-in layout by
-    the measured pose to weight position against rotation, and learns the noise from the
-    residuals; see :func:`spacecal.estimators.observations.marker_geometry_of`)."""
-    if not rom:
-        return {"name": "unknown (the tracker sends poses only)", "geometry_known": False}
-    marker = read_rom_marker(rom[0])
-    return {**marker.to_dict(), "tool_definition": str(Path(rom[0]).resolve()), "geometry_known": True}
 
 
 def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dict[str, Any]:
@@ -468,7 +304,7 @@ def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dic
     return {
         "robot": {
             "model": model.name,
-            "url": settings.robot,
+            "url": settings.devices.robot,
             "flange_from_tcp": model.flange_from_tcp.tolist(),
             **(
                 {"kinematic_model": robot_model_to_dict(model)}
@@ -477,52 +313,17 @@ def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dic
             ),
             "kinematics_source": hardware.source,
         },
-        "tracker": {"url": settings.tracker, "rate_hz": settings.tracker_rate_hz},
-        "marker": marker_in_use(settings.rom),
+        "tracker": {"url": settings.devices.tracker, "rate_hz": settings.devices.tracker_rate_hz},
+        "marker": marker_in_use(settings.devices.rom),
         "units": {"length": "mm", "angle": "rad", "time": "s"},
         "source": "spacecal acquire",
         "simulated": False,
     }
 
 
-def robot_findings(
-    robot: Robot, robot_model: str | None, tool: Sequence[float] | None = None
-) -> tuple[HardwareModel, list[DeviceFinding]]:
-    """The robot's own read-only checks and spacecal's (model, tool), in that order."""
-    found = list(robot.preflight()) if isinstance(robot, Preflight) else []
-    hardware = hardware_model(robot, robot_model, tool)
-    return hardware, found + hardware.findings
-
-
-def refuse_when_not_ready(findings: list[DeviceFinding]) -> None:
-    """Raise with the first blocking finding, before anything is uploaded or moved."""
-    blocking = [f for f in findings if f.level == FINDING_PROBLEM]
-    if blocking:
-        raise InvalidInputError(
-            f"the robot is not ready ({blocking[0].subject}): {blocking[0].text}; nothing moved"
-        )
-
-
-def upload_control_program(robot: Robot) -> None:
-    """Connect the robot's control interface (its program is uploaded only now, after every
-    read-only check has passed and motion is confirmed); a robot without one has nothing to do."""
-    if isinstance(robot, ControlledRobot):
-        robot.connect_control()
-
-
-def finding_line(device: str, finding: DeviceFinding) -> str:
-    """One line an operator reads: ``robot: remote control: PROBLEM: ...``."""
-    level = {FINDING_OK: "ok", FINDING_WARNING: "warning", FINDING_PROBLEM: "PROBLEM"}[finding.level]
-    return f"{device}: {finding.subject}: {level}: {finding.text}"
-
-
 def _known(hardware: HardwareModel | None) -> HardwareModel:
     assert hardware is not None  # set for every hardware run
     return hardware
-
-
-def tracker_findings(tracker: Tracker) -> list[DeviceFinding]:
-    return list(tracker.preflight()) if isinstance(tracker, Preflight) else []
 
 
 def acquire(
@@ -547,7 +348,12 @@ def acquire(
     """
     # the recording itself: the acquisition refuses an existing one unless resuming it
     refuse_overwriting_inputs(
-        settings.output, settings.prior, settings.scenario, settings.plan, *settings.rom, recordings=False
+        settings.output,
+        settings.prior,
+        settings.scenario,
+        settings.plan,
+        *settings.devices.rom,
+        recordings=False,
     )
     if settings.prior:
         open_calibration(settings.prior, "acquire --prior")  # refused before any device is opened
@@ -555,7 +361,7 @@ def acquire(
         checks: list[str] = []
         hardware = None
         if world is None:
-            hardware, findings = robot_findings(robot, settings.robot_model, settings.tool)
+            hardware, findings = robot_findings(robot, settings.devices.robot_model, settings.devices.tool)
             if settings.dry_run:
                 checks = [finding_line("robot", f) for f in findings]
                 checks += [finding_line("tracker", f) for f in tracker_findings(tracker)]
@@ -575,7 +381,7 @@ def acquire(
         else:
             plan = hardware_plan(settings, robot, model)
         frame_period_s = 1.0 / (
-            world.scenario.tracker_rate_hz if world is not None else settings.tracker_rate_hz
+            world.scenario.tracker_rate_hz if world is not None else settings.devices.tracker_rate_hz
         )
         if settings.stop_and_go:
             plan = stop_and_go_plan(
@@ -644,8 +450,9 @@ class CheckSettings:
         Calibration JSON.
     recording : str or None
         A recording to check against instead of moving the robot.
-    robot, tracker : str
-        ``sim`` (the simulated system of ``scenario``) or device URLs, as for ``acquire``.
+    devices : DeviceSettings
+        The robot and tracker, as for ``acquire``: ``sim`` (the simulated system of
+        ``scenario``) or device URLs.
     scenario : str or None
         Simulated devices only; default: the scenario the calibration's data came from.
     poses : int
@@ -660,9 +467,8 @@ class CheckSettings:
         Plan and check the poses (reach, joint limits) without moving.
     confirm_robot_motion : bool
         Required to move a real robot.
-    devices : AcquireSettings or None
-        The hardware options (``rom``, ``tracker_rate_hz``, ``robot_model``, tool, speeds)
-        for real devices; defaults otherwise.
+    workspace_box : tuple of 6 floats or None
+        ``xmin, xmax, ymin, ymax, zmin, zmax`` in base (mm) the TCP must stay in.
     frames_per_pose : int
         Tracker frames averaged at each pose.
     accept_edited : bool
@@ -673,15 +479,14 @@ class CheckSettings:
 
     calibration: str
     recording: str | None = None
-    robot: str = "sim"
-    tracker: str = "sim"
+    devices: DeviceSettings = field(default_factory=DeviceSettings)
     scenario: str | None = None
     poses: int = 3
     threshold_mm: float | None = None
     threshold_deg: float | None = None
     dry_run: bool = False
     confirm_robot_motion: bool = False
-    devices: AcquireSettings | None = None
+    workspace_box: tuple[float, float, float, float, float, float] | None = None
     frames_per_pose: int = 10
     accept_edited: bool = False
     accept_other_devices: bool = False
@@ -742,7 +547,7 @@ def check(settings: CheckSettings) -> CheckOutput:
         history = append_history(settings.calibration, result, calibration.content_sha256)
         return CheckOutput(result, history, basis, notes)
     scenario: Scenario | None = None
-    if settings.robot == "sim" and settings.tracker == "sim":
+    if settings.devices.simulated:
         scenario = (
             load_scenario(settings.scenario)
             if settings.scenario is not None
@@ -750,21 +555,25 @@ def check(settings: CheckSettings) -> CheckOutput:
         )
         if scenario is None:
             raise InvalidInputError("no scenario given and none found with the calibration; pass --scenario")
-    devices = dataclasses.replace(
-        settings.devices or AcquireSettings(output=str(history_path(settings.calibration))),
+    # the check's motion: the acquisition's defaults (speeds), on the check's devices
+    moving = AcquireSettings(
         output=str(history_path(settings.calibration)),
-        robot=settings.robot,
-        tracker=settings.tracker,
+        devices=settings.devices,
+        workspace_box=settings.workspace_box,
         dry_run=settings.dry_run,
-        resume=False,
     )
-    with opened_devices(devices, scenario) as (robot, tracker, world):
+    devices = settings.devices
+    with opened_devices(moving, scenario) as (robot, tracker, world):
         if world is None:
             hardware, findings = robot_findings(robot, devices.robot_model, devices.tool)
             refuse_when_not_ready(findings)
             model = hardware.model
             notes += other_devices(
-                calibration, settings.robot, settings.tracker, model.name, settings.accept_other_devices
+                calibration,
+                str(devices.robot),
+                str(devices.tracker),
+                model.name,
+                settings.accept_other_devices,
             )
         else:
             model = world.controller_model
@@ -776,7 +585,7 @@ def check(settings: CheckSettings) -> CheckOutput:
             model,
             robot.state().joints_rad,
             settings.poses,
-            motion_limits(devices),
+            motion_limits(moving),
             frame_period,
             settings.frames_per_pose,
         )
@@ -784,8 +593,8 @@ def check(settings: CheckSettings) -> CheckOutput:
             plan,
             model,
             robot.state(),
-            motion_limits(devices),
-            plan_workspace(model, plan, devices.workspace_box),
+            motion_limits(moving),
+            plan_workspace(model, plan, moving.workspace_box),
             visibility=None if world is None else world_visibility(world),
             visibility_note="not predicted on real devices (the check poses are within 45 mm and 10 deg "
             "of where the robot stands)",
@@ -816,7 +625,7 @@ def check(settings: CheckSettings) -> CheckOutput:
             simulation_settings(world.scenario)
             if world is not None
             else AcquisitionSettings(
-                linear_speed_mm_s=devices.speed_mm_s, linear_accel_mm_s2=devices.accel_mm_s2
+                linear_speed_mm_s=moving.speed_mm_s, linear_accel_mm_s2=moving.accel_mm_s2
             )
         )
         result = check_with_robot(
@@ -835,7 +644,7 @@ def check(settings: CheckSettings) -> CheckOutput:
     identity = (
         {"robot": "sim", "tracker": "sim", "scenario": world.scenario.name}
         if world is not None
-        else {"robot": settings.robot, "tracker": settings.tracker}
+        else {"robot": devices.robot, "tracker": devices.tracker}
     )
     result = _with(result, simulated=world is not None, devices=identity)
     history = append_history(settings.calibration, result, calibration.content_sha256)
@@ -894,7 +703,6 @@ def expected_at_check_poses(
 
 
 def _with(result: CheckResult, **changes: Any) -> CheckResult:
-    import dataclasses
 
     return dataclasses.replace(result, **changes)
 

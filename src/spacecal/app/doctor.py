@@ -7,10 +7,16 @@ against spacecal's settings (model, tool), exactly as ``spacecal acquire --dry-r
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from spacecal.app.acquisition import _close, open_robot, open_tracker, robot_findings, tracker_findings
+from spacecal.app.devices import (
+    DeviceSettings,
+    close_device,
+    open_robot,
+    open_tracker,
+    robot_findings,
+    tracker_findings,
+)
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import FINDING_PROBLEM, DeviceFinding
 
@@ -21,25 +27,13 @@ class DoctorSettings:
 
     Attributes
     ----------
-    robot : str or None
-        ``ur://HOST``.
-    tracker : str or None
-        ``ndi://...`` or ``igtl://HOST:PORT``.
-    rom : tuple of str
-        NDI tool definitions (the marker first).
-    tracker_rate_hz : float
-    robot_model : str or None
-        None: the model the controller names.
-    tool : (x, y, z, rx, ry, rz) or None
-        The TCP spacecal is told (mm, rotation vector in rad); None: the controller's.
+    devices : DeviceSettings
+        The devices to check, as ``acquire`` names them; a robot or tracker left None is not
+        checked (``robot_model`` None: the model the controller names; ``tool`` None: the
+        controller's TCP).
     """
 
-    robot: str | None = None
-    tracker: str | None = None
-    rom: tuple[str, ...] = ()
-    tracker_rate_hz: float = 20.0
-    robot_model: str | None = None
-    tool: tuple[float, float, float, float, float, float] | None = None
+    devices: DeviceSettings = field(default_factory=lambda: DeviceSettings(robot=None, tracker=None))
 
 
 @dataclass
@@ -59,25 +53,26 @@ def _connection_problem(exc: Exception) -> DeviceFinding:
 
 def doctor(settings: DoctorSettings) -> DoctorOutput:
     """Open each named device read-only, collect its findings, close it again."""
-    if not settings.robot and not settings.tracker:
+    devices = settings.devices
+    if not devices.robot and not devices.tracker:
         raise InvalidInputError("name a device to check: --robot ur://HOST and/or --tracker URL")
     output = DoctorOutput()
-    if settings.robot:
+    if devices.robot:
         try:
-            robot = open_robot(settings.robot, settings.robot_model, control=False)
+            robot = open_robot(devices.robot, devices.robot_model, control=False)
         except DeviceError as exc:
             output.findings.append(("robot", _connection_problem(exc)))
         else:
             try:
-                _, found = robot_findings(robot, settings.robot_model, _tool(settings.tool))
+                _, found = robot_findings(robot, devices.robot_model, devices.tool)
                 output.findings += [("robot", f) for f in found]
             except DeviceError as exc:  # it stopped answering (a call passed its deadline)
                 output.findings.append(("robot", _connection_problem(exc)))
             finally:
-                _close(robot)
-    if settings.tracker:
+                close_device(robot)
+    if devices.tracker:
         try:
-            tracker = open_tracker(settings.tracker, settings.rom, settings.tracker_rate_hz)
+            tracker = open_tracker(devices.tracker, devices.rom, devices.tracker_rate_hz)
         except DeviceError as exc:
             output.findings.append(("tracker", _connection_problem(exc)))
         except InvalidInputError as exc:
@@ -90,9 +85,5 @@ def doctor(settings: DoctorSettings) -> DoctorOutput:
             except DeviceError as exc:  # it stopped answering (a call passed its deadline)
                 output.findings.append(("tracker", _connection_problem(exc)))
             finally:
-                _close(tracker)
+                close_device(tracker)
     return output
-
-
-def _tool(tool: Sequence[float] | None) -> Sequence[float] | None:
-    return None if tool is None else tuple(float(v) for v in tool)

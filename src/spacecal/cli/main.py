@@ -19,7 +19,7 @@ import warnings
 from typing import Any
 
 from spacecal import app
-from spacecal.app.acquisition import finding_line
+from spacecal.app.devices import finding_line
 from spacecal.cli import parser
 from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.text import sanitize_for_terminal
@@ -235,10 +235,21 @@ def _tool(a: argparse.Namespace) -> Any:
     return _numbers(a.tool, 6, "--tool", "controller or X,Y,Z,RX,RY,RZ (mm, rotation vector in rad)")
 
 
-def _doctor(a: argparse.Namespace) -> None:
-    out = app.doctor(
-        app.DoctorSettings(a.robot, a.tracker, tuple(a.rom or ()), a.tracker_rate_hz, a.robot_model, _tool(a))
+def _devices(a: argparse.Namespace) -> app.DeviceSettings:
+    """The devices ``acquire``, ``check`` and ``doctor`` name, from their shared flags."""
+    return app.DeviceSettings(
+        a.robot, a.tracker, tuple(a.rom or ()), a.tracker_rate_hz, a.robot_model, _tool(a)
     )
+
+
+def _workspace_box(a: argparse.Namespace) -> Any:
+    if not a.workspace_box:
+        return None
+    return _numbers(a.workspace_box, 6, "--workspace-box", "xmin,xmax,ymin,ymax,zmin,zmax in mm")
+
+
+def _doctor(a: argparse.Namespace) -> None:
+    out = app.doctor(app.DoctorSettings(_devices(a)))
     for device, finding in out.findings:
         print(sanitize_for_terminal(finding_line(device, finding), ERROR_CHARS))  # devices name things
     if out.problems:
@@ -253,25 +264,18 @@ def _doctor(a: argparse.Namespace) -> None:
 def _acquire(a: argparse.Namespace) -> None:
     settings = app.AcquireSettings(
         a.output,
-        a.robot,
-        a.tracker,
-        a.scenario,
-        a.dry_run,
-        a.resume,
-        a.confirm_robot_motion,
-        a.speed_mm_s,
-        a.accel_mm_s2,
-        a.angular_speed_deg_s,
-        _numbers(a.workspace_box, 6, "--workspace-box", "xmin,xmax,ymin,ymax,zmin,zmax in mm")
-        if a.workspace_box
-        else None,
-        tuple(a.rom or ()),
-        a.tracker_rate_hz,
-        a.robot_model,
-        _tool(a),
-        a.prior,
-        a.rotation_deg,
-        a.translation_mm,
+        devices=_devices(a),
+        scenario=a.scenario,
+        dry_run=a.dry_run,
+        resume=a.resume,
+        confirm_robot_motion=a.confirm_robot_motion,
+        speed_mm_s=a.speed_mm_s,
+        accel_mm_s2=a.accel_mm_s2,
+        angular_speed_deg_s=a.angular_speed_deg_s,
+        workspace_box=_workspace_box(a),
+        prior=a.prior,
+        rotation_deg=a.rotation_deg,
+        translation_mm=a.translation_mm,
         plan=a.plan,
         stop_and_go=a.stop_and_go,
     )
@@ -406,32 +410,21 @@ def _import_plus(a: argparse.Namespace) -> None:
 
 
 def _check(a: argparse.Namespace) -> None:
-    devices = app.AcquireSettings(
-        output="check",
-        rom=tuple(a.rom or ()),
-        tracker_rate_hz=a.tracker_rate_hz,
-        robot_model=a.robot_model,
-        tool=_tool(a),
-        workspace_box=_numbers(a.workspace_box, 6, "--workspace-box", "xmin,xmax,ymin,ymax,zmin,zmax in mm")
-        if a.workspace_box
-        else None,
-    )
     out = app.check(
         app.CheckSettings(
             a.calibration,
             a.recording,
-            a.robot,
-            a.tracker,
-            a.scenario,
-            a.poses,
-            a.threshold_mm,
-            a.threshold_deg,
-            a.dry_run,
-            a.confirm_robot_motion,
-            devices,
-            a.frames_per_pose,
-            a.accept_edited,
-            a.accept_other_devices,
+            devices=_devices(a),
+            scenario=a.scenario,
+            poses=a.poses,
+            threshold_mm=a.threshold_mm,
+            threshold_deg=a.threshold_deg,
+            dry_run=a.dry_run,
+            confirm_robot_motion=a.confirm_robot_motion,
+            workspace_box=_workspace_box(a),
+            frames_per_pose=a.frames_per_pose,
+            accept_edited=a.accept_edited,
+            accept_other_devices=a.accept_other_devices,
         )
     )
     if out.gate is not None:

@@ -140,8 +140,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     A = app.AcquireSettings
     p = command("acquire", "run the calibration motion on a robot while sampling the tracker")
-    p.add_argument("--robot", default=_d(A, "robot"), help="sim (default) or ur://HOST")
-    p.add_argument("--tracker", default=_d(A, "tracker"), help="sim, ndi://PORT_OR_HOST or igtl://HOST:PORT")
+    add_devices(p)
     p.add_argument("--scenario", default=_d(A, "scenario"), help="scenario of the simulated devices")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (each sample flushed)")
     p.add_argument("--dry-run", action="store_true", help="check the plan without moving")
@@ -163,10 +162,6 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"
     )
-    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
-    p.add_argument("--tracker-rate-hz", type=float, default=_d(A, "tracker_rate_hz"), help="NDI frame rate")
-    p.add_argument("--robot-model", default=_d(A, "robot_model"), help="UR model for planning checks")
-    add_tool(p)
     p.add_argument("--prior", help="an earlier calibration, to check marker visibility along the plan")
     p.add_argument(
         "--rotation-deg", type=float, default=_d(A, "rotation_deg"), help="rotation sweep each way"
@@ -289,8 +284,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
-    p.add_argument("--robot", default=_d(K, "robot"), help="sim (default) or ur://HOST")
-    p.add_argument("--tracker", default=_d(K, "tracker"), help="sim, ndi://PORT_OR_HOST or igtl://HOST:PORT")
+    add_devices(p)
     p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
     p.add_argument("--poses", type=int, default=_d(K, "poses"), choices=[2, 3], help="number of poses")
     p.add_argument(
@@ -308,10 +302,6 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("--dry-run", action="store_true", help="plan the check poses without moving")
     p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
-    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
-    p.add_argument("--tracker-rate-hz", type=float, default=_d(A, "tracker_rate_hz"), help="NDI frame rate")
-    p.add_argument("--robot-model", default=_d(A, "robot_model"), help="UR model")
-    add_tool(p)
     p.add_argument(
         "--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"
     )
@@ -387,6 +377,28 @@ def duration_s(text: str) -> float:
     return float(match.group(1))
 
 
+def add_devices(p: argparse.ArgumentParser, simulated_by_default: bool = True) -> None:
+    """The device flags ``acquire``, ``check`` and ``doctor`` share (``app.DeviceSettings``):
+    ``--robot``, ``--tracker``, ``--rom``, ``--tracker-rate-hz``, ``--robot-model`` and the tool."""
+    from spacecal.adapters import DEVICE_SCHEMES, ROBOT, TRACKER
+
+    D = app.DeviceSettings
+
+    def forms(role: str) -> str:
+        urls = " or ".join(row.form for row in DEVICE_SCHEMES.values() if row.role == role)
+        return f"sim (default) or {urls}" if simulated_by_default else urls
+
+    default = (lambda name: _d(D, name)) if simulated_by_default else (lambda name: None)
+    p.add_argument("--robot", default=default("robot"), help=forms(ROBOT))
+    p.add_argument("--tracker", default=default("tracker"), help=forms(TRACKER))
+    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
+    p.add_argument(
+        "--tracker-rate-hz", type=float, default=_d(D, "tracker_rate_hz"), help="tracker frame rate"
+    )
+    p.add_argument("--robot-model", default=_d(D, "robot_model"), help="UR model (UR10, UR10e, ...)")
+    add_tool(p)
+
+
 def add_tool(p: argparse.ArgumentParser) -> None:
     """``--tool`` (and its older translation-only form ``--tool-offset-mm``)."""
     p.add_argument(
@@ -400,14 +412,8 @@ def add_tool(p: argparse.ArgumentParser) -> None:
 
 def add_doctor(command) -> None:
     """``spacecal doctor``: read-only checks of a robot and a tracker."""
-    D = app.DoctorSettings
     p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
-    p.add_argument("--robot", help="ur://HOST")
-    p.add_argument("--tracker", help="ndi://PORT_OR_HOST or igtl://HOST:PORT")
-    p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
-    p.add_argument("--tracker-rate-hz", type=float, default=_d(D, "tracker_rate_hz"), help="NDI frame rate")
-    p.add_argument("--robot-model", default=_d(D, "robot_model"), help="UR model (UR10, UR10e, ...)")
-    add_tool(p)
+    add_devices(p, simulated_by_default=False)
 
 
 def add_force(p: argparse.ArgumentParser) -> None:
