@@ -116,6 +116,11 @@ def test_console_script_exit_codes(tmp_path):
         [sys.executable, "-m", "spacecal.cli", "calibrate"], capture_output=True, text=True
     )
     assert usage.returncode == 2
+    # one line, naming what is missing and where the usage is (not argparse's usage block)
+    assert usage.stderr.strip().splitlines() == [
+        "spacecal calibrate: error: the following arguments are required: recording, -o/--output "
+        "(see spacecal calibrate --help)"
+    ]
 
 
 def test_ml_writes_covariance_and_predicted_tre(recording_file, tmp_path, capsys):

@@ -344,25 +344,28 @@ def _register_landmarks(a: argparse.Namespace) -> None:
 def _export(a: argparse.Namespace) -> None:
     ros = (a.easy_handeye2, a.ros2_launch, a.urdf, a.static_tf, a.ur_calibration)
     lines = []
+    ros_settings = app.RosExportSettings(
+        a.calibration,
+        *ros,
+        a.base_frame,
+        a.tool_frame,
+        a.tracker_frame,
+        a.marker_frame,
+        a.force,
+        a.accept_edited,
+    )
+    if any(ros):
+        # every ROS file checked before anything is written: a refused name or model leaves
+        # no Slicer or PLUS file behind either
+        app.export_ros(ros_settings, write=False)
     if a.slicer or a.plus or a.igtl or not any(ros):
         lines += app.export(
             app.ExportSettings(a.calibration, a.slicer, a.plus, a.igtl, a.force, a.accept_edited)
         )
     if any(ros):
-        lines += app.export_ros(
-            app.RosExportSettings(
-                a.calibration,
-                *ros,
-                a.base_frame,
-                a.tool_frame,
-                a.tracker_frame,
-                a.marker_frame,
-                a.force,
-                a.accept_edited,
-            )
-        )
+        lines += app.export_ros(ros_settings)
     for line in dict.fromkeys(lines):  # a note on the calibration is made by both exports
-        print(line)
+        print(sanitize_for_terminal(line, ERROR_CHARS))  # names from the calibration and paths
 
 
 def _import_bag(a: argparse.Namespace) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from typing import NoReturn
 
 from spacecal import __version__, app
 from spacecal.app.simulation import DEFAULT_SCENARIO
@@ -28,11 +29,19 @@ def _d(settings: type, name: str):
     return {f.name: f.default for f in dataclasses.fields(settings)}[name]
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (the usage block is on ``--help``);
+    the exit code stays argparse's 2 for a command line that does not parse."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     """The parser; ``commands_impl`` maps each command name to the function that runs it."""
     from spacecal.estimators import METHODS
 
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker."
     )
     parser.add_argument("--version", action="version", version=f"spacecal {__version__}")
