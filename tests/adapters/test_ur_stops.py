@@ -15,7 +15,6 @@ import pytest
 pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
-from spacecal.estimators.time_offset import LARGEST_GAP_PERIODS, LARGEST_GAP_S
 from spacecal.io.raw_streams import read_raw_recording, stream_paths
 from spacecal.io.recording_csv import metadata_path
 from spacecal.workflows.acquisition import progress_path
@@ -25,6 +24,7 @@ from .ur_runs import (
     acquire_argv,
     assert_everything_closed,
     last_line,
+    outside_the_robot_stream,
     recorded_rows,
     run,
     stats,
@@ -132,14 +132,7 @@ def dropped_by_the_pairing_rule(raw, offset_s, frame_time_s):
     frame may then land before the robot's first state, in the stretch the stop left, or in a
     few ticks a loaded poller missed: it is still in the raw stream, but not paired.
     """
-    robot_t = raw.robot_time_s
-    query = frame_time_s + offset_s
-    after = np.searchsorted(robot_t, query)
-    outside = (after == 0) | (after == len(robot_t))
-    inside = np.clip(after, 1, len(robot_t) - 1)
-    largest = max(LARGEST_GAP_PERIODS * float(np.median(np.diff(robot_t))), LARGEST_GAP_S)
-    in_a_gap = robot_t[inside] - robot_t[inside - 1] > largest
-    return outside | in_a_gap
+    return outside_the_robot_stream(raw.robot_time_s, frame_time_s + offset_s)
 
 
 def resume_and_check(world, generation, recording, rom, kept):

@@ -101,6 +101,16 @@ def _complete_lines(path: Path) -> list[str]:
     return text[: text.rfind("\n") + 1].splitlines()
 
 
+def outside_the_robot_stream(robot_time_s: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+    """Whether each time (on the robot's clock, s) falls outside the robot stream or into a gap
+    of it: the rule by which ``estimators.time_offset.pair_streams`` leaves a frame unpaired."""
+    after = np.searchsorted(robot_time_s, time_s)
+    outside = (after == 0) | (after == len(robot_time_s))
+    inside = np.clip(after, 1, len(robot_time_s) - 1)
+    largest = max(LARGEST_GAP_PERIODS * float(np.median(np.diff(robot_time_s))), LARGEST_GAP_S)
+    return outside | (robot_time_s[inside] - robot_time_s[inside - 1] > largest)
+
+
 def pairable_rows(recording: Path) -> int:
     """Tracker frames written so far that arrived inside the robot stream written so far, not in
     a gap of it (the pairing's rule, ``estimators.time_offset.pair_streams``, at the offset the
@@ -118,11 +128,7 @@ def pairable_rows(recording: Path) -> int:
     column = tracker[0].split(",").index(ARRIVAL_COLUMN)
     cells = [line.split(",")[column] for line in tracker[1:]]
     arrival = np.array([float(cell) for cell in cells if cell])
-    after = np.searchsorted(robot_t, arrival)
-    inside = (after > 0) & (after < len(robot_t))
-    upper = np.clip(after, 1, len(robot_t) - 1)
-    largest = max(LARGEST_GAP_PERIODS * float(np.median(np.diff(robot_t))), LARGEST_GAP_S)
-    return int(np.sum(inside & (robot_t[upper] - robot_t[upper - 1] <= largest)))
+    return int(np.sum(~outside_the_robot_stream(robot_t, arrival)))
 
 
 def wait_for_rows(

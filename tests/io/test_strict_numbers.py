@@ -140,9 +140,10 @@ def test_recording_resume_time_skips_a_grouped_number(tmp_path):
     assert last_time_s(path) == pytest.approx(1.0)  # the row before: 1_100 is not a time
 
 
-def test_raw_streams_refuse_digit_groups(tmp_path):
+def _raw_recording() -> RawRecording:
+    """The test recording as raw streams (the tracker on the robot's clock)."""
     recording = _recording()
-    raw = RawRecording(
+    return RawRecording(
         recording.time_s,
         recording.segment,
         recording.joints_rad,
@@ -152,6 +153,10 @@ def test_raw_streams_refuse_digit_groups(tmp_path):
         recording.marker_rms_mm,
         {},
     )
+
+
+def test_raw_streams_refuse_digit_groups(tmp_path):
+    raw = _raw_recording()
     robot, tracker = write_raw_recording(raw, tmp_path / "raw")
     read_raw_recording(robot, tracker)
     _replace_cell(tracker, 3, "marker_x_mm", "1_00.5")
@@ -162,17 +167,7 @@ def test_raw_streams_refuse_digit_groups(tmp_path):
 
 
 def test_raw_streams_refuse_a_value_beyond_the_last_column(tmp_path):
-    recording = _recording()
-    raw = RawRecording(
-        recording.time_s,
-        recording.segment,
-        recording.joints_rad,
-        recording.base_from_tcp_stack,
-        recording.time_s,
-        recording.tracker_from_marker_stack,
-        recording.marker_rms_mm,
-        {},
-    )
+    raw = _raw_recording()
     robot, tracker = write_raw_recording(raw, tmp_path / "raw")
     lines = robot.read_text().splitlines()
     lines[3] += ",12345"
