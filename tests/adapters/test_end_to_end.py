@@ -106,6 +106,12 @@ def test_acquire_and_calibrate_against_the_ground_truth(
         timeout=60,
     )
     assert run.returncode == 0, run.stderr  # not unusable
+    # the calibration names the devices it belongs to, as they named themselves (the fake
+    # controller is a CB3, which has no serial number to give; the NDI fake's VER says P6-00042)
+    devices = json.loads(calibration.read_text())["provenance"]["devices"]
+    assert devices["robot"]["firmware"] == "PolyScope 3.15.7.106331" and "serial" not in devices["robot"]
+    if kind.startswith("ndi"):
+        assert devices["tracker"]["serial"] == "P6-00042", devices
     pairing = json.loads(recording.with_name("rec.meta.json").read_text())["pairing"]
     assert pairing["estimated"], pairing
     estimate = np.array(json.loads(calibration.read_text())["tracker_from_base"])

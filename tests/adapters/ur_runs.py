@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -78,7 +79,23 @@ def acquire_argv(
 
 
 def run(argv: list[str], timeout_s: float = 120.0) -> subprocess.CompletedProcess:
-    return subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s)
+    """Run ``argv``; past ``timeout_s`` the child dumps every thread's stack (faulthandler on
+    SIGABRT) and the test fails with where it hung, not only that it did."""
+    env = {**os.environ, "PYTHONFAULTHANDLER": "1"}
+    with subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) as child:
+        try:
+            stdout, stderr = child.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            child.send_signal(signal.SIGABRT)
+            try:
+                _, stderr = child.communicate(timeout=10)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                _, stderr = child.communicate()
+            raise AssertionError(
+                f"{' '.join(argv[2:4])} did not end within {timeout_s:.0f} s; its threads:\n{stderr[-6000:]}"
+            ) from None
+    return subprocess.CompletedProcess(argv, child.returncode, stdout, stderr)
 
 
 def last_line(text: str) -> str:

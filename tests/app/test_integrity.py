@@ -429,3 +429,68 @@ def test_a_calibration_without_device_urls_is_checked_with_a_note():
     calibration = on_devices().replace(provenance=Provenance(devices={"robot": {"model": "UR10"}}))
     notes = other_devices(calibration, "ur://10.0.0.2", "ndi://10.0.0.3", "UR10", accept=False)
     assert notes == ["the calibration records no device URLs: the devices connected were not compared"]
+
+
+def with_serials(robot_serial="20195500000", tracker_serial="P6-00042"):
+    calibration = on_devices()
+    devices = calibration.provenance.devices
+    return calibration.replace(
+        provenance=Provenance(
+            simulated=False,
+            devices={
+                "robot": {**devices["robot"], "serial": robot_serial},
+                "tracker": {**devices["tracker"], "serial": tracker_serial},
+            },
+        )
+    )
+
+
+def test_the_same_serial_numbers_at_new_addresses_are_the_same_devices():
+    notes = other_devices(
+        with_serials(),
+        "ur://10.0.0.7",
+        "ndi://10.0.0.8",
+        "UR10",
+        accept=False,
+        robot_identity={"serial": "20195500000"},
+        tracker_identity={"serial": "P6-00042"},
+    )
+    assert notes == []
+
+
+@pytest.mark.parametrize(
+    "robot_identity,tracker_identity,named",
+    [
+        (
+            {"serial": "20195500999"},
+            {"serial": "P6-00042"},
+            "robot serial number 20195500000 recorded, 20195500999 connected",
+        ),
+        (
+            {"serial": "20195500000"},
+            {"serial": "P6-00043"},
+            "tracker serial number P6-00042 recorded, P6-00043 connected",
+        ),
+    ],
+)
+def test_another_device_at_the_same_address_is_refused_by_its_serial_number(
+    robot_identity, tracker_identity, named
+):
+    with pytest.raises(InvalidInputError) as error:
+        other_devices(
+            with_serials(),
+            "ur://10.0.0.2",
+            "ndi://10.0.0.3",
+            "UR10",
+            accept=False,
+            robot_identity=robot_identity,
+            tracker_identity=tracker_identity,
+        )
+    assert named in str(error.value) and "--accept-other-devices" in str(error.value)
+
+
+def test_a_device_that_does_not_say_its_serial_is_compared_by_address():
+    with pytest.raises(InvalidInputError, match="robot ur://10.0.0.2 recorded, ur://10.0.0.9 connected"):
+        other_devices(
+            with_serials(), "ur://10.0.0.9", "ndi://10.0.0.3", "UR10", accept=False, robot_identity={}
+        )

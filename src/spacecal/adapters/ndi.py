@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import socket
 import stat
 import threading
@@ -65,6 +66,7 @@ from spacecal.core.ports import (
     FRAME_PARTIALLY_OUT_OF_VOLUME,
     FRAME_PROCESSING_EXCEPTION,
     DeviceFinding,
+    DeviceIdentity,
     TrackerFrame,
 )
 from spacecal.geometry.transforms import transform_from_position_quaternion
@@ -248,6 +250,28 @@ def frame_status(handle_result, port_status: int, system_status: int) -> str:
     if port_status & PORT_IR_INTERFERENCE or system_status & SYSTEM_TOO_MUCH_INFRARED:
         return FRAME_INTERFERENCE
     return FRAME_OK
+
+
+#: The lines of a ``VER 4`` reply that name the serial number and the firmware build.
+_VER_SERIAL = re.compile(r"^\s*(?:NDI\s+)?(?:S/N|Serial Number)\s*:\s*(\S+)", re.IGNORECASE | re.MULTILINE)
+_VER_FREEZE_TAG = re.compile(r"^\s*Freeze Tag\s*:\s*(.+?)\s*$", re.IGNORECASE | re.MULTILINE)
+
+
+def identity_from_version_text(text: str) -> DeviceIdentity:
+    """Model, serial and firmware from an NDI ``VER 4`` reply: its first line names the
+    control firmware ("Polaris Vega Control Firmware"), an ``NDI S/N:`` line the serial number
+    and the ``Freeze Tag:`` line the firmware build (the line scikit-surgerynditracker reads to
+    choose BX or TX)."""
+    lines = text.strip().splitlines()
+    first = lines[0].strip() if lines else ""
+    model = re.sub(r"\s*control firmware\s*$", "", first, flags=re.IGNORECASE) or None
+    serial = _VER_SERIAL.search(text)
+    freeze = _VER_FREEZE_TAG.search(text)
+    return DeviceIdentity(
+        model=model,
+        serial=serial.group(1) if serial else None,
+        firmware=freeze.group(1) if freeze else None,
+    )
 
 
 class NDITracker:
@@ -555,6 +579,17 @@ class NDITracker:
         pose = transform_from_position_quaternion([tx, ty, tz], np.array([q0, qx, qy, qz]) / norm)
         # the pose is kept whatever the status: a doubtful frame is recorded as such
         return TrackerFrame(time_s, int(frame_number), status, pose, float(rms))
+
+    def identity(self) -> DeviceIdentity:
+        """The tracker's model, serial number and firmware, from its ``VER 4`` text; None for
+        what the text does not say or a tracker that does not answer."""
+        try:
+            version, error = self._request("VER:4")
+        except DeviceError:
+            return DeviceIdentity()
+        if not version or error != self._ndi.NDI_OKAY:
+            return DeviceIdentity()
+        return identity_from_version_text(version)
 
     def preflight(self, duration_s: float = 1.0) -> list[DeviceFinding]:
         """Read-only checks: tracker and firmware, reply form, tools and their status, the

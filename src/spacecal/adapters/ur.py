@@ -66,6 +66,7 @@ from spacecal.core.ports import (
     SAFETY_STOPPED_BY_SAFETY,
     SAFETY_VIOLATION,
     DeviceFinding,
+    DeviceIdentity,
     RobotState,
 )
 from spacecal.core.units import metres_to_mm, mm_to_metres
@@ -495,6 +496,10 @@ def read_primary_interface(host: str, deadline_s: float = PRIMARY_DEADLINE_S) ->
             )
 
 
+#: The first PolyScope version whose dashboard server answers ``get serial number``.
+SERIAL_NUMBER_SINCE = (5, 6)
+
+
 def _version(text: str) -> tuple[int, ...] | None:
     match = re.search(r"(\d+)\.(\d+)\.(\d+)(?:\.(\d+))?", text)
     return tuple(int(v) for v in match.groups() if v is not None) if match else None
@@ -662,6 +667,28 @@ class URRobot:
             self._stream = StateStream(self._read_packet)
 
     # -- read-only checks --------------------------------------------------------------
+    def identity(self) -> DeviceIdentity:
+        """The controller's model, PolyScope version and, from PolyScope 5.6 on (the first that
+        answers ``get serial number``), its serial number; from the dashboard server, each
+        conversation within its deadline. A controller that does not answer has an identity of
+        Nones."""
+        try:
+            version_text, model_text = dashboard(self.host, ["PolyscopeVersion", "get robot model"])
+        except (OSError, ValueError):
+            return DeviceIdentity()
+        version = _version(version_text)
+        serial = None
+        if version is not None and version >= SERIAL_NUMBER_SINCE:
+            try:
+                (serial,) = dashboard(self.host, ["get serial number"])
+            except (OSError, ValueError):
+                serial = None
+        return DeviceIdentity(
+            model=_reported_model(version_text, model_text) or None,
+            serial=serial,
+            firmware=None if version is None else "PolyScope " + ".".join(map(str, version)),
+        )
+
     def controller_model(self) -> tuple[RobotModel, str]:
         """The model the controller computes ``actual_TCP_pose`` with: its DH parameters
         (factory-calibrated where it is) and the TCP set on the teach pendant; and where it

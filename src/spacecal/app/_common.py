@@ -3,6 +3,7 @@ provenance, and reading a calibration whose content hash is checked."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -134,12 +135,21 @@ def open_calibration(
 
 
 def other_devices(
-    calibration: CalibrationResult, robot_url: str, tracker_url: str, robot_model: str, accept: bool
+    calibration: CalibrationResult,
+    robot_url: str,
+    tracker_url: str,
+    robot_model: str,
+    accept: bool,
+    robot_identity: Mapping[str, str] | None = None,
+    tracker_identity: Mapping[str, str] | None = None,
 ) -> list[str]:
     """Compare the real devices connected with those the calibration records; returns notes.
 
-    Compared where the calibration records them: the robot's URL and model and the tracker's
-    URL; a calibration of simulated data on real devices is a mismatch too.
+    A device is compared by its serial number where the calibration records one and the device
+    connected says its own (``robot_identity`` / ``tracker_identity``, from
+    :func:`~spacecal.app.devices.device_identity`): the same serial at a new address is the same
+    device. Otherwise by URL. The robot's model is compared where recorded; a calibration of
+    simulated data on real devices is a mismatch too.
 
     Raises
     ------
@@ -152,12 +162,20 @@ def other_devices(
     differences = []
     if provenance.simulated is True:
         differences.append("it was calibrated on simulated devices")
-    for what, recorded, connected in (
-        ("robot", recorded_robot.get("url"), robot_url),
-        ("tracker", recorded_tracker.get("url"), tracker_url),
+    for what, recorded, url, identity in (
+        ("robot", recorded_robot, robot_url, robot_identity or {}),
+        ("tracker", recorded_tracker, tracker_url, tracker_identity or {}),
     ):
-        if isinstance(recorded, str) and canonical_url(recorded) != canonical_url(connected):
-            differences.append(f"{what} {recorded} recorded, {connected} connected")
+        recorded_serial, connected_serial = recorded.get("serial"), identity.get("serial")
+        if isinstance(recorded_serial, str) and connected_serial is not None:
+            if recorded_serial != connected_serial:
+                differences.append(
+                    f"{what} serial number {recorded_serial} recorded, {connected_serial} connected"
+                )
+            continue
+        recorded_url = recorded.get("url")
+        if isinstance(recorded_url, str) and canonical_url(recorded_url) != canonical_url(url):
+            differences.append(f"{what} {recorded_url} recorded, {url} connected")
     model = recorded_robot.get("model")
     if isinstance(model, str) and model.upper() != robot_model.upper():
         differences.append(f"a {model} recorded, a {robot_model} connected")

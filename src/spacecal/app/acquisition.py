@@ -22,6 +22,7 @@ from spacecal.app.devices import (
     DeviceSettings,
     HardwareModel,
     close_device,
+    device_identity,
     finding_line,
     marker_in_use,
     open_hardware,
@@ -298,13 +299,19 @@ def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -
     return plan
 
 
-def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dict[str, Any]:
-    """Metadata of a recording made on real devices: the robot's model as it was used."""
+def hardware_metadata(
+    settings: AcquireSettings, hardware: HardwareModel, robot: object, tracker: object
+) -> dict[str, Any]:
+    """Metadata of a recording made on real devices: the robot's model as it was used, and
+    what each device says it is (serial number, firmware), so that a calibration names the one
+    robot and tracker it belongs to."""
     model = hardware.model
+    robot_identity = device_identity(robot)
     return {
         "robot": {
             "model": model.name,
             "url": settings.devices.robot,
+            **{key: robot_identity[key] for key in ("serial", "firmware") if key in robot_identity},
             "flange_from_tcp": model.flange_from_tcp.tolist(),
             **(
                 {"kinematic_model": robot_model_to_dict(model)}
@@ -313,7 +320,11 @@ def hardware_metadata(settings: AcquireSettings, hardware: HardwareModel) -> dic
             ),
             "kinematics_source": hardware.source,
         },
-        "tracker": {"url": settings.devices.tracker, "rate_hz": settings.devices.tracker_rate_hz},
+        "tracker": {
+            "url": settings.devices.tracker,
+            "rate_hz": settings.devices.tracker_rate_hz,
+            **device_identity(tracker),
+        },
         "marker": marker_in_use(settings.devices.rom),
         "units": {"length": "mm", "angle": "rad", "time": "s"},
         "source": "spacecal acquire",
@@ -405,7 +416,9 @@ def acquire(
                 "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
             )
         metadata = (
-            recording_metadata(world) if world is not None else hardware_metadata(settings, _known(hardware))
+            recording_metadata(world)
+            if world is not None
+            else hardware_metadata(settings, _known(hardware), robot, tracker)
         )
         metadata["sampling"] = (
             {
@@ -574,6 +587,8 @@ def check(settings: CheckSettings) -> CheckOutput:
                 str(devices.tracker),
                 model.name,
                 settings.accept_other_devices,
+                robot_identity=device_identity(robot),
+                tracker_identity=device_identity(tracker),
             )
         else:
             model = world.controller_model

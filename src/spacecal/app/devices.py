@@ -25,6 +25,7 @@ from spacecal.core.ports import (
     Closable,
     ControlledRobot,
     DeviceFinding,
+    Identified,
     ModelledRobot,
     Preflight,
     Robot,
@@ -237,6 +238,12 @@ def marker_in_use(rom: Sequence[str]) -> dict[str, Any]:
         return {"name": "unknown (the tracker sends poses only)", "geometry_known": False}
     marker = read_rom_marker(rom[0])
     return {**marker.to_dict(), "tool_definition": str(Path(rom[0]).resolve()), "geometry_known": True}
+
+
+def device_identity(device: object) -> dict[str, str]:
+    """What a device says it is (model, serial number, firmware) as recording metadata; empty
+    for a device that cannot say (:class:`~spacecal.core.ports.Identified`)."""
+    return device.identity().as_metadata() if isinstance(device, Identified) else {}
 
 
 def robot_findings(

@@ -7,6 +7,7 @@ Units at this boundary are spacecal's: mm, rad, seconds.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -80,6 +81,56 @@ class DeviceFinding:
     level: str
     subject: str
     text: str
+
+
+#: Longest identity text kept from a device (a model name, a firmware tag).
+MAX_IDENTITY_CHARS = 64
+#: What a serial number may look like: a device's other answers ("could not understand: ...",
+#: an error code) are not one.
+_SERIAL = re.compile(r"[0-9A-Za-z][0-9A-Za-z._-]{2,39}")
+
+
+def _identity_text(value: str | None) -> str | None:
+    """A device's own text as it may be recorded: printable, one line, at most
+    :data:`MAX_IDENTITY_CHARS` characters; None when nothing of it is left."""
+    if value is None:
+        return None
+    text = "".join(c for c in str(value) if c.isprintable()).strip()[:MAX_IDENTITY_CHARS].strip()
+    return text or None
+
+
+@dataclass(frozen=True)
+class DeviceIdentity:
+    """What a device says it is: the one robot or tracker a calibration belongs to.
+
+    Every field is the device's own answer, kept only when it is plain text (device replies are
+    untrusted: they reach recordings, calibrations and generated files); None where the device
+    does not say.
+
+    Attributes
+    ----------
+    model : str or None
+        The model it names (``UR10e``, ``Polaris Vega``).
+    serial : str or None
+        Its serial number (UR dashboard ``get serial number``; NDI ``VER 4``'s ``S/N`` line).
+    firmware : str or None
+        Its software version (PolyScope version; NDI freeze tag).
+    """
+
+    model: str | None = None
+    serial: str | None = None
+    firmware: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "model", _identity_text(self.model))
+        object.__setattr__(self, "firmware", _identity_text(self.firmware))
+        serial = _identity_text(self.serial)
+        object.__setattr__(self, "serial", serial if serial and _SERIAL.fullmatch(serial) else None)
+
+    def as_metadata(self) -> dict[str, str]:
+        """The fields the device answered, for a recording's metadata."""
+        fields = {"model": self.model, "serial": self.serial, "firmware": self.firmware}
+        return {key: value for key, value in fields.items() if value is not None}
 
 
 @dataclass(frozen=True)
@@ -284,6 +335,15 @@ class Preflight(Protocol):
 
     def preflight(self) -> list[DeviceFinding]:
         """Read-only checks: version, modes, configuration, what the device sees now."""
+
+
+@runtime_checkable
+class Identified(Protocol):
+    """A device that can say which one it is (model, serial number, firmware)."""
+
+    def identity(self) -> DeviceIdentity:
+        """Ask the device; fields it does not answer are None. Never raises for a device that
+        does not answer: that is an identity of Nones."""
 
 
 @runtime_checkable
