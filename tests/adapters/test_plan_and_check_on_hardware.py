@@ -114,9 +114,16 @@ def test_planned_motion_then_checks_on_the_fake_devices(world, rom_file, tmp_pat
     assert [h.simulated for h in history] == [False, False, False, True]
     identified_history, unreadable, _ = read_history(kinematic)
     assert unreadable == 0 and [h.passed for h in identified_history] == [True, False, False]
+    # the devices as they named themselves: the CB3 fake has no serial number to give (PolyScope
+    # 3), the NDI fake's VER 4 text names its serial and freeze tag
     assert history[0].devices == {
         "robot": f"ur://{host}",
         "tracker": f"ndi://{host}:{world.info['ndi_port']}",
+        "robot_model": "UR10",
+        "robot_firmware": "PolyScope 3.15.7.106331",
+        "tracker_model": "Polaris Vicra",
+        "tracker_serial": "P6-00042",
+        "tracker_firmware": "Polaris Vicra Rev 007.000",
     }
 
 

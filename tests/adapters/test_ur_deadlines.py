@@ -124,3 +124,41 @@ def test_nothing_listening_is_one_device_error():
     host = f"127.{_NETWORK}.1.{next(_addresses)}"
     with pytest.raises(DeviceError, match="dashboard server on .* is not reachable"):
         ur.dashboard(host, ["PolyscopeVersion"])
+
+
+# -- motion commands through ur_rtde ----------------------------------------------------------
+
+
+@pytest.mark.parametrize("generation", ["cb3", "eseries"])
+def test_a_move_sent_to_a_controller_that_just_vanished_is_given_up(generation):
+    """A controller switched off between the last state seen and the next command: ur_rtde's
+    ``moveL`` would wait for ever (over 60 s measured), so the command is sent from a worker and
+    given up once the controller's state stands still; the stop and the close that follow end
+    by their deadlines, and nothing more is sent on that connection."""
+    pytest.importorskip("rtde_control")
+    from spacecal.adapters.ur import URRobot
+
+    from .ur_runs import ur_world
+
+    world = ur_world(generation)
+    robot = URRobot(world.info["host"], control=True)
+    try:
+        target = robot.state().base_from_tcp.copy()
+        target[2, 3] += 5.0
+        assert world.control("ur vanish") == "OK"
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="did not answer moveL"):
+            robot.move_linear(target, 20.0, 200.0, asynchronous=True)
+        given_up_after = time.monotonic() - started
+        with pytest.raises(DeviceError, match="did not answer moveL"):  # nothing more is sent
+            robot.move_linear(target, 20.0, 200.0, asynchronous=True)
+        started = time.monotonic()
+        robot.stop()
+        robot.close()
+        closed_after = time.monotonic() - started
+    finally:
+        world.stop()
+    print(f"{generation}: moveL given up after {given_up_after:.2f} s, stop and close {closed_after:.2f} s")
+    assert given_up_after < ur.COMMAND_SILENCE_S + MARGIN_S
+    # the dashboard's stop (its deadline) and ur_rtde's disconnect (0.5 s per interface)
+    assert closed_after < ur.STOP_DEADLINE_S + ur.DASHBOARD_DEADLINE_S + MARGIN_S

@@ -280,12 +280,16 @@ def test_a_controller_that_vanishes_mid_run_ends_the_run(rom_file, tmp_path):
         ended_after = time.monotonic() - fault.sent_at
         assert result.returncode == 1, result.stderr
         line = last_line(result.stderr)
-        # the adapter's own check (its timestamp stood still 0.5 s) or the acquisition loop's (no
-        # new state over several tracker frames), whichever sees it first: both say why
+        # the adapter's own check (its timestamp stood still 0.5 s), the acquisition loop's (no
+        # new state over several tracker frames) or, when it vanished just before a move was
+        # sent, the move's (its state stood still while the command waited), whichever sees it
+        # first: each says why
         assert line.startswith(
             (
                 "spacecal: error: acquisition stopped: UR state is stale",
                 "spacecal: error: acquisition stopped: robot data stale",
+                f"spacecal: error: acquisition stopped: the UR controller on {world.info['host']} "
+                "did not answer moveL",
             )
         ), result.stderr
         assert "samples kept" in line and "Traceback" not in result.stderr

@@ -126,6 +126,20 @@ PROGRAM_SEEN_TIMEOUT_S = 1.0
 #: A controller that sends no new state within this (s) is taken as gone: a live one streams at
 #: 125 or 500 Hz, and a loaded computer has been seen to go 0.1 s without a packet.
 ANSWER_WITHIN_S = 0.3
+#: While a motion command is on its way, a controller whose state timestamp stands still this
+#: long (s) is taken as gone and the command is given up: ur_rtde's ``moveL``/``moveJ`` sent
+#: to a controller that vanished wait for ever (measured: over 60 s against the fake's
+#: ``vanish``), with the GIL released. The receive interface's own C++ thread advances the
+#: timestamp, so a loaded computer delays this check but does not trip it.
+COMMAND_SILENCE_S = 1.0
+#: Deadline of an asynchronous motion command (s): it returns once the controller's program
+#: took it, in milliseconds; ur_rtde's own wait for a program ready for a command is 3 s.
+ASYNC_COMMAND_DEADLINE_S = 5.0
+#: On closing, how long a motion command still on its thread may take to end (s) before the
+#: connection is treated as dropped (a stopped program ends a waiting command at once).
+PENDING_COMMAND_GRACE_S = 1.0
+#: How often the wait for a motion command looks at the controller's timestamp, s.
+COMMAND_POLL_S = 0.02
 #: A move counts as finished within these of its target, with the joints at rest.
 ARRIVAL_MM, ARRIVAL_RAD, REST_RAD_S = 0.05, 1e-4, 1e-3
 #: The controller's model must reproduce its reported TCP pose to this (mm).
@@ -592,6 +606,10 @@ class URRobot:
         self._program_expected = False
         #: whether the controller answered when the run was stopped (None: not stopped yet)
         self._answers: bool | None = None
+        #: A motion command still on its worker thread, and the one the controller never
+        #: answered (then nothing more is sent on the control connection).
+        self._pending: threading.Thread | None = None
+        self._stuck: str | None = None
         self._target: np.ndarray | None = None
         self._last_timestamp: float | None = None
         self._last_change = time.monotonic()
@@ -911,8 +929,62 @@ class URRobot:
             time.sleep(0.02)
         return DeviceError(f"the UR controller refused or aborted {command}")
 
+    def _commanded(self, what: str, call: Callable[[], bool], deadline_s: float | None) -> bool:
+        """Run one ur_rtde motion command on a worker thread and wait for it while the
+        controller keeps streaming its state, at most ``deadline_s`` (None: as long as it
+        streams, for a synchronous move).
+
+        A command that the controller stops answering is given up and left to its thread
+        (ur_rtde offers no way to cancel it), and no further command is sent on this
+        connection: the stop then goes through the dashboard server, which has deadlines.
+
+        Raises
+        ------
+        DeviceError
+            The controller fell silent (:data:`COMMAND_SILENCE_S`) or the deadline passed.
+        """
+        if self._stuck is not None:
+            raise DeviceError(f"the UR controller on {self.host} did not answer {self._stuck}: lost")
+        outcome: dict[str, object] = {}
+
+        def send() -> None:
+            try:
+                outcome["value"] = call()
+            except BaseException as exc:  # handed to the caller below
+                outcome["error"] = exc
+
+        worker = threading.Thread(target=send, name=f"ur {what}", daemon=True)
+        started = last_advance = time.monotonic()
+        stamp = float(self._receive.getTimestamp())
+        self._pending = worker
+        worker.start()
+        while True:
+            worker.join(COMMAND_POLL_S)
+            if not worker.is_alive():
+                break
+            now = time.monotonic()
+            latest = float(self._receive.getTimestamp())
+            if latest != stamp:
+                stamp, last_advance = latest, now
+            silent = now - last_advance > COMMAND_SILENCE_S
+            if silent or (deadline_s is not None and now - started > deadline_s):
+                self._stuck = what
+                self._answers = False
+                why = (
+                    f"its state stood still for {COMMAND_SILENCE_S:g} s"
+                    if silent
+                    else f"not within {deadline_s:g} s"
+                )
+                raise DeviceError(f"the UR controller on {self.host} did not answer {what} ({why}): lost")
+        self._pending = None
+        if "error" in outcome:
+            raise outcome["error"]  # type: ignore[misc]
+        return bool(outcome.get("value"))
+
     def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
-        if not self._require_control().moveJ([float(v) for v in joints_rad], speed_rad_s, accel_rad_s2):
+        control = self._require_control()
+        joints = [float(v) for v in joints_rad]
+        if not self._commanded("moveJ", lambda: control.moveJ(joints, speed_rad_s, accel_rad_s2), None):
             raise self._refused("moveJ")
 
     def move_linear(
@@ -922,7 +994,12 @@ class URRobot:
         target = np.asarray(base_from_tcp, dtype=float)
         here = pose_from_ur(self._receive.getActualTCPPose())
         speed_m_s, accel_m_s2 = movel_speed(here, target, speed_mm_s, accel_mm_s2, self.limits)
-        if not control.moveL(pose_to_ur(target), speed_m_s, accel_m_s2, asynchronous):
+        pose = pose_to_ur(target)
+        if not self._commanded(
+            "moveL",
+            lambda: control.moveL(pose, speed_m_s, accel_m_s2, asynchronous),
+            ASYNC_COMMAND_DEADLINE_S if asynchronous else None,
+        ):
             raise self._refused("moveL")
         self._target = target if asynchronous else None
 
@@ -952,10 +1029,14 @@ class URRobot:
         if self._control is None:
             return  # read-only: nothing of ours runs on the controller
         self._program_expected = False
-        self._answers = self._controller_answers()
+        # a command still on its thread (an interrupt while it was being sent) holds the
+        # control connection: the stop then goes through the dashboard server alone
+        pending = self._pending is not None and self._pending.is_alive()
+        self._answers = self._stuck is None and self._controller_answers()
         with contextlib.suppress(RuntimeError, OSError):
             if (
                 self._answers
+                and not pending
                 and self._control.isConnected()
                 and int(self._receive.getRuntimeState()) == RUNTIME_PLAYING
                 and int(self._receive.getSafetyStatusBits()) & ~0b11 == 0  # normal or reduced
@@ -966,6 +1047,10 @@ class URRobot:
     def close(self) -> None:
         if self._stream is not None:
             self._stream.close()
+        if self._pending is not None:
+            self._pending.join(PENDING_COMMAND_GRACE_S)
+            if self._pending.is_alive():  # never answered: the connection is as good as dropped
+                self._answers = False
         answers = self._answers if self._answers is not None else self._controller_answers()
         dropped = not answers or (self._control is not None and not self._control.isConnected())
         if self._control is not None:

@@ -576,19 +576,22 @@ def check(settings: CheckSettings) -> CheckOutput:
         dry_run=settings.dry_run,
     )
     devices = settings.devices
+    robot_identity: dict[str, str] = {}
+    tracker_identity: dict[str, str] = {}
     with opened_devices(moving, scenario) as (robot, tracker, world):
         if world is None:
             hardware, findings = robot_findings(robot, devices.robot_model, devices.tool)
             refuse_when_not_ready(findings)
             model = hardware.model
+            robot_identity, tracker_identity = device_identity(robot), device_identity(tracker)
             notes += other_devices(
                 calibration,
                 str(devices.robot),
                 str(devices.tracker),
                 model.name,
                 settings.accept_other_devices,
-                robot_identity=device_identity(robot),
-                tracker_identity=device_identity(tracker),
+                robot_identity=robot_identity,
+                tracker_identity=tracker_identity,
             )
         else:
             model = world.controller_model
@@ -659,7 +662,13 @@ def check(settings: CheckSettings) -> CheckOutput:
     identity = (
         {"robot": "sim", "tracker": "sim", "scenario": world.scenario.name}
         if world is not None
-        else {"robot": devices.robot, "tracker": devices.tracker}
+        else {
+            "robot": devices.robot,
+            "tracker": devices.tracker,
+            # the check history names the devices it ran on as they named themselves
+            **{f"robot_{key}": value for key, value in robot_identity.items()},
+            **{f"tracker_{key}": value for key, value in tracker_identity.items()},
+        }
     )
     result = _with(result, simulated=world is not None, devices=identity)
     history = append_history(settings.calibration, result, calibration.content_sha256)
