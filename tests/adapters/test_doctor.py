@@ -41,6 +41,7 @@ def test_a_ready_system_passes_and_nothing_is_uploaded(world, rom_file):
     lines = result.stdout.splitlines()
     for expected in (
         "robot: controller version: ok: PolyScope 5.11.1.108318 (e-Series), robot state at 500 Hz",
+        "robot: serial number: ok: 20195500000",
         "robot: remote control: ok: on",
         "robot: robot mode: ok: RUNNING",
         "robot: safety: ok: normal",
@@ -50,6 +51,10 @@ def test_a_ready_system_passes_and_nothing_is_uploaded(world, rom_file):
     ):
         assert any(line.startswith(expected) for line in lines), (expected, result.stdout)
     assert lines[-1] == "every check passed: spacecal acquire can start"
+    assert any(
+        line.startswith("tracker: tracker: ok: Polaris") and ", serial number P6-00042, API revision" in line
+        for line in lines
+    ), result.stdout
     after = assert_everything_closed(world)
     assert after["scripts_uploaded"] == 0 and after["commands"] == []
 

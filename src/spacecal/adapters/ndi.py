@@ -598,13 +598,17 @@ class NDITracker:
         ndi = self._ndi
         version, error = self._request("VER:4")
         api, api_error = self._request("APIREV ")
-        name = (version or "").strip().splitlines()[0] if version and error == ndi.NDI_OKAY else "NDI tracker"
+        identity = (
+            identity_from_version_text(version) if version and error == ndi.NDI_OKAY else DeviceIdentity()
+        )
+        name = identity.model or "NDI tracker"
+        serial = f", serial number {identity.serial}" if identity.serial else ""
         revision = api.strip() if api and api_error == ndi.NDI_OKAY else "unknown (APIREV not answered)"
         findings.append(
             DeviceFinding(
                 FINDING_OK,
                 "tracker",
-                f"{name}, API revision {revision}, over {'serial' if self.serial else 'TCP'}",
+                f"{name}{serial}, API revision {revision}, over {'serial' if self.serial else 'TCP'}",
             )
         )
         start = time.monotonic()

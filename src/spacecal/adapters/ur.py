@@ -757,6 +757,15 @@ class URRobot:
                     f"PolyScope {'.'.join(map(str, version))} ({'e-Series' if eseries else 'CB3'}), "
                     f"robot state at {500 if eseries else 125} Hz",
                 )
+                serial = self.identity().serial if version >= SERIAL_NUMBER_SINCE else None
+                add(
+                    FINDING_OK,
+                    "serial number",
+                    serial
+                    if serial is not None
+                    else "not given (PolyScope answers it from 5.6 on): calibrations name this robot by "
+                    "its address",
+                )
                 if eseries and "true" not in remote.lower():
                     add(
                         FINDING_PROBLEM,
