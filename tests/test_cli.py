@@ -326,7 +326,7 @@ def test_plan_command(tmp_path, capsys):
 
 
 def test_a_replaced_calibration_shows_none_of_the_old_ones_checks(recording_file, tmp_path, capsys):
-    from spacecal.workflows.check import read_history
+    from spacecal.io.check_history import read_history
 
     calibration = tmp_path / "cal.json"
     assert run(capsys, "calibrate", str(recording_file), "-o", str(calibration))[0] == 0

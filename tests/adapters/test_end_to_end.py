@@ -18,9 +18,9 @@ pytest.importorskip("pyigtl")
 
 from spacecal.estimators.likelihood import tre_lower_bound
 from spacecal.geometry.metrics import cube_grid, target_registration_errors
+from spacecal.io.acquisition_progress import progress_path
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
-from spacecal.workflows.acquisition import progress_path
 
 from .ur_runs import WhenRecorded, outside_the_robot_stream, wait_for_rows
 

@@ -20,8 +20,8 @@ pytest.importorskip("ndicapy")
 
 from spacecal.estimators.likelihood import tre_lower_bound
 from spacecal.geometry.metrics import cube_grid, target_registration_errors
+from spacecal.io.check_history import read_history
 from spacecal.io.recording_csv import read_recording
-from spacecal.workflows.check import read_history
 
 SPACECAL = [sys.executable, "-m", "spacecal.cli"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.

@@ -15,9 +15,9 @@ import pytest
 pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
+from spacecal.io.acquisition_progress import progress_path
+from spacecal.io.csv_core import metadata_path
 from spacecal.io.raw_streams import read_raw_recording, stream_paths
-from spacecal.io.recording_csv import metadata_path
-from spacecal.workflows.acquisition import progress_path
 
 from .ur_runs import (
     WhenRecorded,

@@ -17,8 +17,9 @@ from spacecal import app
 from spacecal.app._common import other_devices, provenance_of
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import axis_angle_transform
+from spacecal.io.csv_core import metadata_path
 from spacecal.io.digest import file_sha256
-from spacecal.io.recording_csv import metadata_path, write_recording
+from spacecal.io.recording_csv import write_recording
 from spacecal.io.results_json import read_calibration
 from spacecal.records import CalibrationResult, Provenance
 

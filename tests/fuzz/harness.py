@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spacecal.io.recording_csv import JOINT_COLUMNS, MARKER_COLUMNS, TCP_COLUMNS
+from spacecal.io.csv_core import JOINT_COLUMNS, MARKER_COLUMNS, TCP_COLUMNS
 
 CLASSES = ("encoding", "types", "numbers", "consistency", "overwrite", "arguments", "valid")
 OUTCOMES = (

@@ -20,8 +20,8 @@ from spacecal.core.errors import SpacecalError
 
 STEPS = [
     "spacecal.app.acquisition.last_time_s",
-    "spacecal.workflows.acquisition.read_progress",
-    "spacecal.io.raw_streams._drop_partial_last_row",
+    "spacecal.io.acquisition_progress.read_progress",
+    "spacecal.io.raw_streams.drop_partial_last_row",
     "spacecal.workflows.acquisition.RawStreamWriter",
     "spacecal.workflows.acquisition._approach",
     "spacecal.workflows.acquisition._derive_recording",

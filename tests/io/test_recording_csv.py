@@ -2,14 +2,8 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.io.recording_csv import (
-    COLUMNS,
-    STATUS_COLUMN,
-    RecordingWriter,
-    metadata_path,
-    read_recording,
-    write_recording,
-)
+from spacecal.io.csv_core import metadata_path
+from spacecal.io.recording_csv import COLUMNS, STATUS_COLUMN, RecordingWriter, read_recording, write_recording
 
 
 def test_round_trip_is_exact(tmp_path, white_simulation):

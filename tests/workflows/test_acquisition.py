@@ -10,13 +10,14 @@ from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import Robot, Tracker
 from spacecal.estimators import calibrate
 from spacecal.experiments.truth import calibration_error
+from spacecal.io.acquisition_progress import progress_path
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
-from spacecal.workflows.acquisition import AcquisitionStopped, acquire, progress_path
+from spacecal.workflows.acquisition import AcquisitionStopped, acquire
 
 
 def setup(**robot_options):

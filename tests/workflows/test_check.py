@@ -8,9 +8,9 @@ import pytest
 from spacecal.cli import main
 from spacecal.estimators import calibrate
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
+from spacecal.io.check_history import history_path, read_history
 from spacecal.io.results_json import read_calibration, write_calibration
 from spacecal.records import Provenance
-from spacecal.workflows.check import history_path, read_history
 
 
 @pytest.fixture
@@ -194,8 +194,8 @@ def test_histories_of_every_schema_version_still_read(tmp_path):
     # each line bound to the calibration it checked (its content hash)
     bound = [{**line, "calibration_sha256": "a" * 64} for line in old]
     history_path(calibration).write_text("".join(json.dumps(line) + "\n" for line in bound))
+    from spacecal.io.check_history import append_history
     from spacecal.records import CheckResult
-    from spacecal.workflows.check import append_history
 
     append_history(
         calibration,

@@ -40,6 +40,8 @@ from spacecal.core.ports import (
 )
 from spacecal.experiments.simulation import simulation_settings
 from spacecal.geometry.rotations import rotation_angle
+from spacecal.io.acquisition_progress import resume_home_joints
+from spacecal.io.check_history import append_history, history_path
 from spacecal.io.ndi_rom import read_rom_marker
 from spacecal.io.recording_csv import last_time_s
 from spacecal.io.recording_source import open_calibrated_recording
@@ -64,19 +66,16 @@ from spacecal.workflows.acquisition import (
     AcquisitionSettings,
     FrameObserver,
     raw_stream_paths,
-    resume_home_joints,
 )
 from spacecal.workflows.acquisition import acquire as run_acquisition
 from spacecal.workflows.check import (
     FALSE_ALARM_RATE,
     ExpectedMisfit,
     MisfitField,
-    append_history,
     check_thresholds,
     check_with_recording,
     check_with_robot,
     expected_misfits,
-    history_path,
     misfit_field,
     robot_repeatability_sd_mm,
     tolerance_factor,

@@ -24,9 +24,10 @@ from spacecal.estimators.likelihood import tre_lower_bound
 from spacecal.estimators.observations import marker_geometry_of, sphere_noise_from_marker_rms
 from spacecal.estimators.pivot import pivot_calibration
 from spacecal.estimators.time_offset import check_overlap, estimate_time_offset, pair_streams
+from spacecal.io.csv_core import metadata_path
 from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording
-from spacecal.io.recording_csv import metadata_path, read_recording
+from spacecal.io.recording_csv import read_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import write_calibration, write_json
 from spacecal.records import CalibrationResult, PivotResult, Recording

@@ -16,6 +16,8 @@ from spacecal.app._common import check_belongs, guard_outputs, open_calibration,
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.io.atomic import atomic_path
+from spacecal.io.check_history import history_path, read_history
+from spacecal.io.csv_core import metadata_path
 from spacecal.io.plus_config import (
     read_plus_landmarks,
     read_plus_transform,
@@ -23,13 +25,12 @@ from spacecal.io.plus_config import (
 )
 from spacecal.io.plus_import import recording_from_plus_sequence
 from spacecal.io.plus_sequence import read_plus_sequence
-from spacecal.io.recording_csv import metadata_path, write_recording
+from spacecal.io.recording_csv import write_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.records import LandmarkRegistrationResult, VerificationResult
 from spacecal.report.html import Report, write_figures, write_report
-from spacecal.workflows.check import history_path, read_history
 from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
 
 

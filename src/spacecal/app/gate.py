@@ -16,6 +16,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import RobotState
+from spacecal.io.acquisition_progress import read_progress
 from spacecal.io.results_json import read_calibration
 from spacecal.models.kinematics import RobotModel
 from spacecal.models.marker import ndi_8700339_like
@@ -30,7 +31,7 @@ from spacecal.planning.motion_gate import (
 )
 from spacecal.planning.visibility import VisibilityModel
 from spacecal.sim.world import World
-from spacecal.workflows.acquisition import plan_fingerprint, read_progress
+from spacecal.workflows.acquisition import plan_fingerprint
 
 if TYPE_CHECKING:
     from spacecal.app.acquisition import AcquireSettings

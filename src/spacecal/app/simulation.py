@@ -20,8 +20,9 @@ from spacecal.experiments.simulation import simulate as simulate_run
 from spacecal.experiments.simulation import simulate_raw
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.io.atomic import atomic_path
+from spacecal.io.csv_core import metadata_path
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
-from spacecal.io.recording_csv import metadata_path, write_recording
+from spacecal.io.recording_csv import write_recording
 from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.planning.motion import MotionPlan, motion_plan_from_record
 from spacecal.planning.motion_gate import MotionGateReport

@@ -32,18 +32,18 @@ from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.atomic import write_text_atomic
-from spacecal.io.recording_csv import (
+from spacecal.io.csv_core import (
     JOINT_COLUMNS,
     MARKER_COLUMNS,
     TCP_COLUMNS,
-    _check_quaternions,
-    _drop_partial_last_row,
-    _format,
-    _number,
     check_metadata,
+    check_quaternions,
     check_ranges,
     check_tcp_against_kinematics,
+    drop_partial_last_row,
+    format_number,
     metadata_path,
+    parse_number,
     sphere_columns,
 )
 from spacecal.io.results_json import read_json_object, write_json
@@ -75,10 +75,10 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
     positions, quaternions = transform_to_position_quaternion(raw.base_from_tcp_stack)
     for k in range(len(raw.robot_time_s)):
         writer.writerow(
-            [_format(raw.robot_time_s[k]), raw.robot_segment[k]]
-            + [_format(v) for v in raw.joints_rad[k]]
-            + [_format(v) for v in positions[k]]
-            + [_format(v) for v in quaternions[k]]
+            [format_number(raw.robot_time_s[k]), raw.robot_segment[k]]
+            + [format_number(v) for v in raw.joints_rad[k]]
+            + [format_number(v) for v in positions[k]]
+            + [format_number(v) for v in quaternions[k]]
         )
     writer = csv.writer(tracker_text)
     writer.writerow(TRACKER_COLUMNS)
@@ -87,13 +87,13 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
         if np.all(np.isfinite(pose)):
             position, quaternion = transform_to_position_quaternion(pose)
             cells = (
-                [_format(v) for v in position]
-                + [_format(v) for v in quaternion]
-                + [_format(raw.marker_rms_mm[k])]
+                [format_number(v) for v in position]
+                + [format_number(v) for v in quaternion]
+                + [format_number(raw.marker_rms_mm[k])]
             )
         else:
             cells = [""] * len(MARKER_COLUMNS)
-        writer.writerow([_format(raw.tracker_time_s[k])] + cells)
+        writer.writerow([format_number(raw.tracker_time_s[k])] + cells)
     write_json(raw.metadata, meta_path)
     write_text_atomic(robot_text.getvalue(), robot_path)
     write_text_atomic(tracker_text.getvalue(), tracker_path)
@@ -136,7 +136,7 @@ class RawStreamWriter:
         resuming = append and self.robot_path.is_file() and self.tracker_path.is_file()
         if resuming:
             for path in (self.robot_path, self.tracker_path):
-                _drop_partial_last_row(path)
+                drop_partial_last_row(path)
             header = read_text_file(self.tracker_path, "stream").splitlines()[0].split(",")
             sphere_count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
         else:
@@ -163,10 +163,10 @@ class RawStreamWriter:
                 continue
             position, quaternion = transform_to_position_quaternion(state.base_from_tcp)
             self._robot.writerow(
-                [_format(state.time_s), segment]
-                + [_format(v) for v in state.joints_rad]
-                + [_format(v) for v in position]
-                + [_format(v) for v in quaternion]
+                [format_number(state.time_s), segment]
+                + [format_number(v) for v in state.joints_rad]
+                + [format_number(v) for v in position]
+                + [format_number(v) for v in quaternion]
             )
             self._last_robot_time = state.time_s
 
@@ -188,7 +188,7 @@ class RawStreamWriter:
             cells = [""] * len(MARKER_COLUMNS)
         else:
             position, quaternion = transform_to_position_quaternion(tracker_from_marker)
-            cells = [_format(v) for v in [*position, *quaternion, marker_rms_mm]]
+            cells = [format_number(v) for v in [*position, *quaternion, marker_rms_mm]]
         spheres = np.full(3 * self.sphere_count, np.nan)
         if self.sphere_count and spheres_in_tracker is not None and cells[0]:
             given = np.asarray(spheres_in_tracker, dtype=float).reshape(-1)
@@ -196,10 +196,10 @@ class RawStreamWriter:
         if not cells[0] and status == FRAME_OK:
             status = FRAME_MISSING
         self._tracker.writerow(
-            [_format(time_s)]
+            [format_number(time_s)]
             + cells
-            + [_format(arrival_robot_time_s), status]
-            + [_format(v) for v in spheres]
+            + [format_number(arrival_robot_time_s), status]
+            + [format_number(v) for v in spheres]
         )
         self.flush()
 
@@ -258,19 +258,23 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
         # joints may be unrecorded (a robot pose from tf in a ROS bag): all six cells empty
         joints_missing = not any(row[index[c]].strip() for c in JOINT_COLUMNS)
         values[k] = [
-            np.nan if joints_missing and c in JOINT_COLUMNS else _number(row[index[c]], k + 2, c, robot_path)
+            np.nan
+            if joints_missing and c in JOINT_COLUMNS
+            else parse_number(row[index[c]], k + 2, c, robot_path)
             for c in numeric
         ]
     segments = np.array([r[index["segment"]].strip() for r in rows])
     _increasing(values[:, 0], robot_path)
     lines = np.arange(2, len(rows) + 2)
-    _check_quaternions(values[:, 10:14], lines, "tcp", robot_path)
+    check_quaternions(values[:, 10:14], lines, "tcp", robot_path)
     check_lengths_in_mm(values[:, 7:10], f"{robot_path}: tcp_x_mm..tcp_z_mm")
     no_marker = np.full((len(rows), 3), np.nan)
     check_ranges(robot_path, lines, values[:, 0], values[:, 1:7], values[:, 7:10], no_marker, no_marker[:, 0])
 
     rows, index, header = _rows(tracker_path, TRACKER_COLUMNS)
-    times = np.array([_number(r[index["time_s"]], k + 2, "time_s", tracker_path) for k, r in enumerate(rows)])
+    times = np.array(
+        [parse_number(r[index["time_s"]], k + 2, "time_s", tracker_path) for k, r in enumerate(rows)]
+    )
     arrival = _optional_column(rows, header, ARRIVAL_COLUMN, tracker_path)
     status = None
     if STATUS_COLUMN in header:
@@ -289,14 +293,14 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
         cells = [r[index[c]].strip() for c in MARKER_COLUMNS]
         if any(cells[:7]):
             marker[k, :7] = [
-                _number(c, k + 2, name, tracker_path) for c, name in zip(cells[:7], MARKER_COLUMNS)
+                parse_number(c, k + 2, name, tracker_path) for c, name in zip(cells[:7], MARKER_COLUMNS)
             ]
             if cells[7]:
-                marker[k, 7] = _number(cells[7], k + 2, MARKER_COLUMNS[7], tracker_path)
+                marker[k, 7] = parse_number(cells[7], k + 2, MARKER_COLUMNS[7], tracker_path)
     seen = np.isfinite(marker[:, 0])
     if not seen.any():
         raise InvalidInputError(f"{tracker_path}: the marker was not visible in any frame")
-    _check_quaternions(marker[seen, 3:7], np.arange(2, len(rows) + 2)[seen], "marker", tracker_path)
+    check_quaternions(marker[seen, 3:7], np.arange(2, len(rows) + 2)[seen], "marker", tracker_path)
     check_lengths_in_mm(marker[seen, :3], f"{tracker_path}: marker_x_mm..marker_z_mm")
     tracker_lines = np.arange(2, len(rows) + 2)
     check_ranges(
@@ -336,7 +340,10 @@ def _optional_column(rows: list[list[str]], header: list[str], name: str, path: 
         return None
     column = header.index(name)
     return np.array(
-        [_number(r[column], k + 2, name, path) if r[column].strip() else np.nan for k, r in enumerate(rows)]
+        [
+            parse_number(r[column], k + 2, name, path) if r[column].strip() else np.nan
+            for k, r in enumerate(rows)
+        ]
     )
 
 

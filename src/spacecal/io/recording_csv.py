@@ -29,7 +29,6 @@ import difflib
 import io
 import math
 import os
-from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -40,67 +39,31 @@ from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.atomic import atomic_path
+from spacecal.io.csv_core import (
+    JOINT_COLUMNS,
+    MARKER_COLUMNS,
+    TCP_COLUMNS,
+    check_metadata,
+    check_quaternions,
+    check_ranges,
+    check_tcp_against_kinematics,
+    drop_partial_last_row,
+    format_number,
+    metadata_path,
+    parse_number,
+    sphere_columns,
+)
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.strict_numbers import parse_float
 from spacecal.io.text import read_text_file
 from spacecal.records import Recording
 
-JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
-TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
-MARKER_COLUMNS = [
-    "marker_x_mm",
-    "marker_y_mm",
-    "marker_z_mm",
-    "marker_qw",
-    "marker_qx",
-    "marker_qy",
-    "marker_qz",
-    "marker_rms_mm",
-]
 COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS + MARKER_COLUMNS
 #: The tracker's frame status; optional when reading (older files), always written.
 STATUS_COLUMN = "marker_status"
 
 #: Smallest number of samples a recording must hold to be worth calibrating from.
 MIN_SAMPLES = 10
-#: Largest deviation of a quaternion's norm from 1 that is taken for rounding.
-QUATERNION_NORM_TOLERANCE = 1e-3
-#: Plausible ranges of the numeric columns: times (s; ROS stamps are seconds since 1970),
-#: joint angles (rad; UR joints turn +-2 pi, a simulated arm may wind further), positions
-#: (mm), the tracker's fit RMS (mm).
-MAX_ABS_TIME_S = 1e10
-MAX_ABS_JOINT_RAD = 4 * math.pi
-MAX_ABS_POSITION_MM = 1e5
-MAX_MARKER_RMS_MM = 10.0
-#: Largest distance (mm) and angle (deg) between a recorded TCP pose and the forward
-#: kinematics of the recorded joints: beyond them the TCP columns are in another unit, another
-#: quaternion order, or hold the marker's pose. A controller's own calibration moves the TCP
-#: by a few mm at most.
-TCP_KINEMATICS_TOLERANCE_MM = 20.0
-TCP_KINEMATICS_TOLERANCE_DEG = 5.0
-#: Share of rows allowed beyond those tolerances.
-TCP_KINEMATICS_BAD_FRACTION = 0.05
-
-
-def sphere_columns(count: int) -> list[str]:
-    """Names of the optional raw-sphere columns for ``count`` spheres."""
-    return [f"sphere{k}_{axis}_mm" for k in range(1, count + 1) for axis in "xyz"]
-
-
-#: The raw robot stream's suffix: its metadata is that of the whole stem.
-RAW_ROBOT_SUFFIX = ".robot.csv"
-
-
-def metadata_path(recording_path: str | Path) -> Path:
-    """``rec.csv`` -> ``rec.meta.json``; a raw robot stream ``STEM.robot.csv`` -> ``STEM.meta.json``."""
-    path = Path(recording_path)
-    if path.name.endswith(RAW_ROBOT_SUFFIX):
-        return path.with_name(path.name[: -len(RAW_ROBOT_SUFFIX)] + ".meta.json")
-    return path.with_name(path.stem + ".meta.json")
-
-
-def _format(value: float) -> str:
-    return "" if not math.isfinite(value) else repr(float(value))
 
 
 class RecordingWriter:
@@ -131,7 +94,7 @@ class RecordingWriter:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if append and self.path.is_file() and self.path.stat().st_size > 0:
-            _drop_partial_last_row(self.path)
+            drop_partial_last_row(self.path)
             header = read_text_file(self.path, "recording").splitlines()[0].split(",")
             self.sphere_count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
             self.has_status = STATUS_COLUMN in header  # a file from before the column keeps its layout
@@ -182,14 +145,16 @@ class RecordingWriter:
         if status == FRAME_MISSING:
             has_pose = False
         tcp_position, tcp_quaternion = transform_to_position_quaternion(base_from_tcp)
-        row = [_format(time_s), segment] + [_format(v) for v in joints_rad]
-        row += [_format(v) for v in tcp_position] + [_format(v) for v in tcp_quaternion]
+        row = [format_number(time_s), segment] + [format_number(v) for v in joints_rad]
+        row += [format_number(v) for v in tcp_position] + [format_number(v) for v in tcp_quaternion]
         if not has_pose:
             row += [""] * len(MARKER_COLUMNS)
         else:
             position, quaternion = transform_to_position_quaternion(tracker_from_marker)
             row += (
-                [_format(v) for v in position] + [_format(v) for v in quaternion] + [_format(marker_rms_mm)]
+                [format_number(v) for v in position]
+                + [format_number(v) for v in quaternion]
+                + [format_number(marker_rms_mm)]
             )
         if self.has_status:
             row.append(status)
@@ -199,7 +164,7 @@ class RecordingWriter:
                 if spheres_in_tracker is None
                 else np.asarray(spheres_in_tracker, dtype=float).reshape(-1)
             )
-            row += [_format(v) for v in spheres]
+            row += [format_number(v) for v in spheres]
         self._writer.writerow(row)
         if flush:
             self._flush()
@@ -214,16 +179,6 @@ class RecordingWriter:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _drop_partial_last_row(path: Path) -> None:
-    """Cut a row that an interruption left half-written (no line end) before appending."""
-    with open(path, "rb+") as handle:
-        data = handle.read()
-        if data and not data.endswith(b"\n"):  # an interrupted row; the header stays
-            if b"\n" not in data:
-                raise InvalidInputError(f"{path}: the recording has no complete header row")
-            handle.truncate(data.rfind(b"\n") + 1)
 
 
 def last_time_s(path: str | Path) -> float | None:
@@ -287,32 +242,6 @@ def _check_header(header: list[str], path: Path) -> dict[str, int]:
     return {c: names.index(c) for c in COLUMNS}
 
 
-def _number(cell: str, line: int, column: str, path: Path) -> float:
-    try:
-        value = parse_float(cell)
-    except ValueError:
-        raise InvalidInputError(
-            f"{path}: line {line}, column {column}: {quoted(cell)} is not a number"
-            + (" (digit groups with '_' are not accepted)" if "_" in cell else "")
-        ) from None
-    if not math.isfinite(value):
-        raise InvalidInputError(
-            f"{path}: line {line}, column {column}: {quoted(cell)} is not a finite number"
-        )
-    return value
-
-
-def _check_quaternions(quaternions: np.ndarray, lines: np.ndarray, what: str, path: Path) -> None:
-    norms = np.linalg.norm(quaternions, axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_NORM_TOLERANCE)
-    if len(bad):
-        k = bad[0]
-        raise InvalidInputError(
-            f"{path}: line {lines[k]}: {what} quaternion has norm {norms[k]:.4f}; quaternions must "
-            f"be unit ({len(bad)} row(s) affected)"
-        )
-
-
 def read_recording(path: str | Path) -> Recording:
     """Read and validate a recording CSV (and its metadata, if present).
 
@@ -360,7 +289,7 @@ def read_recording(path: str | Path) -> Recording:
             raise InvalidInputError(
                 f"{path}: line {line} has {len(row)} cells; the header has {len(rows[0])}"
             )
-        time_s[k] = _number(row[index["time_s"]], line, "time_s", path)
+        time_s[k] = parse_number(row[index["time_s"]], line, "time_s", path)
         segment.append(row[index["segment"]].strip())
         joint_cells = [row[index[c]].strip() for c in JOINT_COLUMNS]
         if not any(joint_cells):
@@ -368,7 +297,7 @@ def read_recording(path: str | Path) -> Recording:
         for j, column in enumerate(numeric):
             if j < 6 and not any(joint_cells):
                 continue
-            values[k, j] = _number(row[index[column]], line, column, path)
+            values[k, j] = parse_number(row[index[column]], line, column, path)
         cells = [row[index[c]].strip() for c in MARKER_COLUMNS]
         pose_cells = cells[:7]  # marker_rms_mm may be empty: some trackers (OpenIGTLink) do not report it
         if any(cells):
@@ -377,11 +306,11 @@ def read_recording(path: str | Path) -> Recording:
                     f"{path}: line {line}: marker cells are partly empty; leave all of them empty "
                     "when the marker was not seen"
                 )
-            marker[k, :7] = [_number(c, line, name, path) for c, name in zip(pose_cells, MARKER_COLUMNS)]
+            marker[k, :7] = [parse_number(c, line, name, path) for c, name in zip(pose_cells, MARKER_COLUMNS)]
             if cells[7]:
-                marker[k, 7] = _number(cells[7], line, MARKER_COLUMNS[7], path)
+                marker[k, 7] = parse_number(cells[7], line, MARKER_COLUMNS[7], path)
             if spheres is not None and any(row[i].strip() for i in sphere_index):
-                spheres[k] = [_number(row[i], line, names[i], path) for i in sphere_index]
+                spheres[k] = [parse_number(row[i], line, names[i], path) for i in sphere_index]
         status_cells.append(row[status_index].strip() if status_index is not None else "")
 
     steps = np.diff(time_s)
@@ -398,8 +327,8 @@ def read_recording(path: str | Path) -> Recording:
         raise InvalidInputError(f"{path}: the marker was not visible in any of the {n} samples")
     # checked after the rows' own cells, so a file whose marker cells were all blanked says so
     status = np.array([_status(c, bool(p), int(ln), path) for c, p, ln in zip(status_cells, seen, lines)])
-    _check_quaternions(tcp_quaternion, lines, "tcp", path)
-    _check_quaternions(marker[seen, 3:7], lines[seen], "marker", path)
+    check_quaternions(tcp_quaternion, lines, "tcp", path)
+    check_quaternions(marker[seen, 3:7], lines[seen], "marker", path)
     check_lengths_in_mm(tcp_position, f"{path}: tcp_x_mm..tcp_z_mm")
     check_lengths_in_mm(marker[seen, :3], f"{path}: marker_x_mm..marker_z_mm")
 
@@ -441,101 +370,3 @@ def _status(cell: str, has_pose: bool, line: int, path: Path) -> str:
             f"{path}: line {line}: marker_status is missing but the marker cells hold a pose"
         )
     return cell
-
-
-def check_ranges(
-    path: Path,
-    lines: np.ndarray,
-    time_s: np.ndarray,
-    joints_rad: np.ndarray,
-    tcp_in_base_mm: np.ndarray,
-    marker_in_tracker_mm: np.ndarray,
-    marker_rms_mm: np.ndarray,
-) -> None:
-    """Refuse numbers that are finite but absurd (1e308, a joint at 1000 rad, a negative RMS).
-
-    Arrays are rows of the file (NaN where a cell is empty); ``lines`` (N,) are their line
-    numbers.
-    """
-    checks = (
-        ("time_s", time_s[:, None], -MAX_ABS_TIME_S, MAX_ABS_TIME_S, "s"),
-        ("q1_rad..q6_rad", joints_rad, -MAX_ABS_JOINT_RAD, MAX_ABS_JOINT_RAD, "rad"),
-        ("tcp_x_mm..tcp_z_mm", tcp_in_base_mm, -MAX_ABS_POSITION_MM, MAX_ABS_POSITION_MM, "mm"),
-        ("marker_x_mm..marker_z_mm", marker_in_tracker_mm, -MAX_ABS_POSITION_MM, MAX_ABS_POSITION_MM, "mm"),
-        ("marker_rms_mm", marker_rms_mm[:, None], 0.0, MAX_MARKER_RMS_MM, "mm"),
-    )
-    for name, values, low, high, unit in checks:
-        with np.errstate(invalid="ignore"):
-            bad = np.flatnonzero(np.any((values < low) | (values > high), axis=1))
-        if len(bad):
-            k = bad[0]
-            value = values[k][(values[k] < low) | (values[k] > high)][0]
-            raise InvalidInputError(
-                f"{path}: line {lines[k]}: {name} {value:.6g} is outside {low:g}..{high:g} {unit} "
-                f"({len(bad)} row(s) affected)"
-            )
-
-
-def check_metadata(metadata: Mapping, path: Path) -> None:
-    """Refuse recording metadata whose known keys have the wrong type or unit."""
-    for key in ("robot", "tracker", "marker", "scenario", "units", "frames"):
-        if key in metadata and metadata[key] is not None and not isinstance(metadata[key], Mapping):
-            raise InvalidInputError(f"{path}: {key!r} must be an object, got {type(metadata[key]).__name__}")
-    if "source" in metadata and not isinstance(metadata["source"], str):
-        raise InvalidInputError(f"{path}: 'source' must be a string, got {type(metadata['source']).__name__}")
-    if "simulated" in metadata and metadata["simulated"] is not None:
-        if not isinstance(metadata["simulated"], bool):
-            raise InvalidInputError(f"{path}: 'simulated' must be true or false")
-    length = (metadata.get("units") or {}).get("length", "mm")
-    if length != "mm":
-        raise InvalidInputError(f"{path}: units.length is {quoted(length)}; spacecal recordings are in 'mm'")
-    robot = metadata.get("robot") or {}
-    if "model" in robot and not isinstance(robot["model"], str):
-        raise InvalidInputError(f"{path}: robot.model must be a string such as 'UR10'")
-    if "flange_from_tcp" in robot:
-        from spacecal.records.fields import as_transform
-
-        as_transform(robot["flange_from_tcp"], "robot.flange_from_tcp", str(path))
-
-
-def check_tcp_against_kinematics(
-    joints_rad: np.ndarray, base_from_tcp_stack: np.ndarray, metadata: Mapping, path: Path
-) -> None:
-    """Refuse TCP columns that disagree with the forward kinematics of the recorded joints.
-
-    The robot model and the TCP in the flange come from the metadata, so the scale is known:
-    TCP positions in cm or inches, quaternions in x, y, z, w order or conjugated, or the
-    marker's pose in the TCP columns all put the recorded TCP far from where the joints put
-    it. Without joints or a known UR model there is nothing to compare with.
-
-    Parameters
-    ----------
-    joints_rad : numpy.ndarray, shape (N, 6)
-        NaN rows where the joints were not recorded.
-    base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
-        The recorded TCP poses, mm.
-    """
-    from spacecal.models.kinematics import UR_TABLES, forward_kinematics, ur_model
-
-    robot = metadata.get("robot") or {}
-    name = robot.get("model")
-    recorded = np.all(np.isfinite(joints_rad), axis=1)
-    if not isinstance(name, str) or name not in UR_TABLES or recorded.sum() == 0:
-        return
-    flange_from_tcp = robot.get("flange_from_tcp")
-    model = ur_model(name, None if flange_from_tcp is None else np.asarray(flange_from_tcp, dtype=float))
-    predicted = forward_kinematics(model, joints_rad[recorded])
-    actual = base_from_tcp_stack[recorded]
-    distance_mm = np.linalg.norm(predicted[:, :3, 3] - actual[:, :3, 3], axis=1)
-    relative = np.einsum("nji,njk->nik", predicted[:, :3, :3], actual[:, :3, :3])
-    cosine = np.clip((np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    angle_deg = np.degrees(np.arccos(cosine))
-    bad = (distance_mm > TCP_KINEMATICS_TOLERANCE_MM) | (angle_deg > TCP_KINEMATICS_TOLERANCE_DEG)
-    # a few rows may be off (a glitch); a conjugated 180 deg rotation is right, so count rows
-    if bad.mean() > TCP_KINEMATICS_BAD_FRACTION:
-        raise InvalidInputError(
-            f"{path}: the TCP columns disagree with the {name}'s forward kinematics of the recorded "
-            f"joints in {int(bad.sum())} of {len(bad)} rows (up to {np.max(distance_mm):.0f} mm, "
-            f"{np.max(angle_deg):.0f} deg): TCP positions not in mm, quaternions not w,x,y,z, or the "
-            "marker and TCP columns swapped?"
-        )

@@ -16,8 +16,9 @@ from pathlib import Path
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
+from spacecal.io.csv_core import RAW_ROBOT_SUFFIX
 from spacecal.io.raw_streams import read_raw_recording
-from spacecal.io.recording_csv import RAW_ROBOT_SUFFIX, read_recording
+from spacecal.io.recording_csv import read_recording
 from spacecal.records import CalibrationResult, Recording
 
 #: The tracker stream's suffix beside ``STEM.robot.csv`` (see :func:`spacecal.io.raw_streams.stream_paths`).

@@ -33,7 +33,7 @@ from spacecal.geometry.transforms import (
     quaternion_wxyz_to_matrix,
 )
 from spacecal.io.atomic import write_text_atomic
-from spacecal.io.recording_csv import MAX_ABS_POSITION_MM, MAX_ABS_TIME_S
+from spacecal.io.csv_core import MAX_ABS_POSITION_MM, MAX_ABS_TIME_S
 from spacecal.io.text import read_text_file
 from spacecal.records import RawRecording
 

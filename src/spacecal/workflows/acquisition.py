@@ -26,9 +26,9 @@ import numpy as np
 from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
 from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, StreamingRobot, Tracker
 from spacecal.estimators.time_offset import Pairing, pair_at_estimated_offset
+from spacecal.io.acquisition_progress import progress_path, read_progress, write_progress
 from spacecal.io.raw_streams import RawStreamWriter, read_raw_recording, stream_paths
 from spacecal.io.recording_csv import write_recording
-from spacecal.io.results_json import read_json_object, write_json
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove
 from spacecal.records import AcquisitionProgress
 from spacecal.workflows.stations import average_stations
@@ -107,12 +107,6 @@ def plan_fingerprint(plan: MotionPlan) -> str:
     return hashlib.sha256(np.round(data, 6).tobytes()).hexdigest()[:16]
 
 
-def progress_path(recording_path: str | Path) -> Path:
-    """``rec.csv`` -> ``rec.progress.json``."""
-    path = Path(recording_path)
-    return path.with_name(path.stem + ".progress.json")
-
-
 def raw_stream_paths(recording_path: str | Path) -> tuple[Path, Path]:
     """``rec.csv`` -> (``rec.robot.csv``, ``rec.tracker.csv``): the raw streams behind it."""
     path = Path(recording_path)
@@ -121,24 +115,16 @@ def raw_stream_paths(recording_path: str | Path) -> tuple[Path, Path]:
 
 
 def _write_progress(path: Path, plan: MotionPlan, completed: int, stopped_because: str | None) -> None:
-    progress = AcquisitionProgress(
-        plan_fingerprint(plan), completed, len(plan.moves), stopped_because, np.asarray(plan.home_joints_rad)
+    write_progress(
+        AcquisitionProgress(
+            plan_fingerprint(plan),
+            completed,
+            len(plan.moves),
+            stopped_because,
+            np.asarray(plan.home_joints_rad),
+        ),
+        path,
     )
-    write_json(progress.to_dict(), path)
-
-
-def read_progress(recording_path: str | Path) -> AcquisitionProgress | None:
-    """The progress of a stopped acquisition, or None when there is none."""
-    path = progress_path(recording_path)
-    if not path.is_file():
-        return None
-    return AcquisitionProgress.from_dict(read_json_object(path, "acquisition progress"), what=str(path))
-
-
-def resume_home_joints(recording_path: str | Path) -> np.ndarray | None:
-    """The home configuration a stopped acquisition was planned from (to re-plan it on resume)."""
-    progress = read_progress(recording_path)
-    return None if progress is None else progress.home_joints_rad
 
 
 def is_hold(move: TimedMove) -> bool:

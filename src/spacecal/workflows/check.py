@@ -19,14 +19,11 @@ A calibration without usable residuals falls back to :func:`check_thresholds`.
 
 from __future__ import annotations
 
-import json
 import math
-import os
 from collections import defaultdict
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -34,12 +31,10 @@ from spacecal.core.errors import DegenerateDataError, DeviceError, InvalidInputE
 from spacecal.core.ports import Robot, RobotState, Tracker
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
-from spacecal.io.results_json import read_json_object
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD, UR_REPEATABILITY_MM
 from spacecal.planning.motion import MotionPlan
 from spacecal.records import CalibrationResult, CheckResult, Recording
-from spacecal.records.integrity import content_sha256
 from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, RunFault, run_plan
 
 #: A check fails beyond this many standard deviations of what a sound calibration leaves.
@@ -688,74 +683,3 @@ def check_with_recording(
     if not labels:
         raise DegenerateDataError("the recording has no frame with the marker visible to check against")
     return CheckResult(np.array(errors), np.array(angles), threshold_mm, threshold_deg, labels)
-
-
-def history_path(calibration_path: str | Path) -> Path:
-    """``cal.json`` -> ``cal.checks.jsonl``."""
-    path = Path(calibration_path)
-    return path.with_name(path.stem + ".checks.jsonl")
-
-
-#: The key of a history line that binds it to the content hash of the calibration it checked.
-CALIBRATION_HASH_KEY = "calibration_sha256"
-
-
-class History(NamedTuple):
-    """The checks of one calibration, oldest first, and the lines left out: unreadable ones,
-    and those of another calibration (one replaced at the same path, or lines written before
-    checks recorded the calibration's hash)."""
-
-    checks: list[CheckResult]
-    unreadable: int
-    other_calibrations: int
-
-
-def calibration_content_sha256(calibration_path: str | Path) -> str:
-    """The content hash of the calibration file as it stands (see :mod:`spacecal.records.integrity`)."""
-    return content_sha256(read_json_object(calibration_path, "calibration"))
-
-
-def append_history(
-    calibration_path: str | Path, result: CheckResult, calibration_sha256: str | None = None
-) -> Path:
-    """Append a check to the calibration's history (one JSON object per line), bound to the
-    content hash of the calibration checked (by default, of the file as it stands)."""
-    if calibration_sha256 is None:
-        calibration_sha256 = calibration_content_sha256(calibration_path)
-    path = history_path(calibration_path)
-    line = {**result.to_dict(), CALIBRATION_HASH_KEY: calibration_sha256}
-    with open(path, "a", encoding="utf-8") as handle:
-        handle.write(json.dumps(line, allow_nan=False) + "\n")
-        handle.flush()
-        os.fsync(handle.fileno())
-    return path
-
-
-def read_history(calibration_path: str | Path, calibration_sha256: str | None = None) -> History:
-    """The checks logged for the calibration of content hash ``calibration_sha256`` (by
-    default, of the file as it stands), oldest first; lines of any other calibration and lines
-    that could not be read are counted, not returned (a corrupt line is never fatal: the
-    history is advisory). A calibration replaced at the same path thus never shows the checks
-    of the one before it."""
-    path = history_path(calibration_path)
-    if not path.is_file():
-        return History([], 0, 0)
-    if calibration_sha256 is None:
-        calibration_sha256 = calibration_content_sha256(calibration_path)
-    checks, unreadable, others = [], 0, 0
-    for line in path.read_bytes().decode("utf-8", errors="replace").splitlines():
-        if not line.strip():
-            continue
-        try:
-            data = json.loads(line)
-            if not isinstance(data, dict):
-                raise InvalidInputError("not an object")
-            check = CheckResult.from_dict(data, what=str(path))
-        except (ValueError, RecursionError):
-            unreadable += 1
-            continue
-        if data.get(CALIBRATION_HASH_KEY) != calibration_sha256:
-            others += 1
-        else:
-            checks.append(check)
-    return History(checks, unreadable, others)
