@@ -22,7 +22,12 @@ from spacecal.io.ros_exports import (
     static_transform_publisher_command,
     urdf_joint_text,
 )
-from spacecal.io.ur_driver_calibration import ur_calibration_text
+from spacecal.io.ur_driver_calibration import (
+    folds_last_link,
+    tool_offset_text,
+    ur_calibration_text,
+    ur_flange_from_tcp,
+)
 
 #: Longest note line printed (a note quotes topic names from the bag).
 NOTE_CHARS = 400
@@ -194,11 +199,20 @@ def export_ros(settings: RosExportSettings, write: bool = True) -> list[str]:
             raise InvalidInputError(
                 "this calibration holds no identified robot model: calibrate with --method kinematic first"
             )
+        model = calibration.robot_model
+        tool = tool_offset_text(ur_flange_from_tcp(model))
+        if folds_last_link(model):
+            fold = (
+                f"its a_6 = {float(model.a_mm[5]):.4g} mm and alpha_6 = {float(model.alpha_rad[5]):.4g} rad "
+                f"are folded into the tool offset written beside them (set it as the TCP): {tool}"
+            )
+        else:
+            fold = f"tool offset to set as the TCP with it: {tool}"
         files.append(
             (
                 Path(settings.ur_calibration),
-                ur_calibration_text(calibration.robot_model),
-                f"UR ROS driver kinematics of the identified {calibration.robot_model.name}",
+                ur_calibration_text(model),
+                f"UR ROS driver kinematics of the identified {model.name}; {fold}",
             )
         )
     if not write:
