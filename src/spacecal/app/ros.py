@@ -67,6 +67,18 @@ class ImportBagSettings:
     force: bool = False
 
 
+#: The ``import-bag`` flags, by the argument of :func:`~spacecal.io.ros_bag.read_ros_bag` they set.
+IMPORT_BAG_FLAGS = {
+    "base_frame": "--base-frame",
+    "tool_frame": "--tool-frame",
+    "tracker_frame": "--tracker-frame",
+    "marker_frame": "--marker-frame",
+    "joint_state_topic": "--joint-states",
+    "marker_topic": "--marker-topic",
+    "robot_model": "--robot-model",
+}
+
+
 def import_bag(settings: ImportBagSettings) -> str:
     """Describe the bag (``list_only``) or convert it; returns the text to print: what was
     written, then a ``note: ...`` line per stream of which messages were skipped (invalid, out
@@ -86,10 +98,14 @@ def import_bag(settings: ImportBagSettings) -> str:
         joint_state_topic=settings.joint_states,
         marker_topic=settings.marker_topic,
         robot_model=settings.robot_model if settings.joint_states else None,
+        option_names=IMPORT_BAG_FLAGS | {"list": f"spacecal import-bag {settings.bag} --list"},
     )
     robot_path, tracker_path = write_raw_recording(raw, stem)
     # what was skipped of a damaged stream; names in it come from the bag
     notes = [f"note: {sanitize_for_terminal(n, NOTE_CHARS)}" for n in raw.metadata["ros_bag"]["notes"]]
+    picked = raw.metadata["ros_bag"].get("picked")
+    if picked:
+        notes.insert(0, sanitize_for_terminal(picked, NOTE_CHARS))  # frame names come from the bag
     return "\n".join(
         [
             f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
