@@ -180,3 +180,25 @@ def test_native_output_while_connecting_is_held_and_dropped_on_failure(capfd):
     with _native_stderr_held():
         os.write(2, b"a library's note\n")
     assert capfd.readouterr().err == "a library's note\n"
+
+
+def test_without_rom_or_robot_model_every_check_runs_and_the_rom_is_one_finding(world):
+    # as a new user first runs it: only the two URLs
+    result = run(
+        [*SPACECAL, "doctor", "--robot", f"ur://{world.info['host']}", "--tracker", tracker_url(world)],
+        timeout_s=60,
+    )
+    assert result.returncode == 1
+    lines = result.stdout.splitlines()
+    robot = [line for line in lines if line.startswith("robot: ")]
+    assert "robot: robot model: ok: UR10e, as the controller names it" in robot
+    assert any(line.startswith("robot: robot mode: ok: RUNNING") for line in robot)
+    assert "robot: safety: ok: normal" in robot
+    assert any(line.startswith("robot: controller version: ok: PolyScope 5") for line in robot)
+    problems = [line for line in lines if ": PROBLEM: " in line]
+    assert len(problems) == 1 and problems[0].startswith("tracker: tool definition: PROBLEM:")
+    assert "--rom" in problems[0]
+    assert result.stderr.splitlines() == [
+        "spacecal: error: 1 problem found (marked PROBLEM above); fix it before running spacecal acquire"
+    ]
+    assert_everything_closed(world)
