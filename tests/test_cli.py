@@ -434,3 +434,30 @@ def test_future_versions_of_result_files_are_refused_in_one_line(recording_file,
         f"spacecal: error: {calibration}: schema_version 4 is newer than this spacecal reads (1, 2, 3): "
         "written by a newer spacecal, update it to read this file\n"
     )
+
+
+def test_kinematic_calibrate_prints_the_residuals_the_report_shows(tmp_path, capsys, realistic_simulation):
+    from spacecal.io.recording_csv import write_recording
+    from spacecal.io.results_json import read_calibration
+    from spacecal.report.summary import residuals_of
+
+    recording = write_recording(realistic_simulation.recording, tmp_path / "rec.csv")
+    code, out, err = run(
+        capsys, "calibrate", str(recording), "--method", "kinematic", "-o", str(tmp_path / "k.json")
+    )
+    assert code == 0, err
+    line = next(line for line in out.splitlines() if "marker residuals" in line)
+    found = re.fullmatch(
+        r"marker residuals \(RMS, identified robot kinematics\): "
+        r"position ([0-9.]+) mm, rotation ([0-9.]+) deg",
+        line,
+    )
+    assert found, line
+    # the report recomputes them from the recording with the identified model: the same figures
+    shown = residuals_of(read_calibration(tmp_path / "k.json"), realistic_simulation.recording)
+    assert shown is not None and shown.source == "recomputed from the recording"
+    assert found.group(1) == f"{shown.position_rms_mm:.3f}"
+    assert found.group(2) == f"{shown.rotation_rms_deg:.3f}"
+    # an estimator that keeps the recorded TCP poses says so
+    code, out, _ = run(capsys, "calibrate", str(recording), "--method", "ml", "-o", str(tmp_path / "m.json"))
+    assert code == 0 and "marker residuals (RMS, recorded TCP poses): position " in out

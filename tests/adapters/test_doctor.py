@@ -123,3 +123,87 @@ def test_the_model_is_the_controllers_unless_a_wrong_one_is_named(world, rom_fil
         and "the controller says this is a UR10e, but --robot-model is UR10" in wrong.stdout
     )
     assert_everything_closed(world)
+
+
+def _closed_loopback_host() -> str:
+    """A loopback address on which nothing listens on the RTDE port (checked, not assumed)."""
+    import socket
+
+    for last in range(250, 200, -1):
+        host = f"127.0.3.{last}"
+        try:
+            socket.create_connection((host, 30004), timeout=1.0).close()
+        except ConnectionRefusedError:
+            return host
+    pytest.skip("every tried loopback address has something on port 30004")
+
+
+def test_an_unreachable_robot_is_spacecals_one_line_only(tmp_path):
+    # ur_rtde prints "connect: Connection refused" to the process's stderr before it raises;
+    # the user reads spacecal's own line alone
+    host = _closed_loopback_host()
+    doctor = run([*SPACECAL, "doctor", "--robot", f"ur://{host}"], timeout_s=60)
+    assert doctor.returncode == 1
+    assert doctor.stdout.splitlines() == [
+        f"robot: connection: PROBLEM: no UR controller answers RTDE on {host}:30004 (Connection refused)"
+    ]
+    assert doctor.stderr.splitlines() == [
+        "spacecal: error: 1 problem found (marked PROBLEM above); fix it before running spacecal acquire"
+    ]
+    rom = tmp_path / "marker.rom"
+    rom.write_bytes(b"")  # never read: the robot is opened first
+    acquire = run(
+        [
+            *SPACECAL,
+            "acquire",
+            "--robot",
+            f"ur://{host}",
+            "--tracker",
+            "ndi://127.0.0.1:1",
+            "--rom",
+            str(rom),
+            "-o",
+            str(tmp_path / "rec.csv"),
+        ],
+        timeout_s=60,
+    )
+    assert acquire.returncode == 1
+    assert acquire.stderr.splitlines() == [
+        f"spacecal: error: no UR controller answers RTDE on {host}:30004 (Connection refused)"
+    ]
+
+
+def test_native_output_while_connecting_is_held_and_dropped_on_failure(capfd):
+    import os
+
+    from spacecal.adapters.ur import _native_stderr_held
+
+    with pytest.raises(RuntimeError), _native_stderr_held():
+        os.write(2, b"connect: Connection refused\n")
+        raise RuntimeError("Could not connect")
+    assert capfd.readouterr().err == ""
+    with _native_stderr_held():
+        os.write(2, b"a library's note\n")
+    assert capfd.readouterr().err == "a library's note\n"
+
+
+def test_without_rom_or_robot_model_every_check_runs_and_the_rom_is_one_finding(world):
+    # as a new user first runs it: only the two URLs
+    result = run(
+        [*SPACECAL, "doctor", "--robot", f"ur://{world.info['host']}", "--tracker", tracker_url(world)],
+        timeout_s=60,
+    )
+    assert result.returncode == 1
+    lines = result.stdout.splitlines()
+    robot = [line for line in lines if line.startswith("robot: ")]
+    assert "robot: robot model: ok: UR10e, as the controller names it" in robot
+    assert any(line.startswith("robot: robot mode: ok: RUNNING") for line in robot)
+    assert "robot: safety: ok: normal" in robot
+    assert any(line.startswith("robot: controller version: ok: PolyScope 5") for line in robot)
+    problems = [line for line in lines if ": PROBLEM: " in line]
+    assert len(problems) == 1 and problems[0].startswith("tracker: tool definition: PROBLEM:")
+    assert "--rom" in problems[0]
+    assert result.stderr.splitlines() == [
+        "spacecal: error: 1 problem found (marked PROBLEM above); fix it before running spacecal acquire"
+    ]
+    assert_everything_closed(world)

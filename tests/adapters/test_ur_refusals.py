@@ -122,3 +122,24 @@ def test_the_robot_model_must_be_the_controllers(worlds, rom_file, tmp_path):
     assert "the controller says this is a UR10e, but --robot-model is UR10: pass --robot-model UR10e" in (
         last_line(result.stderr)
     )
+
+
+def test_without_robot_model_acquire_takes_the_controllers(worlds, rom_file, tmp_path):
+    # a UR10e (an e-Series controller whose dashboard says UR10) and no --robot-model: the
+    # model is the one the controller names, and the dry run passes
+    argv = acquire_argv(worlds["eseries"], "eseries", tmp_path / "rec.csv", rom_file, "--dry-run")
+    at = argv.index("--robot-model")
+    del argv[at : at + 2]
+    result = run(argv)
+    assert result.returncode == 0, result.stderr
+    assert "note: robot: robot model: ok: UR10e, as the controller names it" in result.stdout.splitlines()
+    assert "dry run: nothing moved" in result.stdout
+    assert "but --robot-model is" not in result.stdout + result.stderr
+    # an explicit model that is not the controller's is one line, exit 1
+    wrong = run([*argv, "--robot-model", "UR10"])
+    assert wrong.returncode == 1
+    assert wrong.stderr.splitlines() == [
+        "spacecal: error: the robot is not ready (robot model): the controller says this is a UR10e, "
+        "but --robot-model is UR10: pass --robot-model UR10e; nothing moved"
+    ]
+    assert stats(worlds["eseries"])["scripts_uploaded"] == 0

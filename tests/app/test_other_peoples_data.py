@@ -108,3 +108,33 @@ def test_bound_takes_the_noise_from_the_recording_when_not_given(recording_file,
     # the white-noise preset's spheres carry 0.25 mm RMS, 0.144 mm per axis
     sigma = float(out.split("with ")[1].split(" mm")[0])
     assert 0.12 < sigma < 0.17
+
+
+def test_bound_without_fit_rms_takes_the_noise_its_calibration_shows(white_simulation, tmp_path, capsys):
+    # a pose-only recording (a bag, PLUS, a camera): no tracker fit RMS to take the noise from
+    from spacecal.estimators.likelihood import tre_lower_bound
+    from spacecal.io.results_json import write_calibration
+
+    poses = dataclasses.replace(
+        white_simulation.recording, marker_rms_mm=np.full(len(white_simulation.recording), np.nan)
+    )
+    path = write_recording(poses, tmp_path / "poses.csv")
+    write_calibration(calibrate(poses, "ml"), tmp_path / "cal.json")
+    capsys.readouterr()
+    assert main(["bound", str(path), "--calibration", str(tmp_path / "cal.json")]) == 0, (
+        capsys.readouterr().err
+    )
+    out = capsys.readouterr().out
+    assert "learnt from the calibration's residuals on the recording, which has no tracker fit RMS" in out
+    sigma = float(out.split("with ")[1].split(" mm")[0])
+    # the frames carry white noise only (exact kinematics): the residuals show that noise, the
+    # white-noise preset's 0.144 mm per axis, as the fit RMS does (the test above)
+    assert 0.12 < sigma < 0.17
+    # the printed bound is the bound at that noise
+    site = float(out.splitlines()[-1].split(" mm at the site")[0])
+    calibration = calibrate(poses, "ml")
+    expected = tre_lower_bound(poses, calibration.tracker_from_base, calibration.tcp_from_marker, sigma)
+    assert abs(site - expected["site"]) < 1e-4 + 1e-3 * expected["site"]
+    # --sigma-mm still overrides, and says so
+    assert main(["bound", str(path), "--calibration", str(tmp_path / "cal.json"), "--sigma-mm", "0.2"]) == 0
+    assert "with 0.2 mm per-axis sphere noise (given with --sigma-mm)" in capsys.readouterr().out

@@ -105,10 +105,26 @@ def _stamps(times_s):
     return EPOCH_NS + np.round(np.asarray(times_s) * 1e9).astype(np.int64)
 
 
-def _messages(raw, world, robot="tf", marker="pose", static=True):
-    """(topic, msgtype, stamp ns, builder) for every message of the bag, in time order."""
+def _messages(raw, world, robot="tf", marker="pose", static=True, rename=None):
+    """(topic, msgtype, stamp ns, builder) for every message of the bag, in time order; tf frames
+    base, flange, tcp, tracker and marker, or the names ``rename`` gives them."""
     flange_from_tcp = world.nominal_model.flange_from_tcp
     out = []
+    if rename:
+
+        class Renamed(Messages):
+            def __init__(self, messages):
+                self.__dict__.update(messages.__dict__)
+
+            def tf(self, stamp_ns, parent, child, matrix):
+                return Messages.tf(
+                    self, stamp_ns, rename.get(parent, parent), rename.get(child, child), matrix
+                )
+
+        return [
+            (topic, msgtype, ns, lambda m, make=make: make(Renamed(m)))
+            for topic, msgtype, ns, make in _messages(raw, world, robot, marker, static)
+        ]
     if robot == "tf":
         base_from_flange = raw.base_from_tcp_stack @ invert_transform(flange_from_tcp)
         out += [
@@ -250,10 +266,13 @@ def test_bare_storage_files_and_tf_marker_with_named_frames(tmp_path, simulated)
     assert edges[("flange", "tcp")].static
     assert sorted(contents.tf_chains()) == [("base", "tcp"), ("tracker", "marker")]
     assert "tracker -> marker" in contents.describe()
-    with pytest.raises(
-        InvalidInputError, match="base -> tcp.*tracker -> marker|tracker_frame and marker_frame"
-    ):
-        read_ros_bag(bare)
+    # two moving chains, told apart by their frame names
+    picked = read_ros_bag(bare)
+    assert picked.metadata["ros_bag"]["picked"] == (
+        "picked the tf chains robot base -> tcp and marker tracker -> marker (by their frame names; "
+        "base_frame='base' tool_frame='tcp' tracker_frame='tracker' marker_frame='marker')"
+    )
+    assert np.max(np.abs(picked.base_from_tcp_stack - expected.base_from_tcp_stack)) < 1e-9
     raw = read_ros_bag(
         bare, tracker_frame="tracker", marker_frame="marker"
     )  # the robot chain is then obvious
@@ -405,3 +424,51 @@ def test_the_three_commands_a_ros_user_runs(tmp_path, simulated, capsys):
     assert main(["check", str(tmp_path / "cal.json"), "--recording", str(tmp_path / "run.robot.csv")]) == 0, (
         capsys.readouterr().err
     )
+
+
+def test_import_bag_picks_two_chains_it_can_tell_apart_and_lists_the_flags_otherwise(
+    tmp_path, simulated, capsys
+):
+    from spacecal.cli import main
+
+    expected, world = simulated
+    named = write_ros2(tmp_path / "named", expected, world, StoragePlugin.MCAP, marker="tf")
+    assert main(["import-bag", str(named), "-o", str(tmp_path / "named")]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "picked the tf chains robot base -> tcp and marker tracker -> marker (by their frame names; "
+        "--base-frame base --tool-frame tcp --tracker-frame tracker --marker-frame marker)"
+    ) in out
+    assert (tmp_path / "named.robot.csv").is_file() and (tmp_path / "named.tracker.csv").is_file()
+
+    # names that say nothing: either chain could be the robot's
+    rename = {"base": "frame_a", "flange": "a1", "tcp": "a2", "tracker": "frame_b", "marker": "b1"}
+    bag = write_ros2(tmp_path / "plain", expected, world, StoragePlugin.MCAP, marker="tf", rename=rename)
+    assert main(["import-bag", str(bag), "-o", str(tmp_path / "plain")]) == 1
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1
+    assert (
+        "cannot choose the robot and marker tf chains (moving tf chains: frame_a -> a2, frame_b -> b1); give "
+        "--base-frame frame_a --tool-frame a2 --tracker-frame frame_b --marker-frame b1; or "
+        "--base-frame frame_b --tool-frame b1 --tracker-frame frame_a --marker-frame a2"
+    ) in err
+    for python_name in ("base_frame", "tool_frame", "tracker_frame", "marker_frame", "list_bag_contents"):
+        assert python_name not in err
+    assert not (tmp_path / "plain.robot.csv").exists()
+    # one flag settles it, and the line says what was picked
+    assert main(["import-bag", str(bag), "-o", str(tmp_path / "plain"), "--tool-frame", "a2"]) == 0
+    assert (
+        "picked the tf chains robot frame_a -> a2 and marker frame_b -> b1 (the only way the moving tf "
+        "chains fit; --base-frame frame_a --tool-frame a2 --tracker-frame frame_b --marker-frame b1)"
+    ) in capsys.readouterr().out
+
+
+def test_import_bag_errors_name_the_flags(tmp_path, simulated, capsys):
+    from spacecal.cli import main
+
+    expected, world = simulated
+    joints = write_ros2(tmp_path / "joints", expected, world, StoragePlugin.SQLITE3, robot="joints")
+    assert main(["import-bag", str(joints), "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "give --joint-states (JointState topics: /joint_states) and --robot-model" in err
+    assert "joint_state_topic" not in err and "robot_model" not in err

@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
 from spacecal.io.ur_driver_calibration import (
     read_ur_calibration,
     ur_calibration_text,
+    ur_flange_from_tcp,
     ur_joint_origins,
     ur_kinematics_hash,
     write_ur_calibration,
@@ -106,14 +108,59 @@ def test_nominal_ur10_matches_ur_description_defaults(tmp_path):
 def test_file_layout_and_refusals(tmp_path):
     text = ur_calibration_text(ur_model("UR10"), kinematics_hash="calib_1")
     lines = [line for line in text.splitlines() if not line.startswith("#")]
-    assert lines[0] == "kinematics:" and lines[1] == "  shoulder:" and lines[-1] == "  hash: calib_1"
+    assert lines[0] == "kinematics:" and lines[1] == "  shoulder:" and lines[43] == "  hash: calib_1"
     assert [line.split(":")[0].strip() for line in lines[2:8]] == ["x", "y", "z", "roll", "pitch", "yaw"]
-    model = ur_model("UR10")
-    bad = RobotModel(model.name, model.a_mm + [0, 0, 0, 0, 0, 1.0], model.d_mm, model.alpha_rad)
-    with pytest.raises(InvalidInputError, match="a_6 = 1 mm"):
-        ur_joint_origins(bad)
+    assert lines[44] == "tool_offset:"
+    assert [line.split(":")[0].strip() for line in lines[45:]] == ["x", "y", "z", "rx", "ry", "rz"]
+    assert "folded" not in text  # nothing to fold in a nominal UR10
     (tmp_path / "k.yaml").write_text(
         "kinematics:\n  shoulder: {x: 0, y: 0, z: 0.1, roll: 0, pitch: 0, yaw: 0}\n"
     )
     with pytest.raises(InvalidInputError, match="missing kinematics.upper_arm"):
         read_ur_calibration(tmp_path / "k.yaml")
+
+
+def test_the_last_links_a_and_alpha_are_folded_into_the_tool_offset_exactly(tmp_path):
+    # a_6 and alpha_6 (which the description, ending at the flange, cannot hold) and a tool
+    model = ur_model("UR10")
+    model = RobotModel(
+        model.name,
+        model.a_mm + [0.2, -0.1, 0.3, 0.05, -0.2, 1.3],
+        model.d_mm + [0.1, 0.4, -0.3, 0.2, 0.1, -0.2],
+        model.alpha_rad + [1e-3, -2e-3, 5e-4, 1e-3, -1e-3, 4e-3],
+        model.theta_offset_rad + [1e-3, 2e-3, -1e-3, 5e-4, 1e-3, -2e-3],
+        flange_from_tcp=make_transform(rotvec_to_matrix([0.1, -0.2, 0.3]), [10.0, -20.0, 150.0]),
+    )
+    text = ur_calibration_text(model)
+    assert "a_6 = 1.3 mm and alpha_6 = 0.004 rad" in text and "folded into tool_offset" in text
+    kinematics = read_ur_calibration(write_ur_calibration(tmp_path / "k.yaml", model))
+    assert kinematics.flange_from_tcp is not None
+    q = _joints(50)
+    written = kinematics.forward_kinematics(q) @ kinematics.flange_from_tcp
+    identified = forward_kinematics(model, q)
+    assert np.max(np.abs(written[:, :3, 3] - identified[:, :3, 3])) < 1e-9
+    assert np.max(np.abs(written[:, :3, :3] - identified[:, :3, :3])) < 1e-12
+    # without the fold the flange would be a_6 away
+    unfolded = kinematics.forward_kinematics(q) @ model.flange_from_tcp
+    assert np.min(np.linalg.norm(unfolded[:, :3, 3] - identified[:, :3, 3], axis=1)) > 1.0
+    assert np.allclose(ur_flange_from_tcp(model), kinematics.flange_from_tcp, atol=1e-12)
+
+
+def test_export_writes_the_ur_file_of_a_kinematic_calibration(tmp_path, capsys, realistic_simulation):
+    from spacecal.cli import main
+    from spacecal.estimators import calibrate
+    from spacecal.io.results_json import write_calibration
+
+    recording = realistic_simulation.recording
+    calibration = calibrate(recording, "kinematic")
+    model = calibration.robot_model
+    assert model is not None and (model.a_mm[5] != 0.0 or model.alpha_rad[5] != 0.0)
+    write_calibration(calibration, tmp_path / "cal.json")
+    code = main(["export", str(tmp_path / "cal.json"), "--ur-calibration", str(tmp_path / "ur.yaml")])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "are folded into the tool offset written beside them (set it as the TCP): x, y, z = " in out
+    kinematics = read_ur_calibration(tmp_path / "ur.yaml")
+    q = recording.joints_rad[:: max(1, len(recording) // 20)]
+    written = kinematics.forward_kinematics(q) @ kinematics.flange_from_tcp
+    assert np.max(np.abs(written[:, :3, 3] - forward_kinematics(model, q)[:, :3, 3])) < 1e-9

@@ -81,3 +81,24 @@ def test_verification_points_and_the_paper_bound(white_simulation):
     assert all(trace.mode == "markers" for trace in figure.data)
     labels = [a.text for a in figure.layout.annotations]
     assert "paper: mean < 1.05 mm (a bound)" in labels
+
+
+def test_check_thresholds_print_to_two_decimals_everywhere(white_simulation, tmp_path, monkeypatch):
+    # thresholds a check derived from a calibration (1.8862 mm, 0.491178 deg) print as the
+    # check's own line does: 1.89 mm, 0.49 deg (the interactive figure: the test above)
+    from spacecal.report import figures
+
+    history = [CheckResult(np.array([0.3]), np.array([0.1]), 1.88623, 0.491178, ["pose 1"])]
+    shown = {}
+
+    def keep(fig, path):
+        shown["labels"] = [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]
+        return path
+
+    monkeypatch.setattr(figures, "_save", keep)
+    figures.plot_check_history(history, tmp_path / "check_history.png")
+    assert shown["labels"] == ["threshold 1.89 mm", "threshold 0.49 deg"]
+    calibration = calibrate(white_simulation.recording, "paper")
+    numbers = dict(assess(calibration, check_history=history).numbers)
+    assert "(threshold 1.89 mm)" in numbers["last check (1 in the history)"]
+    assert "1.8862" not in numbers["last check (1 in the history)"]

@@ -221,6 +221,56 @@ def movel_speed(
     return float(mm_to_metres(speed_mm_s)), float(mm_to_metres(accel_mm_s2))
 
 
+# -- connecting -----------------------------------------------------------------------------
+#: Deadline of the plain connection that finds whether anything listens on the RTDE port, s.
+REACH_DEADLINE_S = 3.0
+
+
+def _refuse_unreachable(host: str) -> None:
+    """A DeviceError when nothing accepts a connection on the RTDE port. Checked with a plain
+    socket before ur_rtde is asked: ur_rtde prints its own ``connect: Connection refused`` to
+    the process's stderr before it raises, a line beside spacecal's own."""
+    try:
+        with socket.create_connection((host, RTDE_PORT), timeout=REACH_DEADLINE_S):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or str(exc) or type(exc).__name__
+        raise DeviceError(f"no UR controller answers RTDE on {host}:{RTDE_PORT} ({reason})") from None
+
+
+@contextlib.contextmanager
+def _native_stderr_held():
+    """Hold what native code writes to file descriptor 2 while ur_rtde connects: shown after
+    a connection that succeeds, dropped when it fails (spacecal's one-line error says why)."""
+    import os
+    import sys
+    import tempfile
+
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no usable descriptor 2 (an embedding host): nothing to hold
+        yield
+        return
+    with tempfile.TemporaryFile() as held:
+        os.dup2(held.fileno(), 2)
+        failed = True
+        try:
+            yield
+            failed = False
+        finally:
+            with contextlib.suppress(OSError, ValueError):
+                sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            if not failed:
+                held.seek(0)
+                text = held.read()
+                if text:
+                    with contextlib.suppress(OSError):
+                        os.write(2, text)
+
+
 # -- read-only conversations with the controller ---------------------------------------------
 def _reported_model(version_text: str, model_text: str) -> str:
     """The model a controller names (``get robot model`` says ``UR10`` on an e-Series too; its
@@ -614,8 +664,10 @@ class URRobot:
         self._last_timestamp: float | None = None
         self._last_change = time.monotonic()
         self._stream: StateStream | None = None
+        _refuse_unreachable(host)
         try:
-            self._receive = rtde_receive.RTDEReceiveInterface(host, -1.0, RECEIVE_VARIABLES)
+            with _native_stderr_held():
+                self._receive = rtde_receive.RTDEReceiveInterface(host, -1.0, RECEIVE_VARIABLES)
         except RuntimeError as exc:  # nothing listens: ur_rtde raises "Could not connect to ..."
             raise DeviceError(f"no UR controller answers RTDE on {host}:30004 ({exc})") from None
         if not self._receive.isConnected():
@@ -663,7 +715,8 @@ class URRobot:
             )
         rtde_control = require("rtde_control", "ur")
         try:
-            control = rtde_control.RTDEControlInterface(self.host)
+            with _native_stderr_held():
+                control = rtde_control.RTDEControlInterface(self.host)
         except RuntimeError as exc:
             raise DeviceError(
                 f"the UR controller on {self.host} did not start spacecal's control program ({exc}); "

@@ -20,8 +20,12 @@ from spacecal.app._common import (
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
-from spacecal.estimators.likelihood import tre_lower_bound
-from spacecal.estimators.observations import marker_geometry_of, sphere_noise_from_marker_rms
+from spacecal.estimators.likelihood import tre_lower_bound, variance_factor_of
+from spacecal.estimators.observations import (
+    build_observations,
+    marker_geometry_of,
+    sphere_noise_from_marker_rms,
+)
 from spacecal.estimators.pivot import pivot_calibration
 from spacecal.estimators.time_offset import check_overlap, estimate_time_offset, pair_streams
 from spacecal.io.csv_core import metadata_path
@@ -217,6 +221,35 @@ class BoundSettings:
     targets_in_base: tuple[Point, ...] = ()
 
 
+def recorded_noise(recording: Recording, calibration: CalibrationResult) -> tuple[float, str]:
+    """The per-axis sphere noise (mm) a recording says it has, and where it came from: the
+    tracker's fit RMS in it; else the noise the calibration was computed with (``calibrate
+    --sigma-mm``); else the noise its residuals on the recording show (chi-square over the
+    degrees of freedom, as the likelihood learns it for a pose-only tracker), which includes
+    whatever systematic error the calibration leaves."""
+    rms = recording.marker_rms_mm[recording.visible]
+    if np.isfinite(rms).sum() >= 3:
+        sigma = sphere_noise_from_marker_rms(rms, len(marker_geometry_of(recording)))
+        return float(sigma), "from the tracker's fit RMS in the recording"
+    noise = calibration.diagnostics.get("noise")
+    stored = noise.get("sigma_per_axis_mm") if isinstance(noise, dict) else None
+    if isinstance(stored, (int, float)) and not isinstance(stored, bool) and 0.0 < stored < math.inf:
+        return float(stored), "the noise the calibration was computed with"
+    obs = build_observations(recording)
+    learnt = obs.sigma_mm * math.sqrt(
+        variance_factor_of(obs, calibration.tracker_from_base, calibration.tcp_from_marker)
+    )
+    if not (math.isfinite(learnt) and learnt > 0.0):
+        raise InvalidInputError(
+            "the recording shows no noise to bound with (no tracker fit RMS, residuals of zero): "
+            "pass --sigma-mm, the tracker's per-axis sphere noise in mm"
+        )
+    return float(learnt), (
+        "learnt from the calibration's residuals on the recording, which has no tracker fit RMS; "
+        "systematic error counts as noise here, so the bound is on the high side"
+    )
+
+
 def bound(settings: BoundSettings) -> dict[str, Any]:
     """The bound at the site, over the cube and at the targets (mm); ``sigma_mm``, the per-axis
     sphere noise it was computed for (as given, else from the recording's tracker fit RMS), and
@@ -231,17 +264,9 @@ def bound(settings: BoundSettings) -> dict[str, Any]:
     check_belongs(
         recording, calibration.tracker_from_base, calibration.tcp_from_marker, str(settings.recording)
     )
-    sigma_mm, source = settings.sigma_mm, "given"
+    sigma_mm, source = settings.sigma_mm, "given with --sigma-mm"
     if sigma_mm is None:
-        rms = recording.marker_rms_mm[recording.visible]
-        if np.isfinite(rms).sum() < 3:
-            raise InvalidInputError(
-                f"{settings.recording}: the recording has no tracker fit RMS to take the noise from "
-                "(a pose-only tracker): pass --sigma-mm, the tracker's per-axis sphere noise in mm (from its "
-                "datasheet's repeatability)"
-            )
-        sigma_mm = sphere_noise_from_marker_rms(rms, len(marker_geometry_of(recording)))
-        source = "from the tracker's fit RMS in the recording"
+        sigma_mm, source = recorded_noise(recording, calibration)
     found = tre_lower_bound(
         recording,
         calibration.tracker_from_base,

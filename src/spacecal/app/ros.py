@@ -23,7 +23,12 @@ from spacecal.io.ros_exports import (
     static_transform_publisher_command,
     urdf_joint_text,
 )
-from spacecal.io.ur_driver_calibration import ur_calibration_text
+from spacecal.io.ur_driver_calibration import (
+    folds_last_link,
+    tool_offset_text,
+    ur_calibration_text,
+    ur_flange_from_tcp,
+)
 
 #: Longest note line printed (a note quotes topic names from the bag).
 NOTE_CHARS = 400
@@ -63,6 +68,18 @@ class ImportBagSettings:
     force: bool = False
 
 
+#: The ``import-bag`` flags, by the argument of :func:`~spacecal.io.ros_bag.read_ros_bag` they set.
+IMPORT_BAG_FLAGS = {
+    "base_frame": "--base-frame",
+    "tool_frame": "--tool-frame",
+    "tracker_frame": "--tracker-frame",
+    "marker_frame": "--marker-frame",
+    "joint_state_topic": "--joint-states",
+    "marker_topic": "--marker-topic",
+    "robot_model": "--robot-model",
+}
+
+
 def import_bag(settings: ImportBagSettings) -> str:
     """Describe the bag (``list_only``) or convert it; returns the text to print: what was
     written, then a ``note: ...`` line per stream of which messages were skipped (invalid, out
@@ -82,10 +99,14 @@ def import_bag(settings: ImportBagSettings) -> str:
         joint_state_topic=settings.joint_states,
         marker_topic=settings.marker_topic,
         robot_model=settings.robot_model if settings.joint_states else None,
+        option_names=IMPORT_BAG_FLAGS | {"list": f"spacecal import-bag {settings.bag} --list"},
     )
     robot_path, tracker_path = write_raw_recording(raw, stem)
     # what was skipped of a damaged stream; names in it come from the bag
     notes = [f"note: {sanitize_for_terminal(n, NOTE_CHARS)}" for n in raw.metadata["ros_bag"]["notes"]]
+    picked = raw.metadata["ros_bag"].get("picked")
+    if picked:
+        notes.insert(0, sanitize_for_terminal(picked, NOTE_CHARS))  # frame names come from the bag
     return "\n".join(
         [
             f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
@@ -195,11 +216,20 @@ def export_ros(settings: RosExportSettings, write: bool = True) -> list[str]:
             raise InvalidInputError(
                 "this calibration holds no identified robot model: calibrate with --method kinematic first"
             )
+        model = calibration.robot_model
+        tool = tool_offset_text(ur_flange_from_tcp(model))
+        if folds_last_link(model):
+            fold = (
+                f"its a_6 = {float(model.a_mm[5]):.4g} mm and alpha_6 = {float(model.alpha_rad[5]):.4g} rad "
+                f"are folded into the tool offset written beside them (set it as the TCP): {tool}"
+            )
+        else:
+            fold = f"tool offset to set as the TCP with it: {tool}"
         files.append(
             (
                 Path(settings.ur_calibration),
-                ur_calibration_text(calibration.robot_model),
-                f"UR ROS driver kinematics of the identified {calibration.robot_model.name}",
+                ur_calibration_text(model),
+                f"UR ROS driver kinematics of the identified {model.name}; {fold}",
             )
         )
     if not write:

@@ -120,9 +120,12 @@ def _calibrate(a: argparse.Namespace) -> None:
             f"line straightness RMS: {lines}"
         )
     if "residual_position_rms_mm" in d:
+        # a kinematic calibration places the TCP with the kinematics it identified, as the
+        # report does; the line says which, so the two are read as the same quantity
+        tcp = "identified robot kinematics" if result.robot_model is not None else "recorded TCP poses"
         print(
-            f"residuals: marker position RMS {d['residual_position_rms_mm']:.3f} mm, "
-            f"rotation RMS {d['residual_rotation_rms_deg']:.3f} deg"
+            f"marker residuals (RMS, {tcp}): position {d['residual_position_rms_mm']:.3f} mm, "
+            f"rotation {d['residual_rotation_rms_deg']:.3f} deg"
         )
     if result.predicted_tre_mm:
         tre = result.predicted_tre_mm

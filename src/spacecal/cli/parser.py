@@ -127,7 +127,8 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--sigma-mm",
         type=float,
-        help="per-axis sphere noise, mm; default: from the recording's tracker fit RMS",
+        help="per-axis sphere noise, mm; default: from the recording's tracker fit RMS, else the "
+        "calibration's noise, else learnt from its residuals (the line printed says which)",
     )
     p.add_argument(
         "--target", action="append", metavar="X,Y,Z", help="point in the base frame (mm); repeatable"

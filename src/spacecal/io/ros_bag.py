@@ -25,11 +25,13 @@ Times are seconds since the earliest header stamp used (kept as integer nanoseco
 then, so no precision is lost to the epoch); the origin is in ``metadata["ros_bag"]``.
 
 Which streams: when the bag has one obvious choice (exactly one PoseStamped/TransformStamped
-topic for the marker; exactly one JointState topic when a robot model is given, else one tf
-chain) no names are needed; otherwise the error lists the candidates (see
-:func:`list_bag_contents`). Bags without embedded message definitions (older ROS 2 sqlite3
-bags) are decoded with a standard type store (``ros1_noetic`` for ``.bag``, ``ros2_humble``
-otherwise; choose another with ``typestore=``).
+topic for the marker; exactly one JointState topic when a robot model is given; tf chains that
+fit the frames named in one way only, or in one way whose frame names say robot and tracker)
+no names are needed and the recording's metadata says what was picked; otherwise the error
+lists every way with the arguments that choose it (see :func:`list_bag_contents`). Bags
+without embedded message definitions (older ROS 2 sqlite3 bags) are decoded with a standard
+type store (``ros1_noetic`` for ``.bag``, ``ros2_humble`` otherwise; choose another with
+``typestore=``).
 
 Frame names lose a leading ``/`` (ROS 1 tf). The recording's ``base`` is the base frame you
 name; for UR robots the controller's base is ur_description's ``base`` (not ``base_link``), and
@@ -668,6 +670,129 @@ def _one(candidates: list, what: str, hint: str, where: str):
     )
 
 
+#: How :func:`read_ros_bag`'s messages name its arguments by default (a command line passes its
+#: flags instead, see ``option_names``); ``list`` is how to look inside the bag.
+PYTHON_NAMES = {
+    "base_frame": "base_frame",
+    "tool_frame": "tool_frame",
+    "tracker_frame": "tracker_frame",
+    "marker_frame": "marker_frame",
+    "joint_state_topic": "joint_state_topic",
+    "marker_topic": "marker_topic",
+    "robot_model": "robot_model",
+    "list": "list_bag_contents",
+}
+
+#: Words of frame names that say a tf chain is the robot's or the tracker's (names split at
+#: ``_``, ``/``, ``-`` and ``.``, digits dropped: ``tool0`` is ``tool``).
+ROBOT_WORDS = frozenset(
+    {"base", "tool", "tcp", "flange", "ee", "effector", "wrist", "gripper", "robot", "ur"}
+)
+TRACKER_WORDS = frozenset(
+    {"tracker", "camera", "cam", "ndi", "polaris", "vicra", "aurora", "optical", "marker", "rigid", "body"}
+    | {"optitrack", "vicon", "atracsys", "fusiontrack", "reference", "stylus", "drf"}
+)
+
+
+def _words(chain: tuple[str, str]) -> set[str]:
+    import re
+
+    return {w.rstrip("0123456789") for name in chain for w in re.split(r"[_/.\-]+", name.lower())} - {""}
+
+
+def _robot_like(chain: tuple[str, str]) -> bool:
+    words = _words(chain)
+    return bool(words & ROBOT_WORDS) and not words & TRACKER_WORDS
+
+
+def _tracker_like(chain: tuple[str, str]) -> bool:
+    words = _words(chain)
+    return bool(words & TRACKER_WORDS) and not words & ROBOT_WORDS
+
+
+def _option(say: dict[str, str], name: str, value: str) -> str:
+    """``--base-frame base`` for a command line's flag, ``base_frame='base'`` for Python's."""
+    import shlex
+
+    flag = say[name]
+    if flag.startswith("-"):
+        return f"{flag} {shlex.quote(sanitize_for_terminal(value, 60))}"
+    return f"{flag}={sanitize_for_terminal(value, 60)!r}"
+
+
+def _choose_tf_chains(
+    chains: list[tuple[str, str]],
+    robot_from_tf: bool,
+    marker_from_tf: bool,
+    frames: dict[str, str | None],
+    say: dict[str, str],
+    where: str,
+) -> tuple[tuple[str, str] | None, tuple[str, str] | None, str | None]:
+    """The robot chain (``base_frame <- tool_frame``) and the marker chain (``tracker_frame <-
+    marker_frame``) to read from tf, from the frames named and the bag's moving chains.
+
+    A chain named in full is taken as named; otherwise the candidates are the moving chains
+    that fit the names given. One way to assign them is taken; among several, the one whose
+    frame names say robot (``base``, ``tool0``, ``tcp``...) and tracker (``tracker``,
+    ``camera``, ``marker``...) is taken. Returns (robot chain, marker chain, a sentence saying
+    what was picked, None when everything was named); raises listing every way with its
+    options when the choice is still open.
+    """
+
+    def options(first: str, second: str) -> list[tuple[str, str] | None]:
+        a, b = frames[first], frames[second]
+        if a and b:
+            return [(a, b)]
+        return [c for c in chains if a in (None, c[0]) and b in (None, c[1])]
+
+    robots: list[tuple[str, str] | None] = options("base_frame", "tool_frame") if robot_from_tf else [None]
+    markers: list[tuple[str, str] | None] = (
+        options("tracker_frame", "marker_frame") if marker_from_tf else [None]
+    )
+    ways = [(r, m) for r in robots for m in markers if r is None or m is None or r[1] != m[1]]
+    how = "the only way the moving tf chains fit"
+    if len(ways) > 1:
+        named = [(r, m) for r, m in ways if (r is None or _robot_like(r)) and (m is None or _tracker_like(m))]
+        if len(named) == 1:
+            ways, how = named, "by their frame names"
+
+    def flags(robot: tuple[str, str] | None, marker: tuple[str, str] | None) -> str:
+        parts = []
+        if robot is not None:
+            parts += [_option(say, "base_frame", robot[0]), _option(say, "tool_frame", robot[1])]
+        if marker is not None:
+            parts += [_option(say, "tracker_frame", marker[0]), _option(say, "marker_frame", marker[1])]
+        return " ".join(parts)
+
+    if len(ways) != 1:
+        what = " and ".join(
+            w for w, needed in (("robot", robot_from_tf), ("marker", marker_from_tf)) if needed
+        )
+        moving = ", ".join(f"{a} -> {b}" for a, b in chains) or "none"
+        listed = "; or ".join(flags(r, m) for r, m in ways[:20]) + (
+            f"; ... ({len(ways)} in all)" if len(ways) > 20 else ""
+        )
+        raise InvalidInputError(
+            f"{where}: cannot choose the {what} tf chain{'s' if robot_from_tf and marker_from_tf else ''} "
+            f"(moving tf chains: {sanitize_for_terminal(moving, 400)}); "
+            + (f"give {listed}" if ways else f"name the frames (see {say['list']})")
+        )
+    robot, marker = ways[0]
+    needed = (["base_frame", "tool_frame"] if robot is not None else []) + (
+        ["tracker_frame", "marker_frame"] if marker is not None else []
+    )
+    given = all(frames[k] for k in needed)
+    picked = []
+    if robot is not None:
+        picked.append(f"robot {robot[0]} -> {robot[1]}")
+    if marker is not None:
+        picked.append(f"marker {marker[0]} -> {marker[1]}")
+    sentence = None
+    if not given:
+        sentence = f"picked the tf chains {' and '.join(picked)} ({how}; {flags(robot, marker)})"
+    return robot, marker, sentence
+
+
 def _marker_from_topic(
     reader, path: Path, topic: str, msgtype: str, tracker_frame, marker_frame, notes: list[str]
 ):
@@ -801,6 +926,7 @@ def read_ros_bag(
     joint_names: Sequence[str] = UR_JOINT_NAMES,
     typestore: str | None = None,
     metadata: dict | None = None,
+    option_names: dict[str, str] | None = None,
 ) -> RawRecording:
     """Read the robot and tracker streams of a ROS bag into a raw two-stream recording.
 
@@ -825,13 +951,17 @@ def read_ros_bag(
         rosbags type store for bags without message definitions (``ros1_noetic``, ``ros2_humble``...).
     metadata : dict, optional
         Merged into the recording's metadata (e.g. the marker geometry, the robot).
+    option_names : dict, optional
+        How the messages name the arguments (keys of :data:`PYTHON_NAMES`), e.g. a command
+        line's flags.
 
     Returns
     -------
     RawRecording
         Robot stream (R samples, header-stamp times, ``joints_rad`` NaN when read from tf) and
         tracker stream (T frames, ``marker_rms_mm`` NaN: ROS messages do not carry it); times in
-        s since the earliest stamp used; lengths in mm. ``metadata["ros_bag"]["notes"]`` lists,
+        s since the earliest stamp used; lengths in mm. ``metadata["ros_bag"]["picked"]`` says
+        which tf chains were picked when they were not all named (else None); ``["notes"]`` lists,
         one line per stream, the messages skipped: invalid ones (a NaN or infinite value other
         than a marker not seen, a translation beyond :data:`MAX_TRANSLATION_M`, a quaternion
         that is not a unit quaternion, a joint beyond :data:`MAX_JOINT_RAD`, a stamp that is no
@@ -855,47 +985,58 @@ def read_ros_bag(
     tf_topics = contents.topics_of(TF_TYPES)
     if isinstance(robot_model, str):
         robot_model = ur_model(robot_model)
-    frames_hint = "name them (see list_bag_contents)"
+    say = {**PYTHON_NAMES, **(option_names or {})}
 
     # marker stream
     if marker_topic is None and not (tracker_frame and marker_frame) and contents.marker_topics:
-        marker_topic = _one(contents.marker_topics, "marker topic", "give marker_topic", where)
+        marker_topic = _one(contents.marker_topics, "marker topic", f"give {say['marker_topic']}", where)
     if marker_topic is not None and types.get(marker_topic) not in MARKER_TYPES:
         found = types.get(marker_topic, "absent")
         raise InvalidInputError(
             f"{where}: marker topic {marker_topic} is {found}; expected PoseStamped or TransformStamped"
         )
-    chains = contents.tf_chains()
-    if marker_topic is None and not (tracker_frame and marker_frame):
-        raise InvalidInputError(
-            f"{where}: no PoseStamped/TransformStamped topic; give tracker_frame and marker_frame "
-            f"(moving tf chains: {', '.join(f'{a} -> {b}' for a, b in chains) or 'none'})"
-        )
 
-    # robot stream
+    # robot stream: joint states (with a model), or a tf chain
     if joint_state_topic is None and not (base_frame and tool_frame):
         if robot_model is not None and contents.joint_state_topics:
             joint_state_topic = _one(
-                contents.joint_state_topics, "joint state topic", "give joint_state_topic", where
+                contents.joint_state_topics,
+                "joint state topic",
+                f"give {say['joint_state_topic']}",
+                where,
             )
-        else:
-            marker_chain = (tracker_frame, marker_frame) if marker_topic is None else None
-            candidates = [c for c in chains if marker_chain is None or c[1] != marker_chain[1]]
-            if base_frame or tool_frame:
-                candidates = [
-                    c for c in candidates if base_frame in (None, c[0]) and tool_frame in (None, c[1])
-                ]
-            hint = f"give base_frame and tool_frame, or a JointState topic and a robot model; {frames_hint}"
-            if contents.joint_state_topics:
-                hint += f" (JointState topics: {', '.join(contents.joint_state_topics)})"
-            base_frame, tool_frame = _one(candidates, "robot tf chain", hint, where)
+        elif contents.joint_state_topics and not contents.tf_chains():
+            raise InvalidInputError(
+                f"{where}: no moving tf chain for the robot, whose pose then needs a JointState topic "
+                f"and a robot model; give {say['joint_state_topic']} "
+                f"(JointState topics: {_listing(contents.joint_state_topics)}) and {say['robot_model']}"
+            )
+    picked = None
+    robot_from_tf = joint_state_topic is None
+    marker_from_tf = marker_topic is None
+    if robot_from_tf or marker_from_tf:
+        frames = {
+            "base_frame": base_frame,
+            "tool_frame": tool_frame,
+            "tracker_frame": tracker_frame,
+            "marker_frame": marker_frame,
+        }
+        robot_chain, marker_chain, picked = _choose_tf_chains(
+            contents.tf_chains(), robot_from_tf, marker_from_tf, frames, say, where
+        )
+        if robot_chain is not None:
+            base_frame, tool_frame = robot_chain
+        if marker_chain is not None:
+            tracker_frame, marker_frame = marker_chain
     if joint_state_topic is not None:
         if types.get(joint_state_topic) not in JOINT_STATE_TYPES:
             raise InvalidInputError(
                 f"{where}: {joint_state_topic} is {types.get(joint_state_topic, 'absent')}, not JointState"
             )
         if robot_model is None:
-            raise InvalidInputError(f"{where}: joint states need a robot model (e.g. robot_model='UR10')")
+            raise InvalidInputError(
+                f"{where}: joint states need a robot model ({_option(say, 'robot_model', 'UR10')})"
+            )
 
     notes: list[str] = []
     with _open_bag(path, typestore) as reader:
@@ -934,6 +1075,7 @@ def read_ros_bag(
             "time": "seconds since time_origin_ns (header stamps)",
             "robot": robot_source,
             "marker": marker_source,
+            "picked": picked,
             "notes": notes,
         },
         "units": {"length": "mm", "angle": "rad", "time": "s"},

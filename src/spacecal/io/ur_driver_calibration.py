@@ -28,7 +28,9 @@ and 3 (``correctAxis(1)``, ``correctAxis(2)``) the large ``d`` a real calibratio
 its distance, the ``a/alpha`` segment is rotated by ``Rz(theta_old - theta_new)`` and the next
 joint's ``d`` is shortened by the distance moved along its axis. The six joint origins are then
 ``[seg1_1, seg2_1 seg1_2, ..., seg2_5 seg1_6]``; ``seg2_6`` (``a_6``, ``alpha_6``) has no place in
-the description, so a model with non-zero ``a_6`` or ``alpha_6`` is refused.
+the description, which ends at the flange: it is folded into the tool offset, exactly
+(``flange_from_tcp`` written = ``seg2_6 @ model.flange_from_tcp``), so the description's flange
+plus the written tool offset is the model's TCP at every joint configuration.
 
 Two differences from ur_calibration, on purpose:
 
@@ -43,8 +45,9 @@ Two differences from ur_calibration, on purpose:
   spacecal-identified corrections gets the hash of its own values (the driver will then warn
   that the description differs from the controller's calibration, which is true).
 
-Lengths are written in metres (spacecal's models are mm). The tool offset (``flange_from_tcp``)
-is not part of this file.
+Lengths are written in metres (spacecal's models are mm). The tool offset to configure with the
+description (the controller's TCP setting: x, y, z in metres, rotation vector in rad) is written
+under a ``tool_offset`` key beside ``kinematics`` (``ur_description`` reads only ``kinematics``).
 """
 
 from __future__ import annotations
@@ -135,16 +138,8 @@ def ur_joint_origins(model: RobotModel) -> np.ndarray:
     numpy.ndarray, shape (6, 4, 4)
         ``parent_link_from_child_link`` at joint angle 0 for shoulder ... wrist_3, mm.
 
-    Raises
-    ------
-    InvalidInputError
-        When ``a_6`` or ``alpha_6`` is non-zero (the description fixes wrist_3 -> flange).
+    The last link's ``a_6`` and ``alpha_6`` are not in them: see :func:`ur_flange_from_tcp`.
     """
-    if abs(model.a_mm[5]) > 1e-12 or abs(model.alpha_rad[5]) > 1e-15:
-        raise InvalidInputError(
-            f"{quoted(model.name)}: a_6 = {model.a_mm[5]:.6g} mm, alpha_6 = {model.alpha_rad[5]:.6g} rad; "
-            "the UR description has no place for them (fold them into the tool offset)"
-        )
     theta = np.asarray(model.theta_offset_rad, dtype=float)
     alpha = np.asarray(model.alpha_rad, dtype=float)
     chain = _split_chain(np.asarray(model.d_mm) / 1000.0, np.asarray(model.a_mm) / 1000.0, theta, alpha)
@@ -153,6 +148,38 @@ def ur_joint_origins(model: RobotModel) -> np.ndarray:
     origins = np.array([chain[0]] + [chain[k] @ chain[k + 1] for k in range(1, 2 * N_JOINTS - 1, 2)])
     origins[:, :3, 3] = metres_to_mm(origins[:, :3, 3])
     return origins
+
+
+def ur_flange_from_tcp(model: RobotModel) -> np.ndarray:
+    """The tool offset to use with :func:`ur_joint_origins`: the model's, with the last link's
+    ``a_6`` and ``alpha_6`` (which the description cannot hold) folded in.
+
+    Returns
+    -------
+    numpy.ndarray, shape (4, 4)
+        ``description_flange_from_tcp = [Rx(alpha_6) | (a_6, 0, 0)] @ model.flange_from_tcp``, mm.
+    """
+    last_link = _rx(float(model.alpha_rad[5]))
+    last_link[0, 3] = float(model.a_mm[5])
+    return last_link @ np.asarray(model.flange_from_tcp, dtype=float)
+
+
+def folds_last_link(model: RobotModel) -> bool:
+    """Whether the model has a non-zero ``a_6`` or ``alpha_6`` (folded into the tool offset)."""
+    return bool(model.a_mm[5] != 0.0 or model.alpha_rad[5] != 0.0)
+
+
+def tool_offset_text(flange_from_tcp) -> str:
+    """A tool offset as the UR controller's TCP setting: ``x, y, z`` mm and ``rx, ry, rz`` rad."""
+    tool = np.asarray(flange_from_tcp, dtype=float)
+    rotvec = Rotation.from_matrix(tool[:3, :3]).as_rotvec()
+    return (
+        "x, y, z = "
+        + ", ".join(f"{v:.4f}" for v in tool[:3, 3])
+        + " mm, rx, ry, rz = "
+        + ", ".join(f"{v:.6f}" for v in rotvec)
+        + " rad"
+    )
 
 
 def urdf_chain_forward_kinematics(joint_origins, joints_rad) -> np.ndarray:
@@ -229,6 +256,7 @@ def ur_calibration_text(model: RobotModel, kinematics_hash: str | None = None) -
         The ``hash`` entry; by default :func:`ur_kinematics_hash` of the model.
     """
     origins = ur_joint_origins(model)
+    tool = ur_flange_from_tcp(model)
     lines = [
         yaml_comment(
             f"UR kinematics for ur_description, written by spacecal from the DH model of {model.name}."
@@ -236,8 +264,15 @@ def ur_calibration_text(model: RobotModel, kinematics_hash: str | None = None) -
         "# Each entry: URDF joint origin (child link pose in parent link at joint angle 0), metres,",
         "# rpy = fixed axes x, y, z (R = Rz(yaw) Ry(pitch) Rx(roll)); chain starts at base_link_inertia",
         "# (the controller's base frame).",
-        "kinematics:",
     ]
+    if folds_last_link(model):
+        lines += [
+            f"# The model's a_6 = {float(model.a_mm[5]):.6g} mm and "
+            f"alpha_6 = {float(model.alpha_rad[5]):.6g} rad",
+            "# have no place in the description (it ends at the flange): they are folded into tool_offset",
+            "# below, so this description plus tool_offset is the model's TCP exactly.",
+        ]
+    lines.append("kinematics:")
     for name, origin in zip(UR_LINK_NAMES, origins):
         roll, pitch, yaw = Rotation.from_matrix(origin[:3, :3]).as_euler("xyz")
         x, y, z = origin[:3, 3] / 1000.0
@@ -245,6 +280,15 @@ def ur_calibration_text(model: RobotModel, kinematics_hash: str | None = None) -
         for key, value in (("x", x), ("y", y), ("z", z), ("roll", roll), ("pitch", pitch), ("yaw", yaw)):
             lines.append(f"    {key}: {yaml_number(value)}")
     lines.append(f"  hash: {yaml_string(kinematics_hash or ur_kinematics_hash(model))}")
+    lines += [
+        "# The tool offset to set as the controller's TCP with this description (flange -> TCP):",
+        "# x, y, z metres, rx, ry, rz rotation vector in rad.",
+        "tool_offset:",
+    ]
+    x, y, z = tool[:3, 3] / 1000.0
+    rx, ry, rz = Rotation.from_matrix(tool[:3, :3]).as_rotvec()
+    for key, value in (("x", x), ("y", y), ("z", z), ("rx", rx), ("ry", ry), ("rz", rz)):
+        lines.append(f"  {key}: {yaml_number(value)}")
     return "\n".join(lines) + "\n"
 
 
@@ -266,10 +310,13 @@ class UrKinematics:
         URDF joint origins shoulder ... wrist_3 (child link in parent link at q = 0), mm.
     kinematics_hash : str
         The file's ``hash`` entry ("" when absent).
+    flange_from_tcp : numpy.ndarray, shape (4, 4) or None
+        The file's ``tool_offset``, mm (None when absent, as in ur_calibration's files).
     """
 
     joint_origins: np.ndarray
     kinematics_hash: str = ""
+    flange_from_tcp: np.ndarray | None = None
 
     def forward_kinematics(self, joints_rad) -> np.ndarray:
         """``base_from_flange`` (controller base to tool0), (4, 4) or (N, 4, 4), mm."""
@@ -297,4 +344,13 @@ def read_ur_calibration(path: str | Path) -> UrKinematics:
         kinematics_hash = ""
     if isinstance(kinematics_hash, bool) or not isinstance(kinematics_hash, (str, int)):
         raise InvalidInputError(f"{path}: kinematics.hash is {quoted(kinematics_hash)}, expected text")
-    return UrKinematics(np.array(origins), str(kinematics_hash))
+    tool = data.get("tool_offset")
+    flange_from_tcp = None
+    if tool is not None:
+        if not isinstance(tool, dict):
+            raise InvalidInputError(f"{path}: tool_offset is {quoted(tool)}, expected a mapping")
+        where = f"{path}: tool_offset"
+        xyz = [number_field(tool, k, where) for k in ("x", "y", "z")]
+        rotvec = [number_field(tool, k, where) for k in ("rx", "ry", "rz")]
+        flange_from_tcp = make_transform(Rotation.from_rotvec(rotvec).as_matrix(), metres_to_mm(xyz))
+    return UrKinematics(np.array(origins), str(kinematics_hash), flange_from_tcp)
