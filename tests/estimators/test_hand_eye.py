@@ -214,7 +214,7 @@ def test_the_length_unit_does_not_change_the_answer(name):
     a_m, b_m = a.copy(), b.copy()
     a_m[:, :3, 3] /= 1000.0
     b_m[:, :3, 3] /= 1000.0
-    if name == "li":
+    if name in ROBOT_WORLD_SOLVERS:
         in_mm, in_m = ROBOT_WORLD_SOLVERS[name](a, b)[0], ROBOT_WORLD_SOLVERS[name](a_m, b_m)[0]
     else:
         pairs = motion_pairs(a)
