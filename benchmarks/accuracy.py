@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.registry import METHODS
+from spacecal.estimators.registry import ESTIMATORS
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.experiments.bad_recordings import bad_recordings, judge
 from spacecal.experiments.prediction_oracle import best_fixed_share, noise_draws, share_within
@@ -162,13 +162,13 @@ def judge_spoilt(case: tuple[str, str]) -> tuple[str, str, dict]:
 def spoilt_table(jobs: int) -> None:
     _SPOILT.update(bad_recordings(PRESETS["paper-realistic"]))
     names = list(_SPOILT)
-    cases = [(name, method) for name in names for method in sorted(METHODS)]
+    cases = [(name, method) for name in names for method in sorted(ESTIMATORS)]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         judged = list(pool.map(judge_spoilt, cases))
     print(
         "\n(c) Spoilt recordings of the realistic scenario, every method: outcome, stated / true error (mm)\n"
     )
-    methods = sorted(METHODS)
+    methods = sorted(ESTIMATORS)
     print("| recording | " + " | ".join(methods) + " |")
     print("|---|" + "---|" * len(methods))
     failures = 0

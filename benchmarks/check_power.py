@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import SpacecalError
-from spacecal.estimators import METHODS, calibrate
+from spacecal.estimators import ESTIMATORS, calibrate
 from spacecal.estimators.diagnostics import residual_table, sample_residuals
 from spacecal.experiments.simulation import execute_plan, simulation_settings
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
@@ -232,7 +232,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=50)
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--scenarios", default=",".join(SCENARIOS[:3]))
-    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--methods", default=",".join(ESTIMATORS))
     parser.add_argument(
         "--table", action="store_true", help="print the table of the results kept, run nothing"
     )

@@ -30,10 +30,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
 from spacecal.estimators.hand_eye import motion_pairs, relative_motions
+from spacecal.estimators.registry import ESTIMATORS, Family, estimators_of
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
+
+ROBOT_WORLD_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.ROBOT_WORLD).items()}
+HAND_EYE_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.HAND_EYE).items()}
 
 SOLVERS = ("tsai", "park", "daniilidis", "li")
 HAND_EYE_FLAGS = {
@@ -45,7 +48,7 @@ HAND_EYE_FLAGS = {
 
 def spacecal_solve(name: str, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """X (and Y for li) for A_i X = Y B_i, A_i = base_from_tcp, B_i = tracker_from_marker (mm)."""
-    if name == "li":
+    if ESTIMATORS[name].family is Family.ROBOT_WORLD:
         x, y = ROBOT_WORLD_SOLVERS[name](a, b)
         return x, y
     return HAND_EYE_SOLVERS[name](*relative_motions(a, b, motion_pairs(a))), None

@@ -75,7 +75,7 @@ from kinhec.metrics import calibration_errors  # noqa: E402
 
 from spacecal import app  # noqa: E402
 from spacecal.core.errors import SpacecalError  # noqa: E402
-from spacecal.estimators import METHODS  # noqa: E402
+from spacecal.estimators import ESTIMATORS, Need  # noqa: E402
 from spacecal.estimators.expected_error import SITE_RADIUS_MM, SITE_TILT_DEG, near_site  # noqa: E402
 from spacecal.io.raw_streams import write_raw_recording  # noqa: E402
 from spacecal.io.recording_csv import write_recording  # noqa: E402
@@ -95,18 +95,7 @@ conversion = _load_conversion()
 TRACKS = ("noise", "robot_error", "outliers", "temporal", "motion")
 TRACK_ALIASES = {"outlier": "outliers", "robot-error": "robot_error"}
 #: spacecal's methods, in the order of the tables
-SPACECAL_METHODS = (
-    "ml",
-    "robust",
-    "kinematic",
-    "paper",
-    "shah",
-    "li",
-    "dornaika",
-    "tsai",
-    "park",
-    "daniilidis",
-)
+SPACECAL_METHODS = tuple(ESTIMATORS)
 #: KinHEC's solvers are labelled ``kinhec:<name>`` (two share a name with spacecal's methods)
 KINHEC = "kinhec:"
 #: KinHEC's reference the ratios compare ``ml`` with
@@ -242,7 +231,7 @@ def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[di
     ur = conversion.spacecal_robot_model(seq.manifest["robot"])
     for method in methods:
         row: dict = {"source": "spacecal", "method": method}
-        if method == "kinematic" and ur is None:
+        if Need.ROBOT_MODEL in ESTIMATORS[method].needs and ur is None:
             row.update(status="skipped", message=f"{seq.manifest['robot']} is not a UR arm spacecal models")
             rows.append(row)
             continue
@@ -680,11 +669,11 @@ def main() -> None:
         print_tables(document["rows"], document["header"], args.compact)
         return
     tracks = [TRACK_ALIASES.get(t, t) for t in args.tracks]
-    unknown = sorted(set(tracks) - set(TRACKS)) + sorted(set(args.methods) - set(METHODS))
+    unknown = sorted(set(tracks) - set(TRACKS)) + sorted(set(args.methods) - set(ESTIMATORS))
     unknown += sorted(set(args.kinhec_solvers) - set(SOLVERS))
     if unknown:
         parser.error(
-            f"unknown: {', '.join(unknown)} (tracks {', '.join(TRACKS)}; methods {', '.join(METHODS)}; "
+            f"unknown: {', '.join(unknown)} (tracks {', '.join(TRACKS)}; methods {', '.join(ESTIMATORS)}; "
             f"solvers {', '.join(SOLVERS)})"
         )
     tier_name = Path(args.tier).stem

@@ -43,6 +43,7 @@ from spacecal.estimators.likelihood import tre_summary
 from spacecal.estimators.ml import covariance_from_information
 from spacecal.estimators.noise_model import NoiseProblem, normal_equations
 from spacecal.estimators.observations import build_observations
+from spacecal.estimators.registry import Family, estimators_of
 from spacecal.experiments.monte_carlo import cramer_rao_tre_mm
 from spacecal.experiments.simulation import Simulation, simulate
 from spacecal.experiments.truth import calibration_error
@@ -50,7 +51,7 @@ from spacecal.geometry.transforms import rotvec_to_matrix
 from spacecal.records import Recording
 from spacecal.sim.scenario import PRESETS
 
-CLOSED_FORMS = ["shah", "li", "dornaika", "tsai", "park", "daniilidis"]
+CLOSED_FORMS = list(estimators_of(Family.ROBOT_WORLD, Family.HAND_EYE))
 
 
 def pose_only_recording(

@@ -5,10 +5,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
 from spacecal.estimators.hand_eye import motion_pairs, relative_motions
+from spacecal.estimators.registry import Family, estimators_of
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
+
+ROBOT_WORLD_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.ROBOT_WORLD).items()}
+HAND_EYE_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.HAND_EYE).items()}
 
 ROTATION_NOISE_RAD = 0.002
 TRANSLATION_NOISE_MM = 0.2

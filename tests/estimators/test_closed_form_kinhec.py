@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
 from spacecal.estimators.hand_eye import (
     _daniilidis_dual_quaternion,
     _daniilidis_grams,
@@ -27,10 +26,14 @@ from spacecal.estimators.hand_eye import (
     motion_pairs,
     relative_motions,
 )
+from spacecal.estimators.registry import Family, estimators_of
 from spacecal.estimators.robot_world import characteristic_length_mm
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_quaternion_wxyz
 
 from .test_hand_eye import errors, predicted_standard_errors
+
+ROBOT_WORLD_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.ROBOT_WORLD).items()}
+HAND_EYE_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.HAND_EYE).items()}
 
 kinhec = pytest.importorskip("kinhec")
 cv2 = pytest.importorskip("cv2")

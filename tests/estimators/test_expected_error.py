@@ -17,7 +17,7 @@ from spacecal.estimators.expected_error import (
     white_noise_power,
 )
 from spacecal.estimators.likelihood import fit_ml
-from spacecal.estimators.registry import METHODS
+from spacecal.estimators.registry import ESTIMATORS
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.models.kinematics import UR_TABLES
@@ -50,7 +50,7 @@ def test_realistic_expected_error_holds_the_unseen_kinematic_error(realistic_sim
     assert 0.5 * measured <= expected <= 3.0 * measured
 
 
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", sorted(ESTIMATORS))
 def test_every_method_gets_a_graded_verdict(white_simulation, method):
     result = calibrate(white_simulation.recording, method)
     assert result.verdict.grade in GRADES

@@ -8,7 +8,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
 from spacecal.estimators.hand_eye import (
     ALL_PAIRS_FRAMES,
     MAX_MOTION_PAIRS,
@@ -17,9 +16,13 @@ from spacecal.estimators.hand_eye import (
     motion_pairs,
     relative_motions,
 )
+from spacecal.estimators.registry import Family, estimators_of
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.records import Recording
+
+ROBOT_WORLD_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.ROBOT_WORLD).items()}
+HAND_EYE_SOLVERS = {name: spec.closed_form for name, spec in estimators_of(Family.HAND_EYE).items()}
 
 
 def predicted_standard_errors(
@@ -211,7 +214,7 @@ def test_the_length_unit_does_not_change_the_answer(name):
     a_m, b_m = a.copy(), b.copy()
     a_m[:, :3, 3] /= 1000.0
     b_m[:, :3, 3] /= 1000.0
-    if name == "li":
+    if name in ROBOT_WORLD_SOLVERS:
         in_mm, in_m = ROBOT_WORLD_SOLVERS[name](a, b)[0], ROBOT_WORLD_SOLVERS[name](a_m, b_m)[0]
     else:
         pairs = motion_pairs(a)

@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spacecal.estimators import calibrate
+from spacecal.estimators import ESTIMATORS, Family, calibrate
 from spacecal.estimators.diagnostics import tracker_from_base_from_samples
 from spacecal.estimators.hand_eye import motion_pairs, relative_motions, solve_daniilidis, solve_park
+from spacecal.estimators.registry import estimators_of
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.records import Recording
@@ -24,6 +25,7 @@ from spacecal.records import Recording
 from ..conftest import STORZ_VIEWS, storz_handeye
 
 VIEWS = STORZ_VIEWS
+CLOSED_FORMS = list(estimators_of(Family.ROBOT_WORLD, Family.HAND_EYE))
 
 
 @pytest.fixture(scope="module")
@@ -32,11 +34,11 @@ def storz():
 
 
 def _solve(recording: Recording, method: str):
-    # the images give no per-view noise figure: ML takes an assumed 0.5 mm per axis (it
-    # scales the covariance, not the estimate)
+    # the images give no per-view noise figure: a likelihood method takes an assumed 0.5 mm
+    # per axis (it scales the covariance, not the estimate)
     return (
         calibrate(recording, method, sigma_mm=0.5)
-        if method == "ml"
+        if ESTIMATORS[method].likelihood
         else calibrate(recording, method, uncertainty=False)
     )
 
@@ -50,7 +52,7 @@ def _closure(recording: Recording, result) -> tuple[float, float]:
     return float(rotation.mean()), float(translation.mean())
 
 
-@pytest.mark.parametrize("method", ["shah", "li", "dornaika", "tsai", "park", "daniilidis", "ml"])
+@pytest.mark.parametrize("method", [*CLOSED_FORMS, "ml"])
 def test_the_hand_eye_lands_where_the_authors_software_does(storz, method):
     """OpenCV's pose solvers land 0.29-0.90 deg and 2.8-5.9 mm from SmartLiver's H on these views
     (README table); the AX = YB forms and ML must do at least as well as that spread."""
@@ -66,7 +68,7 @@ def test_the_hand_eye_lands_where_the_authors_software_does(storz, method):
 REFERENCE_WORST_DEG, REFERENCE_WORST_MM = 0.401, 1.124
 
 
-@pytest.mark.parametrize("method", ["shah", "li", "dornaika", "tsai", "park", "daniilidis"])
+@pytest.mark.parametrize("method", CLOSED_FORMS)
 def test_the_closed_forms_explain_the_views_as_well_as_the_reference_solvers(storz, method):
     """SmartLiver's H explains the views to 0.36 deg / 0.82 mm mean, the OpenCV pose solvers to
     0.35-0.40 deg / 0.62-1.12 mm; these closed forms must be no worse than the worst of those."""
@@ -100,7 +102,7 @@ def _opencv_hand_eye(recording: Recording, method: str) -> np.ndarray:
     """
     cv2 = pytest.importorskip("cv2")
     a, b = recording.base_from_tcp_stack, recording.tracker_from_marker_stack
-    if method == "li":
+    if ESTIMATORS[method].family is Family.ROBOT_WORLD:
         marker_from_tracker, tcp_from_base = invert_transform(b), invert_transform(a)
         rotation, translation, _, _ = cv2.calibrateRobotWorldHandEye(
             list(marker_from_tracker[:, :3, :3]),

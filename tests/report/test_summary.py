@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from spacecal.estimators import calibrate
+from spacecal.estimators import ESTIMATORS, calibrate
 from spacecal.records import CheckResult, Verdict
 from spacecal.report.evidence import check_series, tick_format, uncertainty
 from spacecal.report.html import (
@@ -12,7 +12,7 @@ from spacecal.report.html import (
     _uncertainty_figure,
     _verification_figure,
 )
-from spacecal.report.summary import assess, residuals_of
+from spacecal.report.summary import assess, provenance_facts, residuals_of
 
 
 def test_tick_formats_follow_the_scale():
@@ -37,6 +37,15 @@ def test_the_verdict_word_sets_the_colour(white_simulation):
         assert (found.level, found.headline) == ("alarm", headline)
     silent = calibration.replace(diagnostics={}, predicted_tre_mm=None, covariance=None)
     assert assess(silent).level == "unknown"
+
+
+def test_the_method_line_is_the_registry_entry_summary(white_simulation):
+    calibration = calibrate(white_simulation.recording, "shah", uncertainty=False)
+    for name, spec in ESTIMATORS.items():
+        facts = dict(provenance_facts(calibration.replace(method=name)))
+        assert facts["method"] == f"{name}: {spec.summary}"
+    # a method this version does not know (a file from elsewhere) is shown by its name alone
+    assert dict(provenance_facts(calibration.replace(method="opencv-park")))["method"] == "opencv-park"
 
 
 def test_an_expected_error_entry_is_shown_and_judged(white_simulation):

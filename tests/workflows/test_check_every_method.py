@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from spacecal import app
-from spacecal.estimators import METHODS, calibrate
+from spacecal.estimators import ESTIMATORS, calibrate
 from spacecal.experiments.simulation import simulate
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.recording_csv import write_recording
@@ -66,7 +66,7 @@ def set_up(monkeypatch, move_mm=0.0, turn_deg=0.0, seed=5):
         yield
 
 
-@pytest.mark.parametrize("method", sorted(METHODS))
+@pytest.mark.parametrize("method", sorted(ESTIMATORS))
 @pytest.mark.parametrize("case", CASES)
 def test_a_sound_set_up_passes_and_a_moved_tracker_or_a_bumped_marker_fails(
     recordings, monkeypatch, case, method

@@ -72,7 +72,7 @@ class CalibrateSettings:
     output : str
         Calibration JSON to write.
     method : str
-        Estimator name (see :data:`spacecal.estimators.METHODS`).
+        Estimator name (see :data:`spacecal.estimators.ESTIMATORS`).
     tracker_stream : str or None
         The raw tracker stream: the two streams are paired first.
     time_offset_ms : float or None

@@ -39,7 +39,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     """The parser; ``commands_impl`` maps each command name to the function that runs it."""
-    from spacecal.estimators import METHODS
+    from spacecal.estimators import ESTIMATORS
 
     parser = OneLineParser(
         prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker."
@@ -75,7 +75,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command("calibrate", "estimate tracker_from_base from a recording")
     add_force(p)
     p.add_argument("recording", help="recording CSV (or, with --tracker-stream, the robot stream)")
-    p.add_argument("--method", default=_d(C, "method"), help=f"estimator: {', '.join(sorted(METHODS))}")
+    p.add_argument("--method", default=_d(C, "method"), help=f"estimator: {', '.join(sorted(ESTIMATORS))}")
     p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
     p.add_argument(
         "--include-doubtful-frames",

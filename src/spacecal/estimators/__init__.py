@@ -1,5 +1,5 @@
 """Estimators of ``tracker_from_base`` and ``tcp_from_marker``: one public function, a named registry."""
 
-from spacecal.estimators.registry import METHODS, calibrate
+from spacecal.estimators.registry import ESTIMATORS, EstimatorSpec, Family, Need, calibrate, estimator
 
-__all__ = ["METHODS", "calibrate"]
+__all__ = ["ESTIMATORS", "EstimatorSpec", "Family", "Need", "calibrate", "estimator"]

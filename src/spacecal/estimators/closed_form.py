@@ -13,20 +13,18 @@ from spacecal.estimators.diagnostics import (
     sample_residuals,
     tracker_from_base_from_samples,
 )
-from spacecal.estimators.hand_eye import (
-    motion_pairs,
-    relative_motions,
-    solve_daniilidis,
-    solve_park,
-    solve_tsai,
-)
-from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
+from spacecal.estimators.hand_eye import motion_pairs, relative_motions
 from spacecal.geometry.arrays import FloatArray, IntArray
 from spacecal.geometry.transforms import invert_transform
 from spacecal.records import CalibrationResult, Recording
 
-ROBOT_WORLD_SOLVERS = {"shah": solve_shah, "li": solve_li, "dornaika": solve_dornaika}
-HAND_EYE_SOLVERS = {"tsai": solve_tsai, "park": solve_park, "daniilidis": solve_daniilidis}
+#: A closed form for A_i X = Y B_i: ``(base_from_tcp_stack, tracker_from_marker_stack) -> (X, Y)``
+#: with X = ``tcp_from_marker`` and Y = ``base_from_tracker`` (:mod:`spacecal.estimators.robot_world`).
+RobotWorldSolver = Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
+
+#: A closed form for A_k X = X B_k: ``(tcp_motion_stack, marker_motion_stack) -> X``
+#: (:mod:`spacecal.estimators.hand_eye`).
+HandEyeSolver = Callable[[FloatArray, FloatArray], FloatArray]
 
 #: Hand-eye methods use the motions between every pair of up to this many visible frames; with
 #: more, a spread subset of pairs that rotate far from 0 and 180 deg (hand_eye.motion_pairs).
@@ -58,9 +56,9 @@ def closed_form_result(
     )
 
 
-def robot_world_method(name: str) -> Callable[[Recording], CalibrationResult]:
-    """A registry function solving AX = YB with the named closed form on all visible frames."""
-    solver = ROBOT_WORLD_SOLVERS[name]
+def robot_world_method(name: str, solver: RobotWorldSolver) -> Callable[[Recording], CalibrationResult]:
+    """A registry function solving AX = YB with ``solver`` on all visible frames; its results
+    are named ``name``."""
 
     def calibrate_robot_world(recording: Recording) -> CalibrationResult:
         rows = np.flatnonzero(recording.visible)
@@ -73,14 +71,14 @@ def robot_world_method(name: str) -> Callable[[Recording], CalibrationResult]:
     return calibrate_robot_world
 
 
-def hand_eye_method(name: str) -> Callable[[Recording], CalibrationResult]:
-    """A registry function solving AX = XB from relative motions, then tracker_from_base by averaging.
+def hand_eye_method(name: str, solver: HandEyeSolver) -> Callable[[Recording], CalibrationResult]:
+    """A registry function solving AX = XB with ``solver`` from relative motions, then
+    tracker_from_base by averaging; its results are named ``name``.
 
     The motions are those between the pairs of visible frames :func:`motion_pairs` picks (all
     pairs up to :data:`HAND_EYE_FRAMES` frames); their number is reported as the diagnostic
     ``hand_eye_motions``.
     """
-    solver = HAND_EYE_SOLVERS[name]
 
     def calibrate_hand_eye(recording: Recording) -> CalibrationResult:
         visible = np.flatnonzero(recording.visible)

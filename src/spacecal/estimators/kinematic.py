@@ -52,7 +52,14 @@ from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.estimators.expected_error import expected_error, held_out_blocks, recorded_robot_model
-from spacecal.estimators.likelihood import calibrate_ml, fit_ml, report_uncertainty, variance_factor_of
+from spacecal.estimators.likelihood import (
+    Solution,
+    UncertaintySettings,
+    calibrate_ml,
+    fit_ml,
+    report_uncertainty,
+    variance_factor_of,
+)
 from spacecal.estimators.ml import covariance_from_information, information_matrix
 from spacecal.estimators.observations import Observations
 from spacecal.geometry.arrays import FloatArray, IntArray
@@ -438,7 +445,7 @@ def calibrate_kinematic(
     as_identified = replace(
         recording, base_from_tcp_stack=forward_kinematics(corrected, recording.joints_rad)
     )
-    result = report_uncertainty(
+    solution = Solution(
         "kinematic",
         as_identified if bool(np.all(np.isfinite(recording.joints_rad))) else recording,
         obs_model,
@@ -446,11 +453,12 @@ def calibrate_kinematic(
         tcp_from_marker,
         covariance_all[:12, :12],
         variance_factor,
-        targets_in_base,
         extra,
-        covariance_note="pose block of the joint (pose + DH) covariance; mm, rad",
         robot_model=corrected,
         absorbed_dh=selected.tolist(),
         dh_error_scale_mm=dh_scale,
     )
+    # the joint ML fit of obs_model: its held-out refits are its own
+    note = "pose block of the joint (pose + DH) covariance; mm, rad"
+    result = report_uncertainty(solution, UncertaintySettings(True, note, targets_in_base))
     return result.replace(robot_model=corrected)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -99,6 +100,80 @@ def variance_factor_of(
     return float(np.sum(errors**2) * len(obs.spheres_in_marker) / obs.sigma_mm**2) / dof
 
 
+@dataclass(frozen=True)
+class Solution:
+    """An estimate with its covariance, before :func:`report_uncertainty` adds what follows
+    from them.
+
+    Attributes
+    ----------
+    method : str
+        The registry name the result carries.
+    recording : Recording
+    obs : Observations
+        The frames the estimate used, with the poses its robot model gives.
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The estimate (mm).
+    covariance : numpy.ndarray, shape (12, 12)
+        In the ML perturbation parameters (mm, rad).
+    variance_factor : float
+        A posteriori variance factor at the estimate (:func:`variance_factor_of`).
+    diagnostics : dict
+        The estimator's own diagnostics, kept as they are.
+    outlier_rows : sequence of int
+        Recording rows the estimator rejected as outliers.
+    robot_model : RobotModel or None
+        The model ``obs`` poses come from (default: the nominal model named in the recording's
+        metadata, if any).
+    absorbed_dh : sequence of int
+        The DH corrections identified with ``robot_model``.
+    dh_error_scale_mm : float or None
+        The robot's DH error scale when known (see
+        :func:`spacecal.estimators.expected_error.expected_error`).
+    """
+
+    method: str
+    recording: Recording
+    obs: Observations
+    tracker_from_base: FloatArray
+    tcp_from_marker: FloatArray
+    covariance: FloatArray
+    variance_factor: float
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    outlier_rows: IntArray | Sequence[int] = ()
+    robot_model: RobotModel | None = None
+    absorbed_dh: Sequence[int] = ()
+    dh_error_scale_mm: float | None = None
+
+
+@dataclass(frozen=True)
+class UncertaintySettings:
+    """How :func:`report_uncertainty` reads a :class:`Solution`.
+
+    Attributes
+    ----------
+    likelihood_based : bool
+        The solution is the ML fit of its observations (its held-out refits are its own);
+        False for the others (the paper's method, the closed forms), whose held-out refits are
+        ML and whose distance from the ML solution is added to the expected error.
+    covariance_note : str
+        What the covariance is, stored beside it.
+    targets_in_base : array_like, shape (M, 3), optional
+        Points (mm, base frame) at which to predict the TRE, besides the site.
+    """
+
+    likelihood_based: bool
+    covariance_note: str = ""
+    targets_in_base: ArrayLike | None = None
+
+
+#: What the covariance of a likelihood fit (:func:`_package`) is.
+PERTURBATION_NOTE = (
+    "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
+    "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad"
+)
+
+
 def _package(
     method: str,
     recording: Recording,
@@ -128,7 +203,7 @@ def _package(
         },
         **extra,
     }
-    return report_uncertainty(
+    solution = Solution(
         method,
         recording,
         obs,
@@ -136,60 +211,31 @@ def _package(
         tcp_from_marker,
         covariance,
         variance_factor,
-        targets_in_base,
         extra,
         outlier_rows,
-        "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
-        "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad",
     )
+    # this is the ML fit of obs: its held-out refits are its own
+    return report_uncertainty(solution, UncertaintySettings(True, PERTURBATION_NOTE, targets_in_base))
 
 
-def report_uncertainty(
-    method: str,
-    recording: Recording,
-    obs: Observations,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-    covariance: FloatArray,
-    variance_factor: float,
-    targets_in_base: ArrayLike | None,
-    extra: dict[str, Any],
-    outlier_rows: IntArray | Sequence[int] = (),
-    covariance_note: str = "",
-    robot_model: RobotModel | None = None,
-    absorbed_dh: Sequence[int] = (),
-    dh_error_scale_mm: float | None = None,
-) -> CalibrationResult:
+def report_uncertainty(solution: Solution, settings: UncertaintySettings) -> CalibrationResult:
     """A calibration result with covariance, predicted TRE, expected error, residuals, spread
-    and verdict.
-
-    ``robot_model`` is the model ``obs`` poses come from (default: the nominal model named in
-    the recording's metadata, if any); ``absorbed_dh`` the DH corrections identified with it;
-    ``dh_error_scale_mm`` the robot's DH error scale when known (see
-    :func:`spacecal.estimators.expected_error.expected_error`).
-    """
+    and verdict, from an estimate and its covariance."""
+    s = solution
+    recording, obs, outlier_rows = s.recording, s.obs, s.outlier_rows
     site = site_in_base(recording, obs.rows)
-    tre = tre_summary(tracker_from_base, covariance, site, targets_in_base)
-    residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker, rms_rows=obs.rows)
+    tre = tre_summary(s.tracker_from_base, s.covariance, site, settings.targets_in_base)
+    residuals = sample_residuals(recording, s.tracker_from_base, s.tcp_from_marker, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
-    expected = expected_error_of(
-        method,
-        recording,
-        obs,
-        tracker_from_base,
-        tcp_from_marker,
-        covariance,
-        robot_model,
-        absorbed_dh,
-        dh_error_scale_mm,
-    )
+    expected = expected_error_of(s, settings.likelihood_based)
     if len(outlier_rows) > MAX_OUTLIER_FRACTION * len(obs.rows) and "refusal" not in expected:
         expected = {
             **expected,
             "refusal": f"{len(outlier_rows)} frames disagree with the {len(obs.rows)} kept: the recording "
             "does not describe one rigid set-up (units, a moved marker or tracker?)",
         }
+    variance_factor = s.variance_factor if obs.sigma_known else None
     diagnostics = {
         "noise": {
             "sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
@@ -200,7 +246,7 @@ def report_uncertainty(
             if obs.dof_per_frame > 6
             else "marker poses (model spheres placed by the measured pose)",
         },
-        "variance_factor": variance_factor if obs.sigma_known else None,
+        "variance_factor": variance_factor,
         "residual_position_rms_mm": residuals["position_rms_mm"],
         "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": spread,
@@ -209,59 +255,49 @@ def report_uncertainty(
             None if "refusal" in expected else expected,
             spread,
             outlier_fraction,
-            variance_factor if obs.sigma_known else None,
+            variance_factor,
             refusal=expected.get("refusal"),
         ).to_dict(),
         "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
-        **extra,
+        **s.diagnostics,
     }
     counts = sample_counts(recording, obs.rows, extra_rejections={"outlier": len(outlier_rows)})
     return CalibrationResult(
-        method,
-        tracker_from_base,
-        tcp_from_marker,
+        s.method,
+        s.tracker_from_base,
+        s.tcp_from_marker,
         counts,
         diagnostics,
-        covariance={"parameters": PARAMETER_NAMES, "matrix": covariance.tolist(), "note": covariance_note},
+        covariance={
+            "parameters": PARAMETER_NAMES,
+            "matrix": s.covariance.tolist(),
+            "note": settings.covariance_note,
+        },
         predicted_tre_mm=tre,
     )
 
 
-#: Estimators whose solution is the ML fit of their observations (their held-out refits are
-#: their own; the others are compared with ML).
-LIKELIHOOD_METHODS = ("ml", "robust", "kinematic")
-
-
-def expected_error_of(
-    method: str,
-    recording: Recording,
-    obs: Observations,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-    covariance: FloatArray,
-    robot_model: RobotModel | None = None,
-    absorbed_dh: Sequence[int] = (),
-    dh_error_scale_mm: float | None = None,
-) -> dict[str, Any]:
+def expected_error_of(solution: Solution, likelihood_based: bool) -> dict[str, Any]:
     """``diagnostics["expected_error"]`` (see :mod:`spacecal.estimators.expected_error`).
 
     Holds ``refusal`` (and no numbers) when the data cannot support a calibration: held-out
     blocks that cannot be refitted (too few frames to leave any out). The frame count alone
     is never a refusal: ten well-spread poses are judged by what they say.
     """
-    model = robot_model if robot_model is not None else nominal_robot_model(recording)
+    s = solution
+    model = s.robot_model if s.robot_model is not None else nominal_robot_model(s.recording)
     try:
         return expected_error(
-            obs,
-            recording.segment[obs.rows],
-            tracker_from_base,
-            tcp_from_marker,
-            covariance,
+            s.obs,
+            s.recording.segment[s.obs.rows],
+            s.tracker_from_base,
+            s.tcp_from_marker,
+            s.covariance,
             robot_model=model,
-            joints_rad=None if model is None else recording.joints_rad[obs.rows],
-            absorbed_dh=absorbed_dh,
-            likelihood_based=method in LIKELIHOOD_METHODS,
-            dh_error_scale_mm=dh_error_scale_mm,
+            joints_rad=None if model is None else s.recording.joints_rad[s.obs.rows],
+            absorbed_dh=s.absorbed_dh,
+            likelihood_based=likelihood_based,
+            dh_error_scale_mm=s.dh_error_scale_mm,
         )
     except (DegenerateDataError, np.linalg.LinAlgError) as exc:
         return {"refusal": f"the expected error cannot be cross-validated ({exc})", "basis": "not estimated"}

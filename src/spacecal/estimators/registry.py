@@ -1,9 +1,15 @@
-"""The registry of calibration methods, chosen by name."""
+"""The registry of calibration methods: one :class:`EstimatorSpec` per method, in :data:`ESTIMATORS`.
+
+Everything the package knows about a method is in its entry: its family, whether its solution
+is a likelihood fit (else it gets a bootstrap, and its held-out refits are ML), what it needs
+from a recording, the keyword options it takes, a line describing it and where it comes from.
+Nothing else lists method names or tells methods apart by name.
+"""
 
 from __future__ import annotations
 
 import dataclasses
-import inspect
+import enum
 from collections.abc import Callable
 from typing import Any
 
@@ -11,14 +17,17 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError, SpacecalError, UnknownMethodError
 from spacecal.estimators.closed_form import (
-    HAND_EYE_SOLVERS,
-    ROBOT_WORLD_SOLVERS,
+    HandEyeSolver,
+    RobotWorldSolver,
     hand_eye_method,
     robot_world_method,
 )
 from spacecal.estimators.diagnostics import ErrorThresholds, verdict
+from spacecal.estimators.hand_eye import solve_daniilidis, solve_park, solve_tsai
 from spacecal.estimators.kinematic import calibrate_kinematic
 from spacecal.estimators.likelihood import (
+    Solution,
+    UncertaintySettings,
     calibrate_ml,
     calibrate_robust,
     report_uncertainty,
@@ -27,20 +36,238 @@ from spacecal.estimators.likelihood import (
 from spacecal.estimators.ml import covariance_from_information, information_matrix
 from spacecal.estimators.observations import build_observations
 from spacecal.estimators.paper import calibrate_paper
+from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
 from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_points, check_transform
 from spacecal.records import CalibrationResult, Recording
 
-#: name -> ``function(recording, **options) -> CalibrationResult``
-METHODS: dict[str, Callable[..., CalibrationResult]] = {
-    "paper": calibrate_paper,
-    "ml": calibrate_ml,
-    "robust": calibrate_robust,
-    "kinematic": calibrate_kinematic,
-    **{name: robot_world_method(name) for name in ROBOT_WORLD_SOLVERS},
-    **{name: hand_eye_method(name) for name in HAND_EYE_SOLVERS},
-}
+
+class Family(enum.Enum):
+    """The kind of estimator a method is; the value is the sentence a report shows."""
+
+    PAPER = "the paper's linear-rotation method (sphere and line fits)"
+    LIKELIHOOD = "maximum likelihood on the tracker's sphere residuals"
+    KINEMATIC = "maximum likelihood with robot kinematic identification"
+    ROBOT_WORLD = "closed-form robot-world solver (AX = YB)"
+    HAND_EYE = "closed-form hand-eye solver (AX = XB) on relative motions"
+
+
+class Need(enum.Enum):
+    """What a method needs from a recording beyond paired poses; the value is a reader's phrase."""
+
+    SWEEPS = "the paper's six sweeps (segments rot_x .. lin_z)"
+    JOINTS = "the joint angles of every used frame"
+    ROBOT_MODEL = "the robot model in the recording metadata"
+    VARIED_ROTATION = "poses rotating about at least two axes"
+
+
+@dataclasses.dataclass(frozen=True)
+class EstimatorSpec:
+    """Everything about one calibration method.
+
+    Attributes
+    ----------
+    name : str
+        The name ``calibrate`` and ``--method`` take, and results carry.
+    family : Family
+    solve : callable
+        ``solve(recording, **options) -> CalibrationResult``; for a likelihood method also
+        ``targets_in_base``.
+    summary : str
+        One line on what it does, for reports and listings.
+    reference : str
+        The publication (and equations) it implements, or the section of ``docs/methods.md``
+        that derives it.
+    likelihood : bool
+        Its solution is the ML fit of its observations: it reports its own covariance and
+        predicted TRE, and its held-out refits are its own. Otherwise the registry adds a
+        bootstrap covariance over frames and the expected error is cross-validated with ML
+        refits (see :attr:`bootstrap`, :attr:`held_out_refit`).
+    options : frozenset of str
+        The keyword options ``solve`` takes (besides ``recording`` and ``targets_in_base``).
+    needs : frozenset of Need
+        What a recording must hold for it.
+    closed_form : callable or None
+        The bare solver a closed-form method wraps (:data:`RobotWorldSolver` or
+        :data:`HandEyeSolver`); None for the others.
+    """
+
+    name: str
+    family: Family
+    solve: Callable[..., CalibrationResult]
+    summary: str
+    reference: str
+    likelihood: bool
+    options: frozenset[str] = frozenset()
+    needs: frozenset[Need] = frozenset()
+    closed_form: RobotWorldSolver | HandEyeSolver | None = None
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.summary.strip() or not self.reference.strip():
+            raise ValueError(f"estimator {self.name!r}: name, summary and reference must be given")
+        closed = self.family in (Family.ROBOT_WORLD, Family.HAND_EYE)
+        if closed != (self.closed_form is not None):
+            raise ValueError(f"estimator {self.name!r}: a closed form is given exactly for the closed forms")
+
+    @property
+    def bootstrap(self) -> bool:
+        """Its covariance comes from the bootstrap over frames (methods without a likelihood)."""
+        return not self.likelihood
+
+    @property
+    def held_out_refit(self) -> str:
+        """Whose refits cross-validate its expected error: ``"own"`` or ``"ML"``."""
+        return "own" if self.likelihood else "ML"
+
+
+def _spec(*args: Any, **kwargs: Any) -> tuple[str, EstimatorSpec]:
+    spec = EstimatorSpec(*args, **kwargs)
+    return spec.name, spec
+
+
+def _robot_world(name: str, solver: RobotWorldSolver, by: str, reference: str) -> tuple[str, EstimatorSpec]:
+    return _spec(
+        name,
+        Family.ROBOT_WORLD,
+        robot_world_method(name, solver),
+        f"{Family.ROBOT_WORLD.value} by {by}",
+        reference,
+        likelihood=False,
+        needs=frozenset({Need.VARIED_ROTATION}),
+        closed_form=solver,
+    )
+
+
+def _hand_eye(name: str, solver: HandEyeSolver, by: str, reference: str) -> tuple[str, EstimatorSpec]:
+    return _spec(
+        name,
+        Family.HAND_EYE,
+        hand_eye_method(name, solver),
+        f"{Family.HAND_EYE.value} by {by}",
+        reference,
+        likelihood=False,
+        needs=frozenset({Need.VARIED_ROTATION}),
+        closed_form=solver,
+    )
+
+
+#: The calibration methods by name, in the order listings show them.
+ESTIMATORS: dict[str, EstimatorSpec] = dict(
+    [
+        _spec(
+            "paper",
+            Family.PAPER,
+            calibrate_paper,
+            "the paper's linear-rotation method (sphere and line fits)",
+            "Space calibration of the cranial and maxillofacial robotic system in surgery, "
+            "section 3 (eqs. 2-9)",
+            likelihood=False,
+            options=frozenset({"thresholds"}),
+            needs=frozenset({Need.SWEEPS}),
+        ),
+        _spec(
+            "ml",
+            Family.LIKELIHOOD,
+            calibrate_ml,
+            "maximum likelihood over all marker poses",
+            "docs/methods.md, Maximum likelihood (Levenberg-Marquardt on sphere residuals; "
+            "noise components as in Amiri-Simkooei, J. Geodesy 2008)",
+            likelihood=True,
+            options=frozenset({"sigma_mm", "noise_model", "fitted"}),
+            needs=frozenset({Need.VARIED_ROTATION}),
+        ),
+        _spec(
+            "robust",
+            Family.LIKELIHOOD,
+            calibrate_robust,
+            "maximum likelihood with outlier rejection",
+            "docs/methods.md, Robust maximum likelihood (RANSAC start, Cauchy IRLS, then ML on the inliers)",
+            likelihood=True,
+            options=frozenset({"sigma_mm", "seed"}),
+            needs=frozenset({Need.VARIED_ROTATION}),
+        ),
+        _spec(
+            "kinematic",
+            Family.KINEMATIC,
+            calibrate_kinematic,
+            "maximum likelihood with robot kinematic identification",
+            "docs/methods.md, Kinematic identification (ML jointly with the identifiable DH corrections)",
+            likelihood=True,
+            options=frozenset(
+                {
+                    "sigma_mm",
+                    "prior_length_sd_mm",
+                    "prior_angle_sd_rad",
+                    "rank_tolerance",
+                    "iterations",
+                    "model_selection",
+                    "prior_from_data",
+                }
+            ),
+            needs=frozenset({Need.JOINTS, Need.ROBOT_MODEL, Need.VARIED_ROTATION}),
+        ),
+        _robot_world(
+            "shah",
+            solve_shah,
+            "Shah",
+            "Shah 2013, Solving the robot-world/hand-eye calibration problem using the Kronecker "
+            "product, J. Mech. Robot. 5(3)",
+        ),
+        _robot_world(
+            "li",
+            solve_li,
+            "Li, Wang and Wu",
+            "Li, Wang, Wu 2010, Simultaneous robot-world and hand-eye calibration using dual-quaternions "
+            "and Kronecker product, Int. J. Phys. Sci. 5(10): 1530-1536",
+        ),
+        _robot_world(
+            "dornaika",
+            solve_dornaika,
+            "Dornaika and Horaud",
+            "Dornaika, Horaud 1998, Simultaneous robot-world and hand-eye calibration, IEEE TRA 14(4), "
+            "closed-form part",
+        ),
+        _hand_eye(
+            "tsai",
+            solve_tsai,
+            "Tsai and Lenz",
+            "Tsai, Lenz 1989, A new technique for fully autonomous and efficient 3D robotics hand/eye "
+            "calibration, IEEE TRA 5(3): 345-358, eqs. 12-15",
+        ),
+        _hand_eye(
+            "park",
+            solve_park,
+            "Park and Martin",
+            "Park, Martin 1994, Robot sensor calibration: solving AX = XB on the Euclidean group, "
+            "IEEE TRA 10(5): 717-721, eqs. 11-13",
+        ),
+        _hand_eye(
+            "daniilidis",
+            solve_daniilidis,
+            "Daniilidis",
+            "Daniilidis 1999, Hand-eye calibration using dual quaternions, IJRR 18(3): 286-298, eqs. 31-35",
+        ),
+    ]
+)
+
+
+def estimator(method: str) -> EstimatorSpec:
+    """The registry entry of ``method``.
+
+    Raises
+    ------
+    UnknownMethodError
+        For a name not in the registry; the message lists the valid ones.
+    """
+    if method not in ESTIMATORS:
+        raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(ESTIMATORS))}")
+    return ESTIMATORS[method]
+
+
+def estimators_of(*families: Family) -> dict[str, EstimatorSpec]:
+    """The entries of the given families, in registry order."""
+    return {name: spec for name, spec in ESTIMATORS.items() if spec.family in families}
 
 
 def calibrate(
@@ -52,25 +279,25 @@ def calibrate(
     ----------
     recording : Recording
     method : str
-        A name from :data:`METHODS`.
+        A name from :data:`ESTIMATORS`.
     uncertainty : bool
         For methods without a likelihood, add a bootstrap covariance, predicted TRE, expected
         error and verdict (50 re-solves); Monte Carlo studies switch it off.
     **options
-        Passed to the method, except ``targets_in_base`` (any method) and ``error_thresholds``, an
+        The method's own options (:attr:`EstimatorSpec.options`), ``targets_in_base`` (any
+        method) and ``error_thresholds``, an
         :class:`~spacecal.estimators.diagnostics.ErrorThresholds` the verdict is graded against.
-        Passed to the method.
 
     Raises
     ------
     UnknownMethodError
         For a name not in the registry; the message lists the valid ones.
     InvalidInputError
-        For pose stacks that are not rigid transforms (:func:`check_recording_poses`) or
-        targets that are not (M, 3) finite points.
+        For an option the method does not take (naming the methods that do), pose stacks that
+        are not rigid transforms (:func:`check_recording_poses`) or targets that are not
+        (M, 3) finite points.
     """
-    if method not in METHODS:
-        raise UnknownMethodError(f"unknown method {method!r}; valid methods: {', '.join(sorted(METHODS))}")
+    spec = estimator(method)
     thresholds = options.pop("error_thresholds", None)
     if thresholds is not None and not isinstance(thresholds, ErrorThresholds):
         raise InvalidInputError("error_thresholds must be an ErrorThresholds (good, acceptable, poor mm)")
@@ -78,22 +305,19 @@ def calibrate(
     if targets is not None:
         targets = check_points(targets, "targets_in_base")
     check_recording_poses(recording)
-    accepted = inspect.signature(METHODS[method]).parameters
-    unexpected = sorted(set(options) - set(accepted))
+    unexpected = sorted(set(options) - spec.options)
     if unexpected:
-        takers = sorted(
-            m for m, f in METHODS.items() if set(unexpected) <= set(inspect.signature(f).parameters)
-        )
+        takers = sorted(m for m, s in ESTIMATORS.items() if set(unexpected) <= s.options)
         raise InvalidInputError(
             f"method {method!r} does not take {', '.join(unexpected)}"
             + (f" (methods that do: {', '.join(takers)})" if takers else "")
         )
-    if "targets_in_base" in accepted:
-        result = METHODS[method](recording, targets_in_base=targets, **options)
+    if spec.likelihood:
+        result = spec.solve(recording, targets_in_base=targets, **options)
     else:
-        result = METHODS[method](recording, **options)
+        result = spec.solve(recording, **options)
         if uncertainty:
-            result = with_bootstrap_uncertainty(result, recording, METHODS[method], targets)
+            result = with_bootstrap_uncertainty(result, recording, spec.solve, targets)
     return result if thresholds is None else regrade(result, recording, thresholds)
 
 
@@ -134,16 +358,18 @@ def with_expected_error(result: CalibrationResult, recording: Recording) -> Cali
     except (SpacecalError, np.linalg.LinAlgError):
         return result
     reported = report_uncertainty(
-        result.method,
-        recording,
-        obs,
-        result.tracker_from_base,
-        result.tcp_from_marker,
-        covariance,
-        variance_factor,
-        None,
-        {},
-        covariance_note="ML information at this solution (no bootstrap); mm, rad",
+        Solution(
+            result.method,
+            recording,
+            obs,
+            result.tracker_from_base,
+            result.tcp_from_marker,
+            covariance,
+            variance_factor,
+        ),
+        UncertaintySettings(
+            estimator(result.method).likelihood, "ML information at this solution (no bootstrap); mm, rad"
+        ),
     )
     keep = ("expected_error", "verdict", "motion_spread", "variance_factor")
     return result.replace(diagnostics={**result.diagnostics, **{k: reported.diagnostics[k] for k in keep}})
@@ -194,17 +420,19 @@ def with_bootstrap_uncertainty(
     obs = build_observations(recording)
     variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
     reported = report_uncertainty(
-        result.method,
-        recording,
-        obs,
-        result.tracker_from_base,
-        result.tcp_from_marker,
-        covariance,
-        variance_factor,
-        targets_in_base,
-        {},
-        covariance_note=(
-            f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad"
+        Solution(
+            result.method,
+            recording,
+            obs,
+            result.tracker_from_base,
+            result.tcp_from_marker,
+            covariance,
+            variance_factor,
+        ),
+        UncertaintySettings(
+            estimator(result.method).likelihood,
+            f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
+            targets_in_base,
         ),
     )
     return result.replace(

@@ -22,25 +22,15 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.estimators.closed_form import HAND_EYE_SOLVERS, ROBOT_WORLD_SOLVERS
 from spacecal.estimators.conventions import calibration_mismatch
 from spacecal.estimators.diagnostics import sample_residuals
+from spacecal.estimators.registry import ESTIMATORS
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.records import CalibrationResult, CheckResult, Recording, VerificationResult
 from spacecal.records.paper_reference import PAPER_VERIFICATION
 
 #: Predicted or expected error at the target (mm) above which the calibration is flagged.
 TARGET_ERROR_LIMIT_MM = 1.0
-
-#: A sentence per method family, for the summary.
-METHOD_FAMILIES = {
-    "paper": "the paper's linear-rotation method (sphere and line fits)",
-    "ml": "maximum likelihood over all marker poses",
-    "robust": "maximum likelihood with outlier rejection",
-    "kinematic": "maximum likelihood with robot kinematic identification",
-    **{name: "closed-form robot-world solver (AX = YB)" for name in ROBOT_WORLD_SOLVERS},
-    **{name: "closed-form hand-eye solver (AX = XB) on relative motions" for name in HAND_EYE_SOLVERS},
-}
 
 
 @dataclass
@@ -290,8 +280,8 @@ def provenance_facts(
     metadata = recording.metadata if recording is not None else {}
     devices = provenance.devices or {}
     facts: list[tuple[str, str]] = []
-    family = METHOD_FAMILIES.get(calibration.method)
-    facts.append(("method", calibration.method + (f": {family}" if family else "")))
+    spec = ESTIMATORS.get(calibration.method)
+    facts.append(("method", calibration.method + (f": {spec.summary}" if spec else "")))
     counts = calibration.sample_counts
     used, total = counts.get("used"), counts.get("total")
     if used is not None and total is not None:
