@@ -1,0 +1,71 @@
+"""``spacecal station``: open the record, build the application, serve it with uvicorn."""
+
+from __future__ import annotations
+
+import webbrowser
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import uvicorn
+
+from spacecal.ledger import Ledger
+from spacecal.station.access import check_bind
+from spacecal.station.web import Station, create_app
+
+
+@dataclass(frozen=True)
+class StationOptions:
+    """How the station is served.
+
+    Attributes
+    ----------
+    host : str
+        Interface to listen on; anything but loopback needs ``token``.
+    port : int
+        TCP port (0: any free one).
+    token : str or None
+        Access token every request must carry.
+    data : str
+        Folder for each calibration's files; the record defaults to ``DATA/record.db``.
+    record : str or None
+        The record: SQLite file or database URL.
+    open : bool
+        Open the station in the default web browser.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 8770
+    token: str | None = None
+    data: str = "spacecal-station"
+    record: str | None = None
+    open: bool = False
+
+
+def build(options: StationOptions) -> tuple[Station, Any]:
+    """The station's state and its ASGI application (refusing an unsafe bind first)."""
+    check_bind(options.host, options.token)
+    data = Path(options.data).expanduser().resolve()
+    data.mkdir(parents=True, exist_ok=True)
+    ledger = Ledger.open(options.record or str(data / "record.db"))
+    station = Station(ledger, data)
+    return station, create_app(station, options.token, options.host)
+
+
+def serve(options: StationOptions) -> None:
+    """Serve the station until Ctrl-C; every acquisition still running is stopped on the way out."""
+    station, application = build(options)
+    config = uvicorn.Config(
+        application, host=options.host, port=options.port, log_level="warning", lifespan="off"
+    )
+    server = uvicorn.Server(config)
+    address = f"http://{'localhost' if options.host == '127.0.0.1' else options.host}:{options.port}/"
+    shown = address + (f"?token={options.token}" if options.token else "")
+    print(f"spacecal station: {shown} (record: {station.ledger.engine.url.render_as_string()})", flush=True)
+    if options.open:
+        webbrowser.open(shown)
+    try:
+        server.run()
+    finally:
+        station.runs.stop_all("the station shut down")
+        station.ledger.close()
