@@ -122,7 +122,7 @@ def page() -> Iterator[Any]:
     binary = chromium_binary()
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(
-            executable_path=binary, args=["--no-sandbox", "--disable-gpu"], timeout=BROWSER_TIMEOUT_MS
+            executable_path=binary, args=["--no-sandbox"], timeout=BROWSER_TIMEOUT_MS
         )
         try:
             context = browser.new_context(viewport={"width": 1280, "height": 900})

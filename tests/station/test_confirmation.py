@@ -19,12 +19,16 @@ def test_no_motion_without_its_confirmation(tmp_path):
         web.post("/devices", data={"kind": "tracker", "name": "Vicra", "url": "sim"})
         web.post("/workspaces", data={"robot": "1", "tracker": "1"})
         work = station.workspaces[1]
+        # no confirmation before the dry run passed
+        early = web.get("/workspaces/1/confirm/acquire")
+        assert "run the dry run first" in early.text and 'name="ticket"' not in early.text
+        web.post("/workspaces/1/step/dry-run")
+        assert work.dry_run_ok
         # no ticket, a made-up one, and one issued for the other motion: refused, nothing moves
         for data in ({}, {"ticket": "made-up"}):
             refused = web.post("/workspaces/1/motion/acquire", data=data)
             assert refused.status_code == 403 and "confirmation" in refused.text
-        page = web.get("/workspaces/1/confirm/check").text
-        check_ticket = re.search(r'name="ticket" value="([^"]+)"', page).group(1)
+        check_ticket = station.tickets.issue(1, "UR10 bay 1", "check")
         assert web.post("/workspaces/1/motion/acquire", data={"ticket": check_ticket}).status_code == 403
         assert station.runs.active() is None and station.runs.get(1) is None
         assert not work.recording_path.exists()

@@ -217,6 +217,11 @@ def confirm_page(request: Request) -> Response:
     motion = request.path_params["motion"]
     if motion not in MOTIONS:
         return PlainTextResponse(f"no motion {motion}", status_code=404)
+    here = request.url_for("workspace", workspace_id=work.id)
+    if motion == "acquire" and not work.dry_run_ok:
+        return RedirectResponse(here.include_query_params(error="run the dry run first: it must pass"), 303)
+    if motion == "check" and work.calibration is None:
+        return RedirectResponse(here.include_query_params(error="calibrate first"), 303)
     ticket = station.tickets.issue(work.id, work.robot["name"], motion)
     return _page(
         request, "confirm.html", work=work, motion=motion, words=work.motion_words(motion), ticket=ticket

@@ -119,7 +119,8 @@ class Workspace:
         """Check the plan without moving (reach, limits, visibility, workspace)."""
         out = app.acquire(self.acquire_settings(dry_run=True))
         self.moves, self.motion_time_s = out.moves, out.motion_time_s
-        self.dry_run_lines = [*out.messages, *(out.gate.lines() if out.gate is not None else [])]
+        gate = [out.gate.summary(), *out.gate.lines()] if out.gate is not None else []
+        self.dry_run_lines = [*gate, *out.messages, "dry run: nothing moved"]
         self.dry_run_ok = out.gate is None or out.gate.passed
 
     def motion_words(self, motion: str) -> str:

@@ -19,11 +19,23 @@
   var layout = {margin: {l: 0, r: 0, t: 10, b: 0}, uirevision: "keep",
                 scene: {aspectmode: "data", xaxis: {title: {text: "x (mm)"}}, yaxis: {title: {text: "y (mm)"}},
                         zaxis: {title: {text: "z (mm)"}}}};
-  Plotly.newPlot("view", traces(), layout, {displaylogo: false, responsive: true});
+  // the view is a help, never a condition: without WebGL the numbers and STOP still work
+  var drawing = true;
+  function draw(first) {
+    if (!drawing) { return; }
+    try {
+      if (first) { Plotly.newPlot("view", traces(), layout, {displaylogo: false, responsive: true}); }
+      else { Plotly.react("view", traces(), layout); }
+    } catch (error) {
+      drawing = false;
+      view.textContent = "the live view cannot be drawn in this browser (" + error + ")";
+    }
+  }
   function text(id, value) { document.getElementById(id).textContent = value; }
   var scheme = location.protocol === "https:" ? "wss://" : "ws://";
   var socket = new WebSocket(scheme + location.host + "/runs/" + view.dataset.run + "/ws");
   var drawn = 0;
+  draw(true);
   socket.onmessage = function (event) {
     var data = JSON.parse(event.data);
     data.frames.forEach(function (f) {
@@ -41,7 +53,7 @@
     var bar = document.getElementById("progress");
     bar.max = Math.max(1, data.moves_total);
     bar.value = data.move;
-    if (data.frames.length || Date.now() - drawn > 2000) { Plotly.react("view", traces(), layout); drawn = Date.now(); }
+    if (data.frames.length || Date.now() - drawn > 2000) { draw(false); drawn = Date.now(); }
     if (data.run_state !== "starting" && data.run_state !== "running") {
       ended = true;
       document.getElementById("stop").disabled = true;
