@@ -15,7 +15,6 @@ from pathlib import Path
 from urllib.parse import urljoin
 
 from tests.adapters.test_ur_stops import ENDED_WITHIN_S, STILL_WITHIN_S
-from tests.station.conftest import need
 
 #: An acquisition on the simulated devices ends within this (it takes ~20-50 s on 2 busy cores), s.
 ACQUISITION_WITHIN_MS = 240_000
