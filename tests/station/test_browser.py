@@ -14,8 +14,10 @@ import time
 from pathlib import Path
 from urllib.parse import urljoin
 
-from tests.adapters.test_ur_stops import ENDED_WITHIN_S, STILL_WITHIN_S
-
+#: The command line's stop times (tests/adapters/test_ur_stops.py): from the stop to the robot
+#: standing still, and to the end of the command, s.
+STILL_WITHIN_S = 1.0
+ENDED_WITHIN_S = 8.0
 #: An acquisition on the simulated devices ends within this (it takes ~20-50 s on 2 busy cores), s.
 ACQUISITION_WITHIN_MS = 240_000
 #: Samples recorded before the STOP.
