@@ -549,7 +549,17 @@ def _station(a: argparse.Namespace) -> None:
         raise MissingExtraError(
             "spacecal station needs the station extra: pip install 'spacecal[station]'"
         ) from exc
-    serve(StationOptions(host=a.host, port=a.port, token=a.token, data=a.data, record=a.record, open=a.open))
+    serve(
+        StationOptions(
+            host=a.host,
+            port=a.port,
+            token=a.token,
+            data=a.data,
+            record=a.record,
+            open=a.open,
+            simulated=a.simulated,
+        )
+    )
 
 
 def _scenario(a: argparse.Namespace) -> None:

@@ -378,6 +378,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("--record", help="the record: SQLite file or database URL (default DATA/record.db)")
     p.add_argument("--open", action="store_true", help="open the station in the default web browser")
+    p.add_argument(
+        "--simulated",
+        action="store_true",
+        help="offer the simulated robot and tracker (training, demonstrations)",
+    )
 
     return parser
 

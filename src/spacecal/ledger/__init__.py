@@ -10,6 +10,13 @@ psycopg for PostgreSQL); importing this package without it raises
 >>> ledger.record_calibration(calibration, "cal.json", source="cli")  # doctest: +SKIP
 """
 
-from spacecal.ledger.store import CalibrationRow, CheckRow, Ledger, ledger_url
+from spacecal.ledger.store import (
+    SIMULATED_ROBOT,
+    SIMULATED_TRACKER,
+    CalibrationRow,
+    CheckRow,
+    Ledger,
+    ledger_url,
+)
 
-__all__ = ["CalibrationRow", "CheckRow", "Ledger", "ledger_url"]
+__all__ = ["SIMULATED_ROBOT", "SIMULATED_TRACKER", "CalibrationRow", "CheckRow", "Ledger", "ledger_url"]

@@ -15,6 +15,8 @@ from spacecal.ledger import schema
 from spacecal.ledger.schema import sa
 from spacecal.records import CalibrationResult, CheckResult
 
+#: The names under which the record keeps the simulated robot and tracker.
+SIMULATED_ROBOT, SIMULATED_TRACKER = "simulated robot", "simulated tracker"
 #: The history line key that binds a JSONL check to the calibration it checked.
 CALIBRATION_HASH_KEY = "calibration_sha256"
 
@@ -209,7 +211,7 @@ class Ledger:
         if not url and not simulated:
             return None
         url = str(url or "sim")
-        name = f"simulated {kind}" if url == "sim" else url
+        name = {"robot": SIMULATED_ROBOT, "tracker": SIMULATED_TRACKER}[kind] if url == "sim" else url
         if kind == "robot":
             model = device.get("model") if isinstance(device, dict) else None
             return self.add_robot(name, url, None if model is None else str(model))

@@ -9,7 +9,7 @@ from typing import Any
 
 import uvicorn
 
-from spacecal.ledger import Ledger
+from spacecal.ledger import SIMULATED_ROBOT, SIMULATED_TRACKER, Ledger
 from spacecal.station.access import check_bind
 from spacecal.station.web import Station, create_app
 
@@ -32,6 +32,9 @@ class StationOptions:
         The record: SQLite file or database URL.
     open : bool
         Open the station in the default web browser.
+    simulated : bool
+        Offer the simulated robot and tracker (added to the record when missing), under the
+        names the record gives simulated devices of a calibration made with ``--record``.
     """
 
     host: str = "127.0.0.1"
@@ -40,6 +43,7 @@ class StationOptions:
     data: str = "spacecal-station"
     record: str | None = None
     open: bool = False
+    simulated: bool = False
 
 
 def build(options: StationOptions) -> tuple[Station, Any]:
@@ -48,6 +52,9 @@ def build(options: StationOptions) -> tuple[Station, Any]:
     data = Path(options.data).expanduser().resolve()
     data.mkdir(parents=True, exist_ok=True)
     ledger = Ledger.open(options.record or str(data / "record.db"))
+    if options.simulated:
+        ledger.add_robot(SIMULATED_ROBOT, "sim")
+        ledger.add_tracker(SIMULATED_TRACKER, "sim")
     station = Station(ledger, data)
     return station, create_app(station, options.token, options.host)
 
