@@ -35,10 +35,12 @@ def record_calibration(
     source: str,
     robot_id: int | None = None,
     tracker_id: int | None = None,
+    tool_id: int | None = None,
 ) -> int:
-    """Record the calibration ``calibrate`` wrote; returns its id in the record."""
+    """Record the calibration ``calibrate`` wrote (made with the robot, tracker and tool of
+    those ids in the record, when known); returns its id in the record."""
     return ledger.record_calibration(
-        output.calibration, output.path, source, robot_id=robot_id, tracker_id=tracker_id
+        output.calibration, output.path, source, robot_id=robot_id, tracker_id=tracker_id, tool_id=tool_id
     )
 
 

@@ -27,7 +27,8 @@ from spacecal.report.live import LiveView
 
 #: How long a confirmation stays valid, s.
 TICKET_LIFETIME_S = 300.0
-#: A run whose page has not connected within this time after starting is stopped, s.
+#: A run whose page has not connected within this time after the robot started moving (its
+#: first tracker frame) is stopped, s.
 PAGE_CONNECT_WITHIN_S = 15.0
 #: The words of the acquisition's Ctrl-C stop, replaced by the station's own reason.
 CTRL_C_WORDS = "interrupted by the user (Ctrl-C)"
@@ -105,6 +106,7 @@ class Run:
     stop_reason: str = ""
     ended_at: float | None = None
     last_frame_at: float | None = None
+    first_frame_at: float | None = None
     started_at: float = field(default_factory=time.monotonic)
     watchers: int = 0
     ever_watched: bool = False
@@ -146,6 +148,8 @@ class Run:
         self._check_stop()
         self.state = "running"
         self.last_frame_at = time.monotonic()
+        if self.first_frame_at is None:
+            self.first_frame_at = self.last_frame_at
         self.view.observe(time_s, segment, tracker_from_marker, base_from_tcp, recorded)
 
     def work(self) -> None:
@@ -225,7 +229,9 @@ class Runs:
     @staticmethod
     def _watch_page(run: Run) -> None:
         """Stop a run whose page never connected (the browser went away before it opened)."""
-        while run.active and time.monotonic() - run.started_at < PAGE_CONNECT_WITHIN_S:
+        while run.active and (
+            run.first_frame_at is None or time.monotonic() - run.first_frame_at < PAGE_CONNECT_WITHIN_S
+        ):
             if run.ever_watched:
                 return
             time.sleep(0.2)

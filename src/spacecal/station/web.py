@@ -9,6 +9,7 @@ as the one line the command line would print.
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import threading
 from dataclasses import dataclass, field
@@ -112,26 +113,37 @@ async def new_workspace(request: Request) -> Response:
         return RedirectResponse(
             request.url_for("home").include_query_params(error="choose a robot and a tracker"), 303
         )
+    rom = str(form.get("rom", "")).strip() or None
+    tool_id = None
+    if rom is not None:
+        if not Path(rom).is_file():
+            return RedirectResponse(
+                request.url_for("home").include_query_params(error=f"no tool definition file {rom}"), 303
+            )
+        rom = str(Path(rom).resolve())
+        tool_id = station.ledger.add_tool(rom, definition=rom)
     with station.lock:
         workspace_id = len(station.workspaces) + 1
         folder = new_folder(station.data, robot["name"])
-        station.workspaces[workspace_id] = Workspace(workspace_id, robot, tracker, folder)
+        station.workspaces[workspace_id] = Workspace(workspace_id, robot, tracker, folder, rom, tool_id)
     return RedirectResponse(request.url_for("workspace", workspace_id=workspace_id), 303)
 
 
 # -- one calibration's steps ----------------------------------------------------------------
 
 
-def workspace_page(request: Request) -> Response:
+async def workspace_page(request: Request) -> Response:
     station = _station(request)
     try:
         work = station.workspace(int(request.path_params["workspace_id"]))
     except LookupError as exc:
         return PlainTextResponse(str(exc), status_code=404)
-    try:
-        findings = work.doctor_lines()
-    except (SpacecalError, OSError) as exc:
-        findings = [("devices", "must be fixed before the robot can move", _one_line(exc))]
+    findings = work.findings
+    if findings is None:
+        try:
+            findings = await asyncio.to_thread(work.doctor)
+        except (SpacecalError, OSError) as exc:
+            findings = [("devices", "must be fixed before the robot can move", _one_line(exc))]
     run = station.runs.get(work.run_id) if work.run_id is not None else None
     history = []
     if work.calibration_record_id is not None:
@@ -149,7 +161,7 @@ def workspace_page(request: Request) -> Response:
 
 
 async def step(request: Request) -> Response:
-    """POST /workspaces/N/<step>: plan, dry-run, calibrate, report (no motion)."""
+    """POST /workspaces/N/<step>: doctor, plan, dry-run, calibrate, report (no motion)."""
     form = await request.form()
     method = str(form.get("method", "ml"))
     return await asyncio.to_thread(_step, request, method)
@@ -161,14 +173,21 @@ def _step(request: Request, method: str) -> Response:
     name = request.path_params["step"]
     here = request.url_for("workspace", workspace_id=work.id)
     try:
-        if name == "plan":
+        if name == "doctor":
+            work.doctor()
+        elif name == "plan":
             work.plan()
         elif name == "dry-run":
             work.dry_run()
         elif name == "calibrate":
             out = work.calibrate(method)
             work.calibration_record_id = spacecal_app.record_calibration(
-                station.ledger, out, "station", robot_id=work.robot["id"], tracker_id=work.tracker["id"]
+                station.ledger,
+                out,
+                "station",
+                robot_id=work.robot["id"],
+                tracker_id=work.tracker["id"],
+                tool_id=work.tool_id,
             )
         elif name == "report":
             work.make_report()
@@ -328,12 +347,17 @@ def trends(request: Request) -> Response:
     )
 
 
-def plotly_js(request: Request) -> Response:
-    """plotly.js from the installed plotly package (no CDN)."""
+@functools.lru_cache(maxsize=1)
+def plotly_bytes() -> bytes:
+    """plotly.js from the installed plotly package (no CDN), read once."""
     from plotly.offline import get_plotlyjs
 
+    return str(get_plotlyjs()).encode("utf-8")
+
+
+def plotly_js(request: Request) -> Response:
     return Response(
-        get_plotlyjs(), media_type="application/javascript", headers={"Cache-Control": "max-age=3600"}
+        plotly_bytes(), media_type="application/javascript", headers={"Cache-Control": "max-age=3600"}
     )
 
 
@@ -366,6 +390,7 @@ def create_app(station: Station, token: str | None = None, host: str = "127.0.0.
         Route("/static/plotly.js", plotly_js, name="plotly"),
         Route("/static/{name}", static_file, name="static"),
     ]
+    plotly_bytes()  # read before any run starts, so the live view's page loads at once
     web = Starlette(routes=routes)
     web.state.station = station
     return AccessMiddleware(web, token, loopback_only=is_loopback(host))

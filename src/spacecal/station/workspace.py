@@ -46,6 +46,9 @@ class Workspace:
     robot: dict[str, Any]
     tracker: dict[str, Any]
     folder: Path
+    rom: str | None = None
+    tool_id: int | None = None
+    findings: list[tuple[str, str, str]] | None = None
     plan_summary: str | None = None
     dry_run_lines: list[str] = field(default_factory=list)
     dry_run_ok: bool = False
@@ -67,7 +70,13 @@ class Workspace:
     @property
     def devices(self) -> app.DeviceSettings:
         rate = self.tracker.get("rate_hz") or 20.0
-        return app.DeviceSettings(self.robot["url"], self.tracker["url"], tracker_rate_hz=float(rate))
+        return app.DeviceSettings(
+            self.robot["url"],
+            self.tracker["url"],
+            rom=(self.rom,) if self.rom else (),
+            tracker_rate_hz=float(rate),
+            robot_model=self.robot.get("model") or None,
+        )
 
     @property
     def plan_path(self) -> Path:
@@ -81,16 +90,24 @@ class Workspace:
     def calibration_path(self) -> Path:
         return self.folder / "calibration.json"
 
-    def doctor_lines(self) -> list[tuple[str, str, str]]:
-        """The devices' read-only findings as ``(device, level in words, text)``."""
+    def doctor(self) -> list[tuple[str, str, str]]:
+        """The devices' read-only findings as ``(device, level in words, text)`` (asked again)."""
         if self.simulated:
-            return [("robot and tracker", "fine", "simulated devices (training and demonstrations)")]
+            self.findings = [("robot and tracker", "fine", "simulated devices (training and demonstrations)")]
+            return self.findings
+        devices = self.devices
         named = app.DeviceSettings(
-            None if self.robot["url"] == SIMULATED else self.robot["url"],
-            None if self.tracker["url"] == SIMULATED else self.tracker["url"],
+            None if devices.robot == SIMULATED else devices.robot,
+            None if devices.tracker == SIMULATED else devices.tracker,
+            rom=devices.rom,
+            tracker_rate_hz=devices.tracker_rate_hz,
+            robot_model=devices.robot_model,
         )
         out = app.doctor(app.DoctorSettings(named))
-        return [(device, LEVEL_WORDS[f.level], f"{f.subject}: {f.text}") for device, f in out.findings]
+        self.findings = [
+            (device, LEVEL_WORDS[f.level], f"{f.subject}: {f.text}") for device, f in out.findings
+        ]
+        return self.findings
 
     # -- the steps ---------------------------------------------------------------------------
 
