@@ -60,7 +60,8 @@ def build(options: StationOptions) -> tuple[Station, Any]:
 
 
 def serve(options: StationOptions) -> None:
-    """Serve the station until Ctrl-C; every acquisition still running is stopped on the way out."""
+    """Serve the station until Ctrl-C (or SIGTERM); every acquisition still running is stopped on
+    the way out, through its STOP."""
     station, application = build(options)
     config = uvicorn.Config(
         application, host=options.host, port=options.port, log_level="warning", lifespan="off"
@@ -73,6 +74,8 @@ def serve(options: StationOptions) -> None:
         webbrowser.open(shown)
     try:
         server.run()
+    except KeyboardInterrupt:
+        pass  # Ctrl-C is how a station is closed: every run was stopped and the record is written
     finally:
         station.runs.stop_all("the station shut down")
         station.ledger.close()
