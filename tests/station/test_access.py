@@ -113,3 +113,37 @@ def test_station_without_the_extra_is_one_line(monkeypatch, capsys):
     assert (
         err == "spacecal: error: spacecal station needs the station extra: pip install 'spacecal[station]'\n"
     )
+
+
+def test_the_trend_figure_cannot_close_its_script_element():
+    need("starlette")
+    import json
+
+    from spacecal.station.web import script_json
+
+    text = script_json({"name": "</script><script>alert(1)</script> & more"})
+    assert "<" not in text and ">" not in text and "&" not in text
+    assert json.loads(text) == {"name": "</script><script>alert(1)</script> & more"}
+
+
+def test_the_core_and_the_command_line_import_without_the_station_extra():
+    import subprocess
+    import sys
+
+    blocked = ("sqlalchemy", "starlette", "uvicorn", "jinja2", "psycopg", "playwright", "multipart")
+    code = (
+        "import sys\n"
+        "class Block:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        f"        if name.split('.')[0] in {blocked!r}:\n"
+        "            raise ImportError(name)\n"
+        "sys.meta_path.insert(0, Block())\n"
+        "import spacecal.app\n"
+        "from spacecal.cli.main import main\n"
+        "sys.exit(main(['station']))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr == (
+        "spacecal: error: spacecal station needs the station extra: pip install 'spacecal[station]'\n"
+    )
