@@ -2,12 +2,15 @@
 the real client libraries): a new robot and tracker, their findings, the dry run, and an
 acquisition whose STOP stills the fake controller's arm within the command line's stop times.
 
-Skipped for now: in the station's one long-lived process, after the findings' and the dry
-run's connections to the controller, ur_rtde's control interface drops and reconnects during
-the acquisition, and closing it after the STOP crashes the process (a segmentation fault in
-``UrRobot.close``). The command line runs each command in its own process and ends it with
-``os._exit`` for the same reason (``spacecal.cli.main.console_main``); the station must run
-each command on a real robot in a child process of its own before this test can pass.
+Skipped for now (not yet reliable): on this 2-core machine, with Chromium drawing the live view
+in software WebGL beside the fake world, three runs ended three ways: the page connected late
+(fixed since), the run stopped itself on a fault ("tracker lost: no new NDI frame for 1.0 s",
+shown on the page as it should be), and once ur_rtde's control interface dropped, reconnected
+and the process crashed (segmentation fault) in ``UrRobot.close`` after the STOP. The same
+doctor, dry run and acquisition with the station's STOP in one process and a worker thread,
+without the browser, stopped cleanly (40 samples kept, run ended 1.1-1.2 s after the STOP).
+Running each real-robot command in a child process of the station (STOP as SIGINT, the
+command line's own path) would keep such a crash out of the station.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
 pytestmark = pytest.mark.skip(
-    reason="ur_rtde crashes the station's process on close after a STOP (see the module docstring)"
+    reason="not yet reliable under load: a fault or an ur_rtde crash on close (see the module docstring)"
 )
 
 
