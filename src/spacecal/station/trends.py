@@ -34,14 +34,15 @@ def trend_figure(calibrations: list[CalibrationRow], checks: list[CheckRow]) -> 
                     "mode": "lines",
                     "line": {"dash": "dash"},
                     "name": f"expected error: {label}",
-                    "x": [mine[0].checked_utc, mine[-1].checked_utc],
+                    # from the calibration's making to its last check, so one check shows it too
+                    "x": [min(cal.created_utc, mine[0].checked_utc), mine[-1].checked_utc],
                     "y": [cal.expected_error_mm, cal.expected_error_mm],
                 }
             )
     layout = {
-        "margin": {"l": 60, "r": 10, "t": 10, "b": 50},
+        "margin": {"l": 60, "r": 10, "t": 40, "b": 50},
         "xaxis": {"title": {"text": "checked (UTC)"}},
         "yaxis": {"title": {"text": "largest TCP error of the check (mm)"}, "rangemode": "tozero"},
-        "legend": {"orientation": "h"},
+        "legend": {"orientation": "h", "y": 1.15},
     }
     return {"data": data, "layout": layout}
