@@ -42,6 +42,7 @@ from spacecal.app.files import (
     report,
 )
 from spacecal.app.poses import ImportPosesOutput, ImportPosesSettings, import_poses
+from spacecal.app.record import open_record, record_calibration, record_check
 from spacecal.app.ros import (
     ImportBagSettings,
     RosExportSettings,
@@ -106,6 +107,9 @@ __all__ = [
     "import_easy_handeye",
     "import_plus",
     "import_poses",
+    "open_record",
+    "record_calibration",
+    "record_check",
     "phantom",
     "pivot",
     "plan",

@@ -21,7 +21,7 @@ from typing import Any
 from spacecal import app
 from spacecal.app.devices import finding_line
 from spacecal.cli import parser
-from spacecal.core.errors import InvalidInputError, SpacecalError
+from spacecal.core.errors import InvalidInputError, MissingExtraError, SpacecalError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators.diagnostics import ErrorThresholds
 
@@ -88,6 +88,7 @@ def _calibrate(a: argparse.Namespace) -> None:
             offset = float(a.time_offset_ms)
         except ValueError:
             raise InvalidInputError("--time-offset-ms takes a number or 'estimate'") from None
+    ledger = app.open_record(a.record) if a.record else None
     out = app.calibrate(
         app.CalibrateSettings(
             a.recording,
@@ -103,6 +104,9 @@ def _calibrate(a: argparse.Namespace) -> None:
             tracker_kind=a.tracker_kind,
         )
     )
+    if ledger is not None:
+        app.record_calibration(ledger, out, source="cli")
+        ledger.close()
     if out.time_offset_note:
         print(out.time_offset_note)
     if out.doubtful_note:
@@ -416,6 +420,7 @@ def _import_plus(a: argparse.Namespace) -> None:
 
 
 def _check(a: argparse.Namespace) -> None:
+    ledger = app.open_record(a.record) if a.record else None
     out = app.check(
         app.CheckSettings(
             a.calibration,
@@ -438,6 +443,9 @@ def _check(a: argparse.Namespace) -> None:
         for line in out.gate.lines() if out.result is None else [out.gate.summary()]:
             print(line)
     _print_notes(out.messages)
+    if ledger is not None:
+        app.record_check(ledger, a.calibration, out, source="cli")
+        ledger.close()
     r = out.result
     if r is None:
         return
@@ -537,6 +545,26 @@ def _plan(a: argparse.Namespace) -> None:
         print(f"wrote {path}; run it with: spacecal acquire --plan {path} ... (or simulate --plan)")
 
 
+def _station(a: argparse.Namespace) -> None:
+    try:
+        from spacecal.station.server import StationOptions, serve
+    except ImportError as exc:
+        raise MissingExtraError(
+            "spacecal station needs the station extra: pip install 'spacecal[station]'"
+        ) from exc
+    serve(
+        StationOptions(
+            host=a.host,
+            port=a.port,
+            token=a.token,
+            data=a.data,
+            record=a.record,
+            open=a.open,
+            simulated=a.simulated,
+        )
+    )
+
+
 def _scenario(a: argparse.Namespace) -> None:
     print(json.dumps(app.scenario(a.preset), indent=2))
 
@@ -561,6 +589,7 @@ COMMANDS = {
     "report": _report,
     "plan": _plan,
     "scenario": _scenario,
+    "station": _station,
 }
 
 

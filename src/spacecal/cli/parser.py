@@ -75,6 +75,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command("calibrate", "estimate tracker_from_base from a recording")
     add_force(p)
     p.add_argument("recording", help="recording CSV (or, with --tracker-stream, the robot stream)")
+    add_record(p)
     p.add_argument("--method", default=_d(C, "method"), help=f"estimator: {', '.join(sorted(ESTIMATORS))}")
     p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
     p.add_argument(
@@ -294,6 +295,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
+    add_record(p)
     add_devices(p)
     p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
     p.add_argument("--poses", type=int, default=_d(K, "poses"), choices=[2, 3], help="number of poses")
@@ -364,6 +366,25 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     p = command("scenario", "print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
+    p = command("station", "the calibration station: the whole workflow in a web browser (spacecal[station])")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="interface to listen on (default 127.0.0.1; any other needs --token)",
+    )
+    p.add_argument("--port", type=port_number, default=8770, help="TCP port (default 8770; 0: any free one)")
+    p.add_argument("--token", help="access token every request must carry (required off loopback)")
+    p.add_argument(
+        "--data", default="spacecal-station", help="folder for recordings, calibrations and reports"
+    )
+    p.add_argument("--record", help="the record: SQLite file or database URL (default DATA/record.db)")
+    p.add_argument("--open", action="store_true", help="open the station in the default web browser")
+    p.add_argument(
+        "--simulated",
+        action="store_true",
+        help="offer the simulated robot and tracker (training, demonstrations)",
+    )
+
     return parser
 
 
@@ -424,6 +445,14 @@ def add_doctor(command) -> None:
     """``spacecal doctor``: read-only checks of a robot and a tracker."""
     p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
     add_devices(p, simulated_by_default=False)
+
+
+def add_record(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--record",
+        metavar="PATH_OR_URL",
+        help="also write the result to this record (SQLite file or database URL; spacecal[station])",
+    )
 
 
 def add_force(p: argparse.ArgumentParser) -> None:

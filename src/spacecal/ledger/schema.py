@@ -1,0 +1,145 @@
+"""The record's tables and their versioned migrations.
+
+Why a small versioned schema table and not Alembic: the record has five tables that only ever
+grow; each migration is one function of this module, applied in order inside one transaction
+and recorded in ``schema_version``, so a wheel ships every migration with the code that needs
+it and a station opening an older record (SQLite or PostgreSQL) brings it up to date before
+anything else touches it. Alembic's script directory, ``env.py`` and ini file would add a
+second place to keep in step for no gain at this size; should the record ever need branching
+migrations, its revisions can start from the version kept here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from spacecal.core.errors import InvalidInputError
+
+try:
+    import sqlalchemy as sa
+except ImportError as exc:  # pragma: no cover - exercised by the missing-extra test
+    from spacecal.core.errors import MissingExtraError
+
+    raise MissingExtraError(
+        "the calibration record needs the station extra: pip install 'spacecal[station]'"
+    ) from exc
+
+metadata = sa.MetaData()
+
+schema_version = sa.Table(
+    "schema_version",
+    metadata,
+    sa.Column("version", sa.Integer, primary_key=True),
+    sa.Column("applied_utc", sa.String(40), nullable=False),
+)
+
+robots = sa.Table(
+    "robots",
+    metadata,
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("name", sa.String(200), nullable=False, unique=True),
+    sa.Column("url", sa.String(500), nullable=False),
+    sa.Column("model", sa.String(100)),
+    sa.Column("created_utc", sa.String(40), nullable=False),
+)
+
+trackers = sa.Table(
+    "trackers",
+    metadata,
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("name", sa.String(200), nullable=False, unique=True),
+    sa.Column("url", sa.String(500), nullable=False),
+    sa.Column("rate_hz", sa.Float),
+    sa.Column("created_utc", sa.String(40), nullable=False),
+)
+
+tools = sa.Table(
+    "tools",
+    metadata,
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("name", sa.String(200), nullable=False, unique=True),
+    # the marker's tool definition (NDI .rom) path and the TCP in the flange, as given
+    sa.Column("definition", sa.String(1000)),
+    sa.Column("tcp_in_flange", sa.String(200)),
+    sa.Column("created_utc", sa.String(40), nullable=False),
+)
+
+calibrations = sa.Table(
+    "calibrations",
+    metadata,
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("content_sha256", sa.String(64), nullable=False, unique=True),
+    sa.Column("path", sa.String(2000), nullable=False),
+    sa.Column("robot_id", sa.Integer, sa.ForeignKey("robots.id")),
+    sa.Column("tracker_id", sa.Integer, sa.ForeignKey("trackers.id")),
+    sa.Column("tool_id", sa.Integer, sa.ForeignKey("tools.id")),
+    sa.Column("method", sa.String(50), nullable=False),
+    sa.Column("grade", sa.String(20)),
+    sa.Column("expected_error_mm", sa.Float),
+    sa.Column("simulated", sa.Boolean),
+    sa.Column("created_utc", sa.String(40), nullable=False),
+    sa.Column("recorded_utc", sa.String(40), nullable=False),
+    sa.Column("source", sa.String(20), nullable=False),
+)
+
+checks = sa.Table(
+    "checks",
+    metadata,
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("calibration_id", sa.Integer, sa.ForeignKey("calibrations.id"), nullable=False),
+    sa.Column("checked_utc", sa.String(40), nullable=False),
+    sa.Column("passed", sa.Boolean, nullable=False),
+    sa.Column("max_tcp_error_mm", sa.Float, nullable=False),
+    sa.Column("max_rotation_error_deg", sa.Float, nullable=False),
+    sa.Column("threshold_mm", sa.Float, nullable=False),
+    sa.Column("simulated", sa.Boolean),
+    sa.Column("source", sa.String(20), nullable=False),
+    # the whole check record (spacecal.check schema), so nothing it said is lost
+    sa.Column("record_json", sa.Text, nullable=False),
+    sa.UniqueConstraint("calibration_id", "checked_utc", "record_json", name="one_row_per_check"),
+)
+
+
+def _create_version_1(connection: sa.Connection) -> None:
+    """Version 1: robots, trackers, tools, calibrations, checks."""
+    for table in (robots, trackers, tools, calibrations, checks):
+        table.create(connection)
+
+
+#: The migrations, oldest first: ``MIGRATIONS[k]`` brings the record from version k to k + 1.
+MIGRATIONS: list[Callable[[sa.Connection], None]] = [_create_version_1]
+#: The version this code writes.
+CURRENT_VERSION = len(MIGRATIONS)
+
+
+def stored_version(connection: sa.Connection) -> int:
+    """The record's schema version (0 for an empty database)."""
+    if not sa.inspect(connection).has_table("schema_version"):
+        return 0
+    value = connection.execute(sa.select(sa.func.max(schema_version.c.version))).scalar()
+    return int(value or 0)
+
+
+def migrate(engine: sa.Engine, now_utc: str) -> int:
+    """Bring the record to :data:`CURRENT_VERSION`, one migration per transaction; returns the
+    version it started from.
+
+    Raises
+    ------
+    InvalidInputError
+        The record was written by a newer spacecal (a version this code does not know).
+    """
+    with engine.begin() as connection:
+        if not sa.inspect(connection).has_table("schema_version"):
+            schema_version.create(connection)
+        start = stored_version(connection)
+    if start > CURRENT_VERSION:
+        raise InvalidInputError(
+            f"the calibration record is at schema version {start}, newer than this spacecal's "
+            f"{CURRENT_VERSION}; update spacecal"
+        )
+    for version in range(start, CURRENT_VERSION):
+        with engine.begin() as connection:
+            MIGRATIONS[version](connection)
+            connection.execute(sa.insert(schema_version).values(version=version + 1, applied_utc=now_utc))
+    return start

@@ -1,0 +1,71 @@
+// The acquisition's page: the live view over a websocket, progress, and STOP.
+(function () {
+  var view = document.getElementById("view");
+  var stopUrl = view.dataset.stop;
+  var bySegment = {}, order = [], latest = null, ended = false;
+  var colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
+  function column(points, k) { return points.map(function (p) { return p === null ? null : p[k]; }); }
+  function traces() {
+    var data = order.map(function (label, k) {
+      var p = bySegment[label];
+      return {type: "scatter3d", mode: "markers", name: label + " (" + p.length + ")",
+              x: column(p, 0), y: column(p, 1), z: column(p, 2), marker: {size: 2, color: colours[k % colours.length]}};
+    });
+    var now = latest && latest.marker_mm ? [latest.marker_mm] : [];
+    data.push({type: "scatter3d", mode: "markers", name: "marker now", x: column(now, 0), y: column(now, 1),
+               z: column(now, 2), marker: {size: 7, color: "#c8102e", symbol: "diamond"}});
+    return data;
+  }
+  var layout = {margin: {l: 0, r: 0, t: 10, b: 0}, uirevision: "keep",
+                scene: {aspectmode: "data", xaxis: {title: {text: "x (mm)"}}, yaxis: {title: {text: "y (mm)"}},
+                        zaxis: {title: {text: "z (mm)"}}}};
+  // the view is a help, never a condition: without WebGL the numbers and STOP still work
+  var drawing = true;
+  function draw(first) {
+    if (!drawing) { return; }
+    try {
+      if (first) { Plotly.newPlot("view", traces(), layout, {displaylogo: false, responsive: true}); }
+      else { Plotly.react("view", traces(), layout); }
+    } catch (error) {
+      drawing = false;
+      view.textContent = "the live view cannot be drawn in this browser (" + error + ")";
+    }
+  }
+  function text(id, value) { document.getElementById(id).textContent = value; }
+  var scheme = location.protocol === "https:" ? "wss://" : "ws://";
+  var socket = new WebSocket(scheme + location.host + "/runs/" + view.dataset.run + "/ws");
+  var drawn = 0;
+  draw(true);
+  socket.onmessage = function (event) {
+    var data = JSON.parse(event.data);
+    data.frames.forEach(function (f) {
+      if (!f.recorded || f.marker_mm === null) { return; }
+      if (!(f.segment in bySegment)) { bySegment[f.segment] = []; order.push(f.segment); }
+      bySegment[f.segment].push(f.marker_mm);
+    });
+    latest = data.latest;
+    text("run-state", data.run_state);
+    text("move", data.move);
+    text("moves", data.moves_total);
+    text("samples", data.samples);
+    text("visible", data.visible);
+    text("message", data.message);
+    var bar = document.getElementById("progress");
+    bar.max = Math.max(1, data.moves_total);
+    bar.value = data.move;
+    if (data.frames.length || Date.now() - drawn > 2000) { draw(false); drawn = Date.now(); }
+    if (data.run_state !== "starting" && data.run_state !== "running") {
+      ended = true;
+      document.getElementById("stop").disabled = true;
+      socket.close();
+    }
+  };
+  socket.onclose = function () {
+    if (!ended) { text("message", "connection to the station lost: the station stops the robot"); }
+  };
+  document.getElementById("stop").addEventListener("click", function () {
+    text("message", "stopping…");
+    if (socket.readyState === WebSocket.OPEN) { socket.send("stop"); }
+    fetch(stopUrl, {method: "POST"});
+  });
+})();

@@ -1,0 +1,201 @@
+"""One calibration at the station: a robot and a tracker, a folder for its files, and the steps
+of the workflow, each one call of a :mod:`spacecal.app` function."""
+
+from __future__ import annotations
+
+import datetime
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from spacecal import app
+from spacecal.app.devices import SIMULATED
+from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
+
+#: The finding levels in an operator's words.
+LEVEL_WORDS = {
+    FINDING_OK: "fine",
+    FINDING_WARNING: "check this before you start",
+    FINDING_PROBLEM: "must be fixed before the robot can move",
+}
+
+#: The export targets the station offers: label, file name.
+EXPORTS = {
+    "slicer": ("3D Slicer transform", "tracker_from_base.tfm"),
+    "plus": ("PLUS configuration", "plus_config.xml"),
+    "ros2_launch": ("ROS 2 launch file", "tracker.launch.py"),
+    "ur_calibration": ("UR ROS driver calibration", "ur_calibration.yaml"),
+}
+
+
+@dataclass
+class Workspace:
+    """A calibration in progress at the station.
+
+    Attributes
+    ----------
+    id : int
+    robot, tracker : dict
+        The record's rows of the robot and tracker (name, url, ...).
+    folder : Path
+        Where its plan, recording, calibration, report and exports are written.
+    """
+
+    id: int
+    robot: dict[str, Any]
+    tracker: dict[str, Any]
+    folder: Path
+    rom: str | None = None
+    tool_id: int | None = None
+    findings: list[tuple[str, str, str]] | None = None
+    plan_summary: str | None = None
+    dry_run_lines: list[str] = field(default_factory=list)
+    dry_run_ok: bool = False
+    moves: int = 0
+    motion_time_s: float = 0.0
+    acquired: bool = False
+    run_id: int | None = None
+    calibration: app.CalibrateOutput | None = None
+    calibration_record_id: int | None = None
+    checks: list[app.CheckOutput] = field(default_factory=list)
+    report: Path | None = None
+    exported: list[str] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def simulated(self) -> bool:
+        return self.robot["url"] == SIMULATED and self.tracker["url"] == SIMULATED
+
+    @property
+    def devices(self) -> app.DeviceSettings:
+        rate = self.tracker.get("rate_hz") or 20.0
+        return app.DeviceSettings(
+            self.robot["url"],
+            self.tracker["url"],
+            rom=(self.rom,) if self.rom else (),
+            tracker_rate_hz=float(rate),
+            robot_model=self.robot.get("model") or None,
+        )
+
+    @property
+    def plan_path(self) -> Path:
+        return self.folder / "plan.json"
+
+    @property
+    def recording_path(self) -> Path:
+        return self.folder / "recording.csv"
+
+    @property
+    def calibration_path(self) -> Path:
+        return self.folder / "calibration.json"
+
+    def doctor(self) -> list[tuple[str, str, str]]:
+        """The devices' read-only findings as ``(device, level in words, text)`` (asked again)."""
+        if self.simulated:
+            self.findings = [("robot and tracker", "fine", "simulated devices (training and demonstrations)")]
+            return self.findings
+        devices = self.devices
+        named = app.DeviceSettings(
+            None if devices.robot == SIMULATED else devices.robot,
+            None if devices.tracker == SIMULATED else devices.tracker,
+            rom=devices.rom,
+            tracker_rate_hz=devices.tracker_rate_hz,
+            robot_model=devices.robot_model,
+        )
+        out = app.doctor(app.DoctorSettings(named))
+        self.findings = [
+            (device, LEVEL_WORDS[f.level], f"{f.subject}: {f.text}") for device, f in out.findings
+        ]
+        return self.findings
+
+    # -- the steps ---------------------------------------------------------------------------
+
+    def plan(self) -> None:
+        """The calibration motion: the paper's sweeps, as a plan file for simulated devices; a
+        real robot plans them from where it stands (at the dry run)."""
+        if not self.simulated:
+            self.plan_summary = "the paper's sweeps, planned from where the robot stands (see the dry run)"
+            return
+        record, _ = app.plan(app.PlanSettings(paper_sweeps=True, output=str(self.plan_path), force=True))
+        self.plan_summary = (
+            f"the paper's sweeps: {len(record.moves)} moves, {record.motion_time_s:.1f} s of motion, "
+            f"predicted tip error at the site {record.predicted_error_mm:.3f} mm"
+        )
+
+    def acquire_settings(self, dry_run: bool) -> app.AcquireSettings:
+        return app.AcquireSettings(
+            str(self.recording_path),
+            devices=self.devices,
+            dry_run=dry_run,
+            confirm_robot_motion=not dry_run,  # the station's confirmation page was answered
+            plan=str(self.plan_path) if self.plan_path.is_file() else None,
+        )
+
+    def dry_run(self) -> None:
+        """Check the plan without moving (reach, limits, visibility, workspace)."""
+        out = app.acquire(self.acquire_settings(dry_run=True))
+        self.moves, self.motion_time_s = out.moves, out.motion_time_s
+        gate = [out.gate.summary(), *out.gate.lines()] if out.gate is not None else []
+        self.dry_run_lines = [*gate, *out.messages, "dry run: nothing moved"]
+        self.dry_run_ok = out.gate is None or out.gate.passed
+
+    def motion_words(self, motion: str) -> str:
+        """The motion a confirmation names."""
+        if motion == "acquire":
+            return (
+                f"the calibration motion: {self.moves} moves, about {self.motion_time_s:.0f} s "
+                "of motion (the paper's sweeps)"
+            )
+        return "the check: two or three short moves to poses near where the robot stands"
+
+    def calibrate(self, method: str = "ml") -> app.CalibrateOutput:
+        out = app.calibrate(
+            app.CalibrateSettings(str(self.recording_path), str(self.calibration_path), method, force=True)
+        )
+        self.calibration = out
+        return out
+
+    def check(self) -> app.CheckOutput:
+        out = app.check(
+            app.CheckSettings(str(self.calibration_path), devices=self.devices, confirm_robot_motion=True)
+        )
+        self.checks.append(out)
+        return out
+
+    def make_report(self) -> Path:
+        out = app.report(
+            app.ReportSettings(str(self.calibration_path), str(self.folder / "report.html"), force=True)
+        )
+        self.report = out.path
+        return out.path
+
+    def export(self, targets: list[str]) -> list[str]:
+        """Export to the targets chosen (keys of :data:`EXPORTS`); the files written."""
+        paths = {key: str(self.folder / EXPORTS[key][1]) for key in targets if key in EXPORTS}
+        if "slicer" in paths or "plus" in paths:
+            app.export(
+                app.ExportSettings(
+                    str(self.calibration_path), slicer=paths.get("slicer"), plus=paths.get("plus"), force=True
+                )
+            )
+        if "ros2_launch" in paths or "ur_calibration" in paths:
+            app.export_ros(
+                app.RosExportSettings(
+                    str(self.calibration_path),
+                    ros2_launch=paths.get("ros2_launch"),
+                    ur_calibration=paths.get("ur_calibration"),
+                    force=True,
+                )
+            )
+        self.exported = sorted({*self.exported, *(Path(p).name for p in paths.values())})
+        return list(paths.values())
+
+
+def new_folder(data: Path, robot_name: str) -> Path:
+    """A fresh folder for a calibration of ``robot_name``: ``DATA/<robot>-<UTC time>``."""
+    stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%S%f")
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", robot_name).strip("-.")[:40] or "robot"
+    folder = data / f"{safe}-{stamp}"
+    folder.mkdir(parents=True, exist_ok=False)
+    return folder

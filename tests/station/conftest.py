@@ -1,0 +1,132 @@
+"""Fixtures of the station's tests: a record on SQLite and on PostgreSQL, a station served on
+loopback in a thread, and headless Chromium (Debian's package) driven by Playwright.
+
+In CI (CI=true) a missing piece (the station extra, Chromium, the PostgreSQL URL) fails the
+tests instead of skipping them.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import pytest
+
+IN_CI = os.environ.get("CI") == "true"
+#: The PostgreSQL server of the record's tests (.ci/run starts one and sets it).
+POSTGRES_ENV = "SPACECAL_TEST_POSTGRES_URL"
+#: Every browser action's bound, ms.
+BROWSER_TIMEOUT_MS = 60_000
+
+
+def need(module: str) -> Any:
+    """Import ``module`` (the station extra), skipping without it (failing in CI)."""
+    try:
+        return __import__(module, fromlist=["_"])
+    except ImportError:
+        if IN_CI:
+            pytest.fail(f"{module} is not installed: .ci/run installs the station extra")
+        pytest.skip(f"{module} is not installed (pip install 'spacecal[station]')")
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def record_url(request, tmp_path) -> Iterator[str]:
+    """A fresh, empty record: an SQLite file, and a database on the PostgreSQL server."""
+    need("sqlalchemy")
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'record.db'}"
+        return
+    server = os.environ.get(POSTGRES_ENV)
+    if not server:
+        if IN_CI:
+            pytest.fail(f"{POSTGRES_ENV} is not set: .ci/run starts a PostgreSQL server and sets it")
+        pytest.skip(f"{POSTGRES_ENV} is not set (bash .ci/start-postgres starts a server)")
+    import sqlalchemy as sa
+
+    from spacecal.ledger import ledger_url
+
+    name = f"spacecal_test_{os.getpid()}_{time.monotonic_ns()}"
+    admin = sa.create_engine(ledger_url(server), isolation_level="AUTOCOMMIT")
+    with admin.connect() as connection:
+        connection.execute(sa.text(f'CREATE DATABASE "{name}"'))
+    base, _, _ = ledger_url(server).rpartition("/")
+    try:
+        yield f"{base}/{name}"
+    finally:
+        with admin.connect() as connection:
+            connection.execute(sa.text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+        admin.dispose()
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+@dataclass
+class Served:
+    """A station running on loopback."""
+
+    url: str
+    station: Any
+    data: Any
+
+
+@pytest.fixture
+def served(tmp_path) -> Iterator[Served]:
+    """The station on 127.0.0.1 (a free port) in a thread, stopped on every way out."""
+    uvicorn = need("uvicorn")
+    from spacecal.station.server import StationOptions, build
+
+    port = free_port()
+    station, application = build(StationOptions(port=port, data=str(tmp_path / "station")))
+    server = uvicorn.Server(
+        uvicorn.Config(application, host="127.0.0.1", port=port, log_level="warning", lifespan="off")
+    )
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            raise RuntimeError("the station did not start")
+        time.sleep(0.05)
+    try:
+        yield Served(f"http://127.0.0.1:{port}", station, tmp_path / "station")
+    finally:
+        station.runs.stop_all("the test ended")
+        server.should_exit = True
+        thread.join(timeout=15)
+        station.ledger.close()
+
+
+def chromium_binary() -> str:
+    binary = shutil.which("chromium") or shutil.which("chromium-browser")
+    if binary is None:
+        if IN_CI:
+            pytest.fail("chromium is not installed (.ci/run installs the Debian package)")
+        pytest.skip("chromium is not installed")
+    return binary
+
+
+@pytest.fixture
+def page() -> Iterator[Any]:
+    """A page of headless Chromium (Debian's), closed with its browser on every way out."""
+    sync_api = need("playwright.sync_api")
+    binary = chromium_binary()
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=binary, args=["--no-sandbox"], timeout=BROWSER_TIMEOUT_MS
+        )
+        try:
+            context = browser.new_context(viewport={"width": 1280, "height": 900})
+            context.set_default_timeout(BROWSER_TIMEOUT_MS)
+            yield context.new_page()
+        finally:
+            browser.close()

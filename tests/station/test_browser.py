@@ -1,0 +1,181 @@
+"""The station in a real browser (headless Chromium from Debian's package, driven by
+Playwright) on the simulated devices: from a new robot to an exported calibration, and STOP
+or a closed tab mid-acquisition stopping the robot within the command line's stop times.
+
+Each step's time is printed (``pytest -s``); with ``SPACECAL_STATION_SHOTS=DIR`` the pages
+are saved there as PNG screenshots.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+from urllib.parse import urljoin
+
+#: The command line's stop times (tests/adapters/test_ur_stops.py): from the stop to the robot
+#: standing still, and to the end of the command, s.
+STILL_WITHIN_S = 1.0
+ENDED_WITHIN_S = 8.0
+#: An acquisition on the simulated devices ends within this (it takes ~20-50 s on 2 busy cores), s.
+ACQUISITION_WITHIN_MS = 240_000
+#: Samples recorded before the STOP.
+STOP_AFTER_SAMPLES = 40
+
+
+def shot(page, name: str) -> None:
+    folder = os.environ.get("SPACECAL_STATION_SHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(Path(folder) / f"{name}.png"), full_page=True)
+
+
+class Steps:
+    """Times each step of a browser test."""
+
+    def __init__(self) -> None:
+        self.started = self.last = time.monotonic()
+        self.times: list[tuple[str, float]] = []
+
+    def done(self, name: str) -> None:
+        now = time.monotonic()
+        self.times.append((name, now - self.last))
+        self.last = now
+
+    def print(self, title: str) -> None:
+        print(
+            f"\n{title}: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in self.times), flush=True
+        )
+        print(f"{title}: total {time.monotonic() - self.started:.1f} s", flush=True)
+
+
+def new_robot_and_tracker(page, url: str, robot: str) -> None:
+    page.goto(url + "/")
+    page.fill("#add-robot input[name=name]", robot)
+    page.click("#add-robot button")
+    page.fill("#add-tracker input[name=name]", "Vicra (simulated)")
+    page.click("#add-tracker button")
+    page.click("#start button")
+    page.wait_for_selector("#robot-name")
+
+
+def test_from_a_new_robot_to_an_exported_calibration(served, page):
+    steps = Steps()
+    robot = "UR10 <bay 1>"
+    new_robot_and_tracker(page, served.url, robot)
+    assert page.inner_text("#robot-name") == robot  # shown as text, not markup
+    assert "simulated devices" in page.inner_text("#findings")
+    shot(page, "1-calibration")
+    steps.done("new robot and tracker")
+
+    page.click("#plan")
+    assert "19 moves" in page.inner_text("#plan-summary")
+    steps.done("plan")
+    page.click("#dry-run")
+    assert "motion gate: passed" in page.inner_text("#dry-run-result")
+    steps.done("dry run")
+
+    page.click("#acquire")
+    confirmation = page.inner_text("#confirm-text")
+    assert robot in confirmation and "calibration motion: 19 moves" in confirmation
+    shot(page, "2-confirm")
+    page.click("#confirm")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    page.wait_for_function("Number(document.getElementById('samples').textContent) >= 100")
+    # the live view draws the marker's sweeps
+    assert page.evaluate("document.getElementById('view').data.some(t => t.x.length > 10)")
+    shot(page, "3-acquiring")
+    page.wait_for_function(
+        "document.getElementById('run-state').textContent === 'finished'", timeout=ACQUISITION_WITHIN_MS
+    )
+    assert "19/19 moves" in page.inner_text("#message")
+    steps.done("acquire")
+
+    page.click("#back")
+    page.select_option("#method", "ml")
+    page.click("#calibrate")
+    verdict = page.inner_text("#verdict")
+    assert verdict.startswith("GOOD") and "expected error" in verdict
+    steps.done("calibrate")
+
+    page.click("#check")
+    assert robot in page.inner_text("#confirm-text")
+    page.click("#confirm")
+    assert page.inner_text("#checks").startswith("PASS")
+    steps.done("check")
+
+    page.click("#report")
+    report = page.get_attribute("#report-link", "href")
+    response = page.request.get(urljoin(served.url + "/", report))
+    assert response.ok and b"<html" in response.body()[:500].lower()
+    steps.done("report")
+
+    for box in ("slicer", "plus", "ros2_launch"):
+        page.check(f"#export-form input[name={box}]")
+    page.click("#export")
+    exported = page.inner_text("#exported")
+    for name in ("tracker_from_base.tfm", "plus_config.xml", "tracker.launch.py"):
+        assert name in exported
+    shot(page, "4-calibrated")
+    steps.done("export")
+
+    page.goto(served.url + "/trends")
+    assert "station" in page.inner_text("#calibrations") and "PASS" in page.inner_text("#checks")
+    assert page.evaluate("document.getElementById('trend').data.length") == 2  # checks, expected error
+    shot(page, "5-trends")
+    steps.done("trends")
+    [calibration] = served.station.ledger.calibrations()
+    assert calibration.source == "station" and calibration.robot == robot
+    [check] = served.station.ledger.checks(calibration.id)
+    assert check.source == "station" and check.passed
+    steps.print("browser workflow")
+
+
+def start_acquisition(page, url: str, robot: str):
+    new_robot_and_tracker(page, url, robot)
+    page.click("#dry-run")
+    page.click("#acquire")
+    page.click("#confirm")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    page.wait_for_function(f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}")
+
+
+def assert_stilled(run, reason: str) -> None:
+    """The run stopped on the Ctrl-C path: ended within the CLI's stop time, no frame after
+    ``STILL_WITHIN_S``, and it never starts again."""
+    assert run.thread is not None
+    run.thread.join(timeout=ENDED_WITHIN_S + 5)
+    assert run.state == "stopped", run.message
+    assert f"acquisition stopped: interrupted by the user ({reason})" in run.message
+    assert "samples kept in" in run.message
+    assert run.stop_requested_at is not None and run.ended_at is not None
+    assert run.ended_at - run.stop_requested_at < ENDED_WITHIN_S
+    assert run.last_frame_at is not None and run.last_frame_at - run.stop_requested_at < STILL_WITHIN_S
+    frames = run.view.snapshot(0)["latest_sequence"]
+    time.sleep(1.0)
+    assert run.view.snapshot(0)["latest_sequence"] == frames and not run.active
+    print(
+        f"\nstopped ({reason}): robot's last frame {run.last_frame_at - run.stop_requested_at:.2f} s and "
+        f"run ended {run.ended_at - run.stop_requested_at:.2f} s after the stop",
+        flush=True,
+    )
+
+
+def test_stop_mid_acquisition_stills_the_robot(served, page):
+    start_acquisition(page, served.url, "UR10 bay 2")
+    page.click("#stop")
+    page.wait_for_function("document.getElementById('run-state').textContent === 'stopped'")
+    message = page.inner_text("#message")
+    assert "acquisition stopped: interrupted by the user (STOP pressed at the station)" in message
+    shot(page, "6-stopped")
+    run = served.station.runs.get(1)
+    assert_stilled(run, "STOP pressed at the station")
+    assert served.station.runs.active() is None
+
+
+def test_closing_the_tab_mid_acquisition_stops_the_robot(served, page):
+    start_acquisition(page, served.url, "UR10 bay 3")
+    page.close()
+    run = served.station.runs.get(1)
+    assert_stilled(run, "the station's page was closed or lost its connection")
