@@ -126,30 +126,33 @@ def _spec(*args: Any, **kwargs: Any) -> tuple[str, EstimatorSpec]:
     return spec.name, spec
 
 
-def _robot_world(name: str, solver: RobotWorldSolver, by: str, reference: str) -> tuple[str, EstimatorSpec]:
+def _closed_form(
+    name: str,
+    family: Family,
+    method: Callable[..., CalibrationResult],
+    solver: RobotWorldSolver | HandEyeSolver,
+    by: str,
+    reference: str,
+) -> tuple[str, EstimatorSpec]:
+    """The entry of a closed form: no likelihood (bootstrapped), needs rotation about two axes."""
     return _spec(
         name,
-        Family.ROBOT_WORLD,
-        robot_world_method(name, solver),
-        f"{Family.ROBOT_WORLD.value} by {by}",
+        family,
+        method,
+        f"{family.value} by {by}",
         reference,
         likelihood=False,
         needs=frozenset({Need.VARIED_ROTATION}),
         closed_form=solver,
     )
+
+
+def _robot_world(name: str, solver: RobotWorldSolver, by: str, reference: str) -> tuple[str, EstimatorSpec]:
+    return _closed_form(name, Family.ROBOT_WORLD, robot_world_method(name, solver), solver, by, reference)
 
 
 def _hand_eye(name: str, solver: HandEyeSolver, by: str, reference: str) -> tuple[str, EstimatorSpec]:
-    return _spec(
-        name,
-        Family.HAND_EYE,
-        hand_eye_method(name, solver),
-        f"{Family.HAND_EYE.value} by {by}",
-        reference,
-        likelihood=False,
-        needs=frozenset({Need.VARIED_ROTATION}),
-        closed_form=solver,
-    )
+    return _closed_form(name, Family.HAND_EYE, hand_eye_method(name, solver), solver, by, reference)
 
 
 #: The calibration methods by name, in the order listings show them.
