@@ -20,7 +20,7 @@ from spacecal.core.errors import SpacecalError
 
 STEPS = [
     "spacecal.app.acquisition.last_time_s",
-    "spacecal.io.acquisition_progress.read_progress",
+    "spacecal.workflows.acquisition.read_progress",
     "spacecal.io.raw_streams.drop_partial_last_row",
     "spacecal.workflows.acquisition.RawStreamWriter",
     "spacecal.workflows.acquisition._approach",

@@ -174,9 +174,12 @@ def test_a_model_name_cannot_add_keys_to_the_ur_file(tmp_path):
     model = type(model)(**{**model.__dict__, "name": "UR10\nhash: calib_0\nevil: 1\r\x85\u2028x"})
     text = ur_calibration_text(model, kinematics_hash="calib_1\nevil: 2")
     data = yaml.safe_load(text)
-    assert sorted(data) == ["kinematics"] and "evil" not in data["kinematics"]
+    assert sorted(data) == ["kinematics", "tool_offset"]
+    assert "evil" not in data["kinematics"] and "evil" not in data["tool_offset"]
     assert data["kinematics"]["hash"] == "calib_1\nevil: 2"
-    assert text.isascii() and all(line.startswith(("#", " ", "kinematics:")) for line in text.splitlines())
+    assert text.isascii() and all(
+        line.startswith(("#", " ", "kinematics:", "tool_offset:")) for line in text.splitlines()
+    )
     path = write_ur_calibration(tmp_path / "k.yaml", model, kinematics_hash="calib_1\nevil: 2")
     assert read_ur_calibration(path).kinematics_hash == "calib_1\nevil: 2"
 
