@@ -21,6 +21,7 @@ from typing import Any
 from spacecal import app
 from spacecal.app.devices import finding_line
 from spacecal.cli import parser
+from spacecal.core import interrupts
 from spacecal.core.errors import InvalidInputError, MissingExtraError, SpacecalError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators.diagnostics import ErrorThresholds
@@ -598,48 +599,57 @@ def build_parser() -> argparse.ArgumentParser:
     return parser.build_parser(COMMANDS)
 
 
-class _Stop(KeyboardInterrupt):
-    """Ctrl-C, SIGTERM or SIGHUP: the robot stops and files stay readable."""
-
-
-#: Set once the first signal has been turned into an interruption.
-_interrupted = threading.Event()
-
-
 def _raise_interrupt(signum, frame) -> None:
-    if _interrupted.is_set():
+    reason = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+    if not interrupts.request_stop(reason):
         # a second signal while the run stops (Ctrl-C pressed twice, a service manager's
         # repeated SIGTERM) must not abort the robot's stop half-way: it is ignored
         return
-    _interrupted.set()
-    raise _Stop("Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name)
+    raise interrupts.StopRequested(reason)
+
+
+def _unraisable(hook):
+    """``sys.unraisablehook`` that stays quiet about a stop request Python could not raise (it
+    landed in a weakref callback or a ``__del__``): the request is kept, and the loop moving the
+    robot raises it at its next frame (:mod:`spacecal.core.interrupts`)."""
+
+    def quiet(unraisable) -> None:
+        if not isinstance(unraisable.exc_value, interrupts.StopRequested):
+            hook(unraisable)
+
+    return quiet
 
 
 @contextlib.contextmanager
 def _signals_as_interrupts():
     """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once while a command runs (main
-    thread only); later ones are ignored until the command has cleaned up."""
+    thread only), and the request is kept until the run has seen it; later ones are ignored
+    until the command has cleaned up."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    _interrupted.clear()
+    interrupts.clear()
     previous = {}
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         number = getattr(signal, name, None)
         if number is not None:
             previous[number] = signal.signal(number, _raise_interrupt)
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable(previous_hook)
     try:
         yield
     finally:
         for number, handler in previous.items():
             signal.signal(number, handler)
+        sys.unraisablehook = previous_hook
+        interrupts.clear()  # the command has stopped and cleaned up: the request is spent
 
 
 def _signal_named(exc: BaseException, text: str) -> str:
     """A run stopped by SIGTERM or SIGHUP says so (the acquisition names every interruption
     Ctrl-C)."""
     cause = exc.__context__
-    if isinstance(cause, _Stop) and cause.args and cause.args[0] != "Ctrl-C":
+    if isinstance(cause, interrupts.StopRequested) and cause.args and cause.args[0] != "Ctrl-C":
         return text.replace("interrupted by the user (Ctrl-C)", f"interrupted ({cause.args[0]})")
     return text
 
@@ -668,7 +678,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         if args.debug:
             raise
-        what = exc.args[0] if isinstance(exc, _Stop) and exc.args else "Ctrl-C"
+        what = exc.args[0] if isinstance(exc, interrupts.StopRequested) and exc.args else "Ctrl-C"
         # the same words as an interruption the acquisition catches itself
         who = "interrupted by the user" if what == "Ctrl-C" else "interrupted"
         print(f"spacecal: error: {who} ({what}); every file written is complete", file=sys.stderr)

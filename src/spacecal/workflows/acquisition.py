@@ -24,6 +24,7 @@ from typing import Any, NoReturn, Protocol, runtime_checkable
 import numpy as np
 
 from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
+from spacecal.core.interrupts import raise_if_stop_requested
 from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, StreamingRobot, Tracker
 from spacecal.estimators.time_offset import Pairing, pair_at_estimated_offset
 from spacecal.io.acquisition_progress import progress_path, read_progress, write_progress
@@ -251,6 +252,8 @@ def run_plan(
         frames_since_robot_update = 0
         move_started_at = None
         while True:
+            # a stop whose KeyboardInterrupt Python lost on the way (core.interrupts)
+            raise_if_stop_requested()
             try:
                 frame = tracker.next_frame(settings.frame_timeout_s)
             except DeviceError as exc:
@@ -506,6 +509,7 @@ def _approach(
         base_from_tcp, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
     )
     while True:
+        raise_if_stop_requested()
         try:
             tracker.next_frame(settings.frame_timeout_s)
         except DeviceError as exc:
