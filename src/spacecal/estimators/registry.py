@@ -34,7 +34,7 @@ from spacecal.estimators.likelihood import (
     variance_factor_of,
 )
 from spacecal.estimators.ml import covariance_from_information, information_matrix
-from spacecal.estimators.observations import build_observations
+from spacecal.estimators.observations import Observations, build_observations
 from spacecal.estimators.paper import calibrate_paper
 from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
@@ -346,6 +346,31 @@ def regrade(
     )
 
 
+def _reported_at_result(
+    result: CalibrationResult,
+    recording: Recording,
+    obs: Observations,
+    covariance: FloatArray,
+    variance_factor: float,
+    covariance_note: str,
+    targets_in_base: ArrayLike | None = None,
+) -> CalibrationResult:
+    """The uncertainty report of ``result``'s own transforms with a covariance found for them
+    outside its estimator (ML information, or a bootstrap): one place for both."""
+    return report_uncertainty(
+        Solution(
+            result.method,
+            recording,
+            obs,
+            result.tracker_from_base,
+            result.tcp_from_marker,
+            covariance,
+            variance_factor,
+        ),
+        UncertaintySettings(estimator(result.method).likelihood, covariance_note, targets_in_base),
+    )
+
+
 def with_expected_error(result: CalibrationResult, recording: Recording) -> CalibrationResult:
     """Expected error and verdict for a result without a covariance of its own.
 
@@ -360,19 +385,13 @@ def with_expected_error(result: CalibrationResult, recording: Recording) -> Cali
         covariance = covariance_from_information(information) * scale
     except (SpacecalError, np.linalg.LinAlgError):
         return result
-    reported = report_uncertainty(
-        Solution(
-            result.method,
-            recording,
-            obs,
-            result.tracker_from_base,
-            result.tcp_from_marker,
-            covariance,
-            variance_factor,
-        ),
-        UncertaintySettings(
-            estimator(result.method).likelihood, "ML information at this solution (no bootstrap); mm, rad"
-        ),
+    reported = _reported_at_result(
+        result,
+        recording,
+        obs,
+        covariance,
+        variance_factor,
+        "ML information at this solution (no bootstrap); mm, rad",
     )
     keep = ("expected_error", "verdict", "motion_spread", "variance_factor")
     return result.replace(diagnostics={**result.diagnostics, **{k: reported.diagnostics[k] for k in keep}})
@@ -422,21 +441,14 @@ def with_bootstrap_uncertainty(
         return with_expected_error(result, recording)
     obs = build_observations(recording)
     variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
-    reported = report_uncertainty(
-        Solution(
-            result.method,
-            recording,
-            obs,
-            result.tracker_from_base,
-            result.tcp_from_marker,
-            covariance,
-            variance_factor,
-        ),
-        UncertaintySettings(
-            estimator(result.method).likelihood,
-            f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
-            targets_in_base,
-        ),
+    reported = _reported_at_result(
+        result,
+        recording,
+        obs,
+        covariance,
+        variance_factor,
+        f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
+        targets_in_base,
     )
     return result.replace(
         covariance=reported.covariance,
