@@ -41,6 +41,8 @@ def a_calibration(**changes):
             recording_sha256="a" * 64,
             tool_definition="/data/8700339.rom",
             tool_definition_sha256="b" * 64,
+            # fixed, so two results made a second apart hash the same
+            created_utc="2026-01-02T03:04:05+00:00",
         ),
         covariance={"parameters": ["p"] * 12, "matrix": np.eye(12) * 1e-4},
         predicted_tre_mm={"site": 0.02, "cube_rms": 0.03},
