@@ -18,7 +18,7 @@ from spacecal.geometry.transforms import (
     rotvec_to_matrix,
     transform_points_by_stack,
 )
-from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, _link_transforms, forward_kinematics, ur_model
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.models.tracker import TrackerModel
@@ -119,6 +119,131 @@ def _points_in_volume(rng, tracker: TrackerModel, count: int) -> np.ndarray:
     return np.column_stack([x, y, -depth])
 
 
+@dataclass(frozen=True)
+class TrackerBiasField:
+    """Smooth tracker bias beyond :class:`VolumetricErrorField`: a depth-dependent scale and a
+    low-order polynomial field over the measurement volume, in the tracker frame.
+
+    The error at a point ``p`` (tracker frame, mm; depth ``z = -p_z``) is
+
+    ``depth_scale_per_100mm * (z - reference_depth_mm) / 100 * p + sum_k c_k m_k(u)``
+
+    where ``u`` are the point's coordinates normalised to the volume (x and y by the half
+    width and height at the far face, depth by half the depth range about the reference) and
+    ``m_k`` the monomials of degree 1 and 2 in ``u`` (9 of them). The first term is a scale
+    error that grows with depth, as a stereo tracker's vergence error gives (its relative depth
+    error grows linearly with depth); the second is a smooth, low-order distortion of the
+    volume (coefficients ``c_k``, mm, shape (9, 3)).
+    """
+
+    depth_scale_per_100mm: float
+    reference_depth_mm: float
+    half_extent_mm: np.ndarray  # (3,): x, y at the far face; half the depth range
+    coefficients_mm: np.ndarray  # (9, 3)
+
+    @staticmethod
+    def monomials(u) -> np.ndarray:
+        """The 9 monomials of degree 1 and 2 (…, 9) of normalised coordinates ``u`` (…, 3)."""
+        u = np.asarray(u, float)
+        x, y, z = u[..., 0], u[..., 1], u[..., 2]
+        return np.stack([x, y, z, x * x, y * y, z * z, x * y, x * z, y * z], axis=-1)
+
+    def normalised(self, points_in_tracker) -> np.ndarray:
+        """Coordinates (…, 3) of points (…, 3), mm, normalised to the volume (about -1..1)."""
+        p = np.asarray(points_in_tracker, float)
+        centred = np.stack([p[..., 0], p[..., 1], -p[..., 2] - self.reference_depth_mm], axis=-1)
+        return centred / self.half_extent_mm
+
+    def __call__(self, points_in_tracker) -> np.ndarray:
+        """Error vectors (…, 3), mm, at points (…, 3), mm, in the tracker frame."""
+        p = np.asarray(points_in_tracker, float)
+        depth = -p[..., 2:3]
+        error = self.depth_scale_per_100mm * (depth - self.reference_depth_mm) / 100.0 * p
+        return error + self.monomials(self.normalised(p)) @ self.coefficients_mm
+
+    @classmethod
+    def random(
+        cls,
+        rng: np.random.Generator,
+        depth_scale_per_100mm: float,
+        polynomial_rms_mm: float,
+        tracker: TrackerModel,
+    ) -> TrackerBiasField:
+        """A field with the given depth scale and a random polynomial part of the given 3-D RMS
+        over the volume (uniform in the volume's pyramid); ``rng`` draws the coefficients and
+        the probe points."""
+        volume = tracker.volume
+        reference = 0.5 * (volume.near_mm + volume.far_mm)
+        half = np.array(
+            [0.5 * volume.far_width_mm, 0.5 * volume.far_height_mm, 0.5 * (volume.far_mm - volume.near_mm)]
+        )
+        coefficients = rng.normal(size=(9, 3))
+        field = cls(0.0, reference, half, coefficients)
+        probe = _points_in_volume(rng, tracker, 4000)
+        measured_rms = np.sqrt(np.mean(np.sum(field(probe) ** 2, axis=1)))
+        scale = polynomial_rms_mm / measured_rms if polynomial_rms_mm > 0 else 0.0
+        return cls(depth_scale_per_100mm, reference, half, coefficients * scale)
+
+
+#: UR10 link masses (kg) and centres of mass (mm) in each link's DH frame, as Universal Robots
+#: publishes them ("DH parameters for calculations of kinematics and dynamics", UR support
+#: article for the CB3 arms).
+UR10_LINK_MASSES_KG = np.array([7.1, 12.7, 4.27, 2.0, 2.0, 0.365])
+UR10_LINK_COM_MM = np.array(
+    [
+        [21.0, 0.0, 27.0],
+        [380.0, 0.0, 158.0],
+        [240.0, 0.0, 68.0],
+        [0.0, 7.0, 18.0],
+        [0.0, 7.0, 18.0],
+        [0.0, 0.0, -26.0],
+    ]
+)
+STANDARD_GRAVITY_M_S2 = 9.80665
+
+
+def gravity_joint_torques(model: RobotModel, joints_rad, payload_kg: float = 0.0) -> np.ndarray:
+    """Static gravity torques (N, 6), N m, on the joints of an upright UR10-like arm.
+
+    Point masses at the published UR10 link centres of mass (:data:`UR10_LINK_MASSES_KG`,
+    :data:`UR10_LINK_COM_MM`) and the payload half-way between the flange and the TCP (a
+    needle guide carrying the marker). The torque about joint ``j`` is
+    ``z_{j-1} . sum_{i>=j} (c_i - o_{j-1}) x m_i g``, base z up.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The arm (its DH frames place the masses).
+    joints_rad : array_like, shape (N, 6) or (6,)
+    payload_kg : float
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, 6)
+    """
+    q = np.atleast_2d(np.asarray(joints_rad, float))
+    links = _link_transforms(model, q)
+    frames = [np.broadcast_to(np.eye(4), (len(q), 4, 4))]
+    for i in range(6):
+        frames.append(frames[-1] @ links[:, i])
+    masses = list(UR10_LINK_MASSES_KG)
+    centres = [frames[i + 1][:, :3, :3] @ UR10_LINK_COM_MM[i] + frames[i + 1][:, :3, 3] for i in range(6)]
+    if payload_kg > 0:
+        tool_mid = 0.5 * np.asarray(model.flange_from_tcp, float)[:3, 3]
+        centres.append(frames[6][:, :3, :3] @ tool_mid + frames[6][:, :3, 3])
+        masses.append(payload_kg)
+    weight = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_S2])
+    torques = np.zeros((len(q), 6))
+    for j in range(6):
+        axis, origin = frames[j][:, :3, 2], frames[j][:, :3, 3]
+        moment = np.zeros((len(q), 3))
+        # link i (0-based) is moved by joints 0..i: joint j carries links j..5 and the payload
+        for i in range(j, len(masses)):
+            moment += np.cross((centres[i] - origin) * 1e-3, masses[i] * weight)
+        torques[:, j] = np.sum(moment * axis, axis=1)
+    return torques
+
+
 @dataclass
 class World:
     """Ground truth and measurement models of one simulated set-up.
@@ -145,6 +270,12 @@ class World:
         The surgical site (TCP position at home), mm.
     noise_rng : numpy.random.Generator
         Stream for measurement noise, separate from the one that built the truth.
+    bias_field : TrackerBiasField or None
+        The depth-dependent scale and polynomial tracker bias; None when the scenario has
+        neither (``depth_scale_per_100mm``, ``polynomial_error_rms_mm``).
+    true_spheres_in_marker : numpy.ndarray, shape (K, 3), or None
+        Where the marker's spheres really are in its frame, mm, when they differ from the
+        definition the tracker fits (``marker_geometry_error_sd_mm``); None when they do not.
     """
 
     scenario: Scenario
@@ -159,6 +290,8 @@ class World:
     home_joints_rad: np.ndarray
     site_in_base: np.ndarray
     noise_rng: np.random.Generator
+    bias_field: TrackerBiasField | None = None
+    true_spheres_in_marker: np.ndarray | None = None
 
     # -- the robot ---------------------------------------------------------------------
     def repeatability_offsets(self, count: int) -> np.ndarray:
@@ -173,10 +306,31 @@ class World:
             return np.zeros((count, 3))
         return self.noise_rng.normal(scale=sd, size=(count, 3))
 
+    def joint_deflections_rad(self, joints_rad) -> np.ndarray:
+        """How far (N, 6), rad, the joints really are from the encoder angles (N, 6) under
+        gravity: ``torque / stiffness`` on the shoulder and elbow (joints 2 and 3) with the
+        scenario's ``joint_stiffness_nm_per_rad`` and ``payload_kg`` (zero on a rigid arm).
+        The encoders sit on the motor side of the transmission, so the controller neither
+        reports nor corrects it."""
+        q = np.atleast_2d(np.asarray(joints_rad, float))
+        deflection = np.zeros_like(q)
+        stiffness = np.asarray(self.scenario.joint_stiffness_nm_per_rad, float)
+        if not np.any(stiffness > 0):
+            return deflection
+        torques = gravity_joint_torques(self.true_model, q, self.scenario.payload_kg)
+        for joint, k in zip((1, 2), stiffness):
+            if k > 0:
+                deflection[:, joint] = torques[:, joint] / k
+        return deflection
+
     def true_base_from_tcp(self, joints_rad, jitter: bool = True) -> np.ndarray:
         """Where the TCP really is (N, 4, 4) for joint angles (N, 6), with repeatability scatter
-        (one :meth:`repeatability_offsets` draw per pose) unless ``jitter`` is False."""
-        poses = forward_kinematics(self.true_model, np.atleast_2d(joints_rad))
+        (one :meth:`repeatability_offsets` draw per pose) unless ``jitter`` is False, and the
+        joints' deflection under gravity (:meth:`joint_deflections_rad`) on a compliant arm."""
+        joints = np.atleast_2d(joints_rad)
+        if any(k > 0 for k in self.scenario.joint_stiffness_nm_per_rad):
+            joints = joints + self.joint_deflections_rad(joints)
+        poses = forward_kinematics(self.true_model, joints)
         if jitter and self.scenario.repeatability_mm > 0:
             poses = poses.copy()
             poses[:, :3, 3] += self.repeatability_offsets(len(poses))
@@ -186,8 +340,15 @@ class World:
     def measure_spheres(self, tracker_from_marker_true) -> np.ndarray:
         """Noisy sphere centres (N, K, 3) in the tracker frame for true marker poses (N, 4, 4)."""
         t = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
-        spheres = transform_points_by_stack(t, self.marker.spheres_in_marker)
+        true_spheres = (
+            self.marker.spheres_in_marker
+            if self.true_spheres_in_marker is None
+            else self.true_spheres_in_marker
+        )
+        spheres = transform_points_by_stack(t, true_spheres)
         spheres = spheres + self.error_field(spheres)
+        if self.bias_field is not None:
+            spheres = spheres + self.bias_field(spheres)
         s = self.scenario
         if s.white_noise_rms_mm > 0:
             lateral_sd = s.white_noise_rms_mm / np.sqrt(2.0 + s.depth_anisotropy**2)
@@ -333,6 +494,21 @@ def build_world(scenario: Scenario) -> World:
     # drawn after everything else, from its own stream, so that a scenario's arm, layout and
     # tracker error do not depend on the controller's model
     controller = controller_model_of(scenario, nominal, true_model, np.random.default_rng([scenario.seed, 4]))
+    # the families added later each draw from a stream of their own, and only when switched
+    # on, so that every other scenario's world is unchanged
+    bias = None
+    if scenario.depth_scale_per_100mm != 0 or scenario.polynomial_error_rms_mm > 0:
+        bias = TrackerBiasField.random(
+            np.random.default_rng([scenario.seed, 5]),
+            scenario.depth_scale_per_100mm,
+            scenario.polynomial_error_rms_mm,
+            tracker,
+        )
+    true_spheres = None
+    if scenario.marker_geometry_error_sd_mm > 0:
+        true_spheres = marker.spheres_in_marker + np.random.default_rng([scenario.seed, 6]).normal(
+            scale=scenario.marker_geometry_error_sd_mm, size=marker.spheres_in_marker.shape
+        )
     return World(
         scenario,
         nominal,
@@ -346,4 +522,6 @@ def build_world(scenario: Scenario) -> World:
         home_joints,
         site,
         noise_rng,
+        bias,
+        true_spheres,
     )
