@@ -158,17 +158,22 @@ class RawStreamWriter:
 
     def add_robot_states(self, states, segment: str) -> None:
         """Write controller states (``RobotState``), skipping any not newer than the last written."""
+        newer = []
         for state in states:
-            if not state.time_s > self._last_robot_time:
-                continue
-            position, quaternion = transform_to_position_quaternion(state.base_from_tcp)
+            if state.time_s > (newer[-1].time_s if newer else self._last_robot_time):
+                newer.append(state)
+        if not newer:
+            return
+        # one conversion for the whole batch: a controller streams 125-500 states a second
+        positions, quaternions = transform_to_position_quaternion(np.array([s.base_from_tcp for s in newer]))
+        for state, position, quaternion in zip(newer, positions, quaternions):
             self._robot.writerow(
                 [format_number(state.time_s), segment]
                 + [format_number(v) for v in state.joints_rad]
                 + [format_number(v) for v in position]
                 + [format_number(v) for v in quaternion]
             )
-            self._last_robot_time = state.time_s
+        self._last_robot_time = newer[-1].time_s
 
     def add_tracker_frame(
         self,
