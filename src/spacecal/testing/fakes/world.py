@@ -1,11 +1,12 @@
 """A fake world in its own process: one simulated ground truth behind fake devices that speak
-the real wire protocols on loopback, so the real client libraries talk to them unmodified.
+the real wire protocols on loopback, so the real client libraries talk to them unmodified
+(``--help`` lists every option)::
 
     python -m spacecal.testing.fakes.world --host 127.0.0.12 [--scenario paper-white] \
-        [--igtl-port P] [--ndi-port P] [--rtde]
+        [--igtl-port P] [--ndi-generation G] [--igtl-sender S] [--ur-generation G]
 
 Prints ``READY {json}`` (ports, pty path) on stdout when every server listens. A line
-protocol on the control port injects faults and reads the truth:
+protocol on the control port injects faults and reads the truth::
 
     truth                      -> JSON of tracker_from_base, tcp_from_marker, home joints
     occlude on|off             -> the marker is hidden from the tracker
