@@ -43,6 +43,7 @@ from spacecal.geometry.rotations import rotation_angle
 from spacecal.io.acquisition_progress import resume_home_joints
 from spacecal.io.check_history import append_history, history_path
 from spacecal.io.ndi_rom import read_rom_marker
+from spacecal.io.raw_streams import raw_stream_paths
 from spacecal.io.recording_csv import last_time_s
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_json_object, write_json
@@ -61,12 +62,7 @@ from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import Scenario, load_scenario
 from spacecal.sim.world import World, build_world
-from spacecal.workflows.acquisition import (
-    AcquisitionResult,
-    AcquisitionSettings,
-    FrameObserver,
-    raw_stream_paths,
-)
+from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, FrameObserver
 from spacecal.workflows.acquisition import acquire as run_acquisition
 from spacecal.workflows.check import (
     FALSE_ALARM_RATE,

@@ -26,7 +26,6 @@ from spacecal.estimators.observations import (
     marker_geometry_of,
     sphere_noise_from_marker_rms,
 )
-from spacecal.estimators.pivot import pivot_calibration
 from spacecal.estimators.time_offset import check_overlap, estimate_time_offset, pair_streams
 from spacecal.io.csv_core import metadata_path
 from spacecal.io.pose_files import read_matrix_folder
@@ -35,6 +34,7 @@ from spacecal.io.recording_csv import read_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import write_calibration, write_json
 from spacecal.records import CalibrationResult, PivotResult, Recording
+from spacecal.registration.pivot import pivot_calibration
 
 Point = tuple[float, float, float]
 

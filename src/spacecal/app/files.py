@@ -14,7 +14,6 @@ import numpy as np
 
 from spacecal.app._common import check_belongs, guard_outputs, open_calibration, refuse_overwriting_inputs
 from spacecal.core.errors import InvalidInputError
-from spacecal.estimators.landmarks import LandmarkDetectionSettings
 from spacecal.io.atomic import atomic_path
 from spacecal.io.check_history import history_path, read_history
 from spacecal.io.csv_core import metadata_path
@@ -30,6 +29,7 @@ from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.records import LandmarkRegistrationResult, VerificationResult
+from spacecal.registration.landmarks import LandmarkDetectionSettings
 from spacecal.report.html import Report, write_figures, write_report
 from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
 

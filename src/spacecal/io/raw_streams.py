@@ -66,6 +66,18 @@ def stream_paths(stem: str | Path) -> tuple[Path, Path, Path]:
     )
 
 
+def raw_stem(recording_path: str | Path) -> Path:
+    """``rec.csv`` -> ``rec``: the stem of the raw streams a paired recording is derived from."""
+    path = Path(recording_path)
+    return path.with_name(path.stem)
+
+
+def raw_stream_paths(recording_path: str | Path) -> tuple[Path, Path]:
+    """``rec.csv`` -> (``rec.robot.csv``, ``rec.tracker.csv``): the raw streams behind it."""
+    robot, tracker, _ = stream_paths(raw_stem(recording_path))
+    return robot, tracker
+
+
 def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path]:
     """Write both streams and the metadata; returns the two CSV paths."""
     robot_path, tracker_path, meta_path = stream_paths(stem)

@@ -1,4 +1,5 @@
-"""The fuzz harness: base input files, mutations of them and of the options, and one runner.
+"""The command line's fuzz harness: base input files, mutations of them and of the options, and
+one runner.
 
 Every case runs ``spacecal.cli.main(argv)`` in this process on copies of the base files in a
 fresh folder, and is classified by what went wrong (or ``pass``):
