@@ -27,9 +27,10 @@ def port_number(text: str) -> int:
 def settings_classes(name: str) -> list[type]:
     """The settings classes the app function of command ``name`` takes, read from its signature."""
     function = app.COMMANDS.get(name)
-    names = (
+    hints = (
         [] if function is None else [p.annotation for p in inspect.signature(function).parameters.values()]
     )
+    names = [getattr(hint, "__name__", hint) for hint in hints]  # a class, or its name as written
     return [getattr(app, n) for n in names if isinstance(n, str) and n.endswith("Settings")]
 
 
