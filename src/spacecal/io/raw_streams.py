@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES, RobotState
 from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
@@ -170,7 +170,7 @@ class RawStreamWriter:
 
     def add_robot_states(self, states, segment: str) -> None:
         """Write controller states (``RobotState``), skipping any not newer than the last written."""
-        newer = []
+        newer: list[RobotState] = []
         for state in states:
             if state.time_s > (newer[-1].time_s if newer else self._last_robot_time):
                 newer.append(state)
