@@ -13,7 +13,7 @@ from spacecal.app.result import CommandResult, Quality
 
 SRC = Path(app.__file__).resolve().parent
 CLI = SRC.parent / "cli"
-ROOT = SRC.parents[2]
+ROOT = Path(__file__).resolve().parents[2]  # the clone (the package may be installed elsewhere)
 
 
 def _annotation(value) -> str:
