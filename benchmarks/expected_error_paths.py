@@ -203,7 +203,7 @@ def run_case(case: tuple[str, int, tuple[str, ...], str | None]) -> list[tuple[s
                 tracker_stream=None if tracker_stream is None else str(tracker_stream),
                 force=True,
             )
-            return calibrate_files(settings).calibration
+            return calibrate_files(settings).record
 
         for path in paths:
             try:

@@ -9,7 +9,7 @@ Usage::
 
 Each case copies the base inputs into a fresh folder, mutates one file or option (classes:
 encoding, types, numbers, consistency, overwrite, arguments, valid) and runs
-``spacecal.cli.main`` in this process with a time limit; see ``tests/fuzz/harness.py``.
+``spacecal.cli.main`` in this process with a time limit; see :mod:`spacecal.testing.fuzz`.
 """
 
 from __future__ import annotations
@@ -21,9 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from tests.fuzz.harness import (
+from spacecal.testing.fuzz import (
     COMMANDS,
     RandomPick,
     build_base,

@@ -33,19 +33,15 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from tests.fakes.client import WorldProcess  # noqa: E402
-
-from spacecal.estimators.likelihood import tre_lower_bound  # noqa: E402
-from spacecal.io.ndi_rom import rom_bytes  # noqa: E402
-from spacecal.io.recording_csv import read_recording  # noqa: E402
-from spacecal.io.results_json import read_calibration  # noqa: E402
-from spacecal.models.kinematics import RobotModel, forward_kinematics  # noqa: E402
-from spacecal.models.marker import ndi_8700339_like  # noqa: E402
-from spacecal.sim.scenario import load_scenario  # noqa: E402
-from spacecal.sim.world import build_world  # noqa: E402
+from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.io.ndi_rom import rom_bytes
+from spacecal.io.recording_csv import read_recording
+from spacecal.io.results_json import read_calibration
+from spacecal.models.kinematics import RobotModel, forward_kinematics
+from spacecal.models.marker import ndi_8700339_like
+from spacecal.sim.scenario import load_scenario
+from spacecal.sim.world import build_world
+from spacecal.testing.fakes.client import WorldProcess
 
 SPACECAL = [sys.executable, "-m", "spacecal.cli"]
 SCENARIO = "paper-white"

@@ -241,7 +241,7 @@ def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[di
         started = time.perf_counter()
         try:
             with contextlib.redirect_stdout(io.StringIO()):
-                result = app.calibrate(settings).calibration
+                result = app.calibrate(settings).record
         except SpacecalError as exc:
             row.update(status="refused", message=_first_line(exc, folder))
         except Exception as exc:  # a crash is a finding too; the run goes on

@@ -29,7 +29,7 @@ with tempfile.TemporaryDirectory() as folder:
             targets_in_base=((-573.0, -164.0, 338.0),),
         )
     )
-    calibration = out.calibration
+    calibration = out.record
     sd = np.sqrt(np.diag(np.asarray(calibration.covariance["matrix"])))
     print("tracker_from_base (mm):")
     print(np.array2string(calibration.tracker_from_base, precision=3, suppress_small=True))

@@ -21,8 +21,8 @@ with tempfile.TemporaryDirectory() as folder:
         app.ExportSettings(
             str(folder / "cal.json"), slicer=str(folder / "BaseToTracker.tfm"), plus=str(folder / "plus.xml")
         )
-    ):
+    ).lines:
         print(line)
     read_back = read_slicer_transform(folder / "BaseToTracker.tfm")
-    difference = abs(read_back - calibrated.calibration.tracker_from_base).max()
+    difference = abs(read_back - calibrated.record.tracker_from_base).max()
     print(f"the Slicer file reads back to tracker_from_base within {difference:.1e} mm")

@@ -12,7 +12,8 @@ from pathlib import Path
 from spacecal import app
 
 with tempfile.TemporaryDirectory() as folder:
-    plan, path = app.plan(app.PlanSettings(budget_s=20.0, output=str(Path(folder) / "plan.json")))
+    planned = app.plan(app.PlanSettings(budget_s=20.0, output=str(Path(folder) / "plan.json")))
+    plan, [path] = planned.record, planned.files_written
     print(f"{len(plan.station_joints_rad)} stations, {plan.motion_time_s:.1f} s of motion")
     print(
         f"predicted tip error at the site: {plan.predicted_error_mm:.3f} mm "

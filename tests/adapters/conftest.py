@@ -12,8 +12,7 @@ import pytest
 
 from spacecal.io.ndi_rom import rom_bytes
 from spacecal.models.marker import ndi_8700339_like
-
-from ..fakes.client import WorldProcess
+from spacecal.testing.fakes.client import WorldProcess
 
 #: Longer than any test's own subprocess timeouts, so those report first; the dump goes to a
 #: file (pytest captures stderr), one per test worker, that .ci/run prints when the suite fails.

@@ -13,9 +13,8 @@ import pytest
 from spacecal.adapters import igtl
 from spacecal.adapters.igtl import IGTLTracker
 from spacecal.core.errors import DeviceError
-
-from ..fakes.igtl import pack_message, transform_content
-from ..fakes.peers import Peer, announce, drip, hang_up, silent
+from spacecal.testing.fakes.igtl import pack_message, transform_content
+from spacecal.testing.fakes.peers import Peer, announce, drip, hang_up, silent
 
 #: Time on top of a deadline for a loaded machine, s.
 MARGIN_S = 5.0

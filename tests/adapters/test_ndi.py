@@ -8,8 +8,7 @@ pytest.importorskip("ndicapy")
 from spacecal.adapters.ndi import NDITracker
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK
-
-from ..fakes.ndi import crc16
+from spacecal.testing.fakes.ndi import crc16
 
 
 def test_crc_check_values():

@@ -19,9 +19,8 @@ pytest.importorskip("ndicapy")
 from spacecal.adapters import ndi
 from spacecal.adapters.ndi import NDITracker
 from spacecal.core.errors import DeviceError
-
-from ..fakes.ndi import FakeNDI, crc16, split_command
-from ..fakes.peers import Peer, announce, drip, hang_up, silent
+from spacecal.testing.fakes.ndi import FakeNDI, crc16, split_command
+from spacecal.testing.fakes.peers import Peer, announce, drip, hang_up, silent
 
 #: Time on top of a deadline for a loaded machine, s.
 MARGIN_S = 5.0

@@ -14,8 +14,7 @@ import pytest
 
 from spacecal.adapters import ur
 from spacecal.core.errors import DeviceError
-
-from ..fakes.peers import Peer, announce, drip, hang_up, silent
+from spacecal.testing.fakes.peers import Peer, announce, drip, hang_up, silent
 
 #: Time on top of a deadline for a loaded machine, s.
 MARGIN_S = 5.0

@@ -32,10 +32,11 @@ def simulated(tmp_path_factory):
 
 
 def test_simulate_returns_what_it_wrote(simulated):
-    folder, out = simulated
+    folder, result = simulated
+    out, paths = result.record, result.files_written
     assert out.simulated and out.seed == 4 and out.scenario == "paper-white"
-    assert out.paths[0] == folder / "rec.csv" and out.paths[1].name == "rec.meta.json"
-    assert 0 < out.visible <= out.samples == sum(1 for _ in open(out.paths[0])) - 1
+    assert paths[0] == folder / "rec.csv" and paths[1].name == "rec.meta.json"
+    assert 0 < out.visible <= out.samples == sum(1 for _ in open(paths[0])) - 1
 
 
 def test_calibrate_bound_verify_check_report_export(simulated):
@@ -48,32 +49,36 @@ def test_calibrate_bound_verify_check_report_export(simulated):
             targets_in_base=((-573.0, -164.0, 338.0),),
         )
     )
-    assert isinstance(calibrated.calibration, CalibrationResult)
-    provenance = calibrated.calibration.provenance
+    assert isinstance(calibrated.record, CalibrationResult)
+    provenance = calibrated.record.provenance
+    assert calibrated.provenance == provenance
     assert provenance.simulated is True and provenance.scenario["seed"] == 4
     assert provenance.recording == str((folder / "rec.csv").resolve())
-    again = read_calibration(calibrated.path)
-    assert np.array_equal(again.tracker_from_base, calibrated.calibration.tracker_from_base)
+    [path] = calibrated.files_written
+    again = read_calibration(path)
+    assert np.array_equal(again.tracker_from_base, calibrated.record.tracker_from_base)
     assert again.provenance == provenance
 
-    bound = app.bound(app.BoundSettings(str(folder / "rec.csv"), str(calibrated.path), 0.144))
-    assert 0 < bound["site"] <= calibrated.calibration.predicted_tre_mm["site"] * 1.5
+    bound = app.bound(app.BoundSettings(str(folder / "rec.csv"), str(path), 0.144)).record
+    assert 0 < bound["site"] <= calibrated.record.predicted_tre_mm["site"] * 1.5
 
-    verified = app.verify(app.VerifySettings(str(calibrated.path), points=5, output=str(folder / "ver.json")))
-    assert isinstance(verified.result, VerificationResult) and verified.result.simulated
-    assert verified.world_source == "the calibration's provenance" and verified.scenario == "paper-white"
+    verified = app.verify(app.VerifySettings(str(path), points=5, output=str(folder / "ver.json")))
+    assert isinstance(verified.record, VerificationResult) and verified.record.simulated
+    assert (
+        "from the calibration's provenance" in verified.lines[1] and verified.record.scenario == "paper-white"
+    )
     read_back = VerificationResult.from_dict(read_json_object(folder / "ver.json", "verification"))
-    assert np.allclose(read_back.position_error_mm, verified.result.position_error_mm)
+    assert np.allclose(read_back.position_error_mm, verified.record.position_error_mm)
 
-    checked = app.check(app.CheckSettings(str(calibrated.path), poses=2))
+    checked = app.check(app.CheckSettings(str(path), poses=2)).record
     assert isinstance(checked.result, CheckResult) and checked.result.passed and checked.result.simulated
-    recorded = app.check(app.CheckSettings(str(calibrated.path), recording=str(folder / "rec.csv")))
+    recorded = app.check(app.CheckSettings(str(path), recording=str(folder / "rec.csv"))).record
     assert recorded.result.simulated is None
 
-    report = app.report(app.ReportSettings(str(calibrated.path), str(folder / "r.html")))
-    assert "Check history" in report.titles and report.path.stat().st_size > 1_000_000
+    report = app.report(app.ReportSettings(str(path), str(folder / "r.html")))
+    assert "Check history" in report.record and report.files_written[0].stat().st_size > 1_000_000
 
-    lines = app.export(app.ExportSettings(str(calibrated.path), slicer=str(folder / "t.tfm")))
+    lines = app.export(app.ExportSettings(str(path), slicer=str(folder / "t.tfm"))).lines
     assert len(lines) == 1 and (folder / "t.tfm").is_file()
 
 
@@ -88,37 +93,41 @@ def test_an_output_never_overwrites_an_input(simulated):
 
 
 def test_acquire_on_the_simulated_devices(tmp_path):
-    dry = app.acquire(app.AcquireSettings(str(tmp_path / "a.csv"), scenario="paper-white", dry_run=True))
+    dry = app.acquire(
+        app.AcquireSettings(str(tmp_path / "a.csv"), scenario="paper-white", dry_run=True)
+    ).record
     assert dry.dry_run and dry.simulated and dry.moves > 0 and not (tmp_path / "a.csv").exists()
-    run = app.acquire(app.AcquireSettings(str(tmp_path / "a.csv"), scenario="paper-white"))
+    run = app.acquire(app.AcquireSettings(str(tmp_path / "a.csv"), scenario="paper-white")).record
     assert run.result is not None and run.result.complete and run.result.samples_written > 100
     with pytest.raises(InvalidInputError, match="workspace-box"):
         app.AcquireSettings(str(tmp_path / "b.csv"), workspace_box=(1.0, 0.0, 0.0, 1.0, 0.0, 1.0))
 
 
 def test_plan_phantom_scenario(tmp_path):
-    record, path = app.plan(app.PlanSettings(budget_s=15.0, output=str(tmp_path / "plan.json")))
+    planned = app.plan(app.PlanSettings(budget_s=15.0, output=str(tmp_path / "plan.json")))
+    record, [path] = planned.record, planned.files_written
     assert isinstance(record, PlanRecord) and record.motion_time_s <= 15.0
     assert PlanRecord.from_dict(json.loads(path.read_text())).motion_time_s == record.motion_time_s
-    result, _ = app.phantom(app.PhantomCommandSettings(scenario="paper-white", method="ml", cases=2))
+    result = app.phantom(app.PhantomCommandSettings(scenario="paper-white", method="ml", cases=2)).record
     assert isinstance(result, PhantomResult) and len(result.entry_error_mm) == 2
     assert PhantomResult.from_dict(result.to_dict()).method == "ml"
-    scenario = app.scenario("paper-white")
+    scenario = app.scenario("paper-white").record
     assert scenario["name"] == "paper-white" and dataclasses.is_dataclass(app.PlanSettings)
 
 
 def test_pivot_and_landmarks_on_real_recordings(tmp_path):
     pivot_folder = shared_realdata("pivot_sksurgery_ndi")
-    result, path = app.pivot(
+    pivoted = app.pivot(
         app.PivotSettings(
             str(pivot_folder / "PivotCalibration"),
             subset=str(pivot_folder / "subset57_sksurgerycalibration.txt"),
             output=str(tmp_path / "p.json"),
         )
     )
+    result, [path] = pivoted.record, pivoted.files_written
     assert np.allclose(result.tip_in_marker, [-14.473, 394.634, -7.407], atol=1e-3) and path.is_file()
     folder = shared_realdata("plus_phantom_landmarks")
-    registration, _, written = app.register_landmarks(
+    registered = app.register_landmarks(
         app.RegisterLandmarksSettings(
             str(folder / "EightLandmarkPointsTrackedForPhantomRegistration.igs.mha"),
             str(folder / "PlusDeviceSet_fCal_Sim_RecordPhantomLandmarks.xml"),
@@ -126,6 +135,7 @@ def test_pivot_and_landmarks_on_real_recordings(tmp_path):
             output=str(tmp_path / "reg.json"),
         )
     )
+    registration, [written] = registered.record, registered.files_written
     assert isinstance(registration, LandmarkRegistrationResult)
     assert registration.fre_mean_mm == pytest.approx(0.207, abs=0.001)
     assert np.allclose(
@@ -136,7 +146,7 @@ def test_pivot_and_landmarks_on_real_recordings(tmp_path):
 
 def test_demo_returns_its_parts(tmp_path):
     out = app.demo(app.DemoSettings(scenario="paper-white", out=str(tmp_path)))
-    assert {p.name for p in out.paths} == {
+    assert {p.name for p in out.files_written} == {
         "recording.csv",
         "calibration.json",
         "verification.json",
@@ -150,9 +160,8 @@ def test_pivot_files_of_both_versions_read_back(tmp_path):
     from spacecal.records import PivotResult
 
     folder = shared_realdata("pivot_sksurgery_ndi")
-    result, path = app.pivot(
-        app.PivotSettings(str(folder / "PivotCalibration"), output=str(tmp_path / "p.json"))
-    )
+    pivoted = app.pivot(app.PivotSettings(str(folder / "PivotCalibration"), output=str(tmp_path / "p.json")))
+    result, [path] = pivoted.record, pivoted.files_written
     again = PivotResult.from_dict(json.loads(path.read_text()))
     assert np.array_equal(again.residuals_mm, result.residuals_mm) and again.rms_mm == result.rms_mm
     version_1 = {k: v for k, v in result.to_dict().items() if k not in ("residuals_mm", "units")}

@@ -145,7 +145,7 @@ def test_clocks_seconds_or_minutes_apart_with_the_offset_given(tmp_path, pose_on
     capsys.readouterr()
     out = app.import_poses(app.ImportPosesSettings(str(robot), str(tracker), str(tmp_path / "b")))
     assert len(out.notes) == 1 and "do not overlap" in out.notes[0] and "--time-offset-ms" in out.notes[0]
-    raw = read_raw_recording(out.robot_path, out.tracker_path)
+    raw = read_raw_recording(*out.files_written[:2])
     far = calibrate(pair_streams(raw, 300.0 + CLOCK_OFFSET_S), "ml")
     near = calibrate(pair_streams(data, CLOCK_OFFSET_S), "ml")
     difference = _difference(far, near)
@@ -238,7 +238,7 @@ def test_eye_in_hand_with_camera_noise_is_within_the_fits_covariance(tmp_path, c
     out = app.import_poses(
         app.ImportPosesSettings(str(robot), str(camera), str(tmp_path / "eye"), eye_in_hand=True)
     )
-    result = calibrate(pair_streams(read_raw_recording(out.robot_path, out.tracker_path), 2.0), "ml")
+    result = calibrate(pair_streams(read_raw_recording(*out.files_written[:2]), 2.0), "ml")
     target_from_base = invert_transform(BASE_FROM_TARGET)
     # the perturbation parameters of spacecal.models.kinematics.apply_pose_step
     error = np.concatenate(

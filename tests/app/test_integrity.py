@@ -39,7 +39,7 @@ def calibrated(tmp_path_factory, white_simulation):
     meta["tracker"]["serial"] = "P9-01234"
     metadata_path(recording).write_text(json.dumps(meta))
     out = app.calibrate(app.CalibrateSettings(str(recording), str(folder / "cal.json"), "paper"))
-    return folder, recording, out.path
+    return folder, recording, out.files_written[0]
 
 
 def edited_copy(path: Path, edit, name="edited.json") -> Path:
@@ -189,15 +189,16 @@ def test_accept_edited_lets_it_through_with_a_note(calibrated, tmp_path, reader)
             call(edited, True)
         return
     out = call(edited, True)
-    notes = out.messages if reader == "check" else out.notes if reader == "report" else out
-    assert note in notes or f"note: {note}" in notes
+    assert note in out.notes and f"note: {note}" in out.lines
 
 
 def test_an_unedited_calibration_passes_without_a_note(calibrated, tmp_path):
     _, recording, cal = calibrated
     out = app.check(app.CheckSettings(str(cal), recording=str(recording)))
-    assert out.messages == []
-    assert app.export(app.ExportSettings(str(cal), slicer=str(tmp_path / "t.tfm")))[0].startswith("wrote")
+    assert out.notes == ()
+    assert (
+        app.export(app.ExportSettings(str(cal), slicer=str(tmp_path / "t.tfm"))).lines[0].startswith("wrote")
+    )
 
 
 def version_2_of(path: Path, name="v2.json") -> Path:
@@ -217,9 +218,9 @@ def test_an_older_calibration_is_read_with_a_note_that_it_cannot_be_verified(cal
         f"{old} is a version 2 calibration, written before calibrations carried a content hash: it cannot "
         "be verified (calibrating again writes one)"
     )
-    assert note in app.check(app.CheckSettings(str(old), recording=str(recording))).messages
-    assert f"note: {note}" in app.export(app.ExportSettings(str(old), slicer=str(tmp_path / "t.tfm")))
-    assert note in app.bound(app.BoundSettings(str(recording), str(old), 0.1))["notes"]
+    assert note in app.check(app.CheckSettings(str(old), recording=str(recording))).notes
+    assert f"note: {note}" in app.export(app.ExportSettings(str(old), slicer=str(tmp_path / "t.tfm"))).lines
+    assert note in app.bound(app.BoundSettings(str(recording), str(old), 0.1)).notes
 
 
 @pytest.mark.parametrize("reader", READERS + STRICT)
@@ -266,8 +267,8 @@ def test_a_missing_tool_definition_is_recorded_by_path_with_a_note(calibrated, t
     metadata_path(recording).write_text(json.dumps(meta))
     out = app.calibrate(app.CalibrateSettings(str(recording), str(tmp_path / "cal.json"), "paper"))
     gone = str((tmp_path / "gone.rom").resolve())
-    assert out.calibration.provenance.tool_definition == gone
-    assert out.calibration.provenance.tool_definition_sha256 is None
+    assert out.record.provenance.tool_definition == gone
+    assert out.record.provenance.tool_definition_sha256 is None
     assert any(gone in note and "not there" in note for note in out.notes)
 
 
@@ -289,7 +290,7 @@ def test_calibrate_does_not_replace_a_calibration_without_force(calibrated, tmp_
     with pytest.raises(InvalidInputError, match=r"notes.txt: an existing file; .* pass --force"):
         app.calibrate(app.CalibrateSettings(str(recording), str(tmp_path / "notes.txt"), "paper"))
     out = app.calibrate(app.CalibrateSettings(str(recording), str(target), "paper", force=True))
-    assert read_calibration(out.path).integrity.verified
+    assert read_calibration(out.files_written[0]).integrity.verified
 
 
 def _writers(tmp_path: Path, output: Path):

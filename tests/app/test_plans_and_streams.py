@@ -20,7 +20,8 @@ from spacecal.sim.world import build_world
 @pytest.fixture(scope="module")
 def plan_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("plan") / "plan.json"
-    record, written = app.plan(app.PlanSettings(budget_s=15.0, scenario="paper-white", output=str(path)))
+    planned = app.plan(app.PlanSettings(budget_s=15.0, scenario="paper-white", output=str(path)))
+    record, [written] = planned.record, planned.files_written
     assert written == path and record.runnable
     return path
 
@@ -59,7 +60,7 @@ def test_simulate_and_acquire_run_the_same_plan(plan_file, tmp_path):
     app.simulate(app.SimulateSettings(str(tmp_path / "sim.csv"), "paper-white", plan=str(plan_file)))
     acquired = app.acquire(
         app.AcquireSettings(str(tmp_path / "acq.csv"), scenario="paper-white", plan=str(plan_file))
-    )
+    ).record
     record = PlanRecord.from_dict(json.loads(plan_file.read_text()))
     assert acquired.result is not None and acquired.result.complete
     assert acquired.moves == len(record.moves)
@@ -94,22 +95,23 @@ def test_a_plan_for_another_set_up_or_another_home_is_refused(plan_file, tmp_pat
 
 def test_the_paper_sweeps_as_a_plan_file_and_a_site(tmp_path):
     site = (-550.0, -150.0, 320.0)
-    record, path = app.plan(
+    planned = app.plan(
         app.PlanSettings(
             scenario="paper-white", paper_sweeps=True, site_mm=site, output=str(tmp_path / "s.json")
         )
     )
+    record, [path] = planned.record, planned.files_written
     assert record.kind == "paper-sweeps" and record.site_in_base is not None
     assert np.allclose(record.site_in_base, site)
     assert {m.label for m in record.moves} >= {"rot_x", "rot_y", "rot_z", "lin_x", "lin_y", "lin_z"}
-    out = app.simulate(app.SimulateSettings(str(tmp_path / "r.csv"), "paper-white", plan=str(path)))
+    out = app.simulate(app.SimulateSettings(str(tmp_path / "r.csv"), "paper-white", plan=str(path))).record
     assert out.samples > 300
     with pytest.raises(InvalidInputError, match="--site"):
         app.PlanSettings(site_mm=(float("nan"), 0.0, 0.0))
 
 
 def test_acquire_writes_both_raw_streams_and_pairs_them(tmp_path):
-    out = app.acquire(app.AcquireSettings(str(tmp_path / "rec.csv"), scenario="paper-white"))
+    out = app.acquire(app.AcquireSettings(str(tmp_path / "rec.csv"), scenario="paper-white")).record
     result = out.result
     assert result is not None and result.raw_paths is not None and result.pairing is not None
     raw = read_raw_recording(*result.raw_paths)
@@ -151,7 +153,9 @@ def test_an_existing_raw_stream_is_never_overwritten(tmp_path):
 
 
 def test_stop_and_go_averages_the_frames_of_each_station(tmp_path):
-    out = app.acquire(app.AcquireSettings(str(tmp_path / "sg.csv"), scenario="paper-white", stop_and_go=5))
+    out = app.acquire(
+        app.AcquireSettings(str(tmp_path / "sg.csv"), scenario="paper-white", stop_and_go=5)
+    ).record
     assert out.result is not None and out.result.complete
     recording = read_recording(tmp_path / "sg.csv")
     meta = json.loads((tmp_path / "sg.meta.json").read_text())
@@ -170,15 +174,15 @@ def test_stop_and_go_averages_the_frames_of_each_station(tmp_path):
 def test_a_plan_for_a_needle_path_plans_for_the_needle_at_its_target(tmp_path):
     # a target about 110 mm below the TCP at home, approached from above at a slant
     entry, target = np.array([-560.0, -150.0, 300.0]), np.array([-575.0, -165.0, 230.0])
-    record, _ = app.plan(
+    record = app.plan(
         app.PlanSettings(budget_s=12.0, scenario="paper-white", needle_path_mm=(*entry, *target))
-    )
+    ).record
     assert record.site_base_from_tcp is not None and np.allclose(record.site_in_base, target)
     direction = (target - entry) / np.linalg.norm(target - entry)
     assert np.allclose(record.site_base_from_tcp[:3, 2], direction)  # the needle along the path
     stations = [m.end[:3, 3] for m in record.moves if m.label == "station"]
     # the stations are drawn around the target: nearer to it than a plan for home is
-    for_home, _ = app.plan(app.PlanSettings(budget_s=12.0, scenario="paper-white"))
+    for_home = app.plan(app.PlanSettings(budget_s=12.0, scenario="paper-white")).record
     home_stations = [m.end[:3, 3] for m in for_home.moves if m.label == "station"]
     assert np.linalg.norm(np.mean(stations, axis=0) - target) < np.linalg.norm(
         np.mean(home_stations, axis=0) - target

@@ -3,7 +3,6 @@ landed in a weakref callback, as importlib's module-lock clean-up is), the acqui
 stops at its next frame, and nothing is printed about the swallowed exception."""
 
 import gc
-import importlib
 import signal
 import weakref
 
@@ -11,9 +10,6 @@ import numpy as np
 import pytest
 
 from spacecal.core import interrupts
-
-#: the command line's module (``spacecal.cli.main`` the name is its function)
-cli = importlib.import_module("spacecal.cli.main")
 
 
 class _Referent:
@@ -35,7 +31,7 @@ def _lose_an_interrupt_in_a_weakref_callback() -> None:
 
 
 def test_a_lost_interrupt_is_kept_and_raised_by_the_loop(capsys):
-    with cli._signals_as_interrupts():
+    with interrupts.signals_as_interrupts():
         _lose_an_interrupt_in_a_weakref_callback()  # Python prints nothing, raises nothing here
         assert interrupts.stop_requested() == "Ctrl-C"
         with pytest.raises(interrupts.StopRequested, match="Ctrl-C"):
@@ -58,7 +54,7 @@ def test_a_simulated_acquisition_stops_on_a_lost_interrupt(tmp_path, capsys):
 
     acquisition.run_plan = run_plan_after_a_lost_interrupt
     try:
-        with cli._signals_as_interrupts(), pytest.raises(acquisition.AcquisitionStopped) as stopped:
+        with interrupts.signals_as_interrupts(), pytest.raises(acquisition.AcquisitionStopped) as stopped:
             app.acquire(app.AcquireSettings(str(tmp_path / "rec.csv"), scenario="paper-white"))
     finally:
         acquisition.run_plan = original

@@ -10,7 +10,7 @@ import os
 
 import pytest
 
-from .harness import PROFILES, build_base
+from spacecal.testing.fuzz import PROFILES, build_base
 
 
 def profile() -> str:

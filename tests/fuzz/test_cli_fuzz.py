@@ -15,8 +15,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from spacecal.testing.fuzz import COMMANDS, DrawPick, build_case, plan_cases, prepare, run_case
+
 from .conftest import profile
-from .harness import COMMANDS, DrawPick, build_case, plan_cases, prepare, run_case
 
 PLAN = [(command, klass, count) for command, klass, count in plan_cases(profile()) if count > 0]
 
@@ -24,7 +25,7 @@ PLAN = [(command, klass, count) for command, klass, count in plan_cases(profile(
 @pytest.fixture(scope="module")
 def clean_calibration(fuzz_base, tmp_path_factory):
     """The calibration of the unmodified recording (what valid variants must reproduce)."""
-    from .harness import Case
+    from spacecal.testing.fuzz import Case
 
     folder = tmp_path_factory.mktemp("clean") / "run"
     prepare(fuzz_base, folder)

@@ -3,7 +3,7 @@ samples files (``import-easy-handeye``) and TUM trajectories (``import-poses``).
 
 Every case is seeded. Each must exit 0 or 1, with exactly one line on stderr for 1, no
 traceback and no "internal error", finish within its time limit, leave its inputs unchanged,
-and write no NaN or Infinity (:func:`harness.run_case` classifies it). Cases whose right answer
+and write no NaN or Infinity (:func:`spacecal.testing.fuzz.run_case` classifies it). Cases whose right answer
 is known (a NaN pose among good ones is skipped and named; a stream that is mostly garbage is
 refused, naming the message) also check that answer.
 """
@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from spacecal.testing.fuzz import Case, run_case
+
 from .bags import write_small_bag
-from .harness import Case, run_case
 
 pytest.importorskip("rosbags")
 yaml = pytest.importorskip("yaml")

@@ -18,8 +18,7 @@ from spacecal.adapters import igtl
 from spacecal.adapters.igtl import IGTLTracker
 from spacecal.core.errors import DeviceError
 from spacecal.core.ports import FRAME_STATUSES, plausible_tracked_pose
-
-from ..fakes.igtl import (
+from spacecal.testing.fakes.igtl import (
     HEADER,
     pack_message,
     position_content,
@@ -27,7 +26,7 @@ from ..fakes.igtl import (
     tdata_content,
     transform_content,
 )
-from ..fakes.peers import Peer
+from spacecal.testing.fakes.peers import Peer
 
 #: Seeded cases; each is a few hundred ms (the reader's backlog drain, then the stream).
 CASES = 150

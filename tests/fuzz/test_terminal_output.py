@@ -54,7 +54,7 @@ def test_doctor_findings_are_printed_inert(monkeypatch, capsys):
         ("tracker", DeviceFinding(FINDING_WARNING, "tool", f"device {ESCAPES} streams")),
         ("robot", DeviceFinding(FINDING_PROBLEM, f"name{ESCAPES}", "x" * 10_000)),
     ]
-    monkeypatch.setattr(cli.app, "doctor", lambda settings: cli.app.DoctorOutput(findings))
+    monkeypatch.setattr(cli.app, "doctor", lambda settings: cli.app.doctor_result(findings))
     code = cli.main(["doctor", "--tracker", "igtl://localhost:18944"])
     out = capsys.readouterr().out
     assert code == 1 and _inert(out)

@@ -142,17 +142,7 @@ def test_recording_resume_time_skips_a_grouped_number(tmp_path):
 
 def _raw_recording() -> RawRecording:
     """The test recording as raw streams (the tracker on the robot's clock)."""
-    recording = _recording()
-    return RawRecording(
-        recording.time_s,
-        recording.segment,
-        recording.joints_rad,
-        recording.base_from_tcp_stack,
-        recording.time_s,
-        recording.tracker_from_marker_stack,
-        recording.marker_rms_mm,
-        {},
-    )
+    return RawRecording.from_paired(_recording(), metadata={})
 
 
 def test_raw_streams_refuse_digit_groups(tmp_path):

@@ -16,7 +16,7 @@ from spacecal.records import PhantomResult
 def calibration_file(tmp_path_factory, recording_file):
     folder = tmp_path_factory.mktemp("app-report")
     out = app.calibrate(app.CalibrateSettings(str(recording_file), str(folder / "cal.json"), method="ml"))
-    return out.path
+    return out.files_written[0]
 
 
 def phantom_file(folder):
@@ -64,5 +64,7 @@ def test_png_dir_gets_every_figure(calibration_file, tmp_path):
     out = app.report(
         app.ReportSettings(str(calibration_file), str(tmp_path / "r.html"), png_dir=str(tmp_path / "png"))
     )
-    assert [p.name for p in out.figures] == ["sweeps.png", "residuals.png", "uncertainty.png"]
-    assert all(p.stat().st_size > 10_000 for p in out.figures)
+    html, *figures = out.files_written
+    assert html == tmp_path / "r.html"
+    assert [p.name for p in figures] == ["sweeps.png", "residuals.png", "uncertainty.png"]
+    assert all(p.stat().st_size > 10_000 for p in figures)

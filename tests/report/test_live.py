@@ -25,7 +25,7 @@ def fetch(url: str) -> dict:
 
 def acquire(folder, observer=None):
     settings = app.AcquireSettings(str(folder / "rec.csv"), scenario="paper-white")
-    return app.acquire(settings, observer=observer).result
+    return app.acquire(settings, observer=observer).record.result
 
 
 def test_the_view_follows_a_simulated_acquisition(tmp_path):

@@ -1,4 +1,4 @@
-"""The station in headless Chromium on the UR and NDI protocol fakes (``tests/fakes``, with
+"""The station in headless Chromium on the UR and NDI protocol fakes (``spacecal.testing.fakes``, with
 the real client libraries): a new robot and tracker, their findings, the dry run, and an
 acquisition whose STOP stills the fake controller's arm within the command line's stop times.
 

@@ -341,7 +341,7 @@ def test_a_calibration_from_raw_streams_has_its_misfits_expected(tmp_path, capsy
             tracker_stream=str(tmp_path / "rec.tracker.csv"),
         )
     )
-    checked = app.check(app.CheckSettings(str(tmp_path / "cal.json"), poses=2))
+    checked = app.check(app.CheckSettings(str(tmp_path / "cal.json"), poses=2)).record
     assert checked.result is not None and checked.result.passed
     assert "departures from the misfit the calibration left" in checked.threshold_basis
 

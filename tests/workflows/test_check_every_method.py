@@ -73,15 +73,15 @@ def test_a_sound_set_up_passes_and_a_moved_tracker_or_a_bumped_marker_fails(
 ):
     path = str(calibration_file(recordings, case, method))
     with set_up(monkeypatch):
-        sound = app.check(app.CheckSettings(path))
+        sound = app.check(app.CheckSettings(path)).record
     result = sound.result
     assert result is not None and result.expected_misfit_mm is not None
     assert "departures from the misfit the calibration left" in sound.threshold_basis
     assert result.passed, (result.tcp_error_mm, result.tolerance_mm, result.rotation_error_deg)
     with set_up(monkeypatch, move_mm=2.0):
-        moved = app.check(app.CheckSettings(path, poses=2)).result
+        moved = app.check(app.CheckSettings(path, poses=2)).record.result
     with set_up(monkeypatch, turn_deg=1.0):
-        bumped = app.check(app.CheckSettings(path, poses=2)).result
+        bumped = app.check(app.CheckSettings(path, poses=2)).record.result
     assert moved is not None and not moved.passed and np.all(moved.tcp_error_mm > moved.tolerance_mm)
     assert (
         bumped is not None and not bumped.passed and np.all(bumped.rotation_error_deg > bumped.tolerance_deg)

@@ -1,4 +1,4 @@
-"""App functions that move a robot: ``acquire``, ``check``, and ``plan`` (which plans motions).
+"""App function ``acquire``: run the calibration motion on a robot while sampling the tracker.
 
 This is where devices are chosen: ``sim`` gives the simulated robot and tracker of a scenario
 (running in simulated time), URLs give hardware adapters (``ur://HOST``, ``ndi://PORT_OR_HOST``,
@@ -8,7 +8,6 @@ This is where devices are chosen: ``sim`` gives the simulated robot and tracker 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -17,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import open_calibration, other_devices, refuse_overwriting_inputs
+from spacecal.app._common import open_calibration, refuse_overwriting_inputs
 from spacecal.app.devices import (
     DeviceSettings,
     HardwareModel,
@@ -31,55 +30,28 @@ from spacecal.app.devices import (
     tracker_findings,
     upload_control_program,
 )
-from spacecal.app.gate import COMMANDED_BY, acquisition_gate, gate_plan, plan_workspace, world_visibility
+from spacecal.app.gate import acquisition_gate
+from spacecal.app.result import CommandResult, note_lines
+from spacecal.app.run_plan import hardware_plan, motion_limits, planned_motion
 from spacecal.app.simulation import DEFAULT_SCENARIO
-from spacecal.core.errors import DegenerateDataError, InvalidInputError, SpacecalError
+from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import (
     Robot,
     Tracker,
 )
-from spacecal.experiments.simulation import simulation_settings
-from spacecal.geometry.rotations import rotation_angle
-from spacecal.io.acquisition_progress import resume_home_joints
-from spacecal.io.check_history import append_history, history_path
-from spacecal.io.ndi_rom import read_rom_marker
+from spacecal.io.raw_streams import raw_stream_paths
 from spacecal.io.recording_csv import last_time_s
-from spacecal.io.recording_source import open_calibrated_recording
-from spacecal.io.results_json import read_json_object, write_json
-from spacecal.models.kinematics import RobotModel
-from spacecal.models.marker import ndi_8700339_like
-from spacecal.models.tracker import TrackerModel
-from spacecal.planning.check_poses import check_plan
-from spacecal.planning.motion import MotionLimits, MotionPlan, motion_plan_from_record, planned_moves
+from spacecal.planning.motion import MotionLimits
 from spacecal.planning.motion_gate import MotionGateReport
-from spacecal.planning.optimal import PlannerSettings, needle_site, paper_sweep_site_error, plan_for_site
-from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
+from spacecal.planning.paper_sweeps import PaperSweepSettings
 from spacecal.planning.stop_and_go import stop_and_go_plan
-from spacecal.planning.visibility import VisibilityModel
-from spacecal.records import CalibrationResult, CheckResult, PlanRecord, robot_model_to_dict
+from spacecal.records import robot_model_to_dict
 from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import Scenario, load_scenario
 from spacecal.sim.world import World, build_world
-from spacecal.workflows.acquisition import (
-    AcquisitionResult,
-    AcquisitionSettings,
-    FrameObserver,
-    raw_stream_paths,
-)
+from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, FrameObserver
 from spacecal.workflows.acquisition import acquire as run_acquisition
-from spacecal.workflows.check import (
-    FALSE_ALARM_RATE,
-    ExpectedMisfit,
-    MisfitField,
-    check_thresholds,
-    check_with_recording,
-    check_with_robot,
-    expected_misfits,
-    misfit_field,
-    robot_repeatability_sd_mm,
-    tolerance_factor,
-)
 
 #: Accepted ranges of the acquisition's numeric settings (a tiny speed would never finish).
 ACQUIRE_RANGES = {
@@ -124,6 +96,9 @@ class AcquireSettings:
     stop_and_go : int
         0: sample while moving. N > 0: stop at stations along each recorded move, let the arm
         settle and average N frames per station (no sample depends on the clock offset).
+    live_view : int or None
+        Show the marker, the sweeps and the samples in a web browser at
+        ``http://127.0.0.1:PORT/`` while the motion runs (0: any free port); not on a dry run.
     """
 
     output: str
@@ -141,6 +116,7 @@ class AcquireSettings:
     translation_mm: float = PaperSweepSettings.translation_stroke_mm
     plan: str | None = None
     stop_and_go: int = 0
+    live_view: int | None = None
 
     def __post_init__(self) -> None:
         if not (
@@ -169,7 +145,6 @@ class AcquireOutput:
 
     moves: int
     motion_time_s: float
-    messages: list[str] = field(default_factory=list)
     dry_run: bool = False
     result: AcquisitionResult | None = None
     simulated: bool = True
@@ -185,14 +160,6 @@ def simulated_devices(
     world = build_world(load_scenario(scenario) if isinstance(scenario, str) else scenario)
     robot = SimulatedRobot(world, SimClock(start_s), stream_states=True)
     return world, robot, SimulatedTracker(world, robot)
-
-
-def motion_limits(settings: AcquireSettings) -> MotionLimits:
-    return MotionLimits(
-        linear_speed_mm_s=settings.speed_mm_s,
-        linear_accel_mm_s2=settings.accel_mm_s2,
-        angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
-    )
 
 
 @contextlib.contextmanager
@@ -217,85 +184,6 @@ def opened_devices(
     finally:
         for device in (robot, tracker):
             close_device(device)
-
-
-def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) -> MotionPlan:
-    """The paper's sweeps from the robot's current configuration (its home), planned with the
-    controller's own kinematic model."""
-    state = robot.state()
-    home_joints = resume_home_joints(settings.output) if settings.resume else None
-    visibility = None
-    prior_notes: list[str] = []
-    if settings.prior:
-        prior, prior_notes = open_calibration(settings.prior, "acquire --prior")
-        # the marker in use when its tool definition is given, else the nominal layout: the
-        # visibility prediction needs only its face and extent
-        marker = read_rom_marker(settings.devices.rom[0]) if settings.devices.rom else ndi_8700339_like()
-        visibility = VisibilityModel(TrackerModel(), marker, prior.tracker_from_base, prior.tcp_from_marker)
-    sweep = PaperSweepSettings(
-        rotation_each_way_deg=settings.rotation_deg,
-        translation_stroke_mm=settings.translation_mm,
-        limits=motion_limits(settings),
-    )
-    # On resume the plan is rebuilt from the home it was made from, not from where the robot stopped.
-    start = state.joints_rad if home_joints is None else home_joints
-    plan = plan_paper_sweeps(model, start, sweep, visibility)
-    if visibility is None:
-        plan.messages.append("no --prior calibration: marker visibility was not checked")
-    else:
-        plan.messages.extend(prior_notes)
-    return plan
-
-
-#: How far (joints, rad; TCP, mm) the robot may stand from a plan's home and still run it.
-PLAN_HOME_RAD, PLAN_HOME_MM = 0.01, 1.0
-#: Largest difference between the plan's tool and the configured one (mm, and rad).
-PLAN_TOOL_MM, PLAN_TOOL_RAD = 0.1, 1e-3
-
-
-def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -> MotionPlan:
-    """The plan file of ``settings.plan``, checked against the robot, its tool and where it stands.
-
-    Raises
-    ------
-    InvalidInputError
-        The file holds no runnable plan, was made for another robot or tool, or the robot
-        does not stand at its home (nothing has moved).
-    """
-    assert settings.plan is not None
-    record = PlanRecord.from_dict(read_json_object(settings.plan, "plan"), what=settings.plan)
-    plan = motion_plan_from_record(record)
-    if record.robot_model not in (model.name, "unknown"):
-        raise InvalidInputError(
-            f"{settings.plan} was planned for a {record.robot_model}, not this {model.name}; "
-            "plan again for this robot"
-        )
-    tool_difference = np.linalg.inv(record.flange_from_tcp) @ model.flange_from_tcp
-    if (
-        np.linalg.norm(tool_difference[:3, 3]) > PLAN_TOOL_MM
-        or rotation_angle(tool_difference[:3, :3]) > PLAN_TOOL_RAD
-    ):
-        raise InvalidInputError(
-            f"{settings.plan} was planned for another tool (TCP in flange "
-            f"{np.round(record.flange_from_tcp[:3, 3], 1).tolist()} mm) than the one configured "
-            f"({np.round(model.flange_from_tcp[:3, 3], 1).tolist()} mm); plan again with this tool"
-        )
-    state = robot.state()
-    joints_off = float(np.max(np.abs(state.joints_rad - record.home_joints_rad)))
-    tcp_off = float(np.linalg.norm(state.base_from_tcp[:3, 3] - record.home_base_from_tcp[:3, 3]))
-    if joints_off > PLAN_HOME_RAD or tcp_off > PLAN_HOME_MM:
-        raise InvalidInputError(
-            f"the robot stands {tcp_off:.1f} mm (joints up to {np.degrees(joints_off):.1f} deg) "
-            "from the plan's home; "
-            f"move it to the home joints {np.round(np.degrees(record.home_joints_rad), 2).tolist()} deg, "
-            "or plan from where it stands"
-        )
-    if record.simulated_setup and not settings.devices.simulated:
-        plan.messages.append(
-            f"the plan was made for the simulated set-up '{record.scenario}': marker visibility "
-            "was predicted there, not for this tracker"
-        )
-    return plan
 
 
 def hardware_metadata(
@@ -341,7 +229,8 @@ def acquire(
     on_sample: Callable[[int, int, int, str], None] | None = None,
     observer: FrameObserver | None = None,
     on_plan: Callable[[int], None] | None = None,
-) -> AcquireOutput:
+    on_line: Callable[[str], None] | None = None,
+) -> CommandResult[AcquireOutput]:
     """Plan, check and (unless a dry run) run the calibration motion, writing the recording.
 
     Parameters
@@ -354,8 +243,66 @@ def acquire(
     observer : FrameObserver, optional
         Sees every tracker frame, e.g. ``LiveView(...).observe`` of
         :mod:`spacecal.report.live`; it must return at once, and a failing one is detached
-        with a warning.
+        with a warning. ``settings.live_view`` opens such a view itself.
+    on_line : callable, optional
+        Called with each line to show at once while the command runs (where the live view is).
+
+    Returns
+    -------
+    CommandResult of AcquireOutput
+        The plan checked or run and, unless a dry run, the acquisition's result; the recording
+        and raw streams written.
     """
+    view = None
+    if settings.live_view is not None and not settings.dry_run:
+        from spacecal.report.live import LiveView
+
+        view = LiveView(settings.live_view)
+        if view.start():
+            if on_line is not None:
+                on_line(f"live view: {view.url} (open it in a web browser)")
+            observer = view.observe
+        else:
+            view = None
+    try:
+        output, notes = _acquire(settings, on_sample, observer, on_plan)
+    finally:
+        if view is not None:
+            view.close()
+    return acquire_result(output, notes)
+
+
+def acquire_result(output: AcquireOutput, notes: tuple[str, ...] = ()) -> CommandResult[AcquireOutput]:
+    """The result of ``acquire`` from what it planned and ran, and its notes (the dry run's
+    device checks, the plan's messages)."""
+    lines = [
+        f"plan: {output.moves} moves, {output.motion_time_s:.1f} s of motion"
+        + (" (simulated devices, simulated time)" if output.simulated else ""),
+        *note_lines(notes),
+    ]
+    files: tuple[Path, ...] = ()
+    if output.dry_run:
+        lines += [*(output.gate.lines() if output.gate is not None else []), "dry run: nothing moved"]
+    else:
+        if output.gate is not None:
+            lines.append(output.gate.summary())
+        r = output.result
+        assert r is not None
+        files = (r.recording_path, *(r.raw_paths or ()))
+        lines += [
+            "",
+            f"wrote {r.recording_path}: {r.samples_written} samples, {r.visible_written} with the marker "
+            f"seen; {r.moves_completed}/{r.moves_total} moves",
+        ]
+    return CommandResult(output, files, notes, tuple(lines))
+
+
+def _acquire(
+    settings: AcquireSettings,
+    on_sample: Callable[[int, int, int, str], None] | None,
+    observer: FrameObserver | None,
+    on_plan: Callable[[int], None] | None,
+) -> tuple[AcquireOutput, tuple[str, ...]]:
     # the recording itself: the acquisition refuses an existing one unless resuming it
     refuse_overwriting_inputs(
         settings.output,
@@ -400,16 +347,11 @@ def acquire(
         if on_plan is not None:
             on_plan(len(plan.moves))
         gate = acquisition_gate(settings, plan, model, robot.state(), motion_limits(settings), world)
-        output = AcquireOutput(
-            len(plan.moves),
-            plan.motion_time_s,
-            checks + list(plan.messages),
-            simulated=world is not None,
-            gate=gate,
-        )
+        output = AcquireOutput(len(plan.moves), plan.motion_time_s, simulated=world is not None, gate=gate)
+        notes = (*checks, *plan.messages)
         if settings.dry_run:
             output.dry_run = True
-            return output
+            return output, notes
         if world is None and not settings.confirm_robot_motion:
             raise InvalidInputError(
                 "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
@@ -449,391 +391,4 @@ def acquire(
             on_sample=on_sample,
             observer=observer,
         )
-        return output
-
-
-@dataclass(frozen=True)
-class CheckSettings:
-    """``spacecal check``: does a calibration still hold before surgery?
-
-    Attributes
-    ----------
-    calibration : str
-        Calibration JSON.
-    recording : str or None
-        A recording to check against instead of moving the robot.
-    devices : DeviceSettings
-        The robot and tracker, as for ``acquire``: ``sim`` (the simulated system of
-        ``scenario``) or device URLs.
-    scenario : str or None
-        Simulated devices only; default: the scenario the calibration's data came from.
-    poses : int
-        Two or three poses near where the robot stands (the site).
-    threshold_mm, threshold_deg : float or None
-        Largest TCP and rotation errors that pass: departures from the misfit the calibration
-        left at each pose (predicted from its recording), or the whole misfit where that cannot
-        be predicted. By default each pose's tolerance from the repeatability the recording
-        shows (:func:`spacecal.workflows.check.pose_tolerances`), else from the calibration's
-        expected error and residuals (:func:`spacecal.workflows.check.check_thresholds`).
-    dry_run : bool
-        Plan and check the poses (reach, joint limits) without moving.
-    confirm_robot_motion : bool
-        Required to move a real robot.
-    workspace_box : tuple of 6 floats or None
-        ``xmin, xmax, ymin, ymax, zmin, zmax`` in base (mm) the TCP must stay in.
-    frames_per_pose : int
-        Tracker frames averaged at each pose.
-    accept_edited : bool
-        Check a calibration edited since it was written (its content hash differs).
-    accept_other_devices : bool
-        Check on real devices other than those the calibration records (URLs, robot model).
-    """
-
-    calibration: str
-    recording: str | None = None
-    devices: DeviceSettings = field(default_factory=DeviceSettings)
-    scenario: str | None = None
-    poses: int = 3
-    threshold_mm: float | None = None
-    threshold_deg: float | None = None
-    dry_run: bool = False
-    confirm_robot_motion: bool = False
-    workspace_box: tuple[float, float, float, float, float, float] | None = None
-    frames_per_pose: int = 10
-    accept_edited: bool = False
-    accept_other_devices: bool = False
-
-    def __post_init__(self) -> None:
-        if self.poses not in (2, 3):
-            raise InvalidInputError(f"--poses takes 2 or 3, got {self.poses}")
-        for name in ("threshold_mm", "threshold_deg"):
-            value = getattr(self, name)
-            if value is not None and not (math.isfinite(value) and 1e-3 <= value <= 1e3):
-                raise InvalidInputError(f"--{name.replace('_', '-')} must be a positive number, got {value}")
-        if not 3 <= self.frames_per_pose <= 1000:
-            raise InvalidInputError(f"--frames-per-pose must be 3..1000, got {self.frames_per_pose}")
-
-
-@dataclass(frozen=True)
-class CheckOutput:
-    """The check's result and history file (None after a dry run), and how the thresholds came."""
-
-    result: CheckResult | None
-    history: Path | None
-    threshold_basis: str = ""
-    messages: list[str] = field(default_factory=list)
-    #: What the motion gate checked before the robot moved (None: checked against a recording).
-    gate: MotionGateReport | None = None
-
-
-def check(settings: CheckSettings) -> CheckOutput:
-    """Check a calibration at two or three poses near where the robot stands (simulated or real
-    devices, with the same safety as ``acquire``) or against a recording; the result, whether
-    real or simulated and on which devices, is appended to the calibration's check history."""
-    from spacecal.app.simulation import scenario_of_calibration
-
-    calibration, notes = open_calibration(settings.calibration, "check", settings.accept_edited)
-    averaged = 1 if settings.recording else settings.frames_per_pose
-    derived_mm, derived_deg, basis = check_thresholds(calibration, averaged)
-    field, unpredicted = (None, "") if settings.recording else calibration_misfits(calibration)
-    derived_basis = basis
-    threshold_mm = settings.threshold_mm if settings.threshold_mm is not None else derived_mm
-    threshold_deg = settings.threshold_deg if settings.threshold_deg is not None else derived_deg
-    if settings.threshold_mm is not None or settings.threshold_deg is not None:
-        basis = (
-            "given on the command line"
-            if None not in (settings.threshold_mm, settings.threshold_deg)
-            else (basis + "; partly given on the command line")
-        )
-    if settings.recording:
-        opened = open_calibrated_recording(calibration, settings.recording)
-        if opened is None:
-            raise InvalidInputError(f"{settings.recording}: no such recording")
-        result = check_with_recording(calibration, opened.recording, threshold_mm, threshold_deg)
-        result = _with(
-            result,
-            simulated=None,
-            devices={"recording": str(Path(settings.recording).resolve())},
-            basis=basis,
-        )
-        history = append_history(settings.calibration, result, calibration.content_sha256)
-        return CheckOutput(result, history, basis, notes)
-    scenario: Scenario | None = None
-    if settings.devices.simulated:
-        scenario = (
-            load_scenario(settings.scenario)
-            if settings.scenario is not None
-            else scenario_of_calibration(calibration)[0]
-        )
-        if scenario is None:
-            raise InvalidInputError("no scenario given and none found with the calibration; pass --scenario")
-    # the check's motion: the acquisition's defaults (speeds), on the check's devices
-    moving = AcquireSettings(
-        output=str(history_path(settings.calibration)),
-        devices=settings.devices,
-        workspace_box=settings.workspace_box,
-        dry_run=settings.dry_run,
-    )
-    devices = settings.devices
-    robot_identity: dict[str, str] = {}
-    tracker_identity: dict[str, str] = {}
-    with opened_devices(moving, scenario) as (robot, tracker, world):
-        if world is None:
-            hardware, findings = robot_findings(robot, devices.robot_model, devices.tool)
-            refuse_when_not_ready(findings)
-            model = hardware.model
-            robot_identity, tracker_identity = device_identity(robot), device_identity(tracker)
-            notes += other_devices(
-                calibration,
-                str(devices.robot),
-                str(devices.tracker),
-                model.name,
-                settings.accept_other_devices,
-                robot_identity=robot_identity,
-                tracker_identity=tracker_identity,
-            )
-        else:
-            model = world.controller_model
-        model = calibration.robot_model_for_ik(model)
-        frame_period = (
-            1.0 / world.scenario.tracker_rate_hz if world is not None else 1.0 / devices.tracker_rate_hz
-        )
-        plan = check_plan(
-            model,
-            robot.state().joints_rad,
-            settings.poses,
-            motion_limits(moving),
-            frame_period,
-            settings.frames_per_pose,
-        )
-        gate = gate_plan(
-            plan,
-            model,
-            robot.state(),
-            motion_limits(moving),
-            plan_workspace(model, plan, moving.workspace_box),
-            visibility=None if world is None else world_visibility(world),
-            visibility_note="not predicted on real devices (the check poses are within 45 mm and 10 deg "
-            "of where the robot stands)",
-            commanded_by=COMMANDED_BY,
-        )
-        expected, basis = expected_at_check_poses(
-            field, unpredicted, plan, settings, model.name, derived_basis
-        )
-        if settings.dry_run:
-            return CheckOutput(
-                None,
-                None,
-                basis,
-                [
-                    *notes,
-                    f"{settings.poses} check poses planned, {plan.motion_time_s:.1f} s of motion; "
-                    "nothing moved",
-                ],
-                gate,
-            )
-        if world is None and not settings.confirm_robot_motion:
-            raise InvalidInputError(
-                "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
-            )
-        if world is None:
-            upload_control_program(robot)
-        run_settings = (
-            simulation_settings(world.scenario)
-            if world is not None
-            else AcquisitionSettings(
-                linear_speed_mm_s=moving.speed_mm_s, linear_accel_mm_s2=moving.accel_mm_s2
-            )
-        )
-        result = check_with_robot(
-            calibration,
-            robot,
-            tracker,
-            plan,
-            settings.threshold_mm if expected is not None else threshold_mm,
-            settings.threshold_deg if expected is not None else threshold_deg,
-            run_settings,
-            settings.frames_per_pose,
-            expected=expected,
-            robot_sd_mm=robot_repeatability_sd_mm(model.name),
-            basis=basis,
-        )
-    identity = (
-        {"robot": "sim", "tracker": "sim", "scenario": world.scenario.name}
-        if world is not None
-        else {
-            "robot": devices.robot,
-            "tracker": devices.tracker,
-            # the check history names the devices it ran on as they named themselves
-            **{f"robot_{key}": value for key, value in robot_identity.items()},
-            **{f"tracker_{key}": value for key, value in tracker_identity.items()},
-        }
-    )
-    result = _with(result, simulated=world is not None, devices=identity)
-    history = append_history(settings.calibration, result, calibration.content_sha256)
-    return CheckOutput(result, history, basis, notes, gate=gate)
-
-
-def calibration_misfits(calibration: CalibrationResult) -> tuple[MisfitField | None, str]:
-    """The misfits the calibration left at the frames of its recording (opened as the calibration
-    paired it: :func:`~spacecal.io.recording_source.open_calibrated_recording`), or None and why
-    not."""
-    try:
-        opened = open_calibrated_recording(calibration)
-        if opened is None:
-            named = calibration.provenance.recording
-            return (
-                None,
-                f"its recording {named} is not there" if named else "the calibration names no recording",
-            )
-        return misfit_field(calibration, opened.recording, str(opened.path)), ""
-    except (SpacecalError, OSError) as exc:
-        return None, str(exc)
-
-
-def expected_at_check_poses(
-    field: MisfitField | None,
-    unpredicted: str,
-    plan: MotionPlan,
-    settings: CheckSettings,
-    robot_model: str,
-    fallback_basis: str,
-) -> tuple[list[ExpectedMisfit] | None, str]:
-    """The misfit expected at each check pose and the thresholds' basis; None and the basis of
-    :func:`~spacecal.workflows.check.check_thresholds` (saying why) when it cannot be predicted."""
-    given = [settings.threshold_mm is not None, settings.threshold_deg is not None]
-    expected = None
-    if field is not None:
-        try:
-            expected = expected_misfits(field, plan)
-        except DegenerateDataError as exc:
-            unpredicted = str(exc)
-    if expected is None:
-        if all(given):
-            return None, "given on the command line"
-        basis = f"{fallback_basis}, as no misfit can be expected at the poses ({unpredicted})"
-        return None, basis + ("; partly given on the command line" if any(given) else "")
-    if all(given):
-        return expected, "departures from the misfit left at each pose, thresholds given on the command line"
-    frames = len(field) if field is not None else 0
-    basis = (
-        f"departures from the misfit the calibration left at each pose (from {frames} frames of its "
-        f"recording) within {tolerance_factor(len(expected)):.2f} s.d. of the repeatability there (the "
-        f"recorded scatter, the tracker's over {settings.frames_per_pose} frames, the {robot_model}'s "
-        f"ISO 9283 repeatability): a sound set-up fails at most {FALSE_ALARM_RATE:.0%} of checks"
-    )
-    return expected, basis + ("; partly given on the command line" if any(given) else "")
-
-
-def _with(result: CheckResult, **changes: Any) -> CheckResult:
-
-    return dataclasses.replace(result, **changes)
-
-
-@dataclass(frozen=True)
-class PlanSettings:
-    """``spacecal plan``: a calibration motion for the smallest predicted error at the site.
-
-    Attributes
-    ----------
-    budget_s : float
-        Motion time allowed, s.
-    scenario : str
-        The (simulated) set-up to plan for: tracker placement, marker, robot and its home.
-    frames_per_station : int
-        Tracker frames held at each station.
-    site_mm : (x, y, z) or None
-        Where the needle tip will work, mm in the robot base; default the TCP at home.
-    needle_path_mm : (entry x, y, z, target x, y, z) or None
-        A planned needle path in the robot base, mm: the site is its target, with the needle
-        along the path (instead of ``site_mm``).
-    paper_sweeps : bool
-        Write the paper's six sweeps (paper §4) from home as the plan instead.
-    output : str or None
-        Plan JSON to write (``docs/formats.md``); ``acquire --plan`` and ``simulate --plan`` run it.
-    """
-
-    budget_s: float = PlannerSettings.budget_s
-    scenario: str = DEFAULT_SCENARIO
-    frames_per_station: int = PlannerSettings.frames_per_station
-    site_mm: tuple[float, float, float] | None = None
-    paper_sweeps: bool = False
-    output: str | None = None
-    force: bool = False
-    needle_path_mm: tuple[float, float, float, float, float, float] | None = None
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.budget_s) and 1 <= self.budget_s <= 3600):
-            raise InvalidInputError(f"--budget must be between 0 and 3600 s, got {self.budget_s}")
-        if not 1 <= self.frames_per_station <= 1000:
-            raise InvalidInputError(f"--frames-per-station must be 1..1000, got {self.frames_per_station}")
-        if self.site_mm is not None:
-            site = np.asarray(self.site_mm, dtype=float)
-            if site.shape != (3,) or not np.all(np.isfinite(site)) or np.any(np.abs(site) > 5000):
-                raise InvalidInputError("--site takes finite x,y,z in mm (robot base), each within +-5000 mm")
-        if self.needle_path_mm is not None:
-            path = np.asarray(self.needle_path_mm, dtype=float)
-            if path.shape != (6,) or not np.all(np.isfinite(path)) or np.any(np.abs(path) > 5000):
-                raise InvalidInputError(
-                    "--needle-path takes the entry and target x,y,z in mm (robot base), each within +-5000 mm"
-                )
-            if self.site_mm is not None:
-                raise InvalidInputError("give --site or --needle-path, not both")
-
-
-def plan(settings: PlanSettings) -> tuple[PlanRecord, Path | None]:
-    """Plan the motion and compare it with the paper's sweeps; returns the plan and the file."""
-    refuse_overwriting_inputs(settings.output, settings.scenario, force=settings.force, any_file=True)
-    world = build_world(load_scenario(settings.scenario))
-    visibility = VisibilityModel(world.tracker, world.marker, world.tracker_from_base, world.tcp_from_marker)
-    planner = PlannerSettings(
-        budget_s=settings.budget_s,
-        frames_per_station=settings.frames_per_station,
-        sphere_sigma_mm=world.scenario.white_noise_rms_mm / np.sqrt(3) or 0.1,
-    )
-    paper = plan_for_world(world)
-    site: np.ndarray | None = None
-    if settings.site_mm is not None:
-        site = np.asarray(settings.site_mm, dtype=float)
-    elif settings.needle_path_mm is not None:
-        needle = np.asarray(settings.needle_path_mm, dtype=float)
-        site = needle_site(world.nominal_model, world.home_joints_rad, needle[:3], needle[3:])
-    paper_error = paper_sweep_site_error(world.nominal_model, paper, visibility, planner, site_in_base=site)
-    common = dict(
-        home_joints_rad=world.home_joints_rad,
-        home_base_from_tcp=paper.home_base_from_tcp,
-        robot_model=world.nominal_model.name,
-        flange_from_tcp=world.nominal_model.flange_from_tcp,
-        site_in_base=None if site is None else (site[:3, 3] if site.shape == (4, 4) else site),
-        site_base_from_tcp=site if site is not None and site.shape == (4, 4) else None,
-        paper_sweep={"motion_time_s": paper.motion_time_s, "predicted_error_mm": paper_error},
-        scenario=world.scenario.name,
-    )
-    if settings.paper_sweeps:
-        record = PlanRecord(
-            kind="paper-sweeps",
-            motion_time_s=paper.motion_time_s,
-            moves=planned_moves(paper),
-            predicted_error_mm=paper_error,
-            **common,  # type: ignore[arg-type]
-        )
-    else:
-        planned = plan_for_site(
-            world.nominal_model,
-            world.home_joints_rad,
-            visibility,
-            np.random.default_rng([world.scenario.seed, 7]),
-            planner,
-            site_in_base=site,
-        )
-        record = PlanRecord(
-            kind="site-optimal",
-            motion_time_s=planned.motion_time_s,
-            moves=planned_moves(planned.plan),
-            budget_s=planner.budget_s,
-            predicted_error_mm=planned.predicted_error_mm,
-            station_joints_rad=planned.station_joints_rad,
-            **common,  # type: ignore[arg-type]
-        )
-    path = write_json(record.to_dict(), settings.output) if settings.output else None
-    return record, path
+        return output, notes

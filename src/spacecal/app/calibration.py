@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +17,10 @@ from spacecal.app._common import (
     provenance_of,
     refuse_overwriting_inputs,
 )
+from spacecal.app.record import open_record, record_calibration
+from spacecal.app.result import CommandResult, Quality, note_lines, paths
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.estimators.likelihood import tre_lower_bound, variance_factor_of
@@ -26,7 +29,6 @@ from spacecal.estimators.observations import (
     marker_geometry_of,
     sphere_noise_from_marker_rms,
 )
-from spacecal.estimators.pivot import pivot_calibration
 from spacecal.estimators.time_offset import check_overlap, estimate_time_offset, pair_streams
 from spacecal.io.csv_core import metadata_path
 from spacecal.io.pose_files import read_matrix_folder
@@ -35,6 +37,7 @@ from spacecal.io.recording_csv import read_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import write_calibration, write_json
 from spacecal.records import CalibrationResult, PivotResult, Recording
+from spacecal.registration.pivot import pivot_calibration
 
 Point = tuple[float, float, float]
 
@@ -93,6 +96,9 @@ class CalibrateSettings:
         tracker of passive or active spheres reporting its fit RMS: refused without it) or
         ``pose`` (a tracker or camera that reports poses only: any fit RMS is ignored and the
         anisotropic noise is learnt from the residuals).
+    record : str or None
+        Also write the calibration to this record (an SQLite file or a database URL), opened
+        before anything is computed.
     """
 
     recording: str
@@ -106,6 +112,7 @@ class CalibrateSettings:
     force: bool = False
     include_doubtful_frames: bool = False
     tracker_kind: str = "auto"
+    record: str | None = None
 
 
 #: Choices of ``CalibrateSettings.tracker_kind`` (``--tracker-kind``).
@@ -126,17 +133,27 @@ def as_tracker_kind(recording: Recording, kind: str) -> Recording:
     return recording
 
 
-@dataclass(frozen=True)
-class CalibrateOutput:
-    calibration: CalibrationResult
-    path: Path
-    time_offset_note: str | None = None
-    doubtful_note: str | None = None
-    notes: list[str] = field(default_factory=list)
+def calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
+    """Read a recording (or two raw streams), calibrate it, and write the result.
+
+    Returns
+    -------
+    CommandResult of CalibrationResult
+        The calibration, the file written, its provenance and its verdict as the quality (an
+        unusable calibration is written, and does not pass).
+    """
+    ledger = open_record(settings.record) if settings.record else None
+    try:
+        out = _calibrate(settings)
+        if ledger is not None:
+            record_calibration(ledger, out, source="cli")
+    finally:
+        if ledger is not None:
+            ledger.close()
+    return out
 
 
-def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
-    """Read a recording (or two raw streams), calibrate it, and write the result."""
+def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
     refuse_overwriting_inputs(
         settings.output,
         settings.recording,
@@ -208,7 +225,58 @@ def calibrate(settings: CalibrateSettings) -> CalibrateOutput:
     result.diagnostics["tracker_kind"] = settings.tracker_kind
     if settings.tracker_stream:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
-    return CalibrateOutput(result, write_calibration(result, settings.output), note, doubtful_note, notes)
+    path = write_calibration(result, settings.output)
+    return calibrate_result(result, path, tuple(n for n in (note, doubtful_note) if n), tuple(notes))
+
+
+def calibrate_result(
+    result: CalibrationResult, path: Path, clock_notes: tuple[str, ...] = (), notes: tuple[str, ...] = ()
+) -> CommandResult[CalibrationResult]:
+    """The result of ``calibrate`` from the calibration written to ``path``, the notes on its
+    clocks and doubtful frames (printed as they are) and other notes."""
+    counts, d = result.sample_counts, result.diagnostics
+    lines = [*clock_notes, *note_lines(notes)]
+    lines.append(f"wrote {path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
+    if d.get("sphere"):
+        straight = ", ".join(
+            f"{sanitize_for_terminal(k, 60)} {v['straightness_rms_mm']:.3f} mm" for k, v in d["lines"].items()
+        )  # segment labels come from the recording file
+        lines.append(
+            f"sphere: radius {d['sphere']['radius_mm']:.2f} mm, fit RMS {d['sphere']['rms_mm']:.3f} mm; "
+            f"line straightness RMS: {straight}"
+        )
+    if "residual_position_rms_mm" in d:
+        # a kinematic calibration places the TCP with the kinematics it identified, as the
+        # report does; the line says which, so the two are read as the same quantity
+        tcp = "identified robot kinematics" if result.robot_model is not None else "recorded TCP poses"
+        lines.append(
+            f"marker residuals (RMS, {tcp}): position {d['residual_position_rms_mm']:.3f} mm, "
+            f"rotation {d['residual_rotation_rms_deg']:.3f} deg"
+        )
+    if result.predicted_tre_mm:
+        tre = result.predicted_tre_mm
+        lines.append(
+            f"predicted TRE: {tre['site']:.3f} mm at the site, {tre['cube_rms']:.3f} mm RMS over a "
+            f"{tre['cube_side_mm']:.0f} mm cube around it"
+        )
+        lines += [f"  at {t['target_in_base_mm']}: {t['tre_mm']:.3f} mm" for t in tre.get("targets", [])]
+    if "outliers" in d:
+        lines.append(f"outliers: {len(d['outliers'])} frames flagged (listed in the result file)")
+    if "position_mm" in d.get("expected_error", {}):
+        e = d["expected_error"]
+        lines.append(
+            f"expected error at a target near the site: {e['position_mm']:.2f} mm, {e['posture_deg']:.2f} deg"
+        )
+    quality = None
+    judged = result.verdict
+    if judged is not None:
+        lines.append(f"verdict: {judged.text}")
+        quality = Quality(
+            judged.usable,
+            judged.text,
+            f"calibration unusable (written to {path}): {'; '.join(judged.reasons)}",
+        )
+    return CommandResult(result, (path,), (*clock_notes, *notes), tuple(lines), quality, result.provenance)
 
 
 @dataclass(frozen=True)
@@ -250,11 +318,17 @@ def recorded_noise(recording: Recording, calibration: CalibrationResult) -> tupl
     )
 
 
-def bound(settings: BoundSettings) -> dict[str, Any]:
-    """The bound at the site, over the cube and at the targets (mm); ``sigma_mm``, the per-axis
-    sphere noise it was computed for (as given, else from the recording's tracker fit RMS), and
-    ``notes`` (a list of lines: e.g. that the calibration, of an older version, cannot be
-    verified)."""
+def bound(settings: BoundSettings) -> CommandResult[dict[str, Any]]:
+    """The Cramér–Rao lower bound on TRE for a recording.
+
+    Returns
+    -------
+    CommandResult of dict
+        The bound at the site, over the cube and at the targets (mm); ``sigma_mm``, the per-axis
+        sphere noise it was computed for (as given, else from the recording's tracker fit RMS),
+        and ``sigma_source``, where that came from. Its notes say e.g. that the calibration, of
+        an older version, cannot be verified.
+    """
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     calibration, notes = open_calibration(settings.calibration, "bound")
     opened = open_calibrated_recording(calibration, settings.recording)
@@ -274,7 +348,16 @@ def bound(settings: BoundSettings) -> dict[str, Any]:
         sigma_mm,
         check_points(settings.targets_in_base, "--target"),
     )
-    return {**found, "sigma_mm": float(sigma_mm), "sigma_source": source, "notes": notes}
+    values = {**found, "sigma_mm": float(sigma_mm), "sigma_source": source}
+    lines = [
+        *note_lines(notes),
+        f"Cramer-Rao lower bound on TRE for {settings.recording} with {values['sigma_mm']:.3g} mm per-axis "
+        f"sphere noise ({source}):",
+        f"  {values['site']:.4f} mm at the site, {values['cube_rms']:.4f} mm RMS over a "
+        f"{values['cube_side_mm']:.0f} mm cube around it",
+        *(f"  at {t['target_in_base_mm']}: {t['tre_mm']:.4f} mm" for t in values.get("targets", [])),
+    ]
+    return CommandResult(values, notes=tuple(notes), lines=tuple(lines))
 
 
 @dataclass(frozen=True)
@@ -300,8 +383,14 @@ class PivotSettings:
     force: bool = False
 
 
-def pivot(settings: PivotSettings) -> tuple[PivotResult, Path | None]:
-    """Pivot calibration; returns the result and the file written (if any)."""
+def pivot(settings: PivotSettings) -> CommandResult[PivotResult]:
+    """Pivot calibration.
+
+    Returns
+    -------
+    CommandResult of PivotResult
+        The tip and pivot point; the result JSON written, if asked.
+    """
     source = Path(settings.poses)
     refuse_overwriting_inputs(
         settings.output, settings.poses, settings.subset, force=settings.force, any_file=True
@@ -326,4 +415,19 @@ def pivot(settings: PivotSettings) -> tuple[PivotResult, Path | None]:
         poses = read_recording(source).tracker_from_marker_stack
     result = pivot_calibration(poses, settings.method)
     path = write_json(result.to_dict(), settings.output) if settings.output else None
-    return result, path
+    return pivot_result(result, paths(path))
+
+
+def pivot_result(result: PivotResult, files: tuple[Path, ...] = ()) -> CommandResult[PivotResult]:
+    """The result of ``pivot`` from its pivot calibration and the file written."""
+    summary = result.to_dict()
+    lines = [
+        *(f"wrote {path}" for path in files),
+        f"pivot calibration ({result.method}, {summary['frames']} frames)",
+        "  tip in marker   (mm): " + ", ".join(f"{v:.3f}" for v in result.tip_in_marker),
+        "  pivot in tracker (mm): " + ", ".join(f"{v:.3f}" for v in result.pivot_in_tracker),
+        f"  residual: RMS {result.rms_mm:.3f} mm (3-D), {result.rms_per_axis_mm:.3f} mm per axis "
+        f"(scikit-surgerycalibration's figure), mean {summary['residual_mean_mm']:.3f}, "
+        f"max {summary['residual_max_mm']:.3f} mm",
+    ]
+    return CommandResult(result, files, lines=tuple(lines))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -279,3 +280,24 @@ def finding_line(device: str, finding: DeviceFinding) -> str:
 
 def tracker_findings(tracker: Tracker) -> list[DeviceFinding]:
     return list(tracker.preflight()) if isinstance(tracker, Preflight) else []
+
+
+def device_url_forms(role: str) -> str:
+    """The URL forms a ``robot`` or ``tracker`` device takes, e.g. ``ur://HOST`` (for help texts)."""
+    from spacecal.adapters import DEVICE_SCHEMES
+
+    return " or ".join(row.form for row in DEVICE_SCHEMES.values() if row.role == role)
+
+
+def end_programs_left_running() -> bool:
+    """After a dropped robot connection the robot library's own threads may still be
+    reconnecting (and may upload their program to the controller again): stop the program once
+    more. True when such threads were left, and so the process should end at once, without the
+    interpreter's teardown, which would destroy the library's objects under those threads (a
+    crash instead of the command's exit code)."""
+    # only a robot adapter that was imported can have left anything running
+    ur = sys.modules.get("spacecal.adapters.ur")
+    if ur is None or not ur.interfaces_left_running():
+        return False
+    ur.end_programs_left_running()
+    return True

@@ -12,13 +12,16 @@ from dataclasses import dataclass, field
 from spacecal.app.devices import (
     DeviceSettings,
     close_device,
+    finding_line,
     open_robot,
     open_tracker,
     robot_findings,
     tracker_findings,
 )
+from spacecal.app.result import NOTE_CHARS, CommandResult, Quality
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import FINDING_PROBLEM, DeviceFinding
+from spacecal.core.text import sanitize_for_terminal
 
 
 @dataclass(frozen=True)
@@ -51,8 +54,14 @@ def _connection_problem(exc: Exception) -> DeviceFinding:
     return DeviceFinding(FINDING_PROBLEM, "connection", " ".join(str(exc).split()) or type(exc).__name__)
 
 
-def doctor(settings: DoctorSettings) -> DoctorOutput:
-    """Open each named device read-only, collect its findings, close it again."""
+def doctor(settings: DoctorSettings) -> CommandResult[DoctorOutput]:
+    """Open each named device read-only, collect its findings, close it again.
+
+    Returns
+    -------
+    CommandResult of DoctorOutput
+        Every finding; the quality passes when none is a problem.
+    """
     devices = settings.devices
     if not devices.robot and not devices.tracker:
         raise InvalidInputError("name a device to check: --robot ur://HOST and/or --tracker URL")
@@ -86,4 +95,24 @@ def doctor(settings: DoctorSettings) -> DoctorOutput:
                 output.findings.append(("tracker", _connection_problem(exc)))
             finally:
                 close_device(tracker)
-    return output
+    return doctor_result(output.findings)
+
+
+def doctor_result(findings: list[tuple[str, DeviceFinding]]) -> CommandResult[DoctorOutput]:
+    """The result of ``doctor`` from its findings, as ``(device, finding)`` in the order checked:
+    one line per finding, and a quality that fails on any problem."""
+    output = DoctorOutput(list(findings))
+    # devices name things: every line is escaped and cut for a terminal
+    lines = [sanitize_for_terminal(finding_line(device, f), NOTE_CHARS) for device, f in output.findings]
+    count = len(output.problems)
+    if count:
+        quality = Quality(
+            False,
+            f"{count} problem{'s' if count > 1 else ''} found",
+            f"{count} problem{'s' if count > 1 else ''} found (marked PROBLEM above); fix "
+            f"{'them' if count > 1 else 'it'} before running spacecal acquire",
+        )
+    else:
+        lines.append("every check passed: spacecal acquire can start")
+        quality = Quality(True, "every check passed")
+    return CommandResult(output, lines=tuple(lines), quality=quality)

@@ -7,14 +7,15 @@ import os
 import shutil
 import tempfile
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from spacecal.app._common import check_belongs, guard_outputs, open_calibration, refuse_overwriting_inputs
+from spacecal.app.result import NOTE_CHARS, CommandResult, note_lines, paths
 from spacecal.core.errors import InvalidInputError
-from spacecal.estimators.landmarks import LandmarkDetectionSettings
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.io.atomic import atomic_path
 from spacecal.io.check_history import history_path, read_history
 from spacecal.io.csv_core import metadata_path
@@ -29,7 +30,8 @@ from spacecal.io.recording_csv import write_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.slicer import write_slicer_transform
-from spacecal.records import LandmarkRegistrationResult, VerificationResult
+from spacecal.records import CalibrationResult, LandmarkRegistrationResult, Recording, VerificationResult
+from spacecal.registration.landmarks import LandmarkDetectionSettings
 from spacecal.report.html import Report, write_figures, write_report
 from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
 
@@ -62,11 +64,14 @@ class RegisterLandmarksSettings:
     force: bool = False
 
 
-def register_landmarks(
-    settings: RegisterLandmarksSettings,
-) -> tuple[LandmarkRegistrationResult, np.ndarray, Path | None]:
-    """Detect the landmark touches and register; returns the result, the sequence's
-    timestamps (s) and the file written."""
+def register_landmarks(settings: RegisterLandmarksSettings) -> CommandResult[LandmarkRegistrationResult]:
+    """Detect the landmark touches and register.
+
+    Returns
+    -------
+    CommandResult of LandmarkRegistrationResult
+        The registration; the registration JSON written, if asked.
+    """
     refuse_overwriting_inputs(
         settings.output, settings.sequence, settings.config, force=settings.force, any_file=True
     )
@@ -93,7 +98,25 @@ def register_landmarks(
         detection,
     )
     path = write_json(result.to_dict(), settings.output) if settings.output else None
-    return result, sequence.timestamps_s, path
+    return registration_result(result, float(sequence.timestamps_s[0]), paths(path))
+
+
+def registration_result(
+    result: LandmarkRegistrationResult, start_s: float, files: tuple[Path, ...] = ()
+) -> CommandResult[LandmarkRegistrationResult]:
+    """The result of ``register-landmarks`` from its registration, the time its sequence starts
+    (s; the touches are shown from there) and the file written."""
+    lines = [
+        *(f"wrote {path}" for path in files),
+        f"registered {len(result.residuals_mm)} landmarks (detected at "
+        + ", ".join(f"{t - start_s:.1f}" for t in result.detected_at_s)
+        + " s)",
+        "reference_from_phantom:",
+        *("  " + "  ".join(f"{v:11.6f}" for v in row) for row in result.reference_from_phantom),
+        f"landmark error: mean {result.fre_mean_mm:.3f} mm (PLUS's 'Error'), RMS {result.fre_rms_mm:.3f} mm; "
+        "per landmark " + ", ".join(f"{v:.2f}" for v in result.residuals_mm),
+    ]
+    return CommandResult(result, files, lines=tuple(lines))
 
 
 @dataclass(frozen=True)
@@ -109,16 +132,14 @@ class ReportSettings:
     accept_edited: bool = False
 
 
-@dataclass(frozen=True)
-class ReportOutput:
-    path: Path
-    titles: list[str]
-    notes: list[str] = field(default_factory=list)
-    figures: list[Path] = field(default_factory=list)
+def report(settings: ReportSettings) -> CommandResult[tuple[str, ...]]:
+    """Write the report of a calibration (with its recording, verification and check history).
 
-
-def report(settings: ReportSettings) -> ReportOutput:
-    """Write the report of a calibration (with its recording, verification and check history)."""
+    Returns
+    -------
+    CommandResult of tuple of str
+        The titles of the report's plots; the HTML file written first, then any PNG figures.
+    """
     refuse_overwriting_inputs(
         settings.output,
         settings.calibration,
@@ -153,7 +174,12 @@ def report(settings: ReportSettings) -> ReportOutput:
         _, titles = write_report(report_data, temporary)
         staged = write_figures(report_data, png_dir) if png_dir else []
     figures = [Path(settings.png_dir) / Path(f).name for f in staged] if settings.png_dir else []
-    return ReportOutput(Path(settings.output), titles, notes, figures)
+    lines = [f"wrote {settings.output} ({len(titles)} plots: {', '.join(titles)})"]
+    if figures:
+        lines.append(f"wrote {len(figures)} PNG figures: {', '.join(str(p) for p in figures)}")
+    return CommandResult(
+        tuple(titles), (Path(settings.output), *figures), tuple(notes), (*lines, *note_lines(notes))
+    )
 
 
 #: What other spacecal files are, for the one line that refuses them as a verification.
@@ -209,9 +235,15 @@ class ExportSettings:
     accept_edited: bool = False
 
 
-def export(settings: ExportSettings) -> list[str]:
-    """Export the calibration to every target named; returns one line per export done, after
-    a ``note: ...`` line for a calibration that cannot be verified or was accepted edited."""
+def export(settings: ExportSettings) -> CommandResult[CalibrationResult]:
+    """Export the calibration to every target named.
+
+    Returns
+    -------
+    CommandResult of CalibrationResult
+        The calibration exported and the files written; its lines say one export each, after a
+        ``note: ...`` line for a calibration that cannot be verified or was accepted edited.
+    """
     if not (settings.slicer or settings.plus or settings.igtl):
         raise InvalidInputError(
             "say where to export: --slicer FILE.tfm, --plus FILE.xml, --igtl HOST:PORT, --easy-handeye2, "
@@ -221,8 +253,10 @@ def export(settings: ExportSettings) -> list[str]:
     calibration, notes = open_calibration(settings.calibration, "export", settings.accept_edited)
     error = calibration.diagnostics.get("expected_error", {}).get("position_mm")
     done = [f"note: {note}" for note in notes]
+    files = []
     if settings.slicer:
         path = write_slicer_transform(calibration.tracker_from_base, settings.slicer)
+        files.append(path)
         done.append(f"wrote {path} (loads in 3D Slicer as BaseToTracker; its matrix is tracker_from_base)")
     if settings.plus:
         path = write_plus_coordinate_definitions(
@@ -232,6 +266,7 @@ def export(settings: ExportSettings) -> list[str]:
                 (calibration.tcp_from_marker, "Marker", "TCP", None),
             ],
         )
+        files.append(path)
         done.append(f"wrote {path} (PLUS CoordinateDefinitions: BaseToTracker, MarkerToTCP)")
     if settings.igtl:
         from spacecal.adapters import device_address
@@ -242,7 +277,13 @@ def export(settings: ExportSettings) -> list[str]:
             address.host, address.port or IGTL_DEFAULT_PORT, "BaseToTracker", calibration.tracker_from_base
         )
         done.append(f"sent BaseToTracker to {address.url}")
-    return done
+    return CommandResult(
+        calibration,
+        tuple(Path(f) for f in files),
+        tuple(notes),
+        tuple(sanitize_for_terminal(line, NOTE_CHARS) for line in done),  # names from the calibration
+        provenance=calibration.provenance,
+    )
 
 
 @dataclass(frozen=True)
@@ -257,11 +298,18 @@ class ImportPlusSettings:
     force: bool = False
 
 
-def import_plus(settings: ImportPlusSettings) -> tuple[Path, int, int]:
-    """Convert the sequence; returns the recording written, its frames and visible frames."""
+def import_plus(settings: ImportPlusSettings) -> CommandResult[Recording]:
+    """Convert the sequence.
+
+    Returns
+    -------
+    CommandResult of Recording
+        The recording; its CSV and metadata written.
+    """
     guard_outputs([settings.output, metadata_path(settings.output)], [settings.sequence], settings.force)
     recording = recording_from_plus_sequence(
         settings.sequence, settings.marker, settings.tcp, settings.segment
     )
     path = write_recording(recording, settings.output)
-    return path, len(recording), int(recording.visible.sum())
+    line = f"wrote {path}: {len(recording)} frames, {int(recording.visible.sum())} with the marker seen"
+    return CommandResult(recording, (path, metadata_path(path)), lines=(line,))

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spacecal.app._common import guard_outputs
+from spacecal.app.result import CommandResult, note_lines
 from spacecal.core.errors import InvalidInputError
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.tum import MM_PER_UNIT, raw_recording_from_tum, read_tum
@@ -48,20 +49,15 @@ class ImportPosesSettings:
             raise InvalidInputError(f"--units must be one of {', '.join(MM_PER_UNIT)}, got {self.units!r}")
 
 
-@dataclass(frozen=True)
-class ImportPosesOutput:
-    """What ``import-poses`` wrote: the recording, its two streams and its metadata file."""
-
-    raw: RawRecording
-    robot_path: Path
-    tracker_path: Path
-    metadata_path: Path
-    notes: tuple[str, ...] = ()
-
-
-def import_poses(settings: ImportPosesSettings) -> ImportPosesOutput:
+def import_poses(settings: ImportPosesSettings) -> CommandResult[RawRecording]:
     """Read both TUM files, check them, and write the raw two-stream recording (not paired:
-    ``spacecal calibrate STEM.robot.csv --tracker-stream STEM.tracker.csv`` does that)."""
+    ``spacecal calibrate STEM.robot.csv --tracker-stream STEM.tracker.csv`` does that).
+
+    Returns
+    -------
+    CommandResult of RawRecording
+        The two streams; the robot CSV, the tracker CSV and the metadata written, in that order.
+    """
     stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
     paths = stream_paths(stem)
     guard_outputs(list(paths), [settings.robot, settings.tracker], settings.force)
@@ -71,7 +67,13 @@ def import_poses(settings: ImportPosesSettings) -> ImportPosesOutput:
     tracker = read_tum(settings.tracker, settings.units, "tracker TUM trajectory")
     raw = raw_recording_from_tum(robot, tracker, settings.eye_in_hand)
     robot_path, tracker_path = write_raw_recording(raw, stem)
-    return ImportPosesOutput(raw, robot_path, tracker_path, paths[2], _clock_notes(raw))
+    notes = _clock_notes(raw)
+    line = (
+        f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
+        f"({len(raw.tracker_time_s)} tracker poses{', eye-in-hand' if settings.eye_in_hand else ''}); "
+        f"calibrate with: spacecal calibrate {robot_path} --tracker-stream {tracker_path} --method ml"
+    )
+    return CommandResult(raw, (robot_path, tracker_path, paths[2]), notes, (line, *note_lines(notes)))
 
 
 def _clock_notes(raw: RawRecording) -> tuple[str, ...]:

@@ -6,11 +6,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from spacecal.app.acquisition import CheckOutput
-from spacecal.app.calibration import CalibrateOutput
+from spacecal.app.result import CommandResult
 from spacecal.io.results_json import read_calibration
+from spacecal.records import CalibrationResult
 
 if TYPE_CHECKING:
+    from spacecal.app.checking import CheckOutput
     from spacecal.ledger import Ledger
 
 
@@ -31,7 +32,7 @@ def open_record(url: str) -> Ledger:
 
 def record_calibration(
     ledger: Ledger,
-    output: CalibrateOutput,
+    output: CommandResult[CalibrationResult],
     source: str,
     robot_id: int | None = None,
     tracker_id: int | None = None,
@@ -40,17 +41,22 @@ def record_calibration(
     """Record the calibration ``calibrate`` wrote (made with the robot, tracker and tool of
     those ids in the record, when known); returns its id in the record."""
     return ledger.record_calibration(
-        output.calibration, output.path, source, robot_id=robot_id, tracker_id=tracker_id, tool_id=tool_id
+        output.record,
+        output.files_written[0],
+        source,
+        robot_id=robot_id,
+        tracker_id=tracker_id,
+        tool_id=tool_id,
     )
 
 
 def record_check(
-    ledger: Ledger, calibration_path: str | Path, output: CheckOutput, source: str
+    ledger: Ledger, calibration_path: str | Path, output: CommandResult[CheckOutput], source: str
 ) -> int | None:
     """Record the check ``check`` made of the calibration at ``calibration_path`` (recorded
     too, if it was not yet); None after a dry run (nothing was checked)."""
-    if output.result is None:
+    if output.record.result is None:
         return None
     calibration = read_calibration(calibration_path)
     calibration_id = ledger.record_calibration(calibration, calibration_path, source)
-    return ledger.record_check(calibration_id, output.result, source)
+    return ledger.record_check(calibration_id, output.record.result, source)

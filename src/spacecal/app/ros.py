@@ -8,6 +8,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spacecal.app._common import guard_outputs, open_calibration, refuse_overwriting_inputs
+from spacecal.app.files import ExportSettings, export
+from spacecal.app.result import NOTE_CHARS as LINE_CHARS
+from spacecal.app.result import CommandResult
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.io.atomic import write_text_atomic
@@ -16,7 +19,7 @@ from spacecal.io.easy_handeye import easy_handeye2_calibration_text, read_easy_h
 from spacecal.io.names import check_calibration_name, check_ros_frame_name
 from spacecal.io.raw_streams import stream_paths, write_raw_recording
 from spacecal.io.recording_csv import write_recording
-from spacecal.io.ros_bag import list_bag_contents, read_ros_bag
+from spacecal.io.ros_bag import BagContents, list_bag_contents, read_ros_bag
 from spacecal.io.ros_exports import (
     calibration_static_transform,
     ros2_launch_text,
@@ -29,6 +32,7 @@ from spacecal.io.ur_driver_calibration import (
     ur_calibration_text,
     ur_flange_from_tcp,
 )
+from spacecal.records import CalibrationResult, RawRecording, Recording
 
 #: Longest note line printed (a note quotes topic names from the bag).
 NOTE_CHARS = 400
@@ -80,12 +84,20 @@ IMPORT_BAG_FLAGS = {
 }
 
 
-def import_bag(settings: ImportBagSettings) -> str:
-    """Describe the bag (``list_only``) or convert it; returns the text to print: what was
-    written, then a ``note: ...`` line per stream of which messages were skipped (invalid, out
-    of time order, repeated stamps; also in the streams' metadata, ``ros_bag.notes``)."""
+def import_bag(settings: ImportBagSettings) -> CommandResult[RawRecording | BagContents]:
+    """Describe the bag (``list_only``) or convert it.
+
+    Returns
+    -------
+    CommandResult of RawRecording or BagContents
+        The two streams read and written, or (``list_only``) what the bag holds. Its notes say,
+        per stream, which messages were skipped (invalid, out of time order, repeated stamps;
+        also in the streams' metadata, ``ros_bag.notes``); its lines say what was written, then
+        one ``note: ...`` line per such note.
+    """
     if settings.list_only:
-        return list_bag_contents(settings.bag).describe()
+        contents = list_bag_contents(settings.bag)
+        return CommandResult(contents, lines=tuple(contents.describe().split("\n")))
     if not settings.output:
         raise InvalidInputError("say where to write the streams: -o STEM (or --list to look inside the bag)")
     stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
@@ -103,27 +115,53 @@ def import_bag(settings: ImportBagSettings) -> str:
     )
     robot_path, tracker_path = write_raw_recording(raw, stem)
     # what was skipped of a damaged stream; names in it come from the bag
-    notes = [f"note: {sanitize_for_terminal(n, NOTE_CHARS)}" for n in raw.metadata["ros_bag"]["notes"]]
+    skipped = tuple(raw.metadata["ros_bag"]["notes"])
+    notes = [f"note: {sanitize_for_terminal(n, NOTE_CHARS)}" for n in skipped]
     picked = raw.metadata["ros_bag"].get("picked")
     if picked:
         notes.insert(0, sanitize_for_terminal(picked, NOTE_CHARS))  # frame names come from the bag
-    return "\n".join(
-        [
-            f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
-            f"({len(raw.tracker_time_s)} tracker poses); calibrate with: spacecal calibrate {robot_path} "
-            f"--tracker-stream {tracker_path} --method ml (the clock offset is estimated)",
-            *notes,
-        ]
+    line = (
+        f"wrote {robot_path} ({len(raw.robot_time_s)} robot poses) and {tracker_path} "
+        f"({len(raw.tracker_time_s)} tracker poses); calibrate with: spacecal calibrate {robot_path} "
+        f"--tracker-stream {tracker_path} --method ml (the clock offset is estimated)"
     )
+    written = (robot_path, tracker_path, *stream_paths(stem)[2:])
+    return CommandResult(raw, written, ((picked,) if picked else ()) + skipped, (line, *notes))
 
 
-def import_easy_handeye(samples: str, output: str, force: bool = False) -> str:
+@dataclass(frozen=True)
+class ImportEasyHandeyeSettings:
+    """``spacecal import-easy-handeye``: easy_handeye2 saved samples as a recording CSV.
+
+    Attributes
+    ----------
+    samples : str
+        The easy_handeye2 ``.samples`` file.
+    output : str
+        Recording CSV to write.
+    force : bool
+        Replace an existing recording, or the samples file itself.
+    """
+
+    samples: str
+    output: str
+    force: bool = False
+
+
+def import_easy_handeye(settings: ImportEasyHandeyeSettings) -> CommandResult[Recording]:
     """easy_handeye2 saved samples as a recording CSV, to re-solve with spacecal's estimators;
-    an existing recording or the samples file itself is replaced only with ``force``."""
-    guard_outputs([output, metadata_path(output)], [samples], force)
-    recording = read_easy_handeye_samples(samples)
-    path = write_recording(recording, output)
-    return f"wrote {path}: {len(recording)} samples (re-solve with: spacecal calibrate {path} --method ml)"
+    an existing recording or the samples file itself is replaced only with ``force``.
+
+    Returns
+    -------
+    CommandResult of Recording
+        The recording; its CSV and metadata written.
+    """
+    guard_outputs([settings.output, metadata_path(settings.output)], [settings.samples], settings.force)
+    recording = read_easy_handeye_samples(settings.samples)
+    path = write_recording(recording, settings.output)
+    line = f"wrote {path}: {len(recording)} samples (re-solve with: spacecal calibrate {path} --method ml)"
+    return CommandResult(recording, (path, metadata_path(path)), lines=(line,))
 
 
 @dataclass(frozen=True)
@@ -162,9 +200,9 @@ def _check_names(settings: RosExportSettings) -> None:
         )
 
 
-def export_ros(settings: RosExportSettings, write: bool = True) -> list[str]:
-    """Write each ROS export named; returns one line per export, after a ``note: ...`` line for
-    a calibration that cannot be verified or was accepted edited.
+def export_ros(settings: RosExportSettings, write: bool = True) -> CommandResult[CalibrationResult]:
+    """Write each ROS export named: a result whose lines say one export each, after a
+    ``note: ...`` line for a calibration that cannot be verified or was accepted edited.
 
     Every file's text is made, and so every name and the calibration checked, before any is
     written: a refused export leaves no other written. ``write=False`` only checks (the
@@ -233,11 +271,42 @@ def export_ros(settings: RosExportSettings, write: bool = True) -> list[str]:
             )
         )
     if not write:
-        return []
+        return CommandResult(calibration, notes=tuple(notes), provenance=calibration.provenance)
     for path, text, what in files:
         path.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(text, path)
         done.append(f"wrote {path} ({what})")
     if settings.static_tf:
         done.append(static_transform_publisher_command(edge))
-    return done
+    return CommandResult(
+        calibration,
+        tuple(path for path, _, _ in files),
+        tuple(notes),
+        tuple(sanitize_for_terminal(line, LINE_CHARS) for line in done),  # names from the calibration
+        provenance=calibration.provenance,
+    )
+
+
+def export_calibration(settings: ExportSettings, ros: RosExportSettings) -> CommandResult[CalibrationResult]:
+    """``spacecal export``: every export named in ``settings`` and ``ros`` (without any, the
+    error of :func:`~spacecal.app.files.export` naming every target).
+
+    Every ROS file is checked before anything is written: a refused name or model leaves no
+    Slicer or PLUS file behind either.
+    """
+    named = (ros.easy_handeye2, ros.ros2_launch, ros.urdf, ros.static_tf, ros.ur_calibration)
+    if any(named):
+        export_ros(ros, write=False)
+    done: list[CommandResult[CalibrationResult]] = []
+    if settings.slicer or settings.plus or settings.igtl or not any(named):
+        done.append(export(settings))
+    if any(named):
+        done.append(export_ros(ros))
+    return CommandResult(
+        done[0].record,
+        tuple(path for out in done for path in out.files_written),
+        tuple(dict.fromkeys(note for out in done for note in out.notes)),
+        # a note on the calibration is made by both exports: shown once
+        tuple(dict.fromkeys(line for out in done for line in out.lines)),
+        provenance=done[0].provenance,
+    )

@@ -4,8 +4,9 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -13,9 +14,10 @@ import numpy as np
 
 from spacecal.app._common import guard_outputs, open_calibration
 from spacecal.app.gate import default_box_half_mm, gate_plan, plan_workspace, world_visibility
+from spacecal.app.result import CommandResult, note_lines
 from spacecal.core.errors import InvalidInputError
 from spacecal.experiments.demo import DemoResult, run_demo
-from spacecal.experiments.phantom import PhantomSettings, run_phantom_experiment
+from spacecal.experiments.phantom import PhantomSettings, phantom_table, run_phantom_experiment
 from spacecal.experiments.simulation import simulate as simulate_run
 from spacecal.experiments.simulation import simulate_raw
 from spacecal.experiments.verification import verify_in_simulation
@@ -77,7 +79,6 @@ class SimulateSettings:
 class SimulateOutput:
     """What ``simulate`` wrote."""
 
-    paths: tuple[Path, ...]
     scenario: str
     seed: int
     samples: int
@@ -85,7 +86,6 @@ class SimulateOutput:
     robot_states: int = 0
     motion_time_s: float = 0.0
     clock_offset_ms: float = 0.0
-    messages: list[str] = field(default_factory=list)
     simulated: bool = True
     #: What the motion gate checked before the simulated robot moved.
     gate: MotionGateReport | None = None
@@ -144,8 +144,14 @@ def simulation_gate(world: World, plan: MotionPlan, from_file: bool) -> MotionGa
     )
 
 
-def simulate(settings: SimulateSettings) -> SimulateOutput:
-    """Simulate a calibration run and write its recording (paired CSV, or raw streams)."""
+def simulate(settings: SimulateSettings) -> CommandResult[SimulateOutput]:
+    """Simulate a calibration run and write its recording (paired CSV, or raw streams).
+
+    Returns
+    -------
+    CommandResult of SimulateOutput
+        What was simulated; the recording (and its metadata) or the two streams written.
+    """
     stem = settings.output[:-4] if settings.output.endswith(".csv") else settings.output
     outputs: list[str | Path | None] = (
         list(stream_paths(stem)) if settings.raw else [settings.output, metadata_path(settings.output)]
@@ -158,8 +164,7 @@ def simulate(settings: SimulateSettings) -> SimulateOutput:
     if settings.raw:
         raw, _ = simulate_raw(scenario, settings.clock_offset_ms / 1000.0, plan)
         robot_path, tracker_path = write_raw_recording(raw, stem)
-        return SimulateOutput(
-            (robot_path, tracker_path),
+        out = SimulateOutput(
             scenario.name,
             scenario.seed,
             samples=len(raw.tracker_time_s),
@@ -167,19 +172,40 @@ def simulate(settings: SimulateSettings) -> SimulateOutput:
             clock_offset_ms=settings.clock_offset_ms,
             gate=gate,
         )
+        return simulate_result(out, (robot_path, tracker_path), ())
     simulation = simulate_run(scenario, plan)
     recording = simulation.recording
     path = write_recording(recording, settings.output)
-    return SimulateOutput(
-        (path, metadata_path(path)),
+    out = SimulateOutput(
         scenario.name,
         scenario.seed,
         samples=len(recording),
         visible=int(recording.visible.sum()),
         motion_time_s=simulation.plan.motion_time_s,
-        messages=list(simulation.plan.messages),
         gate=gate,
     )
+    return simulate_result(out, (path, metadata_path(path)), tuple(simulation.plan.messages))
+
+
+def simulate_result(
+    out: SimulateOutput, files: tuple[Path, ...], notes: tuple[str, ...]
+) -> CommandResult[SimulateOutput]:
+    """The result of ``simulate`` from what it simulated, the files written (the recording and
+    its metadata, or the robot and tracker streams) and its notes."""
+    if out.robot_states:
+        lines = [
+            f"wrote {files[0]} ({out.robot_states} robot states) and {files[1]} ({out.samples} tracker "
+            f"frames); robot clock {out.clock_offset_ms} ms ahead (simulated)"
+        ]
+    else:
+        lines = [
+            f"wrote {files[0]} ({out.samples} samples, {out.visible} with the marker visible) and {files[1]}",
+            f"simulated: scenario {out.scenario}, seed {out.seed}; planned motion time "
+            f"{out.motion_time_s:.1f} s",
+            *([out.gate.summary()] if out.gate is not None else []),
+            *note_lines(notes),
+        ]
+    return CommandResult(out, files, notes, tuple(lines))
 
 
 @dataclass(frozen=True)
@@ -206,17 +232,6 @@ class VerifySettings:
     force: bool = False
 
 
-@dataclass(frozen=True)
-class VerifyOutput:
-    """The verification and which simulated world it ran in."""
-
-    result: VerificationResult
-    scenario: str
-    world_source: str
-    paths: tuple[Path, ...] = ()
-    notes: list[str] = field(default_factory=list)
-
-
 def scenario_of_calibration(calibration: CalibrationResult) -> tuple[Scenario | None, str]:
     """The simulated scenario a calibration's data came from, and where that was found."""
     if calibration.provenance.scenario is not None:
@@ -230,8 +245,14 @@ def scenario_of_calibration(calibration: CalibrationResult) -> tuple[Scenario | 
     return None, ""
 
 
-def verify(settings: VerifySettings) -> VerifyOutput:
-    """Run the verification experiment for a calibration in its simulated world."""
+def verify(settings: VerifySettings) -> CommandResult[VerificationResult]:
+    """Run the verification experiment for a calibration in its simulated world.
+
+    Returns
+    -------
+    CommandResult of VerificationResult
+        The errors at the needle poses; the verification JSON and figure written, if asked.
+    """
     if not 1 <= settings.points <= 1000:
         raise InvalidInputError(f"--points must be 1..1000, got {settings.points}")
     guard_outputs(
@@ -266,7 +287,26 @@ def verify(settings: VerifySettings) -> VerifyOutput:
         with atomic_path(settings.figure) as temporary:
             plot_verification_errors(result.position_error_mm, result.posture_error_deg, temporary)
         paths.append(Path(settings.figure))
-    return VerifyOutput(result, scenario.name, source, tuple(paths), notes)
+    return verify_result(result, source, tuple(paths), tuple(notes))
+
+
+def verify_result(
+    result: VerificationResult, world_source: str, files: tuple[Path, ...] = (), notes: tuple[str, ...] = ()
+) -> CommandResult[VerificationResult]:
+    """The result of ``verify`` from its verification and where its simulated world came from."""
+    s = result.statistics()
+    pos, ang = s["position_mm"], s["posture_deg"]
+    lines = [
+        *(f"wrote {path}" for path in files),
+        *note_lines(notes),
+        f"verification in simulation on {len(result.position_error_mm)} needle poses "
+        f"(scenario {result.scenario}, from {world_source}):",
+        f"  position error min / mean / max / RMS: {pos['min']:.3f} / {pos['mean']:.3f} / "
+        f"{pos['max']:.3f} / {pos['rms']:.3f} mm   (paper: min 0.87, mean < 1.05 mm)",
+        f"  posture error  min / mean / max / RMS: {ang['min']:.3f} / {ang['mean']:.3f} / "
+        f"{ang['max']:.3f} / {ang['rms']:.3f} deg  (paper: min 0.83, mean about 1.1 deg)",
+    ]
+    return CommandResult(result, files, notes, tuple(lines))
 
 
 @dataclass(frozen=True)
@@ -278,14 +318,14 @@ class DemoSettings:
     force: bool = False
 
 
-@dataclass(frozen=True)
-class DemoOutput:
-    result: DemoResult
-    paths: tuple[Path, ...] = ()
+def demo(settings: DemoSettings) -> CommandResult[DemoResult]:
+    """The whole chain on the simulated system, with a table beside the paper's figures.
 
-
-def demo(settings: DemoSettings) -> DemoOutput:
-    """The whole chain on the simulated system, with a table beside the paper's figures."""
+    Returns
+    -------
+    CommandResult of DemoResult
+        The simulation, calibrations and verification; with ``out``, the files written there.
+    """
     names = (
         "recording.csv",
         "recording.meta.json",
@@ -320,7 +360,10 @@ def demo(settings: DemoSettings) -> DemoOutput:
                 result.verification.position_error_mm, result.verification.posture_error_deg, temporary
             )
         paths.append(out / "verification_errors.png")
-    return DemoOutput(result, tuple(paths))
+    lines = result.table().split("\n")
+    if paths:
+        lines += ["", f"wrote {', '.join(p.name for p in paths)} to {settings.out}"]
+    return CommandResult(result, tuple(paths), lines=tuple(lines))
 
 
 @dataclass(frozen=True)
@@ -335,8 +378,14 @@ class PhantomCommandSettings:
     force: bool = False
 
 
-def phantom(settings: PhantomCommandSettings) -> tuple[PhantomResult, tuple[Path, ...]]:
-    """Run the phantom experiment; returns its result and the files written."""
+def phantom(settings: PhantomCommandSettings) -> CommandResult[PhantomResult]:
+    """Run the phantom experiment.
+
+    Returns
+    -------
+    CommandResult of PhantomResult
+        The errors of each needle path; the results JSON and figure written, if asked.
+    """
     if not 1 <= settings.cases <= 100:
         raise InvalidInputError(f"--cases must be 1..100, got {settings.cases}")
     guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force, any_file=True)
@@ -352,9 +401,22 @@ def phantom(settings: PhantomCommandSettings) -> tuple[PhantomResult, tuple[Path
                 result.entry_error_mm, result.target_error_mm, result.direction_error_deg, temporary
             )
         paths.append(Path(settings.figure))
-    return result, tuple(paths)
+    lines = [
+        *phantom_table(result).split("\n"),
+        "(simulated; measured errors include the second CT's localisation error, as in the paper's "
+        "experiment)",
+        *(f"wrote {path}" for path in paths),
+    ]
+    return CommandResult(result, tuple(paths), lines=tuple(lines))
 
 
-def scenario(preset: str = DEFAULT_SCENARIO) -> dict[str, Any]:
-    """A scenario as JSON-ready values, to copy and edit (``spacecal scenario``)."""
-    return load_scenario(preset).to_dict()
+def scenario(preset: str = DEFAULT_SCENARIO) -> CommandResult[dict[str, Any]]:
+    """A scenario as JSON-ready values, to copy and edit (``spacecal scenario``).
+
+    Returns
+    -------
+    CommandResult of dict
+        The scenario's values; ``lines`` are its JSON text.
+    """
+    values = load_scenario(preset).to_dict()
+    return CommandResult(values, lines=tuple(json.dumps(values, indent=2).splitlines()))

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import inspect
 import math
 import re
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from spacecal import __version__, app
-from spacecal.app.simulation import DEFAULT_SCENARIO
-from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
+from spacecal.app import DEFAULT_SCENARIO, LIVE_VIEW_PORT
 
 #: Options whose values are coordinates, often negative (base-frame positions).
 COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm", "--tool")
@@ -23,10 +24,30 @@ def port_number(text: str) -> int:
     return value
 
 
-def _d(settings: type, name: str):
-    import dataclasses
+def settings_classes(name: str) -> list[type]:
+    """The settings classes the app function of command ``name`` takes, read from its signature."""
+    function = app.COMMANDS.get(name)
+    hints = (
+        [] if function is None else [p.annotation for p in inspect.signature(function).parameters.values()]
+    )
+    names = [getattr(hint, "__name__", hint) for hint in hints]  # a class, or its name as written
+    return [getattr(app, n) for n in names if isinstance(n, str) and n.endswith("Settings")]
 
-    return {f.name: f.default for f in dataclasses.fields(settings)}[name]
+
+def defaults_of(*classes: type) -> dict[str, Any]:
+    """The default of each field of settings ``classes``, by name; a nested settings field (the
+    devices) gives its own fields' defaults."""
+    found: dict[str, Any] = {}
+    for cls in classes:
+        for f in dataclasses.fields(cls):
+            if f.default is not dataclasses.MISSING:
+                found[f.name] = f.default
+            elif f.default_factory is not dataclasses.MISSING:
+                value = f.default_factory()
+                nested = dataclasses.is_dataclass(value) and not isinstance(value, type)
+                found.update(vars(value) if nested else {f.name: value})
+    # an option given again and again (--target, --rom) appends to None, not to an empty tuple
+    return {name: None if value == () else value for name, value in found.items()}
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -39,8 +60,6 @@ class OneLineParser(argparse.ArgumentParser):
 
 def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     """The parser; ``commands_impl`` maps each command name to the function that runs it."""
-    from spacecal.estimators import ESTIMATORS
-
     parser = OneLineParser(
         prog="spacecal", description="Calibrate a surgical robot's base frame to an optical tracker."
     )
@@ -51,32 +70,28 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     def command(name: str, help_text: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text)
-        p.set_defaults(run=commands_impl[name])
+        # every option's default is its settings field's: set before the options are added
+        classes = settings_classes(name)
+        p.set_defaults(run=commands_impl[name], **defaults_of(*classes))
+        for field in dict.fromkeys(f.name for c in classes for f in dataclasses.fields(c)):
+            if field in SHARED_FLAGS:  # flags several commands share, for the fields they share
+                flag, options = SHARED_FLAGS[field]
+                p.add_argument(flag, **options)
         return p
 
-    S = app.SimulateSettings
     p = command("simulate", "simulate a calibration run on the simulated system -> recording CSV")
-    add_force(p)
-    p.add_argument("--scenario", default=_d(S, "scenario"), help=scenario_help)
+    p.add_argument("--scenario", help=scenario_help)
     p.add_argument("--seed", type=int, help="override the scenario's seed")
     p.add_argument(
         "--raw", action="store_true", help="write the two raw streams (STEM.robot.csv, STEM.tracker.csv)"
     )
-    p.add_argument(
-        "--clock-offset-ms",
-        type=float,
-        default=_d(S, "clock_offset_ms"),
-        help="with --raw: robot clock ahead of the tracker's",
-    )
+    p.add_argument("--clock-offset-ms", type=float, help="with --raw: robot clock ahead of the tracker's")
     p.add_argument("--plan", help="a plan file (spacecal plan -o) to run instead of the paper's sweeps")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (with --raw: the stem)")
 
-    C = app.CalibrateSettings
     p = command("calibrate", "estimate tracker_from_base from a recording")
-    add_force(p)
     p.add_argument("recording", help="recording CSV (or, with --tracker-stream, the robot stream)")
-    add_record(p)
-    p.add_argument("--method", default=_d(C, "method"), help=f"estimator: {', '.join(sorted(ESTIMATORS))}")
+    p.add_argument("--method", help=f"estimator: {', '.join(app.ESTIMATOR_NAMES)}")
     p.add_argument("--tracker-stream", help="the raw tracker stream: pair it with the robot stream first")
     p.add_argument(
         "--include-doubtful-frames",
@@ -94,6 +109,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--target",
         action="append",
+        dest="targets_in_base",
         metavar="X,Y,Z",
         help="point in the base frame (mm) to predict the TRE at; repeatable",
     )
@@ -102,23 +118,20 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--thresholds-mm",
+        dest="error_thresholds",
         metavar="GOOD,ACCEPTABLE,POOR",
         help="expected-error limits of the verdict's grades, mm (default 0.5,1,2); above POOR: unusable",
     )
     p.add_argument(
         "--tracker-kind",
         choices=app.TRACKER_KINDS,
-        default=_d(C, "tracker_kind"),
         help="spheres (optical tracker with fit RMS), pose (poses only: a camera, PLUS); default: "
         "auto, from what the recording holds",
     )
 
     p = command("pivot", "pivot calibration of a pointer or needle tip")
-    add_force(p)
     p.add_argument("poses", help="folder of 4x4 .txt pose files, or a recording CSV")
-    p.add_argument(
-        "--method", default=_d(app.PivotSettings, "method"), help="aos (algebraic one-step) or sphere"
-    )
+    p.add_argument("--method", help="aos (algebraic one-step) or sphere")
     p.add_argument("--subset", help="file listing the pose file names to use")
     p.add_argument("-o", "--output", help="pivot result JSON to write")
 
@@ -132,54 +145,43 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "calibration's noise, else learnt from its residuals (the line printed says which)",
     )
     p.add_argument(
-        "--target", action="append", metavar="X,Y,Z", help="point in the base frame (mm); repeatable"
+        "--target",
+        action="append",
+        dest="targets_in_base",
+        metavar="X,Y,Z",
+        help="point in the base frame (mm); repeatable",
     )
 
-    V = app.VerifySettings
     p = command("verify", "the paper's verification experiment, in simulation")
-    add_force(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--scenario", help="simulated world (default: the one the calibration's data came from)")
-    p.add_argument("--points", type=int, default=_d(V, "points"), help="number of needle poses")
+    p.add_argument("--points", type=int, help="number of needle poses")
     p.add_argument("-o", "--output", help="verification JSON to write")
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 7)")
 
     p = command("demo", "simulate, calibrate and verify; print a summary table")
-    add_force(p)
-    p.add_argument("--scenario", default=_d(app.DemoSettings, "scenario"), help=scenario_help)
+    p.add_argument("--scenario", help=scenario_help)
     p.add_argument("--out", help="directory to write the recording, calibration, verification and figure to")
 
-    A = app.AcquireSettings
     p = command("acquire", "run the calibration motion on a robot while sampling the tracker")
     add_devices(p)
-    p.add_argument("--scenario", default=_d(A, "scenario"), help="scenario of the simulated devices")
+    p.add_argument("--scenario", help="scenario of the simulated devices")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (each sample flushed)")
     p.add_argument("--dry-run", action="store_true", help="check the plan without moving")
     p.add_argument("--plan", help="a plan file (spacecal plan -o) to run; the robot must stand at its home")
     p.add_argument(
         "--stop-and-go",
         type=int,
-        default=_d(A, "stop_and_go"),
         metavar="N",
         help="stop at stations along each move, average N frames at each (default 0: sample while moving)",
     )
     p.add_argument("--resume", action="store_true", help="continue a stopped acquisition of the same plan")
-    p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
-    p.add_argument("--speed-mm-s", type=float, default=_d(A, "speed_mm_s"), help="TCP speed")
-    p.add_argument("--accel-mm-s2", type=float, default=_d(A, "accel_mm_s2"), help="TCP acceleration")
-    p.add_argument(
-        "--angular-speed-deg-s", type=float, default=_d(A, "angular_speed_deg_s"), help="TCP rotation speed"
-    )
-    p.add_argument(
-        "--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"
-    )
+    p.add_argument("--speed-mm-s", type=float, help="TCP speed")
+    p.add_argument("--accel-mm-s2", type=float, help="TCP acceleration")
+    p.add_argument("--angular-speed-deg-s", type=float, help="TCP rotation speed")
     p.add_argument("--prior", help="an earlier calibration, to check marker visibility along the plan")
-    p.add_argument(
-        "--rotation-deg", type=float, default=_d(A, "rotation_deg"), help="rotation sweep each way"
-    )
-    p.add_argument(
-        "--translation-mm", type=float, default=_d(A, "translation_mm"), help="translation sweep stroke"
-    )
+    p.add_argument("--rotation-deg", type=float, help="rotation sweep each way")
+    p.add_argument("--translation-mm", type=float, help="translation sweep stroke")
     p.add_argument(
         "--live-view",
         nargs="?",
@@ -190,35 +192,30 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         f"(default port {LIVE_VIEW_PORT}) while the motion runs",
     )
 
-    R = app.RegisterLandmarksSettings
     p = command(
         "register-landmarks",
         "register a phantom to its reference marker from a tracked-stylus PLUS recording",
     )
-    add_force(p)
     p.add_argument(
         "sequence", help="PLUS sequence file (.igs.mha) with <Reference>ToTracker and <Stylus>ToTracker"
     )
     p.add_argument(
         "--config", required=True, help="PLUS device set: StylusTip->Stylus transform and <Landmarks>"
     )
-    p.add_argument("--reference", default=_d(R, "reference"), help="reference tool name")
-    p.add_argument("--stylus", default=_d(R, "stylus"), help="stylus tool name")
+    p.add_argument("--reference", help="reference tool name")
+    p.add_argument("--stylus", help="stylus tool name")
     p.add_argument(
         "--plus-compatible", action="store_true", help="average landmark frames exactly as PLUS does"
     )
     p.add_argument("-o", "--output", help="registration JSON to write")
 
     p = command("export", "export a calibration to 3D Slicer, PLUS, or over OpenIGTLink")
-    add_force(p)
-    add_accept_edited(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--slicer", help="ITK transform file (.tfm) for 3D Slicer")
     p.add_argument("--plus", help="PLUS CoordinateDefinitions XML")
     p.add_argument(
         "--igtl", metavar="HOST:PORT", help="send BaseToTracker to an OpenIGTLink server (e.g. Slicer)"
     )
-    X = app.RosExportSettings
     p.add_argument("--easy-handeye2", metavar="FILE.calib", help="easy_handeye2 eye-on-base result file")
     p.add_argument(
         "--ros2-launch", metavar="FILE.launch.py", help="ROS 2 launch file publishing the static transform"
@@ -232,23 +229,30 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         metavar="FILE.yaml",
         help="UR ROS driver kinematics file of the identified robot model (--method kinematic)",
     )
-    _ros_frames(p, X)
+    for name, what in (
+        ("base", "robot base link (tf parent)"),
+        ("tool", "robot tool flange"),
+        ("tracker", "tracker (tf child)"),
+        ("marker", "marker"),
+    ):
+        p.add_argument(f"--{name}-frame", help=f"ROS frame of the {what}")
 
-    I = app.ImportPlusSettings
     p = command("import-plus", "turn a PLUS sequence file (.igs.mha) into a recording CSV")
-    add_force(p)
     p.add_argument("sequence", help="PLUS sequence file")
-    p.add_argument("--marker", default=_d(I, "marker"), help="marker transform name")
-    p.add_argument("--tcp", default=_d(I, "tcp"), help="robot TCP transform name")
-    p.add_argument("--segment", default=_d(I, "segment"), help="segment label for every frame")
+    p.add_argument("--marker", help="marker transform name")
+    p.add_argument("--tcp", help="robot TCP transform name")
+    p.add_argument("--segment", help="segment label for every frame")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write")
 
-    B = app.ImportBagSettings
     p = command("import-bag", "turn a ROS 1 or ROS 2 bag into a raw two-stream recording (spacecal[ros])")
-    add_force(p)
     p.add_argument("bag", help="ROS 1 .bag, ROS 2 bag folder, or a .db3 / .mcap file")
     p.add_argument("-o", "--output", help="stem of STEM.robot.csv and STEM.tracker.csv")
-    p.add_argument("--list", action="store_true", help="show the topics and tf frames found, write nothing")
+    p.add_argument(
+        "--list",
+        action="store_true",
+        dest="list_only",
+        help="show the topics and tf frames found, write nothing",
+    )
     p.add_argument("--base-frame", help="tf: robot base frame")
     p.add_argument("--tool-frame", help="tf: robot tool (TCP) frame")
     p.add_argument("--tracker-frame", help="tf: tracker frame")
@@ -259,18 +263,16 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--marker-topic", metavar="TOPIC", help="PoseStamped / TransformStamped topic of the marker"
     )
-    p.add_argument("--robot-model", default=_d(B, "robot_model"), help="UR model for --joint-states")
+    p.add_argument("--robot-model", help="UR model for --joint-states")
 
-    T = app.ImportPosesSettings
     p = command("import-poses", "turn a robot and a tracker TUM trajectory into a raw two-stream recording")
-    add_force(p)
     p.add_argument("--robot", required=True, help="TUM file of base_from_tcp (or flange/gripper) poses")
     p.add_argument(
         "--tracker",
         required=True,
         help="TUM file of tracker_from_marker poses (--eye-in-hand: target_from_camera, camera in target)",
     )
-    p.add_argument("--units", default=_d(T, "units"), choices=["m", "mm"], help="length unit of both files")
+    p.add_argument("--units", choices=["m", "mm"], help="length unit of both files")
     p.add_argument(
         "--eye-in-hand",
         action="store_true",
@@ -281,13 +283,10 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command(
         "import-easy-handeye", "turn easy_handeye2 saved samples into a recording CSV (spacecal[ros])"
     )
-    add_force(p)
     p.add_argument("samples", help="easy_handeye2 .samples file")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write")
 
-    K = app.CheckSettings
     p = command("check", "confirm before surgery that a calibration still holds")
-    add_accept_edited(p)
     p.add_argument(
         "--accept-other-devices",
         action="store_true",
@@ -295,13 +294,10 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
-    add_record(p)
     add_devices(p)
     p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
-    p.add_argument("--poses", type=int, default=_d(K, "poses"), choices=[2, 3], help="number of poses")
-    p.add_argument(
-        "--frames-per-pose", type=int, default=_d(K, "frames_per_pose"), help="frames averaged per pose"
-    )
+    p.add_argument("--poses", type=int, choices=[2, 3], help="number of poses")
+    p.add_argument("--frames-per-pose", type=int, help="frames averaged per pose")
     p.add_argument(
         "--threshold-mm",
         type=float,
@@ -313,47 +309,36 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         help="largest rotation error, beyond the misfit expected (default: from the repeatability)",
     )
     p.add_argument("--dry-run", action="store_true", help="plan the check poses without moving")
-    p.add_argument("--confirm-robot-motion", action="store_true", help="required to move a real robot")
-    p.add_argument(
-        "--workspace-box", metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"
-    )
 
-    P = app.PhantomCommandSettings
     p = command("phantom", "the paper's phantom needle biopsy (section 5.3) in simulation")
-    add_force(p)
-    p.add_argument("--scenario", default=_d(P, "scenario"), help=scenario_help)
-    p.add_argument("--method", default=_d(P, "method"), help="calibration method")
-    p.add_argument("--cases", type=int, default=_d(P, "cases"), help="needle paths (the paper: 5)")
+    p.add_argument("--scenario", help=scenario_help)
+    p.add_argument("--method", help="calibration method")
+    p.add_argument("--cases", type=int, help="needle paths (the paper: 5)")
     p.add_argument("-o", "--output", help="results JSON to write")
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 9)")
 
     p = command("report", "a self-contained HTML report (works offline) and PNG figures")
-    add_force(p)
-    add_accept_edited(p)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="recording CSV (default: the calibration's own)")
     p.add_argument("--verification", help="verification JSON (from spacecal verify -o)")
     p.add_argument("--png-dir", help="also write PNG figures here")
     p.add_argument("-o", "--output", required=True, help="HTML file to write")
 
-    L = app.PlanSettings
     p = command("plan", "plan a calibration motion for the smallest predicted error at the site")
-    add_force(p)
     p.add_argument(
-        "--budget", type=duration_s, default=_d(L, "budget_s"), help="motion time budget, e.g. 30s"
+        "--budget", type=duration_s, dest="budget_s", metavar="BUDGET", help="motion time budget, e.g. 30s"
     )
-    p.add_argument("--scenario", default=_d(L, "scenario"), help="the (simulated) set-up to plan for")
+    p.add_argument("--scenario", help="the (simulated) set-up to plan for")
+    p.add_argument("--frames-per-station", type=int, help="tracker frames held at each station")
     p.add_argument(
-        "--frames-per-station",
-        type=int,
-        default=_d(L, "frames_per_station"),
-        help="tracker frames held at each station",
-    )
-    p.add_argument(
-        "--site", metavar="X,Y,Z", help="where the needle tip will work, mm in the robot base (default: home)"
+        "--site",
+        dest="site_mm",
+        metavar="X,Y,Z",
+        help="where the needle tip will work, mm in the robot base (default: home)",
     )
     p.add_argument(
         "--needle-path",
+        dest="needle_path_mm",
         metavar="EX,EY,EZ,TX,TY,TZ",
         help="a planned needle path (entry, target; mm in the robot base): plan for the needle at its target",
     )
@@ -362,7 +347,8 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")
 
-    add_doctor(command)
+    p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
+    add_devices(p, simulated_by_default=False)
 
     p = command("scenario", "print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
@@ -388,18 +374,6 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     return parser
 
 
-def _ros_frames(p: argparse.ArgumentParser, settings: type) -> None:
-    for name, what in (
-        ("base", "robot base link (tf parent)"),
-        ("tool", "robot tool flange"),
-        ("tracker", "tracker (tf child)"),
-        ("marker", "marker"),
-    ):
-        p.add_argument(
-            f"--{name}-frame", default=_d(settings, f"{name}_frame"), help=f"ROS frame of the {what}"
-        )
-
-
 def duration_s(text: str) -> float:
     """``30s``, ``30`` or ``1.5e1 s`` -> seconds; anything else is a usage error."""
     match = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*s?\s*", text)
@@ -411,27 +385,18 @@ def duration_s(text: str) -> float:
 def add_devices(p: argparse.ArgumentParser, simulated_by_default: bool = True) -> None:
     """The device flags ``acquire``, ``check`` and ``doctor`` share (``app.DeviceSettings``):
     ``--robot``, ``--tracker``, ``--rom``, ``--tracker-rate-hz``, ``--robot-model`` and the tool."""
-    from spacecal.adapters import DEVICE_SCHEMES, ROBOT, TRACKER
-
-    D = app.DeviceSettings
 
     def forms(role: str) -> str:
-        urls = " or ".join(row.form for row in DEVICE_SCHEMES.values() if row.role == role)
+        urls = app.device_url_forms(role)
         return f"sim (default) or {urls}" if simulated_by_default else urls
 
-    default = (lambda name: _d(D, name)) if simulated_by_default else (lambda name: None)
-    p.add_argument("--robot", default=default("robot"), help=forms(ROBOT))
-    p.add_argument("--tracker", default=default("tracker"), help=forms(TRACKER))
+    # the defaults are the settings' (doctor's: none, it checks only the devices named)
+    p.add_argument("--robot", help=forms("robot"))
+    p.add_argument("--tracker", help=forms("tracker"))
     p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
-    p.add_argument(
-        "--tracker-rate-hz", type=float, default=_d(D, "tracker_rate_hz"), help="tracker frame rate"
-    )
-    p.add_argument("--robot-model", default=_d(D, "robot_model"), help="UR model (UR10, UR10e, ...)")
-    add_tool(p)
-
-
-def add_tool(p: argparse.ArgumentParser) -> None:
-    """``--tool`` (and its older translation-only form ``--tool-offset-mm``)."""
+    p.add_argument("--tracker-rate-hz", type=float, help="tracker frame rate")
+    p.add_argument("--robot-model", help="UR model (UR10, UR10e, ...)")
+    # --tool-offset-mm is the older, translation-only form of --tool
     p.add_argument(
         "--tool",
         metavar="controller|X,Y,Z,RX,RY,RZ",
@@ -441,58 +406,49 @@ def add_tool(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tool-offset-mm", metavar="X,Y,Z", help="same as --tool X,Y,Z,0,0,0")
 
 
-def add_doctor(command) -> None:
-    """``spacecal doctor``: read-only checks of a robot and a tracker."""
-    p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
-    add_devices(p, simulated_by_default=False)
-
-
-def add_record(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--record",
-        metavar="PATH_OR_URL",
-        help="also write the result to this record (SQLite file or database URL; spacecal[station])",
-    )
-
-
-def add_force(p: argparse.ArgumentParser) -> None:
-    """``--force``: replace an existing output (a recording, a calibration or another result)
-    or an input file named as an output."""
-    p.add_argument(
+#: Flags of settings fields that several commands share: a command whose settings have the
+#: field gets the flag.
+SHARED_FLAGS: dict[str, tuple[str, dict[str, Any]]] = {
+    "force": (
         "--force",
-        action="store_true",
-        help="replace an existing output (recording, calibration, result) or an input named as an output "
-        "(written atomically)",
-    )
-
-
-def add_accept_edited(p: argparse.ArgumentParser) -> None:
-    """``--accept-edited``: use a calibration whose content hash differs (edited since written)."""
-    p.add_argument(
+        dict(
+            action="store_true",
+            help="replace an existing output (recording, calibration, result) or an input named as an "
+            "output (written atomically)",
+        ),
+    ),
+    "accept_edited": (
         "--accept-edited",
-        action="store_true",
-        help="use a calibration edited since it was written (its content hash differs)",
-    )
+        dict(
+            action="store_true",
+            help="use a calibration edited since it was written (its content hash differs)",
+        ),
+    ),
+    "record": (
+        "--record",
+        dict(
+            metavar="PATH_OR_URL",
+            help="also write the result to this record (SQLite file or database URL; spacecal[station])",
+        ),
+    ),
+    "confirm_robot_motion": (
+        "--confirm-robot-motion",
+        dict(action="store_true", help="required to move a real robot"),
+    ),
+    "workspace_box": (
+        "--workspace-box",
+        dict(metavar="XMIN,XMAX,YMIN,YMAX,ZMIN,ZMAX", help="base-frame box (mm) to stay in"),
+    ),
+}
 
 
 def join_negative_coordinates(argv: list[str]) -> list[str]:
     """``--target -573,-168,327`` -> ``--target=-573,-168,327``: base-frame coordinates are often
     negative, and argparse would take such a value for an option."""
-    joined: list[str] = []
-    skip = False
-    for index, item in enumerate(argv):
-        if skip:
-            skip = False
-            continue
-        following = argv[index + 1] if index + 1 < len(argv) else None
-        if (
-            item in COORDINATE_OPTIONS
-            and following is not None
-            and following[:1] == "-"
-            and following[1:2].isdigit()
-        ):
-            joined.append(f"{item}={following}")
-            skip = True
-        else:
-            joined.append(item)
+    joined, rest = [], list(argv)
+    while rest:
+        item = rest.pop(0)
+        if item in COORDINATE_OPTIONS and rest and rest[0][:1] == "-" and rest[0][1:2].isdigit():
+            item = f"{item}={rest.pop(0)}"
+        joined.append(item)
     return joined

@@ -1,10 +1,11 @@
 """A stop asked for by a signal (Ctrl-C, SIGTERM, SIGHUP), kept until the loop that moves the
 robot has seen it.
 
-The command line's signal handler raises :class:`StopRequested`, a ``KeyboardInterrupt``, so a
-blocking wait ends at once. Python loses such an exception when the signal lands while it runs
-code whose exceptions cannot propagate: a weakref callback (importlib's module-lock clean-up,
-measured: one of 20 interruption points in one test run), a ``__del__``. It prints "Exception
+The signal handler of :func:`signals_as_interrupts` raises :class:`StopRequested`, a
+``KeyboardInterrupt``, so a blocking wait ends at once. Python loses such an exception when the
+signal lands while it runs code whose exceptions cannot propagate: a weakref callback
+(importlib's module-lock clean-up, measured: one of 20 interruption points in one test run), a
+``__del__``. It prints "Exception
 ignored in ..." and goes on, and a run would carry on moving the robot. So the request is also
 kept here, and the loops that move a robot call :func:`raise_if_stop_requested` at every
 tracker frame: a stop asked for is never lost.
@@ -12,7 +13,11 @@ tracker frame: a stop asked for is never lost.
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import sys
 import threading
+from collections.abc import Iterator
 
 _lock = threading.Lock()
 _requested: str | None = None
@@ -52,3 +57,59 @@ def raise_if_stop_requested() -> None:
     reason = _requested
     if reason is not None:
         raise StopRequested(reason)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    """The signal handler: keep the stop request and raise it (once)."""
+    reason = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+    if not request_stop(reason):
+        # a second signal while the run stops (Ctrl-C pressed twice, a service manager's
+        # repeated SIGTERM) must not abort the robot's stop half-way: it is ignored
+        return
+    raise StopRequested(reason)
+
+
+def _quiet_about_stops(hook):
+    """``sys.unraisablehook`` that stays quiet about a stop request Python could not raise (it
+    landed in a weakref callback or a ``__del__``): the request is kept, and the loop moving the
+    robot raises it at its next frame (:func:`raise_if_stop_requested`)."""
+
+    def quiet(unraisable) -> None:
+        if not isinstance(unraisable.exc_value, StopRequested):
+            hook(unraisable)
+
+    return quiet
+
+
+@contextlib.contextmanager
+def signals_as_interrupts() -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once while a command runs (main
+    thread only), and the request is kept until the run has seen it; later ones are ignored
+    until the command has cleaned up."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    clear()
+    previous = {}
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        number = getattr(signal, name, None)
+        if number is not None:
+            previous[number] = signal.signal(number, _raise_interrupt)
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_about_stops(previous_hook)
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        sys.unraisablehook = previous_hook
+        clear()  # the command has stopped and cleaned up: the request is spent
+
+
+def signal_named(exc: BaseException, text: str) -> str:
+    """A run stopped by SIGTERM or SIGHUP says so (the acquisition names every interruption
+    Ctrl-C)."""
+    cause = exc.__context__
+    if isinstance(cause, StopRequested) and cause.args and cause.args[0] != "Ctrl-C":
+        return text.replace("interrupted by the user (Ctrl-C)", f"interrupted ({cause.args[0]})")
+    return text

@@ -8,6 +8,13 @@ from spacecal.core.errors import InvalidInputError
 
 MM_PER_M = 1000.0
 
+#: A stack of poses whose median translation is below this (mm) may be in metres: no robot TCP
+#: or tracked marker is within 20 mm of its frame's origin in use.
+METRES_BELOW_MM = 20.0
+#: A stack of poses whose median translation is above this (mm) may have been scaled by 1000
+#: twice: no robot reaches, nor tracker sees, 20 m.
+MILLIMETRES_TWICE_ABOVE_MM = 20_000.0
+
 
 def metres_to_mm(value_m):
     """Convert metres to millimetres (arrays welcome)."""

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import DegenerateDataError
+from spacecal.core.units import METRES_BELOW_MM, MILLIMETRES_TWICE_ABOVE_MM
 from spacecal.estimators.robot_world import solve_shah
 from spacecal.geometry.arrays import FloatArray, as_float_array
 from spacecal.geometry.rotations import rotation_angle
@@ -94,13 +95,6 @@ def _scaled(factor: float) -> Callable[[FloatArray], FloatArray]:
 
     return scale
 
-
-#: A stack whose median translation is below this (mm) may be in metres: no robot TCP or
-#: tracked marker is within 20 mm of its frame's origin in use.
-METRES_BELOW_MM = 20.0
-#: A stack whose median translation is above this (mm) may have been scaled by 1000 twice: no
-#: robot reaches, nor tracker sees, 20 m.
-MILLIMETRES_TWICE_ABOVE_MM = 20_000.0
 
 _TO_MM = _scaled(1000.0)
 _FROM_MM = _scaled(0.001)

@@ -18,7 +18,6 @@ import numpy as np
 
 from spacecal.core.errors import UnreachableError
 from spacecal.estimators import calibrate
-from spacecal.estimators.registration import register_points
 from spacecal.experiments.simulation import simulate
 from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
 from spacecal.models.kinematics import forward_kinematics
@@ -27,6 +26,7 @@ from spacecal.planning.needle import plan_needle
 from spacecal.planning.visibility import VisibilityModel
 from spacecal.records import PhantomResult
 from spacecal.records.paper_reference import PAPER_PHANTOM
+from spacecal.registration.points import register_points
 from spacecal.sim.scenario import Scenario
 from spacecal.sim.world import World
 

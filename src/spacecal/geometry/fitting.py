@@ -187,7 +187,7 @@ def fit_rigid(
 
     Used to compute a marker's pose from its measured sphere centres, as a tracker does.
     The point sets are keyword-only and named as in
-    :func:`spacecal.estimators.registration.register_points`, so they cannot be swapped silently.
+    :func:`spacecal.registration.points.register_points`, so they cannot be swapped silently.
 
     Parameters
     ----------

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
+from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES, RobotState
 from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
@@ -64,6 +64,18 @@ def stream_paths(stem: str | Path) -> tuple[Path, Path, Path]:
         stem.with_name(stem.name + ".tracker.csv"),
         stem.with_name(stem.name + ".meta.json"),
     )
+
+
+def raw_stem(recording_path: str | Path) -> Path:
+    """``rec.csv`` -> ``rec``: the stem of the raw streams a paired recording is derived from."""
+    path = Path(recording_path)
+    return path.with_name(path.stem)
+
+
+def raw_stream_paths(recording_path: str | Path) -> tuple[Path, Path]:
+    """``rec.csv`` -> (``rec.robot.csv``, ``rec.tracker.csv``): the raw streams behind it."""
+    robot, tracker, _ = stream_paths(raw_stem(recording_path))
+    return robot, tracker
 
 
 def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path]:
@@ -158,17 +170,22 @@ class RawStreamWriter:
 
     def add_robot_states(self, states, segment: str) -> None:
         """Write controller states (``RobotState``), skipping any not newer than the last written."""
+        newer: list[RobotState] = []
         for state in states:
-            if not state.time_s > self._last_robot_time:
-                continue
-            position, quaternion = transform_to_position_quaternion(state.base_from_tcp)
+            if state.time_s > (newer[-1].time_s if newer else self._last_robot_time):
+                newer.append(state)
+        if not newer:
+            return
+        # one conversion for the whole batch: a controller streams 125-500 states a second
+        positions, quaternions = transform_to_position_quaternion(np.array([s.base_from_tcp for s in newer]))
+        for state, position, quaternion in zip(newer, positions, quaternions):
             self._robot.writerow(
                 [format_number(state.time_s), segment]
                 + [format_number(v) for v in state.joints_rad]
                 + [format_number(v) for v in position]
                 + [format_number(v) for v in quaternion]
             )
-            self._last_robot_time = state.time_s
+        self._last_robot_time = newer[-1].time_s
 
     def add_tracker_frame(
         self,

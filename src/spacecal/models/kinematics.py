@@ -233,6 +233,13 @@ def _pose_error_vector(target: FloatArray, reached: FloatArray) -> FloatArray:
 def geometric_jacobian(model: RobotModel, joints_rad: ArrayLike) -> FloatArray:
     """Geometric Jacobian of the TCP in the base frame, shape (N, 6, 6): rows (v mm, w rad)."""
     q, _ = _as_joint_array(joints_rad)
+    return _tcp_pose_and_jacobian(model, q)[1]
+
+
+def _tcp_pose_and_jacobian(model: RobotModel, q: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``base_from_tcp`` (N, 4, 4) and the geometric Jacobian (N, 6, 6) of joint vectors
+    (N, 6), from one pass along the chain: Gauss–Newton IK needs both at every iterate, and
+    building the links once for both is most of its cost."""
     links = _link_transforms(model, q)
     frames = np.empty((len(q), N_JOINTS + 1, 4, 4))
     frames[:, 0] = np.eye(4)
@@ -241,19 +248,14 @@ def geometric_jacobian(model: RobotModel, joints_rad: ArrayLike) -> FloatArray:
     tcp = frames[:, -1] @ model.flange_from_tcp
     # Joint i rotates about the z axis of frame i-1 (standard DH).
     axes = frames[:, :N_JOINTS, :3, 2]
-    origins = frames[:, :N_JOINTS, :3, 3]
-    lever = tcp[:, None, :3, 3] - origins
+    lever = tcp[:, None, :3, 3] - frames[:, :N_JOINTS, :3, 3]
+    jac = np.empty((len(q), 6, N_JOINTS))
     # axes x lever, written out: np.cross costs more than the rest on IK's single poses
-    linear = np.stack(
-        [
-            axes[..., 1] * lever[..., 2] - axes[..., 2] * lever[..., 1],
-            axes[..., 2] * lever[..., 0] - axes[..., 0] * lever[..., 2],
-            axes[..., 0] * lever[..., 1] - axes[..., 1] * lever[..., 0],
-        ],
-        axis=-1,
-    )
-    jac = np.concatenate([linear, axes], axis=2)
-    return np.swapaxes(jac, 1, 2)
+    jac[:, 0] = axes[..., 1] * lever[..., 2] - axes[..., 2] * lever[..., 1]
+    jac[:, 1] = axes[..., 2] * lever[..., 0] - axes[..., 0] * lever[..., 2]
+    jac[:, 2] = axes[..., 0] * lever[..., 1] - axes[..., 1] * lever[..., 0]
+    jac[:, 3:] = np.swapaxes(axes, 1, 2)
+    return tcp, jac
 
 
 def inverse_kinematics_gauss_newton(
@@ -272,7 +274,8 @@ def inverse_kinematics_gauss_newton(
     follows a dense Cartesian path continuously (:func:`spacecal.planning.motion.track_path`),
     staying on the branch it starts on. Each step is ``dq = pinv(J) e`` with ``J`` the
     :func:`geometric_jacobian` and ``e`` the pose error (position mm, rotation vector rad)
-    in the base frame; the pseudo-inverse keeps the step finite at a singularity.
+    in the base frame (a square solve, and the pseudo-inverse where ``J`` is singular, which
+    keeps the step finite there).
 
     Parameters
     ----------
@@ -296,11 +299,17 @@ def inverse_kinematics_gauss_newton(
     targets = np.asarray(base_from_tcp, dtype=float)
     q = np.array(start_joints_rad, dtype=float)
     for _ in range(max_iterations):
-        err = _pose_error_vector(targets, forward_kinematics(model, q))
+        tcp, jac = _tcp_pose_and_jacobian(model, q)
+        err = _pose_error_vector(targets, tcp)
         if np.max(np.abs(err[:, :3])) < position_tol_mm and np.max(np.abs(err[:, 3:])) < rotation_tol_rad:
             return q, True
-        jac = geometric_jacobian(model, q)
-        q = q + (np.linalg.pinv(jac) @ err[:, :, None])[:, :, 0]
+        try:
+            # a square solve is the pseudo-inverse's step wherever J is invertible, at a
+            # fraction of an SVD's cost
+            step = np.linalg.solve(jac, err[:, :, None])
+        except np.linalg.LinAlgError:
+            step = np.linalg.pinv(jac) @ err[:, :, None]
+        q = q + step[:, :, 0]
     return q, False
 
 

@@ -85,13 +85,26 @@ def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.n
     poses = np.asarray(poses_base_from_tcp, dtype=float)
     joints = np.empty((len(poses), 6))
     q = np.asarray(start_joints_rad, dtype=float).copy()
+    previous = None
     for k, target in enumerate(poses):
-        solved, converged = inverse_kinematics_gauss_newton(
-            model, target[None], q[None], max_iterations=30, position_tol_mm=1e-9, rotation_tol_rad=1e-12
-        )
+        # start from the path's own continuation (linear in the last two solutions), which
+        # is closer than the last solution and saves an iteration; from the last solution
+        # again if that fails
+        starts = [q] if previous is None else [2.0 * q - previous, q]
+        for start in starts:
+            solved, converged = inverse_kinematics_gauss_newton(
+                model,
+                target[None],
+                start[None],
+                max_iterations=30,
+                position_tol_mm=1e-9,
+                rotation_tol_rad=1e-12,
+            )
+            if converged:
+                break
         if not converged:
             raise UnreachableError(f"path pose {k} cannot be tracked (workspace edge or singularity)")
-        q = solved[0]
+        previous, q = q, solved[0]
         joints[k] = q
     return joints
 

@@ -212,6 +212,28 @@ class RawRecording:
             self.marker_status = np.asarray(self.marker_status).astype("<U32")
             _check_shape(self.marker_status, (t,), "marker_status")
 
+    @classmethod
+    def from_paired(cls, recording: Recording, metadata: dict | None = None) -> RawRecording:
+        """A paired recording as its two streams on one clock: each row is one robot state and
+        one tracker frame at the same time (s), poses in mm.
+
+        Parameters
+        ----------
+        recording : Recording
+        metadata : dict, optional
+            The streams' metadata (default: the recording's).
+        """
+        return cls(
+            recording.time_s,
+            recording.segment,
+            recording.joints_rad,
+            recording.base_from_tcp_stack,
+            recording.time_s,
+            recording.tracker_from_marker_stack,
+            recording.marker_rms_mm,
+            recording.metadata if metadata is None else metadata,
+        )
+
 
 def _check_shape(array: np.ndarray, shape: tuple[int, ...], name: str) -> None:
     if array.shape != shape:

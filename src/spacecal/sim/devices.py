@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.core.errors import DeviceError
+from spacecal.core.errors import DeviceError, UnreachableError
 from spacecal.core.ports import (
     FRAME_MISSING,
     FRAME_OK,
@@ -23,7 +23,7 @@ from spacecal.core.ports import (
     RobotState,
     TrackerFrame,
 )
-from spacecal.models.kinematics import forward_kinematics
+from spacecal.models.kinematics import forward_kinematics, inverse_kinematics_gauss_newton
 from spacecal.planning.motion import MotionLimits, time_move, track_path, trapezoid_duration
 from spacecal.sim.world import World
 
@@ -124,12 +124,31 @@ class SimulatedRobot:
         from the last look (``self._joints`` at ``self._joints_time_s``)."""
         kind, move, start = motion
         if kind == "linear":
+            model = self.world.controller_model
             since = max(self._joints_time_s, start)
+            # the path is followed continuously, step by step, to the newest time...
             steps = np.arange(since + self.PATH_STEP_S, times_s[-1], self.PATH_STEP_S)
-            grid = np.union1d(steps, times_s)
-            elapsed = np.clip(grid - start, 0.0, move.duration_s)
-            path = track_path(self.world.controller_model, move.poses_at(elapsed), self._joints)
-            return path[np.searchsorted(grid, times_s)]
+            grid = np.union1d(steps, times_s[-1:])
+            path = track_path(model, move.poses_at(np.clip(grid - start, 0.0, move.duration_s)), self._joints)
+            earlier = times_s[:-1]
+            if not len(earlier):
+                return path[-1:]
+            # ...and the controller's ticks in between are solved together, each from where the
+            # followed path was at its time: the same branch, at a fraction of the sequential cost
+            known_s = np.append(since, grid)
+            known = np.vstack([self._joints, path])
+            guess = np.stack([np.interp(earlier, known_s, joint) for joint in known.T], axis=1)
+            ticks, converged = inverse_kinematics_gauss_newton(
+                model,
+                move.poses_at(np.clip(earlier - start, 0.0, move.duration_s)),
+                guess,
+                max_iterations=30,
+                position_tol_mm=1e-9,
+                rotation_tol_rad=1e-12,
+            )
+            if not converged:
+                raise UnreachableError("the simulated arm cannot follow its path (a workspace edge)")
+            return np.vstack([ticks, path[-1:]])
         q0, q1, _, duration = move
         fraction = np.ones_like(times_s) if duration == 0 else np.clip((times_s - start) / duration, 0.0, 1.0)
         return q0 + fraction[:, None] * (q1 - q0)

@@ -101,7 +101,7 @@ class Run:
     move_index: int = 0
     samples: int = 0
     visible: int = 0
-    output: app.AcquireOutput | None = None
+    output: app.CommandResult[app.AcquireOutput] | None = None
     stop_requested_at: float | None = None
     stop_reason: str = ""
     ended_at: float | None = None
@@ -158,7 +158,7 @@ class Run:
             self.output = app.acquire(
                 self.settings, on_sample=self.on_sample, observer=self.observe, on_plan=self.on_plan
             )
-            self.state, self.message = "finished", _finished(self.output)
+            self.state, self.message = "finished", _finished(self.output.record)
         except StationStop:
             # stopped before the motion started (while planning): nothing moved
             self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"

@@ -12,6 +12,7 @@ from typing import Any
 from spacecal import app
 from spacecal.app.devices import SIMULATED
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
+from spacecal.records import CalibrationResult
 
 #: The finding levels in an operator's words.
 LEVEL_WORDS = {
@@ -56,7 +57,7 @@ class Workspace:
     motion_time_s: float = 0.0
     acquired: bool = False
     run_id: int | None = None
-    calibration: app.CalibrateOutput | None = None
+    calibration: app.CommandResult[CalibrationResult] | None = None
     calibration_record_id: int | None = None
     checks: list[app.CheckOutput] = field(default_factory=list)
     report: Path | None = None
@@ -105,7 +106,7 @@ class Workspace:
         )
         out = app.doctor(app.DoctorSettings(named))
         self.findings = [
-            (device, LEVEL_WORDS[f.level], f"{f.subject}: {f.text}") for device, f in out.findings
+            (device, LEVEL_WORDS[f.level], f"{f.subject}: {f.text}") for device, f in out.record.findings
         ]
         return self.findings
 
@@ -117,7 +118,7 @@ class Workspace:
         if not self.simulated:
             self.plan_summary = "the paper's sweeps, planned from where the robot stands (see the dry run)"
             return
-        record, _ = app.plan(app.PlanSettings(paper_sweeps=True, output=str(self.plan_path), force=True))
+        record = app.plan(app.PlanSettings(paper_sweeps=True, output=str(self.plan_path), force=True)).record
         self.plan_summary = (
             f"the paper's sweeps: {len(record.moves)} moves, {record.motion_time_s:.1f} s of motion, "
             f"predicted tip error at the site {record.predicted_error_mm:.3f} mm"
@@ -134,10 +135,11 @@ class Workspace:
 
     def dry_run(self) -> None:
         """Check the plan without moving (reach, limits, visibility, workspace)."""
-        out = app.acquire(self.acquire_settings(dry_run=True))
+        done = app.acquire(self.acquire_settings(dry_run=True))
+        out = done.record
         self.moves, self.motion_time_s = out.moves, out.motion_time_s
         gate = [out.gate.summary(), *out.gate.lines()] if out.gate is not None else []
-        self.dry_run_lines = [*gate, *out.messages, "dry run: nothing moved"]
+        self.dry_run_lines = [*gate, *done.notes, "dry run: nothing moved"]
         self.dry_run_ok = out.gate is None or out.gate.passed
 
     def motion_words(self, motion: str) -> str:
@@ -149,26 +151,26 @@ class Workspace:
             )
         return "the check: two or three short moves to poses near where the robot stands"
 
-    def calibrate(self, method: str = "ml") -> app.CalibrateOutput:
+    def calibrate(self, method: str = "ml") -> app.CommandResult[CalibrationResult]:
         out = app.calibrate(
             app.CalibrateSettings(str(self.recording_path), str(self.calibration_path), method, force=True)
         )
         self.calibration = out
         return out
 
-    def check(self) -> app.CheckOutput:
+    def check(self) -> app.CommandResult[app.CheckOutput]:
         out = app.check(
             app.CheckSettings(str(self.calibration_path), devices=self.devices, confirm_robot_motion=True)
         )
-        self.checks.append(out)
+        self.checks.append(out.record)
         return out
 
     def make_report(self) -> Path:
         out = app.report(
             app.ReportSettings(str(self.calibration_path), str(self.folder / "report.html"), force=True)
         )
-        self.report = out.path
-        return out.path
+        self.report = out.files_written[0]
+        return out.files_written[0]
 
     def export(self, targets: list[str]) -> list[str]:
         """Export to the targets chosen (keys of :data:`EXPORTS`); the files written."""

@@ -28,7 +28,7 @@ from spacecal.core.interrupts import raise_if_stop_requested
 from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, StreamingRobot, Tracker
 from spacecal.estimators.time_offset import Pairing, pair_at_estimated_offset
 from spacecal.io.acquisition_progress import progress_path, read_progress, write_progress
-from spacecal.io.raw_streams import RawStreamWriter, read_raw_recording, stream_paths
+from spacecal.io.raw_streams import RawStreamWriter, raw_stem, raw_stream_paths, read_raw_recording
 from spacecal.io.recording_csv import write_recording
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove
 from spacecal.records import AcquisitionProgress
@@ -106,13 +106,6 @@ def plan_fingerprint(plan: MotionPlan) -> str:
         [np.concatenate([m.start.ravel(), m.end.ravel(), [m.sample_period_s]]) for m in plan.moves]
     )
     return hashlib.sha256(np.round(data, 6).tobytes()).hexdigest()[:16]
-
-
-def raw_stream_paths(recording_path: str | Path) -> tuple[Path, Path]:
-    """``rec.csv`` -> (``rec.robot.csv``, ``rec.tracker.csv``): the raw streams behind it."""
-    path = Path(recording_path)
-    robot, tracker, _ = stream_paths(path.with_name(path.stem))
-    return robot, tracker
 
 
 def _write_progress(path: Path, plan: MotionPlan, completed: int, stopped_because: str | None) -> None:
@@ -426,7 +419,7 @@ def acquire(
     _write_progress(progress_file, plan, first_move, None)
     sphere_count = len(metadata.get("marker", {}).get("spheres_in_marker_mm", []))
     writer = RawStreamWriter(
-        recording_path.with_name(recording_path.stem),
+        raw_stem(recording_path),
         metadata,
         sphere_count,
         append=resume,

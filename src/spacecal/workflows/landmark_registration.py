@@ -2,7 +2,7 @@
 
 The stylus tip is brought into the reference frame frame by frame
 (``reference_from_tip = reference_from_tracker @ tracker_from_stylus @ stylus_from_tip``),
-the landmark touches are detected (:mod:`spacecal.estimators.landmarks`), and the defined
+the landmark touches are detected (:mod:`spacecal.registration.landmarks`), and the defined
 landmark positions are registered to them (``reference_from_phantom``).
 """
 
@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.landmarks import LandmarkDetectionSettings, detect_landmarks
-from spacecal.estimators.registration import register_points
 from spacecal.geometry.transforms import invert_transform, orthonormalize_transforms
 from spacecal.records import LandmarkRegistrationResult
+from spacecal.registration.landmarks import LandmarkDetectionSettings, detect_landmarks
+from spacecal.registration.points import register_points
 
 
 def register_landmarks_from_stylus(

@@ -1,11 +1,12 @@
 """A fake world in its own process: one simulated ground truth behind fake devices that speak
-the real wire protocols on loopback, so the real client libraries talk to them unmodified.
+the real wire protocols on loopback, so the real client libraries talk to them unmodified
+(``--help`` lists every option)::
 
-    python tests/fakes/world.py --host 127.0.0.12 [--scenario paper-white] \
-        [--igtl-port P] [--ndi-port P] [--rtde]
+    python -m spacecal.testing.fakes.world --host 127.0.0.12 [--scenario paper-white] \
+        [--igtl-port P] [--ndi-generation G] [--igtl-sender S] [--ur-generation G]
 
 Prints ``READY {json}`` (ports, pty path) on stdout when every server listens. A line
-protocol on the control port injects faults and reads the truth:
+protocol on the control port injects faults and reads the truth::
 
     truth                      -> JSON of tracker_from_base, tcp_from_marker, home joints
     occlude on|off             -> the marker is hidden from the tracker
@@ -33,21 +34,15 @@ import socket
 import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import igtl
-import ndi
-import rtde
-from net import accept_connections, listen
 
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.sim.devices import RealClock, SimulatedRobot
 from spacecal.sim.scenario import load_scenario
 from spacecal.sim.world import build_world
+from spacecal.testing.fakes import igtl, ndi, rtde
+from spacecal.testing.fakes.net import accept_connections, listen
 
 
 class FakeWorld:
@@ -63,7 +58,15 @@ class FakeWorld:
         self.occluded = False
         self.unplugged = False
         self.stale = False
-        self._last_frame = None
+        self._last_frame: tuple | None = None
+        # set by main() once the devices that read this world exist (declared here for the types)
+        self.scenario_name: str
+        self.igtl_sender: igtl.FakeIGTLSender
+        self.received: dict[str, list]
+        self.unplug_event: threading.Event
+        self.ndi_faults: ndi.NDIFaults
+        self.ndi_devices: tuple[ndi.FakeNDI, ...]
+        self.controller: rtde.FakeController
         #: An OpenIGTLink sender (PLUS) stamps frames with its computer's clock: Unix time.
         self.igtl_epoch_s = time.time() - self.clock.now_s
 
@@ -188,7 +191,7 @@ def ndi_control(fake: FakeWorld, words: list[str]) -> str:
 
 
 def igtl_control(fake: FakeWorld, words: list[str]) -> str:
-    """Switches of the OpenIGTLink sender (``tests/fakes/igtl.py``)."""
+    """Switches of the OpenIGTLink sender (:mod:`spacecal.testing.fakes.igtl`)."""
     sender = getattr(fake, "igtl_sender", None)
     return "ERROR no OpenIGTLink sender" if sender is None else sender.control(words)
 
@@ -298,8 +301,13 @@ def main() -> None:
         ),
         flush=True,
     )
+
     # Die with the parent: the test process holds our stdin; EOF means it is gone.
-    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    def stop_at_end_of_input() -> None:
+        sys.stdin.read()
+        stop.set()
+
+    threading.Thread(target=stop_at_end_of_input, daemon=True).start()
     stop.wait()
 
 

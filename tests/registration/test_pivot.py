@@ -5,9 +5,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnknownMethodError
-from spacecal.estimators.pivot import pivot_calibration
 from spacecal.geometry.transforms import make_transform
 from spacecal.io.pose_files import read_matrix_folder
+from spacecal.registration.pivot import pivot_calibration
 
 from ..conftest import shared_realdata
 

@@ -34,12 +34,8 @@ import tty
 
 import numpy as np
 
-try:  # imported as part of the tests package, or as a module of the world process
-    from .net import accept_connections
-except ImportError:
-    from net import accept_connections
-
 from spacecal.geometry.transforms import matrix_to_quaternion_wxyz
+from spacecal.testing.fakes.net import accept_connections
 
 PORT_STATUS_OK = 0x00000031  # occupied, initialised, enabled
 PORT_OUT_OF_VOLUME, PORT_PARTIALLY_OUT_OF_VOLUME = 0x40, 0x80

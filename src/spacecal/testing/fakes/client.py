@@ -7,11 +7,11 @@ import socket
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-WORLD = Path(__file__).with_name("world.py")
+#: The world process's module, run with ``python -m``.
+WORLD = "spacecal.testing.fakes.world"
 
 
 class WorldProcess:
@@ -19,12 +19,17 @@ class WorldProcess:
 
     def __init__(self, *arguments: str, ready_timeout_s: float = 20.0):
         self.process = subprocess.Popen(
-            [sys.executable, str(WORLD), *arguments], stdout=subprocess.PIPE, stdin=subprocess.PIPE, text=True
+            [sys.executable, "-m", WORLD, *arguments],
+            stdout=subprocess.PIPE,
+            stdin=subprocess.PIPE,
+            text=True,
         )
         deadline = time.monotonic() + ready_timeout_s
         line = ""
+        output = self.process.stdout
+        assert output is not None  # stdout=PIPE
         while time.monotonic() < deadline:
-            line = self.process.stdout.readline()
+            line = output.readline()
             if line.startswith("READY ") or not line:
                 break
         if not line.startswith("READY "):

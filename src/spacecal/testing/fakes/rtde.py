@@ -52,17 +52,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-try:  # imported as part of the tests package, or as a module of the world process
-    from .net import accept_connections, listen
-except ImportError:
-    from net import accept_connections, listen
-
 from spacecal.geometry.transforms import (
     invert_transform,
     make_transform,
     matrix_to_rotvec,
     rotvec_to_matrix,
 )
+from spacecal.testing.fakes.net import accept_connections, listen
 
 RTDE_PORT, DASHBOARD_PORT, SCRIPT_PORT = 30004, 29999, 30003
 PRIMARY_PORT, SECONDARY_PORT = 30001, 30002
@@ -392,7 +388,8 @@ class FakeController:
             return 1.0
         kind = type_of(name)
         default = self.registers.get(name, 0)
-        count = {"VECTOR6D": 6, "VECTOR3D": 3, "VECTOR6INT32": 6, "VECTOR6UINT32": 6}.get(kind)
+        counts = {"VECTOR6D": 6, "VECTOR3D": 3, "VECTOR6INT32": 6, "VECTOR6UINT32": 6}
+        count = counts.get(kind) if kind is not None else None
         return (0,) * count if count else default
 
     def monitor(self, stop: threading.Event) -> None:
@@ -760,8 +757,8 @@ def dashboard_reply(controller: FakeController, command: str) -> str:
             word = word.replace("SYSTEM_", "").replace("ROBOT_", "")
         return ("Safetystatus: " if command == "safetystatus" else "Safetymode: ") + word
     if command == "programState":
-        word = {RUNTIME_STOPPED: "STOPPED", RUNTIME_PLAYING: "PLAYING", RUNTIME_PAUSED: "PAUSED"}
-        return f"{word[controller.runtime_state()]} rtde_control"
+        states = {RUNTIME_STOPPED: "STOPPED", RUNTIME_PLAYING: "PLAYING", RUNTIME_PAUSED: "PAUSED"}
+        return f"{states[controller.runtime_state()]} rtde_control"
     if command == "running":
         return f"Program running: {'true' if controller.playing() else 'false'}"
     if command == "unlock protective stop":

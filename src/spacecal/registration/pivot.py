@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnknownMethodError
-from spacecal.estimators.conventions import METRES_BELOW_MM
+from spacecal.core.units import METRES_BELOW_MM
 from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.fitting import fit_sphere
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, transform_points_by_stack

@@ -1,4 +1,5 @@
-"""The fuzz harness: base input files, mutations of them and of the options, and one runner.
+"""The command line's fuzz harness: base input files, mutations of them and of the options, and
+one runner.
 
 Every case runs ``spacecal.cli.main(argv)`` in this process on copies of the base files in a
 fresh folder, and is classified by what went wrong (or ``pass``):
@@ -156,16 +157,7 @@ def build_base(folder: Path) -> Path:
     recording = read_recording(folder / "rec.csv")
     seen = recording.visible
     write_raw_recording(
-        RawRecording(
-            recording.time_s,
-            recording.segment,
-            recording.joints_rad,
-            recording.base_from_tcp_stack,
-            recording.time_s,
-            recording.tracker_from_marker_stack,
-            recording.marker_rms_mm,
-            recording.metadata,
-        ),
+        RawRecording.from_paired(recording),
         folder / "raw",
     )
     poses = folder / "poses"

@@ -5,12 +5,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.landmarks import LandmarkDetectionSettings
-from spacecal.estimators.registration import register_points
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import apply_transform, make_transform
 from spacecal.io.plus_config import read_plus_landmarks, read_plus_transform
 from spacecal.io.plus_sequence import read_plus_sequence
+from spacecal.registration.landmarks import LandmarkDetectionSettings
+from spacecal.registration.points import register_points
 from spacecal.workflows.landmark_registration import register_landmarks_from_stylus
 
 from ..conftest import shared_realdata

@@ -22,10 +22,7 @@ import threading
 import time
 from collections.abc import Callable
 
-try:
-    from .net import accept_connections, listen
-except ImportError:
-    from net import accept_connections, listen
+from spacecal.testing.fakes.net import accept_connections, listen
 
 #: Time between two bytes of a drip, s: a reply of a few dozen bytes takes many seconds.
 DRIP_INTERVAL_S = 0.2

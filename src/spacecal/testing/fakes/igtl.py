@@ -35,22 +35,35 @@ tdata|qtdata``, ``header 1|2|3``, ``send_invalid on|off``, ``placeholder identit
 
 from __future__ import annotations
 
+import functools
 import socket
 import struct
 import threading
 import time
 
 import numpy as np
-from crcmod import mkCrcFun
 
-try:
-    from .net import accept_connections
-except ImportError:
-    from net import accept_connections
-
+from spacecal.core.errors import MissingExtraError
 from spacecal.geometry.transforms import matrix_to_quaternion_wxyz
+from spacecal.testing.fakes.net import accept_connections
 
-crc64 = mkCrcFun(0x142F0E1EBA9EA3693, rev=False, initCrc=0, xorOut=0)
+
+@functools.cache
+def _crc64_function():
+    try:
+        from crcmod import mkCrcFun
+    except ImportError:
+        raise MissingExtraError(
+            "the OpenIGTLink fake needs crcmod, installed with the 'igtl' extra: pip install 'spacecal[igtl]'"
+        ) from None
+    return mkCrcFun(0x142F0E1EBA9EA3693, rev=False, initCrc=0, xorOut=0)
+
+
+def crc64(data: bytes) -> int:
+    """CRC-64 ECMA-182 of a message body, by crcmod (independent of the adapter's own table)."""
+    return _crc64_function()(data)
+
+
 HEADER = struct.Struct(">H12s20sQQQ")
 ENCODING_US_ASCII = 3
 TDATA_6D = 2
