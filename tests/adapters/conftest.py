@@ -5,8 +5,12 @@ so every test runs under a C-level watchdog (faulthandler) that ends a hung run.
 """
 
 import faulthandler
+import fcntl
 import itertools
 import os
+import tempfile
+import time
+from pathlib import Path
 
 import pytest
 
@@ -14,16 +18,47 @@ from spacecal.io.ndi_rom import rom_bytes
 from spacecal.models.marker import ndi_8700339_like
 from spacecal.testing.fakes.client import WorldProcess
 
+from .loopback import NETWORK as _NETWORK
+
 #: Longer than any test's own subprocess timeouts, so those report first; the dump goes to a
 #: file (pytest captures stderr), one per test worker, that .ci/run prints when the suite fails.
 WATCHDOG_S = 400
 WATCHDOG_LOG = os.path.join(
     os.environ.get("TMPDIR", "/tmp"), f"spacecal-watchdog-{os.environ.get('PYTEST_XDIST_WORKER', 'main')}.log"
 )
-#: The UR fake needs fixed ports, so every world gets its own loopback address; the second
-#: octet follows the process id, so concurrent test runs on one machine do not collide.
+#: The UR fake needs fixed ports, so every world gets its own loopback address (see loopback.py).
 _addresses = itertools.count(1)
-_NETWORK = 20 + os.getpid() % 200
+
+
+#: Hardware tests run at once, across the test workers of one run. They keep real-time
+#: deadlines at a raised priority (below); more of them side by side than the machine has
+#: cores would starve one another, whatever the other workers do.
+HARDWARE_LANES = 2
+_LANES = (
+    Path(tempfile.gettempdir())
+    / f"spacecal-hardware-lanes-{os.environ.get('PYTEST_XDIST_TESTRUNUID', os.getpid())}"
+)
+
+
+@pytest.fixture(autouse=True)
+def hardware_lane():
+    """Hold one of :data:`HARDWARE_LANES` lanes (a file lock) for the test's whole run."""
+    _LANES.mkdir(exist_ok=True)
+    while True:
+        for lane in range(HARDWARE_LANES):
+            handle = open(_LANES / f"{lane}.lock", "w")
+            try:
+                fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                handle.close()
+                continue
+            try:
+                yield
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+                handle.close()
+            return
+        time.sleep(0.05)
 
 
 @pytest.fixture(autouse=True)

@@ -6,7 +6,6 @@ The ports are fixed, so each peer gets a loopback address of its own. The bounds
 deadlines plus a margin for a loaded 2-core machine, never tight times."""
 
 import itertools
-import os
 import struct
 import time
 
@@ -16,10 +15,11 @@ from spacecal.adapters import ur
 from spacecal.core.errors import DeviceError
 from spacecal.testing.fakes.peers import Peer, announce, drip, hang_up, silent
 
+from .loopback import NETWORK as _NETWORK
+
 #: Time on top of a deadline for a loaded machine, s.
 MARGIN_S = 5.0
 _addresses = itertools.count(1)
-_NETWORK = 20 + os.getpid() % 200
 
 GREETING = b"Connected: Universal Robots Dashboard Server\n"
 #: A primary-interface message header announcing 2 GB.

@@ -19,10 +19,11 @@ from spacecal.estimators.time_offset import LARGEST_GAP_PERIODS, LARGEST_GAP_S
 from spacecal.io.raw_streams import ARRIVAL_COLUMN
 from spacecal.testing.fakes.client import WorldProcess
 
+from .loopback import NETWORK as _NETWORK
+
 SPACECAL = [sys.executable, "-m", "spacecal.cli"]
 #: Loopback addresses of these worlds: the conftest's network, last octets from 200 up (the
 #: conftest's own worlds count up from 1), so the two never collide in one process.
-_NETWORK = 20 + os.getpid() % 200
 _addresses = itertools.count(200)
 #: The nominal model each fake generation runs (:data:`spacecal.testing.fakes.rtde.GENERATIONS`).
 ROBOT_MODEL = {"cb3": "UR10", "eseries": "UR10e"}

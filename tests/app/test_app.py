@@ -60,7 +60,8 @@ def test_calibrate_bound_verify_check_report_export(simulated):
     assert again.provenance == provenance
 
     bound = app.bound(app.BoundSettings(str(folder / "rec.csv"), str(path), 0.144)).record
-    assert 0 < bound["site"] <= calibrated.record.predicted_tre_mm["site"] * 1.5
+    assert 0 < bound.site_mm <= calibrated.record.predicted_tre_mm["site"] * 1.5
+    assert bound.sigma_mm == 0.144 and bound.sigma_source == "given with --sigma-mm"
 
     verified = app.verify(app.VerifySettings(str(path), points=5, output=str(folder / "ver.json")))
     assert isinstance(verified.record, VerificationResult) and verified.record.simulated

@@ -17,7 +17,8 @@ import pytest
 
 from spacecal.geometry.transforms import interpolate_transforms
 from spacecal.models.kinematics import forward_kinematics
-from spacecal.planning.motion_gate import MAX_MOVES, follow_path, gate_motion, workspace_around
+from spacecal.planning.motion import follow_path
+from spacecal.planning.motion_gate import MAX_MOVES, gate_motion, workspace_around
 from spacecal.planning.visibility import VisibilityModel
 from spacecal.sim.motion import plan_for_world
 from spacecal.sim.scenario import PRESETS

@@ -17,17 +17,17 @@ import pytest
 
 from spacecal import app
 from spacecal.cli import main
+from spacecal.core.errors import UnreachableError
 from spacecal.models.kinematics import forward_kinematics, geometric_jacobian
-from spacecal.planning import motion_gate
+from spacecal.planning import motion, motion_gate
 from spacecal.planning.check_poses import check_plan
-from spacecal.planning.motion import TimedMove, track_path
+from spacecal.planning.motion import TimedMove, follow_path, track_path
 from spacecal.planning.motion_gate import (
     CHECKS,
     CONTINUITY_MM,
     MAX_MOVES,
     MotionRefusedError,
     RobotPermits,
-    follow_path,
     gate_motion,
     singularity_distances,
     workspace_around,
@@ -114,14 +114,32 @@ def test_visibility_is_not_known_without_a_tracker_pose(world, sweeps):
 
 
 def test_follow_path_is_the_branch_a_movel_follows(world, sweeps):
-    """The gate's fast follower finds the same joints as following one pose at a time."""
+    """The chunked follower finds the joints of following one pose at a time, to the tolerance,
+    on the longest rotation (at the gate's sampling and at the simulator's)."""
     model = world.controller_model
     move = sweeps.moves[1]  # the longest rotation
-    poses = move.poses_at(np.linspace(0.0, move.duration_s, 181))
     start = track_path(model, move.start[None], world.home_joints_rad)[0]
-    fast, solved = follow_path(model, poses, start)
-    assert solved == len(poses)
-    np.testing.assert_allclose(fast, track_path(model, poses, start), atol=1e-7)
+    for count in (181, 23):
+        poses = move.poses_at(np.linspace(0.0, move.duration_s, count))
+        fast, solved = follow_path(model, poses, start)
+        one_by_one, followed = motion._follow_pose_by_pose(model, poses, start, None, motion.PATH_TOL_MM)
+        assert solved == followed == len(poses)
+        np.testing.assert_allclose(fast, one_by_one, atol=1e-9)
+        np.testing.assert_allclose(forward_kinematics(model, fast), poses, atol=1e-9)
+
+
+def test_follow_path_stops_where_the_arm_cannot_follow(world):
+    """A line out of reach is followed up to the workspace's edge, NaN after it, and
+    track_path names the pose."""
+    model = world.controller_model
+    home = forward_kinematics(model, world.home_joints_rad)
+    poses = np.repeat(home[None], 40, axis=0)
+    poses[:, 0, 3] += np.linspace(0.0, 2000.0, 40)  # 2 m out along x
+    joints, followed = follow_path(model, poses, world.home_joints_rad)
+    assert 0 < followed < 40
+    assert np.isfinite(joints[:followed]).all() and np.isnan(joints[followed:]).all()
+    with pytest.raises(UnreachableError, match=f"path pose {followed} "):
+        track_path(model, poses, world.home_joints_rad)
 
 
 def test_singularity_distances_are_the_factors_of_the_jacobian_determinant(world):

@@ -19,6 +19,7 @@ from typing import Any
 from spacecal.app.acquisition import AcquireOutput, AcquireSettings, acquire
 from spacecal.app.calibration import (
     TRACKER_KINDS,
+    BoundResult,
     BoundSettings,
     CalibrateSettings,
     PivotSettings,
@@ -103,6 +104,7 @@ __all__ = [
     "TRACKER_KINDS",
     "AcquireOutput",
     "AcquireSettings",
+    "BoundResult",
     "BoundSettings",
     "CalibrateSettings",
     "CheckOutput",

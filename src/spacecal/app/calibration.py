@@ -318,16 +318,75 @@ def recorded_noise(recording: Recording, calibration: CalibrationResult) -> tupl
     )
 
 
-def bound(settings: BoundSettings) -> CommandResult[dict[str, Any]]:
+def _point(values: Sequence[float]) -> Point:
+    x, y, z = (float(v) for v in values)
+    return (x, y, z)
+
+
+@dataclass(frozen=True)
+class TargetBound:
+    """The bound at one target: ``target_in_base_mm`` (3,) and ``tre_mm``."""
+
+    target_in_base_mm: Point
+    tre_mm: float
+
+
+@dataclass(frozen=True)
+class BoundResult:
+    """What ``spacecal bound`` found: the Cramér–Rao lower bound on TRE for a recording.
+
+    Attributes
+    ----------
+    site_mm : float
+        The bound at the site (the centroid of the marker positions, base frame), mm.
+    site_in_base_mm : tuple of float
+        That site (3,), base frame, mm.
+    cube_rms_mm : float
+        RMS of the bound over a ``cube_side_mm`` cube around the site, mm.
+    cube_side_mm : float
+        The cube's side, mm.
+    targets : tuple of TargetBound
+        The bound at each ``--target``.
+    sigma_mm : float
+        The per-axis sphere noise the bound was computed for, mm.
+    sigma_source : str
+        Where ``sigma_mm`` came from (given, the tracker's fit RMS, the calibration, or learnt).
+    """
+
+    site_mm: float
+    site_in_base_mm: Point
+    cube_rms_mm: float
+    cube_side_mm: float
+    targets: tuple[TargetBound, ...]
+    sigma_mm: float
+    sigma_source: str
+
+    @classmethod
+    def from_summary(cls, summary: dict[str, Any], sigma_mm: float, sigma_source: str) -> BoundResult:
+        """From :func:`~spacecal.estimators.likelihood.tre_summary`'s dict."""
+        return cls(
+            site_mm=float(summary["site"]),
+            site_in_base_mm=_point(summary["site_in_base_mm"]),
+            cube_rms_mm=float(summary["cube_rms"]),
+            cube_side_mm=float(summary["cube_side_mm"]),
+            targets=tuple(
+                TargetBound(_point(t["target_in_base_mm"]), float(t["tre_mm"]))
+                for t in summary.get("targets", [])
+            ),
+            sigma_mm=float(sigma_mm),
+            sigma_source=sigma_source,
+        )
+
+
+def bound(settings: BoundSettings) -> CommandResult[BoundResult]:
     """The Cramér–Rao lower bound on TRE for a recording.
 
     Returns
     -------
-    CommandResult of dict
-        The bound at the site, over the cube and at the targets (mm); ``sigma_mm``, the per-axis
-        sphere noise it was computed for (as given, else from the recording's tracker fit RMS),
-        and ``sigma_source``, where that came from. Its notes say e.g. that the calibration, of
-        an older version, cannot be verified.
+    CommandResult of BoundResult
+        The bound at the site, over the cube and at the targets (mm), with the per-axis sphere
+        noise it was computed for (as given, else from the recording) and where that came from.
+        Its notes say e.g. that the calibration, of an older version, cannot be verified.
     """
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     calibration, notes = open_calibration(settings.calibration, "bound")
@@ -348,16 +407,16 @@ def bound(settings: BoundSettings) -> CommandResult[dict[str, Any]]:
         sigma_mm,
         check_points(settings.targets_in_base, "--target"),
     )
-    values = {**found, "sigma_mm": float(sigma_mm), "sigma_source": source}
+    result = BoundResult.from_summary(found, float(sigma_mm), source)
     lines = [
         *note_lines(notes),
-        f"Cramer-Rao lower bound on TRE for {settings.recording} with {values['sigma_mm']:.3g} mm per-axis "
+        f"Cramer-Rao lower bound on TRE for {settings.recording} with {result.sigma_mm:.3g} mm per-axis "
         f"sphere noise ({source}):",
-        f"  {values['site']:.4f} mm at the site, {values['cube_rms']:.4f} mm RMS over a "
-        f"{values['cube_side_mm']:.0f} mm cube around it",
-        *(f"  at {t['target_in_base_mm']}: {t['tre_mm']:.4f} mm" for t in values.get("targets", [])),
+        f"  {result.site_mm:.4f} mm at the site, {result.cube_rms_mm:.4f} mm RMS over a "
+        f"{result.cube_side_mm:.0f} mm cube around it",
+        *(f"  at {list(t.target_in_base_mm)}: {t.tre_mm:.4f} mm" for t in result.targets),
     ]
-    return CommandResult(values, notes=tuple(notes), lines=tuple(lines))
+    return CommandResult(result, notes=tuple(notes), lines=tuple(lines))
 
 
 @dataclass(frozen=True)

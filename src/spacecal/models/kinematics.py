@@ -313,6 +313,31 @@ def inverse_kinematics_gauss_newton(
     return q, False
 
 
+def linearised_joints(model: RobotModel, joints_rad: ArrayLike, base_from_tcp: ArrayLike) -> FloatArray:
+    """Joint angles (M, 6) predicted for poses near the TCP pose of ``joints_rad`` by one
+    linearised step from it: ``q + J(q)^-1 e_k``, with ``J`` the :func:`geometric_jacobian` at
+    ``q`` and ``e_k`` the error (position mm, rotation vector rad) from that pose to pose ``k``.
+
+    A start for :func:`inverse_kinematics_gauss_newton` on a stretch of a dense path that
+    stays on the branch of ``q`` (one Jacobian for the whole stretch).
+
+    Parameters
+    ----------
+    model : RobotModel
+    joints_rad : array_like, shape (6,)
+    base_from_tcp : array_like, shape (M, 4, 4)
+        Target TCP poses, mm.
+    """
+    q = np.asarray(joints_rad, dtype=float)
+    tcp, jac = _tcp_pose_and_jacobian(model, q[None])
+    err = _pose_error_vector(np.asarray(base_from_tcp, dtype=float), tcp)
+    try:
+        steps = np.linalg.solve(jac[0], err.T).T
+    except np.linalg.LinAlgError:
+        steps = err @ np.linalg.pinv(jac[0]).T
+    return q + steps
+
+
 def _wrap_near(angles: FloatArray, reference: FloatArray) -> FloatArray:
     """Add multiples of 2 pi to ``angles`` to bring them nearest to ``reference``."""
     return reference + np.mod(angles - reference + np.pi, 2 * np.pi) - np.pi

@@ -14,7 +14,12 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
 from spacecal.geometry.transforms import interpolate_transforms, matrix_to_rotvec
-from spacecal.models.kinematics import RobotModel, inverse_kinematics, inverse_kinematics_gauss_newton
+from spacecal.models.kinematics import (
+    RobotModel,
+    inverse_kinematics,
+    inverse_kinematics_gauss_newton,
+    linearised_joints,
+)
 from spacecal.records.plan import PlannedMove, PlanRecord
 
 
@@ -70,43 +75,125 @@ def trapezoid_progress(t, duration: float, accel_time: float) -> np.ndarray:
     )
 
 
-def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.ndarray:
-    """Joint angles (M, 6) following a dense pose path continuously from ``start_joints_rad``.
+#: Poses of a dense path solved together by :func:`follow_path`.
+PATH_CHUNK = 16
+#: Largest joint step (rad) between neighbouring poses of a chunk solved together; a larger one
+#: is taken for a jump to another IK branch, and the chunk is followed pose by pose instead.
+BRANCH_JUMP_RAD = 0.2
+#: Position tolerance (mm) of the joints :func:`track_path` finds; rotations to 1e-3 of it, rad.
+PATH_TOL_MM = 1e-9
 
-    Each pose is solved by Gauss–Newton (:func:`~spacecal.models.kinematics.inverse_kinematics_gauss_newton`)
-    from the previous solution, so the arm never jumps between IK branches mid-move (as a UR
-    controller behaves on ``movel``).
+
+def follow_path(
+    model: RobotModel, poses_base_from_tcp, start_joints_rad, tolerance_mm: float = PATH_TOL_MM
+) -> tuple[np.ndarray, int]:
+    """Joint angles following a dense pose path continuously from ``start_joints_rad``, as a
+    controller follows a ``movel``: on the IK branch it starts on, never a jump to another.
+
+    The path is solved in chunks of :data:`PATH_CHUNK` poses: Gauss–Newton
+    (:func:`~spacecal.models.kinematics.inverse_kinematics_gauss_newton`) on the whole chunk at
+    once, each pose from the linearised step from the last solution
+    (:func:`~spacecal.models.kinematics.linearised_joints`). A chunk whose solutions do not all
+    converge, or step by more than :data:`BRANCH_JUMP_RAD` from their neighbour or from that
+    start, is followed pose by pose instead, each from the previous solution's linear
+    continuation. Both reach the same joints on the same branch (to the tolerance); the chunks
+    cost about a tenth.
+
+    Parameters
+    ----------
+    model : RobotModel
+    poses_base_from_tcp : array_like, shape (M, 4, 4)
+        ``base_from_tcp`` along the path, mm, closely spaced.
+    start_joints_rad : array_like, shape (6,)
+        The configuration at the first pose (or near it).
+    tolerance_mm : float
+        Every position error below this (mm), every rotation error below 1e-3 of it (rad).
+
+    Returns
+    -------
+    joints : numpy.ndarray, shape (M, 6)
+        NaN from the first pose that could not be followed on.
+    followed : int
+        Poses followed (M when all).
+    """
+    poses = np.asarray(poses_base_from_tcp, dtype=float)
+    joints = np.full((len(poses), 6), np.nan)
+    q = np.asarray(start_joints_rad, dtype=float).copy()
+    previous = None
+    for first in range(0, len(poses), PATH_CHUNK):
+        chunk = poses[first : first + PATH_CHUNK]
+        solved = _solve_chunk(model, chunk, q, tolerance_mm)
+        if solved is None:
+            solved, done = _follow_pose_by_pose(model, chunk, q, previous, tolerance_mm)
+            if done < len(chunk):
+                joints[first : first + done] = solved[:done]
+                return joints, first + done
+        joints[first : first + len(chunk)] = solved
+        previous = solved[-2] if len(solved) > 1 else q
+        q = solved[-1]
+    return joints, len(poses)
+
+
+def track_path(model: RobotModel, poses_base_from_tcp, start_joints_rad) -> np.ndarray:
+    """Joint angles (M, 6) following a dense pose path continuously from ``start_joints_rad``
+    (:func:`follow_path`, to :data:`PATH_TOL_MM`).
 
     Raises
     ------
     UnreachableError
         If a pose cannot be tracked (workspace edge or singularity).
     """
-    poses = np.asarray(poses_base_from_tcp, dtype=float)
-    joints = np.empty((len(poses), 6))
-    q = np.asarray(start_joints_rad, dtype=float).copy()
-    previous = None
-    for k, target in enumerate(poses):
+    joints, followed = follow_path(model, poses_base_from_tcp, start_joints_rad)
+    if followed < len(joints):
+        raise UnreachableError(f"path pose {followed} cannot be tracked (workspace edge or singularity)")
+    return joints
+
+
+def _solve(model: RobotModel, targets: np.ndarray, starts: np.ndarray, tolerance_mm: float):
+    return inverse_kinematics_gauss_newton(
+        model,
+        targets,
+        starts,
+        max_iterations=30,
+        position_tol_mm=tolerance_mm,
+        rotation_tol_rad=tolerance_mm * 1e-3,
+    )
+
+
+def _solve_chunk(
+    model: RobotModel, chunk: np.ndarray, q: np.ndarray, tolerance_mm: float
+) -> np.ndarray | None:
+    """The chunk's joints (K, 6) solved together from ``q``, or None where they may have left
+    its branch."""
+    guess = linearised_joints(model, q, chunk)
+    solved, converged = _solve(model, chunk, guess, tolerance_mm)
+    if not converged:
+        return None
+    steps = np.abs(np.diff(np.vstack([q, solved]), axis=0))
+    if steps.max() > BRANCH_JUMP_RAD or np.abs(solved - guess).max() > BRANCH_JUMP_RAD:
+        return None
+    return solved
+
+
+def _follow_pose_by_pose(
+    model: RobotModel, chunk: np.ndarray, q: np.ndarray, previous: np.ndarray | None, tolerance_mm: float
+) -> tuple[np.ndarray, int]:
+    """The chunk's joints (K, 6) one pose at a time, and how many were followed."""
+    joints = np.full((len(chunk), 6), np.nan)
+    for k, target in enumerate(chunk):
         # start from the path's own continuation (linear in the last two solutions), which
         # is closer than the last solution and saves an iteration; from the last solution
         # again if that fails
         starts = [q] if previous is None else [2.0 * q - previous, q]
         for start in starts:
-            solved, converged = inverse_kinematics_gauss_newton(
-                model,
-                target[None],
-                start[None],
-                max_iterations=30,
-                position_tol_mm=1e-9,
-                rotation_tol_rad=1e-12,
-            )
+            solved, converged = _solve(model, target[None], start[None], tolerance_mm)
             if converged:
                 break
         if not converged:
-            raise UnreachableError(f"path pose {k} cannot be tracked (workspace edge or singularity)")
+            return joints, k
         previous, q = q, solved[0]
         joints[k] = q
-    return joints
+    return joints, len(chunk)
 
 
 @dataclass

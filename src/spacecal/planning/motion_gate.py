@@ -47,10 +47,8 @@ from spacecal.geometry.transforms import interpolate_transforms, invert_transfor
 from spacecal.models.kinematics import (
     RobotModel,
     forward_kinematics,
-    geometric_jacobian,
-    inverse_kinematics_gauss_newton,
 )
-from spacecal.planning.motion import MotionLimits, trapezoid_duration
+from spacecal.planning.motion import MotionLimits, follow_path, trapezoid_duration
 from spacecal.planning.visibility import VisibilityModel
 
 # -- sampling -------------------------------------------------------------------------------
@@ -58,9 +56,6 @@ from spacecal.planning.visibility import VisibilityModel
 POSITION_STEP_MM = 2.0
 #: Largest TCP rotation between two samples of a line, rad (1 degree).
 ROTATION_STEP_RAD = math.radians(1.0)
-#: Every this many samples the path is followed one pose at a time; the samples between are
-#: solved together from the interpolated joints (the same solutions, about ten times faster).
-COARSE_STRIDE = 8
 
 # -- continuity -----------------------------------------------------------------------------
 #: Largest gap between a move's start and where the arm is when it starts, mm and rad. They are
@@ -357,10 +352,9 @@ class MotionRefusedError(InvalidInputError):
 
 
 # -- following a line -----------------------------------------------------------------------
-#: Converged when every position error is below this (mm) and every rotation error below
-#: 1e-3 of it (rad); the coarse pass stops at :data:`COARSE_TOL_MM` and the batch polishes.
+#: A line is followed when every position error is below this (mm) and every rotation error
+#: below 1e-3 of it (rad).
 IK_TOL_MM = 1e-6
-COARSE_TOL_MM = 1e-3
 
 
 def _rotation_between(a: FloatArray, b: FloatArray) -> float:
@@ -373,129 +367,6 @@ def _sample_count(start: FloatArray, end: FloatArray) -> int:
     angle = _rotation_between(start, end)
     intervals = max(math.ceil(distance / POSITION_STEP_MM), math.ceil(angle / ROTATION_STEP_RAD), 1)
     return intervals + 1
-
-
-def _converged(model: RobotModel, targets: FloatArray, joints: FloatArray) -> tuple[FloatArray, np.ndarray]:
-    """Pose errors (N, 6: mm, rad; base frame) of ``joints`` against ``targets``, and which
-    rows are within :data:`IK_TOL_MM`."""
-    reached = forward_kinematics(model, joints)
-    error = np.concatenate(
-        [
-            targets[:, :3, 3] - reached[:, :3, 3],
-            np.atleast_2d(matrix_to_rotvec(targets[:, :3, :3] @ np.swapaxes(reached[:, :3, :3], -1, -2))),
-        ],
-        axis=1,
-    )
-    done = (np.max(np.abs(error[:, :3]), axis=1) < IK_TOL_MM) & (
-        np.max(np.abs(error[:, 3:]), axis=1) < IK_TOL_MM * 1e-3
-    )
-    return error, done
-
-
-def _solve_batch(
-    model: RobotModel, targets: FloatArray, guesses: FloatArray, iterations: int = 12
-) -> tuple[FloatArray, np.ndarray]:
-    """Gauss–Newton on many poses at once, each from a nearby guess: joints (N, 6), converged (N,)."""
-    q = guesses.copy()
-    for _ in range(iterations):
-        error, done = _converged(model, targets, q)
-        if done.all():
-            return q, done
-        active = ~done
-        step = np.linalg.pinv(geometric_jacobian(model, q[active])) @ error[active][:, :, None]
-        q[active] = q[active] + step[:, :, 0]
-    return q, _converged(model, targets, q)[1]
-
-
-def _solve_one(
-    model: RobotModel, target: FloatArray, guess: FloatArray, tol_mm: float = IK_TOL_MM
-) -> FloatArray | None:
-    solved, converged = inverse_kinematics_gauss_newton(
-        model,
-        target[None],
-        guess[None],
-        max_iterations=30,
-        position_tol_mm=tol_mm,
-        rotation_tol_rad=tol_mm * 1e-3,
-    )
-    return solved[0] if converged else None
-
-
-def _follow_one_by_one(model: RobotModel, poses: FloatArray, q_start: FloatArray) -> tuple[FloatArray, int]:
-    joints = np.full((len(poses), 6), np.nan)
-    q = q_start
-    for k, pose in enumerate(poses):
-        solved = _solve_one(model, pose, q)
-        if solved is None:
-            return joints, k
-        joints[k] = q = solved
-    return joints, len(poses)
-
-
-def follow_path(model: RobotModel, poses: ArrayLike, q_start: ArrayLike) -> tuple[FloatArray, int]:
-    """Joint angles following a dense pose path continuously from ``q_start``, as a controller
-    follows a ``movel`` (the IK branch it starts on, never a jump to another).
-
-    Every :data:`COARSE_STRIDE`-th pose is solved one at a time from the previous solution
-    (extrapolated); then every pose together, from the joints interpolated between those.
-    Where that does not converge the path is followed one pose at a time to the failure.
-
-    Parameters
-    ----------
-    model : RobotModel
-    poses : array_like, shape (M, 4, 4)
-        ``base_from_tcp`` along the path, mm, closely spaced.
-    q_start : array_like, shape (6,)
-        The configuration at the first pose (or near it).
-
-    Returns
-    -------
-    joints : numpy.ndarray, shape (M, 6)
-        NaN from the first pose that could not be followed on.
-    solved : int
-        Poses followed (M when all).
-    """
-    poses = np.asarray(poses, dtype=float)
-    q_start = np.asarray(q_start, dtype=float)
-    count = len(poses)
-    coarse = list(range(0, count, COARSE_STRIDE))
-    if coarse[-1] != count - 1:
-        coarse.append(count - 1)
-    joints = np.full((count, 6), np.nan)
-    reached: list[int] = []
-    for index in coarse:
-        q = joints[reached[-1]] if reached else q_start
-        guess = q
-        if len(reached) > 1:  # the joints change smoothly along a line: extrapolate
-            a, b = reached[-2], reached[-1]
-            guess = q + (q - joints[a]) * (index - b) / (b - a)
-        solved = _solve_one(model, poses[index], guess, COARSE_TOL_MM)
-        if solved is None and guess is not q:
-            solved = _solve_one(model, poses[index], q, COARSE_TOL_MM)
-        if solved is None:
-            break
-        joints[index] = solved
-        reached.append(index)
-    if not reached:
-        return _follow_one_by_one(model, poses, q_start)
-    span = reached[-1] + 1
-    guesses = np.empty((span, 6))
-    for a, b in zip(reached, reached[1:]):
-        guesses[a:b] = joints[a] + ((np.arange(a, b) - a) / (b - a))[:, None] * (joints[b] - joints[a])
-    guesses[span - 1] = joints[span - 1]
-    solved_all, ok = _solve_batch(model, poses[:span], guesses)
-    if not ok.all():
-        # follow one by one from the last coarse pose before the first that did not converge
-        start = max((i for i in reached if i < int(np.argmin(ok))), default=0)
-        origin = solved_all[start] if ok[start] else q_start
-        joints[:start] = solved_all[:start]
-        joints[start:], done = _follow_one_by_one(model, poses[start:], origin)
-        return joints, start + done
-    joints[:span] = solved_all
-    if span < count:  # locate the failure after the last coarse pose followed
-        joints[span - 1 :], done = _follow_one_by_one(model, poses[span - 1 :], joints[span - 1])
-        return joints, span - 1 + done
-    return joints, count
 
 
 def singularity_distances(
@@ -953,7 +824,7 @@ def _reach(
     joints = np.full((limit, 6), np.nan)
     solved = 0
     if limit > 0:
-        joints, solved = follow_path(model, poses[:limit], joints_start)
+        joints, solved = follow_path(model, poses[:limit], joints_start, IK_TOL_MM)
         if solved < limit:
             failures.append(
                 (
