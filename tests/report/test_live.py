@@ -13,7 +13,7 @@ import pytest
 
 from spacecal import app
 from spacecal.cli.main import main
-from spacecal.report.live import LiveView
+from spacecal.report.live import MAX_FRAMES_PER_REPLY, LiveView
 
 from .test_html import rendered_dom, screenshot, script_errors
 
@@ -59,10 +59,17 @@ def test_the_view_follows_a_simulated_acquisition(tmp_path):
         assert np.all(marker[:, 2] < -500)  # in front of the tracker, mm
         assert sum(data["per_segment"].values()) == result.samples_written
 
-        dom = rendered_dom_of(view.url)
+        # the page stops asking once the run has ended and it has every frame (it polled every
+        # 0.5 s forever, and redrew the 3-D view each time: a busy browser for nothing)
+        asked = []
+        served = view.snapshot
+        view.snapshot = lambda since=0: asked.append(since) or served(since)
+        dom = rendered_dom_of(view.url)  # 15 s of the page's time
         assert script_errors(dom) == ""
         assert "main-svg" in dom  # the 3-D view was drawn
         assert f'<b id="samples">{result.samples_written}</b>' in dom
+        assert '<span id="run-status">finished</span>' in dom
+        assert 0 < len(asked) <= 1 + -(-result.samples_written // MAX_FRAMES_PER_REPLY), asked
         # kept for a person to look at
         screenshot(_Url(view.url), tmp_path / "live_view.png")
 

@@ -343,11 +343,18 @@ function show(data) {
     data.dropped ? data.dropped + " frames were dropped before this page saw them" : "";
   Plotly.react("view", traces(), layout);
 }
+var status = null;
 function poll() {
   fetch("/data?since=" + sequence, {cache: "no-store"}).then(function (r) { return r.json(); })
     .then(function (data) {
-      show(data);
-      setTimeout(poll, data.sequence < data.latest_sequence ? 50 : 500);
+      // redraw only what changed: a 3-D redraw is most of the page's work
+      if (data.sequence !== sequence || data.status !== status) { show(data); }
+      status = data.status;
+      // once the run has ended and every frame is shown there is nothing more to fetch
+      var ended = data.status !== "running" && data.status.indexOf("waiting") !== 0;
+      if (!ended || data.sequence < data.latest_sequence) {
+        setTimeout(poll, data.sequence < data.latest_sequence ? 50 : 500);
+      }
     })
     .catch(function () {
       document.getElementById("run-status").textContent = "view disconnected (the acquisition has ended)";
