@@ -22,7 +22,7 @@ NaN: spacecal then takes the noise from the residuals. Joint angles are passed f
 arms, whose nominal DH tables are the same in both packages; other arms get NaN joints
 (spacecal has no model of them).
 
-This module imports nothing from the tests; the benchmark ``benchmarks/kinhec.py`` and the
+This module imports nothing from the tests; the benchmark ``benchmarks/kinhec_tracks.py`` and the
 conversion test load it by path.
 """
 

@@ -24,7 +24,7 @@ eye-in-hand the calibration target is the tracker and the camera the marker; Kin
 is the TCP. KinHEC's trackers report poses only (no fit RMS); joint angles and the robot model
 go with the UR arms only (``kinematic`` is skipped for the others).
 
-    python benchmarks/kinhec.py [--tier smoke|small|medium] [--data DIR] [--limit N]
+    python benchmarks/kinhec_tracks.py [--tier smoke|small|medium] [--data DIR] [--limit N]
         [--tracks noise robot_error outliers temporal motion] [--methods ml shah ...]
         [--json out.json] [--workers 1]
 """
@@ -52,15 +52,9 @@ from pathlib import Path
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 
+import kinhec  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
-
-# Run as ``python benchmarks/kinhec.py``, this file's folder is first on the path and would
-# shadow the ``kinhec`` package with this very script.
-_HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
-
-import kinhec  # noqa: E402
 from kinhec import motions as kinhec_motions  # noqa: E402
 from kinhec import se3 as kinhec_se3  # noqa: E402
 from kinhec import solvers as kinhec_solvers  # noqa: E402
@@ -83,7 +77,9 @@ from spacecal.io.recording_csv import write_recording  # noqa: E402
 
 def _load_conversion():
     """``kinhec_conversion.py`` beside this file, loaded by path (benchmarks is no package)."""
-    spec = importlib.util.spec_from_file_location("kinhec_conversion", _HERE / "kinhec_conversion.py")
+    spec = importlib.util.spec_from_file_location(
+        "kinhec_conversion", Path(__file__).resolve().parent / "kinhec_conversion.py"
+    )
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
     spec.loader.exec_module(module)
