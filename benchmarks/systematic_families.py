@@ -42,12 +42,10 @@ import numpy as np
 
 from spacecal.estimators import calibrate
 from spacecal.experiments.simulation import simulate
-from spacecal.experiments.verification import verification_targets, verify_in_simulation
+from spacecal.experiments.verification import verify_in_simulation
 from spacecal.geometry.transforms import invert_transform, make_transform
-from spacecal.sim.devices import SimulatedLaserTracker, SimulatedRobot
 from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
-from spacecal.workflows.verification import run_verification
 
 SCENARIOS = (
     "systematic-nominal",
@@ -61,24 +59,14 @@ VARIANTS = ("ml", "ml + tip", "kinematic", "kinematic + tip")
 
 
 def verify_with_measured_tip(calibration, scenario, pivot_sd_mm: float):
-    """The paper's verification (as :func:`verify_in_simulation`) with IK aiming the needle tip
-    a simulated pivot calibration measured in the marker frame."""
+    """The paper's verification with IK aiming the needle tip a simulated pivot calibration
+    measured in the marker frame, put in the reported TCP frame by ``tcp_from_marker``."""
     world = build_world(scenario)
     rng = np.random.default_rng([scenario.seed, 7])
     tip_in_marker = invert_transform(world.tcp_from_marker)[:3, 3] + rng.normal(0.0, pivot_sd_mm, 3)
     tcp_from_marker = calibration.tcp_from_marker
-    tcp_from_needle = make_transform(
-        np.eye(3), tcp_from_marker[:3, :3] @ tip_in_marker + tcp_from_marker[:3, 3]
-    )
-    targets = verification_targets(
-        world, scenario.verification_targets, np.random.default_rng([scenario.seed, 2, 0])
-    )
-    robot = SimulatedRobot(world)
-    laser = SimulatedLaserTracker(world, robot)
-    model = calibration.robot_model_for_ik(world.controller_model)
-    return run_verification(
-        calibration, robot, laser, model, targets, world.home_joints_rad, tcp_from_needle=tcp_from_needle
-    )
+    tip_in_tcp = tcp_from_marker[:3, :3] @ tip_in_marker + tcp_from_marker[:3, 3]
+    return verify_in_simulation(calibration, scenario, tcp_from_needle=make_transform(np.eye(3), tip_in_tcp))
 
 
 def run(preset: str, seed: int, pivot_sd_mm: float = 0.1) -> list[dict]:

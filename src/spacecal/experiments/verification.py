@@ -34,7 +34,11 @@ def verification_targets(world: World, count: int, rng: np.random.Generator) -> 
 
 
 def verify_in_simulation(
-    calibration: CalibrationResult, scenario: Scenario, count: int | None = None, seed: int = 0
+    calibration: CalibrationResult,
+    scenario: Scenario,
+    count: int | None = None,
+    seed: int = 0,
+    tcp_from_needle=None,
 ) -> VerificationResult:
     """Run the verification experiment (paper §5.2) in the world of ``scenario``.
 
@@ -48,6 +52,9 @@ def verify_in_simulation(
         Number of needle poses; the scenario's ``verification_targets`` (15) if omitted.
     seed : int
         Seeds the target poses.
+    tcp_from_needle : array_like, shape (4, 4), optional
+        Where IK puts the needle tip in the TCP frame (e.g. a tip measured by a pivot); the
+        controller's TCP when omitted. The reference always measures the true tip.
     """
     world = build_world(scenario)
     count = scenario.verification_targets if count is None else count
@@ -57,4 +64,6 @@ def verify_in_simulation(
     # IK with the identified kinematic model when the calibration carries one, else with the
     # controller's own (nominal or factory-calibrated), as spacecal does on real hardware
     model = calibration.robot_model_for_ik(world.controller_model)
-    return run_verification(calibration, robot, laser, model, targets, world.home_joints_rad)
+    return run_verification(
+        calibration, robot, laser, model, targets, world.home_joints_rad, tcp_from_needle=tcp_from_needle
+    )
