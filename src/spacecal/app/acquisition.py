@@ -46,7 +46,7 @@ from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.planning.paper_sweeps import PaperSweepSettings
 from spacecal.planning.stop_and_go import stop_and_go_plan
 from spacecal.records import robot_model_to_dict
-from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
+from spacecal.sim.devices import RealClock, SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import Scenario, load_scenario
 from spacecal.sim.world import World, build_world
@@ -99,6 +99,9 @@ class AcquireSettings:
     live_view : int or None
         Show the marker, the sweeps and the samples in a web browser at
         ``http://127.0.0.1:PORT/`` while the motion runs (0: any free port); not on a dry run.
+    simulated_speed : float or None
+        Simulated devices run this many simulated seconds per real second (1: as long as the
+        robot would take, as a training station shows it); None: as fast as they compute.
     """
 
     output: str
@@ -117,6 +120,7 @@ class AcquireSettings:
     plan: str | None = None
     stop_and_go: int = 0
     live_view: int | None = None
+    simulated_speed: float | None = None
 
     def __post_init__(self) -> None:
         if not (
@@ -137,6 +141,13 @@ class AcquireSettings:
                 )
             if np.any(np.abs(box) > 1e5):
                 raise InvalidInputError("--workspace-box: each limit must be within +-100000 mm")
+        speed = self.simulated_speed
+        if speed is not None and not (
+            isinstance(speed, (int, float)) and math.isfinite(speed) and 0.1 <= speed <= 1000
+        ):
+            raise InvalidInputError(
+                f"the simulated devices' speed must be 0.1..1000 times real time, got {speed}"
+            )
 
 
 @dataclass
@@ -153,12 +164,14 @@ class AcquireOutput:
 
 
 def simulated_devices(
-    scenario: str | Scenario, start_s: float = 0.0
+    scenario: str | Scenario, start_s: float = 0.0, speed: float | None = None
 ) -> tuple[World, SimulatedRobot, SimulatedTracker]:
     """The simulated robot and tracker of a scenario (a name, file or the scenario itself;
-    simulated time from ``start_s``), and their world."""
+    simulated time from ``start_s``, ``speed`` times real time or, None, as fast as they
+    compute), and their world."""
     world = build_world(load_scenario(scenario) if isinstance(scenario, str) else scenario)
-    robot = SimulatedRobot(world, SimClock(start_s), stream_states=True)
+    clock = SimClock(start_s) if speed is None else RealClock(start_s, speed)
+    robot = SimulatedRobot(world, clock, stream_states=True)
     return world, robot, SimulatedTracker(world, robot)
 
 
@@ -175,7 +188,9 @@ def opened_devices(
         # a resumed simulated run continues the recording's time (a real clock just goes on)
         last = last_time_s(raw_stream_paths(settings.output)[0]) if settings.resume else None
         start = 0.0 if last is None else float(np.ceil(last + 1.0))
-        world, robot, tracker = simulated_devices(scenario or settings.scenario, start)
+        world, robot, tracker = simulated_devices(
+            scenario or settings.scenario, start, settings.simulated_speed
+        )
     else:
         robot, tracker = open_hardware(settings.devices, motion_limits(settings))
         world = None

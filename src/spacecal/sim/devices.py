@@ -43,23 +43,30 @@ class SimClock:
 
 
 class RealClock(SimClock):
-    """Wall-clock time for running the simulation in real time (behind protocol fakes).
+    """Wall-clock time, optionally sped up, for running the simulation as devices would run
+    (behind protocol fakes, or at a training station where the motion should take as long as
+    on the robot).
 
-    ``now_s`` counts seconds since construction; ``advance_to`` sleeps until then.
+    ``now_s`` counts seconds since construction (from ``start_s``), ``speed`` simulated seconds
+    per real second; ``advance_to`` sleeps until then.
     """
 
-    def __init__(self):
+    def __init__(self, start_s: float = 0.0, speed: float = 1.0):
         import time
 
+        if not speed > 0:
+            raise ValueError(f"a clock's speed must be positive, got {speed}")
         self._time = time
+        self._origin_s = start_s
+        self._speed = speed
         self._start = time.monotonic()
 
     @property
     def now_s(self) -> float:
-        return self._time.monotonic() - self._start
+        return self._origin_s + (self._time.monotonic() - self._start) * self._speed
 
     def advance_to(self, time_s: float) -> None:
-        delay = time_s - self.now_s
+        delay = (time_s - self.now_s) / self._speed
         if delay > 0:
             self._time.sleep(delay)
 

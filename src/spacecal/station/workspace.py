@@ -15,6 +15,10 @@ from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.records import CalibrationResult
 
 #: The finding levels in an operator's words.
+#: Simulated devices move in real time at the station: training shows the motion as long as the
+#: robot takes, and STOP or a closed page acts mid-motion as it would on the robot.
+SIMULATED_SPEED = 1.0
+
 LEVEL_WORDS = {
     FINDING_OK: "fine",
     FINDING_WARNING: "check this before you start",
@@ -131,6 +135,7 @@ class Workspace:
             dry_run=dry_run,
             confirm_robot_motion=not dry_run,  # the station's confirmation page was answered
             plan=str(self.plan_path) if self.plan_path.is_file() else None,
+            simulated_speed=None if dry_run else SIMULATED_SPEED,
         )
 
     def dry_run(self) -> None:
