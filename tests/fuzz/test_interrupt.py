@@ -2,7 +2,9 @@
 
 After each interruption every file written must be readable, ``--resume`` must complete the
 recording (time increasing across the resume point, the same columns) and the recording must
-calibrate (``--method ml``).
+calibrate (``--method ml``). The interrupted and the resumed acquisitions are each a process of
+their own, as on a real machine; the calibration runs in this process (what a process leaves
+behind is the files, and they are what it reads).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from spacecal import app
+from spacecal.core.errors import SpacecalError
 from spacecal.io.recording_csv import read_recording
 
 #: Interruption points, one in each of as many equal slices of 1-7 s after the start (each
@@ -71,9 +75,10 @@ def _interrupt_then_resume(folder: Path, signum: int, delay_s: float) -> str | N
     recording = read_recording(folder / "rec.csv")
     if not np.all(np.diff(recording.time_s) > 0):
         return "time not increasing after the resume point"
-    calibrated = _spacecal("calibrate", "rec.csv", "--method", "ml", "-o", "cal.json", cwd=folder)
-    if calibrated.returncode != 0:
-        return f"calibrate after {delay_s:.2f} s: {calibrated.stderr[-800:]}"
+    try:
+        app.calibrate(app.CalibrateSettings(str(folder / "rec.csv"), str(folder / "cal.json"), "ml"))
+    except SpacecalError as exc:
+        return f"calibrate after {delay_s:.2f} s: {exc}"
     return None
 
 
@@ -107,9 +112,6 @@ def test_ctrl_c_at_random_samples_then_resume(tmp_path, stop_at):
     """The same, in this process: KeyboardInterrupt raised at seeded random samples (a test
     hook on the progress callback), so every part of the plan is hit whatever the machine's
     speed (one case per point, so the test workers share them)."""
-    from spacecal import app
-    from spacecal.core.errors import SpacecalError
-
     output = tmp_path / "rec.csv"
 
     def hook(samples, visible, move, label):

@@ -538,8 +538,8 @@ def test_a_refused_plan_never_moves_the_simulated_robot(plan_files, tmp_path, mo
     robots = []
     original = acquisition.simulated_devices
 
-    def keep(scenario, start_s=0.0):
-        world, robot, tracker = original(scenario, start_s)
+    def keep(scenario, start_s=0.0, speed=None):
+        world, robot, tracker = original(scenario, start_s, speed)
         robots.append(robot)
         return world, robot, tracker
 

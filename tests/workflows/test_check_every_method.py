@@ -54,8 +54,8 @@ def set_up(monkeypatch, move_mm=0.0, turn_deg=0.0, seed=5):
 
     opened = acquisition.simulated_devices
 
-    def changed(scenario, start_s=0.0):
-        world, robot, tracker = opened(scenario, start_s)
+    def changed(scenario, start_s=0.0, speed=None):
+        world, robot, tracker = opened(scenario, start_s, speed)
         world.noise_rng = np.random.default_rng([seed, 11])
         world.tracker_from_base = make_transform(np.eye(3), [move_mm, 0.0, 0.0]) @ world.tracker_from_base
         world.tcp_from_marker = world.tcp_from_marker @ axis_angle_transform([1, 0, 0], np.radians(turn_deg))

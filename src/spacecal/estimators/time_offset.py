@@ -20,7 +20,6 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
 from scipy.optimize import minimize_scalar
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
@@ -465,6 +464,8 @@ def _masked_correlation(
     b = np.where(tracker_valid, tracker - tracker[tracker_valid].mean(), 0.0)
     ma, mb = robot_valid.astype(float), tracker_valid.astype(float)
 
+    from scipy import signal  # here, not at the top: it takes longer to import than spacecal itself
+
     def correlate(x: FloatArray, y: FloatArray) -> FloatArray:
         return as_float_array(signal.correlate(x, y, mode="full", method="fft"))
 
@@ -554,6 +555,8 @@ def coarse_offset_by_correlation(
     shift = 0.5 * (below - above) / curvature if curvature < 0 else 0.0
     separation = max(separation_s, 5.0 * window)
     filled = np.where(np.isfinite(correlation), correlation, -2.0)
+    from scipy import signal
+
     peaks, _ = signal.find_peaks(filled)
     rivals = peaks[(np.abs(offsets[peaks] - offsets[best]) > separation) & (filled[peaks] > -2.0)]
     runner = int(rivals[np.argmax(filled[rivals])]) if len(rivals) else None

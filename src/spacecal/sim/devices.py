@@ -119,35 +119,39 @@ class SimulatedRobot:
         self._streamed_to_s = np.floor(self.clock.now_s / self._tick_s) * self._tick_s
         self._newest_tick: tuple[float, np.ndarray] = (float(self._streamed_to_s), self._joints.copy())
         self._updated_at_s = -np.inf
-        self._joints_time_s = self.clock.now_s
+        self._followed: tuple[Any, np.ndarray, np.ndarray] | None = None
         self._lock = threading.RLock()
 
-    #: Longest step of the path followed between two looks at the robot (s): a controller
-    #: tracks its path continuously, so a long jump (a blocking move) is followed in steps.
+    #: Time step (s) of the path a linear move's joints are followed along when it is commanded:
+    #: a controller tracks its path continuously, so the joints at any later instant are solved
+    #: from the followed path's joints there, on the same branch.
     PATH_STEP_S = 0.02
 
+    def _follow(self, move) -> None:
+        """Follow a commanded linear move's path from the current joints (once per move; the
+        path depends on progress alone, so later looks only refine from it)."""
+        steps = max(2, int(np.ceil(move.duration_s / self.PATH_STEP_S)) + 1)
+        times = np.linspace(0.0, move.duration_s, steps)
+        self._followed = (
+            move,
+            times,
+            track_path(self.world.controller_model, move.poses_at(times), self._joints),
+        )
+
     def _joints_at(self, motion: tuple, times_s: np.ndarray) -> np.ndarray:
-        """Joint angles (M, 6) of ``motion`` at increasing times (M,), followed continuously
-        from the last look (``self._joints`` at ``self._joints_time_s``)."""
+        """Joint angles (M, 6) of ``motion`` at times (M,) since the clock's origin."""
         kind, move, start = motion
         if kind == "linear":
-            model = self.world.controller_model
-            since = max(self._joints_time_s, start)
-            # the path is followed continuously, step by step, to the newest time...
-            steps = np.arange(since + self.PATH_STEP_S, times_s[-1], self.PATH_STEP_S)
-            grid = np.union1d(steps, times_s[-1:])
-            path = track_path(model, move.poses_at(np.clip(grid - start, 0.0, move.duration_s)), self._joints)
-            earlier = times_s[:-1]
-            if not len(earlier):
-                return path[-1:]
-            # ...and the controller's ticks in between are solved together, each from where the
-            # followed path was at its time: the same branch, at a fraction of the sequential cost
-            known_s = np.append(since, grid)
-            known = np.vstack([self._joints, path])
-            guess = np.stack([np.interp(earlier, known_s, joint) for joint in known.T], axis=1)
-            ticks, converged = inverse_kinematics_gauss_newton(
-                model,
-                move.poses_at(np.clip(earlier - start, 0.0, move.duration_s)),
+            if self._followed is None or self._followed[0] is not move:
+                raise RuntimeError("a linear move's path is followed when it is commanded")
+            _, path_s, path = self._followed
+            since = np.clip(times_s - start, 0.0, move.duration_s)
+            # each instant is solved from where the followed path was at its time: the same
+            # branch, all instants together
+            guess = np.stack([np.interp(since, path_s, joint) for joint in path.T], axis=1)
+            joints, converged = inverse_kinematics_gauss_newton(
+                self.world.controller_model,
+                move.poses_at(since),
                 guess,
                 max_iterations=30,
                 position_tol_mm=1e-9,
@@ -155,7 +159,7 @@ class SimulatedRobot:
             )
             if not converged:
                 raise UnreachableError("the simulated arm cannot follow its path (a workspace edge)")
-            return np.vstack([ticks, path[-1:]])
+            return joints
         q0, q1, _, duration = move
         fraction = np.ones_like(times_s) if duration == 0 else np.clip((times_s - start) / duration, 0.0, 1.0)
         return q0 + fraction[:, None] * (q1 - q0)
@@ -189,7 +193,7 @@ class SimulatedRobot:
         path = self._joints_at(motion, np.append(ticks, now))
         end = self._motion_end_s(motion)
         self._stream_ticks(ticks, path[:-1], moving=ticks < end)
-        self._joints, self._joints_time_s = path[-1], now
+        self._joints = path[-1]
         if now >= end:
             self._finish()
 
@@ -265,6 +269,7 @@ class SimulatedRobot:
             limits,
             0.0,
         )
+        self._follow(move)
         self._motion = ("linear", move, self.clock.now_s)
         self._updated_at_s = -np.inf
         if not asynchronous:
