@@ -169,3 +169,30 @@ def test_pivot_files_of_both_versions_read_back(tmp_path):
     version_1["schema_version"] = 1
     old = PivotResult.from_dict(version_1)
     assert old.rms_mm == pytest.approx(result.rms_mm) and old.frames == len(result.residuals_mm)
+
+
+def test_calibrate_with_a_pivot_measured_tip(simulated, tmp_path):
+    """``--tip pivot.json``: the calibration carries the tip and the pivot file's sha256, says
+    where IK aims, and refuses a file that is not a pivot result in one line."""
+    from spacecal.io.digest import file_sha256
+    from spacecal.sim.pivot import simulate_pivot
+    from spacecal.sim.scenario import load_scenario
+    from spacecal.sim.world import build_world
+
+    folder, _ = simulated
+    world = build_world(dataclasses.replace(load_scenario("paper-white"), seed=4))
+    pivot = tmp_path / "pivot.json"
+    pivot.write_text(json.dumps(simulate_pivot(world).to_dict()))
+    out = app.calibrate(
+        app.CalibrateSettings(str(folder / "rec.csv"), str(tmp_path / "cal.json"), "ml", tip=str(pivot))
+    )
+    tip = out.record.needle_tip
+    assert tip is not None and tip.source_sha256 == file_sha256(pivot) and tip.frames > 100
+    assert any(line.startswith("needle tip (pivot") for line in out.lines)
+    assert read_calibration(tmp_path / "cal.json").needle_tip is not None
+    with pytest.raises(InvalidInputError, match="pivot"):
+        app.calibrate(
+            app.CalibrateSettings(
+                str(folder / "rec.csv"), str(tmp_path / "again.json"), "ml", tip=str(tmp_path / "cal.json")
+            )
+        )

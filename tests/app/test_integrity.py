@@ -22,6 +22,7 @@ from spacecal.io.digest import file_sha256
 from spacecal.io.recording_csv import write_recording
 from spacecal.io.results_json import read_calibration
 from spacecal.records import CalibrationResult, Provenance
+from spacecal.records.calibration import CALIBRATION_READABLE_VERSIONS
 
 EDITED = "has been edited since it was written (content hash differs); pass --accept-edited to use it anyway"
 
@@ -226,7 +227,10 @@ def test_an_older_calibration_is_read_with_a_note_that_it_cannot_be_verified(cal
 @pytest.mark.parametrize("reader", READERS + STRICT)
 def test_a_future_schema_version_is_refused_by_every_reader_in_one_line(calibrated, tmp_path, reader):
     _, recording, cal = calibrated
-    future = edited_copy(cal, lambda d: d.update(schema_version=4), name=f"future_{tmp_path.name}.json")
+    newest = max(CALIBRATION_READABLE_VERSIONS)
+    future = edited_copy(
+        cal, lambda d: d.update(schema_version=newest + 1), name=f"future_{tmp_path.name}.json"
+    )
     calls = {
         **{k: (lambda c, f=f: f(c, True)) for k, f in _readers(tmp_path, recording).items()},
         **_strict_readers(tmp_path, recording),
@@ -234,8 +238,9 @@ def test_a_future_schema_version_is_refused_by_every_reader_in_one_line(calibrat
     with pytest.raises(InvalidInputError) as error:
         calls[reader](future)
     assert str(error.value) == (
-        f"{future}: schema_version 4 is newer than this spacecal reads (1, 2, 3): written by a newer "
-        "spacecal, update it to read this file"
+        f"{future}: schema_version {newest + 1} is newer than this spacecal reads "
+        f"({', '.join(map(str, CALIBRATION_READABLE_VERSIONS))}): written by a newer spacecal, update it "
+        "to read this file"
     )
 
 

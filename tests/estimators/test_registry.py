@@ -36,9 +36,10 @@ def test_declared_options_are_exactly_what_the_method_takes(name):
     # the registry no longer reads signatures at run time: here they check the declarations
     spec = ESTIMATORS[name]
     parameters = set(inspect.signature(spec.solve).parameters) - {"recording"}
-    assert parameters - {"targets_in_base"} == spec.options
-    # a likelihood method predicts the TRE at the targets itself; the others get it from the bootstrap
-    assert ("targets_in_base" in parameters) == spec.likelihood
+    assert parameters - {"targets_in_base", "needle_tip"} == spec.options
+    # a likelihood method predicts the TRE at the targets and states the error at a measured tip
+    # itself; the others get both from the bootstrap
+    assert ("targets_in_base" in parameters) == ("needle_tip" in parameters) == spec.likelihood
 
 
 def test_an_entry_with_a_missing_field_or_a_stray_closed_form_is_refused():

@@ -31,12 +31,13 @@ from spacecal.estimators.observations import (
 )
 from spacecal.estimators.time_offset import check_overlap, estimate_time_offset, pair_streams
 from spacecal.io.csv_core import metadata_path
+from spacecal.io.digest import file_sha256
 from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
 from spacecal.io.recording_source import open_calibrated_recording
-from spacecal.io.results_json import write_calibration, write_json
-from spacecal.records import CalibrationResult, PivotResult, Recording
+from spacecal.io.results_json import read_json_object, write_calibration, write_json
+from spacecal.records import CalibrationResult, NeedleTip, PivotResult, Recording
 from spacecal.registration.pivot import pivot_calibration
 
 Point = tuple[float, float, float]
@@ -99,6 +100,10 @@ class CalibrateSettings:
     record : str or None
         Also write the calibration to this record (an SQLite file or a database URL), opened
         before anything is computed.
+    tip : str or None
+        A pivot result (``spacecal pivot -o``) of the needle on this marker: the calibration
+        carries the tip, IK aims it instead of the controller's TCP (:attr:`CalibrationResult.
+        tcp_from_needle`), and the expected error is stated there.
     """
 
     recording: str
@@ -113,6 +118,7 @@ class CalibrateSettings:
     include_doubtful_frames: bool = False
     tracker_kind: str = "auto"
     record: str | None = None
+    tip: str | None = None
 
 
 #: Choices of ``CalibrateSettings.tracker_kind`` (``--tracker-kind``).
@@ -159,10 +165,12 @@ def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
         settings.recording,
         metadata_path(settings.recording),
         settings.tracker_stream,
+        settings.tip,
         force=settings.force,
         any_file=True,
     )
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
+    tip = read_needle_tip(settings.tip) if settings.tip else None
     targets = check_points(settings.targets_in_base, "--target")
     note = None
     if settings.tracker_stream:
@@ -210,6 +218,8 @@ def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
         options["sigma_mm"] = settings.sigma_mm
     if settings.error_thresholds is not None:
         options["error_thresholds"] = settings.error_thresholds
+    if tip is not None:
+        options["needle_tip"] = tip
     # a recording that another reading of its conventions explains far better is refused
     # before any estimate; the rest is judged by its expected error, however large its residuals
     check_consistent(recording, str(settings.recording))
@@ -227,6 +237,19 @@ def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
         result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
     path = write_calibration(result, settings.output)
     return calibrate_result(result, path, tuple(n for n in (note, doubtful_note) if n), tuple(notes))
+
+
+def read_needle_tip(path: str) -> NeedleTip:
+    """The needle tip of a pivot result file (``spacecal pivot -o``), with its error
+    covariance and the file's name and sha256.
+
+    Raises
+    ------
+    InvalidInputError
+        For a file that is not a pivot result.
+    """
+    pivot = PivotResult.from_dict(read_json_object(path, "pivot result"), f"{path}")
+    return NeedleTip.from_pivot(pivot, str(path), file_sha256(path))
 
 
 def calibrate_result(
@@ -262,6 +285,14 @@ def calibrate_result(
         lines += [f"  at {t['target_in_base_mm']}: {t['tre_mm']:.3f} mm" for t in tre.get("targets", [])]
     if "outliers" in d:
         lines.append(f"outliers: {len(d['outliers'])} frames flagged (listed in the result file)")
+    tip = result.tcp_from_needle
+    if result.needle_tip is not None and tip is not None:
+        lines.append(
+            "needle tip (pivot, "
+            f"{result.needle_tip.sd_mm:.3f} mm per axis): IK aims it at "
+            + ", ".join(f"{v:.2f}" for v in tip[:3, 3])
+            + " mm in the TCP frame"
+        )
     if "position_mm" in d.get("expected_error", {}):
         e = d["expected_error"]
         lines.append(

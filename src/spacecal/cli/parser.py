@@ -128,6 +128,9 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         help="spheres (optical tracker with fit RMS), pose (poses only: a camera, PLUS); default: "
         "auto, from what the recording holds",
     )
+    p.add_argument(
+        "--tip", metavar="PIVOT.json", help="the needle's pivot (spacecal pivot -o): IK aims that tip"
+    )
 
     p = command("pivot", "pivot calibration of a pointer or needle tip")
     p.add_argument("poses", help="folder of 4x4 .txt pose files, or a recording CSV")

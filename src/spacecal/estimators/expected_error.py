@@ -93,7 +93,7 @@ from spacecal.models.kinematics import (
     pose_point_jacobian,
     ur_model,
 )
-from spacecal.records import Recording, robot_model_from_dict
+from spacecal.records import NeedleTip, Recording, robot_model_from_dict
 
 #: Contiguous blocks a recording without segment labels is split into.
 TIME_BLOCKS = 6
@@ -368,12 +368,12 @@ def held_out_misfit(
     }
 
 
-def tip_points_in_marker(tcp_from_marker: FloatArray) -> FloatArray:
-    """The tip (TCP origin) and three points ``ROTATION_LEVER_MM`` along the TCP axes, (4, 3) in
-    the marker frame, mm."""
-    in_tcp = np.vstack([np.zeros(3), ROTATION_LEVER_MM * np.eye(3)])
+def tip_points_in_marker(tcp_from_marker: FloatArray, tip_in_marker: FloatArray | None = None) -> FloatArray:
+    """The tip and three points ``ROTATION_LEVER_MM`` from it along the TCP axes, (4, 3) in the
+    marker frame, mm. The tip is the TCP origin, or ``tip_in_marker`` (3,) when measured."""
     marker_from_tcp = invert_transform(tcp_from_marker)
-    return as_float_array(in_tcp @ marker_from_tcp[:3, :3].T + marker_from_tcp[:3, 3])
+    tip = marker_from_tcp[:3, 3] if tip_in_marker is None else np.asarray(tip_in_marker, dtype=float)
+    return as_float_array(np.vstack([tip, tip + ROTATION_LEVER_MM * marker_from_tcp[:3, :3].T]))
 
 
 def _least_squares(design: FloatArray, target: FloatArray) -> FloatArray:
@@ -450,6 +450,7 @@ def unseen_kinematic_error(
     blocks: Sequence[IntArray],
     absorbed_dh: Sequence[int] = (),
     frames: int = GEOMETRY_FRAMES,
+    tip_in_marker: FloatArray | None = None,
 ) -> dict[str, Any]:
     """How unit-scale DH errors show in held-out sphere errors and at the tip (see the module).
 
@@ -469,6 +470,11 @@ def unseen_kinematic_error(
         The held-out blocks (indices into the N frames).
     absorbed_dh : sequence of int
         DH corrections the estimator fitted (they absorb what they can, like the pose).
+    tip_in_marker : numpy.ndarray, shape (3,), optional
+        A tip measured in the marker frame (a pivot). IK then aims it through the fitted
+        ``tcp_from_marker``, so what that transform absorbs moves the aimed tip too: only what
+        the marker's own chain cannot describe is left. Without it the tip is the controller's
+        TCP, which the fitted ``tcp_from_marker`` does not move.
 
     Returns
     -------
@@ -483,7 +489,7 @@ def unseen_kinematic_error(
     site_picked = picked[site[picked]]
     spheres = obs.spheres_in_marker
     k = len(spheres)
-    points = np.vstack([spheres, tip_points_in_marker(tcp_from_marker)])
+    points = np.vstack([spheres, tip_points_in_marker(tcp_from_marker, tip_in_marker)])
     dh = dh_point_jacobian(model, joints_rad[picked], tracker_from_base, tcp_from_marker, points)
     pose = pose_point_jacobian(obs.base_from_tcp_stack[picked], tracker_from_base, tcp_from_marker, points)
     dh = dh * UNIT_DH_SD
@@ -507,11 +513,13 @@ def unseen_kinematic_error(
         unseen = sphere_dh[out] - absorbing[out] @ coefficients
         held_out_power.append(np.sum(unseen**2, axis=(1, 2)))
     sphere_power = float(np.mean(np.concatenate(held_out_power))) if held_out_power else 0.0
-    # at the tip, the fitted tracker_from_base (and identified DH) move it; tcp_from_marker does not
+    # at the tip, the fitted tracker_from_base (and identified DH) move it; tcp_from_marker does
+    # too when the tip was measured in the marker frame, not when it is the controller's TCP
     coefficients = _least_squares(absorbing.reshape(-1, absorbing.shape[-1]), sphere_dh.reshape(-1, 24))
     at_site = site[picked]
     tip_dh = dh[at_site, k:]
-    tip = tip_dh - np.einsum("npia,ab->npib", pose[at_site, k:, :, :6], coefficients[:6])
+    moved_by = 6 if tip_in_marker is None else 12
+    tip = tip_dh - np.einsum("npia,ab->npib", pose[at_site, k:, :, :moved_by], coefficients[:moved_by])
     if absorbed_dh:
         tip -= np.einsum("npia,ab->npib", tip_dh[..., absorbed_dh], coefficients[12:])
     position_ms = float(np.mean(np.sum(tip[:, 0] ** 2, axis=(1, 2)))) if len(site_picked) else 0.0
@@ -629,6 +637,7 @@ def expected_error(
     likelihood_based: bool = True,
     refit: Refit = ml_refit,
     dh_error_scale_mm: float | None = None,
+    needle_tip: NeedleTip | None = None,
 ) -> dict[str, Any]:
     """The expected position (mm) and posture (deg) error at a target near the site.
 
@@ -657,6 +666,10 @@ def expected_error(
         identification passes the one its ML start shows: after identification the
         corrections have absorbed the misfit they were fitted to, so the held-out misfit of
         refits that keep them would understate it.
+    needle_tip : NeedleTip, optional
+        A tip measured by a pivot, which IK aims instead of the controller's TCP: the errors
+        the marker cannot see are then only those its chain cannot describe at that point,
+        and the pivot's own error (its covariance, turned into the tracker frame) is added.
 
     Returns
     -------
@@ -664,7 +677,12 @@ def expected_error(
         ``position_mm``, ``posture_deg``, ``basis`` (one sentence), ``components``.
     """
     site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
-    tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
+    tip_in_marker = None if needle_tip is None else needle_tip.tip_in_marker
+    if tip_in_marker is None:
+        tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
+    else:
+        marker_in_base = obs.base_from_tcp_stack[site] @ tcp_from_marker
+        tip_in_base = marker_in_base[:, :3, :3] @ tip_in_marker + marker_in_base[:, :3, 3]
     tre_ms = float(np.mean(predicted_tre_mm(tracker_from_base, covariance, tip_in_base) ** 2))
     # the noise-only error's covariance (tracker frame, mm^2), averaged over the site frames
     noise_covariance = np.mean(
@@ -779,6 +797,7 @@ def expected_error(
                 site,
                 misfit["block_indices"],
                 absorbed_dh,
+                tip_in_marker=tip_in_marker,
             ),
         )
         scaled_by = "the robot's kinematic geometry"
@@ -800,6 +819,7 @@ def expected_error(
                 site,
                 misfit["block_indices"],
                 frames=frames,
+                tip_in_marker=tip_in_marker,
             )
             if unit["sphere_power_mm2"] > 0 and (
                 geometry is None
@@ -835,8 +855,9 @@ def expected_error(
         )
     else:
         # no arm reaches the poses: the held-out power of a frame (over all its spheres) stands
-        # for the tip's mean square, as a UR arm's geometry makes it on the paper's sweeps
-        unseen_ms = systematic
+        # for the tip's mean square, as a UR arm's geometry makes it on the paper's sweeps; a
+        # measured tip is a point of the marker's chain, off by what one sphere is
+        unseen_ms = systematic if tip_in_marker is None else systematic / len(obs.spheres_in_marker)
         # the misfit says nothing of its direction at the tip: isotropic
         unseen_covariance = np.eye(3) * unseen_ms / 3.0
         unseen_rotation_ms = 0.0
@@ -849,8 +870,21 @@ def expected_error(
     if not likelihood_based:
         basis += "; plus this method's distance from the ML solution"
     components["systematic_detected"] = bool(systematic > 0.0)
-    position_covariance = noise_covariance + unseen_covariance + deviation_covariance
-    components["position_rms_mm"] = float(np.sqrt(tre_ms + unseen_ms + deviation_ms))
+    tip_covariance = np.zeros((3, 3))
+    if needle_tip is not None:
+        # the pivot's error, fixed in the marker frame, turned into the tracker frame at each
+        # site frame
+        rotations = (tracker_from_base @ obs.base_from_tcp_stack[site] @ tcp_from_marker)[:, :3, :3]
+        tip_covariance = np.mean(rotations @ needle_tip.covariance_mm2 @ np.swapaxes(rotations, 1, 2), axis=0)
+        components["needle_tip_sd_mm"] = needle_tip.sd_mm
+        basis += (
+            f"; the needle tip measured by a pivot ({needle_tip.frames} frames), its error "
+            f"{needle_tip.sd_mm:.3f} mm per axis added"
+        )
+    position_covariance = noise_covariance + unseen_covariance + deviation_covariance + tip_covariance
+    components["position_rms_mm"] = float(
+        np.sqrt(tre_ms + unseen_ms + deviation_ms + np.trace(tip_covariance))
+    )
     posture_rms = np.sqrt(rotation_noise_ms + unseen_rotation_ms + rotation_deviation_ms)
     return {
         "position_mm": mean_gaussian_length(position_covariance),

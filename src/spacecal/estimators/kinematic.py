@@ -73,7 +73,7 @@ from spacecal.models.kinematics import (
     ur_model,
     with_dh_corrections,
 )
-from spacecal.records import CalibrationResult, Recording
+from spacecal.records import CalibrationResult, NeedleTip, Recording
 
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
 DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]
@@ -274,6 +274,7 @@ def calibrate_kinematic(
     iterations: int = 15,
     model_selection: bool = False,
     prior_from_data: bool = True,
+    needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
     """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``.
 
@@ -296,6 +297,8 @@ def calibrate_kinematic(
         the module); none freed when that misfit is within :data:`IDENTIFY_MIN_SIGNIFICANCE`
         standard errors of the noise's. A tracker that reports no fit RMS has its noise taken
         from the fit's residuals (:func:`dh_error_scale_of`).
+    needle_tip : NeedleTip, optional
+        A tip measured by a pivot, which IK aims: the expected error is stated at it.
     """
     model = robot_model_of(recording)
     # identification starts from the ML solution (the bare fit, without its diagnostics)
@@ -337,7 +340,13 @@ def calibrate_kinematic(
     if scale_from_data and dh_scale is not None and dh_scale <= 0.0:
         # the held-out misfit shows nothing beyond the tracker's noise: the arm matches its
         # model, no correction is freed, and the result is the ML calibration itself
-        ml = calibrate_ml(recording, sigma_mm=sigma_mm, targets_in_base=targets_in_base, fitted=(obs, start))
+        ml = calibrate_ml(
+            recording,
+            sigma_mm=sigma_mm,
+            targets_in_base=targets_in_base,
+            fitted=(obs, start),
+            needle_tip=needle_tip,
+        )
         report = {
             "identified": [],
             "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(identifiable.tolist())],
@@ -460,5 +469,5 @@ def calibrate_kinematic(
     )
     # the joint ML fit of obs_model: its held-out refits are its own
     note = "pose block of the joint (pose + DH) covariance; mm, rad"
-    result = report_uncertainty(solution, UncertaintySettings(True, note, targets_in_base))
+    result = report_uncertainty(solution, UncertaintySettings(True, note, targets_in_base, needle_tip))
     return result.replace(robot_model=corrected)

@@ -36,7 +36,7 @@ from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IntArray
 from spacecal.geometry.metrics import cube_grid
 from spacecal.geometry.transforms import invert_transform
 from spacecal.models.kinematics import RobotModel
-from spacecal.records import CalibrationResult, Recording
+from spacecal.records import CalibrationResult, NeedleTip, Recording
 
 #: Frames beyond this quantile of the inlier error distribution are outliers.
 OUTLIER_QUANTILE = 0.999
@@ -160,11 +160,14 @@ class UncertaintySettings:
         What the covariance is, stored beside it.
     targets_in_base : array_like, shape (M, 3), optional
         Points (mm, base frame) at which to predict the TRE, besides the site.
+    needle_tip : NeedleTip, optional
+        A tip measured by a pivot, which IK aims (the expected error is at it).
     """
 
     likelihood_based: bool
     covariance_note: str = ""
     targets_in_base: ArrayLike | None = None
+    needle_tip: NeedleTip | None = None
 
 
 #: What the covariance of a likelihood fit (:func:`_package`) is.
@@ -184,6 +187,7 @@ def _package(
     extra: dict[str, Any],
     outlier_rows: IntArray | Sequence[int] = (),
     noise_information: FloatArray | None = None,
+    needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
     variance_factor = variance_factor_of(obs, tracker_from_base, tcp_from_marker)
     if noise_information is not None:
@@ -215,7 +219,9 @@ def _package(
         outlier_rows,
     )
     # this is the ML fit of obs: its held-out refits are its own
-    return report_uncertainty(solution, UncertaintySettings(True, PERTURBATION_NOTE, targets_in_base))
+    return report_uncertainty(
+        solution, UncertaintySettings(True, PERTURBATION_NOTE, targets_in_base, needle_tip)
+    )
 
 
 def report_uncertainty(solution: Solution, settings: UncertaintySettings) -> CalibrationResult:
@@ -228,7 +234,7 @@ def report_uncertainty(solution: Solution, settings: UncertaintySettings) -> Cal
     residuals = sample_residuals(recording, s.tracker_from_base, s.tcp_from_marker, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
     outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
-    expected = expected_error_of(s, settings.likelihood_based)
+    expected = expected_error_of(s, settings.likelihood_based, settings.needle_tip)
     if len(outlier_rows) > MAX_OUTLIER_FRACTION * len(obs.rows) and "refusal" not in expected:
         expected = {
             **expected,
@@ -274,10 +280,13 @@ def report_uncertainty(solution: Solution, settings: UncertaintySettings) -> Cal
             "note": settings.covariance_note,
         },
         predicted_tre_mm=tre,
+        needle_tip=settings.needle_tip,
     )
 
 
-def expected_error_of(solution: Solution, likelihood_based: bool) -> dict[str, Any]:
+def expected_error_of(
+    solution: Solution, likelihood_based: bool, needle_tip: NeedleTip | None = None
+) -> dict[str, Any]:
     """``diagnostics["expected_error"]`` (see :mod:`spacecal.estimators.expected_error`).
 
     Holds ``refusal`` (and no numbers) when the data cannot support a calibration: held-out
@@ -298,6 +307,7 @@ def expected_error_of(solution: Solution, likelihood_based: bool) -> dict[str, A
             absorbed_dh=s.absorbed_dh,
             likelihood_based=likelihood_based,
             dh_error_scale_mm=s.dh_error_scale_mm,
+            needle_tip=needle_tip,
         )
     except (DegenerateDataError, np.linalg.LinAlgError) as exc:
         return {"refusal": f"the expected error cannot be cross-validated ({exc})", "basis": "not estimated"}
@@ -313,6 +323,7 @@ def calibrate_ml(
     targets_in_base: ArrayLike | None = None,
     noise_model: str = "estimated",
     fitted: tuple[Observations, Fit] | None = None,
+    needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
     """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
 
@@ -337,6 +348,8 @@ def calibrate_ml(
     fitted : (Observations, Fit), optional
         :func:`fit_ml`'s result for this recording and ``sigma_mm``, when the caller has it
         already (it is not fitted again).
+    needle_tip : NeedleTip, optional
+        A tip measured by a pivot, which IK aims: the expected error is stated at it.
 
     Raises
     ------
@@ -349,7 +362,14 @@ def calibrate_ml(
     extra: dict[str, Any] = {"iterations": fit.iterations, "converged": fit.converged}
     if noise_model == "isotropic":
         return _package(
-            "ml", recording, obs, fit.tracker_from_base, fit.tcp_from_marker, targets_in_base, extra
+            "ml",
+            recording,
+            obs,
+            fit.tracker_from_base,
+            fit.tcp_from_marker,
+            targets_in_base,
+            extra,
+            needle_tip=needle_tip,
         )
     # an unidentifiable problem is refused with its reason before any re-weighting
     covariance_from_information(information_matrix(obs, fit.tracker_from_base, fit.tcp_from_marker))
@@ -368,6 +388,7 @@ def calibrate_ml(
         targets_in_base,
         {**extra, "noise_model": model.summary()},
         noise_information=model.information,
+        needle_tip=needle_tip,
     )
 
 
@@ -418,6 +439,7 @@ def calibrate_robust(
     sigma_mm: float | None = None,
     targets_in_base: ArrayLike | None = None,
     seed: int = 0,
+    needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
     """Maximum likelihood that survives bad frames (mis-detected spheres, stale frames, reflections).
 
@@ -483,6 +505,7 @@ def calibrate_robust(
         targets_in_base,
         {"outliers": outliers, "ransac_threshold_mm": threshold, "outlier_cutoff_mm": float(cutoff)},
         outlier_rows,
+        needle_tip=needle_tip,
     )
 
 

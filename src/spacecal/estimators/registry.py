@@ -40,7 +40,7 @@ from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
 from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
 from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_points, check_transform
-from spacecal.records import CalibrationResult, Recording
+from spacecal.records import CalibrationResult, NeedleTip, Recording
 
 
 class Family(enum.Enum):
@@ -73,7 +73,7 @@ class EstimatorSpec:
     family : Family
     solve : callable
         ``solve(recording, **options) -> CalibrationResult``; for a likelihood method also
-        ``targets_in_base``.
+        ``targets_in_base`` and ``needle_tip`` (the registry handles both for the others).
     summary : str
         One line on what it does, for reports and listings.
     reference : str
@@ -85,7 +85,8 @@ class EstimatorSpec:
         bootstrap covariance over frames and the expected error is cross-validated with ML
         refits (see :attr:`bootstrap`, :attr:`held_out_refit`).
     options : frozenset of str
-        The keyword options ``solve`` takes (besides ``recording`` and ``targets_in_base``).
+        The keyword options ``solve`` takes (besides ``recording``, ``targets_in_base`` and
+        ``needle_tip``).
     needs : frozenset of Need
         What a recording must hold for it.
     closed_form : callable or None
@@ -287,8 +288,9 @@ def calibrate(
         For methods without a likelihood, add a bootstrap covariance, predicted TRE, expected
         error and verdict (50 re-solves); Monte Carlo studies switch it off.
     **options
-        The method's own options (:attr:`EstimatorSpec.options`), ``targets_in_base`` (any
-        method) and ``error_thresholds``, an
+        The method's own options (:attr:`EstimatorSpec.options`), ``targets_in_base`` and
+        ``needle_tip`` (a :class:`~spacecal.records.NeedleTip`: the expected error is stated at
+        the tip IK aims; any method) and ``error_thresholds``, an
         :class:`~spacecal.estimators.diagnostics.ErrorThresholds` the verdict is graded against.
 
     Raises
@@ -307,6 +309,9 @@ def calibrate(
     targets = options.pop("targets_in_base", None)
     if targets is not None:
         targets = check_points(targets, "targets_in_base")
+    tip = options.pop("needle_tip", None)
+    if tip is not None and not isinstance(tip, NeedleTip):
+        raise InvalidInputError("needle_tip must be a NeedleTip (a pivot's tip in the marker frame)")
     check_recording_poses(recording)
     unexpected = sorted(set(options) - spec.options)
     if unexpected:
@@ -316,11 +321,13 @@ def calibrate(
             + (f" (methods that do: {', '.join(takers)})" if takers else "")
         )
     if spec.likelihood:
-        result = spec.solve(recording, targets_in_base=targets, **options)
+        result = spec.solve(recording, targets_in_base=targets, needle_tip=tip, **options)
     else:
         result = spec.solve(recording, **options)
         if uncertainty:
-            result = with_bootstrap_uncertainty(result, recording, spec.solve, targets)
+            result = with_bootstrap_uncertainty(result, recording, spec.solve, targets, tip)
+    if tip is not None and result.needle_tip is None:
+        result = result.replace(needle_tip=tip)  # no expected error was asked for
     return result if thresholds is None else regrade(result, recording, thresholds)
 
 
@@ -354,6 +361,7 @@ def _reported_at_result(
     variance_factor: float,
     covariance_note: str,
     targets_in_base: ArrayLike | None = None,
+    needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
     """The uncertainty report of ``result``'s own transforms with a covariance found for them
     outside its estimator (ML information, or a bootstrap): one place for both."""
@@ -367,11 +375,15 @@ def _reported_at_result(
             covariance,
             variance_factor,
         ),
-        UncertaintySettings(estimator(result.method).likelihood, covariance_note, targets_in_base),
+        UncertaintySettings(
+            estimator(result.method).likelihood, covariance_note, targets_in_base, needle_tip
+        ),
     )
 
 
-def with_expected_error(result: CalibrationResult, recording: Recording) -> CalibrationResult:
+def with_expected_error(
+    result: CalibrationResult, recording: Recording, needle_tip: NeedleTip | None = None
+) -> CalibrationResult:
     """Expected error and verdict for a result without a covariance of its own.
 
     The noise-only part comes from the ML information at the result's solution, so every
@@ -392,9 +404,13 @@ def with_expected_error(result: CalibrationResult, recording: Recording) -> Cali
         covariance,
         variance_factor,
         "ML information at this solution (no bootstrap); mm, rad",
+        needle_tip=needle_tip,
     )
     keep = ("expected_error", "verdict", "motion_spread", "variance_factor")
-    return result.replace(diagnostics={**result.diagnostics, **{k: reported.diagnostics[k] for k in keep}})
+    return result.replace(
+        diagnostics={**result.diagnostics, **{k: reported.diagnostics[k] for k in keep}},
+        needle_tip=needle_tip,
+    )
 
 
 def check_recording_poses(recording: Recording) -> None:
@@ -427,6 +443,7 @@ def with_bootstrap_uncertainty(
     recording: Recording,
     solver: Callable[..., CalibrationResult],
     targets_in_base: ArrayLike | None = None,
+    needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
     """Add covariance (bootstrap over frames), predicted TRE, residuals and a verdict to a
     result from an estimator without a likelihood; its transforms are unchanged."""
@@ -438,7 +455,7 @@ def with_bootstrap_uncertainty(
     covariance = bootstrap_covariance(recording, solve, result.tracker_from_base, result.tcp_from_marker)
     if covariance is None:
         result.diagnostics["uncertainty"] = "bootstrap failed: too few resamples could be solved"
-        return with_expected_error(result, recording)
+        return with_expected_error(result, recording, needle_tip)
     obs = build_observations(recording)
     variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
     reported = _reported_at_result(
@@ -449,9 +466,11 @@ def with_bootstrap_uncertainty(
         variance_factor,
         f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
         targets_in_base,
+        needle_tip,
     )
     return result.replace(
         covariance=reported.covariance,
         predicted_tre_mm=reported.predicted_tre_mm,
+        needle_tip=needle_tip,
         diagnostics={**reported.diagnostics, **result.diagnostics},
     )

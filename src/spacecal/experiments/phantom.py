@@ -157,6 +157,7 @@ def run_phantom_experiment(
                     # IK as the robot is driven: the identified model, else the controller's
                     calibration.robot_model_for_ik(world.controller_model),
                     world.home_joints_rad,
+                    tcp_from_needle=calibration.tcp_from_needle,  # a measured tip, if any
                     registration_tre_mm=tuple(reg_tre),
                     calibration_tre_mm=(calibration_tre, calibration_tre),
                     robot_position_sd_mm=robot_sd,

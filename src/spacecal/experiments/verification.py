@@ -53,8 +53,9 @@ def verify_in_simulation(
     seed : int
         Seeds the target poses.
     tcp_from_needle : array_like, shape (4, 4), optional
-        Where IK puts the needle tip in the TCP frame (e.g. a tip measured by a pivot); the
-        controller's TCP when omitted. The reference always measures the true tip.
+        Where IK puts the needle tip in the TCP frame; when omitted, the calibration's measured
+        tip (:attr:`CalibrationResult.tcp_from_needle`) if it has one, else the controller's
+        TCP. The reference always measures the true tip.
     """
     world = build_world(scenario)
     count = scenario.verification_targets if count is None else count
@@ -64,6 +65,8 @@ def verify_in_simulation(
     # IK with the identified kinematic model when the calibration carries one, else with the
     # controller's own (nominal or factory-calibrated), as spacecal does on real hardware
     model = calibration.robot_model_for_ik(world.controller_model)
+    if tcp_from_needle is None:
+        tcp_from_needle = calibration.tcp_from_needle
     return run_verification(
         calibration, robot, laser, model, targets, world.home_joints_rad, tcp_from_needle=tcp_from_needle
     )

@@ -8,6 +8,7 @@ Each result record has ``to_dict()`` (the file content, with ``schema`` and
 from spacecal.records.calibration import (
     CALIBRATION_SCHEMA_VERSION,
     CalibrationResult,
+    NeedleTip,
     Provenance,
     robot_model_from_dict,
     robot_model_to_dict,
@@ -26,6 +27,7 @@ __all__ = [
     "ROTATION_SEGMENTS",
     "TRANSLATION_SEGMENTS",
     "CalibrationResult",
+    "NeedleTip",
     "Provenance",
     "RawRecording",
     "Recording",

@@ -9,6 +9,9 @@ Schema history of the calibration file (``schema: spacecal.calibration``):
   (:mod:`spacecal.records.integrity`), so an edited file is detected; ``provenance`` names
   what the calibration belongs to: the recording's sha256 (and the raw tracker stream's), the
   marker's tool definition and its sha256, and the devices' serial numbers where known.
+* 4: a ``needle_tip`` object: the needle tip a pivot calibration measured in the marker frame,
+  with its error covariance and the pivot file it came from. Only a calibration with a tip is
+  written as version 4, so a reader that knows no tip refuses it instead of aiming the TCP.
 
 Versions 1 and 2 are still read; they carry no hash, so they cannot be verified
 (:attr:`CalibrationResult.integrity` says so).
@@ -32,11 +35,13 @@ from spacecal.records.fields import (
     as_transform,
     check_schema,
     get_mapping,
+    get_number,
     get_str,
     plain,
 )
 from spacecal.records.integrity import INTEGRITY_KEY, Integrity, integrity_entry, is_sha256
 from spacecal.records.integrity import content_sha256 as hash_of_content
+from spacecal.records.results import PivotResult
 from spacecal.records.verdict import Verdict
 
 #: The file's names of the two transforms, built from the frame table (``<to>_from_<from>``).
@@ -48,8 +53,10 @@ MAX_TRANSLATION_MM = 1e5
 
 CALIBRATION_SCHEMA = "spacecal.calibration"
 CALIBRATION_SCHEMA_VERSION = 3
+#: The version of a calibration that carries a needle tip.
+NEEDLE_TIP_SCHEMA_VERSION = 4
 #: Versions :meth:`CalibrationResult.from_dict` reads.
-CALIBRATION_READABLE_VERSIONS = (1, 2, 3)
+CALIBRATION_READABLE_VERSIONS = (1, 2, 3, 4)
 #: The first version whose files carry a content hash.
 FIRST_HASHED_VERSION = 3
 
@@ -188,6 +195,111 @@ def _version() -> str:
 
 
 @dataclass(frozen=True)
+class NeedleTip:
+    """The needle tip as a pivot calibration measured it: a point fixed to the marker.
+
+    The last link's kinematic errors move the tip in the flange frame, where no marker on the
+    tool sees them (``tcp_from_marker`` absorbs them, and the controller's TCP stays off by
+    them); a tip measured in the marker frame and aimed through ``tcp_from_marker`` removes
+    them (the docs' systematic-error tables measure it).
+
+    Attributes
+    ----------
+    tip_in_marker : numpy.ndarray, shape (3,)
+        The tip in the marker frame, mm (``spacecal pivot``).
+    covariance_mm2 : numpy.ndarray, shape (3, 3)
+        The tip's error covariance in the marker frame, mm^2.
+    covariance_basis : str
+        Where the covariance comes from (the pivot fit's, or its residual RMS when the pivot
+        file has none).
+    pivot_rms_mm : float
+        The pivot's 3-D RMS residual, mm.
+    frames : int
+        Frames of the pivot.
+    source : str or None
+        The pivot file.
+    source_sha256 : str or None
+        Its sha256.
+    """
+
+    tip_in_marker: np.ndarray
+    covariance_mm2: np.ndarray
+    covariance_basis: str
+    pivot_rms_mm: float
+    frames: int
+    source: str | None = None
+    source_sha256: str | None = None
+
+    def __post_init__(self) -> None:
+        what = "needle tip"
+        tip = as_array(self.tip_in_marker, (3,), "tip_in_marker_mm", what)
+        if np.max(np.abs(tip)) > MAX_TRANSLATION_MM:
+            raise InvalidInputError(f"{what}: the tip is {np.max(np.abs(tip)):.3g} mm from the marker")
+        covariance = as_array(self.covariance_mm2, (3, 3), "covariance_mm2", what)
+        if (
+            not np.allclose(covariance, covariance.T, atol=1e-9)
+            or np.min(np.linalg.eigvalsh(covariance)) < -1e-12
+        ):
+            raise InvalidInputError(f"{what}: covariance_mm2 is not a covariance (symmetric, not negative)")
+        if not (np.isfinite(self.pivot_rms_mm) and self.pivot_rms_mm >= 0) or int(self.frames) < 1:
+            raise InvalidInputError(f"{what}: pivot_rms_mm and frames must be a distance and a count")
+        object.__setattr__(self, "tip_in_marker", tip)
+        object.__setattr__(self, "covariance_mm2", covariance)
+
+    @classmethod
+    def from_pivot(
+        cls, pivot: PivotResult, source: str | None = None, source_sha256: str | None = None
+    ) -> NeedleTip:
+        """The tip of a pivot calibration, its error taken as the residual's per-axis RMS in
+        each axis.
+
+        The fit's own covariance (``pivot.tip_covariance_mm2``) sees only the tracker's scatter;
+        the tracker's smooth bias over the pivot's cone moves the tip as much as it moves the
+        residual. Measured on simulated pivots (200 frames, 25 deg cone, a tracker bias of 0.2
+        mm RMS, ``benchmarks/systematic_families.py``): tips 0.21 mm off on average (largest
+        0.40) where the fit's s.d. says 0.06 mm per axis and the residual 0.21 mm per axis.
+        """
+        covariance = np.eye(3) * pivot.rms_per_axis_mm**2
+        basis = "the pivot's residual RMS per axis (it holds the tracker's bias over the cone)"
+        return cls(pivot.tip_in_marker, covariance, basis, pivot.rms_mm, pivot.frames, source, source_sha256)
+
+    @property
+    def sd_mm(self) -> float:
+        """RMS over the three axes of the tip's standard deviation, mm."""
+        return float(np.sqrt(np.trace(self.covariance_mm2) / 3.0))
+
+    def to_dict(self) -> dict[str, Any]:
+        return plain(
+            {
+                "tip_in_marker_mm": self.tip_in_marker,
+                "covariance_mm2": self.covariance_mm2,
+                "covariance_basis": self.covariance_basis,
+                "pivot_rms_mm": self.pivot_rms_mm,
+                "frames": int(self.frames),
+                "source": self.source,
+                "source_sha256": self.source_sha256,
+            }
+        )
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], what: str = "needle tip") -> NeedleTip:
+        source, digest = data.get("source"), data.get("source_sha256")
+        if source is not None and not isinstance(source, str):
+            raise InvalidInputError(f"{what}: source must be a path string")
+        if digest is not None and not is_sha256(digest):
+            raise InvalidInputError(f"{what}: source_sha256 must be a sha256 (64 hex digits)")
+        return cls(
+            tip_in_marker=as_array(data.get("tip_in_marker_mm"), (3,), "tip_in_marker_mm", what),
+            covariance_mm2=as_array(data.get("covariance_mm2"), (3, 3), "covariance_mm2", what),
+            covariance_basis=get_str(data, "covariance_basis", what, default=""),
+            pivot_rms_mm=get_number(data, "pivot_rms_mm", what),
+            frames=int(get_number(data, "frames", what)),
+            source=source,
+            source_sha256=digest,
+        )
+
+
+@dataclass(frozen=True)
 class CalibrationResult:
     """The outcome of a calibration.
 
@@ -220,6 +332,9 @@ class CalibrationResult:
     integrity : Integrity or None
         How the file it was read from stands against its content hash; None for a result not
         read from a file. Whether an edited file may be used is the caller's decision.
+    needle_tip : NeedleTip or None
+        The needle tip a pivot calibration measured; IK aims it (:attr:`tcp_from_needle`)
+        instead of the controller's TCP.
     """
 
     method: str
@@ -233,6 +348,7 @@ class CalibrationResult:
     robot_model: RobotModel | None = None
     schema_version: int = CALIBRATION_SCHEMA_VERSION
     integrity: Integrity | None = field(default=None, compare=False)
+    needle_tip: NeedleTip | None = None
 
     def __post_init__(self) -> None:
         what = f"calibration ({self.method})"
@@ -257,6 +373,19 @@ class CalibrationResult:
         """The verdict on this calibration (grade, expected error, reasons), None when the
         method gave none; older files' sentences are read too."""
         return Verdict.from_value(self.diagnostics.get("verdict"), f"calibration ({self.method})")
+
+    @property
+    def tcp_from_needle(self) -> np.ndarray | None:
+        """Where IK puts the needle tip, (4, 4) in the TCP frame, mm: the measured tip carried
+        by ``tcp_from_marker`` (axes those of the TCP); None without a measured tip (the
+        controller's TCP is the tip)."""
+        if self.needle_tip is None:
+            return None
+        needle = np.eye(4)
+        needle[:3, 3] = (
+            self.tcp_from_marker[:3, :3] @ self.needle_tip.tip_in_marker + self.tcp_from_marker[:3, 3]
+        )
+        return needle
 
     @property
     def content_sha256(self) -> str:
@@ -294,7 +423,9 @@ class CalibrationResult:
         content = plain(
             {
                 "schema": CALIBRATION_SCHEMA,
-                "schema_version": CALIBRATION_SCHEMA_VERSION,
+                "schema_version": CALIBRATION_SCHEMA_VERSION
+                if self.needle_tip is None
+                else NEEDLE_TIP_SCHEMA_VERSION,
                 "spacecal_version": _version(),
                 "created_utc": self.provenance.created_utc,
                 "units": {"length": "mm", "angle": "rad"},
@@ -307,6 +438,7 @@ class CalibrationResult:
                 "covariance": self.covariance,
                 "predicted_tre_mm": self.predicted_tre_mm,
                 "robot_model": None if self.robot_model is None else robot_model_to_dict(self.robot_model),
+                **({} if self.needle_tip is None else {"needle_tip": self.needle_tip.to_dict()}),
             }
         )
         return {**content, INTEGRITY_KEY: integrity_entry(content)}
@@ -358,6 +490,9 @@ class CalibrationResult:
             name = model_data.get("name")
             base = ur_model(name) if isinstance(name, str) and name in UR_TABLES else None
             robot_model = robot_model_from_dict(model_data, what, base)
+        needle_tip = None
+        if version >= NEEDLE_TIP_SCHEMA_VERSION and data.get("needle_tip") is not None:
+            needle_tip = NeedleTip.from_dict(get_mapping(data, "needle_tip", what), f"{what}: needle_tip")
         return cls(
             method=get_str(data, "method", what, default="unknown"),
             tracker_from_base=as_transform(data[TRACKER_FROM_BASE], TRACKER_FROM_BASE, what),
@@ -370,6 +505,7 @@ class CalibrationResult:
             robot_model=robot_model,
             schema_version=version,
             integrity=Integrity.of(data, required=version >= FIRST_HASHED_VERSION),
+            needle_tip=needle_tip,
         )
 
 

@@ -502,6 +502,9 @@ class PivotResult:
     summary : dict or None
         ``frames``, ``residual_rms_mm``, ``residual_mean_mm``, ``residual_max_mm`` of a
         version-1 file.
+    tip_covariance_mm2 : numpy.ndarray, shape (3, 3), or None
+        The tip's error covariance in the marker frame from the fit
+        (:func:`spacecal.registration.pivot.tip_covariance`); None in files written before it.
     """
 
     method: str
@@ -509,6 +512,7 @@ class PivotResult:
     pivot_in_tracker: np.ndarray
     residuals_mm: np.ndarray
     summary: dict[str, float] | None = None
+    tip_covariance_mm2: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         what = "pivot"
@@ -519,6 +523,14 @@ class PivotResult:
         object.__setattr__(self, "residuals_mm", _finite(self.residuals_mm, "residuals_mm", what))
         if not len(self.residuals_mm) and self.summary is None:
             raise InvalidInputError(f"{what}: no residuals")
+        if self.tip_covariance_mm2 is not None:
+            covariance = as_array(self.tip_covariance_mm2, (3, 3), "tip_covariance_mm2", what)
+            if (
+                not np.allclose(covariance, covariance.T, atol=1e-9)
+                or np.min(np.linalg.eigvalsh(covariance)) < -1e-12
+            ):
+                raise InvalidInputError(f"{what}: tip_covariance_mm2 is not a covariance")
+            object.__setattr__(self, "tip_covariance_mm2", covariance)
 
     @property
     def frames(self) -> int:
@@ -553,6 +565,9 @@ class PivotResult:
                 "residual_mean_mm": mean,
                 "residual_max_mm": largest,
                 "residuals_mm": self.residuals_mm,
+                **(
+                    {} if self.tip_covariance_mm2 is None else {"tip_covariance_mm2": self.tip_covariance_mm2}
+                ),
             }
         )
 
@@ -575,4 +590,7 @@ class PivotResult:
             pivot_in_tracker=as_array(data.get("pivot_in_tracker_mm"), (3,), "pivot_in_tracker_mm", what),
             residuals_mm=residuals,
             summary=summary,
+            tip_covariance_mm2=None
+            if data.get("tip_covariance_mm2") is None
+            else as_array(data["tip_covariance_mm2"], (3, 3), "tip_covariance_mm2", what),
         )
