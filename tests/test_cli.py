@@ -425,14 +425,14 @@ def test_future_versions_of_result_files_are_refused_in_one_line(recording_file,
         assert code == 1 and len(err.splitlines()) == 1, err
         assert "schema_version 7 is newer than this spacecal reads (1, 2)" in err
     data = json.loads(calibration.read_text())
-    data["schema_version"] = 4
+    data["schema_version"] = 5
     calibration.write_text(json.dumps(data))
     code, _, err = run(
         capsys, "check", str(calibration), "--recording", str(recording_file), "--accept-edited"
     )
     assert code == 1 and err == (
-        f"spacecal: error: {calibration}: schema_version 4 is newer than this spacecal reads (1, 2, 3): "
-        "written by a newer spacecal, update it to read this file\n"
+        f"spacecal: error: {calibration}: schema_version 5 is newer than this spacecal reads "
+        "(1, 2, 3, 4): written by a newer spacecal, update it to read this file\n"
     )
 
 
