@@ -678,10 +678,12 @@ def expected_error(
     """
     site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
     tip_in_marker = None if needle_tip is None else needle_tip.tip_in_marker
+    # the marker's pose at each site frame (base frame): where a measured tip is, and how the
+    # pivot's error, fixed in the marker frame, turns
+    marker_in_base = obs.base_from_tcp_stack[site] @ tcp_from_marker
     if tip_in_marker is None:
         tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
     else:
-        marker_in_base = obs.base_from_tcp_stack[site] @ tcp_from_marker
         tip_in_base = marker_in_base[:, :3, :3] @ tip_in_marker + marker_in_base[:, :3, 3]
     tre_ms = float(np.mean(predicted_tre_mm(tracker_from_base, covariance, tip_in_base) ** 2))
     # the noise-only error's covariance (tracker frame, mm^2), averaged over the site frames
@@ -872,9 +874,8 @@ def expected_error(
     components["systematic_detected"] = bool(systematic > 0.0)
     tip_covariance = np.zeros((3, 3))
     if needle_tip is not None:
-        # the pivot's error, fixed in the marker frame, turned into the tracker frame at each
-        # site frame
-        rotations = (tracker_from_base @ obs.base_from_tcp_stack[site] @ tcp_from_marker)[:, :3, :3]
+        # the pivot's error turned into the tracker frame at each site frame
+        rotations = tracker_from_base[:3, :3] @ marker_in_base[:, :3, :3]
         tip_covariance = np.mean(rotations @ needle_tip.covariance_mm2 @ np.swapaxes(rotations, 1, 2), axis=0)
         components["needle_tip_sd_mm"] = needle_tip.sd_mm
         basis += (

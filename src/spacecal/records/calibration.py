@@ -32,6 +32,7 @@ from spacecal.core.frames import transform_name
 from spacecal.models.kinematics import RobotModel
 from spacecal.records.fields import (
     as_array,
+    as_covariance,
     as_transform,
     check_schema,
     get_mapping,
@@ -235,12 +236,7 @@ class NeedleTip:
         tip = as_array(self.tip_in_marker, (3,), "tip_in_marker_mm", what)
         if np.max(np.abs(tip)) > MAX_TRANSLATION_MM:
             raise InvalidInputError(f"{what}: the tip is {np.max(np.abs(tip)):.3g} mm from the marker")
-        covariance = as_array(self.covariance_mm2, (3, 3), "covariance_mm2", what)
-        if (
-            not np.allclose(covariance, covariance.T, atol=1e-9)
-            or np.min(np.linalg.eigvalsh(covariance)) < -1e-12
-        ):
-            raise InvalidInputError(f"{what}: covariance_mm2 is not a covariance (symmetric, not negative)")
+        covariance = as_covariance(self.covariance_mm2, 3, "covariance_mm2", what)
         if not (np.isfinite(self.pivot_rms_mm) and self.pivot_rms_mm >= 0) or int(self.frames) < 1:
             raise InvalidInputError(f"{what}: pivot_rms_mm and frames must be a distance and a count")
         object.__setattr__(self, "tip_in_marker", tip)

@@ -67,6 +67,17 @@ def as_array(value: Any, shape: tuple[int | None, ...], name: str, what: str) ->
     return array
 
 
+def as_covariance(value: Any, size: int, name: str, what: str) -> np.ndarray:
+    """``value`` as a covariance matrix (size, size): finite, symmetric, not negative."""
+    covariance = as_array(value, (size, size), name, what)
+    if (
+        not np.allclose(covariance, covariance.T, atol=1e-9)
+        or np.min(np.linalg.eigvalsh(covariance)) < -1e-12
+    ):
+        raise InvalidInputError(f"{what}: {name} is not a covariance (symmetric, not negative)")
+    return covariance
+
+
 def as_transform(value: Any, name: str, what: str) -> np.ndarray:
     """``value`` as a 4x4 rigid transform (rotation orthonormal, det +1, last row 0 0 0 1)."""
     try:

@@ -14,6 +14,7 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.metrics import summary_statistics
 from spacecal.records.fields import (
     as_array,
+    as_covariance,
     as_transform,
     as_transform_stack,
     check_schema,
@@ -524,12 +525,7 @@ class PivotResult:
         if not len(self.residuals_mm) and self.summary is None:
             raise InvalidInputError(f"{what}: no residuals")
         if self.tip_covariance_mm2 is not None:
-            covariance = as_array(self.tip_covariance_mm2, (3, 3), "tip_covariance_mm2", what)
-            if (
-                not np.allclose(covariance, covariance.T, atol=1e-9)
-                or np.min(np.linalg.eigvalsh(covariance)) < -1e-12
-            ):
-                raise InvalidInputError(f"{what}: tip_covariance_mm2 is not a covariance")
+            covariance = as_covariance(self.tip_covariance_mm2, 3, "tip_covariance_mm2", what)
             object.__setattr__(self, "tip_covariance_mm2", covariance)
 
     @property
