@@ -309,8 +309,14 @@ class SimulatedRobot:
     # -- ground truth for simulated instruments ----------------------------------------
     def true_base_from_tcp(self) -> np.ndarray:
         """Where the TCP really is now (truth; for simulated instruments only)."""
-        self._update()
-        return self.world.true_base_from_tcp(self._joints)[0]
+        return self.true_base_from_tcp_and_time()[0]
+
+    def true_base_from_tcp_and_time(self) -> tuple[np.ndarray, float]:
+        """Where the TCP really is (4, 4), and the simulated instant (s) it is there: one look."""
+        with self._lock:
+            self._advance()
+            joints, time_s = self._joints.copy(), float(self._updated_at_s)
+        return self.world.true_base_from_tcp(joints)[0], time_s
 
 
 class SimulatedTracker:
@@ -348,14 +354,17 @@ class SimulatedTracker:
             raise DeviceError(f"no tracker frame for {timeout_s:.1f} s: tracker unplugged or stalled")
         self._frame_number = max(self._frame_number + 1, int(np.floor(self.clock.now_s / self.period_s)) + 1)
         self.clock.advance_to(self._frame_number * self.period_s)
-        truth = self.world.tracker_from_base @ self.robot.true_base_from_tcp() @ self.world.tcp_from_marker
+        # the frame shows the marker where it is at the frame's time stamp: on a real-time clock
+        # a busy machine wakes the tracker late, and the frame is then stamped when it was taken
+        base_from_tcp, taken_s = self.robot.true_base_from_tcp_and_time()
+        truth = self.world.tracker_from_base @ base_from_tcp @ self.world.tcp_from_marker
         earlier = np.array(self._history) if self._history else None
         tracked = self.world.track_marker(truth[None], earlier)
         self._history.append(truth)
         self._delivered += 1
         pose = tracked.tracker_from_marker[0]
         seen = bool(np.all(np.isfinite(pose)))
-        time_s = self._frame_number * self.period_s
+        time_s = max(self._frame_number * self.period_s, taken_s)
         self.truth[time_s] = (truth, str(tracked.outlier_kind[0]))
         return TrackerFrame(
             time_s=time_s,
