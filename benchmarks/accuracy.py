@@ -211,7 +211,7 @@ def timing_table(runs: int) -> None:
             for label, args in commands.items():
                 start = time.perf_counter()
                 subprocess.run(
-                    [sys.executable, "-m", "spacecal.cli", "calibrate", *args, "-o", str(base / "out.json")],
+                    [sys.executable, "-m", "spacecal", "calibrate", *args, "-o", str(base / "out.json")],
                     check=False,
                     capture_output=True,
                 )

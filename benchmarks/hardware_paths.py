@@ -43,7 +43,7 @@ from spacecal.sim.scenario import load_scenario
 from spacecal.sim.world import build_world
 from spacecal.testing.fakes.client import WorldProcess
 
-SPACECAL = [sys.executable, "-m", "spacecal.cli"]
+SPACECAL = [sys.executable, "-m", "spacecal"]
 SCENARIO = "paper-white"
 #: paper-white: 0.25 mm RMS (3-D) white noise per sphere.
 SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)

@@ -106,15 +106,13 @@ def test_console_script_exit_codes(tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("")
     result = subprocess.run(
-        [sys.executable, "-m", "spacecal.cli", "calibrate", str(empty), "-o", "x.json"],
+        [sys.executable, "-m", "spacecal", "calibrate", str(empty), "-o", "x.json"],
         capture_output=True,
         text=True,
     )
     assert result.returncode == 1 and result.stderr.strip().endswith("the recording is empty")
     assert "Traceback" not in result.stderr
-    usage = subprocess.run(
-        [sys.executable, "-m", "spacecal.cli", "calibrate"], capture_output=True, text=True
-    )
+    usage = subprocess.run([sys.executable, "-m", "spacecal", "calibrate"], capture_output=True, text=True)
     assert usage.returncode == 2
     # one line, naming what is missing and where the usage is (not argparse's usage block)
     assert usage.stderr.strip().splitlines() == [

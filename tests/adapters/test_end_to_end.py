@@ -24,7 +24,7 @@ from spacecal.io.recording_csv import read_recording
 
 from .ur_runs import WhenRecorded, outside_the_robot_stream, wait_for_rows
 
-SPACECAL = [sys.executable, "-m", "spacecal.cli"]
+SPACECAL = [sys.executable, "-m", "spacecal"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
 SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)
 

@@ -23,7 +23,7 @@ from spacecal.geometry.metrics import cube_grid, target_registration_errors
 from spacecal.io.check_history import read_history
 from spacecal.io.recording_csv import read_recording
 
-SPACECAL = [sys.executable, "-m", "spacecal.cli"]
+SPACECAL = [sys.executable, "-m", "spacecal"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
 SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)
 #: ML is efficient here: its cube-RMS error squared is a quadratic form of a Gaussian whose mean

@@ -21,7 +21,7 @@ from spacecal.testing.fakes.client import WorldProcess
 
 from .loopback import NETWORK as _NETWORK
 
-SPACECAL = [sys.executable, "-m", "spacecal.cli"]
+SPACECAL = [sys.executable, "-m", "spacecal"]
 #: Loopback addresses of these worlds: the conftest's network, last octets from 200 up (the
 #: conftest's own worlds count up from 1), so the two never collide in one process.
 _addresses = itertools.count(200)

@@ -4,7 +4,10 @@ stops at its next frame, and nothing is printed about the swallowed exception.""
 
 import gc
 import signal
+import subprocess
+import sys
 import weakref
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -61,3 +64,35 @@ def test_a_simulated_acquisition_stops_on_a_lost_interrupt(tmp_path, capsys):
     assert "interrupted by the user (Ctrl-C)" in str(stopped.value)
     assert stopped.value.result.moves_completed == 0 and np.isfinite(stopped.value.result.samples_written)
     assert "Exception ignored" not in capsys.readouterr().err
+
+
+def test_a_stop_while_the_program_starts_ends_it_with_one_line(tmp_path):
+    """A stop that lands while the modules load (held, not raised) ends the command before it
+    does anything, with the command line's one line and exit 1, never an import's traceback."""
+    program = (
+        "import os, signal, sys\n"
+        "from spacecal.core import interrupts\n"
+        "interrupts.hold_stops_while_starting()\n"
+        "os.kill(os.getpid(), signal.SIGINT)  # as if Ctrl-C came during the imports below\n"
+        "from spacecal.cli.main import console_main\n"
+        "sys.argv = ['spacecal', 'acquire', '--scenario', 'paper-white', '-o', 'rec.csv']\n"
+        "console_main()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", program], cwd=tmp_path, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 1, done.stderr
+    assert (
+        done.stderr.strip()
+        == "spacecal: error: interrupted by the user (Ctrl-C); every file written is complete"
+    )
+    assert list(tmp_path.iterdir()) == []  # nothing was started
+
+
+def test_the_console_script_holds_stops_while_it_starts():
+    import tomllib
+
+    scripts = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts["spacecal"] == "spacecal.__main__:run"
+    source = (Path(__file__).parents[2] / "src" / "spacecal" / "__main__.py").read_text()
+    assert source.index("hold_stops_while_starting()") < source.index("from spacecal.cli")

@@ -35,7 +35,7 @@ SEED = 20240611
 
 def _spacecal(*argv: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "spacecal.cli", *argv], cwd=cwd, capture_output=True, text=True, timeout=180
+        [sys.executable, "-m", "spacecal", *argv], cwd=cwd, capture_output=True, text=True, timeout=180
     )
 
 
@@ -44,7 +44,7 @@ def _interrupt_then_resume(folder: Path, signum: int, delay_s: float) -> str | N
     folder.mkdir(parents=True)
     argv = ["acquire", "--scenario", "paper-white", "-o", "rec.csv"]
     process = subprocess.Popen(
-        [sys.executable, "-m", "spacecal.cli", *argv],
+        [sys.executable, "-m", "spacecal", *argv],
         cwd=folder,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -1,6 +1,6 @@
-"""``python -m spacecal.cli``."""
+"""``python -m spacecal.cli``: the same program as ``python -m spacecal``."""
 
-from spacecal.cli.main import console_main
+from spacecal.__main__ import run
 
 if __name__ == "__main__":
-    console_main()
+    run()

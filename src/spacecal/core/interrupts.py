@@ -21,6 +21,8 @@ from collections.abc import Iterator
 
 _lock = threading.Lock()
 _requested: str | None = None
+#: True from :func:`hold_stops_while_starting` until :func:`signals_as_interrupts` takes over.
+_held = False
 
 
 class StopRequested(KeyboardInterrupt):
@@ -59,9 +61,35 @@ def raise_if_stop_requested() -> None:
         raise StopRequested(reason)
 
 
+def _reason(signum: int) -> str:
+    return "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+
+
+def _keep_stop(signum, frame) -> None:
+    """The signal handler while a program starts: keep the request, raise nothing."""
+    request_stop(_reason(signum))
+
+
+def hold_stops_while_starting() -> None:
+    """For a program's entry point, before it imports its modules: SIGINT, SIGTERM and SIGHUP
+    are kept, not raised, until :func:`signals_as_interrupts` takes over, which then raises a
+    stop kept meanwhile at once, before the command does anything.
+
+    A ``KeyboardInterrupt`` raised while a C extension initialises (scipy's, numpy's) turns
+    into ``ImportError: initialization failed`` with a traceback, not the command line's one
+    line (measured: a SIGINT 2.9 s after ``spacecal acquire`` started on a busy machine).
+    """
+    global _held
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        number = getattr(signal, name, None)
+        if number is not None:
+            signal.signal(number, _keep_stop)
+    _held = True
+
+
 def _raise_interrupt(signum, frame) -> None:
     """The signal handler: keep the stop request and raise it (once)."""
-    reason = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+    reason = _reason(signum)
     if not request_stop(reason):
         # a second signal while the run stops (Ctrl-C pressed twice, a service manager's
         # repeated SIGTERM) must not abort the robot's stop half-way: it is ignored
@@ -86,9 +114,12 @@ def signals_as_interrupts() -> Iterator[None]:
     """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once while a command runs (main
     thread only), and the request is kept until the run has seen it; later ones are ignored
     until the command has cleaned up."""
+    global _held
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    kept = _requested if _held else None  # a stop while the program started
+    _held = False
     clear()
     previous = {}
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
@@ -98,6 +129,9 @@ def signals_as_interrupts() -> Iterator[None]:
     previous_hook = sys.unraisablehook
     sys.unraisablehook = _quiet_about_stops(previous_hook)
     try:
+        if kept is not None:
+            request_stop(kept)
+            raise StopRequested(kept)
         yield
     finally:
         for number, handler in previous.items():
