@@ -14,6 +14,8 @@ import time
 from pathlib import Path
 from urllib.parse import urljoin
 
+from spacecal import app as spacecal_app
+from spacecal.io.check_history import history_path
 from spacecal.io.recording_csv import read_recording
 
 #: The command line's stop times (tests/adapters/test_ur_stops.py): from the stop to the robot
@@ -25,6 +27,9 @@ ENDED_WITHIN_S = 8.0
 ACQUISITION_WITHIN_MS = 240_000
 #: Samples recorded before the STOP.
 STOP_AFTER_SAMPLES = 40
+#: A check's STOP comes this long after its process began the check (a check on the simulated
+#: devices in real time takes several seconds), s.
+CHECK_STOP_AFTER_S = 1.0
 
 
 def shot(page, name: str) -> None:
@@ -109,6 +114,12 @@ def test_from_a_new_robot_to_an_exported_calibration(served, page):
     page.click("#check")
     assert robot in page.inner_text("#confirm-text")
     page.click("#confirm")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    page.wait_for_function(
+        "document.getElementById('run-state').textContent === 'finished'", timeout=ACQUISITION_WITHIN_MS
+    )
+    assert page.inner_text("#message").startswith("PASS")
+    page.click("#back")
     assert page.inner_text("#checks").startswith("PASS")
     steps.done("check")
 
@@ -186,3 +197,36 @@ def test_closing_the_tab_mid_acquisition_stops_the_robot(served, page):
     page.close()
     run = served.station.runs.get(1)
     assert_stilled(run, "the station's page was closed or lost its connection")
+
+
+def test_stop_mid_check_stops_the_robot_and_logs_nothing(served, page):
+    new_robot_and_tracker(page, served.url, "UR10 bay 4")
+    work = served.station.workspace(1)
+    # the calibration's recording, acquired as fast as the simulated devices compute
+    spacecal_app.acquire(
+        spacecal_app.AcquireSettings(
+            str(work.recording_path), devices=work.devices, confirm_robot_motion=True, plan=None
+        )
+    )
+    page.reload()
+    page.click("#calibrate")
+    assert page.inner_text("#verdict").startswith("GOOD")
+    page.click("#check")
+    page.click("#confirm")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    page.wait_for_function("document.getElementById('run-state').textContent === 'running'")
+    time.sleep(CHECK_STOP_AFTER_S)
+    run = served.station.runs.get(1)
+    assert run.active, run.message  # the check is still moving when STOP is pressed
+    page.click("#stop")
+    page.wait_for_function("document.getElementById('run-state').textContent === 'stopped'")
+    message = page.inner_text("#message")
+    assert "check stopped: interrupted by the user (STOP pressed at the station)" in message
+    assert "the robot was stopped and nothing was logged" in message
+    run.thread.join(timeout=ENDED_WITHIN_S + 5)
+    assert run.ended_at - run.stop_requested_at < ENDED_WITHIN_S
+    shot(page, "7-check-stopped")
+    page.click("#back")
+    assert page.inner_text("#checks") == ""
+    assert served.station.ledger.checks() == []
+    assert not history_path(str(work.calibration_path)).exists()

@@ -83,6 +83,9 @@ class CheckSettings:
     record : str or None
         Also write the check to this record (an SQLite file or a database URL), opened before
         anything moves.
+    simulated_speed : float or None
+        Simulated devices only: their speed in times real time (None: as fast as they
+        compute), as :attr:`AcquireSettings.simulated_speed`.
     """
 
     calibration: str
@@ -99,6 +102,7 @@ class CheckSettings:
     accept_edited: bool = False
     accept_other_devices: bool = False
     record: str | None = None
+    simulated_speed: float | None = None
 
     def __post_init__(self) -> None:
         if self.poses not in (2, 3):
@@ -187,6 +191,7 @@ def _check(settings: CheckSettings) -> CommandResult[CheckOutput]:
         devices=settings.devices,
         workspace_box=settings.workspace_box,
         dry_run=settings.dry_run,
+        simulated_speed=settings.simulated_speed,
     )
     devices = settings.devices
     robot_identity: dict[str, str] = {}

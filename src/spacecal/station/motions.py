@@ -1,41 +1,47 @@
-"""Motions the station runs: confirmation tickets, and the acquisition's worker thread with its
-STOP.
+"""Motions the station runs: confirmation tickets, and each motion (an acquisition or a check) in
+a process of its own with its STOP.
 
 A motion starts only from a ticket (:class:`Tickets`): the confirmation page issues one that
 names the robot and the motion; the start request must hand it back, once, within
 :data:`TICKET_LIFETIME_S`. No ticket, no motion.
 
-STOP takes the command line's Ctrl-C path: the acquisition loop calls the station's frame
-observer at every tracker frame, and once STOP was pressed (or the page's connection was lost)
-the observer raises :class:`StationStop`, a ``KeyboardInterrupt`` as Ctrl-C raises, which the
-acquisition catches as it catches Ctrl-C: it stops the robot, keeps every sample and records
+Each motion runs as the command line runs it, in a child process
+(:mod:`spacecal.station.motion_process`), followed by a thread of the station that shows its
+progress and frames. STOP, or the page's connection lost, sends the child SIGINT: Ctrl-C, the
+command line's own stop path. The robot is stopped, every sample is kept and the run says
 where it stopped. A stopped run is over: the robot moves again only after a new confirmation.
+The web server and the robot's loop do not share an interpreter, and a robot library that
+crashes takes only its motion's process with it.
 """
 
 from __future__ import annotations
 
+import pickle
 import secrets
+import signal
+import subprocess
+import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from spacecal import app
 from spacecal.report.live import LiveView
+from spacecal.station.motion_process import LAST_MESSAGES
 
 #: How long a confirmation stays valid, s.
 TICKET_LIFETIME_S = 300.0
 #: A run whose page has not connected within this time after the robot started moving (its
 #: first tracker frame) is stopped, s.
 PAGE_CONNECT_WITHIN_S = 15.0
-#: The words of the acquisition's Ctrl-C stop, replaced by the station's own reason.
+#: The words of the command line's Ctrl-C stop, replaced by the station's own reason.
 CTRL_C_WORDS = "interrupted by the user (Ctrl-C)"
-
-
-class StationStop(KeyboardInterrupt):
-    """STOP on the station's page, or its connection lost: the acquisition stops as on Ctrl-C."""
+#: How long a motion's process may take to end once its last message arrived, s.
+PROCESS_EXIT_WITHIN_S = 30.0
+#: What each motion is called on its page.
+MOTION_WORDS = {"acquire": "acquisition", "check": "check"}
 
 
 @dataclass(frozen=True)
@@ -78,22 +84,31 @@ class Tickets:
 
 @dataclass
 class Run:
-    """One acquisition the station runs in its worker thread.
+    """One motion the station runs in a process of its own.
 
     Attributes
     ----------
+    motion : str
+        ``acquire`` (settings :class:`spacecal.app.AcquireSettings`) or ``check``
+        (:class:`spacecal.app.CheckSettings`).
     view : LiveView
         Keeps the frames for the page (its server is not started: the station serves them).
     state : str
         ``starting``, ``running``, ``finished``, ``stopped`` or ``failed``.
     message : str
         How it ended, in the command line's words.
+    output : CommandResult or None
+        What the app function returned, once finished.
+    on_done : callable or None
+        Called with the run when it finished (the station records a check).
     """
 
     id: int
     workspace: int
     robot: str
-    settings: app.AcquireSettings
+    settings: Any
+    motion: str = "acquire"
+    on_done: Callable[[Run], None] | None = None
     view: LiveView = field(default_factory=lambda: LiveView(0))
     state: str = "starting"
     message: str = ""
@@ -101,7 +116,7 @@ class Run:
     move_index: int = 0
     samples: int = 0
     visible: int = 0
-    output: app.CommandResult[app.AcquireOutput] | None = None
+    output: app.CommandResult[Any] | None = None
     stop_requested_at: float | None = None
     stop_reason: str = ""
     ended_at: float | None = None
@@ -110,67 +125,119 @@ class Run:
     started_at: float = field(default_factory=time.monotonic)
     watchers: int = 0
     ever_watched: bool = False
-    _stop: threading.Event = field(default_factory=threading.Event)
+    exit_code: int | None = None
+    started: bool = False
     thread: threading.Thread | None = None
+    _process: subprocess.Popen[bytes] | None = None
+    _lock: threading.Lock = field(default_factory=threading.Lock)
 
     @property
     def active(self) -> bool:
         return self.state in ("starting", "running")
 
+    @property
+    def words(self) -> str:
+        """What the motion is called on its page."""
+        return MOTION_WORDS.get(self.motion, self.motion)
+
     def request_stop(self, reason: str) -> None:
-        """Stop the run (the same path as Ctrl-C) at its next tracker frame."""
-        if self.stop_requested_at is None:
-            self.stop_requested_at = time.monotonic()
-            self.stop_reason = reason
-        self._stop.set()
-
-    # -- the acquisition's callbacks (worker thread) ---------------------------------------
-
-    def _check_stop(self) -> None:
-        if self._stop.is_set():
-            raise StationStop(self.stop_reason)
-
-    def on_plan(self, moves: int) -> None:
-        self.moves_total = moves
-        self._check_stop()  # a STOP before anything moved ends the run before the motion
-
-    def on_sample(self, samples: int, visible: int, move_index: int, label: str) -> None:
-        self.samples, self.visible, self.move_index = samples, visible, move_index
-
-    def observe(
-        self,
-        time_s: float,
-        segment: str,
-        tracker_from_marker: np.ndarray | None,
-        base_from_tcp: np.ndarray,
-        recorded: bool,
-    ) -> None:
-        self._check_stop()
-        self.state = "running"
-        self.last_frame_at = time.monotonic()
-        if self.first_frame_at is None:
-            self.first_frame_at = self.last_frame_at
-        self.view.observe(time_s, segment, tracker_from_marker, base_from_tcp, recorded)
+        """Stop the run: SIGINT to its process, the command line's Ctrl-C path."""
+        with self._lock:
+            if self.stop_requested_at is None:
+                self.stop_requested_at = time.monotonic()
+                self.stop_reason = reason
+            process = self._process
+        if process is not None and process.poll() is None:
+            try:
+                process.send_signal(signal.SIGINT)
+            except OSError:  # it has just ended
+                pass
 
     def work(self) -> None:
-        """The worker thread's body: run the acquisition, keep how it ended."""
+        """The following thread's body: start the motion's process, show what it reports, keep
+        how it ended."""
         try:
-            self.output = app.acquire(
-                self.settings, on_sample=self.on_sample, observer=self.observe, on_plan=self.on_plan
-            )
-            self.state, self.message = "finished", _finished(self.output.record)
-        except StationStop:
-            # stopped before the motion started (while planning): nothing moved
-            self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"
-        except Exception as exc:  # every way out is shown on the page, in the CLI's words
-            stopped = self.stop_requested_at is not None
-            text = " ".join(str(exc).split()) or type(exc).__name__
-            if stopped:
-                text = text.replace(CTRL_C_WORDS, f"interrupted by the user ({self.stop_reason})")
-            self.state, self.message = ("stopped" if stopped else "failed"), text
+            self._follow()
+        except Exception as exc:  # the page must say so rather than spin
+            self.state, self.message = "failed", f"the {self.words} could not be run: {_one_line(exc)}"
         finally:
             self.ended_at = time.monotonic()
             self.view.finish(f"{self.state}: {self.message}")
+
+    def _follow(self) -> None:
+        with self._lock:
+            if self.stop_requested_at is not None:
+                self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"
+                return
+            process = subprocess.Popen(
+                [sys.executable, "-m", "spacecal.station.motion_process"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+            )
+            self._process = process
+        assert process.stdin is not None and process.stdout is not None
+        with process.stdin:
+            pickle.dump((self.motion, self.settings), process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        last: tuple[str, Any] | None = None
+        with process.stdout:
+            while True:
+                try:
+                    kind, payload = pickle.load(process.stdout)
+                except (EOFError, pickle.UnpicklingError):
+                    break
+                if kind in LAST_MESSAGES:
+                    last = (kind, payload)
+                else:
+                    self._progress(kind, payload)
+        try:
+            self.exit_code = process.wait(timeout=PROCESS_EXIT_WITHIN_S)
+        except subprocess.TimeoutExpired:
+            process.kill()  # it has said all it will say; the robot was stopped by then
+            self.exit_code = process.wait()
+        self._ended(last)
+
+    def _progress(self, kind: str, payload: Any) -> None:
+        if kind == "started":
+            self.started = True
+            if self.motion == "check":
+                self.state = "running"  # a check shows no frames: it runs from here
+        elif kind == "plan":
+            self.moves_total = int(payload)
+        elif kind == "sample":
+            self.samples, self.visible, self.move_index, _ = payload
+        elif kind == "frame":
+            self.state = "running"
+            self.last_frame_at = time.monotonic()
+            if self.first_frame_at is None:
+                self.first_frame_at = self.last_frame_at
+            self.view.observe(*payload)
+
+    def _ended(self, last: tuple[str, Any] | None) -> None:
+        stopped = self.stop_requested_at is not None
+        if last is None and stopped and not self.started:
+            self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"
+        elif last is None:
+            self.state = "stopped" if stopped else "failed"
+            self.message = (
+                f"the {self.words}'s process ended without a word (exit code {self.exit_code}); "
+                "every file it wrote is complete up to its last line"
+            )
+        elif last[0] == "done":
+            self.output = last[1]
+            self.state, self.message = "finished", _finished(self.motion, last[1].record)
+            if self.on_done is not None:
+                self.on_done(self)
+        elif last[0] == "interrupted":
+            reason = self.stop_reason if stopped else str(last[1])
+            self.state = "stopped"
+            self.message = (
+                f"stopped: {reason}" if self.started else f"stopped before the robot moved: {reason}"
+            )
+        else:
+            text = str(last[1])
+            if stopped:
+                text = text.replace(CTRL_C_WORDS, f"interrupted by the user ({self.stop_reason})")
+            self.state, self.message = ("stopped" if stopped else "failed"), text
 
     def snapshot(self, since: int) -> dict[str, Any]:
         """What the page shows: the live view's frames after ``since`` and the run's state."""
@@ -185,7 +252,21 @@ class Run:
         return data
 
 
-def _finished(output: app.AcquireOutput) -> str:
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _finished(motion: str, output: Any) -> str:
+    """How a motion that ran to its end ended, in the command line's words."""
+    if motion == "check":
+        result = output.result
+        if result is None:
+            return "nothing was run"
+        verdict = "PASS" if result.passed else "FAIL"
+        return (
+            f"{verdict}: largest departure {max(result.tcp_error_mm):.3f} mm "
+            f"(tolerance up to {result.threshold_mm:.2f} mm)"
+        )
     result = output.result
     if result is None:
         return "nothing was run"
@@ -208,8 +289,15 @@ class Runs:
     def active(self) -> Run | None:
         return next((run for run in self._runs.values() if run.active), None)
 
-    def start(self, workspace: int, robot: str, settings: app.AcquireSettings) -> Run:
-        """Start an acquisition in a worker thread.
+    def start(
+        self,
+        workspace: int,
+        robot: str,
+        settings: Any,
+        motion: str = "acquire",
+        on_done: Callable[[Run], None] | None = None,
+    ) -> Run:
+        """Start a motion (``acquire`` or ``check``) in its process, followed by a thread.
 
         Raises
         ------
@@ -217,9 +305,10 @@ class Runs:
             Another run is still moving a robot.
         """
         with self._lock:
-            if self.active() is not None:
-                raise RuntimeError("another acquisition is running: stop it or let it finish first")
-            run = Run(len(self._runs) + 1, workspace, robot, settings)
+            running = self.active()
+            if running is not None:
+                raise RuntimeError(f"another {running.words} is running: stop it or let it finish first")
+            run = Run(len(self._runs) + 1, workspace, robot, settings, motion, on_done)
             self._runs[run.id] = run
         run.thread = threading.Thread(target=run.work, name=f"spacecal-station-run-{run.id}", daemon=True)
         run.thread.start()

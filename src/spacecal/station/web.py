@@ -259,21 +259,27 @@ async def start_motion(request: Request) -> Response:
             "refused: a motion starts only from its confirmation page (confirm it again)", status_code=403
         )
     here = request.url_for("workspace", workspace_id=work.id)
-    if motion == "acquire":
-        try:
-            run = station.runs.start(work.id, work.robot["name"], work.acquire_settings(dry_run=False))
-        except RuntimeError as exc:
-            return RedirectResponse(here.include_query_params(error=str(exc)), 303)
-        work.run_id = run.id
-        return RedirectResponse(request.url_for("run", run_id=run.id), 303)
-    if station.runs.active() is not None:
-        return RedirectResponse(here.include_query_params(error="an acquisition is running"), 303)
     try:
-        out = await asyncio.to_thread(work.check)
-        spacecal_app.record_check(station.ledger, work.calibration_path, out, "station")
-    except (SpacecalError, OSError) as exc:
-        return RedirectResponse(here.include_query_params(error=_one_line(exc)), 303)
-    return RedirectResponse(here, 303)
+        if motion == "acquire":
+            run = station.runs.start(work.id, work.robot["name"], work.acquire_settings(dry_run=False))
+            work.run_id = run.id
+        else:
+            run = station.runs.start(
+                work.id,
+                work.robot["name"],
+                work.check_settings(),
+                "check",
+                functools.partial(_checked, station, work),
+            )
+    except RuntimeError as exc:
+        return RedirectResponse(here.include_query_params(error=str(exc)), 303)
+    return RedirectResponse(request.url_for("run", run_id=run.id), 303)
+
+
+def _checked(station: Station, work: Workspace, run: Any) -> None:
+    """A check that ran to its end: the calibration's list and the record."""
+    work.checks.append(run.output.record)
+    spacecal_app.record_check(station.ledger, work.calibration_path, run.output, "station")
 
 
 def run_page(request: Request) -> Response:

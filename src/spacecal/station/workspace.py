@@ -163,12 +163,14 @@ class Workspace:
         self.calibration = out
         return out
 
-    def check(self) -> app.CommandResult[app.CheckOutput]:
-        out = app.check(
-            app.CheckSettings(str(self.calibration_path), devices=self.devices, confirm_robot_motion=True)
+    def check_settings(self) -> app.CheckSettings:
+        """The check's settings: its motion was confirmed on the station's confirmation page."""
+        return app.CheckSettings(
+            str(self.calibration_path),
+            devices=self.devices,
+            confirm_robot_motion=True,
+            simulated_speed=SIMULATED_SPEED,
         )
-        self.checks.append(out.record)
-        return out
 
     def make_report(self) -> Path:
         out = app.report(

@@ -21,8 +21,13 @@
                         zaxis: {title: {text: "z (mm)"}}}};
   // the view is a help, never a condition: without WebGL the numbers and STOP still work
   var drawing = true;
+  // drawing shares the page's one thread with STOP's click: a draw that took d ms waits
+  // QUIET_FACTOR * d before the next, so drawing never takes more than a sixth of the thread
+  // (software WebGL on a busy machine took seconds per draw, and delayed a click as long)
+  var QUIET_FACTOR = 5, MIN_PERIOD_MS = 500, nextDrawAt = 0;
   function draw(first) {
     if (!drawing) { return; }
+    var started = Date.now();
     try {
       if (first) { Plotly.newPlot("view", traces(), layout, {displaylogo: false, responsive: true}); }
       else { Plotly.react("view", traces(), layout); }
@@ -30,6 +35,8 @@
       drawing = false;
       view.textContent = "the live view cannot be drawn in this browser (" + error + ")";
     }
+    var took = Date.now() - started;
+    nextDrawAt = Date.now() + Math.max(MIN_PERIOD_MS, QUIET_FACTOR * took);
   }
   function text(id, value) { document.getElementById(id).textContent = value; }
   var scheme = location.protocol === "https:" ? "wss://" : "ws://";
@@ -53,10 +60,14 @@
     var bar = document.getElementById("progress");
     bar.max = Math.max(1, data.moves_total);
     bar.value = data.move;
-    if (data.frames.length || Date.now() - drawn > 2000) { draw(false); drawn = Date.now(); }
+    if (Date.now() >= nextDrawAt && (data.frames.length || Date.now() - drawn > 2000)) {
+      draw(false);
+      drawn = Date.now();
+    }
     if (data.run_state !== "starting" && data.run_state !== "running") {
       ended = true;
       document.getElementById("stop").disabled = true;
+      draw(false);  // the whole run, however the last draws were spaced
       socket.close();
     }
   };

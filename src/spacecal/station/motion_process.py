@@ -1,0 +1,126 @@
+"""A motion the station runs (an acquisition or a check) in a process of its own.
+
+The station serves pages, a live view and a record from one Python process. A motion there
+would share its interpreter lock with the web server, and a robot library that crashes on
+close (ur_rtde after a dropped control connection was seen to end in a segmentation fault)
+would take the station with it. So each motion runs as the command line runs it: a process of
+its own (``python -m spacecal.station.motion_process``), with the command line's signal
+handling (:func:`spacecal.core.interrupts.signals_as_interrupts`), in which STOP is SIGINT,
+i.e. Ctrl-C, and takes the command line's stop path: the robot is stopped, every sample is
+kept, and the run says where it stopped.
+
+The protocol on the child's pipes (trusted: the station starts this child itself):
+
+- stdin: one pickled ``(motion, settings)``, ``motion`` being ``"acquire"`` (settings
+  :class:`spacecal.app.AcquireSettings`) or ``"check"`` (:class:`spacecal.app.CheckSettings`).
+- stdout: pickled messages ``(kind, payload)``, flushed one by one: ``("started", None)``
+  once SIGINT takes the command line's stop path, ``("plan", moves)``,
+  ``("sample", (samples, visible, move_index, label))``, ``("frame", (time_s, segment,
+  tracker_from_marker, base_from_tcp, recorded))``, and one last message: ``("done",
+  CommandResult)``, ``("interrupted", reason)`` (the stop came before the app function could
+  catch it) or ``("failed", one line)``. Anything the robot and tracker libraries print on
+  the process's standard output goes to its standard error instead, so it never mixes with
+  the messages.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import sys
+import warnings
+from typing import IO, Any
+
+#: The motions a child runs.
+MOTIONS = ("acquire", "check")
+#: The kinds of message that end a child's report.
+LAST_MESSAGES = ("done", "interrupted", "failed")
+#: Why a motion stops when its station can no longer be told anything.
+STATION_LOST = "the station that started the motion is gone"
+
+
+def _channel() -> IO[bytes]:
+    """The message channel: the process's original standard output. File descriptor 1 then
+    points at standard error, so a C library's ``printf`` cannot corrupt the messages."""
+    channel = os.fdopen(os.dup(1), "wb")
+    os.dup2(2, 1)
+    sys.stdout = sys.stderr
+    return channel
+
+
+def run_motion(motion: str, settings: Any, send: Any) -> None:
+    """Run ``motion`` with ``settings`` and report through ``send(kind, payload)``.
+
+    Raises nothing: every way out is one last message.
+    """
+    from spacecal import app
+    from spacecal.core import interrupts
+
+    def on_sample(samples: int, visible: int, move_index: int, label: str) -> None:
+        send("sample", (samples, visible, move_index, label))
+
+    def observer(time_s, segment, tracker_from_marker, base_from_tcp, recorded) -> None:
+        send("frame", (time_s, segment, tracker_from_marker, base_from_tcp, recorded))
+
+    out: app.CommandResult[Any]
+    try:
+        with interrupts.signals_as_interrupts(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # as the command line: the last line says what happened
+            send("started", None)
+            if motion == "acquire":
+                out = app.acquire(
+                    settings, on_sample=on_sample, observer=observer, on_plan=lambda n: send("plan", n)
+                )
+            elif motion == "check":
+                out = app.check(settings)
+            else:
+                raise ValueError(f"no motion {motion!r}")
+        send("done", out)
+    except KeyboardInterrupt as exc:
+        send("interrupted", str(exc.args[0]) if exc.args else "Ctrl-C")
+    except Exception as exc:  # every way out is shown on the station's page, in the CLI's words
+        send("failed", " ".join(str(exc).split()) or type(exc).__name__)
+
+
+def main() -> None:
+    """The child's entry point: read the motion, run it, end without the interpreter's
+    teardown when a robot library left threads running (as the command line does)."""
+    from spacecal.core import interrupts
+
+    channel = _channel()
+    lost = False
+
+    def send(kind: str, payload: Any) -> None:
+        nonlocal lost
+        if lost:
+            return
+        try:
+            pickle.dump((kind, payload), channel, protocol=pickle.HIGHEST_PROTOCOL)
+            channel.flush()
+        except OSError:
+            # the station is gone: nobody watches the robot, so it stops as on Ctrl-C
+            lost = True
+            if kind in LAST_MESSAGES:
+                return
+            interrupts.request_stop(STATION_LOST)
+            raise interrupts.StopRequested(STATION_LOST) from None
+
+    try:
+        motion, settings = pickle.load(sys.stdin.buffer)
+        run_motion(motion, settings, send)
+    except KeyboardInterrupt:  # stopped before the motion began: nothing moved
+        send("interrupted", "Ctrl-C")
+    finally:
+        try:
+            channel.close()
+        except OSError:
+            pass
+        sys.stderr.flush()
+        from spacecal import app
+
+        if app.end_programs_left_running():
+            os._exit(0)
+
+
+if __name__ == "__main__":
+    main()
