@@ -188,9 +188,16 @@ def test_without_nearby_frames_the_noise_is_the_tracker_s_rms_else_all_misfit_co
     from_rms = calibrate(lonely, "ml").diagnostics["expected_error"]
     assert "from its fit RMS" in from_rms["basis"] and from_rms["components"]["noise_pairs"] == 0
     assert from_rms["position_mm"] == pytest.approx(paired["position_mm"], rel=0.15)
-    unknown = calibrate(lonely.as_pose_only(), "ml").diagnostics["expected_error"]
-    assert "neither nearby frames nor a tracker fit RMS" in unknown["basis"]
-    assert unknown["position_mm"] >= paired["position_mm"]
+    # neither: the noise is what the residuals leave once the DH errors are fitted as well (a
+    # camera's static views); the tracker's smooth bias then counts partly as noise, so the
+    # error is below the nugget's, and stays within the bound every path keeps: the measured
+    # error is at most twice the stated one
+    posed = calibrate(lonely.as_pose_only(), "ml")
+    unknown = posed.diagnostics["expected_error"]
+    assert "once the arm's DH errors are fitted too" in unknown["basis"]
+    assert unknown["position_mm"] <= paired["position_mm"]
+    measured = verify_in_simulation(posed, PRESETS["paper-realistic"]).statistics()["position_mm"]["mean"]
+    assert measured <= 2.0 * unknown["position_mm"]
 
 
 @pytest.fixture(scope="module")

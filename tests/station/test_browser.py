@@ -225,7 +225,7 @@ def test_stop_mid_check_stops_the_robot_and_logs_nothing(served, page):
     assert "the robot was stopped and nothing was logged" in message
     run.thread.join(timeout=ENDED_WITHIN_S + 5)
     assert run.ended_at - run.stop_requested_at < ENDED_WITHIN_S
-    shot(page, "7-check-stopped")
+    shot(page, "11-check-stopped")
     page.click("#back")
     assert page.inner_text("#checks") == ""
     assert served.station.ledger.checks() == []

@@ -162,3 +162,22 @@ def test_stop_on_the_protocol_fakes_stills_the_arm(served, page, rom_file):  # n
         assert not after["program_running"]  # nothing can resume a move
     finally:
         world.stop()
+
+
+def test_a_refused_dry_run_offers_no_motion(served, page, rom_file):  # noqa: F811
+    world = ur_world("cb3")
+    try:
+        new_robot_and_tracker_on_the_fakes(page, served.url, world, rom_file)
+        world.control("protective_stop")  # the arm is stopped on its pendant
+        page.click("#dry-run")
+        said = page.inner_text("body")
+        assert "protective" in said.lower(), said
+        assert "motion gate: passed" not in said
+        assert page.locator("#acquire").count() == 0  # nothing to confirm
+        shot(page, "10-dry-run-refused")
+        # nor can a confirmation be asked for directly
+        page.goto(f"{served.url}/workspaces/1/confirm/acquire")
+        assert "run the dry run first" in page.inner_text("body")
+        assert served.station.runs.get(1) is None  # no motion was started
+    finally:
+        world.stop()

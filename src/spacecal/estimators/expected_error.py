@@ -31,8 +31,11 @@ joint angles or the tracker's fit RMS:
    the systematic error the fit cannot absorb, so comparing held-out with in-sample misfit
    calls that part noise and understates the error. The pairs' scatter gives the noise level's
    standard error. Where fewer than :data:`MINIMUM_NUGGET_PAIRS` nearby pairs exist (one frame
-   per pose), the tracker's fit RMS stands in, and without it all of the misfit counts as
-   systematic: the error is widened, never shrunk, and the basis says so.
+   per pose), the tracker's fit RMS stands in. Without it (a camera's static views) the noise
+   is what the residuals leave once the arm's DH errors are fitted as well
+   (:func:`white_noise_beyond_kinematics`), and a systematic error the DH errors cannot
+   describe then counts as noise; the basis says so. Only where no arm's geometry is
+   available does all of the misfit count as systematic.
 3. **What the marker cannot see** (geometry). Part of any kinematic error moves the needle
    tip without moving the marker relative to the chain: an error constant in the tool frame
    is absorbed into ``tcp_from_marker``, yet the tip is off by it (the docs' floor that only a
@@ -153,6 +156,10 @@ NUGGET_MAX_DISPLACEMENT_MM = 20.0
 
 #: Fewer pairs of nearby frames than this cannot measure the white noise.
 MINIMUM_NUGGET_PAIRS = 10
+#: The fewest residual degrees of freedom the noise is taken from once the DH errors are
+#: fitted too (:func:`white_noise_beyond_kinematics`): the estimate's relative error is then
+#: at most sqrt(2 / 20) = 0.32.
+MINIMUM_RESIDUAL_DOF = 20
 
 #: Overlapping pairs (i, i + 1), (i + 1, i + 2) share a frame: under Gaussian noise their
 #: half squared differences correlate by 1/4, so the variance of their mean is at most 1.5
@@ -625,6 +632,74 @@ def white_noise_power(
     }
 
 
+def white_noise_beyond_kinematics(
+    model: RobotModel,
+    joints_rad: FloatArray,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    frames: int = GEOMETRY_FRAMES,
+) -> dict[str, Any]:
+    """The white noise as what the residuals leave once the arm's DH errors are fitted as well.
+
+    For a recording of one frame per pose whose tracker gives no fit RMS (a camera's static
+    views), no nearby pairs measure the noise. The residuals at the fitted solution are then
+    split by their shape: the arm's DH errors (unit scale :data:`UNIT_DH_SD`) and the pose
+    parameters span a known subspace of the stacked sphere residuals; white noise spreads over
+    all of it, a DH error lies in it. Fitting both by least squares leaves the noise alone in
+    the rest, ``E[RSS] = sigma^2 (m - rank)`` for ``m`` stacked coordinates, so the power per
+    frame is the mean residual power per frame times ``m / (m - rank)``. A systematic error the
+    DH errors cannot describe (a tracker's volume error) counts as noise here: the basis says so.
+
+    Parameters
+    ----------
+    model : RobotModel
+        The arm whose DH geometry shapes the systematic error.
+    joints_rad : numpy.ndarray, shape (N, 6)
+        Its joint angles at the used frames (NaN where unknown: those frames are left out).
+    obs : Observations
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The fitted solution.
+    frames : int
+        At most this many frames, evenly spread, are used.
+
+    Returns
+    -------
+    dict
+        ``power_mm2``: the white noise's power per frame (sum over the spheres, mm^2);
+        ``relative_error``: the relative standard error of that power (chi-square scatter of
+        the residual degrees of freedom); ``dof``: those degrees of freedom.
+
+    Raises
+    ------
+    DegenerateDataError
+        When fewer than :data:`MINIMUM_RESIDUAL_DOF` residual degrees of freedom remain.
+    """
+    usable = np.flatnonzero(np.all(np.isfinite(joints_rad), axis=1))
+    rows = usable[geometry_rows(len(usable), frames)] if len(usable) else usable
+    points = obs.spheres_in_marker
+    residual = (predict_spheres(obs, tracker_from_base, tcp_from_marker) - obs.spheres_in_tracker)[rows]
+    pose = pose_point_jacobian(obs.base_from_tcp_stack[rows], tracker_from_base, tcp_from_marker, points)
+    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points) * UNIT_DH_SD
+    design = np.concatenate([pose, dh], axis=-1).reshape(-1, 36)
+    stacked = residual.reshape(-1)
+    coefficients, _, rank, _ = np.linalg.lstsq(design, stacked, rcond=None)
+    dof = stacked.size - int(rank)
+    # the stacked coordinates of one frame are not independent for a fitted pose (6 of 3K)
+    effective_dof = dof * obs.dof_per_frame / (3 * len(points))
+    if effective_dof < MINIMUM_RESIDUAL_DOF:
+        raise DegenerateDataError(
+            f"only {effective_dof:.0f} residual degrees of freedom beyond the pose and the DH errors "
+            f"(at least {MINIMUM_RESIDUAL_DOF})"
+        )
+    rss = float(np.sum((stacked - design @ coefficients) ** 2))
+    return {
+        "power_mm2": rss / len(rows) * stacked.size / dof,
+        "relative_error": float(np.sqrt(2.0 / effective_dof)),
+        "dof": effective_dof,
+    }
+
+
 def expected_error(
     obs: Observations,
     segments: np.ndarray,
@@ -723,6 +798,60 @@ def expected_error(
     held_out_ms = float(np.nanmean(sse)) if computed else 0.0
     scored = int(np.isfinite(sse).sum())
     mean_leverage = float(np.nanmean(misfit["frame_prediction_leverage"])) if computed else 0.0
+    geometry: tuple[RobotModel, dict[str, Any], FloatArray] | None = None
+    if has_model and robot_model is not None and joints_rad is not None:
+        geometry = (
+            robot_model,
+            unseen_kinematic_error(
+                robot_model,
+                joints_rad,
+                obs,
+                ml_tracker_from_base,
+                ml_tcp_from_marker,
+                site,
+                misfit["block_indices"],
+                absorbed_dh,
+                tip_in_marker=tip_in_marker,
+            ),
+            joints_rad,
+        )
+        scaled_by = "the robot's kinematic geometry"
+    else:
+        # no joint angles: solve them from the reported TCP poses, by the recording's robot
+        # model or, without one, by the UR arm whose geometry hides the most of a given misfit
+        frames = GEOMETRY_FRAMES if robot_model is not None else STAND_IN_FRAMES
+        rows = geometry_rows(len(obs.rows), frames)
+        for arm in stand_in_arms(robot_model, ml_tcp_from_marker):
+            joints = solved_joints(arm, obs.base_from_tcp_stack, rows)
+            if joints is None:
+                continue
+            unit = unseen_kinematic_error(
+                arm,
+                joints,
+                obs,
+                ml_tracker_from_base,
+                ml_tcp_from_marker,
+                site,
+                misfit["block_indices"],
+                frames=frames,
+                tip_in_marker=tip_in_marker,
+            )
+            if unit["sphere_power_mm2"] > 0 and (
+                geometry is None
+                or unit["tip_position_ms_mm2"] / unit["sphere_power_mm2"]
+                > geometry[1]["tip_position_ms_mm2"] / geometry[1]["sphere_power_mm2"]
+            ):
+                geometry = (arm, unit, joints)
+        if geometry is not None and robot_model is not None:
+            scaled_by = (
+                f"the {robot_model.name}'s kinematic geometry at joint angles solved from the reported "
+                "TCP poses (the recording has none)"
+            )
+        elif geometry is not None:
+            scaled_by = (
+                f"the kinematic geometry of a {geometry[0].name} with its flange at the marker, the UR arm "
+                "that hides the most of it (the recording has no joint angles or robot model)"
+            )
     # The white noise, from the residuals of consecutive frames where there are enough (the same
     # on every path, and every white source is in it as it is in the misfit); else from the
     # tracker's fit RMS; else unknown, and then all the misfit counts as systematic.
@@ -758,8 +887,27 @@ def expected_error(
             "beyond the tracker's noise from its fit RMS (too few nearby frames to measure the white noise)"
         )
     else:
-        white_power = noise_standard_error = 0.0
-        beyond = "(all of it: neither nearby frames nor a tracker fit RMS measure the white noise)"
+        beyond_dh = None
+        if geometry is not None:
+            try:
+                beyond_dh = white_noise_beyond_kinematics(
+                    geometry[0], geometry[2], obs, ml_tracker_from_base, ml_tcp_from_marker
+                )
+            except DegenerateDataError:
+                beyond_dh = None
+        if beyond_dh is not None:
+            white_power = float(beyond_dh["power_mm2"])
+            noise_standard_error = white_power * float(
+                np.hypot(np.sqrt(2.0 / (obs.dof_per_frame * max(scored, 1))), beyond_dh["relative_error"])
+            )
+            beyond = (
+                "beyond the white noise the residuals leave once the arm's DH errors are fitted too "
+                "(one frame per pose and no tracker fit RMS; a systematic error DH errors cannot "
+                "describe counts as noise there)"
+            )
+        else:
+            white_power = noise_standard_error = 0.0
+            beyond = "(all of it: neither nearby frames nor a tracker fit RMS measure the white noise)"
     noise_ms = white_power * (1.0 + mean_leverage / obs.dof_per_frame)
     systematic = (
         max(held_out_ms - noise_ms - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
@@ -786,61 +934,8 @@ def expected_error(
     blocks = f"{misfit['blocks_refitted']} held-out blocks ({refits})"
     if dh_error_scale_mm is not None and has_model:
         blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
-    geometry = None
-    if has_model and robot_model is not None and joints_rad is not None:
-        geometry = (
-            robot_model,
-            unseen_kinematic_error(
-                robot_model,
-                joints_rad,
-                obs,
-                ml_tracker_from_base,
-                ml_tcp_from_marker,
-                site,
-                misfit["block_indices"],
-                absorbed_dh,
-                tip_in_marker=tip_in_marker,
-            ),
-        )
-        scaled_by = "the robot's kinematic geometry"
-    else:
-        # no joint angles: solve them from the reported TCP poses, by the recording's robot
-        # model or, without one, by the UR arm whose geometry hides the most of a given misfit
-        frames = GEOMETRY_FRAMES if robot_model is not None else STAND_IN_FRAMES
-        rows = geometry_rows(len(obs.rows), frames)
-        for arm in stand_in_arms(robot_model, ml_tcp_from_marker):
-            joints = solved_joints(arm, obs.base_from_tcp_stack, rows)
-            if joints is None:
-                continue
-            unit = unseen_kinematic_error(
-                arm,
-                joints,
-                obs,
-                ml_tracker_from_base,
-                ml_tcp_from_marker,
-                site,
-                misfit["block_indices"],
-                frames=frames,
-                tip_in_marker=tip_in_marker,
-            )
-            if unit["sphere_power_mm2"] > 0 and (
-                geometry is None
-                or unit["tip_position_ms_mm2"] / unit["sphere_power_mm2"]
-                > geometry[1]["tip_position_ms_mm2"] / geometry[1]["sphere_power_mm2"]
-            ):
-                geometry = (arm, unit)
-        if geometry is not None and robot_model is not None:
-            scaled_by = (
-                f"the {robot_model.name}'s kinematic geometry at joint angles solved from the reported "
-                "TCP poses (the recording has none)"
-            )
-        elif geometry is not None:
-            scaled_by = (
-                f"the kinematic geometry of a {geometry[0].name} with its flange at the marker, the UR arm "
-                "that hides the most of it (the recording has no joint angles or robot model)"
-            )
     if geometry is not None:
-        arm, unit = geometry
+        arm, unit, _ = geometry
         if dh_error_scale_mm is not None:
             scale_sq = dh_error_scale_mm**2
         else:
