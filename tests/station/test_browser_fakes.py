@@ -181,3 +181,38 @@ def test_a_refused_dry_run_offers_no_motion(served, page, rom_file):  # noqa: F8
         assert served.station.runs.get(1) is None  # no motion was started
     finally:
         world.stop()
+
+
+def test_closing_the_tab_mid_acquisition_stills_the_arm_on_the_protocol_fakes(served, page, rom_file):  # noqa: F811
+    world = ur_world("cb3")
+    try:
+        new_robot_and_tracker_on_the_fakes(page, served.url, world, rom_file)
+        page.click("#dry-run")
+        page.click("#acquire")
+        page.click("#confirm")
+        page.wait_for_url(re.compile(r"/runs/\d+$"))
+        page.wait_for_function(
+            f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}"
+        )
+        run = served.station.runs.get(1)
+        assert run.active, run.message
+        world.control("ur mark")
+        marked_at = time.monotonic()
+        page.close()
+        run.thread.join(timeout=ENDED_WITHIN_S + 30)
+        assert run.state == "stopped", run.message
+        assert "interrupted by the user (the station's page was closed or lost its connection)" in run.message
+        after = assert_everything_closed(world)
+        assert after["fault_to_still_s"] is not None and run.stop_requested_at is not None
+        seen_s = run.stop_requested_at - marked_at
+        still_after_stop_s = after["fault_to_still_s"] - seen_s
+        print(
+            f"\nprotocol fakes, tab closed: the station saw it {seen_s:.2f} s after; "
+            f"the arm stood still {still_after_stop_s:.3f} s after that",
+            flush=True,
+        )
+        assert still_after_stop_s < STILL_WITHIN_S
+        assert run.ended_at - run.stop_requested_at < ENDED_WITHIN_S
+        assert not after["program_running"]
+    finally:
+        world.stop()
