@@ -21,7 +21,7 @@ from spacecal.app.devices import (
 from spacecal.app.result import NOTE_CHARS, CommandResult, Quality
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import FINDING_PROBLEM, DeviceFinding
-from spacecal.core.text import sanitize_for_terminal
+from spacecal.core.text import exception_line, sanitize_for_terminal
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class DoctorOutput:
 
 
 def _connection_problem(exc: Exception) -> DeviceFinding:
-    return DeviceFinding(FINDING_PROBLEM, "connection", " ".join(str(exc).split()) or type(exc).__name__)
+    return DeviceFinding(FINDING_PROBLEM, "connection", exception_line(exc))
 
 
 def doctor(settings: DoctorSettings) -> CommandResult[DoctorOutput]:

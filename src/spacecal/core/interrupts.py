@@ -21,6 +21,10 @@ from collections.abc import Iterator
 
 _lock = threading.Lock()
 _requested: str | None = None
+#: The signals that ask for a stop (SIGHUP does not exist everywhere).
+_STOP_SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
 #: True from :func:`hold_stops_while_starting` until :func:`signals_as_interrupts` takes over.
 _held = False
 
@@ -80,10 +84,8 @@ def hold_stops_while_starting() -> None:
     line (measured: a SIGINT 2.9 s after ``spacecal acquire`` started on a busy machine).
     """
     global _held
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        number = getattr(signal, name, None)
-        if number is not None:
-            signal.signal(number, _keep_stop)
+    for number in _STOP_SIGNALS:
+        signal.signal(number, _keep_stop)
     _held = True
 
 
@@ -122,10 +124,8 @@ def signals_as_interrupts() -> Iterator[None]:
     _held = False
     clear()
     previous = {}
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        number = getattr(signal, name, None)
-        if number is not None:
-            previous[number] = signal.signal(number, _raise_interrupt)
+    for number in _STOP_SIGNALS:
+        previous[number] = signal.signal(number, _raise_interrupt)
     previous_hook = sys.unraisablehook
     sys.unraisablehook = _quiet_about_stops(previous_hook)
     try:

@@ -93,6 +93,12 @@ def quoted(value: object, limit: int = 60) -> str:
     return sanitize_for_terminal(text, limit + 2 + len(ELLIPSIS))
 
 
+def exception_line(exc: BaseException) -> str:
+    """An exception's message on one line (whitespace runs, newlines included, as one space), or
+    its type's name when it has none."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 def one_line_ascii(text: str) -> str:
     """``text`` as one line of printable ASCII: every other character (newlines, controls,
     non-ASCII letters) as a Python-style escape. For comments in generated files, where a line

@@ -31,8 +31,6 @@ import sys
 import warnings
 from typing import IO, Any
 
-#: The motions a child runs.
-MOTIONS = ("acquire", "check")
 #: The kinds of message that end a child's report.
 LAST_MESSAGES = ("done", "interrupted", "failed")
 #: Why a motion stops when its station can no longer be told anything.
@@ -55,6 +53,7 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
     """
     from spacecal import app
     from spacecal.core import interrupts
+    from spacecal.core.text import exception_line
 
     def on_sample(samples: int, visible: int, move_index: int, label: str) -> None:
         send("sample", (samples, visible, move_index, label))
@@ -79,7 +78,7 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
     except KeyboardInterrupt as exc:
         send("interrupted", str(exc.args[0]) if exc.args else "Ctrl-C")
     except Exception as exc:  # every way out is shown on the station's page, in the CLI's words
-        send("failed", " ".join(str(exc).split()) or type(exc).__name__)
+        send("failed", exception_line(exc))
 
 
 def main() -> None:

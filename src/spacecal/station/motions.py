@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from spacecal import app
+from spacecal.core.text import exception_line
 from spacecal.report.live import LiveView
 from spacecal.station.motion_process import LAST_MESSAGES
 
@@ -159,7 +160,7 @@ class Run:
         try:
             self._follow()
         except Exception as exc:  # the page must say so rather than spin
-            self.state, self.message = "failed", f"the {self.words} could not be run: {_one_line(exc)}"
+            self.state, self.message = "failed", f"the {self.words} could not be run: {exception_line(exc)}"
         finally:
             self.ended_at = time.monotonic()
             self.view.finish(f"{self.state}: {self.message}")
@@ -250,10 +251,6 @@ class Run:
             stop_reason=self.stop_reason,
         )
         return data
-
-
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _finished(motion: str, output: Any) -> str:

@@ -25,6 +25,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from spacecal import app as spacecal_app
 from spacecal.core.errors import SpacecalError
+from spacecal.core.text import exception_line
 from spacecal.ledger import Ledger
 from spacecal.station.access import AccessMiddleware, is_loopback
 from spacecal.station.motions import Runs, Tickets
@@ -60,10 +61,6 @@ def _station(request: Request | WebSocket) -> Station:
     return station
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
-
-
 def _page(request: Request, name: str, status: int = 200, **context: Any) -> Response:
     return templates.TemplateResponse(request, name, context, status_code=status)
 
@@ -97,7 +94,7 @@ async def add_device(request: Request) -> Response:
         else:
             return PlainTextResponse("add a robot or a tracker", status_code=400)
     except (SpacecalError, ValueError) as exc:
-        return RedirectResponse(request.url_for("home").include_query_params(error=_one_line(exc)), 303)
+        return RedirectResponse(request.url_for("home").include_query_params(error=exception_line(exc)), 303)
     return RedirectResponse(request.url_for("home"), 303)
 
 
@@ -143,7 +140,7 @@ async def workspace_page(request: Request) -> Response:
         try:
             findings = await asyncio.to_thread(work.doctor)
         except (SpacecalError, OSError) as exc:
-            findings = [("devices", "must be fixed before the robot can move", _one_line(exc))]
+            findings = [("devices", "must be fixed before the robot can move", exception_line(exc))]
     run = station.runs.get(work.run_id) if work.run_id is not None else None
     history = []
     if work.calibration_record_id is not None:
@@ -194,7 +191,7 @@ def _step(request: Request, method: str) -> Response:
         else:
             return PlainTextResponse(f"no step {name}", status_code=404)
     except (SpacecalError, OSError) as exc:
-        return RedirectResponse(here.include_query_params(error=_one_line(exc)), 303)
+        return RedirectResponse(here.include_query_params(error=exception_line(exc)), 303)
     return RedirectResponse(here, 303)
 
 
@@ -209,7 +206,7 @@ async def export(request: Request) -> Response:
     try:
         await asyncio.to_thread(work.export, targets)
     except (SpacecalError, OSError) as exc:
-        return RedirectResponse(here.include_query_params(error=_one_line(exc)), 303)
+        return RedirectResponse(here.include_query_params(error=exception_line(exc)), 303)
     return RedirectResponse(here, 303)
 
 
