@@ -68,6 +68,23 @@ def new_robot_and_tracker(page, url: str, robot: str) -> None:
     page.wait_for_selector("#robot-name")
 
 
+def report_and_export(page, url: str, steps: Steps, shot_name: str) -> None:
+    """The report (served, an HTML page) and the exports to Slicer, PLUS and ROS 2."""
+    page.click("#report")
+    report = page.get_attribute("#report-link", "href")
+    response = page.request.get(urljoin(url + "/", report))
+    assert response.ok and b"<html" in response.body()[:500].lower()
+    steps.done("report")
+    for box in ("slicer", "plus", "ros2_launch"):
+        page.check(f"#export-form input[name={box}]")
+    page.click("#export")
+    exported = page.inner_text("#exported")
+    for name in ("tracker_from_base.tfm", "plus_config.xml", "tracker.launch.py"):
+        assert name in exported
+    shot(page, shot_name)
+    steps.done("export")
+
+
 def test_from_a_new_robot_to_an_exported_calibration(served, page):
     steps = Steps()
     robot = "UR10 <bay 1>"
@@ -123,20 +140,7 @@ def test_from_a_new_robot_to_an_exported_calibration(served, page):
     assert page.inner_text("#checks").startswith("PASS")
     steps.done("check")
 
-    page.click("#report")
-    report = page.get_attribute("#report-link", "href")
-    response = page.request.get(urljoin(served.url + "/", report))
-    assert response.ok and b"<html" in response.body()[:500].lower()
-    steps.done("report")
-
-    for box in ("slicer", "plus", "ros2_launch"):
-        page.check(f"#export-form input[name={box}]")
-    page.click("#export")
-    exported = page.inner_text("#exported")
-    for name in ("tracker_from_base.tfm", "plus_config.xml", "tracker.launch.py"):
-        assert name in exported
-    shot(page, "4-calibrated")
-    steps.done("export")
+    report_and_export(page, served.url, steps, "4-calibrated")
 
     page.goto(served.url + "/trends")
     assert "station" in page.inner_text("#calibrations") and "PASS" in page.inner_text("#checks")

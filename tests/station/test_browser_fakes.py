@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import re
 import time
-from urllib.parse import urljoin
 
 import pytest
 
@@ -24,6 +23,7 @@ from tests.station.test_browser import (
     STILL_WITHIN_S,
     STOP_AFTER_SAMPLES,
     Steps,
+    report_and_export,
     shot,
 )
 
@@ -47,6 +47,23 @@ def new_robot_and_tracker_on_the_fakes(page, url: str, world, rom) -> None:
     findings = page.inner_text("#findings")
     assert "robot" in findings and "tracker" in findings
     assert "must be fixed" not in findings, findings
+
+
+def start_acquisition_on_the_fakes(page, served, world, rom):
+    """A new robot and tracker, the dry run passed, the acquisition confirmed and moving: its run,
+    once it has recorded ``STOP_AFTER_SAMPLES`` samples."""
+    new_robot_and_tracker_on_the_fakes(page, served.url, world, rom)
+    page.click("#dry-run")
+    dry_run = page.inner_text("#dry-run-result")
+    assert "motion gate: passed" in dry_run, dry_run
+    page.click("#acquire")
+    assert ROBOT in page.inner_text("#confirm-text")
+    page.click("#confirm")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    page.wait_for_function(f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}")
+    run = served.station.runs.get(1)
+    assert run.active, run.message
+    return run
 
 
 def confirm_and_finish(page, motion_name: str) -> str:
@@ -99,20 +116,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
         assert page.inner_text("#checks").startswith("PASS")
         steps.done("check")
 
-        page.click("#report")
-        report = page.get_attribute("#report-link", "href")
-        response = page.request.get(urljoin(served.url + "/", report))
-        assert response.ok and b"<html" in response.body()[:500].lower()
-        steps.done("report")
-
-        for box in ("slicer", "plus", "ros2_launch"):
-            page.check(f"#export-form input[name={box}]")
-        page.click("#export")
-        exported = page.inner_text("#exported")
-        for name in ("tracker_from_base.tfm", "plus_config.xml", "tracker.launch.py"):
-            assert name in exported
-        shot(page, "9-fakes-calibrated")
-        steps.done("export")
+        report_and_export(page, served.url, steps, "9-fakes-calibrated")
         [calibration] = served.station.ledger.calibrations()
         [check] = served.station.ledger.checks(calibration.id)
         assert check.source == "station" and check.passed
@@ -125,20 +129,8 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
 def test_stop_on_the_protocol_fakes_stills_the_arm(served, page, rom_file):  # noqa: F811
     world = ur_world("cb3")
     try:
-        new_robot_and_tracker_on_the_fakes(page, served.url, world, rom_file)
-        page.click("#dry-run")
-        dry_run = page.inner_text("#dry-run-result")
-        assert "motion gate: passed" in dry_run, dry_run
-        page.click("#acquire")
-        assert ROBOT in page.inner_text("#confirm-text")
-        page.click("#confirm")
-        page.wait_for_url(re.compile(r"/runs/\d+$"))
-        page.wait_for_function(
-            f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}"
-        )
+        run = start_acquisition_on_the_fakes(page, served, world, rom_file)
         shot(page, "7-fakes-acquiring")
-        run = served.station.runs.get(1)
-        assert run.active, run.message
         world.control("ur mark")
         marked_at = time.monotonic()
         page.click("#stop")
@@ -186,16 +178,7 @@ def test_a_refused_dry_run_offers_no_motion(served, page, rom_file):  # noqa: F8
 def test_closing_the_tab_mid_acquisition_stills_the_arm_on_the_protocol_fakes(served, page, rom_file):  # noqa: F811
     world = ur_world("cb3")
     try:
-        new_robot_and_tracker_on_the_fakes(page, served.url, world, rom_file)
-        page.click("#dry-run")
-        page.click("#acquire")
-        page.click("#confirm")
-        page.wait_for_url(re.compile(r"/runs/\d+$"))
-        page.wait_for_function(
-            f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}"
-        )
-        run = served.station.runs.get(1)
-        assert run.active, run.message
+        run = start_acquisition_on_the_fakes(page, served, world, rom_file)
         world.control("ur mark")
         marked_at = time.monotonic()
         page.close()
