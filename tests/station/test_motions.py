@@ -9,6 +9,7 @@ import time
 import pytest
 
 from spacecal import app
+from spacecal.station import motions
 from spacecal.station.motions import Runs
 
 #: A child process imports spacecal and starts the simulated devices within this, s (2 busy cores).
@@ -32,8 +33,14 @@ def simulated_acquisition(tmp_path) -> app.AcquireSettings:
     )
 
 
+def watched(run):
+    """The run with its page connected, as the station's live view connects it."""
+    run.page_connected()
+    return run
+
+
 def test_an_error_in_the_child_is_the_command_lines_one_line(tmp_path):
-    run = Runs().start(1, "bay 1", app.CheckSettings(str(tmp_path / "none.json")), "check")
+    run = watched(Runs().start(1, "bay 1", app.CheckSettings(str(tmp_path / "none.json")), "check"))
     run.thread.join(timeout=STARTS_WITHIN_S)
     assert run.state == "failed"
     assert "none.json" in run.message and "\n" not in run.message
@@ -52,8 +59,7 @@ def test_a_stop_before_the_process_starts_moves_nothing(tmp_path):
 
 def test_a_stop_mid_acquisition_is_sigint_and_keeps_the_samples(tmp_path):
     runs = Runs()
-    run = runs.start(1, "bay 1", simulated_acquisition(tmp_path))
-    run.ever_watched = True
+    run = watched(runs.start(1, "bay 1", simulated_acquisition(tmp_path)))
     wait_until(lambda: run.samples >= 20)
     run.request_stop("STOP pressed at the station")
     run.thread.join(timeout=STARTS_WITHIN_S)
@@ -65,13 +71,48 @@ def test_a_stop_mid_acquisition_is_sigint_and_keeps_the_samples(tmp_path):
 
 
 def test_a_child_that_dies_is_shown_as_such(tmp_path):
-    run = Runs().start(1, "bay 1", simulated_acquisition(tmp_path))
-    run.ever_watched = True
+    run = watched(Runs().start(1, "bay 1", simulated_acquisition(tmp_path)))
     wait_until(lambda: run.samples >= 5)
     run._process.send_signal(signal.SIGKILL)
     run.thread.join(timeout=STARTS_WITHIN_S)
     assert run.state == "failed"
     assert f"ended without a word (exit code {-signal.SIGKILL})" in run.message
+
+
+def test_a_motion_waits_for_its_page_and_never_starts_without_it(tmp_path, monkeypatch):
+    monkeypatch.setattr(motions, "PAGE_CONNECT_WITHIN_S", 1.0)
+    run = Runs().start(1, "bay 1", simulated_acquisition(tmp_path))
+    time.sleep(0.5)
+    assert run.state == "starting" and run._process is None  # waiting for its page
+    run.thread.join(timeout=10)
+    assert run.state == "stopped" and run._process is None
+    assert run.message == "stopped before the robot moved: the station's page never connected"
+    assert not (tmp_path / "rec.csv").exists()
+
+
+def test_a_page_that_connects_late_starts_the_motion(tmp_path, monkeypatch):
+    monkeypatch.setattr(motions, "PAGE_CONNECT_WITHIN_S", 30.0)
+    run = Runs().start(1, "bay 1", simulated_acquisition(tmp_path))
+    time.sleep(2.0)  # a browser slow to open the page
+    assert run._process is None
+    run.page_connected()
+    try:
+        wait_until(lambda: run.samples >= 5)
+    finally:
+        run.request_stop("the test ended")
+        run.thread.join(timeout=STARTS_WITHIN_S)
+    assert "the test ended" in run.message and run.samples >= 5
+
+
+def test_closing_the_last_page_stops_the_run(tmp_path):
+    run = watched(watched(Runs().start(1, "bay 1", simulated_acquisition(tmp_path))))
+    wait_until(lambda: run.samples >= 5)
+    run.page_disconnected()
+    assert run.stop_requested_at is None  # another page still watches it
+    run.page_disconnected()
+    run.thread.join(timeout=STARTS_WITHIN_S)
+    assert run.state == "stopped"
+    assert "the station's page was closed or lost its connection" in run.message
 
 
 def test_one_motion_at_a_time(tmp_path):

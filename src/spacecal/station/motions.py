@@ -7,7 +7,8 @@ names the robot and the motion; the start request must hand it back, once, withi
 
 Each motion runs as the command line runs it, in a child process
 (:mod:`spacecal.station.motion_process`), followed by a thread of the station that shows its
-progress and frames. STOP, or the page's connection lost, sends the child SIGINT: Ctrl-C, the
+progress and frames. The process starts only once the run's page has connected: a motion is
+never without someone watching it. STOP, or the page's connection lost, sends the child SIGINT: Ctrl-C, the
 command line's own stop path. The robot is stopped, every sample is kept and the run says
 where it stopped. A stopped run is over: the robot moves again only after a new confirmation.
 The web server and the robot's loop do not share an interpreter, and a robot library that
@@ -34,9 +35,10 @@ from spacecal.station.motion_process import LAST_MESSAGES
 
 #: How long a confirmation stays valid, s.
 TICKET_LIFETIME_S = 300.0
-#: A run whose page has not connected within this time after the robot started moving (its
-#: first tracker frame) is stopped, s.
-PAGE_CONNECT_WITHIN_S = 15.0
+#: A run's motion starts only once its page watches it; a run whose page has not connected
+#: within this time after the confirmation ends without moving the robot, s. Generous: nothing
+#: moves while it waits, and a browser on a busy machine may take long to open a page.
+PAGE_CONNECT_WITHIN_S = 120.0
 #: The words of the command line's Ctrl-C stop, replaced by the station's own reason.
 CTRL_C_WORDS = "interrupted by the user (Ctrl-C)"
 #: How long a motion's process may take to end once its last message arrived, s.
@@ -126,6 +128,7 @@ class Run:
     started_at: float = field(default_factory=time.monotonic)
     watchers: int = 0
     ever_watched: bool = False
+    _watched_or_stopped: threading.Event = field(default_factory=threading.Event)
     exit_code: int | None = None
     started: bool = False
     thread: threading.Thread | None = None
@@ -141,6 +144,18 @@ class Run:
         """What the motion is called on its page."""
         return MOTION_WORDS.get(self.motion, self.motion)
 
+    def page_connected(self) -> None:
+        """A page watches the run (its live view connected): the motion may start."""
+        self.watchers += 1
+        self.ever_watched = True
+        self._watched_or_stopped.set()
+
+    def page_disconnected(self) -> None:
+        """A page stopped watching; the last one gone stops the run."""
+        self.watchers -= 1
+        if self.active and self.watchers <= 0:
+            self.request_stop("the station's page was closed or lost its connection")
+
     def request_stop(self, reason: str) -> None:
         """Stop the run: SIGINT to its process, the command line's Ctrl-C path."""
         with self._lock:
@@ -148,6 +163,7 @@ class Run:
                 self.stop_requested_at = time.monotonic()
                 self.stop_reason = reason
             process = self._process
+        self._watched_or_stopped.set()
         if process is not None and process.poll() is None:
             try:
                 process.send_signal(signal.SIGINT)
@@ -166,6 +182,8 @@ class Run:
             self.view.finish(f"{self.state}: {self.message}")
 
     def _follow(self) -> None:
+        if not self._watched_or_stopped.wait(PAGE_CONNECT_WITHIN_S):
+            self.request_stop("the station's page never connected")
         with self._lock:
             if self.stop_requested_at is not None:
                 self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"
@@ -309,20 +327,7 @@ class Runs:
             self._runs[run.id] = run
         run.thread = threading.Thread(target=run.work, name=f"spacecal-station-run-{run.id}", daemon=True)
         run.thread.start()
-        threading.Thread(target=self._watch_page, args=(run,), daemon=True).start()
         return run
-
-    @staticmethod
-    def _watch_page(run: Run) -> None:
-        """Stop a run whose page never connected (the browser went away before it opened)."""
-        while run.active and (
-            run.first_frame_at is None or time.monotonic() - run.first_frame_at < PAGE_CONNECT_WITHIN_S
-        ):
-            if run.ever_watched:
-                return
-            time.sleep(0.2)
-        if run.active and not run.ever_watched:
-            run.request_stop("the station's page never connected")
 
     def stop_all(self, reason: str) -> None:
         """Stop every active run and wait for it to end (the station shutting down)."""

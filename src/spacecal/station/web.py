@@ -306,8 +306,7 @@ async def run_socket(websocket: WebSocket) -> None:
     if run is None:
         await websocket.close(code=1008)
         return
-    run.watchers += 1
-    run.ever_watched = True
+    run.page_connected()
     since = 0
     try:
         while True:
@@ -323,9 +322,7 @@ async def run_socket(websocket: WebSocket) -> None:
     except WebSocketDisconnect:
         pass
     finally:
-        run.watchers -= 1
-        if run.active and run.watchers <= 0:
-            run.request_stop("the station's page was closed or lost its connection")
+        run.page_disconnected()
 
 
 def script_json(value: Any) -> str:
