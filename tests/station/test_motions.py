@@ -3,6 +3,7 @@ the child process shows on the run's page."""
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import time
 
@@ -94,7 +95,7 @@ def test_a_page_that_connects_late_starts_the_motion(tmp_path, monkeypatch):
     monkeypatch.setattr(motions, "PAGE_CONNECT_WITHIN_S", 30.0)
     run = Runs().start(1, "bay 1", simulated_acquisition(tmp_path))
     time.sleep(2.0)  # a browser slow to open the page
-    assert run._process is None
+    assert run._process is None and run.message == "waiting for the run's page to connect"
     run.page_connected()
     try:
         wait_until(lambda: run.samples >= 5)
@@ -124,3 +125,16 @@ def test_one_motion_at_a_time(tmp_path):
     finally:
         runs.stop_all("the test ended")
     assert run.state == "stopped"
+
+
+def test_a_record_that_fails_after_a_finished_motion_keeps_the_motions_result(tmp_path):
+    settings = dataclasses.replace(simulated_acquisition(tmp_path), simulated_speed=None)
+
+    def record_fails(run):
+        raise OSError("disk full")
+
+    run = watched(Runs().start(1, "bay 1", settings, on_done=record_fails))
+    run.thread.join(timeout=STARTS_WITHIN_S)
+    assert run.state == "finished"
+    assert run.message.startswith("wrote rec.csv") and "samples" in run.message
+    assert run.message.endswith("; it could not be recorded: disk full")

@@ -182,8 +182,10 @@ class Run:
             self.view.finish(f"{self.state}: {self.message}")
 
     def _follow(self) -> None:
+        self.message = "waiting for the run's page to connect"
         if not self._watched_or_stopped.wait(PAGE_CONNECT_WITHIN_S):
             self.request_stop("the station's page never connected")
+        self.message = "starting"
         with self._lock:
             if self.stop_requested_at is not None:
                 self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"
@@ -218,10 +220,12 @@ class Run:
     def _progress(self, kind: str, payload: Any) -> None:
         if kind == "started":
             self.started = True
+            self.message = f"connecting to {self.robot} and the tracker"
             if self.motion == "check":
                 self.state = "running"  # a check shows no frames: it runs from here
         elif kind == "plan":
             self.moves_total = int(payload)
+            self.message = ""
         elif kind == "sample":
             self.samples, self.visible, self.move_index, _ = payload
         elif kind == "frame":
@@ -229,6 +233,7 @@ class Run:
             self.last_frame_at = time.monotonic()
             if self.first_frame_at is None:
                 self.first_frame_at = self.last_frame_at
+                self.message = ""
             self.view.observe(*payload)
 
     def _ended(self, last: tuple[str, Any] | None) -> None:
@@ -245,7 +250,10 @@ class Run:
             self.output = last[1]
             self.state, self.message = "finished", _finished(self.motion, last[1].record)
             if self.on_done is not None:
-                self.on_done(self)
+                try:
+                    self.on_done(self)
+                except Exception as exc:  # the motion ran; only its record is missing
+                    self.message += f"; it could not be recorded: {exception_line(exc)}"
         elif last[0] == "interrupted":
             reason = self.stop_reason if stopped else str(last[1])
             self.state = "stopped"
