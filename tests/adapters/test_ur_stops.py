@@ -25,6 +25,7 @@ from .ur_runs import (
     assert_everything_closed,
     last_line,
     outside_the_robot_stream,
+    pairable_rows,
     recorded_rows,
     run,
     stats,
@@ -172,7 +173,11 @@ def test_each_stop_ends_the_run_and_nothing_moves_after_it(rom_file, tmp_path, s
         )
         result = run(acquire_argv(world, generation, recording, rom_file))
         fault.join(5)
-        assert fault.reply == "OK" and fault.sent_at is not None
+        assert fault.reply == "OK" and fault.sent_at is not None, (
+            f"the fault was not sent: {recorded_rows(recording)} frames, "
+            f"{pairable_rows(recording)} pairable; "
+            f"the run ended with {result.returncode}: {result.stderr.strip()[-800:]}"
+        )
         kept, _ = check_stopped_run(world, result, fault.sent_at, recording, cause)
         if release is not None:
             # the operator clears the stop on the pendant: a real controller would resume a

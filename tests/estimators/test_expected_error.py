@@ -14,6 +14,7 @@ from spacecal.estimators.expected_error import (
     held_out_blocks,
     mean_gaussian_length,
     noise_level_relative_error,
+    rigid_part,
     white_noise_power,
 )
 from spacecal.estimators.likelihood import fit_ml
@@ -48,6 +49,33 @@ def test_realistic_expected_error_holds_the_unseen_kinematic_error(realistic_sim
     measured = verify_in_simulation(result, PRESETS["paper-realistic"]).statistics()["position_mm"]["mean"]
     assert expected > 5 * result.predicted_tre_mm["site"]
     assert 0.5 * measured <= expected <= 3.0 * measured
+
+
+def test_an_arm_error_is_scaled_to_the_tip_and_a_tracker_bias_is_not():
+    # a nominal-reporting arm and no tracker bias: the misfit has the DH errors' shape; a
+    # perfectly calibrated arm behind a smooth tracker bias field: much of it has not
+    arm_only = dataclasses.replace(PRESETS["paper-realistic-nominal"], volumetric_error_rms_mm=0.0)
+    bias_only = dataclasses.replace(
+        PRESETS["paper-realistic"],
+        calibration_residual_length_sd_mm=0.0,
+        calibration_residual_angle_sd_deg=0.0,
+    )
+    arm = calibrate(simulate(arm_only).recording, "ml").diagnostics["expected_error"]["components"]
+    bias = calibrate(simulate(bias_only).recording, "ml").diagnostics["expected_error"]["components"]
+    assert arm["systematic_detected"] and bias["systematic_detected"]
+    assert arm["systematic_dh_share"] > 0.95
+    assert bias["systematic_dh_share"] < arm["systematic_dh_share"] - 0.2
+
+
+def test_the_rigid_part_keeps_rigid_motions_and_drops_deformations():
+    rng = np.random.default_rng(3)
+    points = rng.normal(scale=50.0, size=(4, 5, 3))
+    w, v = rng.normal(scale=1e-3, size=(4, 3)), rng.normal(size=(4, 1, 3))
+    rigid = np.cross(w[:, None, :], points - points.mean(axis=1, keepdims=True)) + v
+    deformation = rng.normal(size=(4, 5, 3))
+    deformation -= rigid_part(deformation, points)
+    assert np.allclose(rigid_part(rigid + deformation, points), rigid)
+    assert np.allclose(rigid_part(deformation, points), 0.0, atol=1e-9)
 
 
 @pytest.mark.parametrize("method", sorted(ESTIMATORS))

@@ -160,6 +160,9 @@ MINIMUM_NUGGET_PAIRS = 10
 #: fitted too (:func:`white_noise_beyond_kinematics`): the estimate's relative error is then
 #: at most sqrt(2 / 20) = 0.32.
 MINIMUM_RESIDUAL_DOF = 20
+#: Singular values below this share of the largest count as zero when the residuals are split
+#: by their shape (DH columns nearly redundant with the pose).
+RANK_RCOND = 1e-8
 
 #: Overlapping pairs (i, i + 1), (i + 1, i + 2) share a frame: under Gaussian noise their
 #: half squared differences correlate by 1/4, so the variance of their mean is at most 1.5
@@ -700,6 +703,107 @@ def white_noise_beyond_kinematics(
     }
 
 
+def rigid_part(displacements: FloatArray, points: FloatArray) -> FloatArray:
+    """Each frame's point displacements projected on the rigid motions of its points.
+
+    Parameters
+    ----------
+    displacements, points : numpy.ndarray, shape (N, K, 3), mm
+        Per frame, the displacement of each of K points and where the point is.
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, K, 3), mm
+        The displacements a small rigid motion (translation and rotation) of each frame's
+        points explains best, by least squares.
+    """
+    centred = points - points.mean(axis=1, keepdims=True)
+    n, k, _ = points.shape
+    basis = np.zeros((n, k, 3, 6))
+    basis[..., :3] = np.eye(3)
+    # the rotation w moves a point p by w x p = -[p]x w
+    x, y, z = centred[..., 0], centred[..., 1], centred[..., 2]
+    basis[..., 0, 4], basis[..., 0, 5] = z, -y
+    basis[..., 1, 3], basis[..., 1, 5] = -z, x
+    basis[..., 2, 3], basis[..., 2, 4] = y, -x
+    design = basis.reshape(n, 3 * k, 6)
+    coefficients = np.linalg.pinv(design) @ displacements.reshape(n, 3 * k, 1)
+    return (design @ coefficients).reshape(n, k, 3)
+
+
+def systematic_share_in_dh_span(
+    model: RobotModel,
+    joints_rad: FloatArray,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    white_power_mm2: float,
+    frames: int = GEOMETRY_FRAMES,
+) -> dict[str, Any]:
+    """How much of the systematic misfit has the shape of the arm's DH errors.
+
+    The fit's residuals, stacked over the frames' sphere coordinates, are split by their shape
+    (as in :func:`white_noise_beyond_kinematics`): the part a least-squares fit of unit DH
+    errors (:data:`UNIT_DH_SD`) explains beyond the pose, and the rest. White noise of known
+    power has its expected share in each (``sigma^2`` per coordinate times the subspace's
+    dimension); what is left over in the DH span is the arm's error, what is left beyond it is
+    a systematic error the arm's geometry cannot describe (a tracker's smooth bias field, a
+    marker's geometry error). Only the first is scaled to the tip by the arm's geometry; scaling
+    all of it overstated the error about 1.6 times where a tracker's bias dominated. A bias
+    that happens to lie in the DH span counts as the arm's: the split errs towards the larger
+    error.
+
+    Parameters
+    ----------
+    model : RobotModel
+    joints_rad : numpy.ndarray, shape (N, 6)
+        Joint angles at the used frames (NaN where unknown: those frames are left out).
+    obs : Observations
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The fitted solution.
+    white_power_mm2 : float
+        The white noise's power per frame (sum over the spheres, mm^2).
+    frames : int
+        At most this many frames, evenly spread, are used.
+
+    Returns
+    -------
+    dict
+        ``dh_share`` in [0, 1] (1 when no systematic misfit is left in-sample), and the
+        in-sample systematic powers per frame ``dh_power_mm2`` and ``other_power_mm2``.
+    """
+    usable = np.flatnonzero(np.all(np.isfinite(joints_rad), axis=1))
+    rows = usable[geometry_rows(len(usable), frames)] if len(usable) else usable
+    if len(rows) == 0:
+        return {"dh_share": 1.0, "dh_power_mm2": 0.0, "other_power_mm2": 0.0}
+    points = obs.spheres_in_marker
+    residual = (predict_spheres(obs, tracker_from_base, tcp_from_marker) - obs.spheres_in_tracker)[rows]
+    pose = pose_point_jacobian(obs.base_from_tcp_stack[rows], tracker_from_base, tcp_from_marker, points)
+    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points) * UNIT_DH_SD
+    # Pose and DH errors move the marker rigidly: only each frame's rigid motion is compared,
+    # the same whether the tracker sent spheres or a fitted pose (whose noise lives there only).
+    seen = predict_spheres(obs, tracker_from_base, tcp_from_marker)[rows]
+    stacked = rigid_part(residual, seen).reshape(-1)
+    pose_design = pose.reshape(-1, 12)
+    design = np.concatenate([pose, dh], axis=-1).reshape(-1, 36)
+    # directions the data barely determine (DH columns nearly redundant with the pose, singular
+    # values ~1e-12 of the largest) are cut: they would turn rounding into a different split
+    beyond_pose, _, pose_rank, _ = np.linalg.lstsq(pose_design, stacked, rcond=RANK_RCOND)
+    beyond_all, _, rank, _ = np.linalg.lstsq(design, stacked, rcond=RANK_RCOND)
+    rss_pose = float(np.sum((stacked - pose_design @ beyond_pose) ** 2))
+    rss_all = float(np.sum((stacked - design @ beyond_all) ** 2))
+    # white noise per dimension of a frame's rigid motion (its power over its dof)
+    per_dimension = white_power_mm2 / obs.dof_per_frame
+    dh_power = max(rss_pose - rss_all - per_dimension * (int(rank) - int(pose_rank)), 0.0) / len(rows)
+    other_power = max(rss_all - per_dimension * (6 * len(rows) - int(rank)), 0.0) / len(rows)
+    total = dh_power + other_power
+    return {
+        "dh_share": dh_power / total if total > 0 else 1.0,
+        "dh_power_mm2": dh_power,
+        "other_power_mm2": other_power,
+    }
+
+
 def expected_error(
     obs: Observations,
     segments: np.ndarray,
@@ -936,14 +1040,28 @@ def expected_error(
         blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
     if geometry is not None:
         arm, unit, _ = geometry
+        dh_share, other_ms = 1.0, 0.0
         if dh_error_scale_mm is not None:
             scale_sq = dh_error_scale_mm**2
         else:
-            scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
-        unseen_ms = scale_sq * unit["tip_position_ms_mm2"]
-        unseen_covariance = scale_sq * np.asarray(unit["tip_position_covariance_mm2"])
+            if systematic > 0:
+                split = systematic_share_in_dh_span(
+                    arm, geometry[2], obs, ml_tracker_from_base, ml_tcp_from_marker, white_power
+                )
+                dh_share = split["dh_share"]
+                # beyond the arm's errors (a tracker's bias field): at the tip as large as at
+                # one sphere of the marker, which is a point of the same chain
+                other_ms = (1.0 - dh_share) * systematic / len(obs.spheres_in_marker)
+            scale_sq = (
+                dh_share * systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
+            )
+        unseen_ms = scale_sq * unit["tip_position_ms_mm2"] + other_ms
+        unseen_covariance = (
+            scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
+        )
         unseen_rotation_ms = scale_sq * unit["tip_rotation_ms_rad2"]
         components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
+        components["systematic_dh_share"] = float(dh_share)
         components["unseen_tip_rms_mm"] = float(np.sqrt(unseen_ms))
         components["kinematic_geometry"] = arm.name
         basis = (
