@@ -1043,23 +1043,23 @@ def expected_error(
         dh_share, other_ms = 1.0, 0.0
         if dh_error_scale_mm is not None:
             scale_sq = dh_error_scale_mm**2
+            arm_scale_sq = scale_sq  # kinematic identification: its corrections took the arm's part
         else:
+            scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
             if systematic > 0:
-                split = systematic_share_in_dh_span(
+                dh_share = systematic_share_in_dh_span(
                     arm, geometry[2], obs, ml_tracker_from_base, ml_tcp_from_marker, white_power
-                )
-                dh_share = split["dh_share"]
+                )["dh_share"]
                 # beyond the arm's errors (a tracker's bias field): at the tip as large as at
                 # one sphere of the marker, which is a point of the same chain
                 other_ms = (1.0 - dh_share) * systematic / len(obs.spheres_in_marker)
-            scale_sq = (
-                dh_share * systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
-            )
-        unseen_ms = scale_sq * unit["tip_position_ms_mm2"] + other_ms
+            arm_scale_sq = dh_share * scale_sq
+        unseen_ms = arm_scale_sq * unit["tip_position_ms_mm2"] + other_ms
         unseen_covariance = (
-            scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
+            arm_scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
         )
-        unseen_rotation_ms = scale_sq * unit["tip_rotation_ms_rad2"]
+        unseen_rotation_ms = arm_scale_sq * unit["tip_rotation_ms_rad2"]
+        # the whole misfit's scale: what kinematic identification takes as its DH prior
         components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
         components["systematic_dh_share"] = float(dh_share)
         components["unseen_tip_rms_mm"] = float(np.sqrt(unseen_ms))
