@@ -635,6 +635,30 @@ def white_noise_power(
     }
 
 
+def residuals_and_shapes(
+    model: RobotModel,
+    joints_rad: FloatArray,
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    frames: int = GEOMETRY_FRAMES,
+) -> tuple[IntArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The fit's sphere residuals and the shapes the pose and the arm's DH errors give them.
+
+    At most ``frames`` frames with known joint angles, evenly spread: ``rows`` (M,), the
+    predicted spheres (M, K, 3) and residuals (M, K, 3), mm, in the tracker frame; the pose's
+    Jacobian (M, K, 3, 12) and the unit-scale DH errors' (M, K, 3, 24, :data:`UNIT_DH_SD`).
+    """
+    usable = np.flatnonzero(np.all(np.isfinite(joints_rad), axis=1))
+    rows = usable[geometry_rows(len(usable), frames)] if len(usable) else usable
+    points = obs.spheres_in_marker
+    seen = predict_spheres(obs, tracker_from_base, tcp_from_marker)[rows]
+    residual = seen - obs.spheres_in_tracker[rows]
+    pose = pose_point_jacobian(obs.base_from_tcp_stack[rows], tracker_from_base, tcp_from_marker, points)
+    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points) * UNIT_DH_SD
+    return rows, seen, residual, pose, dh
+
+
 def white_noise_beyond_kinematics(
     model: RobotModel,
     joints_rad: FloatArray,
@@ -678,12 +702,10 @@ def white_noise_beyond_kinematics(
     DegenerateDataError
         When fewer than :data:`MINIMUM_RESIDUAL_DOF` residual degrees of freedom remain.
     """
-    usable = np.flatnonzero(np.all(np.isfinite(joints_rad), axis=1))
-    rows = usable[geometry_rows(len(usable), frames)] if len(usable) else usable
+    rows, seen, residual, pose, dh = residuals_and_shapes(
+        model, joints_rad, obs, tracker_from_base, tcp_from_marker, frames
+    )
     points = obs.spheres_in_marker
-    residual = (predict_spheres(obs, tracker_from_base, tcp_from_marker) - obs.spheres_in_tracker)[rows]
-    pose = pose_point_jacobian(obs.base_from_tcp_stack[rows], tracker_from_base, tcp_from_marker, points)
-    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points) * UNIT_DH_SD
     design = np.concatenate([pose, dh], axis=-1).reshape(-1, 36)
     stacked = residual.reshape(-1)
     coefficients, _, rank, _ = np.linalg.lstsq(design, stacked, rcond=None)
@@ -772,17 +794,13 @@ def systematic_share_in_dh_span(
         ``dh_share`` in [0, 1] (1 when no systematic misfit is left in-sample), and the
         in-sample systematic powers per frame ``dh_power_mm2`` and ``other_power_mm2``.
     """
-    usable = np.flatnonzero(np.all(np.isfinite(joints_rad), axis=1))
-    rows = usable[geometry_rows(len(usable), frames)] if len(usable) else usable
-    if len(rows) == 0:
+    if not np.all(np.isfinite(joints_rad), axis=1).any():
         return {"dh_share": 1.0, "dh_power_mm2": 0.0, "other_power_mm2": 0.0}
-    points = obs.spheres_in_marker
-    residual = (predict_spheres(obs, tracker_from_base, tcp_from_marker) - obs.spheres_in_tracker)[rows]
-    pose = pose_point_jacobian(obs.base_from_tcp_stack[rows], tracker_from_base, tcp_from_marker, points)
-    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points) * UNIT_DH_SD
+    rows, seen, residual, pose, dh = residuals_and_shapes(
+        model, joints_rad, obs, tracker_from_base, tcp_from_marker, frames
+    )
     # Pose and DH errors move the marker rigidly: only each frame's rigid motion is compared,
     # the same whether the tracker sent spheres or a fitted pose (whose noise lives there only).
-    seen = predict_spheres(obs, tracker_from_base, tcp_from_marker)[rows]
     stacked = rigid_part(residual, seen).reshape(-1)
     pose_design = pose.reshape(-1, 12)
     design = np.concatenate([pose, dh], axis=-1).reshape(-1, 36)
