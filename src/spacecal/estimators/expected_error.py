@@ -1064,7 +1064,9 @@ def expected_error(
             arm_scale_sq = scale_sq  # kinematic identification: its corrections took the arm's part
         else:
             scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
-            if systematic > 0:
+            # the noise measured apart from the misfit (pairs, fit RMS): split the misfit by its
+            # shape; the noise taken as what DH errors leave has counted the rest as noise already
+            if systematic > 0 and (white is not None or obs.sigma_known):
                 dh_share = systematic_share_in_dh_span(
                     arm, geometry[2], obs, ml_tracker_from_base, ml_tcp_from_marker, white_power
                 )["dh_share"]
