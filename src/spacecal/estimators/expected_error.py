@@ -792,10 +792,21 @@ def systematic_share_in_dh_span(
     -------
     dict
         ``dh_share`` in [0, 1] (1 when no systematic misfit is left in-sample), and the
-        in-sample systematic powers per frame ``dh_power_mm2`` and ``other_power_mm2``.
+        in-sample systematic powers per frame ``dh_power_mm2`` and ``other_power_mm2``;
+        ``dh_detected_power_mm2``, the DH part less :data:`DETECTION_STANDARD_ERRORS` standard
+        errors of the noise's share in it (a chi-square test on the DH span's few dimensions,
+        far more sensitive to an arm's error than the held-out misfit of every coordinate), and
+        ``unit_dh_power_mm2``, what unit-scale DH errors leave beyond the pose in-sample (both
+        per frame).
     """
     if not np.all(np.isfinite(joints_rad), axis=1).any():
-        return {"dh_share": 1.0, "dh_power_mm2": 0.0, "other_power_mm2": 0.0}
+        return {
+            "dh_share": 1.0,
+            "dh_power_mm2": 0.0,
+            "other_power_mm2": 0.0,
+            "dh_detected_power_mm2": 0.0,
+            "unit_dh_power_mm2": 0.0,
+        }
     rows, seen, residual, pose, dh = residuals_and_shapes(
         model, joints_rad, obs, tracker_from_base, tcp_from_marker, frames
     )
@@ -812,13 +823,21 @@ def systematic_share_in_dh_span(
     rss_all = float(np.sum((stacked - design @ beyond_all) ** 2))
     # white noise per dimension of a frame's rigid motion (its power over its dof)
     per_dimension = white_power_mm2 / obs.dof_per_frame
-    dh_power = max(rss_pose - rss_all - per_dimension * (int(rank) - int(pose_rank)), 0.0) / len(rows)
+    dh_dimensions = int(rank) - int(pose_rank)
+    dh_excess = rss_pose - rss_all - per_dimension * dh_dimensions
+    dh_power = max(dh_excess, 0.0) / len(rows)
     other_power = max(rss_all - per_dimension * (6 * len(rows) - int(rank)), 0.0) / len(rows)
     total = dh_power + other_power
+    noise_standard_error = per_dimension * np.sqrt(2.0 * max(dh_dimensions, 1))
+    dh_design = dh.reshape(-1, 24)
+    unit_beyond_pose = dh_design - pose_design @ np.linalg.lstsq(pose_design, dh_design, rcond=RANK_RCOND)[0]
     return {
         "dh_share": dh_power / total if total > 0 else 1.0,
         "dh_power_mm2": dh_power,
         "other_power_mm2": other_power,
+        "dh_detected_power_mm2": max(dh_excess - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
+        / len(rows),
+        "unit_dh_power_mm2": float(np.sum(unit_beyond_pose**2)) / len(rows),
     }
 
 
@@ -1056,6 +1075,7 @@ def expected_error(
     blocks = f"{misfit['blocks_refitted']} held-out blocks ({refits})"
     if dh_error_scale_mm is not None and has_model:
         blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
+    detected_in_dh_span = False
     if geometry is not None:
         arm, unit, _ = geometry
         dh_share, other_ms = 1.0, 0.0
@@ -1064,16 +1084,24 @@ def expected_error(
             arm_scale_sq = scale_sq  # kinematic identification: its corrections took the arm's part
         else:
             scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
+            arm_scale_sq = scale_sq
             # the noise measured apart from the misfit (pairs, fit RMS): split the misfit by its
             # shape; the noise taken as what DH errors leave has counted the rest as noise already
-            if systematic > 0 and (white is not None or obs.sigma_known):
-                dh_share = systematic_share_in_dh_span(
+            if white is not None or obs.sigma_known:
+                split = systematic_share_in_dh_span(
                     arm, geometry[2], obs, ml_tracker_from_base, ml_tcp_from_marker, white_power
-                )["dh_share"]
-                # beyond the arm's errors (a tracker's bias field): at the tip as large as at
-                # one sphere of the marker, which is a point of the same chain
-                other_ms = (1.0 - dh_share) * systematic / len(obs.spheres_in_marker)
-            arm_scale_sq = dh_share * scale_sq
+                )
+                if systematic > 0:
+                    dh_share = split["dh_share"]
+                    # beyond the arm's errors (a tracker's bias field): at the tip as large as at
+                    # one sphere of the marker, which is a point of the same chain
+                    other_ms = (1.0 - dh_share) * systematic / len(obs.spheres_in_marker)
+                    arm_scale_sq = dh_share * scale_sq
+                elif split["unit_dh_power_mm2"] > 0:
+                    # the held-out misfit is within the noise's scatter (a noisy tracker), yet the
+                    # arm's errors may show in the DH span's few dimensions in-sample
+                    arm_scale_sq = split["dh_detected_power_mm2"] / split["unit_dh_power_mm2"]
+                    detected_in_dh_span = arm_scale_sq > 0
         unseen_ms = arm_scale_sq * unit["tip_position_ms_mm2"] + other_ms
         unseen_covariance = (
             arm_scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
@@ -1088,6 +1116,11 @@ def expected_error(
             f"{blocks}: systematic misfit {beyond}, scaled to the tip by {scaled_by} "
             "(errors the marker cannot see), plus the noise-only TRE"
         )
+        if detected_in_dh_span:
+            basis += (
+                "; the held-out misfit is within the noise's scatter, so the arm's error scale comes "
+                "from the part of the residuals with the DH errors' shape"
+            )
     else:
         # no arm reaches the poses: the held-out power of a frame (over all its spheres) stands
         # for the tip's mean square, as a UR arm's geometry makes it on the paper's sweeps; a
@@ -1104,7 +1137,8 @@ def expected_error(
         )
     if not likelihood_based:
         basis += "; plus this method's distance from the ML solution"
-    components["systematic_detected"] = bool(systematic > 0.0)
+    components["systematic_detected"] = bool(systematic > 0.0 or detected_in_dh_span)
+    components["detected_in_dh_span_only"] = detected_in_dh_span
     tip_covariance = np.zeros((3, 3))
     if needle_tip is not None:
         # the pivot's error turned into the tracker frame at each site frame
