@@ -5,7 +5,8 @@ stills the fake controller's arm within the command line's stop times.
 
 Each motion runs in a process of its own (:mod:`spacecal.station.motion_process`), as the
 command line runs it, so the station's web server, Chromium drawing the live view and the
-robot's loop do not share one interpreter.
+robot's loop do not share one interpreter. Like the adapter tests, each takes one of the
+hardware lanes and their raised priority: its fake world keeps real-time deadlines too.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import time
 
 import pytest
 
-from tests.adapters.conftest import ahead_of_other_tests, rom_file, watchdog  # noqa: F401
+from tests.adapters.conftest import ahead_of_other_tests, hardware_lane, rom_file, watchdog  # noqa: F401
 from tests.adapters.ur_runs import ROBOT_MODEL, assert_everything_closed, tracker_url, ur_world
 from tests.station.test_browser import (
     ACQUISITION_WITHIN_MS,
