@@ -764,13 +764,14 @@ def systematic_share_in_dh_span(
 ) -> dict[str, Any]:
     """How much of the systematic misfit has the shape of the arm's DH errors.
 
-    The fit's residuals, stacked over the frames' sphere coordinates, are split by their shape
-    (as in :func:`white_noise_beyond_kinematics`): the part a least-squares fit of unit DH
-    errors (:data:`UNIT_DH_SD`) explains beyond the pose, and the rest. White noise of known
-    power has its expected share in each (``sigma^2`` per coordinate times the subspace's
-    dimension); what is left over in the DH span is the arm's error, what is left beyond it is
-    a systematic error the arm's geometry cannot describe (a tracker's smooth bias field, a
-    marker's geometry error). Only the first is scaled to the tip by the arm's geometry; scaling
+    Each frame's residual is reduced to the rigid motion of its spheres (:func:`rigid_part`),
+    and the stacked result is split by its shape (as in :func:`white_noise_beyond_kinematics`):
+    the part a least-squares fit of unit DH errors (:data:`UNIT_DH_SD`) explains beyond the
+    pose, and the rest. White noise of known power has its expected share in each (its power
+    per frame over the frame's degrees of freedom, per dimension of the subspace); what is
+    left over in the DH span is the arm's error, what is left beyond it is a systematic error
+    the arm's geometry cannot describe (a tracker's smooth bias field, a marker's geometry
+    error). Only the first is scaled to the tip by the arm's geometry; scaling
     all of it overstated the error about 1.6 times where a tracker's bias dominated. A bias
     that happens to lie in the DH span counts as the arm's: the split errs towards the larger
     error.

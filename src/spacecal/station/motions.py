@@ -8,8 +8,8 @@ names the robot and the motion; the start request must hand it back, once, withi
 Each motion runs as the command line runs it, in a child process
 (:mod:`spacecal.station.motion_process`), followed by a thread of the station that shows its
 progress and frames. The process starts only once the run's page has connected: a motion is
-never without someone watching it. STOP, or the page's connection lost, sends the child SIGINT: Ctrl-C, the
-command line's own stop path. The robot is stopped, every sample is kept and the run says
+never without someone watching it. STOP, or the page's connection lost, sends the child
+SIGINT: Ctrl-C, the command line's own stop path. The robot is stopped, every sample is kept and the run says
 where it stopped. A stopped run is over: the robot moves again only after a new confirmation.
 The web server and the robot's loop do not share an interpreter, and a robot library that
 crashes takes only its motion's process with it.
@@ -127,7 +127,6 @@ class Run:
     first_frame_at: float | None = None
     started_at: float = field(default_factory=time.monotonic)
     watchers: int = 0
-    ever_watched: bool = False
     _watched_or_stopped: threading.Event = field(default_factory=threading.Event)
     exit_code: int | None = None
     started: bool = False
@@ -147,7 +146,6 @@ class Run:
     def page_connected(self) -> None:
         """A page watches the run (its live view connected): the motion may start."""
         self.watchers += 1
-        self.ever_watched = True
         self._watched_or_stopped.set()
 
     def page_disconnected(self) -> None:
