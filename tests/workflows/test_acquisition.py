@@ -168,6 +168,28 @@ def test_a_stopped_robot_refuses_new_motion():
         robot.move_joints(world.home_joints_rad, 1.0, 1.0)
 
 
+def test_a_loop_held_up_past_a_deadline_does_not_fail_a_move_that_finished(tmp_path):
+    """The loop is held up once, mid-move, for longer than the move's deadline (a slow disk's
+    fsync, a busy computer): the robot has meanwhile arrived, so the move is done and the run
+    goes on. Only a robot still moving past the deadline fails it (the test below)."""
+    world, plan, robot = setup()
+    first = plan.moves[0]
+    held_up_s = 1.5 * first.duration_s + 2.0 + 1.0  # past the deadline, with a second to spare
+
+    class HeldUpOnce(SimulatedTracker):
+        frames = 0
+
+        def next_frame(self, timeout_s):
+            self.frames += 1
+            if self.frames == 3:  # a few frames into the first move
+                robot.clock.advance_to(robot.clock.now_s + held_up_s)
+            return super().next_frame(timeout_s)
+
+    path = tmp_path / "rec.csv"
+    result = acquire(plan, robot, HeldUpOnce(world, robot), path, recording_metadata(world))
+    assert result.moves_completed == len(plan.moves)
+
+
 def test_a_move_that_never_finishes_ends_the_run_at_its_deadline(tmp_path):
     """A controller that keeps reporting "moving" (the run that stood still for five minutes)
     ends the run with the move named, the robot stopped and the samples kept."""

@@ -316,14 +316,17 @@ def run_plan(
             elapsed = state.time_s - move_started_at
             if hold and elapsed >= move.duration_s:
                 break
+            # A robot that has arrived has finished its move, however late this loop looks: a
+            # loop held up (a slow disk's fsync, a busy computer) must not take an arm at rest
+            # at its target for one that is late. Only an arm still moving past the deadline is.
+            if not hold and not state.moving:
+                break
             deadline = settings.deadline_factor * move.duration_s + settings.deadline_margin_s
             if elapsed > deadline:
                 raise RunFault(
                     f"move {index + 1}/{len(plan.moves)} ({move.label}) did not finish within its deadline "
                     f"of {deadline:.1f} s (planned {move.duration_s:.1f} s); the robot was stopped"
                 )
-            if not hold and not state.moving:
-                break
         progress.moves_completed = index + 1
         if on_move_done:
             on_move_done(progress.moves_completed)
