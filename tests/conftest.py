@@ -1,4 +1,5 @@
-"""Shared, session-scoped simulations: each costs about two seconds, so build them once."""
+"""Shared, session-scoped simulations (each costs about two seconds, so build them once), and
+the ``realtime`` mark of the tests that keep real-time deadlines."""
 
 from __future__ import annotations
 
@@ -14,6 +15,16 @@ from spacecal.sim.scenario import PRESETS
 NOISE_FREE = dataclasses.replace(
     PRESETS["paper-white"], name="noise-free", white_noise_rms_mm=0.0, dropout_probability=0.0
 )
+
+
+def pytest_collection_modifyitems(items):
+    """Mark ``realtime`` every test that takes a hardware lane (``tests/adapters/conftest.py``):
+    real client libraries against protocol fakes, on real time. The README's test command runs
+    them apart from the rest (``-m realtime``), so their deadlines share a busy machine with
+    nothing of the suite's own."""
+    for item in items:
+        if "hardware_lane" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.realtime)
 
 
 @pytest.fixture(scope="session")

@@ -1,0 +1,64 @@
+"""The README's test command, which CI runs part by part (``.ci/run``): the hardware tests run
+apart from the rest, and every one of them is in that part."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def readme_test_command() -> str:
+    lines = (ROOT / "README.md").read_text().splitlines()
+    return lines[lines.index(next(line for line in lines if line.startswith("# 2."))) + 1]
+
+
+def test_the_readme_runs_the_real_time_tests_apart_from_the_rest():
+    parts = readme_test_command().split(" && ")
+    runs = [part for part in parts if " -m pytest " in part]
+    assert len(runs) == 2, parts
+    assert runs[0].endswith('-m "not realtime"') and runs[1].endswith("-m realtime"), runs
+
+
+def test_every_hardware_test_is_marked_real_time():
+    """Collected without the mark, the adapter tests and the station's protocol-fakes tests
+    leave nothing: each takes a hardware lane, and so is marked (``tests/conftest.py``)."""
+    collected = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "--collect-only",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-m",
+            "not realtime",
+            "tests/adapters",
+            "tests/station/test_browser_fakes.py",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert collected.returncode == 5, collected.stdout[-2000:]  # 5: no tests collected
+    marked = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "--collect-only",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "-m",
+            "realtime",
+            "tests/adapters/test_ur_stops.py",
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert marked.returncode == 0 and "test_each_stop_ends_the_run" in marked.stdout, marked.stdout[-2000:]
