@@ -19,6 +19,7 @@ from spacecal.models.marker import ndi_8700339_like
 from spacecal.testing.fakes.client import WorldProcess
 
 from .loopback import NETWORK as _NETWORK
+from .ur_runs import HARDWARE_TEST_NICENESS
 
 #: Longer than any test's own subprocess timeouts, so those report first; the dump goes to a
 #: file (pytest captures stderr), one per test worker, that .ci/run prints when the suite fails.
@@ -71,16 +72,9 @@ def watchdog(request):
         faulthandler.cancel_dump_traceback_later()
 
 
-#: Scheduling priority of a hardware test and of the processes it starts (spacecal, the fake
-#: devices). At the robot, spacecal's poller and the devices have the machine to themselves; a
-#: test of how a run stops must not instead measure how busy the test machine is (at load 4-5
-#: on 2 cores, runs at equal priority were stopped as "UR state is stale"). Raised only where
-#: the runner may (as root in CI); elsewhere left as it is.
-HARDWARE_TEST_NICENESS = -10
-
-
 @pytest.fixture(autouse=True)
 def ahead_of_other_tests():
+    """Run the test, and what it starts, at :data:`~tests.adapters.ur_runs.HARDWARE_TEST_NICENESS`."""
     before = os.getpriority(os.PRIO_PROCESS, 0)
     try:
         os.setpriority(os.PRIO_PROCESS, 0, HARDWARE_TEST_NICENESS)
@@ -96,7 +90,7 @@ def ahead_of_other_tests():
 @pytest.fixture
 def world():
     """A fresh fake world per test (faults are sticky), on its own loopback address."""
-    process = WorldProcess("--host", f"127.{_NETWORK}.0.{next(_addresses)}")
+    process = WorldProcess("--host", f"127.{_NETWORK}.0.{next(_addresses)}", niceness=HARDWARE_TEST_NICENESS)
     yield process
     process.stop()
 
@@ -116,7 +110,9 @@ def make_world():
     started = []
 
     def start(*options: str) -> WorldProcess:
-        process = WorldProcess("--host", f"127.{_NETWORK}.0.{next(_addresses)}", *options)
+        process = WorldProcess(
+            "--host", f"127.{_NETWORK}.0.{next(_addresses)}", *options, niceness=HARDWARE_TEST_NICENESS
+        )
         started.append(process)
         return process
 

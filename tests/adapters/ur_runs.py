@@ -25,6 +25,13 @@ SPACECAL = [sys.executable, "-m", "spacecal"]
 #: Loopback addresses of these worlds: the conftest's network, last octets from 200 up (the
 #: conftest's own worlds count up from 1), so the two never collide in one process.
 _addresses = itertools.count(200)
+#: Scheduling niceness of a hardware test, of the processes it starts and of its fake worlds
+#: (also those a module-scoped fixture starts before the test raises its own priority). At the
+#: robot, spacecal's poller and the devices have the machine to themselves; a test of how a
+#: run stops must not instead measure how busy the test machine is (at load 4-5 on 2 cores,
+#: runs at equal priority were stopped as "UR state is stale"). Raised only where the runner
+#: may (as root in CI); elsewhere left as it is.
+HARDWARE_TEST_NICENESS = -10
 #: The nominal model each fake generation runs (:data:`spacecal.testing.fakes.rtde.GENERATIONS`).
 ROBOT_MODEL = {"cb3": "UR10", "eseries": "UR10e"}
 
@@ -33,7 +40,14 @@ def ur_world(generation: str = "cb3", *options: str) -> WorldProcess:
     address = next(_addresses)
     if address > 254:
         raise RuntimeError("out of loopback addresses for UR worlds")
-    return WorldProcess("--host", f"127.{_NETWORK}.0.{address}", "--ur-generation", generation, *options)
+    return WorldProcess(
+        "--host",
+        f"127.{_NETWORK}.0.{address}",
+        "--ur-generation",
+        generation,
+        *options,
+        niceness=HARDWARE_TEST_NICENESS,
+    )
 
 
 def stats(world: WorldProcess) -> dict:

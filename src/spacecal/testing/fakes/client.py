@@ -17,9 +17,12 @@ WORLD = "spacecal.testing.fakes.world"
 class WorldProcess:
     """A running fake world (see ``world.py``)."""
 
-    def __init__(self, *arguments: str, ready_timeout_s: float = 20.0):
+    def __init__(self, *arguments: str, ready_timeout_s: float = 20.0, niceness: int | None = None):
+        """Start a world with ``arguments`` (``world.py``'s options), at ``niceness`` if given
+        (where the caller may raise it), whatever the priority of the thread starting it."""
+        priority = () if niceness is None else ("--niceness", str(niceness))
         self.process = subprocess.Popen(
-            [sys.executable, "-m", WORLD, *arguments],
+            [sys.executable, "-m", WORLD, *arguments, *priority],
             stdout=subprocess.PIPE,
             stdin=subprocess.PIPE,
             text=True,

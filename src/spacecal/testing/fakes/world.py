@@ -29,7 +29,9 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import json
+import os
 import socket
 import sys
 import threading
@@ -253,8 +255,17 @@ def main() -> None:
     parser.add_argument("--ndi-generation", default="vicra", choices=sorted(ndi.GENERATIONS))
     parser.add_argument("--igtl-sender", default="plus", choices=["plus", "slicer", "old"])
     parser.add_argument("--igtl-marker-name", default="MarkerToTracker")
+    parser.add_argument(
+        "--niceness",
+        type=int,
+        help="run the world at this scheduling niceness (set before any thread starts, so every "
+        "server thread has it; ignored where the caller may not raise it)",
+    )
     add_ur_options(parser)
     args = parser.parse_args()
+    if args.niceness is not None:
+        with contextlib.suppress(OSError):  # a negative niceness needs the right to raise it
+            os.setpriority(os.PRIO_PROCESS, 0, args.niceness)
     fake = FakeWorld(args.scenario)
     configure_ur(fake, args)
     stop = threading.Event()
