@@ -32,6 +32,7 @@ from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
 from spacecal.io.atomic import write_text_atomic
+from spacecal.io.background_sync import BackgroundSync
 from spacecal.io.csv_core import (
     JOINT_COLUMNS,
     MARKER_COLUMNS,
@@ -130,8 +131,11 @@ class RawStreamWriter:
         Continue existing streams (a resumed run), keeping their headers.
     durable : bool
         Force every row to the disk (``fsync``) as it is written, so that a power cut keeps
-        it: what a run on real devices needs. A simulated run (which can be made again from
-        its seed) only flushes to the operating system, which a killed process survives too.
+        it: what a run on real devices needs. The forcing runs on a thread of its own
+        (:class:`~spacecal.io.background_sync.BackgroundSync`): the device loop that writes
+        never waits for the disk, which on a busy computer can take seconds. A simulated run
+        (which can be made again from its seed) only flushes to the operating system, which a
+        killed process survives too.
     """
 
     def __init__(
@@ -156,6 +160,7 @@ class RawStreamWriter:
         self.sphere_count = sphere_count
         self._files = [open(path, "a" if resuming else "w", newline="") for path in self.paths]
         self._robot, self._tracker = (csv.writer(f) for f in self._files)
+        self._sync = BackgroundSync(self._files, "spacecal raw-stream sync") if durable else None
         if not resuming:
             self._robot.writerow(ROBOT_COLUMNS)
             self._tracker.writerow(
@@ -221,17 +226,24 @@ class RawStreamWriter:
         self.flush()
 
     def flush(self) -> None:
+        """Hand every row to the operating system, and (durable) ask for them on the disk."""
         for handle in self._files:
             handle.flush()
-            if self.durable:
-                os.fsync(handle.fileno())
+        if self._sync is not None:
+            self._sync.request()
 
     def close(self) -> None:
-        for handle in self._files:
-            if not handle.closed:
-                handle.flush()
-                os.fsync(handle.fileno())
-                handle.close()
+        """Flush, force to the disk and close both streams (the last sync waits for the disk)."""
+        sync, self._sync = self._sync, None
+        try:
+            if sync is not None:
+                sync.close()
+        finally:
+            for handle in self._files:
+                if not handle.closed:
+                    handle.flush()
+                    os.fsync(handle.fileno())
+                    handle.close()
 
 
 def _rows(path: Path, columns: list[str]) -> tuple[list[list[str]], dict, list[str]]:
