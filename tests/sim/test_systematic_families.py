@@ -13,16 +13,15 @@ import pytest
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.fitting import fit_rigid
 from spacecal.geometry.transforms import invert_transform, make_transform, rotvec_to_matrix
-from spacecal.models.kinematics import _link_transforms, forward_kinematics, geometric_jacobian
-from spacecal.sim.scenario import PRESETS, scenario_from_dict
-from spacecal.sim.world import (
+from spacecal.models.gravity import (
     STANDARD_GRAVITY_M_S2,
     UR10_LINK_COM_MM,
     UR10_LINK_MASSES_KG,
-    _points_in_volume,
-    build_world,
     gravity_joint_torques,
 )
+from spacecal.models.kinematics import _link_transforms, forward_kinematics, geometric_jacobian
+from spacecal.sim.scenario import PRESETS, scenario_from_dict
+from spacecal.sim.world import _points_in_volume, build_world
 
 QUIET = dict(white_noise_rms_mm=0.0, volumetric_error_rms_mm=0.0, repeatability_mm=0.0)
 NEW_FAMILIES = dict(

@@ -38,8 +38,38 @@ all identifiable corrections under a prior of the right scale spread it as the a
 The prior model is the controller's own where the recording carries it
 (``robot.kinematic_model``, a factory-calibrated arm), else the nominal model.
 
+Joint compliance (:func:`identify_kinematics` with ``joint_compliance``; off in the registry's
+``kinematic``, :func:`calibrate_kinematic`; only for an arm whose link dynamics the
+package holds, :func:`spacecal.models.gravity.link_dynamics_of`): the shoulder and elbow deflect
+under gravity by ``c_j tau_j(q)`` (:mod:`spacecal.models.compliance`), which the encoders do not
+see. The two compliances ``c_2``, ``c_3`` (rad per N m) are two more candidates beside the 24
+DH corrections: their columns are the joint-offset columns of joints 2 and 3 times each frame's
+gravity torque less its mean over the recording, they pass the same identifiability test
+(scaled by the torques' RMS about that mean) and are refined in the same Gauss–Newton under a
+zero-mean prior of s.d. :data:`COMPLIANCE_PRIOR_SD_RAD_PER_NM`. The model holds at the mean
+torques (:class:`~spacecal.models.compliance.JointCompliance`'s reference torques): the sag at
+the mean is a constant joint offset, which the joint-offset corrections and the pose take up
+under their own priors, and the compliance explains only how the sag changes over the motion.
+Left free, the constant part would be a joint offset with the compliance's loose prior (a few
+mrad), free to fit the tracker's bias. Without tracker noise the compliances are recovered to
+their stated s.d. and the sag's change is removed from the verification error
+(``tests/estimators/test_kinematic_compliance.py``). It is off by default because it was
+measured not to pay behind a biased tracker: in ``systematic-calibrated-compliant`` (120
+stations in a 150 mm cube, 0.2 mm RMS tracker bias) the sag changes by about 0.2 mm over the
+stations, as much as the bias does, and the fit trades the one for the other (the shoulder's
+compliance came out between 1.5e-5 and 5.6e-5 rad/N m for a true 3.3e-5 on seeds 1–4);
+``benchmarks/systematic_families.py`` over seeds 1–10 with it on: ``kinematic`` 0.315 mm
+against 0.313 off, ``kinematic`` + tip 0.305 against 0.304, the nominal scenarios 0.305 and
+0.306 mm with the tip against 0.300 and 0.301. The same scenario with a rigid arm verifies at
+0.317 mm with ``kinematic``: the arm's compliance is not what limits that scenario.
+
 The result holds the corrected model (used by IK in verification and planning), the
-identified corrections with standard deviations, the rank and the condition number.
+identified corrections with standard deviations, the rank and the condition number; an
+identified compliance rides in ``diagnostics["kinematic_identification"]["joint_compliance"]``
+(read it back with :func:`joint_compliance_of`) and is applied with the corrected model
+(:func:`spacecal.models.compliance.compliant_forward_kinematics` for the residuals this
+estimator states, :func:`~spacecal.models.compliance.encoder_joints_for` where the simulated
+verification and phantom experiments command the arm).
 """
 
 from __future__ import annotations
@@ -63,12 +93,13 @@ from spacecal.estimators.likelihood import (
 from spacecal.estimators.ml import covariance_from_information, information_matrix
 from spacecal.estimators.observations import Observations
 from spacecal.geometry.arrays import FloatArray, IntArray
+from spacecal.models.compliance import COMPLIANT_JOINTS, JointCompliance, compliant_forward_kinematics
+from spacecal.models.gravity import LinkDynamics, gravity_joint_torques, link_dynamics_of
 from spacecal.models.kinematics import (
     RobotModel,
     apply_pose_step,
+    chain_points_in_tracker,
     dh_point_jacobian,
-    forward_kinematics,
-    points_in_tracker,
     pose_point_jacobian,
     ur_model,
     with_dh_corrections,
@@ -77,7 +108,23 @@ from spacecal.records import CalibrationResult, NeedleTip, Recording
 
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
 DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]
+N_DH = len(DH_NAMES)
+#: Names of the compliance candidates (joints 2 and 3, 1-based as in :data:`DH_NAMES`).
+COMPLIANCE_NAMES = [f"compliance_rad_per_nm[{joint + 1}]" for joint in COMPLIANT_JOINTS]
+#: Every candidate of the identification, in the order of its parameter vector.
+PARAMETER_NAMES = DH_NAMES + COMPLIANCE_NAMES
 ANGLE_LEVER_MM = 1000.0
+#: Prior s.d. of a joint's compliance, rad per N m. Zero mean: a rigid arm is the model the
+#: controller states, and the data must show the sag. The scale: the strain-wave gears of a
+#: UR10-sized shoulder and elbow have catalogue torsional stiffness of a few 1e4 N m/rad
+#: (Harmonic Drive CSG/SHG sizes 25-32), and the whole joint (bearings, housing) is softer
+#: than its gear, so compliances of 1e-5 to 1e-4 rad/N m are expected. 5e-5 puts a stiffness
+#: of 3e4 N m/rad (3.3e-5) at 0.7 s.d. and 1e4 (1e-4) at 2 s.d.: loose enough not to pull a
+#: real compliance towards zero, while a fit to noise cannot run to a compliance no arm of
+#: this class has. The data decide well inside it: on the 120 stations of the systematic
+#: scenarios the shoulder's posterior s.d. is about 4 % of a 3e4 N m/rad joint's compliance,
+#: the elbow's (whose torque changes less over the stations) about a third of it.
+COMPLIANCE_PRIOR_SD_RAD_PER_NM = 5e-5
 #: Prior s.d. of the angle corrections per mm of the length corrections' (the ratio of the
 #: unit DH errors of :data:`spacecal.estimators.expected_error.UNIT_DH_SD`).
 ANGLE_PER_LENGTH_RAD_PER_MM = 0.002
@@ -110,18 +157,42 @@ def robot_model_of(recording: Recording) -> RobotModel:
 
 
 def identifiable_corrections(
-    dh_jacobian: FloatArray, pose_jacobian: FloatArray, rank_tolerance: float
+    dh_jacobian: FloatArray,
+    pose_jacobian: FloatArray,
+    rank_tolerance: float,
+    column_scale: FloatArray | None = None,
 ) -> tuple[FloatArray, float]:
-    """Indices of the DH corrections the data determines beyond the pose, and their condition."""
-    scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
-    dh = dh_jacobian.reshape(-1, 24) / scale
+    """Indices of the corrections the data determines beyond the pose, and their condition.
+
+    Parameters
+    ----------
+    dh_jacobian : numpy.ndarray, shape (N, K, 3, M)
+        Jacobian of the sphere positions in the tracker (mm) by the M candidate corrections.
+    pose_jacobian : numpy.ndarray, shape (N, K, 3, 12)
+        Jacobian by the 12 pose parameters.
+    rank_tolerance : float
+        Relative size of a pivot below which a candidate counts as unidentifiable.
+    column_scale : numpy.ndarray, shape (M,), optional
+        About how far one unit of each candidate moves the points, mm, to put the columns on
+        one footing; default the 24 DH corrections' (lengths 1, angles :data:`ANGLE_LEVER_MM`).
+        Candidates beyond the 24 DH corrections (the compliances) are taken after them, each
+        only where it adds to the DH corrections chosen: the DH set stays what it is without
+        them, and a compliance the DH corrections can mimic is left out.
+    """
+    scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12) if column_scale is None else column_scale
+    dh = dh_jacobian.reshape(-1, len(scale)) / scale
     pose = pose_jacobian.reshape(-1, 12)
     # projection off the pose columns by the normal equations (12 columns: cheaper than a QR)
     projected = dh - pose @ np.linalg.solve(pose.T @ pose, pose.T @ dh)
-    _, r, order = qr(projected, mode="economic", pivoting=True)
+    _, r, order = qr(projected[:, :N_DH], mode="economic", pivoting=True)
     diagonal = np.abs(np.diag(r))
     keep = diagonal > rank_tolerance * diagonal[0]
     selected = np.sort(order[keep])
+    for extra in range(N_DH, projected.shape[1]):
+        basis = projected[:, selected]
+        beyond = projected[:, extra] - basis @ np.linalg.lstsq(basis, projected[:, extra], rcond=None)[0]
+        if np.linalg.norm(beyond) > rank_tolerance * diagonal[0]:
+            selected = np.append(selected, extra)
     singular = np.linalg.svd(projected[:, selected], compute_uv=False)
     return selected, float(singular[0] / singular[-1])
 
@@ -206,6 +277,84 @@ def select_corrections(
     return chosen, path
 
 
+def compliance_torques(
+    model: RobotModel, joints_rad: FloatArray, payload_kg: float, dynamics: LinkDynamics
+) -> FloatArray:
+    """Gravity torques (N, 2), N m, on the compliant joints (:data:`COMPLIANT_JOINTS`) at
+    encoder angles (N, 6), rad: what each compliance multiplies."""
+    return gravity_joint_torques(model, joints_rad, payload_kg, dynamics)[:, list(COMPLIANT_JOINTS)]
+
+
+def compliance_point_jacobian(dh_jacobian: FloatArray, torques_nm: FloatArray) -> FloatArray:
+    """d(sphere positions)/d(compliances), shape (N, K, 3, 2), mm per (rad/N m).
+
+    A compliance turns joint j by ``c_j tau_j`` at each frame, as a joint offset of that size
+    would: its column is the joint-offset column of joint j times the frame's torque.
+
+    Parameters
+    ----------
+    dh_jacobian : numpy.ndarray, shape (N, K, 3, 24)
+        :func:`~spacecal.models.kinematics.dh_point_jacobian` (mm per mm or rad).
+    torques_nm : numpy.ndarray, shape (N, 2)
+        :func:`compliance_torques` less the reference torques, N m.
+    """
+    offsets = [DH_NAMES.index(f"theta_offset_rad[{joint + 1}]") for joint in COMPLIANT_JOINTS]
+    return dh_jacobian[..., offsets] * torques_nm[:, None, None, :]
+
+
+def torque_rms_nm(torques_nm: FloatArray) -> FloatArray:
+    """RMS (2,), N m, of each compliant joint's torque (about its reference) over the frames: a
+    compliance's lever in the identifiability test (1 where it is zero: so is its column)."""
+    rms = np.sqrt(np.mean(torques_nm**2, axis=0))
+    return np.where(rms > 0.0, rms, 1.0)
+
+
+def compliance_report(
+    compliance: JointCompliance | None, corrections: list[dict[str, Any]]
+) -> dict[str, Any] | None:
+    """``diagnostics["kinematic_identification"]["joint_compliance"]``: the identified
+    compliance (rad/N m, joints 1-based), the torque model it goes with, and each compliance's
+    s.d. (None where it was not freed); None when no compliance was identified."""
+    if compliance is None:
+        return None
+    sd = {c["parameter"]: c["sd"] for c in corrections}
+    return {
+        "joints": [joint + 1 for joint in COMPLIANT_JOINTS],
+        "rad_per_nm": compliance.rad_per_nm.tolist(),
+        "sd_rad_per_nm": [sd.get(name) for name in COMPLIANCE_NAMES],
+        "reference_torques_nm": compliance.reference_torques_nm.tolist(),
+        "payload_kg": compliance.payload_kg,
+        "link_dynamics": compliance.dynamics.name,
+    }
+
+
+def joint_compliance_of(calibration: CalibrationResult) -> JointCompliance | None:
+    """The joint compliance a kinematic calibration identified, to apply with its robot model
+    wherever it predicts or reaches a pose; None when it holds none (a rigid model).
+
+    Raises
+    ------
+    InvalidInputError
+        If the calibration names link dynamics the package does not hold.
+    """
+    identification = calibration.diagnostics.get("kinematic_identification") or {}
+    entry = identification.get("joint_compliance")
+    if not entry:
+        return None
+    dynamics = link_dynamics_of(str(entry.get("link_dynamics")))
+    if dynamics is None:
+        raise InvalidInputError(
+            f"the calibration's joint compliance goes with the link dynamics of "
+            f"{entry.get('link_dynamics')!r}, which spacecal does not hold"
+        )
+    return JointCompliance(
+        np.asarray(entry["rad_per_nm"], dtype=float),
+        np.asarray(entry["reference_torques_nm"], dtype=float),
+        float(entry["payload_kg"]),
+        dynamics,
+    )
+
+
 def dh_error_scale_of(
     recording: Recording,
     obs: Observations,
@@ -276,7 +425,52 @@ def calibrate_kinematic(
     prior_from_data: bool = True,
     needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
-    """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``.
+    """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``
+    (registry method ``kinematic``): :func:`identify_kinematics` with a rigid arm.
+
+    Parameters
+    ----------
+    recording : Recording
+        Needs joint angles and the robot model in its metadata.
+    sigma_mm : float, optional
+    targets_in_base : numpy.ndarray, shape (M, 3), optional
+    prior_length_sd_mm, prior_angle_sd_rad : float
+    rank_tolerance : float
+    iterations : int
+    model_selection, prior_from_data : bool
+    needle_tip : NeedleTip, optional
+        Each as :func:`identify_kinematics` takes it.
+    """
+    return identify_kinematics(
+        recording,
+        sigma_mm=sigma_mm,
+        targets_in_base=targets_in_base,
+        prior_length_sd_mm=prior_length_sd_mm,
+        prior_angle_sd_rad=prior_angle_sd_rad,
+        rank_tolerance=rank_tolerance,
+        iterations=iterations,
+        model_selection=model_selection,
+        prior_from_data=prior_from_data,
+        needle_tip=needle_tip,
+    )
+
+
+def identify_kinematics(
+    recording: Recording,
+    sigma_mm: float | None = None,
+    targets_in_base: FloatArray | None = None,
+    prior_length_sd_mm: float = 1.0,
+    prior_angle_sd_rad: float = 0.002,
+    rank_tolerance: float = 0.02,
+    iterations: int = 15,
+    model_selection: bool = False,
+    prior_from_data: bool = True,
+    needle_tip: NeedleTip | None = None,
+    joint_compliance: bool = False,
+    payload_kg: float = 0.0,
+) -> CalibrationResult:
+    """Identify DH corrections, and optionally the joints' compliance, jointly with
+    ``tracker_from_base`` and ``tcp_from_marker`` (see the module).
 
     Parameters
     ----------
@@ -299,6 +493,14 @@ def calibrate_kinematic(
         from the fit's residuals (:func:`dh_error_scale_of`).
     needle_tip : NeedleTip, optional
         A tip measured by a pivot, which IK aims: the expected error is stated at it.
+    joint_compliance : bool
+        Identify the shoulder's and elbow's compliance under gravity with the DH corrections
+        (see the module, and why it is off by default); only for an arm whose link dynamics are
+        known (:func:`~spacecal.models.gravity.link_dynamics_of`), else ignored.
+    payload_kg : float
+        Mass on the tool, kg, that the gravity torques include. An unknown small payload may
+        stay 0: on the shoulder and elbow its torque varies over the workspace nearly as the
+        arm's own does, and the compliance takes it up.
     """
     model = robot_model_of(recording)
     # identification starts from the ML solution (the bare fit, without its diagnostics)
@@ -308,7 +510,11 @@ def calibrate_kinematic(
         raise DegenerateDataError("kinematic identification needs the joint angles of every used frame")
     spheres = obs.spheres_in_marker
     tracker_from_base, tcp_from_marker = start.tracker_from_base, start.tcp_from_marker
-    delta = np.zeros(24)
+    dynamics = link_dynamics_of(model.name) if joint_compliance else None
+    torques = None if dynamics is None else compliance_torques(model, joints, payload_kg, dynamics)
+    reference_torques = None if torques is None else np.mean(torques, axis=0)
+    names = PARAMETER_NAMES if torques is not None else DH_NAMES
+    delta = np.zeros(len(names))
     # the robot's DH error scale as the ML start's held-out misfit shows it (before the
     # corrections absorb it)
     dh_scale, significance = dh_error_scale_of(
@@ -321,15 +527,32 @@ def calibrate_kinematic(
         # zero when the arm matches its model: then nothing is freed below
         prior_length_sd_mm = dh_scale
         prior_angle_sd_rad = dh_scale * ANGLE_PER_LENGTH_RAD_PER_MM
-    prior_sd = np.array([prior_length_sd_mm] * 12 + [prior_angle_sd_rad] * 12)
+    prior_sd = np.array(
+        [prior_length_sd_mm] * 12
+        + [prior_angle_sd_rad] * 12
+        + [COMPLIANCE_PRIOR_SD_RAD_PER_NM] * (len(names) - N_DH)
+    )
 
-    corrected = with_dh_corrections(model, delta)
-    obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
+    def model_of(parameters: FloatArray) -> tuple[RobotModel, JointCompliance | None]:
+        """The rigid model and the compliance a parameter vector (M,) describes."""
+        rigid = with_dh_corrections(model, parameters[:N_DH])
+        if dynamics is None or reference_torques is None:
+            return rigid, None
+        return rigid, JointCompliance(parameters[N_DH:], reference_torques, payload_kg, dynamics)
+
+    corrected, compliance = model_of(delta)
+    obs_model = replace(obs, base_from_tcp_stack=compliant_forward_kinematics(corrected, compliance, joints))
     j_dh = dh_point_jacobian(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
+    column_scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
+    if torques is not None and reference_torques is not None:
+        varying = torques - reference_torques
+        j_dh = np.concatenate([j_dh, compliance_point_jacobian(j_dh, varying)], axis=-1)
+        column_scale = np.concatenate([column_scale, ANGLE_LEVER_MM * torque_rms_nm(varying)])
     selected, condition = identifiable_corrections(
         j_dh,
         pose_point_jacobian(obs_model.base_from_tcp_stack, tracker_from_base, tcp_from_marker, spheres),
         rank_tolerance,
+        column_scale,
     )
     if len(selected) == 0:
         raise DegenerateDataError(
@@ -349,13 +572,14 @@ def calibrate_kinematic(
         )
         report = {
             "identified": [],
-            "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(identifiable.tolist())],
-            "not_selected": [DH_NAMES[i] for i in identifiable],
+            "unidentifiable": [names[i] for i in range(len(names)) if i not in set(identifiable.tolist())],
+            "not_selected": [names[i] for i in identifiable],
             "rank": int(len(identifiable)),
             "condition_number": condition,
             "prior_sd": {"length_mm": 0.0, "angle_rad": 0.0, "from_data": True},
             "held_out_significance": significance,
             "model_selection": None,
+            "joint_compliance": None,
         }
         return ml.replace(
             method="kinematic",
@@ -366,7 +590,9 @@ def calibrate_kinematic(
     if model_selection:
         n_frames = len(joints)
         start_residual = (
-            points_in_tracker(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
+            chain_points_in_tracker(
+                obs_model.base_from_tcp_stack, tracker_from_base, tcp_from_marker, spheres
+            )
             - obs.spheres_in_tracker
         ).reshape(n_frames, -1) / obs.sigma_mm
         j_pose_start = pose_point_jacobian(
@@ -374,7 +600,7 @@ def calibrate_kinematic(
         ).reshape(n_frames, -1, 12)
         chosen, path = select_corrections(
             j_pose_start / obs.sigma_mm,
-            j_dh.reshape(n_frames, -1, 24)[..., selected] / obs.sigma_mm,
+            j_dh.reshape(n_frames, -1, len(names))[..., selected] / obs.sigma_mm,
             start_residual,
             prior_sd[selected],
             held_out_blocks(recording.segment[obs.rows]),
@@ -385,7 +611,7 @@ def calibrate_kinematic(
             "min_gain": SELECTION_MIN_GAIN,
             "path": [
                 {
-                    "freed": None if step["freed"] is None else DH_NAMES[identifiable[step["freed"]]],
+                    "freed": None if step["freed"] is None else names[identifiable[step["freed"]]],
                     "held_out_ss": step["held_out_ss"],
                 }
                 for step in path
@@ -393,13 +619,18 @@ def calibrate_kinematic(
         }
 
     # The DH columns barely change over the iterations (the corrections are fractions of a
-    # millimetre): Gauss-Newton keeps the first ones (a chord iteration), whose fixed point is
-    # the same optimum, and saves a finite-difference Jacobian per iteration.
-    j_dh_selected = j_dh.reshape(-1, 24)[:, selected] / obs.sigma_mm
+    # millimetre, the deflections a few mrad): Gauss-Newton keeps the first ones (a chord
+    # iteration), whose fixed point is the same optimum, and saves a finite-difference Jacobian
+    # per iteration.
+    j_dh_selected = j_dh.reshape(-1, len(names))[:, selected] / obs.sigma_mm
     for _ in range(iterations):
-        corrected = with_dh_corrections(model, delta)
-        obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
-        predicted = points_in_tracker(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
+        corrected, compliance = model_of(delta)
+        obs_model = replace(
+            obs, base_from_tcp_stack=compliant_forward_kinematics(corrected, compliance, joints)
+        )
+        predicted = chain_points_in_tracker(
+            obs_model.base_from_tcp_stack, tracker_from_base, tcp_from_marker, spheres
+        )
         residual = (predicted - obs.spheres_in_tracker).reshape(-1) / obs.sigma_mm
         j_pose = (
             pose_point_jacobian(
@@ -419,15 +650,15 @@ def calibrate_kinematic(
         if np.max(np.abs(step[:12])) < 1e-7 and np.all(np.abs(step[12:] / prior_sd[selected]) < 1e-6):
             break
 
-    corrected = with_dh_corrections(model, delta)
-    obs_model = replace(obs, base_from_tcp_stack=forward_kinematics(corrected, joints))
+    corrected, compliance = model_of(delta)
+    obs_model = replace(obs, base_from_tcp_stack=compliant_forward_kinematics(corrected, compliance, joints))
     information = jac_all.T @ jac_all
     variance_factor = variance_factor_of(obs_model, tracker_from_base, tcp_from_marker)
     scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
     covariance_all = np.linalg.inv(information) * scale
     corrections = [
         {
-            "parameter": DH_NAMES[i],
+            "parameter": names[i],
             "correction": float(delta[i]),
             "sd": float(np.sqrt(covariance_all[12 + k, 12 + k])),
         }
@@ -436,8 +667,8 @@ def calibrate_kinematic(
     extra = {
         "kinematic_identification": {
             "identified": corrections,
-            "unidentifiable": [DH_NAMES[i] for i in range(24) if i not in set(identifiable.tolist())],
-            "not_selected": [DH_NAMES[i] for i in identifiable if i not in set(selected.tolist())],
+            "unidentifiable": [names[i] for i in range(len(names)) if i not in set(identifiable.tolist())],
+            "not_selected": [names[i] for i in identifiable if i not in set(selected.tolist())],
             "rank": int(len(identifiable)),
             "model_selection": selection,
             "condition_number": condition,
@@ -447,12 +678,14 @@ def calibrate_kinematic(
                 "from_data": bool(scale_from_data),
             },
             "held_out_significance": significance,
+            "joint_compliance": compliance_report(compliance, corrections),
         },
     }
     # residuals, site and spread as the identified model places the TCP: what the report
     # recomputes from the recording with the calibration's robot model
     as_identified = replace(
-        recording, base_from_tcp_stack=forward_kinematics(corrected, recording.joints_rad)
+        recording,
+        base_from_tcp_stack=compliant_forward_kinematics(corrected, compliance, recording.joints_rad),
     )
     solution = Solution(
         "kinematic",
@@ -464,7 +697,7 @@ def calibrate_kinematic(
         variance_factor,
         extra,
         robot_model=corrected,
-        absorbed_dh=selected.tolist(),
+        absorbed_dh=[int(i) for i in selected if i < N_DH],
         dh_error_scale_mm=dh_scale,
     )
     # the joint ML fit of obs_model: its held-out refits are its own

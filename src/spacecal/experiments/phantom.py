@@ -18,8 +18,10 @@ import numpy as np
 
 from spacecal.core.errors import UnreachableError
 from spacecal.estimators import calibrate
+from spacecal.estimators.kinematic import joint_compliance_of
 from spacecal.experiments.simulation import simulate
 from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
+from spacecal.models.compliance import encoder_joints_for
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.planning.needle import plan_needle
@@ -168,7 +170,14 @@ def run_phantom_experiment(
                 refused += 1
         else:
             raise UnreachableError(f"no feasible needle path in {MAX_PATH_ATTEMPTS} attempts")
-        reached = world.true_base_from_tcp(plan.joints_target_rad)[0]
+        # the planned joints are the true angles of the identified model; a compliant arm whose
+        # compliance the calibration identified is commanded the encoder angles that sag onto them
+        commanded = encoder_joints_for(
+            calibration.robot_model_for_ik(world.controller_model),
+            joint_compliance_of(calibration),
+            plan.joints_target_rad,
+        )
+        reached = world.true_base_from_tcp(commanded)[0]
         tip_in_image = apply_transform(
             invert_transform(tracker_from_image) @ world.tracker_from_base, reached[:3, 3]
         )

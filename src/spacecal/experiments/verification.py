@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from spacecal.core.ports import Robot, RobotState
+from spacecal.estimators.kinematic import joint_compliance_of
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
-from spacecal.models.kinematics import forward_kinematics
+from spacecal.models.compliance import JointCompliance, encoder_joints_for
+from spacecal.models.kinematics import RobotModel, forward_kinematics
 from spacecal.records import CalibrationResult
 from spacecal.sim.devices import SimulatedLaserTracker, SimulatedRobot
 from spacecal.sim.scenario import Scenario
@@ -31,6 +34,49 @@ def verification_targets(world: World, count: int, rng: np.random.Generator) -> 
         base_from_needle = make_transform(orientation, world.site_in_base + offset)
         targets.append(world.tracker_from_base @ base_from_needle)
     return np.array(targets)
+
+
+class DeflectionCompensatedRobot:
+    """A robot commanded in its joints' true angles: a joint move goes to the encoder angles
+    at which gravity deflects the shoulder and elbow onto the commanded ones.
+
+    Inverse kinematics on a calibration's identified model gives the true joint angles that
+    put the TCP on a target; a compliant arm commanded to them as encoder angles sags off it.
+    This wrapper applies the compliance the calibration identified
+    (:func:`~spacecal.models.compliance.encoder_joints_for`). Linear moves, which the
+    controller plans with its own model, and the state it reports pass through unchanged.
+
+    Parameters
+    ----------
+    robot : Robot
+        The arm as its controller drives it (encoder angles).
+    model : RobotModel
+        The identified model the torques are computed with.
+    compliance : JointCompliance
+        The identified compliance.
+    """
+
+    def __init__(self, robot: Robot, model: RobotModel, compliance: JointCompliance):
+        self.robot, self.model, self.compliance = robot, model, compliance
+
+    def state(self) -> RobotState:
+        """The controller's state (encoder angles)."""
+        return self.robot.state()
+
+    def move_joints(self, joints_rad: np.ndarray, speed_rad_s: float, accel_rad_s2: float) -> None:
+        """Move until the joints' true angles (6,), rad, are ``joints_rad``."""
+        encoder = encoder_joints_for(self.model, self.compliance, joints_rad)[0]
+        self.robot.move_joints(encoder, speed_rad_s, accel_rad_s2)
+
+    def move_linear(
+        self, base_from_tcp: np.ndarray, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
+    ) -> None:
+        """The controller's straight-line move (its own model), unchanged."""
+        self.robot.move_linear(base_from_tcp, speed_mm_s, accel_mm_s2, asynchronous)
+
+    def stop(self) -> None:
+        """Stop the arm."""
+        self.robot.stop()
 
 
 def verify_in_simulation(
@@ -65,8 +111,12 @@ def verify_in_simulation(
     # IK with the identified kinematic model when the calibration carries one, else with the
     # controller's own (nominal or factory-calibrated), as spacecal does on real hardware
     model = calibration.robot_model_for_ik(world.controller_model)
+    # and the joints it solves for are the compliant arm's true angles when the calibration
+    # identified its compliance: the robot is commanded the encoder angles that sag onto them
+    compliance = joint_compliance_of(calibration)
+    commanded: Robot = robot if compliance is None else DeflectionCompensatedRobot(robot, model, compliance)
     if tcp_from_needle is None:
         tcp_from_needle = calibration.tcp_from_needle
     return run_verification(
-        calibration, robot, laser, model, targets, world.home_joints_rad, tcp_from_needle=tcp_from_needle
+        calibration, commanded, laser, model, targets, world.home_joints_rad, tcp_from_needle=tcp_from_needle
     )

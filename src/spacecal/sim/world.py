@@ -18,7 +18,8 @@ from spacecal.geometry.transforms import (
     rotvec_to_matrix,
     transform_points_by_stack,
 )
-from spacecal.models.kinematics import RobotModel, _link_transforms, forward_kinematics, ur_model
+from spacecal.models.gravity import gravity_joint_torques
+from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.models.tracker import TrackerModel
@@ -183,65 +184,6 @@ class TrackerBiasField:
         measured_rms = np.sqrt(np.mean(np.sum(field(probe) ** 2, axis=1)))
         scale = polynomial_rms_mm / measured_rms if polynomial_rms_mm > 0 else 0.0
         return cls(depth_scale_per_100mm, reference, half, coefficients * scale)
-
-
-#: UR10 link masses (kg) and centres of mass (mm) in each link's DH frame, as Universal Robots
-#: publishes them ("DH parameters for calculations of kinematics and dynamics", UR support
-#: article for the CB3 arms).
-UR10_LINK_MASSES_KG = np.array([7.1, 12.7, 4.27, 2.0, 2.0, 0.365])
-UR10_LINK_COM_MM = np.array(
-    [
-        [21.0, 0.0, 27.0],
-        [380.0, 0.0, 158.0],
-        [240.0, 0.0, 68.0],
-        [0.0, 7.0, 18.0],
-        [0.0, 7.0, 18.0],
-        [0.0, 0.0, -26.0],
-    ]
-)
-STANDARD_GRAVITY_M_S2 = 9.80665
-
-
-def gravity_joint_torques(model: RobotModel, joints_rad, payload_kg: float = 0.0) -> np.ndarray:
-    """Static gravity torques (N, 6), N m, on the joints of an upright UR10-like arm.
-
-    Point masses at the published UR10 link centres of mass (:data:`UR10_LINK_MASSES_KG`,
-    :data:`UR10_LINK_COM_MM`) and the payload half-way between the flange and the TCP (a
-    needle guide carrying the marker). The torque about joint ``j`` is
-    ``z_{j-1} . sum_{i>=j} (c_i - o_{j-1}) x m_i g``, base z up.
-
-    Parameters
-    ----------
-    model : RobotModel
-        The arm (its DH frames place the masses).
-    joints_rad : array_like, shape (N, 6) or (6,)
-    payload_kg : float
-
-    Returns
-    -------
-    numpy.ndarray, shape (N, 6)
-    """
-    q = np.atleast_2d(np.asarray(joints_rad, float))
-    links = _link_transforms(model, q)
-    frames = [np.broadcast_to(np.eye(4), (len(q), 4, 4))]
-    for i in range(6):
-        frames.append(frames[-1] @ links[:, i])
-    masses = list(UR10_LINK_MASSES_KG)
-    centres = [frames[i + 1][:, :3, :3] @ UR10_LINK_COM_MM[i] + frames[i + 1][:, :3, 3] for i in range(6)]
-    if payload_kg > 0:
-        tool_mid = 0.5 * np.asarray(model.flange_from_tcp, float)[:3, 3]
-        centres.append(frames[6][:, :3, :3] @ tool_mid + frames[6][:, :3, 3])
-        masses.append(payload_kg)
-    weight = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_S2])
-    torques = np.zeros((len(q), 6))
-    for j in range(6):
-        axis, origin = frames[j][:, :3, 2], frames[j][:, :3, 3]
-        moment = np.zeros((len(q), 3))
-        # link i (0-based) is moved by joints 0..i: joint j carries links j..5 and the payload
-        for i in range(j, len(masses)):
-            moment += np.cross((centres[i] - origin) * 1e-3, masses[i] * weight)
-        torques[:, j] = np.sum(moment * axis, axis=1)
-    return torques
 
 
 @dataclass
