@@ -11,58 +11,63 @@ import pytest
 
 from spacecal.io.raw_streams import RawStreamWriter, stream_paths
 
-#: How long each forced write takes here: the longest measured on a busy 2-core machine was 6.4 s.
-SLOW_FSYNC_S = 0.5
+#: Bound on waits that return at once when the code is right (a busy machine may be slow).
+WAIT_S = 30.0
 FRAMES = 20
+SYNC_THREAD = "spacecal raw-stream sync"
 
 
-def slow_fsync(calls):
+def recording_fsync(calls, hold=None):
+    """An ``os.fsync`` that records which thread called it; with ``hold`` (an Event), the sync
+    thread's calls wait until it is set, as on a disk that takes its time."""
     real = os.fsync
 
     def fsync(descriptor):
         calls.append(threading.current_thread().name)
-        time.sleep(SLOW_FSYNC_S)
+        if hold is not None and threading.current_thread().name == SYNC_THREAD:
+            hold.wait(WAIT_S)
         real(descriptor)
 
     return fsync
 
 
-def write_frames(writer, count, period_s=0.0):
+def write_frames(writer, count):
     for k in range(count):
         writer.add_tracker_frame(float(k) / 20, np.eye(4), 0.1, float(k) / 20)
-        time.sleep(period_s)
 
 
 def test_a_slow_disk_does_not_hold_up_the_writer_and_every_row_reaches_it(tmp_path, monkeypatch):
-    calls = []
-    monkeypatch.setattr(os, "fsync", slow_fsync(calls))
+    calls, disk_busy = [], threading.Event()
+    monkeypatch.setattr(os, "fsync", recording_fsync(calls, hold=disk_busy))
     writer = RawStreamWriter(tmp_path / "rec", {"simulated": False})
-    started = time.monotonic()
-    write_frames(writer, FRAMES, period_s=0.005)
-    writing_s = time.monotonic() - started
-    # each frame asks for a sync; none waits for one (all twenty would take ten seconds)
-    assert writing_s < FRAMES * 0.005 + SLOW_FSYNC_S / 2, writing_s
-    closing = time.monotonic()
+    # the header asked for a sync: the sync thread is now waiting for the disk
+    deadline = time.monotonic() + WAIT_S
+    while SYNC_THREAD not in calls and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert SYNC_THREAD in calls
+    # every frame is written while that sync waits (had the writer waited, it would still be)
+    writing = threading.Thread(target=write_frames, args=(writer, FRAMES))
+    writing.start()
+    writing.join(WAIT_S)
+    assert not writing.is_alive()
+    disk_busy.set()
     writer.close()
-    # the close waits for the sync under way, then syncs both files itself
-    assert time.monotonic() - closing >= 2 * SLOW_FSYNC_S
+    # the close waited for the sync under way, then synced both files itself
     assert calls[-2:] == [threading.current_thread().name] * 2
-    assert any(name == "spacecal raw-stream sync" for name in calls), calls
     robot, tracker, _ = stream_paths(tmp_path / "rec")
     assert len(tracker.read_text().splitlines()) == FRAMES + 1
 
 
 def test_a_failing_disk_stops_the_writer_at_its_next_row(tmp_path, monkeypatch):
-    writer = RawStreamWriter(tmp_path / "rec", {"simulated": False})
-
     def failing(descriptor):
         raise OSError(5, "Input/output error")
 
+    writer = RawStreamWriter(tmp_path / "rec", {"simulated": False})
     monkeypatch.setattr(os, "fsync", failing)
+    write_frames(writer, 1)  # asks for a sync, which fails on the sync thread
+    writer._sync._thread.join(WAIT_S)
     with pytest.raises(OSError, match="Input/output error"):
-        for _ in range(200):  # the sync thread fails on the first request; a later row raises
-            write_frames(writer, 1)
-            time.sleep(0.005)
+        write_frames(writer, 1)
     monkeypatch.undo()
     with pytest.raises(OSError, match="Input/output error"):
         writer.close()  # still closes both files
@@ -71,10 +76,10 @@ def test_a_failing_disk_stops_the_writer_at_its_next_row(tmp_path, monkeypatch):
 
 def test_a_simulated_recording_starts_no_sync_thread(tmp_path, monkeypatch):
     calls = []
-    monkeypatch.setattr(os, "fsync", slow_fsync(calls))
+    monkeypatch.setattr(os, "fsync", recording_fsync(calls))
     writer = RawStreamWriter(tmp_path / "rec", {"simulated": True}, durable=False)
     written_metadata = len(calls)  # the metadata file is written atomically, synced
-    write_frames(writer, 3, period_s=0.005)
+    write_frames(writer, 3)
     assert len(calls) == written_metadata
     writer.close()
     assert calls[written_metadata:] == ["MainThread"] * 2  # the close alone
