@@ -7,7 +7,6 @@ tests instead of skipping them.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import shutil
 import socket
@@ -116,35 +115,15 @@ def chromium_binary() -> str:
     return binary
 
 
-@contextlib.contextmanager
-def at_the_workers_priority() -> Iterator[None]:
-    """Start what is spawned inside at the test worker's normal priority (niceness 0), also in
-    a hardware test that has raised its own (``tests/adapters/conftest.py``): Chromium draws
-    the page and keeps no deadline, and at a raised priority its renderer would take the CPU
-    from the fake devices and the robot's loop, which do."""
-    before = os.getpriority(os.PRIO_PROCESS, 0)
-    if before >= 0:
-        yield
-        return
-    os.setpriority(os.PRIO_PROCESS, 0, 0)  # lowering one's priority is always allowed
-    try:
-        yield
-    finally:
-        os.setpriority(os.PRIO_PROCESS, 0, before)  # raised before, so the runner may
-
-
 @pytest.fixture
 def page() -> Iterator[Any]:
-    """A page of headless Chromium (Debian's), closed with its browser on every way out; the
-    Playwright driver and Chromium run at the worker's normal priority."""
+    """A page of headless Chromium (Debian's), closed with its browser on every way out."""
     sync_api = need("playwright.sync_api")
     binary = chromium_binary()
-    with contextlib.ExitStack() as stack:
-        with at_the_workers_priority():
-            playwright = stack.enter_context(sync_api.sync_playwright())
-            browser = playwright.chromium.launch(
-                executable_path=binary, args=["--no-sandbox"], timeout=BROWSER_TIMEOUT_MS
-            )
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=binary, args=["--no-sandbox"], timeout=BROWSER_TIMEOUT_MS
+        )
         try:
             context = browser.new_context(viewport={"width": 1280, "height": 900})
             context.set_default_timeout(BROWSER_TIMEOUT_MS)
