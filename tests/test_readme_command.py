@@ -20,45 +20,21 @@ def test_the_readme_runs_the_real_time_tests_apart_from_the_rest():
     assert runs[0].endswith('-m "not realtime"') and runs[1].endswith("-m realtime"), runs
 
 
+def collect(*arguments: str) -> subprocess.CompletedProcess:
+    """``pytest --collect-only -q`` with ``arguments``, from the repository's root."""
+    return subprocess.run(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider", *arguments],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
 def test_every_hardware_test_is_marked_real_time():
     """Collected without the mark, the adapter tests and the station's protocol-fakes tests
     leave nothing: each takes a hardware lane, and so is marked (``tests/conftest.py``)."""
-    collected = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pytest",
-            "--collect-only",
-            "-q",
-            "-p",
-            "no:cacheprovider",
-            "-m",
-            "not realtime",
-            "tests/adapters",
-            "tests/station/test_browser_fakes.py",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert collected.returncode == 5, collected.stdout[-2000:]  # 5: no tests collected
-    marked = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pytest",
-            "--collect-only",
-            "-q",
-            "-p",
-            "no:cacheprovider",
-            "-m",
-            "realtime",
-            "tests/adapters/test_ur_stops.py",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    unmarked = collect("-m", "not realtime", "tests/adapters", "tests/station/test_browser_fakes.py")
+    assert unmarked.returncode == 5, unmarked.stdout[-2000:]  # 5: no tests collected
+    marked = collect("-m", "realtime", "tests/adapters/test_ur_stops.py")
     assert marked.returncode == 0 and "test_each_stop_ends_the_run" in marked.stdout, marked.stdout[-2000:]
