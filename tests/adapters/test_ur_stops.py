@@ -104,13 +104,6 @@ STOPS = {
 }
 
 
-@pytest.fixture
-def disk(tmp_path):
-    probe = DiskProbe(tmp_path)
-    yield probe
-    probe.close()
-
-
 def check_stopped_run(world, run_result, fault_at, recording, cause, disk, count_slack=0, label=None):
     ended_after = time.monotonic() - fault_at
     stalled = disk.stalled_s(fault_at, fault_at + ended_after)

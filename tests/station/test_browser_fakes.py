@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from tests.adapters.conftest import ahead_of_other_tests, hardware_lane, rom_file, watchdog  # noqa: F401
+from tests.adapters.conftest import ahead_of_other_tests, disk, hardware_lane, rom_file, watchdog  # noqa: F401
 from tests.adapters.ur_runs import ROBOT_MODEL, assert_everything_closed, tracker_url, ur_world
 from tests.station.test_browser import (
     ACQUISITION_WITHIN_MS,
@@ -32,6 +32,9 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
 ROBOT = "UR10 (fake controller)"
+#: How long to wait for a stopped run's thread: the run's end may wait through disk stalls
+#: (its recordings are synced before it ends), which the end bound leaves out (DiskProbe).
+JOIN_WITHIN_S = ENDED_WITHIN_S + 60
 
 
 def new_robot_and_tracker_on_the_fakes(page, url: str, world, rom) -> None:
@@ -128,7 +131,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
         world.stop()
 
 
-def test_stop_on_the_protocol_fakes_stills_the_arm(served, page, rom_file):  # noqa: F811
+def test_stop_on_the_protocol_fakes_stills_the_arm(served, page, rom_file, disk):  # noqa: F811
     world = ur_world("cb3")
     try:
         run = start_acquisition_on_the_fakes(page, served, world, rom_file)
@@ -139,20 +142,22 @@ def test_stop_on_the_protocol_fakes_stills_the_arm(served, page, rom_file):  # n
         page.wait_for_function("document.getElementById('run-state').textContent === 'stopped'")
         assert "interrupted by the user (STOP pressed at the station)" in page.inner_text("#message")
         after = assert_everything_closed(world)
-        run.thread.join(timeout=ENDED_WITHIN_S + 5)
+        run.thread.join(timeout=JOIN_WITHIN_S)
         # the fake controller times the arm from the mark; the station's stop path starts when
         # the STOP reaches the station (the browser's click and request come before it)
         assert after["fault_to_still_s"] is not None and run.stop_requested_at is not None
         click_s = run.stop_requested_at - marked_at
         still_after_stop_s = after["fault_to_still_s"] - click_s
         ended_after = run.ended_at - run.stop_requested_at
+        stalled = disk.stalled_s(run.stop_requested_at, run.ended_at)
         print(
             f"\nprotocol fakes: the STOP reached the station {click_s:.2f} s after the click; the arm "
-            f"stood still {still_after_stop_s:.3f} s and the run ended {ended_after:.2f} s after that",
+            f"stood still {still_after_stop_s:.3f} s and the run ended {ended_after:.2f} s after that "
+            f"(the disk stalled {stalled:.2f} s of it)",
             flush=True,
         )
         assert still_after_stop_s < STILL_WITHIN_S
-        assert ended_after < ENDED_WITHIN_S
+        assert ended_after - stalled < ENDED_WITHIN_S
         assert not after["program_running"]  # nothing can resume a move
     finally:
         world.stop()
@@ -177,14 +182,14 @@ def test_a_refused_dry_run_offers_no_motion(served, page, rom_file):  # noqa: F8
         world.stop()
 
 
-def test_closing_the_tab_mid_acquisition_stills_the_arm_on_the_protocol_fakes(served, page, rom_file):  # noqa: F811
+def test_closing_the_tab_mid_acquisition_stills_the_arm_on_the_protocol_fakes(served, page, rom_file, disk):  # noqa: F811
     world = ur_world("cb3")
     try:
         run = start_acquisition_on_the_fakes(page, served, world, rom_file)
         world.control("ur mark")
         marked_at = time.monotonic()
         page.close()
-        run.thread.join(timeout=ENDED_WITHIN_S + 30)
+        run.thread.join(timeout=JOIN_WITHIN_S)
         assert run.state == "stopped", run.message
         assert "interrupted by the user (the station's page was closed or lost its connection)" in run.message
         after = assert_everything_closed(world)
@@ -197,7 +202,8 @@ def test_closing_the_tab_mid_acquisition_stills_the_arm_on_the_protocol_fakes(se
             flush=True,
         )
         assert still_after_stop_s < STILL_WITHIN_S
-        assert run.ended_at - run.stop_requested_at < ENDED_WITHIN_S
+        stalled = disk.stalled_s(run.stop_requested_at, run.ended_at)
+        assert run.ended_at - run.stop_requested_at - stalled < ENDED_WITHIN_S
         assert not after["program_running"]
     finally:
         world.stop()
