@@ -114,6 +114,9 @@ COMPLIANCE_NAMES = [f"compliance_rad_per_nm[{joint + 1}]" for joint in COMPLIANT
 #: Every candidate of the identification, in the order of its parameter vector.
 PARAMETER_NAMES = DH_NAMES + COMPLIANCE_NAMES
 ANGLE_LEVER_MM = 1000.0
+#: About how far one unit of each DH correction moves the points, mm (lengths 1, angles
+#: :data:`ANGLE_LEVER_MM`): the columns' common footing in the identifiability test.
+DH_COLUMN_SCALE = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
 #: Prior s.d. of a joint's compliance, rad per N m. Zero mean: a rigid arm is the model the
 #: controller states, and the data must show the sag. The scale: the strain-wave gears of a
 #: UR10-sized shoulder and elbow have catalogue torsional stiffness of a few 1e4 N m/rad
@@ -179,7 +182,7 @@ def identifiable_corrections(
         only where it adds to the DH corrections chosen: the DH set stays what it is without
         them, and a compliance the DH corrections can mimic is left out.
     """
-    scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12) if column_scale is None else column_scale
+    scale = DH_COLUMN_SCALE if column_scale is None else column_scale
     dh = dh_jacobian.reshape(-1, len(scale)) / scale
     pose = pose_jacobian.reshape(-1, 12)
     # projection off the pose columns by the normal equations (12 columns: cheaper than a QR)
@@ -426,7 +429,9 @@ def calibrate_kinematic(
     needle_tip: NeedleTip | None = None,
 ) -> CalibrationResult:
     """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``
-    (registry method ``kinematic``): :func:`identify_kinematics` with a rigid arm.
+    (registry method ``kinematic``): :func:`identify_kinematics` with a rigid arm. Its
+    signature is the registry's declared options (a test holds them equal), which leave the
+    compliance out.
 
     Parameters
     ----------
@@ -543,7 +548,7 @@ def identify_kinematics(
     corrected, compliance = model_of(delta)
     obs_model = replace(obs, base_from_tcp_stack=compliant_forward_kinematics(corrected, compliance, joints))
     j_dh = dh_point_jacobian(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
-    column_scale = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
+    column_scale = DH_COLUMN_SCALE
     if torques is not None and reference_torques is not None:
         varying = torques - reference_torques
         j_dh = np.concatenate([j_dh, compliance_point_jacobian(j_dh, varying)], axis=-1)

@@ -18,7 +18,7 @@ from spacecal.geometry.transforms import (
     rotvec_to_matrix,
     transform_points_by_stack,
 )
-from spacecal.models.gravity import gravity_joint_torques
+from spacecal.models.compliance import JointCompliance
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
@@ -255,15 +255,15 @@ class World:
         The encoders sit on the motor side of the transmission, so the controller neither
         reports nor corrects it."""
         q = np.atleast_2d(np.asarray(joints_rad, float))
-        deflection = np.zeros_like(q)
         stiffness = np.asarray(self.scenario.joint_stiffness_nm_per_rad, float)
         if not np.any(stiffness > 0):
-            return deflection
-        torques = gravity_joint_torques(self.true_model, q, self.scenario.payload_kg)
-        for joint, k in zip((1, 2), stiffness):
-            if k > 0:
-                deflection[:, joint] = torques[:, joint] / k
-        return deflection
+            return np.zeros_like(q)
+        # the package's one deflection rule, a stiffness of 0 standing for a rigid joint
+        compliance = JointCompliance(
+            np.divide(1.0, stiffness, out=np.zeros_like(stiffness), where=stiffness > 0),
+            payload_kg=self.scenario.payload_kg,
+        )
+        return compliance.deflections_rad(self.true_model, q)
 
     def true_base_from_tcp(self, joints_rad, jitter: bool = True) -> np.ndarray:
         """Where the TCP really is (N, 4, 4) for joint angles (N, 6), with repeatability scatter
