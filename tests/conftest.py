@@ -1,5 +1,6 @@
-"""Shared, session-scoped simulations (each costs about two seconds, so build them once), and
-the ``realtime`` mark of the tests that keep real-time deadlines."""
+"""Shared, session-scoped simulations (each costs about two seconds, so build them once), the
+``realtime`` mark of the tests that keep real-time deadlines, and the disk probe of the tests
+that bound how fast a run ends."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import pytest
 from spacecal.experiments.simulation import simulate
 from spacecal.io.recording_csv import write_recording
 from spacecal.sim.scenario import PRESETS
+from spacecal.testing.disk_probe import DiskProbe
 
 #: No noise, no kinematic error, no dropouts: estimators must be exact (to ~1e-9).
 NOISE_FREE = dataclasses.replace(
@@ -25,6 +27,15 @@ def pytest_collection_modifyitems(items):
     for item in items:
         if "hardware_lane" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.realtime)
+
+
+@pytest.fixture
+def disk(tmp_path):
+    """A :class:`~spacecal.testing.disk_probe.DiskProbe` beside the test: how long the disk
+    stalled (a run's end waits through the stalls for its recordings' last syncs)."""
+    probe = DiskProbe(tmp_path)
+    yield probe
+    probe.close()
 
 
 @pytest.fixture(scope="session")

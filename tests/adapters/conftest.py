@@ -19,7 +19,7 @@ from spacecal.models.marker import ndi_8700339_like
 from spacecal.testing.fakes.client import WorldProcess
 
 from .loopback import NETWORK as _NETWORK
-from .ur_runs import HARDWARE_TEST_NICENESS, DiskProbe
+from .ur_runs import HARDWARE_TEST_NICENESS
 
 #: Longer than any test's own subprocess timeouts, so those report first; the dump goes to a
 #: file (pytest captures stderr), one per test worker, that .ci/run prints when the suite fails.
@@ -119,11 +119,3 @@ def make_world():
     yield start
     for process in started:
         process.stop()
-
-
-@pytest.fixture
-def disk(tmp_path):
-    """A :class:`~tests.adapters.ur_runs.DiskProbe` beside the test: how long the disk stalled."""
-    probe = DiskProbe(tmp_path)
-    yield probe
-    probe.close()

@@ -20,7 +20,6 @@ from spacecal.io.csv_core import metadata_path
 from spacecal.io.raw_streams import read_raw_recording, stream_paths
 
 from .ur_runs import (
-    DiskProbe,
     WhenRecorded,
     acquire_argv,
     assert_everything_closed,
@@ -39,7 +38,7 @@ STILL_WITHIN_S = 1.0
 #: From the fault to the end of the command, s: stopping, then closing the devices (ur_rtde's
 #: disconnect sleeps 0.5 s per interface): typically 2 s, up to 6 s measured on a loaded
 #: 2-core machine; the robot itself is still long before (STILL_WITHIN_S). Not counted: the
-#: time the disk stalled meanwhile (:class:`~tests.adapters.ur_runs.DiskProbe`), which the
+#: time the disk stalled meanwhile (:class:`~spacecal.testing.disk_probe.DiskProbe`), which the
 #: command's last syncs of its recordings wait through (10.7 and 11.4 s ends were measured
 #: beside 15-24 s stalls).
 ENDED_WITHIN_S = 8.0
@@ -318,14 +317,3 @@ def test_a_controller_that_vanishes_mid_run_ends_the_run(rom_file, tmp_path):
         assert ended_after < VANISHED_ENDED_WITHIN_S
     finally:
         world.stop()
-
-
-def test_the_disk_probe_counts_only_stalls_inside_the_window(tmp_path):
-    """What the end bound leaves out is the part of each stalled sync inside the window."""
-    probe = DiskProbe(tmp_path)
-    probe.close()
-    probe._stalls = [(0.0, 1.0), (2.0, 5.0), (9.0, 9.5)]
-    assert probe.stalled_s(0.5, 4.0) == 0.5 + 2.0
-    assert probe.stalled_s(6.0, 8.0) == 0.0
-    probe._waiting_since = 7.0  # a sync still waiting at the window's end counts up to it
-    assert probe.stalled_s(6.0, 8.0) == 1.0

@@ -50,56 +50,6 @@ def ur_world(generation: str = "cb3", *options: str) -> WorldProcess:
     )
 
 
-class DiskProbe:
-    """Forces a row of its own to the disk every :data:`PERIOD_S` on a thread, and keeps each
-    span it waited longer than :data:`STALL_S`: the disk's stalls, measured beside a run.
-
-    ``spacecal acquire`` syncs its recordings before it ends (nothing recorded may be lost), so
-    on a disk that stalls (up to 34 s measured on a busy 2-core test machine) its end waits
-    with it; a bound on how fast it ends applies to the rest of the time.
-    """
-
-    PERIOD_S = 0.02
-    STALL_S = 0.1
-
-    def __init__(self, folder: Path):
-        self._path = Path(folder) / "disk-probe.dat"
-        self._stalls: list[tuple[float, float]] = []
-        self._waiting_since: float | None = None
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="disk probe", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        with open(self._path, "w") as handle:
-            while not self._stop.is_set():
-                started = time.monotonic()
-                with self._lock:
-                    self._waiting_since = started
-                handle.write("x" * 199 + "\n")
-                handle.flush()
-                os.fsync(handle.fileno())
-                ended = time.monotonic()
-                with self._lock:
-                    self._waiting_since = None
-                    if ended - started > self.STALL_S:
-                        self._stalls.append((started, ended))
-                self._stop.wait(self.PERIOD_S)
-
-    def stalled_s(self, since: float, until: float) -> float:
-        """Seconds of ``[since, until]`` (monotonic) the probe spent in stalled syncs."""
-        with self._lock:
-            spans = list(self._stalls)
-            if self._waiting_since is not None and until - self._waiting_since > self.STALL_S:
-                spans.append((self._waiting_since, until))
-        return sum(max(0.0, min(end, until) - max(start, since)) for start, end in spans)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(60.0)
-
-
 def stats(world: WorldProcess) -> dict:
     return json.loads(world.control("ur stats"))
 

@@ -16,11 +16,12 @@ import time
 
 import pytest
 
-from tests.adapters.conftest import ahead_of_other_tests, disk, hardware_lane, rom_file, watchdog  # noqa: F401
+from tests.adapters.conftest import ahead_of_other_tests, hardware_lane, rom_file, watchdog  # noqa: F401
 from tests.adapters.ur_runs import ROBOT_MODEL, assert_everything_closed, tracker_url, ur_world
 from tests.station.test_browser import (
     ACQUISITION_WITHIN_MS,
     ENDED_WITHIN_S,
+    JOIN_WITHIN_S,
     STILL_WITHIN_S,
     STOP_AFTER_SAMPLES,
     Steps,
@@ -32,9 +33,6 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
 ROBOT = "UR10 (fake controller)"
-#: How long to wait for a stopped run's thread: the run's end may wait through disk stalls
-#: (its recordings are synced before it ends), which the end bound leaves out (DiskProbe).
-JOIN_WITHIN_S = ENDED_WITHIN_S + 60
 
 
 def new_robot_and_tracker_on_the_fakes(page, url: str, world, rom) -> None:

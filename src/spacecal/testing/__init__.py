@@ -11,6 +11,9 @@ and the command line's fuzz harness.
 * :mod:`spacecal.testing.fuzz`: base input files for every command, mutations of them and of
   the options, and a runner that classifies what went wrong; the fuzz tests and
   ``benchmarks/fuzz.py`` share it.
+* :mod:`spacecal.testing.disk_probe`: how long the disk stalls beside a run, which a bound on
+  how fast a run ends leaves out (its recordings are synced before it ends);
+  ``benchmarks/fsync_latency.py`` prints its distribution.
 
 Nothing in the rest of the package imports this one (the layer contract in ``pyproject.toml``
 puts it on top). Some fakes need the optional dependencies of the devices they stand in for
