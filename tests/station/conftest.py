@@ -80,16 +80,16 @@ class Served:
 
 
 @pytest.fixture
-def served(tmp_path) -> Iterator[Served]:
-    """The station on 127.0.0.1 (a free port) in a thread, stopped on every way out."""
+def served(tmp_path, request) -> Iterator[Served]:
+    """The station on 127.0.0.1 (a free port) in a thread, stopped on every way out. A test
+    may set the pages' ping interval and timeout, s, by parametrizing it indirectly."""
     uvicorn = need("uvicorn")
-    from spacecal.station.server import StationOptions, build
+    from spacecal.station.server import StationOptions, build, server_config
 
+    pings = getattr(request, "param", {})
     port = free_port()
     station, application = build(StationOptions(port=port, data=str(tmp_path / "station")))
-    server = uvicorn.Server(
-        uvicorn.Config(application, host="127.0.0.1", port=port, log_level="warning", lifespan="off")
-    )
+    server = uvicorn.Server(server_config(application, "127.0.0.1", port, **pings))
     thread = threading.Thread(target=server.run, daemon=True)
     thread.start()
     deadline = time.monotonic() + 20

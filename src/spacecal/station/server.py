@@ -13,6 +13,14 @@ from spacecal.ledger import SIMULATED_ROBOT, SIMULATED_TRACKER, Ledger
 from spacecal.station.access import check_bind
 from spacecal.station.web import Station, create_app
 
+#: How often the station pings each page's live view, and how long a page may take to answer,
+#: s. A page that does not answer in time cannot show the run or send its STOP, so it counts as
+#: lost, and a run no page watches stops (:meth:`spacecal.station.motions.Run.page_disconnected`):
+#: a frozen or unplugged station computer stops the robot within 25 s at most. A closed tab or
+#: a dropped connection is seen at once, without waiting for a ping.
+PAGE_PING_INTERVAL_S = 5.0
+PAGE_PING_TIMEOUT_S = 20.0
+
 
 @dataclass(frozen=True)
 class StationOptions:
@@ -59,14 +67,30 @@ def build(options: StationOptions) -> tuple[Station, Any]:
     return station, create_app(station, options.token, options.host)
 
 
+def server_config(
+    application: Any,
+    host: str,
+    port: int,
+    ping_interval_s: float = PAGE_PING_INTERVAL_S,
+    ping_timeout_s: float = PAGE_PING_TIMEOUT_S,
+) -> uvicorn.Config:
+    """uvicorn's settings for the station: quiet, no lifespan, and the pages' liveness above."""
+    return uvicorn.Config(
+        application,
+        host=host,
+        port=port,
+        log_level="warning",
+        lifespan="off",
+        ws_ping_interval=ping_interval_s,
+        ws_ping_timeout=ping_timeout_s,
+    )
+
+
 def serve(options: StationOptions) -> None:
     """Serve the station until Ctrl-C (or SIGTERM); every acquisition still running is stopped on
     the way out, through its STOP."""
     station, application = build(options)
-    config = uvicorn.Config(
-        application, host=options.host, port=options.port, log_level="warning", lifespan="off"
-    )
-    server = uvicorn.Server(config)
+    server = uvicorn.Server(server_config(application, options.host, options.port))
     address = f"http://{'localhost' if options.host == '127.0.0.1' else options.host}:{options.port}/"
     shown = address + (f"?token={options.token}" if options.token else "")
     print(f"spacecal station: {shown} (record: {station.ledger.engine.url.render_as_string()})", flush=True)
