@@ -59,6 +59,7 @@ from spacecal.core.ports import (
     FRAME_OK,
     DeviceFinding,
     TrackerFrame,
+    refused_poses_finding,
 )
 from spacecal.core.text import one_line_ascii
 from spacecal.geometry.transforms import is_rigid_transform, transform_from_position_quaternion
@@ -296,6 +297,9 @@ class IGTLTracker:
         self.seen: collections.Counter = collections.Counter()
         self.header_versions: set[int] = set()
         self.crc_errors = 0
+        #: The marker's frames, and those whose pose was not one (NaN, 1e30 mm, scaled).
+        self.marker_frames = 0
+        self.refused_poses = 0
         self.stamps: collections.deque = collections.deque(maxlen=256)
         deadline = time.monotonic() + connect_timeout_s
         try:
@@ -429,7 +433,10 @@ class IGTLTracker:
                     self.stamps.append((now, stamp))
             if self.device_name in poses and stamp == self._group_stamp:
                 self._group_has_marker = True
-                self._push(self._marker_frame(stamp, poses[self.device_name], message.metadata))
+                frame = self._marker_frame(stamp, poses[self.device_name], message.metadata)
+                self.marker_frames += 1
+                self.refused_poses += frame.refused_pose
+                self._push(frame)
             self._condition.notify_all()
 
     def _marker_frame(self, stamp: float, matrix: np.ndarray, metadata: dict) -> TrackerFrame:
@@ -491,6 +498,7 @@ class IGTLTracker:
             versions = sorted(self.header_versions)
             stamps = list(self.stamps)
             fatal = self._fatal
+            refused = refused_poses_finding(self.refused_poses, self.marker_frames)
         findings = []
         if fatal is not None:
             findings.append(DeviceFinding(FINDING_PROBLEM, "connection", fatal))
@@ -525,6 +533,8 @@ class IGTLTracker:
                     "make the marker visible, or check its name",
                 )
             )
+        if refused is not None:
+            findings.append(refused)
         if self.crc_errors:
             findings.append(
                 DeviceFinding(FINDING_WARNING, "transport", f"{self.crc_errors} message(s) with a bad CRC")

@@ -68,6 +68,7 @@ from spacecal.core.ports import (
     DeviceFinding,
     DeviceIdentity,
     TrackerFrame,
+    refused_poses_finding,
 )
 from spacecal.geometry.transforms import transform_from_position_quaternion
 
@@ -667,6 +668,9 @@ class NDITracker:
                 + ("" if level == FINDING_OK else " (move the marker into the middle of the volume)"),
             )
         )
+        refused = refused_poses_finding(sum(f.refused_pose for f in frames), len(frames))
+        if refused is not None:
+            findings.append(refused)
         return findings
 
     def close(self) -> None:

@@ -202,6 +202,8 @@ class TrackerFrame:
     tracker_from_marker: np.ndarray | None
     rms_mm: float = float("nan")
     spheres_in_tracker: np.ndarray | None = None
+    #: True when the device sent a pose that is not one (set here, never by the device).
+    refused_pose: bool = False
 
     def __post_init__(self) -> None:
         # the device boundary: a pose that is not a rigid transform within the tracker's reach
@@ -212,6 +214,7 @@ class TrackerFrame:
         if self.tracker_from_marker is not None and not plausible_tracked_pose(self.tracker_from_marker):
             object.__setattr__(self, "tracker_from_marker", None)
             object.__setattr__(self, "status", FRAME_INVALID)
+            object.__setattr__(self, "refused_pose", True)
             object.__setattr__(self, "rms_mm", float("nan"))
             object.__setattr__(self, "spheres_in_tracker", None)
         if self.spheres_in_tracker is not None and not np.all(np.isfinite(self.spheres_in_tracker)):
@@ -244,6 +247,24 @@ def plausible_tracked_pose(pose: np.ndarray) -> bool:
         np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3)
         and np.linalg.det(rotation) > 0
         and np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9)
+    )
+
+
+def refused_poses_finding(refused: int, frames: int) -> DeviceFinding | None:
+    """A preflight's problem when the tracker sent poses that are not one (NaN, a marker
+    beyond any tracker's reach, a scaled matrix: :func:`plausible_tracked_pose`), else None.
+
+    A run keeps such frames as gaps; a tracker that sends them at all is broken or
+    misconfigured (wrong units, a transform that is not the marker's), so ``doctor`` does not
+    pass it."""
+    if refused == 0:
+        return None
+    return DeviceFinding(
+        FINDING_PROBLEM,
+        "marker poses",
+        f"{refused} of {frames} marker pose(s) were not a pose (not finite, beyond "
+        f"{MAX_TRACKED_DISTANCE_MM / 1000:g} m, or not a rigid transform): check the tracker's "
+        "output, its units and which transform it sends",
     )
 
 
