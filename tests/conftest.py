@@ -7,11 +7,17 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from spacecal.experiments.simulation import simulate
 from spacecal.io.recording_csv import write_recording
 from spacecal.sim.scenario import PRESETS
 from spacecal.testing.disk_probe import DiskProbe
+
+# Property tests check values, not speed: on a busy machine an example that takes longer than
+# hypothesis's 200 ms deadline, or slow data generation, is not a failure.
+settings.register_profile("spacecal", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("spacecal")
 
 #: No noise, no kinematic error, no dropouts: estimators must be exact (to ~1e-9).
 NOISE_FREE = dataclasses.replace(
