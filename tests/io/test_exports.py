@@ -63,24 +63,32 @@ def test_bad_slicer_files(tmp_path):
         read_slicer_transform(path)
 
 
-def test_plus_sequence_imports_as_a_recording(tmp_path, white_simulation):
-    rec = white_simulation.recording
-    rows = np.flatnonzero(rec.visible)[:20]
-    lines = ["ObjectType = Image", "NDims = 3", f"DimSize = 0 0 {len(rows)}"]
-    for k, r in enumerate(rows):
+def plus_sequence(path, tracker_from_marker, base_from_tcp, times_s):
+    """A PLUS sequence file of the marker's and the TCP's poses, one frame per row."""
+    lines = ["ObjectType = Image", "NDims = 3", f"DimSize = 0 0 {len(times_s)}"]
+    for k, (marker, tcp, time_s) in enumerate(zip(tracker_from_marker, base_from_tcp, times_s)):
         lines.append(
-            f"Seq_Frame{k:04d}_MarkerToTrackerTransform = "
-            + " ".join(repr(float(v)) for v in rec.tracker_from_marker_stack[r].ravel())
+            f"Seq_Frame{k:04d}_MarkerToTrackerTransform = " + " ".join(repr(float(v)) for v in marker.ravel())
         )
         lines.append(f"Seq_Frame{k:04d}_MarkerToTrackerTransformStatus = OK")
         lines.append(
-            f"Seq_Frame{k:04d}_TCPToBaseTransform = "
-            + " ".join(repr(float(v)) for v in rec.base_from_tcp_stack[r].ravel())
+            f"Seq_Frame{k:04d}_TCPToBaseTransform = " + " ".join(repr(float(v)) for v in tcp.ravel())
         )
-        lines.append(f"Seq_Frame{k:04d}_Timestamp = {float(rec.time_s[r])!r}")
+        lines.append(f"Seq_Frame{k:04d}_Timestamp = {float(time_s)!r}")
     lines.append("ElementDataFile = LOCAL")
-    sequence = tmp_path / "robot.igs.mha"
-    sequence.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_plus_sequence_imports_as_a_recording(tmp_path, white_simulation):
+    rec = white_simulation.recording
+    rows = np.flatnonzero(rec.visible)[:20]
+    sequence = plus_sequence(
+        tmp_path / "robot.igs.mha",
+        rec.tracker_from_marker_stack[rows],
+        rec.base_from_tcp_stack[rows],
+        rec.time_s[rows],
+    )
     imported = recording_from_plus_sequence(sequence)
     assert len(imported) == 20 and np.all(np.isnan(imported.joints_rad))
     assert np.allclose(imported.tracker_from_marker_stack, rec.tracker_from_marker_stack[rows], atol=1e-9)
@@ -88,3 +96,22 @@ def test_plus_sequence_imports_as_a_recording(tmp_path, white_simulation):
     assert np.all(np.isnan(again.joints_rad)) and np.allclose(
         again.base_from_tcp_stack, imported.base_from_tcp_stack
     )
+
+
+@pytest.mark.parametrize("scale", [1.5, 1.01, -1.0])
+def test_a_plus_marker_that_is_not_rigid_is_refused_not_made_rigid(tmp_path, white_simulation, scale):
+    """A scaled (1.5, 1 %) or mirrored marker pose in frame 7 is not a pose: one line naming the
+    file, the transform and the frame. Single-precision poses (the control) still import."""
+    rec = white_simulation.recording
+    rows = np.flatnonzero(rec.visible)[:20]
+    markers = rec.tracker_from_marker_stack[rows].astype(np.float32).astype(float)
+    single = plus_sequence(
+        tmp_path / "single.igs.mha", markers, rec.base_from_tcp_stack[rows], rec.time_s[rows]
+    )
+    assert len(recording_from_plus_sequence(single)) == 20
+    markers[6, :3, :3] *= scale
+    bad = plus_sequence(tmp_path / "scaled.igs.mha", markers, rec.base_from_tcp_stack[rows], rec.time_s[rows])
+    with pytest.raises(
+        InvalidInputError, match=r"scaled.igs.mha: MarkerToTracker: frame 7 is not a rigid transform"
+    ):
+        recording_from_plus_sequence(bad)

@@ -331,16 +331,40 @@ def is_rigid_transform(transform: ArrayLike, atol: float = 1e-6) -> bool:
     return bool(orthonormal and proper and last_row)
 
 
-def orthonormalize_transforms(stack: ArrayLike) -> FloatArray:
+#: How far a pose's rotation may be from a rotation (largest entry of R^T R - I, and |det R - 1|)
+#: and still be one: single-precision matrices and 6-decimal files are off by ~1e-6; a scaled,
+#: sheared or mirrored matrix by 1e-2 and more.
+NEARLY_RIGID_TOLERANCE = 1e-3
+
+
+def orthonormalize_transforms(stack: ArrayLike, what: str = "a transform") -> FloatArray:
     """Transforms (N, 4, 4) with each rotation replaced by its nearest proper rotation.
 
     Trackers and robots often write single-precision matrices that are not quite
-    orthonormal; rows holding NaN (frames without a valid pose) stay NaN.
+    orthonormal; rows holding NaN (frames without a valid pose) stay NaN. A matrix that is
+    not nearly a rotation (scaled, sheared or mirrored by more than
+    :data:`NEARLY_RIGID_TOLERANCE`) is not a pose, and is refused, not made into one.
+
+    Raises
+    ------
+    InvalidInputError
+        Naming ``what``, the first such frame (1-based) and how far it is off.
     """
     from spacecal.geometry.rotations import nearest_rotation
 
     stack = np.asarray(stack, dtype=float)
     out = np.full_like(stack, np.nan)
     finite = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
-    out[finite] = make_transform(nearest_rotation(stack[finite, :3, :3]), stack[finite, :3, 3])
+    rotations = stack[finite, :3, :3]
+    off = np.max(np.abs(np.swapaxes(rotations, -1, -2) @ rotations - np.eye(3)), axis=(-2, -1), initial=0.0)
+    off = np.maximum(off, np.abs(np.linalg.det(rotations) - 1.0))
+    bad = np.flatnonzero(off > NEARLY_RIGID_TOLERANCE)
+    if bad.size:
+        frame = int(np.flatnonzero(finite)[bad[0]]) + 1
+        more = f" (and {bad.size - 1} more)" if bad.size > 1 else ""
+        raise InvalidInputError(
+            f"{what}: frame {frame}{more} is not a rigid transform (its rotation is off by "
+            f"{off[bad[0]]:.3g}: scaled, sheared or mirrored); a pose must be a rotation and a translation"
+        )
+    out[finite] = make_transform(nearest_rotation(rotations), stack[finite, :3, 3])
     return out

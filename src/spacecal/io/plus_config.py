@@ -15,6 +15,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import quoted
+from spacecal.geometry.transforms import orthonormalize_transforms
 from spacecal.io.atomic import write_text_atomic
 from spacecal.io.names import check_plus_frame_names
 from spacecal.io.ros_common import number_text
@@ -45,7 +46,7 @@ def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.
                 raise InvalidInputError(
                     f"{path}: {from_frame}To{to_frame} Matrix does not hold 16 finite numbers (mm)"
                 )
-            return numbers.reshape(4, 4)
+            return orthonormalize_transforms(numbers.reshape(1, 4, 4), f"{path}: {from_frame}To{to_frame}")[0]
     raise InvalidInputError(f"{path}: no {from_frame}To{to_frame} transform in CoordinateDefinitions")
 
 

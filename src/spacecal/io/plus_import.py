@@ -24,15 +24,16 @@ def recording_from_plus_sequence(
 ) -> Recording:
     """A recording from a PLUS sequence (frames where the TCP pose is invalid are dropped)."""
     sequence = read_plus_sequence(path)
-    tracker_from_marker = sequence.transform(marker)
-    base_from_tcp = sequence.transform(tcp)
+    # frames are counted as in the file: each pose is checked before any frame is dropped
+    tracker_from_marker = orthonormalize_transforms(sequence.transform(marker), f"{path}: {marker}")
+    base_from_tcp = orthonormalize_transforms(sequence.transform(tcp), f"{path}: {tcp}")
     keep = np.all(np.isfinite(base_from_tcp.reshape(len(base_from_tcp), -1)), axis=1)
     keep &= np.concatenate([[True], np.diff(sequence.timestamps_s) > 0])
     if keep.sum() < 3:
         raise InvalidInputError(f"{path}: fewer than 3 frames with a valid {tcp}")
 
-    tracker_from_marker = orthonormalize_transforms(tracker_from_marker[keep])
-    base_from_tcp = orthonormalize_transforms(base_from_tcp[keep])
+    tracker_from_marker = tracker_from_marker[keep]
+    base_from_tcp = base_from_tcp[keep]
     check_lengths_in_mm(base_from_tcp[:, :3, 3], f"{path}: {tcp} translations")
     n = int(keep.sum())
     return Recording(

@@ -44,10 +44,10 @@ def register_landmarks_from_stylus(
     times = np.asarray(timestamps_s, dtype=float)
     keep = np.concatenate([[True], np.diff(times) != 0])
     phantom = np.asarray(landmarks_in_phantom, dtype=float)
-    tracker_from_reference = orthonormalize_transforms(
-        np.asarray(tracker_from_reference_stack, dtype=float)[keep]
-    )
-    tracker_from_stylus = orthonormalize_transforms(np.asarray(tracker_from_stylus_stack, dtype=float)[keep])
+    # frames are counted as in the sequence: each pose is checked before any frame is dropped
+    tracker_from_reference = orthonormalize_transforms(tracker_from_reference_stack, "the reference's poses")
+    tracker_from_stylus = orthonormalize_transforms(tracker_from_stylus_stack, "the stylus's poses")
+    tracker_from_reference, tracker_from_stylus = tracker_from_reference[keep], tracker_from_stylus[keep]
     reference_from_tip = (
         invert_transform(tracker_from_reference)
         @ tracker_from_stylus
