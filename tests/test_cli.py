@@ -459,3 +459,54 @@ def test_kinematic_calibrate_prints_the_residuals_the_report_shows(tmp_path, cap
     # an estimator that keeps the recorded TCP poses says so
     code, out, _ = run(capsys, "calibrate", str(recording), "--method", "ml", "-o", str(tmp_path / "m.json"))
     assert code == 0 and "marker residuals (RMS, recorded TCP poses): position " in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        (["acquire", "-o", "rec.csv", "--dry-run", "--speed-mm-s", "1_00"], "invalid decimal value: '1_00'"),
+        (["simulate", "-o", "rec.csv", "--seed", "1_0"], "invalid integer value: '1_0'"),
+        (["simulate", "-o", "rec.csv", "--seed", "١٢"], "invalid integer value: '١٢'"),
+        (["acquire", "-o", "rec.csv", "--live-view", "8_080"], "invalid port_number value: '8_080'"),
+    ],
+)
+def test_option_values_with_digit_groups_are_usage_errors(tmp_path, capsys, monkeypatch, argv, said):
+    """Option values are numbers as the file readers take them (``core.strict_numbers``):
+    ``1_00`` and other scripts' digits, which ``float()`` and ``int()`` take, are refused in one
+    line before anything runs."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as usage:
+        main(argv)
+    err = capsys.readouterr().err
+    assert usage.value.code == 2 and said in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "rec.csv").exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "said"),
+    [
+        ("--tool-offset-mm", "1_0,0,0", "--tool-offset-mm takes x,y,z in mm, got '1_0,0,0'"),
+        ("--time-offset-ms", "1_0", "--time-offset-ms takes a number or 'estimate', got '1_0'"),
+    ],
+)
+def test_listed_option_values_with_digit_groups_are_one_line(
+    tmp_path, capsys, monkeypatch, option, value, said
+):
+    monkeypatch.chdir(tmp_path)
+    command = "acquire" if option == "--tool-offset-mm" else "calibrate"
+    argv = (
+        ["acquire", "-o", "rec.csv", "--dry-run"]
+        if command == "acquire"
+        else ["calibrate", "rec.csv", "-o", "c.json"]
+    )
+    code, out, err = run(capsys, *argv, option, value)
+    assert code == 1 and said in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_plain_option_values_still_parse():
+    from spacecal.cli.main import build_parser
+
+    parsed = build_parser().parse_args(
+        ["acquire", "-o", "rec.csv", "--speed-mm-s", "1.5e2", "--live-view", "8080"]
+    )
+    assert parsed.speed_mm_s == 150.0 and parsed.live_view == 8080

@@ -21,7 +21,7 @@ from spacecal.io.raw_streams import read_raw_recording, write_raw_recording
 from spacecal.io.recording_csv import last_time_s, read_recording, write_recording
 from spacecal.io.results_json import read_json_object
 from spacecal.io.slicer import read_slicer_transform, write_slicer_transform
-from spacecal.io.strict_numbers import parse_float, parse_floats, parse_int
+from spacecal.core.strict_numbers import parse_float, parse_floats, parse_int
 from spacecal.records import RawRecording, Recording
 
 #: Forms Python's float() (or numpy) accepts that a data file must not hold.

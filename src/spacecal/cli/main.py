@@ -19,6 +19,7 @@ from spacecal import app
 from spacecal.cli import parser
 from spacecal.core import interrupts
 from spacecal.core.errors import InvalidInputError, MissingExtraError, SpacecalError
+from spacecal.core.strict_numbers import parse_float
 from spacecal.core.text import sanitize_for_terminal
 
 S = TypeVar("S")
@@ -33,7 +34,7 @@ class CheckFailed(SpacecalError):
 
 def _numbers(text: str, count: int, option: str, what: str) -> Any:
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(parse_float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != count:
@@ -46,10 +47,7 @@ def _optional(name: str, count: int, option: str, what: str) -> Callable[[argpar
 
 
 def _time_offset(text: str) -> float | None:
-    try:
-        return None if text == "estimate" else float(text)
-    except ValueError:
-        raise InvalidInputError("--time-offset-ms takes a number or 'estimate'") from None
+    return None if text == "estimate" else _numbers(text, 1, "--time-offset-ms", "a number or 'estimate'")[0]
 
 
 def _tool(a: argparse.Namespace) -> Any:

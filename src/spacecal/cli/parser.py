@@ -11,6 +11,7 @@ from typing import Any, NoReturn
 
 from spacecal import __version__, app
 from spacecal.app import DEFAULT_SCENARIO, LIVE_VIEW_PORT
+from spacecal.core.strict_numbers import decimal, integer, parse_int
 
 #: Options whose values are coordinates, often negative (base-frame positions).
 COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm", "--tool")
@@ -18,7 +19,7 @@ COORDINATE_OPTIONS = ("--target", "--workspace-box", "--tool-offset-mm", "--tool
 
 def port_number(text: str) -> int:
     """A TCP port 0..65535, 0 meaning any free one (argparse turns the ValueError into a usage error)."""
-    value = int(text)
+    value = parse_int(text)
     if not 0 <= value <= 65535:
         raise ValueError(text)
     return value
@@ -81,11 +82,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     p = command("simulate", "simulate a calibration run on the simulated system -> recording CSV")
     p.add_argument("--scenario", help=scenario_help)
-    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument("--seed", type=integer, help="override the scenario's seed")
     p.add_argument(
         "--raw", action="store_true", help="write the two raw streams (STEM.robot.csv, STEM.tracker.csv)"
     )
-    p.add_argument("--clock-offset-ms", type=float, help="with --raw: robot clock ahead of the tracker's")
+    p.add_argument("--clock-offset-ms", type=decimal, help="with --raw: robot clock ahead of the tracker's")
     p.add_argument("--plan", help="a plan file (spacecal plan -o) to run instead of the paper's sweeps")
     p.add_argument("-o", "--output", required=True, help="recording CSV to write (with --raw: the stem)")
 
@@ -114,7 +115,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         help="point in the base frame (mm) to predict the TRE at; repeatable",
     )
     p.add_argument(
-        "--sigma-mm", type=float, help="per-axis sphere noise (ml, robust); default: from marker_rms_mm"
+        "--sigma-mm", type=decimal, help="per-axis sphere noise (ml, robust); default: from marker_rms_mm"
     )
     p.add_argument(
         "--thresholds-mm",
@@ -143,7 +144,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--calibration", required=True, help="calibration JSON (where to evaluate the bound)")
     p.add_argument(
         "--sigma-mm",
-        type=float,
+        type=decimal,
         help="per-axis sphere noise, mm; default: from the recording's tracker fit RMS, else the "
         "calibration's noise, else learnt from its residuals (the line printed says which)",
     )
@@ -158,7 +159,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command("verify", "the paper's verification experiment, in simulation")
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--scenario", help="simulated world (default: the one the calibration's data came from)")
-    p.add_argument("--points", type=int, help="number of needle poses")
+    p.add_argument("--points", type=integer, help="number of needle poses")
     p.add_argument("-o", "--output", help="verification JSON to write")
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 7)")
 
@@ -174,17 +175,17 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--plan", help="a plan file (spacecal plan -o) to run; the robot must stand at its home")
     p.add_argument(
         "--stop-and-go",
-        type=int,
+        type=integer,
         metavar="N",
         help="stop at stations along each move, average N frames at each (default 0: sample while moving)",
     )
     p.add_argument("--resume", action="store_true", help="continue a stopped acquisition of the same plan")
-    p.add_argument("--speed-mm-s", type=float, help="TCP speed")
-    p.add_argument("--accel-mm-s2", type=float, help="TCP acceleration")
-    p.add_argument("--angular-speed-deg-s", type=float, help="TCP rotation speed")
+    p.add_argument("--speed-mm-s", type=decimal, help="TCP speed")
+    p.add_argument("--accel-mm-s2", type=decimal, help="TCP acceleration")
+    p.add_argument("--angular-speed-deg-s", type=decimal, help="TCP rotation speed")
     p.add_argument("--prior", help="an earlier calibration, to check marker visibility along the plan")
-    p.add_argument("--rotation-deg", type=float, help="rotation sweep each way")
-    p.add_argument("--translation-mm", type=float, help="translation sweep stroke")
+    p.add_argument("--rotation-deg", type=decimal, help="rotation sweep each way")
+    p.add_argument("--translation-mm", type=decimal, help="translation sweep stroke")
     p.add_argument(
         "--live-view",
         nargs="?",
@@ -299,16 +300,16 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
     add_devices(p)
     p.add_argument("--scenario", help="scenario of the simulated system (default: the calibration's)")
-    p.add_argument("--poses", type=int, choices=[2, 3], help="number of poses")
-    p.add_argument("--frames-per-pose", type=int, help="frames averaged per pose")
+    p.add_argument("--poses", type=integer, choices=[2, 3], help="number of poses")
+    p.add_argument("--frames-per-pose", type=integer, help="frames averaged per pose")
     p.add_argument(
         "--threshold-mm",
-        type=float,
+        type=decimal,
         help="largest TCP error beyond the misfit expected at each pose (default: from the repeatability)",
     )
     p.add_argument(
         "--threshold-deg",
-        type=float,
+        type=decimal,
         help="largest rotation error, beyond the misfit expected (default: from the repeatability)",
     )
     p.add_argument("--dry-run", action="store_true", help="plan the check poses without moving")
@@ -316,7 +317,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command("phantom", "the paper's phantom needle biopsy (section 5.3) in simulation")
     p.add_argument("--scenario", help=scenario_help)
     p.add_argument("--method", help="calibration method")
-    p.add_argument("--cases", type=int, help="needle paths (the paper: 5)")
+    p.add_argument("--cases", type=integer, help="needle paths (the paper: 5)")
     p.add_argument("-o", "--output", help="results JSON to write")
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 9)")
 
@@ -332,7 +333,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "--budget", type=duration_s, dest="budget_s", metavar="BUDGET", help="motion time budget, e.g. 30s"
     )
     p.add_argument("--scenario", help="the (simulated) set-up to plan for")
-    p.add_argument("--frames-per-station", type=int, help="tracker frames held at each station")
+    p.add_argument("--frames-per-station", type=integer, help="tracker frames held at each station")
     p.add_argument(
         "--site",
         dest="site_mm",
@@ -379,7 +380,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
 def duration_s(text: str) -> float:
     """``30s``, ``30`` or ``1.5e1 s`` -> seconds; anything else is a usage error."""
-    match = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*s?\s*", text)
+    match = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*s?\s*", text, re.ASCII)
     if match is None or not math.isfinite(float(match.group(1))):
         raise argparse.ArgumentTypeError(f"takes seconds, e.g. 30s; got {text!r}")
     return float(match.group(1))
@@ -397,7 +398,7 @@ def add_devices(p: argparse.ArgumentParser, simulated_by_default: bool = True) -
     p.add_argument("--robot", help=forms("robot"))
     p.add_argument("--tracker", help=forms("tracker"))
     p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
-    p.add_argument("--tracker-rate-hz", type=float, help="tracker frame rate")
+    p.add_argument("--tracker-rate-hz", type=decimal, help="tracker frame rate")
     p.add_argument("--robot-model", help="UR model (UR10, UR10e, ...)")
     # --tool-offset-mm is the older, translation-only form of --tool
     p.add_argument(

@@ -21,7 +21,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import quoted
-from spacecal.io.strict_numbers import parse_float
+from spacecal.core.strict_numbers import parse_float
 
 JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
 TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]

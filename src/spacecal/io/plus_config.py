@@ -19,7 +19,7 @@ from spacecal.geometry.transforms import orthonormalize_transforms
 from spacecal.io.atomic import write_text_atomic
 from spacecal.io.names import check_plus_frame_names
 from spacecal.io.ros_common import number_text
-from spacecal.io.strict_numbers import parse_floats
+from spacecal.core.strict_numbers import parse_floats
 from spacecal.io.text import read_text_file, refuse_dtd
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.io.strict_numbers import parse_float, parse_floats, parse_int
+from spacecal.core.strict_numbers import parse_float, parse_floats, parse_int
 
 _FIELD = re.compile(r"^Seq_Frame([0-9]{1,9})_(\w+?)\s*=\s*(.*)$", re.ASCII)
 

@@ -54,7 +54,7 @@ from spacecal.io.csv_core import (
     sphere_columns,
 )
 from spacecal.io.results_json import read_json_object, write_json
-from spacecal.io.strict_numbers import parse_float
+from spacecal.core.strict_numbers import parse_float
 from spacecal.io.text import read_text_file
 from spacecal.records import Recording
 

@@ -1,10 +1,12 @@
-"""Numbers in text files: the plain decimal forms only, one parser for every reader.
+"""Numbers in text files and on the command line: the plain decimal forms only, one parser for
+every reader.
 
 Python's ``float()`` and ``int()`` (and numpy's string conversion) accept more than a
 number in a data file should be: ``1_000`` (digit grouping), digits of other scripts
 (``'١٢'`` is 12), and surrounding Unicode spaces. A cell ``1_000`` is far more likely a
 typing or export error than a thousand, so the readers of recordings, raw streams, pose
-files, PLUS and Slicer files and ROS command lines parse numbers here and refuse those forms.
+files, PLUS and Slicer files and ROS command lines parse numbers here and refuse those forms,
+as does spacecal's own command line for its option values (:func:`decimal`, :func:`integer`).
 
 Accepted: an optional sign, ASCII digits with an optional decimal point, an optional
 exponent (``-12``, ``0.5``, ``.5``, ``5.``, ``1e-05``, ``1.5E+3``), and the spelled-out
@@ -66,3 +68,14 @@ def parse_floats(text: str) -> np.ndarray:
         raise ValueError("not a list of numbers")
     items = _SEPARATOR.split(text.strip(_SPACE + "\r\n"))
     return np.array([parse_float(item) for item in items if item], dtype=float)
+
+
+def decimal(text: str) -> float:
+    """:func:`parse_float` under the name a command line's usage error shows
+    (``invalid decimal value: '1_000'``)."""
+    return parse_float(text)
+
+
+def integer(text: str) -> int:
+    """:func:`parse_int` under the name a command line's usage error shows."""
+    return parse_int(text)
