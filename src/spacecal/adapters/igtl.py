@@ -71,6 +71,8 @@ PUBLISH_LINGER_S = 0.3
 PUBLISH_DEADLINE_S = 5.0
 #: Time given to a server's backlog of old messages on connect before frames are read.
 BACKLOG_DRAIN_S = 0.3
+#: How long connecting and the marker's first message may take, s (a sender streams at 10-60 Hz).
+CONNECT_DEADLINE_S = 5.0
 
 #: Frames lagging the newest by more than this (sender time, s) are skipped, never returned.
 MAX_LAG_S = 0.25
@@ -278,7 +280,7 @@ class IGTLTracker:
         host: str,
         port: int = IGTL_DEFAULT_PORT,
         device_name: str = "MarkerToTracker",
-        connect_timeout_s: float = 5.0,
+        connect_timeout_s: float = CONNECT_DEADLINE_S,
     ):
         self.device_name = device_name
         self.url = f"igtl://{host}:{port}"
