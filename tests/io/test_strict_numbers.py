@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.strict_numbers import parse_float, parse_floats, parse_int
 from spacecal.geometry.transforms import make_transform
 from spacecal.io.plus_config import read_plus_landmarks, read_plus_transform
 from spacecal.io.plus_sequence import read_plus_sequence
@@ -21,7 +22,6 @@ from spacecal.io.raw_streams import read_raw_recording, write_raw_recording
 from spacecal.io.recording_csv import last_time_s, read_recording, write_recording
 from spacecal.io.results_json import read_json_object
 from spacecal.io.slicer import read_slicer_transform, write_slicer_transform
-from spacecal.core.strict_numbers import parse_float, parse_floats, parse_int
 from spacecal.records import RawRecording, Recording
 
 #: Forms Python's float() (or numpy) accepts that a data file must not hold.

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.core.text import quoted
 from spacecal.core.strict_numbers import parse_float
+from spacecal.core.text import quoted
 
 JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
 TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]

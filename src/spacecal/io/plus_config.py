@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.strict_numbers import parse_floats
 from spacecal.core.text import quoted
 from spacecal.geometry.transforms import orthonormalize_transforms
 from spacecal.io.atomic import write_text_atomic
 from spacecal.io.names import check_plus_frame_names
 from spacecal.io.ros_common import number_text
-from spacecal.core.strict_numbers import parse_floats
 from spacecal.io.text import read_text_file, refuse_dtd
 
 

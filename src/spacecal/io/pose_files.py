@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.core.text import quoted
 from spacecal.core.strict_numbers import parse_floats
+from spacecal.core.text import quoted
 from spacecal.io.text import read_text_file
 
 #: Larger than this (mm) is not a position a tracker reports.

@@ -35,6 +35,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
+from spacecal.core.strict_numbers import parse_float
 from spacecal.core.text import quoted
 from spacecal.core.units import check_lengths_in_mm
 from spacecal.geometry.transforms import transform_from_position_quaternion, transform_to_position_quaternion
@@ -54,7 +55,6 @@ from spacecal.io.csv_core import (
     sphere_columns,
 )
 from spacecal.io.results_json import read_json_object, write_json
-from spacecal.core.strict_numbers import parse_float
 from spacecal.io.text import read_text_file
 from spacecal.records import Recording
 

@@ -31,12 +31,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.strict_numbers import parse_float, parse_floats
 from spacecal.core.text import double_quoted_ascii, one_line_ascii, quoted, sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, is_rigid_transform, make_transform
 from spacecal.io.atomic import write_text_atomic
 from spacecal.io.names import check_ros_frame_name, check_ros_node_name, check_xml_text
 from spacecal.io.ros_common import number_text, transform_from_ros, transform_to_ros
-from spacecal.core.strict_numbers import parse_float, parse_floats
 from spacecal.io.text import read_text_file, refuse_dtd
 
 #: ur_description: ``base`` is ``base_link`` rotated by pi about z (joint ``base_link-base_fixed_joint``).

@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.strict_numbers import parse_floats
 from spacecal.core.text import quoted
 from spacecal.geometry.transforms import invert_transform, is_rigid_transform
 from spacecal.io.atomic import write_text_atomic
-from spacecal.core.strict_numbers import parse_floats
 from spacecal.io.text import read_text_file
 
 RAS_FROM_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])

@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from spacecal.core.errors import InvalidInputError, MissingExtraError
+from spacecal.core.strict_numbers import parse_float, parse_int
 from spacecal.core.text import double_quoted_ascii, one_line_ascii, quoted
 from spacecal.io.ros_common import number_text
-from spacecal.core.strict_numbers import parse_float, parse_int
 from spacecal.io.text import read_text_file
 
 _PLAIN = re.compile(r"[A-Za-z_][A-Za-z0-9_/]*", re.ASCII)
