@@ -80,6 +80,24 @@ def test_problems_are_each_named_and_fail_the_check(world, rom_file):
     assert_everything_closed(world)
 
 
+def test_kinematics_published_as_nan_are_a_problem_and_the_tracker_is_still_checked(world, rom_file):
+    """A controller whose primary interface publishes a NaN DH length (a controller fault) is
+    named as a kinematics problem; spacecal never computes with it, and checks the tracker too."""
+    world.control("ur primary nan")
+    try:
+        result = doctor(world, rom_file)
+    finally:
+        world.control("ur primary on")
+    assert result.returncode == 1 and "Traceback" not in result.stderr, result.stdout + result.stderr
+    problems = [line for line in result.stdout.splitlines() if ": PROBLEM: " in line]
+    assert problems == [
+        "robot: kinematics: PROBLEM: the controller's primary interface published kinematics that are not "
+        "finite numbers (DH a): a controller fault; spacecal cannot compute the TCP with its model"
+    ], result.stdout
+    assert any(line.startswith("tracker: ") for line in result.stdout.splitlines()), result.stdout
+    assert_everything_closed(world)
+
+
 def test_a_robot_that_does_not_answer_is_a_problem_not_a_crash(tmp_path):
     result = run([*SPACECAL, "doctor", "--robot", "ur://127.0.0.254"], timeout_s=60)
     assert result.returncode == 1 and "Traceback" not in result.stderr

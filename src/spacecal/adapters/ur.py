@@ -508,6 +508,10 @@ class ControllerKinematics:
         )
 
 
+class UnusableKinematics(ValueError):
+    """The primary interface published kinematics that are not numbers a model can hold."""
+
+
 def read_primary_interface(host: str, deadline_s: float = PRIMARY_DEADLINE_S) -> ControllerKinematics:
     """The ``KinematicsInfo`` and ``CartesianInfo`` of the primary interface's robot-state
     message (type 16; sub-packages 5 and 4), as Universal_Robots_Client_Library parses them.
@@ -518,6 +522,8 @@ def read_primary_interface(host: str, deadline_s: float = PRIMARY_DEADLINE_S) ->
         No robot state with kinematics within ``deadline_s`` (:data:`PRIMARY_DEADLINE_S`), a
         message announced larger than :data:`PRIMARY_MESSAGE_MAX_BYTES`, more than
         :data:`PRIMARY_MAX_BYTES` read, or the connection closed.
+    UnusableKinematics
+        DH parameters or a TCP that are not finite numbers (a controller fault).
     """
     with _Exchange(host, PRIMARY_PORT, "primary interface", deadline_s, PRIMARY_MAX_BYTES) as exchange:
         while True:
@@ -549,6 +555,19 @@ def read_primary_interface(host: str, deadline_s: float = PRIMARY_DEADLINE_S) ->
             if len(cartesian) >= 96:
                 offset_values = np.array(struct.unpack_from(">6d", cartesian, 48))
                 tcp = make_transform(rotvec_to_matrix(offset_values[3:]), metres_to_mm(offset_values[:3]))
+            for name, values in (
+                ("DH theta", theta),
+                ("DH a", a),
+                ("DH d", d),
+                ("DH alpha", alpha),
+                ("TCP", tcp),
+            ):
+                if values is not None and not np.all(np.isfinite(values)):
+                    raise UnusableKinematics(
+                        "the controller's primary interface published kinematics that are not finite "
+                        f"numbers ({name}): a controller fault; spacecal cannot compute the TCP with "
+                        "its model"
+                    )
             return ControllerKinematics(
                 tuple(int(c) for c in checksums),
                 theta,
@@ -677,8 +696,12 @@ class URRobot:
         except BaseException:
             self.close()
             raise
+        #: Why the controller's kinematics were refused, when they were (not when unread).
+        self.kinematics_refused: str | None = None
         try:
             self.kinematics: ControllerKinematics | None = read_primary_interface(host)
+        except UnusableKinematics as exc:
+            self.kinematics, self.kinematics_refused = None, str(exc)
         except (OSError, ValueError, struct.error):
             self.kinematics = None
         if control:
@@ -886,7 +909,9 @@ class URRobot:
         error_mm = float(np.linalg.norm(predicted[:3, 3] - pose[:3, 3]))
         nominal = forward_kinematics(self.nominal.with_tcp(model.flange_from_tcp), joints)
         from_nominal_mm = float(np.linalg.norm(nominal[:3, 3] - pose[:3, 3]))
-        if self.kinematics is None:
+        if self.kinematics_refused is not None:
+            add(FINDING_PROBLEM, "kinematics", self.kinematics_refused)
+        elif self.kinematics is None:
             add(
                 FINDING_WARNING,
                 "kinematics",

@@ -272,6 +272,7 @@ class FakeController:
         self.remote_control = True
         self.registers_taken = False
         self.primary_enabled = True
+        self.primary_sends_nan = False
         self.read_only_lag_s = 0.0
         self.vanished = False  # switched off or its cable pulled: every connection falls silent
         self.silent_connections: list = []
@@ -597,8 +598,9 @@ class FakeController:
                 self.vanished = True
             elif command == "lag_read_only":  # read-only clients' packets arrive S s late
                 self.read_only_lag_s = float(arguments[0]) if arguments else 0.0
-            elif command == "primary":  # the primary interface answers (on) or closes at once (off)
-                self.primary_enabled = arguments != ["off"]
+            elif command == "primary":  # the primary interface answers (on), closes at once (off)
+                self.primary_enabled = arguments != ["off"]  # or publishes a NaN DH length (nan)
+                self.primary_sends_nan = arguments == ["nan"]
             elif command == "mark":  # the test is about to stop the run another way (a signal)
                 self.fault_at = time.monotonic()
             elif command == "stats":
@@ -856,10 +858,13 @@ def robot_state_message(controller: FakeController) -> bytes:
         *(tcp[:3, 3] / 1000.0),
         *matrix_to_rotvec(tcp[:3, :3]),
     )
+    a_m = model.a_mm / 1000.0
+    if controller.primary_sends_nan:  # a controller fault: spacecal must not compute with it
+        a_m = np.where(np.arange(6) == 2, np.nan, a_m)
     kinematics = (
         struct.pack(">6I", *kinematics_checksums(controller))
         + struct.pack(">6d", *model.theta_offset_rad)
-        + struct.pack(">6d", *(model.a_mm / 1000.0))
+        + struct.pack(">6d", *a_m)
         + struct.pack(">6d", *(model.d_mm / 1000.0))
         + struct.pack(">6d", *model.alpha_rad)
         + struct.pack(">I", 1 if getattr(controller.fake, "calibrated", False) else 0)
