@@ -331,9 +331,9 @@ def is_rigid_transform(transform: ArrayLike, atol: float = 1e-6) -> bool:
     return bool(orthonormal and proper and last_row)
 
 
-#: How far a pose's rotation may be from a rotation (largest entry of R^T R - I, and |det R - 1|)
-#: and still be one: single-precision matrices and 6-decimal files are off by ~1e-6; a scaled,
-#: sheared or mirrored matrix by 1e-2 and more.
+#: How far a pose's rotation may be from a rotation (the largest entry of ``R^T R - I``, and
+#: ``abs(det R - 1)``) and still be one: single-precision matrices and 6-decimal files are off by
+#: ~1e-6; a scaled, sheared or mirrored matrix by 1e-2 and more.
 NEARLY_RIGID_TOLERANCE = 1e-3
 
 
