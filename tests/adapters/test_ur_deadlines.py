@@ -119,6 +119,24 @@ def test_the_rtde_register_check_ends_by_its_deadline(name, behaviour, honest):
         assert_ends_by(started, ur.REGISTER_CHECK_DEADLINE_S)
 
 
+@pytest.mark.parametrize(
+    ("name", "behaviour", "honest"),
+    [
+        ("silent", silent, b""),
+        ("huge length", announce(HUGE_RTDE + b"\0" * 100), b""),
+        ("closed mid-message", hang_up, struct.pack(">HB", 40, ord("V")) + bytes(37)),
+    ],
+)
+def test_opening_a_robot_whose_rtde_port_does_not_answer_ends_by_its_deadline(name, behaviour, honest):
+    """ur_rtde's constructors wait for a silent RTDE server for ever, holding the interpreter;
+    spacecal asks the port for its protocol version first, with a deadline of its own."""
+    with peer_on(ur.RTDE_PORT, behaviour, honest) as peer:
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match=f"no UR controller answers RTDE on {peer.host}:30004: "):
+            ur.URRobot(peer.host, control=False, robot_model="UR10")
+        assert_ends_by(started, 2 * ur.REACH_DEADLINE_S)
+
+
 def test_nothing_listening_is_one_device_error():
     host = f"127.{_NETWORK}.1.{next(_addresses)}"
     with pytest.raises(DeviceError, match="dashboard server on .* is not reachable"):

@@ -227,15 +227,25 @@ REACH_DEADLINE_S = 3.0
 
 
 def _refuse_unreachable(host: str) -> None:
-    """A DeviceError when nothing accepts a connection on the RTDE port. Checked with a plain
-    socket before ur_rtde is asked: ur_rtde prints its own ``connect: Connection refused`` to
-    the process's stderr before it raises, a line beside spacecal's own."""
+    """A DeviceError when nothing accepts a connection on the RTDE port, or what accepts it does
+    not answer an RTDE protocol request within :data:`REACH_DEADLINE_S`. Checked with sockets of
+    spacecal's own before ur_rtde is asked: ur_rtde prints its own ``connect: Connection
+    refused`` to the process's stderr before it raises, a line beside spacecal's own; and its
+    interfaces' constructors wait for a silent server for ever, holding the interpreter (no
+    thread of the process runs meanwhile, so no deadline of spacecal's could end the wait)."""
     try:
         with socket.create_connection((host, RTDE_PORT), timeout=REACH_DEADLINE_S):
             pass
     except OSError as exc:
         reason = exc.strerror or str(exc) or type(exc).__name__
         raise DeviceError(f"no UR controller answers RTDE on {host}:{RTDE_PORT} ({reason})") from None
+    try:
+        with _Exchange(
+            host, RTDE_PORT, "RTDE interface", REACH_DEADLINE_S, REGISTER_CHECK_MAX_BYTES
+        ) as exchange:
+            _rtde_request(exchange, "V", struct.pack(">H", 2))
+    except DeviceError as exc:
+        raise DeviceError(f"no UR controller answers RTDE on {host}:{RTDE_PORT}: {exc}") from None
 
 
 @contextlib.contextmanager
@@ -449,6 +459,19 @@ def stop_program(host: str) -> None:
         _SILENT_HOSTS.add(host)
 
 
+def _rtde_request(exchange: _Exchange, kind: str, payload: bytes) -> bytes:
+    """Send one RTDE request (package type ``kind``) and return the body of its answer,
+    skipping anything else (no data stream was started)."""
+    exchange.send(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
+    while True:
+        size, answer = struct.unpack(">HB", exchange.read_exact(3))
+        if size < 3:
+            raise DeviceError(f"{exchange.name} sent a {size}-byte package: not RTDE")
+        body = exchange.read_exact(size - 3)
+        if answer == ord(kind):
+            return body
+
+
 def registers_in_use(
     host: str, names: list[str] = CONTROL_INPUTS, deadline_s: float = REGISTER_CHECK_DEADLINE_S
 ) -> list[str]:
@@ -456,19 +479,9 @@ def registers_in_use(
     ``IN_USE`` (nothing is written; the recipe ends with the connection). The whole check ends
     within ``deadline_s`` (:data:`REGISTER_CHECK_DEADLINE_S`) or raises :class:`DeviceError`."""
 
-    def request(exchange: _Exchange, kind: str, payload: bytes) -> bytes:
-        exchange.send(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
-        while True:  # skip anything that is not the answer (there is no stream: never started)
-            size, answer = struct.unpack(">HB", exchange.read_exact(3))
-            if size < 3:
-                raise DeviceError(f"{exchange.name} sent a {size}-byte package: not RTDE")
-            body = exchange.read_exact(size - 3)
-            if answer == ord(kind):
-                return body
-
     with _Exchange(host, RTDE_PORT, "RTDE interface", deadline_s, REGISTER_CHECK_MAX_BYTES) as exchange:
-        request(exchange, "V", struct.pack(">H", 2))
-        reply = request(exchange, "I", ",".join(names).encode())
+        _rtde_request(exchange, "V", struct.pack(">H", 2))
+        reply = _rtde_request(exchange, "I", ",".join(names).encode())
     types = reply[1:].decode(errors="replace").split(",")
     return [name for name, kind in zip(names, types) if kind == "IN_USE"]
 
