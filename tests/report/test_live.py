@@ -215,3 +215,27 @@ def test_only_loopback_names_are_served_and_a_bad_port_is_a_usage_error(tmp_path
         main(["acquire", "-o", str(tmp_path / "rec.csv"), "--live-view", "70000"])
     assert usage.value.code == 2
     assert "invalid port_number value: '70000'" in capsys.readouterr().err
+
+
+def test_a_browser_that_drops_the_connection_mid_reply_prints_nothing(capfd):
+    """Clients that ask for a large reply and reset the connection at once: every request that
+    failed so is counted (there are some), and nothing reaches the terminal the acquisition's
+    progress line owns (the standard library prints a traceback per failed request)."""
+    import struct
+
+    pose = np.eye(4)
+    with LiveView(0) as view:
+        for k in range(MAX_FRAMES_PER_REPLY):
+            view.observe(0.01 * k, "rot_x", pose, pose, recorded=True)
+        for _ in range(40):
+            client = socket.create_connection(("127.0.0.1", view.port), timeout=5)
+            client.sendall(f"GET /data?since=0 HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\n\r\n".encode())
+            client.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            client.close()  # a reset, not a goodbye
+        deadline = time.monotonic() + 10
+        while view.failed_requests == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert view.failed_requests > 0
+        assert fetch(view.url + "data?since=0")["samples"] == MAX_FRAMES_PER_REPLY  # it still serves
+    out, err = capfd.readouterr()
+    assert err == "" and out == "", err[-2000:]

@@ -79,6 +79,9 @@ class LiveView:
         self._server: ThreadingHTTPServer | None = None
         self._thread: threading.Thread | None = None
         self._page: bytes | None = None
+        #: Requests that ended in an error (a browser that closed the tab mid-reply): counted,
+        #: never printed on the terminal the acquisition's progress line owns.
+        self.failed_requests = 0
 
     # -- the acquisition's side: no lock, no I/O ---------------------------------------------
 
@@ -199,7 +202,7 @@ class LiveView:
             def handle_error(self, request: Any, client_address: Any) -> None:
                 # a browser that closes the tab mid-reply is not an error worth a traceback on the
                 # terminal the acquisition's progress line owns
-                pass
+                view.failed_requests += 1
 
         try:
             server = Server(("127.0.0.1", self.port), Handler)
