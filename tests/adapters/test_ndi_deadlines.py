@@ -174,3 +174,24 @@ def test_an_interrupted_frame_request_ends_at_once_and_the_tracker_is_still_stop
             interrupted.set()
         tracker.close()
         assert any(command.upper().startswith("TSTOP") for command in commands), commands
+
+
+def test_a_silent_serial_port_is_one_line_by_the_probes_deadlines(rom_file, capsys):
+    """A serial port where nothing answers (a pseudo-terminal nobody serves): ``doctor`` ends
+    within the probes' deadlines (each ``ndiProbe`` waits 5 s at most, bounded at 10 s) with one
+    line, not ndicapi's own waits."""
+    from spacecal.cli.main import main
+    from spacecal.testing.fakes.ndi import open_pty
+
+    master, path = open_pty()
+    try:
+        started = time.monotonic()
+        code = main(["doctor", "--tracker", f"ndi://{path}", "--rom", str(rom_file)])
+        took = time.monotonic() - started
+    finally:
+        os.close(master)
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert f"tracker: connection: PROBLEM: no NDI tracker answers on {path}" in out, out
+    assert len(err.strip().splitlines()) == 1
+    assert took < ndi.PROBE_ATTEMPTS * ndi.NDI_OPEN_DEADLINE_S + MARGIN_S, took
