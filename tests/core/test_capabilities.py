@@ -53,3 +53,25 @@ def test_the_ur_adapter_declares_every_capability_it_has():
         members = [name for name in vars(capability) if not name.startswith("_")]
         assert all(callable(getattr(ur.URRobot, name, None)) for name in members), capability.__name__
     assert callable(ur.URRobot.controller_model)
+
+
+def test_no_layer_that_drives_devices_probes_them_by_attribute():
+    """What a device can do is a Protocol checked with isinstance; hasattr, or getattr on
+    anything but the object's own fields, would bring back probing by name (a device with a
+    same-named attribute of another meaning would pass)."""
+    import ast
+    from pathlib import Path
+
+    import spacecal
+
+    root = Path(spacecal.__file__).parent
+    found = []
+    for folder in ("app", "workflows", "station"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(), str(path))):
+                if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)):
+                    continue
+                own = bool(node.args) and isinstance(node.args[0], ast.Name) and node.args[0].id == "self"
+                if node.func.id == "hasattr" or (node.func.id == "getattr" and not own):
+                    found.append(f"{path.relative_to(root)}:{node.lineno} {node.func.id}")
+    assert found == []
