@@ -119,12 +119,29 @@ def test_the_rtde_register_check_ends_by_its_deadline(name, behaviour, honest):
         assert_ends_by(started, ur.REGISTER_CHECK_DEADLINE_S)
 
 
+def answers_the_protocol_version_then_nothing(connection, peer, honest=b""):
+    """An RTDE port that accepts protocol version 2 and then never answers again."""
+    connection.settimeout(0.1)
+    received = b""
+    while not peer.stop.is_set():
+        try:
+            chunk = connection.recv(64)
+        except TimeoutError:
+            continue
+        if not chunk:
+            return
+        if not received:
+            connection.sendall(struct.pack(">HBB", 4, ord("V"), 1))
+        received += chunk
+
+
 @pytest.mark.parametrize(
     ("name", "behaviour", "honest"),
     [
         ("silent", silent, b""),
         ("huge length", announce(HUGE_RTDE + b"\0" * 100), b""),
         ("closed mid-message", hang_up, struct.pack(">HB", 40, ord("V")) + bytes(37)),
+        ("silent after the protocol version", answers_the_protocol_version_then_nothing, b""),
     ],
 )
 def test_opening_a_robot_whose_rtde_port_does_not_answer_ends_by_its_deadline(name, behaviour, honest):

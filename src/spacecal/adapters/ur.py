@@ -228,7 +228,8 @@ REACH_DEADLINE_S = 3.0
 
 def _refuse_unreachable(host: str) -> None:
     """A DeviceError when nothing accepts a connection on the RTDE port, or what accepts it does
-    not answer an RTDE protocol request within :data:`REACH_DEADLINE_S`. Checked with sockets of
+    not answer ur_rtde's first two requests (protocol and controller versions) within
+    :data:`REACH_DEADLINE_S`. Checked with sockets of
     spacecal's own before ur_rtde is asked: ur_rtde prints its own ``connect: Connection
     refused`` to the process's stderr before it raises, a line beside spacecal's own; and its
     interfaces' constructors wait for a silent server for ever, holding the interpreter (no
@@ -243,7 +244,9 @@ def _refuse_unreachable(host: str) -> None:
         with _Exchange(
             host, RTDE_PORT, "RTDE interface", REACH_DEADLINE_S, REGISTER_CHECK_MAX_BYTES
         ) as exchange:
+            # the first two requests ur_rtde's constructors make: the protocol and controller versions
             _rtde_request(exchange, "V", struct.pack(">H", 2))
+            _rtde_request(exchange, "v", b"")
     except DeviceError as exc:
         raise DeviceError(f"no UR controller answers RTDE on {host}:{RTDE_PORT}: {exc}") from None
 
