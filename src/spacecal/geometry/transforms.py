@@ -337,23 +337,17 @@ def is_rigid_transform(transform: ArrayLike, atol: float = 1e-6) -> bool:
 NEARLY_RIGID_TOLERANCE = 1e-3
 
 
-def orthonormalize_transforms(stack: ArrayLike, what: str = "a transform") -> FloatArray:
-    """Transforms (N, 4, 4) with each rotation replaced by its nearest proper rotation.
-
-    Trackers and robots often write single-precision matrices that are not quite
-    orthonormal; rows holding NaN (frames without a valid pose) stay NaN. A matrix that is
-    not nearly a rotation (scaled, sheared or mirrored by more than
-    :data:`NEARLY_RIGID_TOLERANCE`) is not a pose, and is refused, not made into one.
+def check_nearly_rigid(stack: ArrayLike, what: str = "a transform") -> None:
+    """Refuse transforms (N, 4, 4) whose rotation is not nearly one (scaled, sheared or mirrored
+    by more than :data:`NEARLY_RIGID_TOLERANCE`); rows holding NaN (frames without a valid pose)
+    are passed over.
 
     Raises
     ------
     InvalidInputError
         Naming ``what``, the first such frame (1-based) and how far it is off.
     """
-    from spacecal.geometry.rotations import nearest_rotation
-
     stack = np.asarray(stack, dtype=float)
-    out = np.full_like(stack, np.nan)
     finite = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
     rotations = stack[finite, :3, :3]
     off = np.max(np.abs(np.swapaxes(rotations, -1, -2) @ rotations - np.eye(3)), axis=(-2, -1), initial=0.0)
@@ -366,5 +360,21 @@ def orthonormalize_transforms(stack: ArrayLike, what: str = "a transform") -> Fl
             f"{what}: frame {frame}{more} is not a rigid transform (its rotation is off by "
             f"{off[bad[0]]:.3g}: scaled, sheared or mirrored); a pose must be a rotation and a translation"
         )
-    out[finite] = make_transform(nearest_rotation(rotations), stack[finite, :3, 3])
+
+
+def orthonormalize_transforms(stack: ArrayLike, what: str = "a transform") -> FloatArray:
+    """Transforms (N, 4, 4) with each rotation replaced by its nearest proper rotation.
+
+    Trackers and robots often write single-precision matrices that are not quite
+    orthonormal; rows holding NaN (frames without a valid pose) stay NaN. A matrix that is
+    not nearly a rotation is not a pose, and is refused (:func:`check_nearly_rigid`), not made
+    into one.
+    """
+    from spacecal.geometry.rotations import nearest_rotation
+
+    check_nearly_rigid(stack, what)
+    stack = np.asarray(stack, dtype=float)
+    out = np.full_like(stack, np.nan)
+    finite = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
+    out[finite] = make_transform(nearest_rotation(stack[finite, :3, :3]), stack[finite, :3, 3])
     return out

@@ -16,7 +16,7 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.strict_numbers import parse_floats
 from spacecal.core.text import quoted
-from spacecal.geometry.transforms import orthonormalize_transforms
+from spacecal.geometry.transforms import check_nearly_rigid
 from spacecal.io.atomic import write_text_atomic
 from spacecal.io.names import check_plus_frame_names
 from spacecal.io.ros_common import number_text
@@ -46,7 +46,8 @@ def read_plus_transform(path: str | Path, from_frame: str, to_frame: str) -> np.
                 raise InvalidInputError(
                     f"{path}: {from_frame}To{to_frame} Matrix does not hold 16 finite numbers (mm)"
                 )
-            return orthonormalize_transforms(numbers.reshape(1, 4, 4), f"{path}: {from_frame}To{to_frame}")[0]
+            check_nearly_rigid(numbers.reshape(1, 4, 4), f"{path}: {from_frame}To{to_frame}")
+            return numbers.reshape(4, 4)
     raise InvalidInputError(f"{path}: no {from_frame}To{to_frame} transform in CoordinateDefinitions")
 
 
