@@ -40,7 +40,7 @@ def main() -> int:
     parser.add_argument("--klass", action="append", help="only these mutation classes")
     parser.add_argument("--seed", type=int, default=2024)
     parser.add_argument("--show", action="store_true", help="print every case that did not pass")
-    parser.add_argument("--limit-s", type=float, default=20.0, help="time limit per case")
+    parser.add_argument("--limit-s", type=float, default=20.0, help="CPU s per case (6x on the clock)")
     args = parser.parse_args()
     rng = random.Random(args.seed)
     results = []
