@@ -119,20 +119,38 @@ def test_the_rtde_register_check_ends_by_its_deadline(name, behaviour, honest):
         assert_ends_by(started, ur.REGISTER_CHECK_DEADLINE_S)
 
 
-def answers_the_protocol_version_then_nothing(connection, peer, honest=b""):
-    """An RTDE port that accepts protocol version 2 and then never answers again."""
-    connection.settimeout(0.1)
-    received = b""
-    while not peer.stop.is_set():
-        try:
-            chunk = connection.recv(64)
-        except TimeoutError:
-            continue
-        if not chunk:
-            return
-        if not received:
-            connection.sendall(struct.pack(">HBB", 4, ord("V"), 1))
-        received += chunk
+#: An RTDE controller's answers to the handshake's requests, by request type.
+RTDE_ANSWERS = {
+    "V": struct.pack(">B", 1),
+    "v": struct.pack(">4I", 5, 11, 0, 0),
+    "O": struct.pack(">B", 1) + b"DOUBLE",
+    "S": struct.pack(">B", 1),
+}
+
+
+def answers_then_nothing(kinds: str):
+    """An RTDE port that answers the handshake's requests of ``kinds`` (in any order) and then
+    never sends anything again: no other answer and no data package."""
+
+    def behave(connection, peer, honest=b""):
+        connection.settimeout(0.1)
+        received = b""
+        while not peer.stop.is_set():
+            try:
+                chunk = connection.recv(256)
+            except TimeoutError:
+                continue
+            if not chunk:
+                return
+            received += chunk
+            while len(received) >= 3 and len(received) >= struct.unpack(">H", received[:2])[0]:
+                size, kind = struct.unpack(">HB", received[:3])
+                received = received[size:]
+                if chr(kind) in kinds:
+                    answer = RTDE_ANSWERS[chr(kind)]
+                    connection.sendall(struct.pack(">HB", len(answer) + 3, kind) + answer)
+
+    return behave
 
 
 @pytest.mark.parametrize(
@@ -141,7 +159,9 @@ def answers_the_protocol_version_then_nothing(connection, peer, honest=b""):
         ("silent", silent, b""),
         ("huge length", announce(HUGE_RTDE + b"\0" * 100), b""),
         ("closed mid-message", hang_up, struct.pack(">HB", 40, ord("V")) + bytes(37)),
-        ("silent after the protocol version", answers_the_protocol_version_then_nothing, b""),
+        ("silent after the protocol version", answers_then_nothing("V"), b""),
+        ("silent on the output recipe", answers_then_nothing("Vv"), b""),
+        ("started but never sending data", answers_then_nothing("VvOS"), b""),
     ],
 )
 def test_opening_a_robot_whose_rtde_port_does_not_answer_ends_by_its_deadline(name, behaviour, honest):

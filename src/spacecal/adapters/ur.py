@@ -228,8 +228,8 @@ REACH_DEADLINE_S = 3.0
 
 def _refuse_unreachable(host: str) -> None:
     """A DeviceError when nothing accepts a connection on the RTDE port, or what accepts it does
-    not answer ur_rtde's first two requests (protocol and controller versions) within
-    :data:`REACH_DEADLINE_S`. Checked with sockets of
+    does not go through ur_rtde's handshake (protocol and controller versions, an output recipe,
+    the start and a first data package) within :data:`REACH_DEADLINE_S`. Checked with sockets of
     spacecal's own before ur_rtde is asked: ur_rtde prints its own ``connect: Connection
     refused`` to the process's stderr before it raises, a line beside spacecal's own; and its
     interfaces' constructors wait for a silent server for ever, holding the interpreter (no
@@ -244,9 +244,13 @@ def _refuse_unreachable(host: str) -> None:
         with _Exchange(
             host, RTDE_PORT, "RTDE interface", REACH_DEADLINE_S, REGISTER_CHECK_MAX_BYTES
         ) as exchange:
-            # the first two requests ur_rtde's constructors make: the protocol and controller versions
+            # what ur_rtde's receive interface does before its constructor returns: the protocol
+            # and controller versions, an output recipe, the start, and a first data package
             _rtde_request(exchange, "V", struct.pack(">H", 2))
             _rtde_request(exchange, "v", b"")
+            _rtde_request(exchange, "O", struct.pack(">d", 10.0) + b"timestamp")
+            _rtde_request(exchange, "S", b"")
+            _rtde_answer(exchange, "U")
     except DeviceError as exc:
         raise DeviceError(f"no UR controller answers RTDE on {host}:{RTDE_PORT}: {exc}") from None
 
@@ -462,10 +466,8 @@ def stop_program(host: str) -> None:
         _SILENT_HOSTS.add(host)
 
 
-def _rtde_request(exchange: _Exchange, kind: str, payload: bytes) -> bytes:
-    """Send one RTDE request (package type ``kind``) and return the body of its answer,
-    skipping anything else (no data stream was started)."""
-    exchange.send(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
+def _rtde_answer(exchange: _Exchange, kind: str) -> bytes:
+    """The body of the next RTDE package of type ``kind``, skipping any other."""
     while True:
         size, answer = struct.unpack(">HB", exchange.read_exact(3))
         if size < 3:
@@ -473,6 +475,12 @@ def _rtde_request(exchange: _Exchange, kind: str, payload: bytes) -> bytes:
         body = exchange.read_exact(size - 3)
         if answer == ord(kind):
             return body
+
+
+def _rtde_request(exchange: _Exchange, kind: str, payload: bytes) -> bytes:
+    """Send one RTDE request (package type ``kind``) and return the body of its answer."""
+    exchange.send(struct.pack(">HB", len(payload) + 3, ord(kind)) + payload)
+    return _rtde_answer(exchange, kind)
 
 
 def registers_in_use(
