@@ -14,7 +14,7 @@ pytest.importorskip("ndicapy")
 
 from spacecal.cli.main import main
 from spacecal.testing.fakes.igtl import pack_message, transform_content
-from spacecal.testing.fakes.ndi import FakeNDI, split_command
+from spacecal.testing.fakes.ndi import FakeNDI, serve_commands
 from spacecal.testing.fakes.peers import Peer
 
 #: The doctor samples the tracker for 1 s; the rest is connecting and closing on a busy machine.
@@ -27,19 +27,7 @@ def ndi_tracker_sending(pose: np.ndarray):
 
     def serve(connection, peer):
         device = FakeNDI(lambda: (next(frames), pose, 0.1))
-        buffer = b""
-        connection.settimeout(0.1)
-        while not peer.stop.is_set():
-            try:
-                chunk = connection.recv(4096)
-            except TimeoutError:
-                continue
-            if not chunk:
-                return
-            buffer += chunk
-            while b"\r" in buffer:
-                line, buffer = buffer.split(b"\r", 1)
-                connection.sendall(device.handle(split_command(line)) or b"")
+        serve_commands(lambda: connection.recv(4096), connection.sendall, device, peer.stop)
 
     return serve
 

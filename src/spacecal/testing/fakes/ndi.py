@@ -334,7 +334,9 @@ class FakeNDI:
         return ascii_reply(text)
 
 
-def _read_commands(read, write, device: FakeNDI, stop: threading.Event):
+def serve_commands(read, write, device: FakeNDI, stop: threading.Event) -> None:
+    """Answer the commands ``read()`` gives (bytes; b"" or an OSError ends it) with ``device``'s
+    replies through ``write``, until ``stop`` is set: the Combined API over any byte stream."""
     buffer = b""
     while not stop.is_set():
         try:
@@ -372,7 +374,7 @@ def serve_tcp(device: FakeNDI, server, stop: threading.Event, unplugged: threadi
                     continue
             return b""
 
-        _read_commands(read, connection.sendall, device, stop)
+        serve_commands(read, connection.sendall, device, stop)
         connection.close()
 
 
@@ -399,7 +401,7 @@ def serve_pty(device: FakeNDI, master: int, stop: threading.Event, unplugged: th
     def write(data):
         os.write(master, data)
 
-    _read_commands(read, write, device, stop)
+    serve_commands(read, write, device, stop)
 
 
 if __name__ == "__main__":  # CRC check values from the protocol description
