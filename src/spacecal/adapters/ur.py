@@ -227,7 +227,7 @@ REACH_DEADLINE_S = 3.0
 
 
 def _refuse_unreachable(host: str) -> None:
-    """A DeviceError when nothing accepts a connection on the RTDE port, or what accepts it does
+    """A DeviceError when nothing accepts a connection on the RTDE port, or what accepts it
     does not go through ur_rtde's handshake (protocol and controller versions, an output recipe,
     the start and a first data package) within :data:`REACH_DEADLINE_S`. Checked with sockets of
     spacecal's own before ur_rtde is asked: ur_rtde prints its own ``connect: Connection
