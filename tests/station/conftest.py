@@ -23,6 +23,9 @@ IN_CI = os.environ.get("CI") == "true"
 POSTGRES_ENV = "SPACECAL_TEST_POSTGRES_URL"
 #: Every browser action's bound, ms.
 BROWSER_TIMEOUT_MS = 60_000
+#: Starting Chromium's bound, ms: a hang detector. A start writes a fresh profile to the disk and
+#: waited out a 66-s disk stall beside a loaded run.
+BROWSER_LAUNCH_TIMEOUT_MS = 240_000
 
 
 def need(module: str) -> Any:
@@ -122,7 +125,7 @@ def page() -> Iterator[Any]:
     binary = chromium_binary()
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(
-            executable_path=binary, args=["--no-sandbox"], timeout=BROWSER_TIMEOUT_MS
+            executable_path=binary, args=["--no-sandbox"], timeout=BROWSER_LAUNCH_TIMEOUT_MS
         )
         try:
             context = browser.new_context(viewport={"width": 1280, "height": 900})

@@ -19,7 +19,6 @@ import pytest
 from tests.adapters.conftest import ahead_of_other_tests, hardware_lane, rom_file, watchdog  # noqa: F401
 from tests.adapters.ur_runs import ROBOT_MODEL, assert_everything_closed, tracker_url, ur_world
 from tests.station.test_browser import (
-    ACQUISITION_WITHIN_MS,
     ENDED_WITHIN_S,
     JOIN_WITHIN_S,
     STILL_WITHIN_S,
@@ -27,6 +26,7 @@ from tests.station.test_browser import (
     Steps,
     report_and_export,
     shot,
+    wait_for_run_end,
 )
 
 pytest.importorskip("rtde_control")
@@ -68,14 +68,13 @@ def start_acquisition_on_the_fakes(page, served, world, rom):
     return run
 
 
-def confirm_and_finish(page, motion_name: str) -> str:
+def confirm_and_finish(page, disk, motion_name: str) -> str:
     """Confirm the motion named on the page, follow its run to the end; its last message."""
     assert ROBOT in page.inner_text("#confirm-text")
     page.click("#confirm")
     page.wait_for_url(re.compile(r"/runs/\d+$"))
-    page.wait_for_function(
-        "!['starting', 'running'].includes(document.getElementById('run-state').textContent)",
-        timeout=ACQUISITION_WITHIN_MS,
+    wait_for_run_end(
+        page, disk, "!['starting', 'running'].includes(document.getElementById('run-state').textContent)"
     )
     state = page.inner_text("#run-state")
     message = page.inner_text("#message")
@@ -83,7 +82,7 @@ def confirm_and_finish(page, motion_name: str) -> str:
     return message
 
 
-def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(served, page, rom_file):  # noqa: F811
+def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(served, page, rom_file, disk):  # noqa: F811
     steps = Steps()
     world = ur_world("cb3")
     try:
@@ -98,7 +97,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
 
         page.click("#acquire")
         page.wait_for_url(re.compile(r"/confirm/acquire$"))
-        message = confirm_and_finish(page, "acquisition")
+        message = confirm_and_finish(page, disk, "acquisition")
         assert re.search(r"(\d+)/\1 moves", message), message
         # the live view drew the marker's sweeps
         # the view redraws at most every five times its last draw took (a busy machine: seconds)
@@ -114,7 +113,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
         steps.done("calibrate")
 
         page.click("#check")
-        assert confirm_and_finish(page, "check").startswith("PASS")
+        assert confirm_and_finish(page, disk, "check").startswith("PASS")
         page.click("#back")
         assert page.inner_text("#checks").startswith("PASS")
         steps.done("check")
