@@ -157,8 +157,16 @@ class _Call:
                 then(self)
 
     def wait(self, timeout_s: float) -> bool:
-        """Whether the call ended within ``timeout_s`` (s)."""
-        return self._done.wait(timeout_s)
+        """Whether the call ended within ``timeout_s`` (s). Waited in slices of 0.1 s: a signal
+        the kernel handed to another thread (Ctrl-C goes to the process) runs its handler in
+        the main thread only once the main thread's wait returns."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            left_s = deadline - time.monotonic()
+            if self._done.wait(min(max(left_s, 0.0), 0.1)):
+                return True
+            if left_s <= 0.0:
+                return False
 
     @property
     def done(self) -> bool:
