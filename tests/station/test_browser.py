@@ -43,6 +43,19 @@ def shot(page, name: str) -> None:
         page.screenshot(path=str(Path(folder) / f"{name}.png"), full_page=True)
 
 
+def run_page_state(page) -> str:
+    """What a run's page shows of its progress, for a failure's message: whether the run was
+    stuck (the same move and samples for minutes) or only slow."""
+    shown = []
+    for element in ("run-state", "move", "moves", "samples", "visible", "status", "message"):
+        try:
+            text = page.inner_text(f"#{element}", timeout=5_000)
+        except Exception as exc:  # the page itself may be what hangs
+            text = f"<{type(exc).__name__}>"
+        shown.append(f"{element}={' '.join(text.split())[:200]!r}")
+    return ", ".join(shown)
+
+
 def wait_for_run_end(page, disk, expression: str, within_ms: float = ACQUISITION_WITHIN_MS) -> None:
     """Wait until the page's ``expression`` holds, for ``within_ms`` of time in which the disk
     did not stall (:class:`~spacecal.testing.disk_probe.DiskProbe`): a motion's run writes and
@@ -50,19 +63,25 @@ def wait_for_run_end(page, disk, expression: str, within_ms: float = ACQUISITION
     from playwright.sync_api import TimeoutError as PageTimeout
 
     started = time.monotonic()
+    progress = []  # (s since the wait began, samples shown): stuck or only slow
     while True:
         left_s = started + within_ms / 1000.0 + disk.stalled_s(started, time.monotonic()) - time.monotonic()
         if left_s <= 0:
             stalled = disk.stalled_s(started, time.monotonic())
             raise AssertionError(
                 f"{expression} did not hold within {within_ms / 1000.0:.0f} s "
-                f"(and {stalled:.1f} s of disk stalls)"
+                f"(and {stalled:.1f} s of disk stalls); samples shown over the wait: {progress}; "
+                f"the page then showed: {run_page_state(page)}"
             )
         try:
             page.wait_for_function(expression, timeout=min(left_s, 30.0) * 1000.0)
             return
         except PageTimeout:
-            continue
+            try:
+                samples = page.inner_text("#samples", timeout=5_000)
+            except Exception as exc:  # the page itself may be what hangs
+                samples = f"<{type(exc).__name__}>"
+            progress.append((round(time.monotonic() - started), samples))
 
 
 class Steps:
