@@ -21,10 +21,15 @@ import pytest
 IN_CI = os.environ.get("CI") == "true"
 #: The PostgreSQL server of the record's tests (.ci/run starts one and sets it).
 POSTGRES_ENV = "SPACECAL_TEST_POSTGRES_URL"
-#: Every browser action's bound, ms.
-BROWSER_TIMEOUT_MS = 60_000
-#: Starting Chromium's bound, ms: a hang detector. A start writes a fresh profile to the disk and
-#: waited out a 66-s disk stall beside a loaded run.
+#: Every browser action's bound, ms: a hang detector, not a promise. A page's request waits
+#: for the station's server, which writes the record to the disk, and this machine's disk
+#: stalls for a minute at times (64 s measured with nothing but a loaded test run on it, inside
+#: a 60-s wait for the findings). What the station promises in time (a STOP stills the arm, a
+#: run ends) is asserted apart, with the stalls left out (:func:`tests.station.test_browser.
+#: wait_for_run_end`, the stop tests' bounds).
+BROWSER_TIMEOUT_MS = 240_000
+#: Starting Chromium's bound, ms: a hang detector too. A start writes a fresh profile to the
+#: disk and waited out a 66-s disk stall beside a loaded run.
 BROWSER_LAUNCH_TIMEOUT_MS = 240_000
 
 
