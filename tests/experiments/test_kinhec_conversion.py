@@ -103,3 +103,52 @@ def test_two_streams_pair_at_the_offset_kinhec_injected():
     wrong, _ = conversion.chain_residuals(pair_streams(converted.raw, -converted.true_offset_s), *truth)
     assert np.sqrt(np.mean(right**2)) < 1.25 * noise_mm
     assert np.sqrt(np.mean(wrong**2)) > 3.0 * noise_mm
+
+
+def _tier_sequence(tier_name: str, sequence_id: str):
+    """One sequence of a KinHEC tier, generated from its seeded recipe (about a second)."""
+    import kinhec
+    from kinhec.generator import generate_sequence
+    from kinhec.io import Sequence
+    from kinhec.plans import build_plan, load_tier
+
+    track = sequence_id.rsplit("-", 1)[0]
+    tier = load_tier(str(Path(kinhec.__file__).parent / "configs" / f"{tier_name}.yaml"))
+    (config,) = [c for c in build_plan(tier, [track])[track] if c.sequence_id == sequence_id]
+    record = generate_sequence(config)
+    return Sequence(record.manifest, record.robot_table, record.camera_table)
+
+
+#: KinHEC's small tier, robot-error track: a UR5e's 30 static camera views with DH errors of
+#: 0.1 or 1 mm and 0.01 or 0.1 deg, two motion seeds each.
+UR5E_DH_SEQUENCES = [f"robot_error-{k:06d}" for k in (2, 3, 4, 5, 8, 9, 10, 11)]
+
+
+def test_the_noise_beyond_the_dh_errors_is_the_camera_noise_kinhec_injected():
+    """One frame per pose and no fit RMS: the noise spacecal takes from what the residuals leave
+    beyond the pose and the arm's DH errors, against the camera noise KinHEC injected (its
+    measured minus its noise-free target poses, at the marker's spheres)."""
+    from spacecal.estimators.expected_error import nominal_robot_model, white_noise_beyond_kinematics
+    from spacecal.estimators.observations import build_observations
+
+    ratios, relative_errors = [], []
+    for sequence_id in UR5E_DH_SEQUENCES:
+        sequence = _tier_sequence("small", sequence_id)
+        recording = conversion.to_recording(sequence)
+        clean = conversion.to_recording(sequence, noise_free=True)
+        result = calibrate(recording, "ml")
+        observations = build_observations(recording)
+        injected = observations.spheres_in_tracker - build_observations(clean).spheres_in_tracker
+        true_power = float(np.mean(np.sum(injected**2, axis=(1, 2))))
+        measured = white_noise_beyond_kinematics(
+            nominal_robot_model(recording),
+            recording.joints_rad[observations.rows],
+            observations,
+            result.tracker_from_base,
+            result.tcp_from_marker,
+        )
+        ratios.append(measured["power_mm2"] / true_power)
+        relative_errors.append(measured["relative_error"])
+    # the mean ratio of eight sequences, within three of its standard errors of one (each
+    # estimate's own relative error, from its degrees of freedom, about 0.2)
+    assert abs(np.mean(ratios) - 1.0) < 3.0 * np.sqrt(np.mean(np.square(relative_errors)) / len(ratios))
