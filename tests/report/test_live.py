@@ -3,7 +3,6 @@ headless Chromium, and never in the run's way."""
 
 import json
 import socket
-import statistics
 import threading
 import time
 import urllib.request
@@ -154,12 +153,14 @@ class Timed:
 
 
 def test_the_view_costs_the_acquisition_less_than_5_percent(tmp_path):
-    """Two measures. Wall time of the whole simulated acquisition, with and without the view,
-    over two interleaved repeats (medians), is printed but only loosely bounded: on a loaded
-    2-core machine runs of the same work differ by 10-20 %. The bound that is asserted is the
-    robust one: the time spent inside the observer is below 5 % of the run's CPU time
-    (measured: about 0.3 %)."""
-    without, with_view, shares = [], [], []
+    """Three measures. The time spent inside the observer is below 5 % of the run's CPU time
+    (measured: about 0.3 %, 1.2 % on a loaded machine) and below 5 % of its wall time (the loop
+    waiting on the view would show there first). Wall time of the whole simulated acquisition,
+    with and without the view, over two interleaved repeats, is only loosely bounded: on a
+    loaded 2-core machine runs of the same work differ by 10-25 % (a loaded run measured 10.6
+    against 13.4 s, both without a disk stall), so each side takes its fastest repeat, the
+    one other work on the machine slowed least."""
+    without, with_view, shares, waits = [], [], [], []
     with LiveView(0) as view:
         for k in range(2):
             start = time.perf_counter()
@@ -170,15 +171,17 @@ def test_the_view_costs_the_acquisition_less_than_5_percent(tmp_path):
             result = acquire(tmp_path / f"viewed{k}", timed)
             with_view.append(time.perf_counter() - start)
             shares.append(timed.seconds / (time.process_time() - cpu))
+            waits.append(timed.seconds / with_view[-1])
             assert result.complete and timed.calls > result.samples_written
-    ratio = statistics.median(with_view) / statistics.median(without)
+    ratio = min(with_view) / min(without)
     print(
-        f"\nacquisition wall time, median of 2: {statistics.median(without):.2f} s without the view, "
-        f"{statistics.median(with_view):.2f} s with it (ratio {ratio:.3f}); time in the observer "
-        f"{100 * max(shares):.2f} % of the run's CPU time"
+        f"\nacquisition wall time, fastest of 2: {min(without):.2f} s without the view, "
+        f"{min(with_view):.2f} s with it (ratio {ratio:.3f}); time in the observer "
+        f"{100 * max(shares):.2f} % of the run's CPU time, {100 * max(waits):.2f} % of its wall time"
     )
     assert max(shares) < 0.05
-    assert ratio < 1.25  # a gross regression (the loop waiting on the view) would show here
+    assert max(waits) < 0.05
+    assert ratio < 1.25  # a gross regression (the loop slowed by the view) would show here
 
 
 def test_no_view_started_for_a_dry_run(tmp_path, capfd):
