@@ -5,7 +5,7 @@ degrees of freedom assumes. Measured on KinHEC's static camera views (virtual sp
 target pose), nearly all of it lies in three of a frame's twelve sphere coordinates: the
 target's position along and across the line of sight. The fitted pose and DH errors move the
 spheres mostly the same way, so they absorb several times more of that noise per parameter
-than the average coordinate holds, and ``RSS / (m - rank)`` then understates the noise (3.3
+than the average coordinate holds, and ``RSS / (m - rank)`` then understates the noise (3.2
 against 3.7 mm per sphere there), and the held-out misfit beyond it was called systematic.
 
 Here one covariance ``Sigma`` (D x D, the same at every frame, D = 3 x spheres) is estimated
