@@ -37,18 +37,23 @@ def _conversion():
 conversion = _conversion()
 
 
-def _smoke_sequence(sequence_id: str):
-    """One sequence of KinHEC's smoke tier, generated from its seeded recipe (about a second)."""
+def _tier_sequence(tier_name: str, sequence_id: str):
+    """One sequence of a KinHEC tier, generated from its seeded recipe (about a second)."""
     import kinhec
     from kinhec.generator import generate_sequence
     from kinhec.io import Sequence
     from kinhec.plans import build_plan, load_tier
 
     track = sequence_id.rsplit("-", 1)[0]
-    tier = load_tier(str(Path(kinhec.__file__).parent / "configs" / "smoke.yaml"))
+    tier = load_tier(str(Path(kinhec.__file__).parent / "configs" / f"{tier_name}.yaml"))
     (config,) = [c for c in build_plan(tier, [track])[track] if c.sequence_id == sequence_id]
     record = generate_sequence(config)
     return Sequence(record.manifest, record.robot_table, record.camera_table)
+
+
+def _smoke_sequence(sequence_id: str):
+    """One sequence of KinHEC's smoke tier (:func:`_tier_sequence`)."""
+    return _tier_sequence("smoke", sequence_id)
 
 
 @pytest.fixture(scope="module", params=["noise-000000", "noise-000004"], ids=["eye-in-hand", "eye-to-hand"])
@@ -103,20 +108,6 @@ def test_two_streams_pair_at_the_offset_kinhec_injected():
     wrong, _ = conversion.chain_residuals(pair_streams(converted.raw, -converted.true_offset_s), *truth)
     assert np.sqrt(np.mean(right**2)) < 1.25 * noise_mm
     assert np.sqrt(np.mean(wrong**2)) > 3.0 * noise_mm
-
-
-def _tier_sequence(tier_name: str, sequence_id: str):
-    """One sequence of a KinHEC tier, generated from its seeded recipe (about a second)."""
-    import kinhec
-    from kinhec.generator import generate_sequence
-    from kinhec.io import Sequence
-    from kinhec.plans import build_plan, load_tier
-
-    track = sequence_id.rsplit("-", 1)[0]
-    tier = load_tier(str(Path(kinhec.__file__).parent / "configs" / f"{tier_name}.yaml"))
-    (config,) = [c for c in build_plan(tier, [track])[track] if c.sequence_id == sequence_id]
-    record = generate_sequence(config)
-    return Sequence(record.manifest, record.robot_table, record.camera_table)
 
 
 #: KinHEC's small tier, robot-error track: a UR5e's 30 static camera views with DH errors of

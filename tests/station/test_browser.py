@@ -43,17 +43,20 @@ def shot(page, name: str) -> None:
         page.screenshot(path=str(Path(folder) / f"{name}.png"), full_page=True)
 
 
+def shown_text(page, element: str) -> str:
+    """The text of the page's ``#element``, or the error reading it (for a failure's message:
+    the page itself may be what hangs)."""
+    try:
+        return page.inner_text(f"#{element}", timeout=5_000)
+    except Exception as exc:
+        return f"<{type(exc).__name__}>"
+
+
 def run_page_state(page) -> str:
     """What a run's page shows of its progress, for a failure's message: whether the run was
     stuck (the same move and samples for minutes) or only slow."""
-    shown = []
-    for element in ("run-state", "move", "moves", "samples", "visible", "status", "message"):
-        try:
-            text = page.inner_text(f"#{element}", timeout=5_000)
-        except Exception as exc:  # the page itself may be what hangs
-            text = f"<{type(exc).__name__}>"
-        shown.append(f"{element}={' '.join(text.split())[:200]!r}")
-    return ", ".join(shown)
+    elements = ("run-state", "move", "moves", "samples", "visible", "status", "message")
+    return ", ".join(f"{e}={' '.join(shown_text(page, e).split())[:200]!r}" for e in elements)
 
 
 def wait_for_run_end(page, disk, expression: str, within_ms: float = ACQUISITION_WITHIN_MS) -> None:
@@ -77,11 +80,7 @@ def wait_for_run_end(page, disk, expression: str, within_ms: float = ACQUISITION
             page.wait_for_function(expression, timeout=min(left_s, 30.0) * 1000.0)
             return
         except PageTimeout:
-            try:
-                samples = page.inner_text("#samples", timeout=5_000)
-            except Exception as exc:  # the page itself may be what hangs
-                samples = f"<{type(exc).__name__}>"
-            progress.append((round(time.monotonic() - started), samples))
+            progress.append((round(time.monotonic() - started), shown_text(page, "samples")))
 
 
 class Steps:

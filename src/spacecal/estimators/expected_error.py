@@ -722,7 +722,7 @@ def white_noise_beyond_kinematics(
     DegenerateDataError
         When fewer than :data:`MINIMUM_RESIDUAL_DOF` residual degrees of freedom remain.
     """
-    rows, seen, residual, pose, dh = residuals_and_shapes(
+    _, _, residual, pose, dh = residuals_and_shapes(
         model, joints_rad, obs, tracker_from_base, tcp_from_marker, frames
     )
     count, spheres = residual.shape[:2]

@@ -118,12 +118,12 @@ def held_out_noise_power(misfit: dict[str, Any], covariance: FloatArray) -> floa
     jac = misfit["jacobian"]
     scored = np.isfinite(misfit["frame_sse_mm2"])
     variance = np.full(len(jac), np.nan)
+    # J_j^T Sigma J_j of every frame once; a block's training sum is the whole less its own
+    per_frame = np.einsum("nda,de,neb->nab", jac, covariance, jac)
+    whole = per_frame.sum(axis=0)
     for block, inverse in zip(misfit["block_indices"], misfit["block_normal_inverses"], strict=True):
         if inverse is None:
             continue
-        keep = np.ones(len(jac), dtype=bool)
-        keep[block] = False
-        middle = np.einsum("nda,de,neb->ab", jac[keep], covariance, jac[keep])
-        spread = inverse @ middle @ inverse
+        spread = inverse @ (whole - per_frame[block].sum(axis=0)) @ inverse
         variance[block] = np.einsum("nda,ab,ndb->n", jac[block], spread, jac[block])
     return float(np.trace(covariance) + np.mean(variance[scored]))
