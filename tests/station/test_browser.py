@@ -246,6 +246,32 @@ def test_closing_the_tab_mid_acquisition_stops_the_robot(served, page, disk):
     assert_stilled(run, "the station's page was closed or lost its connection", disk)
 
 
+#: Kept by the page before its own scripts run: every websocket it opens, so the test can drop one
+#: as a lost network would (the page cannot tell the two apart).
+RECORD_SOCKETS = """
+window.openedSockets = [];
+window.WebSocket = class extends window.WebSocket {
+  constructor(...args) { super(...args); window.openedSockets.push(this); }
+};
+"""
+
+
+def test_a_page_that_lost_its_connection_shows_how_the_run_ended(served, page, disk):
+    """The run stops (nobody could press STOP), and the page, reconnecting, shows that it
+    stopped and why, with the samples the run kept, rather than a run still running."""
+    page.add_init_script(RECORD_SOCKETS)
+    start_acquisition(page, served.url, "UR10 bay 5")
+    page.evaluate("window.openedSockets[0].close()")
+    run = served.station.runs.get(1)
+    assert_stilled(run, "the station's page was closed or lost its connection", disk)
+    wait_for_run_end(page, disk, "document.getElementById('run-state').textContent === 'stopped'")
+    assert "the station's page was closed or lost its connection" in page.inner_text("#message")
+    assert int(page.inner_text("#samples")) == run.samples
+    assert page.evaluate("window.openedSockets.length") >= 2  # it reconnected
+    assert page.is_disabled("#stop")
+    shot(page, "6b-reconnected")
+
+
 def test_stop_mid_check_stops_the_robot_and_logs_nothing(served, page, disk):
     new_robot_and_tracker(page, served.url, "UR10 bay 4")
     work = served.station.workspace(1)

@@ -40,11 +40,13 @@
   }
   function text(id, value) { document.getElementById(id).textContent = value; }
   var scheme = location.protocol === "https:" ? "wss://" : "ws://";
-  var socket = new WebSocket(scheme + location.host + "/runs/" + view.dataset.run + "/ws");
-  var drawn = 0;
+  var address = scheme + location.host + "/runs/" + view.dataset.run + "/ws";
+  // a connection lost mid-run stops the robot at the station's end (nobody could press STOP);
+  // the page keeps trying, and once the station answers it shows what the run became
+  var RECONNECT_AFTER_MS = 2000;
+  var socket = null, drawn = 0;
   draw(true);
-  socket.onmessage = function (event) {
-    var data = JSON.parse(event.data);
+  function show(data) {
     data.frames.forEach(function (f) {
       if (!f.recorded || f.marker_mm === null) { return; }
       if (!(f.segment in bySegment)) { bySegment[f.segment] = []; order.push(f.segment); }
@@ -70,10 +72,19 @@
       draw(false);  // the whole run, however the last draws were spaced
       socket.close();
     }
-  };
-  socket.onclose = function () {
-    if (!ended) { text("message", "connection to the station lost: the station stops the robot"); }
-  };
+  }
+  function connect() {
+    // each connection is sent the run's frames from its first: the view starts over
+    bySegment = {}; order = [];
+    socket = new WebSocket(address);
+    socket.onmessage = function (event) { show(JSON.parse(event.data)); };
+    socket.onclose = function () {
+      if (ended) { return; }
+      text("message", "connection to the station lost: the station stops the robot; reconnecting to show the run");
+      setTimeout(connect, RECONNECT_AFTER_MS);
+    };
+  }
+  connect();
   document.getElementById("stop").addEventListener("click", function () {
     text("message", "stopping…");
     if (socket.readyState === WebSocket.OPEN) { socket.send("stop"); }
