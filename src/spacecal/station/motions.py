@@ -43,6 +43,8 @@ PAGE_CONNECT_WITHIN_S = 120.0
 CTRL_C_WORDS = "interrupted by the user (Ctrl-C)"
 #: How long a motion's process may take to end once its last message arrived, s.
 PROCESS_EXIT_WITHIN_S = 30.0
+#: Why a run stops when no page watches it any more.
+PAGE_LOST = "the station's page was closed or lost its connection"
 #: What each motion is called on its page.
 MOTION_WORDS = {"acquire": "acquisition", "check": "check"}
 
@@ -152,7 +154,7 @@ class Run:
         """A page stopped watching; the last one gone stops the run."""
         self.watchers -= 1
         if self.active and self.watchers <= 0:
-            self.request_stop("the station's page was closed or lost its connection")
+            self.request_stop(PAGE_LOST)
 
     def request_stop(self, reason: str) -> None:
         """Stop the run: SIGINT to its process, the command line's Ctrl-C path."""

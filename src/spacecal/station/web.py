@@ -258,6 +258,8 @@ async def start_motion(request: Request) -> Response:
     here = request.url_for("workspace", workspace_id=work.id)
     try:
         if motion == "acquire":
+            if station.runs.active() is None:
+                work.set_aside_earlier_recording()
             run = station.runs.start(work.id, work.robot["name"], work.acquire_settings(dry_run=False))
             work.run_id = run.id
         else:

@@ -138,6 +138,22 @@ class Workspace:
             simulated_speed=None if dry_run else SIMULATED_SPEED,
         )
 
+    def set_aside_earlier_recording(self) -> Path | None:
+        """Before a new acquisition: the files of an earlier one (a run that was stopped, or one
+        acquired before) go to ``earlier-N/`` beside them, kept whole, so the new run starts
+        over on fresh files. Returns that folder, or None when there was nothing to keep."""
+        earlier = sorted(self.folder.glob(self.recording_path.stem + ".*"))
+        if not earlier:
+            return None
+        n = 1
+        while (self.folder / f"earlier-{n}").exists():
+            n += 1
+        kept = self.folder / f"earlier-{n}"
+        kept.mkdir()
+        for path in earlier:
+            path.rename(kept / path.name)
+        return kept
+
     def dry_run(self) -> None:
         """Check the plan without moving (reach, limits, visibility, workspace)."""
         done = app.acquire(self.acquire_settings(dry_run=True))

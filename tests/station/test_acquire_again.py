@@ -1,0 +1,69 @@
+"""An acquisition confirmed again after a stopped one starts over on fresh files, and the
+stopped one's files are kept whole beside them (``earlier-N/``): nothing recorded is lost, and
+the new run is not refused for a recording that exists."""
+
+from __future__ import annotations
+
+import re
+import time
+
+from tests.station.conftest import need
+
+#: A child process imports spacecal and starts the simulated devices within this, s (2 busy cores).
+STARTS_WITHIN_S = 120.0
+
+
+def confirm_and_start(web, station):
+    """Confirm the acquisition of workspace 1 and start it, with a page watching: its run."""
+    page = web.get("/workspaces/1/confirm/acquire").text
+    ticket = re.search(r'name="ticket" value="([^"]+)"', page).group(1)
+    started = web.post("/workspaces/1/motion/acquire", data={"ticket": ticket}, follow_redirects=False)
+    assert started.status_code == 303, started.text
+    run = station.runs.get(int(started.headers["location"].rsplit("/", 1)[1]))
+    run.page_connected()  # the run's page, connected
+    return run
+
+
+def wait_for_samples(run) -> None:
+    deadline = time.monotonic() + STARTS_WITHIN_S
+    while run.samples < 5 and run.active:
+        assert time.monotonic() < deadline, run.message
+        time.sleep(0.05)
+    assert run.active, run.message
+
+
+def test_an_acquisition_after_a_stopped_one_starts_over_and_keeps_the_stopped_files(tmp_path):
+    testclient = need("starlette.testclient")
+    from spacecal.station.server import StationOptions, build
+
+    station, application = build(StationOptions(data=str(tmp_path / "station")))
+    web = testclient.TestClient(application, base_url="http://127.0.0.1:8770")
+    try:
+        web.post("/devices", data={"kind": "robot", "name": "UR10 bay 1", "url": "sim"})
+        web.post("/devices", data={"kind": "tracker", "name": "Vicra", "url": "sim"})
+        web.post("/workspaces", data={"robot": "1", "tracker": "1"})
+        work = station.workspaces[1]
+        web.post("/workspaces/1/step/plan")
+        web.post("/workspaces/1/step/dry-run")
+        assert work.dry_run_ok
+
+        first = confirm_and_start(web, station)
+        wait_for_samples(first)
+        first.request_stop("STOP pressed at the station")
+        first.thread.join(timeout=STARTS_WITHIN_S)
+        assert first.state == "stopped" and "samples kept in" in first.message, first.message
+        stopped_files = {p.name: p.read_bytes() for p in work.folder.glob("recording.*")}
+        assert {"recording.robot.csv", "recording.tracker.csv"} <= set(stopped_files), sorted(stopped_files)
+
+        second = confirm_and_start(web, station)
+        wait_for_samples(second)  # not refused: "recording.csv exists"
+        second.request_stop("the test ended")
+        second.thread.join(timeout=STARTS_WITHIN_S)
+        kept = work.folder / "earlier-1"
+        assert {p.name: p.read_bytes() for p in kept.iterdir()} == stopped_files
+        assert second.state == "stopped" and "samples kept in" in second.message, second.message
+        robot_stream = work.folder / "recording.robot.csv"
+        assert robot_stream.read_bytes() != stopped_files["recording.robot.csv"]  # its own samples
+    finally:
+        station.runs.stop_all("the test ended")
+        station.ledger.close()
