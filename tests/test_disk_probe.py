@@ -19,6 +19,10 @@ def test_the_disk_probe_counts_only_stalls_inside_the_window(tmp_path):
     assert probe.stalled_s(6.0, 8.0) == 0.0
     probe._waiting_since = 7.0  # a sync still waiting at the window's end counts up to it
     assert probe.stalled_s(6.0, 8.0) == 1.0
+    # the longest single stall: the 3-s one, cut to the window; none in an empty window
+    assert probe.longest_stall_s(0.0, 10.0) == 3.0
+    assert probe.longest_stall_s(0.5, 3.0) == 1.0
+    assert probe.longest_stall_s(5.5, 6.5) == 0.0
 
 
 def test_a_slow_sync_is_reported_and_counted_and_a_quick_one_is_not(tmp_path, monkeypatch):

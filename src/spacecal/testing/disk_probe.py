@@ -77,14 +77,25 @@ class DiskProbe:
                     self._on_stall(ended - started)
                 self._stop.wait(self.period_s)
 
-    def stalled_s(self, since: float, until: float) -> float:
-        """Seconds of ``[since, until]`` (``time.monotonic``) the probe spent in stalled syncs,
-        counting a sync still waiting at ``until`` up to it."""
+    def _spans(self, until: float) -> list[tuple[float, float]]:
+        """Each stall's span, with a sync still waiting at ``until`` counted up to it."""
         with self._lock:
             spans = list(self._stalls)
             if self._waiting_since is not None and until - self._waiting_since > self.stall_s:
                 spans.append((self._waiting_since, until))
-        return sum(max(0.0, min(end, until) - max(start, since)) for start, end in spans)
+        return spans
+
+    def _inside(self, since: float, until: float) -> list[float]:
+        return [max(0.0, min(end, until) - max(start, since)) for start, end in self._spans(until)]
+
+    def stalled_s(self, since: float, until: float) -> float:
+        """Seconds of ``[since, until]`` (``time.monotonic``) the probe spent in stalled syncs,
+        counting a sync still waiting at ``until`` up to it."""
+        return sum(self._inside(since, until))
+
+    def longest_stall_s(self, since: float, until: float) -> float:
+        """The longest single stall's part inside ``[since, until]``, s (0 when none)."""
+        return max(self._inside(since, until), default=0.0)
 
     def close(self) -> None:
         """Stops the probe (after its current sync, which may be a stall) and removes its file."""
