@@ -155,33 +155,38 @@ class Timed:
 def test_the_view_costs_the_acquisition_less_than_5_percent(tmp_path):
     """Three measures. The time spent inside the observer is below 5 % of the run's CPU time
     (measured: about 0.3 %, 1.2 % on a loaded machine) and below 5 % of its wall time (the loop
-    waiting on the view would show there first). Wall time of the whole simulated acquisition,
-    with and without the view, over two interleaved repeats, is only loosely bounded: on a
-    loaded 2-core machine runs of the same work differ by 10-25 % (a loaded run measured 10.6
-    against 13.4 s, both without a disk stall), so each side takes its fastest repeat, the
-    one other work on the machine slowed least."""
+    waiting on the view would show there first). The whole simulated acquisition's CPU time
+    (every thread of this process), with and without the view, over two interleaved repeats,
+    is only loosely bounded: a gross regression (the view adding work anywhere, a thread of its
+    own spinning) shows there. Its wall time is printed, not bounded: on a loaded 2-core
+    machine it measures the other work (runs of the same work measured 9.9 against 13.8 s,
+    a ratio of 1.40 with 0.11 % of the wall time in the observer)."""
     without, with_view, shares, waits = [], [], [], []
+    walls: dict[str, list[float]] = {"without": [], "with": []}
     with LiveView(0) as view:
         for k in range(2):
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             acquire(tmp_path / f"plain{k}")
-            without.append(time.perf_counter() - start)
+            without.append(time.process_time() - cpu)
+            walls["without"].append(time.perf_counter() - start)
             timed = Timed(view.observe)
             start, cpu = time.perf_counter(), time.process_time()
             result = acquire(tmp_path / f"viewed{k}", timed)
-            with_view.append(time.perf_counter() - start)
-            shares.append(timed.seconds / (time.process_time() - cpu))
-            waits.append(timed.seconds / with_view[-1])
+            with_view.append(time.process_time() - cpu)
+            walls["with"].append(time.perf_counter() - start)
+            shares.append(timed.seconds / with_view[-1])
+            waits.append(timed.seconds / walls["with"][-1])
             assert result.complete and timed.calls > result.samples_written
     ratio = min(with_view) / min(without)
     print(
-        f"\nacquisition wall time, fastest of 2: {min(without):.2f} s without the view, "
-        f"{min(with_view):.2f} s with it (ratio {ratio:.3f}); time in the observer "
-        f"{100 * max(shares):.2f} % of the run's CPU time, {100 * max(waits):.2f} % of its wall time"
+        f"\nacquisition CPU time, least of 2: {min(without):.2f} s without the view, "
+        f"{min(with_view):.2f} s with it (ratio {ratio:.3f}); wall time {min(walls['without']):.2f} "
+        f"against {min(walls['with']):.2f} s; time in the observer {100 * max(shares):.2f} % of the "
+        f"run's CPU time, {100 * max(waits):.2f} % of its wall time"
     )
     assert max(shares) < 0.05
     assert max(waits) < 0.05
-    assert ratio < 1.25  # a gross regression (the loop slowed by the view) would show here
+    assert ratio < 1.25  # a gross regression (the view adding work) would show here
 
 
 def test_no_view_started_for_a_dry_run(tmp_path, capfd):
