@@ -24,9 +24,9 @@ from tests.station.test_browser import (
     STILL_WITHIN_S,
     STOP_AFTER_SAMPLES,
     Steps,
+    confirm_and_finish,
     report_and_export,
     shot,
-    wait_for_run_end,
 )
 
 pytest.importorskip("rtde_control")
@@ -68,46 +68,6 @@ def start_acquisition_on_the_fakes(page, served, world, rom):
     return run
 
 
-def confirm_and_finish(page, served, disk, motion_name: str, again) -> str:
-    """Confirm the motion named on the page, follow its run to the end; its last message.
-
-    The station stops a run whose page stopped answering its pings for
-    :data:`~spacecal.station.server.PAGE_PING_TIMEOUT_S` (nobody could press STOP). Beside loaded
-    runs on a shared virtual disk this machine's disk stalled 21 to 66 s at a time, and a page's
-    pings went unanswered through a 43-s stall. A run stopped so must have stopped as any lost
-    page stops it, with a single stall at least that long beside it; the page must show so once
-    the station answers again; and the motion is then confirmed once more (``again`` leads from
-    the workspace to its confirmation). A run stopped without such a
-    stall fails the test, as does a second stop."""
-    from spacecal.station.motions import PAGE_LOST
-    from spacecal.station.server import PAGE_PING_TIMEOUT_S
-
-    for attempt in (1, 2):
-        assert ROBOT in page.inner_text("#confirm-text")
-        page.click("#confirm")
-        page.wait_for_url(re.compile(r"/runs/\d+$"))
-        wait_for_run_end(
-            page, disk, "!['starting', 'running'].includes(document.getElementById('run-state').textContent)"
-        )
-        state = page.inner_text("#run-state")
-        message = page.inner_text("#message")
-        run = served.station.runs.get(int(page.url.rsplit("/", 1)[1]))
-        if attempt == 1 and state == "stopped" and PAGE_LOST in run.stop_reason:
-            stall = disk.longest_stall_s(run.started_at, run.ended_at)
-            assert stall >= PAGE_PING_TIMEOUT_S, (
-                f"{motion_name}: stopped for a lost page without a disk stall that long "
-                f"(longest {stall:.1f} s): {message}"
-            )
-            assert run.stop_reason in message and not run.active, message
-            print(f"\n{motion_name} stopped: its page was silent in a {stall:.1f}-s stall", flush=True)
-            page.click("#back")
-            again()
-            continue
-        assert state == "finished", f"{motion_name}: {state}: {message}"
-        return message
-    raise AssertionError("unreachable")
-
-
 def plan_and_acquire(page) -> None:
     """From the workspace to the acquisition's confirmation: plan, dry run, acquire."""
     page.click("#plan")
@@ -128,7 +88,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
         plan_and_acquire(page)
         steps.done("plan and dry run")
 
-        message = confirm_and_finish(page, served, disk, "acquisition", lambda: plan_and_acquire(page))
+        message = confirm_and_finish(page, served, disk, ROBOT, lambda: plan_and_acquire(page))
         assert re.search(r"(\d+)/\1 moves", message), message
         # the live view drew the marker's sweeps
         # the view redraws at most every five times its last draw took (a busy machine: seconds)
@@ -144,7 +104,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
         steps.done("calibrate")
 
         page.click("#check")
-        checked = confirm_and_finish(page, served, disk, "check", lambda: page.click("#check"))
+        checked = confirm_and_finish(page, served, disk, ROBOT, lambda: page.click("#check"))
         assert checked.startswith("PASS"), checked
         page.click("#back")
         assert page.inner_text("#checks").startswith("PASS")
