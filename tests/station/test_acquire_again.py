@@ -52,6 +52,7 @@ def test_an_acquisition_after_a_stopped_one_starts_over_and_keeps_the_stopped_fi
         first.request_stop("STOP pressed at the station")
         first.thread.join(timeout=STARTS_WITHIN_S)
         assert first.state == "stopped" and "samples kept in" in first.message, first.message
+        assert "acquiring again starts over" in first.message and "--resume" not in first.message
         stopped_files = {p.name: p.read_bytes() for p in work.folder.glob("recording.*")}
         assert {"recording.robot.csv", "recording.tracker.csv"} <= set(stopped_files), sorted(stopped_files)
 

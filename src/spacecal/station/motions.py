@@ -43,6 +43,10 @@ PAGE_CONNECT_WITHIN_S = 120.0
 CTRL_C_WORDS = "interrupted by the user (Ctrl-C)"
 #: How long a motion's process may take to end once its last message arrived, s.
 PROCESS_EXIT_WITHIN_S = 30.0
+#: The command line's hint after a stopped acquisition, and the station's own way on instead
+#: (:meth:`spacecal.station.workspace.Workspace.set_aside_earlier_recording`).
+RESUME_WORDS = "resume with --resume"
+STATION_RESUME_WORDS = "acquiring again starts over and keeps these files (in earlier-N/)"
 #: Why a run stops when no page watches it any more.
 PAGE_LOST = "the station's page was closed or lost its connection"
 #: What each motion is called on its page.
@@ -264,6 +268,7 @@ class Run:
             text = str(last[1])
             if stopped:
                 text = text.replace(CTRL_C_WORDS, f"interrupted by the user ({self.stop_reason})")
+            text = text.replace(RESUME_WORDS, STATION_RESUME_WORDS)
             self.state, self.message = ("stopped" if stopped else "failed"), text
 
     def snapshot(self, since: int) -> dict[str, Any]:
