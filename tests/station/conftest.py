@@ -88,6 +88,26 @@ class Served:
 
 
 @pytest.fixture
+def simulated_workspace(tmp_path) -> Iterator[tuple[Any, Any]]:
+    """The station (not served: a Starlette test client speaks to it) with a simulated robot
+    "UR10 bay 1", a simulated tracker and one workspace for them: ``(station, client)``, every
+    run stopped and the record closed on every way out."""
+    testclient = need("starlette.testclient")
+    from spacecal.station.server import StationOptions, build
+
+    station, application = build(StationOptions(data=str(tmp_path / "station")))
+    web = testclient.TestClient(application, base_url="http://127.0.0.1:8770")
+    try:
+        web.post("/devices", data={"kind": "robot", "name": "UR10 bay 1", "url": "sim"})
+        web.post("/devices", data={"kind": "tracker", "name": "Vicra", "url": "sim"})
+        web.post("/workspaces", data={"robot": "1", "tracker": "1"})
+        yield station, web
+    finally:
+        station.runs.stop_all("the test ended")
+        station.ledger.close()
+
+
+@pytest.fixture
 def served(tmp_path, request) -> Iterator[Served]:
     """The station on 127.0.0.1 (a free port) in a thread, stopped on every way out. A test
     may set the pages' ping interval and timeout, s, by parametrizing it indirectly."""

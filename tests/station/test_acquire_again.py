@@ -7,8 +7,6 @@ from __future__ import annotations
 import re
 import time
 
-from tests.station.conftest import need
-
 #: A child process imports spacecal and starts the simulated devices within this, s (2 busy cores).
 STARTS_WITHIN_S = 120.0
 
@@ -32,39 +30,28 @@ def wait_for_samples(run) -> None:
     assert run.active, run.message
 
 
-def test_an_acquisition_after_a_stopped_one_starts_over_and_keeps_the_stopped_files(tmp_path):
-    testclient = need("starlette.testclient")
-    from spacecal.station.server import StationOptions, build
+def test_an_acquisition_after_a_stopped_one_starts_over_and_keeps_the_stopped_files(simulated_workspace):
+    station, web = simulated_workspace
+    work = station.workspaces[1]
+    web.post("/workspaces/1/step/plan")
+    web.post("/workspaces/1/step/dry-run")
+    assert work.dry_run_ok
 
-    station, application = build(StationOptions(data=str(tmp_path / "station")))
-    web = testclient.TestClient(application, base_url="http://127.0.0.1:8770")
-    try:
-        web.post("/devices", data={"kind": "robot", "name": "UR10 bay 1", "url": "sim"})
-        web.post("/devices", data={"kind": "tracker", "name": "Vicra", "url": "sim"})
-        web.post("/workspaces", data={"robot": "1", "tracker": "1"})
-        work = station.workspaces[1]
-        web.post("/workspaces/1/step/plan")
-        web.post("/workspaces/1/step/dry-run")
-        assert work.dry_run_ok
+    first = confirm_and_start(web, station)
+    wait_for_samples(first)
+    first.request_stop("STOP pressed at the station")
+    first.thread.join(timeout=STARTS_WITHIN_S)
+    assert first.state == "stopped" and "samples kept in" in first.message, first.message
+    assert "acquiring again starts over" in first.message and "--resume" not in first.message
+    stopped_files = {p.name: p.read_bytes() for p in work.folder.glob("recording.*")}
+    assert {"recording.robot.csv", "recording.tracker.csv"} <= set(stopped_files), sorted(stopped_files)
 
-        first = confirm_and_start(web, station)
-        wait_for_samples(first)
-        first.request_stop("STOP pressed at the station")
-        first.thread.join(timeout=STARTS_WITHIN_S)
-        assert first.state == "stopped" and "samples kept in" in first.message, first.message
-        assert "acquiring again starts over" in first.message and "--resume" not in first.message
-        stopped_files = {p.name: p.read_bytes() for p in work.folder.glob("recording.*")}
-        assert {"recording.robot.csv", "recording.tracker.csv"} <= set(stopped_files), sorted(stopped_files)
-
-        second = confirm_and_start(web, station)
-        wait_for_samples(second)  # not refused: "recording.csv exists"
-        second.request_stop("the test ended")
-        second.thread.join(timeout=STARTS_WITHIN_S)
-        kept = work.folder / "earlier-1"
-        assert {p.name: p.read_bytes() for p in kept.iterdir()} == stopped_files
-        assert second.state == "stopped" and "samples kept in" in second.message, second.message
-        robot_stream = work.folder / "recording.robot.csv"
-        assert robot_stream.read_bytes() != stopped_files["recording.robot.csv"]  # its own samples
-    finally:
-        station.runs.stop_all("the test ended")
-        station.ledger.close()
+    second = confirm_and_start(web, station)
+    wait_for_samples(second)  # not refused: "recording.csv exists"
+    second.request_stop("the test ended")
+    second.thread.join(timeout=STARTS_WITHIN_S)
+    kept = work.folder / "earlier-1"
+    assert {p.name: p.read_bytes() for p in kept.iterdir()} == stopped_files
+    assert second.state == "stopped" and "samples kept in" in second.message, second.message
+    robot_stream = work.folder / "recording.robot.csv"
+    assert robot_stream.read_bytes() != stopped_files["recording.robot.csv"]  # its own samples

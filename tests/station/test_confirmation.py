@@ -5,46 +5,33 @@ from __future__ import annotations
 
 import re
 
-from tests.station.conftest import need
 
-
-def test_no_motion_without_its_confirmation(tmp_path):
-    testclient = need("starlette.testclient")
-    from spacecal.station.server import StationOptions, build
-
-    station, application = build(StationOptions(data=str(tmp_path / "station")))
-    web = testclient.TestClient(application, base_url="http://127.0.0.1:8770")
-    try:
-        web.post("/devices", data={"kind": "robot", "name": "UR10 bay 1", "url": "sim"})
-        web.post("/devices", data={"kind": "tracker", "name": "Vicra", "url": "sim"})
-        web.post("/workspaces", data={"robot": "1", "tracker": "1"})
-        work = station.workspaces[1]
-        # no confirmation before the dry run passed
-        early = web.get("/workspaces/1/confirm/acquire")
-        assert "run the dry run first" in early.text and 'name="ticket"' not in early.text
-        web.post("/workspaces/1/step/dry-run")
-        assert work.dry_run_ok
-        # no ticket, a made-up one, and one issued for the other motion: refused, nothing moves
-        for data in ({}, {"ticket": "made-up"}):
-            refused = web.post("/workspaces/1/motion/acquire", data=data)
-            assert refused.status_code == 403 and "confirmation" in refused.text
-        check_ticket = station.tickets.issue(1, "UR10 bay 1", "check")
-        assert web.post("/workspaces/1/motion/acquire", data={"ticket": check_ticket}).status_code == 403
-        assert station.runs.active() is None and station.runs.get(1) is None
-        assert not work.recording_path.exists()
-        # the confirmation names the robot and the motion
-        page = web.get("/workspaces/1/confirm/acquire").text
-        text = re.search(r'id="confirm-text">(.*?)</p>', page, re.S).group(1)
-        assert "UR10 bay 1" in text and "calibration motion" in text
-        ticket = re.search(r'name="ticket" value="([^"]+)"', page).group(1)
-        started = web.post("/workspaces/1/motion/acquire", data={"ticket": ticket}, follow_redirects=False)
-        assert started.status_code == 303 and started.headers["location"].endswith("/runs/1")
-        run = station.runs.get(1)
-        run.request_stop("the test ended")
-        run.thread.join(timeout=60)
-        # a ticket is used once
-        again = web.post("/workspaces/1/motion/acquire", data={"ticket": ticket})
-        assert again.status_code == 403 and station.runs.get(2) is None
-    finally:
-        station.runs.stop_all("the test ended")
-        station.ledger.close()
+def test_no_motion_without_its_confirmation(simulated_workspace):
+    station, web = simulated_workspace
+    work = station.workspaces[1]
+    # no confirmation before the dry run passed
+    early = web.get("/workspaces/1/confirm/acquire")
+    assert "run the dry run first" in early.text and 'name="ticket"' not in early.text
+    web.post("/workspaces/1/step/dry-run")
+    assert work.dry_run_ok
+    # no ticket, a made-up one, and one issued for the other motion: refused, nothing moves
+    for data in ({}, {"ticket": "made-up"}):
+        refused = web.post("/workspaces/1/motion/acquire", data=data)
+        assert refused.status_code == 403 and "confirmation" in refused.text
+    check_ticket = station.tickets.issue(1, "UR10 bay 1", "check")
+    assert web.post("/workspaces/1/motion/acquire", data={"ticket": check_ticket}).status_code == 403
+    assert station.runs.active() is None and station.runs.get(1) is None
+    assert not work.recording_path.exists()
+    # the confirmation names the robot and the motion
+    page = web.get("/workspaces/1/confirm/acquire").text
+    text = re.search(r'id="confirm-text">(.*?)</p>', page, re.S).group(1)
+    assert "UR10 bay 1" in text and "calibration motion" in text
+    ticket = re.search(r'name="ticket" value="([^"]+)"', page).group(1)
+    started = web.post("/workspaces/1/motion/acquire", data={"ticket": ticket}, follow_redirects=False)
+    assert started.status_code == 303 and started.headers["location"].endswith("/runs/1")
+    run = station.runs.get(1)
+    run.request_stop("the test ended")
+    run.thread.join(timeout=60)
+    # a ticket is used once
+    again = web.post("/workspaces/1/motion/acquire", data={"ticket": ticket})
+    assert again.status_code == 403 and station.runs.get(2) is None
