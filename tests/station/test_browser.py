@@ -87,6 +87,11 @@ def wait_for_run_end(page, disk, expression: str, within_ms: float = ACQUISITION
 RUN_ENDED_JS = "!['starting', 'running'].includes(document.getElementById('run-state').textContent)"
 
 
+def shown_run(page, served):
+    """The run whose page ``page`` shows (``/runs/N``)."""
+    return served.station.runs.get(int(page.url.rsplit("/", 1)[1]))
+
+
 def stopped_for_a_stalled_page(run, disk) -> bool:
     """Whether the station stopped ``run`` because its page went silent, with a single disk
     stall at least the page's ping timeout long beside it (see :func:`confirm_and_finish`)."""
@@ -115,7 +120,7 @@ def confirm_and_finish(page, served, disk, robot: str, again, while_running=None
         assert robot in page.inner_text("#confirm-text")
         page.click("#confirm")
         page.wait_for_url(re.compile(r"/runs/\d+$"))
-        run = served.station.runs.get(int(page.url.rsplit("/", 1)[1]))
+        run = shown_run(page, served)
         try:
             if while_running is not None:
                 while_running()
@@ -218,7 +223,7 @@ def test_from_a_new_robot_to_an_exported_calibration(served, page, disk):
     message = confirm_and_finish(page, served, disk, robot, acquire_again, acquiring)
     assert "19/19 moves" in message
     # the simulated robot took as long as the real one would: at least its simulated time
-    run = served.station.runs.get(int(page.url.rsplit("/", 1)[1]))
+    run = shown_run(page, served)
     times = read_recording(run.output.record.result.recording_path).time_s
     assert run.ended_at - run.first_frame_at >= 0.95 * (times[-1] - times[0]) > 20.0
     steps.done("acquire")
