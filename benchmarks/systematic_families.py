@@ -127,11 +127,17 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def seed_parser(description: str, scenarios: tuple[str, ...]) -> argparse.ArgumentParser:
+    """The options the systematic benchmarks share: ``--seeds``, ``--first-seed``, ``--preset``."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=1)
-    parser.add_argument("--preset", action="append", choices=SCENARIOS, help="default: every one")
+    parser.add_argument("--preset", action="append", choices=scenarios, help="default: every one")
+    return parser
+
+
+def main() -> None:
+    parser = seed_parser(__doc__.splitlines()[0], SCENARIOS)
     parser.add_argument("--json", type=Path, help="write the rows here as they come")
     parser.add_argument("--table", type=Path, nargs="+", help="print one table from rows written before")
     args = parser.parse_args()

@@ -34,10 +34,10 @@ of it, and held-out model selection.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 
 import numpy as np
+from systematic_families import seed_parser  # the benchmarks' folder, on the path when run
 
 from spacecal.estimators import calibrate
 from spacecal.experiments.simulation import Simulation, simulate
@@ -231,10 +231,7 @@ def table(rows: list[dict], columns: tuple[str, ...] = COLUMNS) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=10)
-    parser.add_argument("--first-seed", type=int, default=1)
-    parser.add_argument("--preset", action="append", choices=SCENARIOS, help="default: every one")
+    parser = seed_parser(__doc__.splitlines()[0], SCENARIOS)
     parser.add_argument("--priors", action="store_true", help="kinematic under other arm priors instead")
     args = parser.parse_args()
     one_row = run_priors if args.priors else run
