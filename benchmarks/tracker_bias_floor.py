@@ -52,7 +52,6 @@ from spacecal.experiments.verification import (
 )
 from spacecal.geometry.fitting import fit_rigid
 from spacecal.geometry.transforms import apply_transform, transform_points_by_stack
-from spacecal.models.compliance import JointCompliance
 from spacecal.records import CalibrationResult, NeedleTip, Recording
 from spacecal.sim.devices import SimulatedLaserTracker, SimulatedRobot
 from spacecal.sim.pivot import simulate_pivot
@@ -69,15 +68,6 @@ def field_at(world: World, points_in_tracker: np.ndarray) -> np.ndarray:
     if world.bias_field is not None:
         bias = bias + world.bias_field(points_in_tracker)
     return bias
-
-
-def true_compliance(world: World) -> JointCompliance | None:
-    """The arm's true shoulder and elbow compliance, None on a rigid arm."""
-    stiffness = np.asarray(world.scenario.joint_stiffness_nm_per_rad, float)
-    if not np.any(stiffness > 0):
-        return None
-    rad_per_nm = np.divide(1.0, stiffness, out=np.zeros_like(stiffness), where=stiffness > 0)
-    return JointCompliance(rad_per_nm, payload_kg=world.scenario.payload_kg)
 
 
 def with_true_arm(recording: Recording, world: World) -> Recording:
@@ -112,6 +102,15 @@ def without_non_rigid_part(recording: Recording, simulation: Simulation, delta: 
     return dataclasses.replace(recording, tracker_from_marker_stack=poses)
 
 
+def paper_targets(world: World) -> np.ndarray:
+    """The verification targets (15, 4, 4) in the tracker frame that
+    :func:`verify_in_simulation` drives to (its default ``seed``)."""
+    scenario = world.scenario
+    return verification_targets(
+        world, scenario.verification_targets, np.random.default_rng([scenario.seed, 2, 0])
+    )
+
+
 def verified_mean(calibration: CalibrationResult, scenario: Scenario) -> float:
     """Mean position error (mm) of :func:`verify_in_simulation` at the paper's targets."""
     return float(np.mean(verify_in_simulation(calibration, scenario).position_error_mm))
@@ -121,11 +120,9 @@ def verify_on_true_arm(calibration: CalibrationResult, scenario: Scenario) -> fl
     """Mean position error (mm) at the paper's verification targets, IK on the true arm with its
     deflection compensated, the needle the true TCP; otherwise as :func:`verify_in_simulation`."""
     world = build_world(scenario)
-    targets = verification_targets(
-        world, scenario.verification_targets, np.random.default_rng([scenario.seed, 2, 0])
-    )
+    targets = paper_targets(world)
     robot = SimulatedRobot(world)
-    compliance = true_compliance(world)
+    compliance = world.true_compliance()
     commanded = (
         robot if compliance is None else DeflectionCompensatedRobot(robot, world.true_model, compliance)
     )
@@ -144,10 +141,7 @@ def verify_on_true_arm(calibration: CalibrationResult, scenario: Scenario) -> fl
 
 def rigid_error_at_targets(world: World, delta: np.ndarray) -> float:
     """Mean ``|delta(y) - y|`` (mm) over the verification targets' needle tips ``y``."""
-    targets = verification_targets(
-        world, world.scenario.verification_targets, np.random.default_rng([world.scenario.seed, 2, 0])
-    )
-    tips = targets[:, :3, 3]
+    tips = paper_targets(world)[:, :3, 3]
     return float(np.mean(np.linalg.norm(apply_transform(delta, tips) - tips, axis=1)))
 
 
@@ -161,21 +155,22 @@ def run(preset: str, seed: int) -> dict:
         variant: verified_mean(calibrate(recording, "kinematic", needle_tip=t), scenario)
         for variant, t in (("kinematic", None), ("kinematic + tip", tip))
     }
-    arm_known = with_true_arm(recording, world)
     delta = rigid_part(simulation)
+    # the correction touches the tracker's frames only, and with_true_arm the robot's
+    field_corrected = without_non_rigid_part(recording, simulation, delta)
     field_off = dataclasses.replace(scenario, volumetric_error_rms_mm=0.0)
     no_field = simulate(field_off).recording
     return {
         "scenario": preset,
         "seed": seed,
         **recommended,
-        "arm known": verify_on_true_arm(calibrate(arm_known, "ml"), scenario),
+        "arm known": verify_on_true_arm(calibrate(with_true_arm(recording, world), "ml"), scenario),
         "arm and field known but its rigid part": verify_on_true_arm(
-            calibrate(without_non_rigid_part(arm_known, simulation, delta), "ml"), scenario
+            calibrate(with_true_arm(field_corrected, world), "ml"), scenario
         ),
         "rigid part at targets": rigid_error_at_targets(world, delta),
         "kinematic, field's non-rigid part known": verified_mean(
-            calibrate(without_non_rigid_part(recording, simulation, delta), "kinematic"), scenario
+            calibrate(field_corrected, "kinematic"), scenario
         ),
         "kinematic, no field": verified_mean(calibrate(no_field, "kinematic"), field_off),
     }

@@ -248,21 +248,28 @@ class World:
             return np.zeros((count, 3))
         return self.noise_rng.normal(scale=sd, size=(count, 3))
 
-    def joint_deflections_rad(self, joints_rad) -> np.ndarray:
-        """How far (N, 6), rad, the joints really are from the encoder angles (N, 6) under
-        gravity: ``torque / stiffness`` on the shoulder and elbow (joints 2 and 3) with the
-        scenario's ``joint_stiffness_nm_per_rad`` and ``payload_kg`` (zero on a rigid arm).
-        The encoders sit on the motor side of the transmission, so the controller neither
-        reports nor corrects it."""
-        q = np.atleast_2d(np.asarray(joints_rad, float))
+    def true_compliance(self) -> JointCompliance | None:
+        """The shoulder's and elbow's true compliance under gravity: the inverse of the
+        scenario's ``joint_stiffness_nm_per_rad`` (a stiffness of 0 standing for a rigid joint)
+        with its ``payload_kg``; None on a rigid arm."""
         stiffness = np.asarray(self.scenario.joint_stiffness_nm_per_rad, float)
         if not np.any(stiffness > 0):
-            return np.zeros_like(q)
-        # the package's one deflection rule, a stiffness of 0 standing for a rigid joint
-        compliance = JointCompliance(
+            return None
+        return JointCompliance(
             np.divide(1.0, stiffness, out=np.zeros_like(stiffness), where=stiffness > 0),
             payload_kg=self.scenario.payload_kg,
         )
+
+    def joint_deflections_rad(self, joints_rad) -> np.ndarray:
+        """How far (N, 6), rad, the joints really are from the encoder angles (N, 6) under
+        gravity: ``torque / stiffness`` on the shoulder and elbow (joints 2 and 3), the
+        package's one deflection rule with :meth:`true_compliance` (zero on a rigid arm).
+        The encoders sit on the motor side of the transmission, so the controller neither
+        reports nor corrects it."""
+        q = np.atleast_2d(np.asarray(joints_rad, float))
+        compliance = self.true_compliance()
+        if compliance is None:
+            return np.zeros_like(q)
         return compliance.deflections_rad(self.true_model, q)
 
     def true_base_from_tcp(self, joints_rad, jitter: bool = True) -> np.ndarray:
