@@ -19,8 +19,10 @@ the tracker is the fixed frame that measures, the marker the frame on the tool. 
 
 KinHEC's trackers report poses only (no sphere fit), so the recording's ``marker_rms_mm`` is
 NaN: spacecal then takes the noise from the residuals. Joint angles are passed for the UR
-arms, whose nominal DH tables are the same in both packages; other arms get NaN joints
-(spacecal has no model of them).
+arms, whose nominal DH tables are the same in both packages (the metadata names the model),
+and for the other arms KinHEC gives in standard DH form (a KUKA LBR iiwa's seven joints): their
+nominal DH table, from KinHEC, goes into the metadata as ``robot.kinematic_model``. An arm in
+modified DH form (Craig's; the Franka Panda) gets NaN joints: spacecal has no model of it.
 
 This module imports nothing from the tests; the benchmark ``benchmarks/kinhec_tracks.py`` and the
 conversion test load it by path.
@@ -61,6 +63,32 @@ def spacecal_robot_model(kinhec_robot: str) -> str | None:
     return None
 
 
+def kinematic_model_of(kinhec_robot: str) -> dict | None:
+    """The nominal model of a KinHEC arm that is not a UR arm, as spacecal's
+    ``robot.kinematic_model`` metadata (DH table in mm and rad, KinHEC's flange as the TCP);
+    None for a UR arm (named instead) and for an arm spacecal's standard DH cannot describe."""
+    from kinhec.robots import get_robot
+
+    if spacecal_robot_model(kinhec_robot) is not None:
+        return None
+    robot = get_robot(kinhec_robot)
+    if robot.convention != "standard" or (robot.q_sign is not None and np.any(np.asarray(robot.q_sign) != 1)):
+        return None
+    tool = np.array(robot.tool_matrix, dtype=float)
+    tool[:3, 3] *= MM_PER_M
+    return {
+        "name": robot.name,
+        "a_mm": [MM_PER_M * v for v in robot.a],
+        "d_mm": [MM_PER_M * v for v in robot.d],
+        "alpha_rad": list(robot.alpha),
+        "theta_offset_rad": list(robot.theta_offset),
+        "flange_from_tcp": tool.tolist(),
+        "joint_lower_rad": list(robot.q_min),
+        "joint_upper_rad": list(robot.q_max),
+        "controller_hz": float(robot.control_rate_hz),
+    }
+
+
 def in_mm(stack_m: np.ndarray) -> np.ndarray:
     """Poses (..., 4, 4) in metres as poses in mm (a copy)."""
     out = np.array(stack_m, dtype=float, copy=True)
@@ -91,6 +119,10 @@ def _metadata(seq, model: str | None) -> dict:
     robot: dict = {"kinhec_robot": m["robot"], "dof": int(m["dof"])}
     if model is not None:
         robot["model"] = model
+    kinematic_model = kinematic_model_of(m["robot"])
+    if kinematic_model is not None:
+        robot["model"] = kinematic_model["name"]
+        robot["kinematic_model"] = kinematic_model
     return {
         "source": f"KinHEC {kinhec.__version__} sequence {seq.id}",
         "simulated": True,
@@ -106,8 +138,9 @@ def _metadata(seq, model: str | None) -> dict:
     }
 
 
-def _joints(q: np.ndarray | None, rows: int, model: str | None) -> np.ndarray:
-    if model is None or q is None:
+def _joints(q: np.ndarray | None, rows: int, model: str | None, kinhec_robot: str) -> np.ndarray:
+    """KinHEC's joint angles where spacecal has the arm's model, else NaN (six columns)."""
+    if q is None or (model is None and kinematic_model_of(kinhec_robot) is None):
         return np.full((rows, 6), np.nan)
     return np.asarray(q, dtype=float)
 
@@ -139,11 +172,11 @@ def to_recording(seq, noise_free: bool = False) -> Recording:
     if noise_free:
         base_from_tcp = in_mm(seq.camera.T_base_ee_gt)
         tracker_from_marker = _tracker_from_marker(seq, seq.camera.T_cam_target_gt)
-        joints = _joints(seq.robot.q_gt, len(seq.robot.t), model)
+        joints = _joints(seq.robot.q_gt, len(seq.robot.t), model, seq.manifest["robot"])
     else:
         base_from_tcp = in_mm(seq.robot.T_base_ee_meas)
         tracker_from_marker = _tracker_from_marker(seq, seq.camera.T_cam_target_meas)
-        joints = _joints(seq.robot.q_meas, len(seq.robot.t), model)
+        joints = _joints(seq.robot.q_meas, len(seq.robot.t), model, seq.manifest["robot"])
     return Recording(
         time_s=np.asarray(seq.camera.t, dtype=float),
         segment=np.full(len(seq.camera.t), SEGMENT),
@@ -179,7 +212,7 @@ def to_raw_recording(seq) -> RawConversion:
     raw = RawRecording(
         robot_time_s=robot_t,
         robot_segment=np.full(len(robot_t), SEGMENT),
-        joints_rad=_joints(seq.robot.q_meas, len(robot_t), model),
+        joints_rad=_joints(seq.robot.q_meas, len(robot_t), model, seq.manifest["robot"]),
         base_from_tcp_stack=in_mm(seq.robot.T_base_ee_meas),
         tracker_time_s=tracker_t[order],
         tracker_from_marker_stack=tracker_from_marker,

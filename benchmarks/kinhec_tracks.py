@@ -22,7 +22,8 @@ own error there (reported against true TCP), as a verification on the robot woul
 Frames: eye-to-hand the camera is spacecal's tracker and KinHEC's marker its marker;
 eye-in-hand the calibration target is the tracker and the camera the marker; KinHEC's flange
 is the TCP. KinHEC's trackers report poses only (no fit RMS); joint angles and the robot model
-go with the UR arms only (``kinematic`` is skipped for the others).
+go with the arms spacecal can model: the UR arms and the standard-DH ones (the KUKA LBR iiwa);
+``kinematic`` is skipped for the others.
 
     python benchmarks/kinhec_tracks.py [--tier smoke|small|medium] [--data DIR] [--limit N]
         [--tracks noise robot_error outliers temporal motion] [--methods ml shah ...]
@@ -224,11 +225,14 @@ def write_spacecal_input(seq, folder: Path) -> tuple[dict, dict]:
 def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[dict]:
     rows = []
     inputs, notes = write_spacecal_input(seq, folder)
-    ur = conversion.spacecal_robot_model(seq.manifest["robot"])
+    modelled = (
+        conversion.spacecal_robot_model(seq.manifest["robot"]) is not None
+        or conversion.kinematic_model_of(seq.manifest["robot"]) is not None
+    )
     for method in methods:
         row: dict = {"source": "spacecal", "method": method}
-        if Need.ROBOT_MODEL in ESTIMATORS[method].needs and ur is None:
-            row.update(status="skipped", message=f"{seq.manifest['robot']} is not a UR arm spacecal models")
+        if Need.ROBOT_MODEL in ESTIMATORS[method].needs and not modelled:
+            row.update(status="skipped", message=f"spacecal has no model of the {seq.manifest['robot']}")
             rows.append(row)
             continue
         settings = app.CalibrateSettings(

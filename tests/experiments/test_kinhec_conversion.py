@@ -112,27 +112,39 @@ def test_two_streams_pair_at_the_offset_kinhec_injected():
 
 #: KinHEC's small tier, robot-error track: a UR5e's 30 static camera views with DH errors of
 #: 0.1 or 1 mm and 0.01 or 0.1 deg, two motion seeds each.
-UR5E_DH_SEQUENCES = [f"robot_error-{k:06d}" for k in (2, 3, 4, 5, 8, 9, 10, 11)]
+#: The DH-error sequences of KinHEC's small robot-error track, per arm: a UR5e (six joints,
+#: named in the metadata) and a KUKA LBR iiwa 7 (seven, its DH table in the metadata).
+DH_SEQUENCES = {
+    "UR5e": [f"robot_error-{k:06d}" for k in (2, 3, 4, 5, 8, 9, 10, 11)],
+    "iiwa7": [f"robot_error-{k:06d}" for k in (14, 15, 16, 17, 20, 21, 22, 23)],
+}
 
 
-def test_the_noise_beyond_the_dh_errors_is_the_camera_noise_kinhec_injected():
+@pytest.mark.parametrize("arm", sorted(DH_SEQUENCES))
+def test_the_noise_beyond_the_dh_errors_is_the_camera_noise_kinhec_injected(arm):
     """One frame per pose and no fit RMS: the noise spacecal takes from what the residuals leave
     beyond the pose and the arm's DH errors, against the camera noise KinHEC injected (its
     measured minus its noise-free target poses, at the marker's spheres)."""
     from spacecal.estimators.expected_error import nominal_robot_model, white_noise_beyond_kinematics
     from spacecal.estimators.observations import build_observations
+    from spacecal.models.kinematics import forward_kinematics
 
     ratios, relative_errors = [], []
-    for sequence_id in UR5E_DH_SEQUENCES:
+    for sequence_id in DH_SEQUENCES[arm]:
         sequence = _tier_sequence("small", sequence_id)
         recording = conversion.to_recording(sequence)
         clean = conversion.to_recording(sequence, noise_free=True)
+        model = nominal_robot_model(recording)
+        assert model is not None and model.name == arm
+        # the model the metadata carries is the one the reported flange poses come from
+        reported = forward_kinematics(model, recording.joints_rad)
+        assert np.max(np.abs(reported - recording.base_from_tcp_stack)) < 1e-6
         result = calibrate(recording, "ml")
         observations = build_observations(recording)
         injected = observations.spheres_in_tracker - build_observations(clean).spheres_in_tracker
         true_power = float(np.mean(np.sum(injected**2, axis=(1, 2))))
         measured = white_noise_beyond_kinematics(
-            nominal_robot_model(recording),
+            model,
             recording.joints_rad[observations.rows],
             observations,
             result.tracker_from_base,

@@ -165,3 +165,79 @@ def test_raw_sphere_columns_round_trip(tmp_path):
     seen = simulation.recording.visible
     assert np.array_equal(again.spheres_in_tracker[seen], simulation.recording.spheres_in_tracker[seen])
     assert np.all(np.isnan(again.spheres_in_tracker[~seen]))
+
+
+def _seven_joint_recording():
+    """A recording of a seven-joint arm (a KUKA LBR iiwa): joints, TCP poses, marker poses."""
+    from spacecal.geometry.transforms import axis_angle_transform
+    from spacecal.models.kinematics import RobotModel, forward_kinematics
+    from spacecal.records import Recording
+    from spacecal.records.calibration import robot_model_to_dict
+
+    model = RobotModel(
+        name="iiwa7",
+        a_mm=np.zeros(7),
+        d_mm=np.array([340.0, 0.0, 400.0, 0.0, 400.0, 0.0, 126.0]),
+        alpha_rad=np.radians([-90.0, 90.0, 90.0, -90.0, -90.0, 90.0, 0.0]),
+    )
+    rng = np.random.default_rng(5)
+    joints = rng.uniform(-1.5, 1.5, (12, 7))
+    tcp = forward_kinematics(model, joints)
+    tracker_from_base = axis_angle_transform([0, 0, 1], 30.0, [100.0, -2000.0, 300.0])
+    marker = tracker_from_base @ tcp
+    return Recording(
+        time_s=np.arange(12.0),
+        segment=np.full(12, "poses"),
+        joints_rad=joints,
+        base_from_tcp_stack=tcp,
+        tracker_from_marker_stack=marker,
+        marker_rms_mm=np.full(12, 0.1),
+        metadata={"robot": {"model": "iiwa7", "kinematic_model": robot_model_to_dict(model)}},
+    )
+
+
+def test_a_seven_joint_recording_round_trips(tmp_path):
+    original = _seven_joint_recording()
+    path = write_recording(original, tmp_path / "iiwa.csv")
+    header = path.read_text().splitlines()[0].split(",")
+    assert header[2:9] == [f"q{i}_rad" for i in range(1, 8)]
+    again = read_recording(path)
+    assert np.array_equal(again.joints_rad, original.joints_rad)
+    assert np.allclose(again.base_from_tcp_stack, original.base_from_tcp_stack, atol=1e-12)
+    from spacecal.estimators.expected_error import nominal_robot_model
+
+    assert nominal_robot_model(again).n_joints == 7
+
+
+def test_seven_joint_raw_streams_round_trip(tmp_path):
+    from spacecal.io.raw_streams import read_raw_recording, write_raw_recording
+    from spacecal.records import RawRecording
+
+    paired = _seven_joint_recording()
+    raw = RawRecording(
+        robot_time_s=paired.time_s,
+        robot_segment=paired.segment,
+        joints_rad=paired.joints_rad,
+        base_from_tcp_stack=paired.base_from_tcp_stack,
+        tracker_time_s=paired.time_s + 0.01,
+        tracker_from_marker_stack=paired.tracker_from_marker_stack,
+        marker_rms_mm=paired.marker_rms_mm,
+        metadata=paired.metadata,
+    )
+    robot, tracker = write_raw_recording(raw, tmp_path / "iiwa")
+    again = read_raw_recording(robot, tracker)
+    assert np.array_equal(again.joints_rad, raw.joints_rad)
+
+
+def test_a_writer_refuses_joint_angles_of_another_arm(tmp_path):
+    with RecordingWriter(tmp_path / "r.csv", None, 0) as writer:
+        with pytest.raises(InvalidInputError, match="7 joint angles for a recording of 6 joints"):
+            writer.append(0.0, "s", np.zeros(7), np.eye(4))
+
+
+def test_joint_columns_that_do_not_match_the_named_ur_arm_are_refused(tmp_path):
+    recording = _seven_joint_recording()
+    recording.metadata = {"robot": {"model": "UR10"}}
+    path = write_recording(recording, tmp_path / "wrong.csv")
+    with pytest.raises(InvalidInputError, match="7 joint columns and its robot, a UR10, 6 joints"):
+        read_recording(path)

@@ -32,6 +32,7 @@ from spacecal.io.ur_driver_calibration import (
     ur_calibration_text,
     ur_flange_from_tcp,
 )
+from spacecal.models.kinematics import N_JOINTS
 from spacecal.records import CalibrationResult, RawRecording, Recording
 
 #: Longest note line printed (a note quotes topic names from the bag).
@@ -255,6 +256,11 @@ def export_ros(settings: RosExportSettings, write: bool = True) -> CommandResult
                 "this calibration holds no identified robot model: calibrate with --method kinematic first"
             )
         model = calibration.robot_model
+        if model.n_joints != N_JOINTS:
+            raise InvalidInputError(
+                f"--ur-calibration writes a UR arm's six joints; this calibration's robot, the "
+                f"{model.name}, has {model.n_joints}"
+            )
         tool = tool_offset_text(ur_flange_from_tcp(model))
         if folds_last_link(model):
             fold = (

@@ -89,6 +89,7 @@ from spacecal.geometry.arrays import ArrayLike, FloatArray, IntArray, as_float_a
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.models.kinematics import (
+    N_JOINTS,
     UR_TABLES,
     RobotModel,
     dh_point_jacobian,
@@ -125,6 +126,12 @@ SITE_TILT_DEG = 30.0
 #: Unit scale of the DH errors whose shape sets the unseen tip error: 1 mm for lengths and
 #: 0.002 rad for angles (the ratio of the spreads :mod:`spacecal.estimators.kinematic` assumes).
 UNIT_DH_SD = np.array([1.0] * 12 + [0.002] * 12)
+
+
+def unit_dh_sd(joints: int) -> FloatArray:
+    """:data:`UNIT_DH_SD` for an arm of ``joints`` joints: (4 J,), a, d, alpha, theta offset."""
+    return np.repeat([1.0, 1.0, 0.002, 0.002], joints)
+
 
 #: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more.
 GEOMETRY_FRAMES = 120
@@ -419,7 +426,10 @@ def solved_joints(model: RobotModel, base_from_tcp_stack: FloatArray, rows: IntA
     """Joint angles (N, 6) reaching ``base_from_tcp_stack[rows]`` by ``model`` (NaN at the other
     frames), on one branch: the first frame's nearest :data:`WORKING_POSTURE_DEG`, then every
     frame by Gauss–Newton from it (the closed form nearest it where that does not converge on
-    the branch). None when ``model`` cannot reach them all."""
+    the branch). None when ``model`` cannot reach them all, or is not a six-joint UR arm (a
+    redundant arm's joint angles are not set by its poses)."""
+    if model.n_joints != N_JOINTS:
+        return None
     targets = base_from_tcp_stack[rows]
     # a geometry needs joint angles to a micrometre, not to the solver's default nanometre
     tolerance_mm = 1e-3
@@ -487,7 +497,7 @@ def unseen_kinematic_error(
     ----------
     model : RobotModel
         The model the poses were computed with.
-    joints_rad : numpy.ndarray, shape (N, 6)
+    joints_rad : numpy.ndarray, shape (N, J)
     obs : Observations
     tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
     site : numpy.ndarray of bool, shape (N,)
@@ -518,9 +528,10 @@ def unseen_kinematic_error(
     points = np.vstack([spheres, tip_points_in_marker(tcp_from_marker, tip_in_marker)])
     dh = dh_point_jacobian(model, joints_rad[picked], tracker_from_base, tcp_from_marker, points)
     pose = pose_point_jacobian(obs.base_from_tcp_stack[picked], tracker_from_base, tcp_from_marker, points)
-    dh = dh * UNIT_DH_SD
+    dh = dh * unit_dh_sd(model.n_joints)
+    dh_count = dh.shape[-1]
     absorbed_dh = list(absorbed_dh)
-    sphere_dh = dh[:, :k].reshape(len(picked), k * 3, 24)
+    sphere_dh = dh[:, :k].reshape(len(picked), k * 3, dh_count)
     absorbing = np.concatenate(
         [pose[:, :k].reshape(len(picked), k * 3, 12), sphere_dh[..., absorbed_dh]], axis=-1
     )
@@ -534,14 +545,14 @@ def unseen_kinematic_error(
         if out.sum() == 0 or (~out).sum() < 3:
             continue
         coefficients = _least_squares(
-            absorbing[~out].reshape(-1, absorbing.shape[-1]), sphere_dh[~out].reshape(-1, 24)
+            absorbing[~out].reshape(-1, absorbing.shape[-1]), sphere_dh[~out].reshape(-1, dh_count)
         )
         unseen = sphere_dh[out] - absorbing[out] @ coefficients
         held_out_power.append(np.sum(unseen**2, axis=(1, 2)))
     sphere_power = float(np.mean(np.concatenate(held_out_power))) if held_out_power else 0.0
     # at the tip, the fitted tracker_from_base (and identified DH) move it; tcp_from_marker does
     # too when the tip was measured in the marker frame, not when it is the controller's TCP
-    coefficients = _least_squares(absorbing.reshape(-1, absorbing.shape[-1]), sphere_dh.reshape(-1, 24))
+    coefficients = _least_squares(absorbing.reshape(-1, absorbing.shape[-1]), sphere_dh.reshape(-1, dh_count))
     at_site = site[picked]
     tip_dh = dh[at_site, k:]
     moved_by = 6 if tip_in_marker is None else 12
@@ -663,7 +674,7 @@ def residuals_and_shapes(
 
     At most ``frames`` frames with known joint angles, evenly spread: ``rows`` (M,), the
     predicted spheres (M, K, 3) and residuals (M, K, 3), mm, in the tracker frame; the pose's
-    Jacobian (M, K, 3, 12) and the unit-scale DH errors' (M, K, 3, 24, :data:`UNIT_DH_SD`).
+    Jacobian (M, K, 3, 12) and the unit-scale DH errors' (M, K, 3, 4 J, :func:`unit_dh_sd`).
     """
     usable = np.flatnonzero(np.all(np.isfinite(joints_rad), axis=1))
     rows = usable[geometry_rows(len(usable), frames)] if len(usable) else usable
@@ -671,7 +682,8 @@ def residuals_and_shapes(
     seen = predict_spheres(obs, tracker_from_base, tcp_from_marker)[rows]
     residual = seen - obs.spheres_in_tracker[rows]
     pose = pose_point_jacobian(obs.base_from_tcp_stack[rows], tracker_from_base, tcp_from_marker, points)
-    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points) * UNIT_DH_SD
+    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points)
+    dh = dh * unit_dh_sd(model.n_joints)
     return rows, seen, residual, pose, dh
 
 
@@ -700,7 +712,7 @@ def white_noise_beyond_kinematics(
     ----------
     model : RobotModel
         The arm whose DH geometry shapes the systematic error.
-    joints_rad : numpy.ndarray, shape (N, 6)
+    joints_rad : numpy.ndarray, shape (N, J)
         Its joint angles at the used frames (NaN where unknown: those frames are left out).
     obs : Observations
     tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
@@ -726,7 +738,7 @@ def white_noise_beyond_kinematics(
         model, joints_rad, obs, tracker_from_base, tcp_from_marker, frames
     )
     count, spheres = residual.shape[:2]
-    design = np.concatenate([pose, dh], axis=-1).reshape(count, 3 * spheres, 36)
+    design = np.concatenate([pose, dh], axis=-1).reshape(count, 3 * spheres, 12 + dh.shape[-1])
     noise = frame_noise_covariance(design, residual.reshape(count, 3 * spheres))
     if noise["dof"] < MINIMUM_RESIDUAL_DOF:
         raise DegenerateDataError(
@@ -795,7 +807,7 @@ def systematic_share_in_dh_span(
     Parameters
     ----------
     model : RobotModel
-    joints_rad : numpy.ndarray, shape (N, 6)
+    joints_rad : numpy.ndarray, shape (N, J)
         Joint angles at the used frames (NaN where unknown: those frames are left out).
     obs : Observations
     tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
@@ -831,7 +843,7 @@ def systematic_share_in_dh_span(
     # the same whether the tracker sent spheres or a fitted pose (whose noise lives there only).
     stacked = rigid_part(residual, seen).reshape(-1)
     pose_design = pose.reshape(-1, 12)
-    design = np.concatenate([pose, dh], axis=-1).reshape(-1, 36)
+    design = np.concatenate([pose, dh], axis=-1).reshape(-1, 12 + dh.shape[-1])
     # directions the data barely determine (DH columns nearly redundant with the pose, singular
     # values ~1e-12 of the largest) are cut: they would turn rounding into a different split
     beyond_pose, _, pose_rank, _ = np.linalg.lstsq(pose_design, stacked, rcond=RANK_RCOND)
@@ -846,7 +858,7 @@ def systematic_share_in_dh_span(
     other_power = max(rss_all - per_dimension * (6 * len(rows) - int(rank)), 0.0) / len(rows)
     total = dh_power + other_power
     noise_standard_error = per_dimension * np.sqrt(2.0 * max(dh_dimensions, 1))
-    dh_design = dh.reshape(-1, 24)
+    dh_design = dh.reshape(-1, dh.shape[-1])
     unit_beyond_pose = dh_design - pose_design @ np.linalg.lstsq(pose_design, dh_design, rcond=RANK_RCOND)[0]
     return {
         "dh_share": dh_power / total if total > 0 else 1.0,
@@ -886,7 +898,7 @@ def expected_error(
         Its covariance in the pose perturbation parameters (mm, rad).
     robot_model : RobotModel, optional
         The model ``obs`` poses come from; with ``joints_rad`` it gives the unseen tip error.
-    joints_rad : numpy.ndarray, shape (N, 6), optional
+    joints_rad : numpy.ndarray, shape (N, J), optional
     absorbed_dh : sequence of int
         DH corrections the estimator identified.
     likelihood_based : bool

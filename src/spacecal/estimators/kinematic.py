@@ -107,7 +107,16 @@ from spacecal.models.kinematics import (
 from spacecal.records import CalibrationResult, NeedleTip, Recording
 
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
-DH_NAMES = [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(6)]
+
+
+def dh_names(joints: int) -> list[str]:
+    """Names of the 4 J DH corrections of an arm of J joints, in the order of
+    :func:`~spacecal.models.kinematics.with_dh_corrections` (1-based joints)."""
+    return [f"{field}[{joint + 1}]" for field in DH_FIELDS for joint in range(joints)]
+
+
+#: The DH corrections of a six-joint (UR) arm, the only ones with compliance candidates.
+DH_NAMES = dh_names(6)
 N_DH = len(DH_NAMES)
 #: Names of the compliance candidates (joints 2 and 3, 1-based as in :data:`DH_NAMES`).
 COMPLIANCE_NAMES = [f"compliance_rad_per_nm[{joint + 1}]" for joint in COMPLIANT_JOINTS]
@@ -117,6 +126,13 @@ ANGLE_LEVER_MM = 1000.0
 #: About how far one unit of each DH correction moves the points, mm (lengths 1, angles
 #: :data:`ANGLE_LEVER_MM`): the columns' common footing in the identifiability test.
 DH_COLUMN_SCALE = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
+
+
+def dh_column_scale(joints: int) -> FloatArray:
+    """:data:`DH_COLUMN_SCALE` for an arm of ``joints`` joints, (4 J,)."""
+    return np.repeat([1.0, 1.0, ANGLE_LEVER_MM, ANGLE_LEVER_MM], joints)
+
+
 #: Prior s.d. of a joint's compliance, rad per N m. Zero mean: a rigid arm is the model the
 #: controller states, and the data must show the sag. The scale: the strain-wave gears of a
 #: UR10-sized shoulder and elbow have catalogue torsional stiffness of a few 1e4 N m/rad
@@ -164,6 +180,7 @@ def identifiable_corrections(
     pose_jacobian: FloatArray,
     rank_tolerance: float,
     column_scale: FloatArray | None = None,
+    dh_count: int = N_DH,
 ) -> tuple[FloatArray, float]:
     """Indices of the corrections the data determines beyond the pose, and their condition.
 
@@ -181,17 +198,19 @@ def identifiable_corrections(
         Candidates beyond the 24 DH corrections (the compliances) are taken after them, each
         only where it adds to the DH corrections chosen: the DH set stays what it is without
         them, and a compliance the DH corrections can mimic is left out.
+    dh_count : int
+        How many of the candidates are DH corrections (4 J for an arm of J joints).
     """
     scale = DH_COLUMN_SCALE if column_scale is None else column_scale
     dh = dh_jacobian.reshape(-1, len(scale)) / scale
     pose = pose_jacobian.reshape(-1, 12)
     # projection off the pose columns by the normal equations (12 columns: cheaper than a QR)
     projected = dh - pose @ np.linalg.solve(pose.T @ pose, pose.T @ dh)
-    _, r, order = qr(projected[:, :N_DH], mode="economic", pivoting=True)
+    _, r, order = qr(projected[:, :dh_count], mode="economic", pivoting=True)
     diagonal = np.abs(np.diag(r))
     keep = diagonal > rank_tolerance * diagonal[0]
     selected = np.sort(order[keep])
-    for extra in range(N_DH, projected.shape[1]):
+    for extra in range(dh_count, projected.shape[1]):
         basis = projected[:, selected]
         beyond = projected[:, extra] - basis @ np.linalg.lstsq(basis, projected[:, extra], rcond=None)[0]
         if np.linalg.norm(beyond) > rank_tolerance * diagonal[0]:
@@ -518,7 +537,8 @@ def identify_kinematics(
     dynamics = link_dynamics_of(model.name) if joint_compliance else None
     torques = None if dynamics is None else compliance_torques(model, joints, payload_kg, dynamics)
     reference_torques = None if torques is None else np.mean(torques, axis=0)
-    names = PARAMETER_NAMES if torques is not None else DH_NAMES
+    n_dh = 4 * model.n_joints
+    names = PARAMETER_NAMES if torques is not None else dh_names(model.n_joints)
     delta = np.zeros(len(names))
     # the robot's DH error scale as the ML start's held-out misfit shows it (before the
     # corrections absorb it)
@@ -533,22 +553,22 @@ def identify_kinematics(
         prior_length_sd_mm = dh_scale
         prior_angle_sd_rad = dh_scale * ANGLE_PER_LENGTH_RAD_PER_MM
     prior_sd = np.array(
-        [prior_length_sd_mm] * 12
-        + [prior_angle_sd_rad] * 12
-        + [COMPLIANCE_PRIOR_SD_RAD_PER_NM] * (len(names) - N_DH)
+        [prior_length_sd_mm] * (n_dh // 2)
+        + [prior_angle_sd_rad] * (n_dh // 2)
+        + [COMPLIANCE_PRIOR_SD_RAD_PER_NM] * (len(names) - n_dh)
     )
 
     def model_of(parameters: FloatArray) -> tuple[RobotModel, JointCompliance | None]:
         """The rigid model and the compliance a parameter vector (M,) describes."""
-        rigid = with_dh_corrections(model, parameters[:N_DH])
+        rigid = with_dh_corrections(model, parameters[:n_dh])
         if dynamics is None or reference_torques is None:
             return rigid, None
-        return rigid, JointCompliance(parameters[N_DH:], reference_torques, payload_kg, dynamics)
+        return rigid, JointCompliance(parameters[n_dh:], reference_torques, payload_kg, dynamics)
 
     corrected, compliance = model_of(delta)
     obs_model = replace(obs, base_from_tcp_stack=compliant_forward_kinematics(corrected, compliance, joints))
     j_dh = dh_point_jacobian(corrected, joints, tracker_from_base, tcp_from_marker, spheres)
-    column_scale = DH_COLUMN_SCALE
+    column_scale = dh_column_scale(model.n_joints)
     if torques is not None and reference_torques is not None:
         varying = torques - reference_torques
         j_dh = np.concatenate([j_dh, compliance_point_jacobian(j_dh, varying)], axis=-1)
@@ -558,6 +578,7 @@ def identify_kinematics(
         pose_point_jacobian(obs_model.base_from_tcp_stack, tracker_from_base, tcp_from_marker, spheres),
         rank_tolerance,
         column_scale,
+        dh_count=n_dh,
     )
     if len(selected) == 0:
         raise DegenerateDataError(
@@ -702,7 +723,7 @@ def identify_kinematics(
         variance_factor,
         extra,
         robot_model=corrected,
-        absorbed_dh=[int(i) for i in selected if i < N_DH],
+        absorbed_dh=[int(i) for i in selected if i < n_dh],
         dh_error_scale_mm=dh_scale,
     )
     # the joint ML fit of obs_model: its held-out refits are its own

@@ -22,8 +22,26 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.strict_numbers import parse_float
 from spacecal.core.text import quoted
+from spacecal.models.kinematics import MAX_JOINTS
 
 JOINT_COLUMNS = [f"q{i}_rad" for i in range(1, 7)]
+
+
+def joint_columns(count: int) -> list[str]:
+    """The joint columns of an arm of ``count`` joints: ``q1_rad`` .. ``q<count>_rad``, at
+    least the six every recording file carries (a UR arm's; empty cells for fewer)."""
+    return [f"q{i}_rad" for i in range(1, max(count, len(JOINT_COLUMNS)) + 1)]
+
+
+def joint_count_in_header(names: list[str]) -> int:
+    """How many joints a header's columns carry: six, or more where ``q7_rad``, ``q8_rad`` ...
+    follow (a KUKA LBR iiwa's seven)."""
+    count = len(JOINT_COLUMNS)
+    while count < MAX_JOINTS and f"q{count + 1}_rad" in names:
+        count += 1
+    return count
+
+
 TCP_COLUMNS = ["tcp_x_mm", "tcp_y_mm", "tcp_z_mm", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
 MARKER_COLUMNS = [
     "marker_x_mm",
@@ -132,7 +150,7 @@ def check_ranges(
     """
     checks = (
         ("time_s", time_s[:, None], -MAX_ABS_TIME_S, MAX_ABS_TIME_S, "s"),
-        ("q1_rad..q6_rad", joints_rad, -MAX_ABS_JOINT_RAD, MAX_ABS_JOINT_RAD, "rad"),
+        (f"q1_rad..q{joints_rad.shape[1]}_rad", joints_rad, -MAX_ABS_JOINT_RAD, MAX_ABS_JOINT_RAD, "rad"),
         ("tcp_x_mm..tcp_z_mm", tcp_in_base_mm, -MAX_ABS_POSITION_MM, MAX_ABS_POSITION_MM, "mm"),
         ("marker_x_mm..marker_z_mm", marker_in_tracker_mm, -MAX_ABS_POSITION_MM, MAX_ABS_POSITION_MM, "mm"),
         ("marker_rms_mm", marker_rms_mm[:, None], 0.0, MAX_MARKER_RMS_MM, "mm"),
@@ -183,7 +201,7 @@ def check_tcp_against_kinematics(
 
     Parameters
     ----------
-    joints_rad : numpy.ndarray, shape (N, 6)
+    joints_rad : numpy.ndarray, shape (N, J)
         NaN rows where the joints were not recorded.
     base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
         The recorded TCP poses, mm.
@@ -197,6 +215,11 @@ def check_tcp_against_kinematics(
         return
     flange_from_tcp = robot.get("flange_from_tcp")
     model = ur_model(name, None if flange_from_tcp is None else np.asarray(flange_from_tcp, dtype=float))
+    if joints_rad.shape[1] != model.n_joints:
+        raise InvalidInputError(
+            f"{path}: the recording has {joints_rad.shape[1]} joint columns and its robot, a {name}, "
+            f"{model.n_joints} joints"
+        )
     predicted = forward_kinematics(model, joints_rad[recorded])
     actual = base_from_tcp_stack[recorded]
     distance_mm = np.linalg.norm(predicted[:, :3, 3] - actual[:, :3, 3], axis=1)

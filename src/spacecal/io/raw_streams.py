@@ -2,7 +2,8 @@
 
 ``<stem>.robot.csv`` — one row per controller state::
 
-    time_s, segment, q1_rad .. q6_rad, tcp_x_mm, tcp_y_mm, tcp_z_mm, tcp_qw, tcp_qx, tcp_qy, tcp_qz
+    time_s, segment, q1_rad .. q6_rad [, q7_rad ...],
+    tcp_x_mm, tcp_y_mm, tcp_z_mm, tcp_qw, tcp_qx, tcp_qy, tcp_qz
 
 ``<stem>.tracker.csv`` — one row per tracker frame (marker cells empty when not seen)::
 
@@ -43,6 +44,8 @@ from spacecal.io.csv_core import (
     check_tcp_against_kinematics,
     drop_partial_last_row,
     format_number,
+    joint_columns,
+    joint_count_in_header,
     metadata_path,
     parse_number,
     sphere_columns,
@@ -84,7 +87,7 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
     robot_path, tracker_path, meta_path = stream_paths(stem)
     robot_text, tracker_text = io.StringIO(), io.StringIO()
     writer = csv.writer(robot_text)
-    writer.writerow(ROBOT_COLUMNS)
+    writer.writerow(["time_s", "segment"] + joint_columns(raw.joints_rad.shape[1]) + TCP_COLUMNS)
     positions, quaternions = transform_to_position_quaternion(raw.base_from_tcp_stack)
     for k in range(len(raw.robot_time_s)):
         writer.writerow(
@@ -280,25 +283,31 @@ def _increasing(times: np.ndarray, path: Path) -> None:
 def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawRecording:
     """Read and validate the two streams (metadata from the robot stream's stem, if present)."""
     robot_path, tracker_path = Path(robot_path), Path(tracker_path)
-    rows, index, _ = _rows(robot_path, ROBOT_COLUMNS)
-    numeric = ["time_s"] + JOINT_COLUMNS + TCP_COLUMNS
+    rows, index, robot_header = _rows(robot_path, ROBOT_COLUMNS)
+    joint_names = joint_columns(joint_count_in_header(robot_header))
+    index.update({c: robot_header.index(c) for c in joint_names})
+    numeric = ["time_s"] + joint_names + TCP_COLUMNS
     values = np.empty((len(rows), len(numeric)))
     for k, row in enumerate(rows):
-        # joints may be unrecorded (a robot pose from tf in a ROS bag): all six cells empty
-        joints_missing = not any(row[index[c]].strip() for c in JOINT_COLUMNS)
+        # joints may be unrecorded (a robot pose from tf in a ROS bag): all their cells empty
+        joints_missing = not any(row[index[c]].strip() for c in joint_names)
         values[k] = [
             np.nan
-            if joints_missing and c in JOINT_COLUMNS
+            if joints_missing and c in joint_names
             else parse_number(row[index[c]], k + 2, c, robot_path)
             for c in numeric
         ]
+    # columns: time, the J joints, the TCP position and quaternion
+    joints = values[:, 1 : 1 + len(joint_names)]
+    tcp_position = values[:, 1 + len(joint_names) : 4 + len(joint_names)]
+    tcp_quaternion = values[:, 4 + len(joint_names) : 8 + len(joint_names)]
     segments = np.array([r[index["segment"]].strip() for r in rows])
     _increasing(values[:, 0], robot_path)
     lines = np.arange(2, len(rows) + 2)
-    check_quaternions(values[:, 10:14], lines, "tcp", robot_path)
-    check_lengths_in_mm(values[:, 7:10], f"{robot_path}: tcp_x_mm..tcp_z_mm")
+    check_quaternions(tcp_quaternion, lines, "tcp", robot_path)
+    check_lengths_in_mm(tcp_position, f"{robot_path}: tcp_x_mm..tcp_z_mm")
     no_marker = np.full((len(rows), 3), np.nan)
-    check_ranges(robot_path, lines, values[:, 0], values[:, 1:7], values[:, 7:10], no_marker, no_marker[:, 0])
+    check_ranges(robot_path, lines, values[:, 0], joints, tcp_position, no_marker, no_marker[:, 0])
 
     rows, index, header = _rows(tracker_path, TRACKER_COLUMNS)
     times = np.array(
@@ -346,12 +355,12 @@ def read_raw_recording(robot_path: str | Path, tracker_path: str | Path) -> RawR
     meta = metadata_path(robot_path)
     metadata = read_json_object(meta, "recording metadata") if meta.is_file() else {}
     check_metadata(metadata, meta)
-    base_from_tcp = transform_from_position_quaternion(values[:, 7:10], values[:, 10:14])
-    check_tcp_against_kinematics(values[:, 1:7], base_from_tcp, metadata, robot_path)
+    base_from_tcp = transform_from_position_quaternion(tcp_position, tcp_quaternion)
+    check_tcp_against_kinematics(joints, base_from_tcp, metadata, robot_path)
     return RawRecording(
         values[:, 0],
         segments,
-        values[:, 1:7],
+        joints,
         base_from_tcp,
         times,
         tracker_from_marker,

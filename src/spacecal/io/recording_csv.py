@@ -2,13 +2,14 @@
 
 Columns (extra columns are allowed and ignored)::
 
-    time_s, segment, q1_rad .. q6_rad,
+    time_s, segment, q1_rad .. q6_rad [, q7_rad ...],
     tcp_x_mm, tcp_y_mm, tcp_z_mm, tcp_qw, tcp_qx, tcp_qy, tcp_qz,          base_from_tcp
     marker_x_mm, marker_y_mm, marker_z_mm, marker_qw, marker_qx, marker_qy,
     marker_qz, marker_rms_mm                                               tracker_from_marker
     marker_status                                                          (optional)
 
-The six joint cells may all be empty when the joints were not recorded (imports). The
+An arm of more than six joints (a KUKA LBR iiwa) adds ``q7_rad`` ... after ``q6_rad``. The
+joint cells may all be empty when the joints were not recorded (imports). The
 marker cells are empty when the marker was not seen (``marker_rms_mm`` alone may be empty
 when the tracker does not report it). ``marker_status`` is the tracker's frame status (one of
 :data:`spacecal.core.ports.FRAME_STATUSES`): ``ok`` needs the marker cells, ``missing`` leaves
@@ -50,6 +51,8 @@ from spacecal.io.csv_core import (
     check_tcp_against_kinematics,
     drop_partial_last_row,
     format_number,
+    joint_columns,
+    joint_count_in_header,
     metadata_path,
     parse_number,
     sphere_columns,
@@ -82,6 +85,8 @@ class RecordingWriter:
         metadata (0 without one).
     append : bool
         Continue an existing file (resume), keeping its header.
+    joint_count : int
+        Joints per row (six for a UR arm; more add ``q7_rad`` ... columns).
     """
 
     def __init__(
@@ -90,14 +95,17 @@ class RecordingWriter:
         metadata: dict | None = None,
         sphere_count: int | None = None,
         append: bool = False,
+        joint_count: int = len(JOINT_COLUMNS),
     ):
         self.path = Path(path)
+        self.joint_count = joint_count
         self.path.parent.mkdir(parents=True, exist_ok=True)
         if append and self.path.is_file() and self.path.stat().st_size > 0:
             drop_partial_last_row(self.path)
             header = read_text_file(self.path, "recording").splitlines()[0].split(",")
             self.sphere_count = sum(1 for c in header if c.startswith("sphere") and c.endswith("_x_mm"))
             self.has_status = STATUS_COLUMN in header  # a file from before the column keeps its layout
+            self.joint_count = joint_count_in_header([c.strip() for c in header])
             self._file = open(self.path, "a", newline="")
             self._writer = csv.writer(self._file)
             return
@@ -109,7 +117,14 @@ class RecordingWriter:
             write_json(metadata, metadata_path(self.path))
         self._file = open(self.path, "w", newline="")
         self._writer = csv.writer(self._file)
-        self._writer.writerow(COLUMNS + [STATUS_COLUMN] + sphere_columns(sphere_count))
+        self._writer.writerow(
+            ["time_s", "segment"]
+            + joint_columns(joint_count)
+            + TCP_COLUMNS
+            + MARKER_COLUMNS
+            + [STATUS_COLUMN]
+            + sphere_columns(sphere_count)
+        )
         self._flush()
 
     def _flush(self) -> None:
@@ -145,7 +160,12 @@ class RecordingWriter:
         if status == FRAME_MISSING:
             has_pose = False
         tcp_position, tcp_quaternion = transform_to_position_quaternion(base_from_tcp)
-        row = [format_number(time_s), segment] + [format_number(v) for v in joints_rad]
+        joints = np.asarray(joints_rad, dtype=float).ravel()
+        if len(joints) != self.joint_count:
+            raise InvalidInputError(
+                f"{self.path}: {len(joints)} joint angles for a recording of {self.joint_count} joints"
+            )
+        row = [format_number(time_s), segment] + [format_number(v) for v in joints]
         row += [format_number(v) for v in tcp_position] + [format_number(v) for v in tcp_quaternion]
         if not has_pose:
             row += [""] * len(MARKER_COLUMNS)
@@ -213,7 +233,10 @@ def write_recording(recording: Recording, path: str | Path) -> Path:
     count = 0 if spheres is None else spheres.shape[1]
     if recording.metadata:
         write_json(recording.metadata, metadata_path(path))
-    with atomic_path(path) as temporary, RecordingWriter(temporary, None, count) as writer:
+    with (
+        atomic_path(path) as temporary,
+        RecordingWriter(temporary, None, count, joint_count=recording.joints_rad.shape[1]) as writer,
+    ):
         for k in range(len(recording)):
             writer.append(
                 recording.time_s[k],
@@ -275,7 +298,10 @@ def read_recording(path: str | Path) -> Recording:
     n = len(body)
     status_cells: list[str] = []
     spheres = np.full((n, 3 * sphere_count), np.nan) if sphere_count else None
-    numeric = JOINT_COLUMNS + TCP_COLUMNS
+    joint_names = joint_columns(joint_count_in_header(names))
+    joint_count = len(joint_names)
+    numeric = joint_names + TCP_COLUMNS
+    index.update({c: names.index(c) for c in joint_names})
     values = np.empty((n, len(numeric)))
     marker = np.full((n, len(MARKER_COLUMNS)), np.nan)
     time_s = np.empty(n)
@@ -291,11 +317,11 @@ def read_recording(path: str | Path) -> Recording:
             )
         time_s[k] = parse_number(row[index["time_s"]], line, "time_s", path)
         segment.append(row[index["segment"]].strip())
-        joint_cells = [row[index[c]].strip() for c in JOINT_COLUMNS]
+        joint_cells = [row[index[c]].strip() for c in joint_names]
         if not any(joint_cells):
-            values[k, :6] = np.nan  # joints not recorded (e.g. imported from a tracker-only source)
+            values[k, :joint_count] = np.nan  # joints not recorded (e.g. imported from a tracker-only source)
         for j, column in enumerate(numeric):
-            if j < 6 and not any(joint_cells):
+            if j < joint_count and not any(joint_cells):
                 continue
             values[k, j] = parse_number(row[index[column]], line, column, path)
         cells = [row[index[c]].strip() for c in MARKER_COLUMNS]
@@ -320,8 +346,9 @@ def read_recording(path: str | Path) -> Recording:
             f"{path}: time_s is not increasing at line {k + 2} "
             f"({float(time_s[k]):g} s after {float(time_s[k - 1]):g} s)"
         )
-    joints = values[:, :6]
-    tcp_position, tcp_quaternion = values[:, 6:9], values[:, 9:13]
+    joints = values[:, :joint_count]
+    tcp_position = values[:, joint_count : joint_count + 3]
+    tcp_quaternion = values[:, joint_count + 3 : joint_count + 7]
     seen = np.isfinite(marker[:, 0])
     if not seen.any():
         raise InvalidInputError(f"{path}: the marker was not visible in any of the {n} samples")

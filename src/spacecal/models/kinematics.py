@@ -1,4 +1,4 @@
-"""Forward and inverse kinematics of serial robots in standard DH form (UR family).
+"""Forward and inverse kinematics of serial robots in standard DH form.
 
 Each link i maps frame i-1 to frame i by
 ``Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)`` (standard/distal Denavit–Hartenberg),
@@ -6,7 +6,9 @@ the convention Universal Robots publishes its tables in. The chain gives
 ``base_from_flange``; the configured tool offset ``flange_from_tcp`` gives
 ``base_from_tcp`` (what a UR controller reports as its actual TCP pose).
 
-Lengths are in mm, angles in rad.
+A model has any number of revolute joints (a UR arm six, a KUKA LBR iiwa seven); the
+closed-form inverse kinematics is the UR family's, so only six-joint UR arms are driven to
+poses. Lengths are in mm, angles in rad.
 """
 
 from __future__ import annotations
@@ -30,7 +32,10 @@ from spacecal.geometry.transforms import (
 )
 
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
+#: Joints of the UR arms (the closed-form IK, the gravity model and the UR driver's files).
 N_JOINTS = 6
+#: Most joints a model, a recording or a calibration file may have.
+MAX_JOINTS = 12
 
 
 def _load_ur_tables() -> dict:
@@ -43,18 +48,19 @@ UR_TABLES = _load_ur_tables()
 
 @dataclass(frozen=True)
 class RobotModel:
-    """A 6-joint serial robot in standard DH form.
+    """A serial robot of revolute joints in standard DH form.
 
     Attributes
     ----------
     name : str
         Model name, e.g. ``"UR10"``.
-    a_mm, d_mm, alpha_rad, theta_offset_rad : numpy.ndarray, shape (6,)
-        DH link lengths, offsets, twists and joint-zero offsets.
+    a_mm, d_mm, alpha_rad, theta_offset_rad : numpy.ndarray, shape (J,)
+        DH link lengths, offsets, twists and joint-zero offsets of the J joints (6 on a UR
+        arm); the joint-zero offsets default to zeros.
     flange_from_tcp : numpy.ndarray, shape (4, 4)
         The tool offset configured on the robot, mm.
-    joint_lower_rad, joint_upper_rad : numpy.ndarray, shape (6,)
-        Joint limits.
+    joint_lower_rad, joint_upper_rad : numpy.ndarray, shape (J,)
+        Joint limits; default +-2 pi.
     controller_hz : float
         Rate at which the controller time-stamps its state.
     """
@@ -63,10 +69,11 @@ class RobotModel:
     a_mm: FloatArray
     d_mm: FloatArray
     alpha_rad: FloatArray
-    theta_offset_rad: FloatArray = field(default_factory=lambda: np.zeros(N_JOINTS))
+    # empty: not given, filled in for the model's joint count by __post_init__
+    theta_offset_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
     flange_from_tcp: FloatArray = field(default_factory=lambda: np.eye(4))
-    joint_lower_rad: FloatArray = field(default_factory=lambda: np.full(N_JOINTS, -2 * np.pi))
-    joint_upper_rad: FloatArray = field(default_factory=lambda: np.full(N_JOINTS, 2 * np.pi))
+    joint_lower_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
+    joint_upper_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
     controller_hz: float = 125.0
 
     def __post_init__(self) -> None:
@@ -74,11 +81,22 @@ class RobotModel:
         # false, so a NaN DH parameter would pass every later range check and yield NaN poses.
         # No bound on the lengths: a UR controller's factory calibration moves d_2 and d_3 by
         # hundreds of metres that cancel along the nearly parallel shoulder and elbow axes
+        joints = np.asarray(self.a_mm, dtype=float).size
+        if not 1 <= joints <= MAX_JOINTS:
+            raise InvalidInputError(f"robot model {self.name!r}: {joints} joints (1 to {MAX_JOINTS})")
+        defaults = {
+            "theta_offset_rad": np.zeros(joints),
+            "joint_lower_rad": np.full(joints, -2 * np.pi),
+            "joint_upper_rad": np.full(joints, 2 * np.pi),
+        }
         for name in ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad", "joint_lower_rad", "joint_upper_rad"):
             value = np.asarray(getattr(self, name), dtype=float)
-            if value.shape != (N_JOINTS,) or not np.all(np.isfinite(value)):
+            if value.size == 0 and name in defaults:
+                object.__setattr__(self, name, defaults[name])
+                continue
+            if value.shape != (joints,) or not np.all(np.isfinite(value)):
                 raise InvalidInputError(
-                    f"robot model {self.name!r}: {name} must be {N_JOINTS} finite numbers"
+                    f"robot model {self.name!r}: {name} must be {joints} finite numbers, as a_mm"
                 )
         tool = np.asarray(self.flange_from_tcp, dtype=float)
         if tool.shape != (4, 4) or not np.all(np.isfinite(tool)):
@@ -87,6 +105,11 @@ class RobotModel:
             )
         if not (np.isfinite(self.controller_hz) and 0.0 < self.controller_hz <= 100_000.0):
             raise InvalidInputError(f"robot model {self.name!r}: controller rate {self.controller_hz} Hz")
+
+    @property
+    def n_joints(self) -> int:
+        """The number of joints J."""
+        return int(np.asarray(self.a_mm).size)
 
     def with_tcp(self, flange_from_tcp: ArrayLike) -> RobotModel:
         """A copy with another tool offset (4, 4), mm."""
@@ -142,11 +165,11 @@ def ur_model(name: str, flange_from_tcp: ArrayLike | None = None) -> RobotModel:
 
 
 def _link_transforms(model: RobotModel, joints_rad: FloatArray) -> FloatArray:
-    """Per-link transforms, shape (N, 6, 4, 4), for joint vectors (N, 6)."""
+    """Per-link transforms, shape (N, J, 4, 4), for joint vectors (N, J)."""
     theta = joints_rad + model.theta_offset_rad
     ct, st = np.cos(theta), np.sin(theta)
     ca, sa = np.cos(model.alpha_rad), np.sin(model.alpha_rad)
-    links = np.zeros(joints_rad.shape[:-1] + (N_JOINTS, 4, 4))
+    links = np.zeros(joints_rad.shape[:-1] + (model.n_joints, 4, 4))
     links[..., 0, 0] = ct
     links[..., 0, 1] = -st * ca
     links[..., 0, 2] = st * sa
@@ -162,12 +185,14 @@ def _link_transforms(model: RobotModel, joints_rad: FloatArray) -> FloatArray:
     return links
 
 
-def _as_joint_array(joints_rad: ArrayLike) -> tuple[FloatArray, bool]:
+def _as_joint_array(model: RobotModel, joints_rad: ArrayLike) -> tuple[FloatArray, bool]:
     q = np.asarray(joints_rad, dtype=float)
     single = q.ndim == 1
     q = np.atleast_2d(q)
-    if q.shape[-1] != N_JOINTS:
-        raise InvalidInputError(f"expected {N_JOINTS} joint angles per row, got shape {q.shape}")
+    if q.shape[-1] != model.n_joints:
+        raise InvalidInputError(
+            f"the {model.name} has {model.n_joints} joints; got joint angles of shape {q.shape}"
+        )
     return q, single
 
 
@@ -177,7 +202,7 @@ def forward_kinematics(model: RobotModel, joints_rad: ArrayLike, to_tcp: bool = 
     Parameters
     ----------
     model : RobotModel
-    joints_rad : array_like, shape (6,) or (N, 6)
+    joints_rad : array_like, shape (J,) or (N, J)
     to_tcp : bool
         Append the tool offset (default) or stop at the flange.
 
@@ -185,10 +210,10 @@ def forward_kinematics(model: RobotModel, joints_rad: ArrayLike, to_tcp: bool = 
     -------
     numpy.ndarray, shape (4, 4) or (N, 4, 4), mm
     """
-    q, single = _as_joint_array(joints_rad)
+    q, single = _as_joint_array(model, joints_rad)
     links = _link_transforms(model, q)
     pose = links[:, 0]
-    for i in range(1, N_JOINTS):
+    for i in range(1, model.n_joints):
         pose = pose @ links[:, i]
     if to_tcp:
         pose = pose @ model.flange_from_tcp
@@ -231,25 +256,26 @@ def _pose_error_vector(target: FloatArray, reached: FloatArray) -> FloatArray:
 
 
 def geometric_jacobian(model: RobotModel, joints_rad: ArrayLike) -> FloatArray:
-    """Geometric Jacobian of the TCP in the base frame, shape (N, 6, 6): rows (v mm, w rad)."""
-    q, _ = _as_joint_array(joints_rad)
+    """Geometric Jacobian of the TCP in the base frame, shape (N, 6, J): rows (v mm, w rad)."""
+    q, _ = _as_joint_array(model, joints_rad)
     return _tcp_pose_and_jacobian(model, q)[1]
 
 
 def _tcp_pose_and_jacobian(model: RobotModel, q: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """``base_from_tcp`` (N, 4, 4) and the geometric Jacobian (N, 6, 6) of joint vectors
-    (N, 6), from one pass along the chain: Gauss–Newton IK needs both at every iterate, and
+    """``base_from_tcp`` (N, 4, 4) and the geometric Jacobian (N, 6, J) of joint vectors
+    (N, J), from one pass along the chain: Gauss–Newton IK needs both at every iterate, and
     building the links once for both is most of its cost."""
     links = _link_transforms(model, q)
-    frames = np.empty((len(q), N_JOINTS + 1, 4, 4))
+    joints = model.n_joints
+    frames = np.empty((len(q), joints + 1, 4, 4))
     frames[:, 0] = np.eye(4)
-    for i in range(N_JOINTS):
+    for i in range(joints):
         frames[:, i + 1] = frames[:, i] @ links[:, i]
     tcp = frames[:, -1] @ model.flange_from_tcp
     # Joint i rotates about the z axis of frame i-1 (standard DH).
-    axes = frames[:, :N_JOINTS, :3, 2]
-    lever = tcp[:, None, :3, 3] - frames[:, :N_JOINTS, :3, 3]
-    jac = np.empty((len(q), 6, N_JOINTS))
+    axes = frames[:, :joints, :3, 2]
+    lever = tcp[:, None, :3, 3] - frames[:, :joints, :3, 3]
+    jac = np.empty((len(q), 6, joints))
     # axes x lever, written out: np.cross costs more than the rest on IK's single poses
     jac[:, 0] = axes[..., 1] * lever[..., 2] - axes[..., 2] * lever[..., 1]
     jac[:, 1] = axes[..., 2] * lever[..., 0] - axes[..., 0] * lever[..., 2]
@@ -282,7 +308,7 @@ def inverse_kinematics_gauss_newton(
     model : RobotModel
     base_from_tcp : array_like, shape (N, 4, 4)
         Target TCP poses, mm.
-    start_joints_rad : array_like, shape (N, 6)
+    start_joints_rad : array_like, shape (N, J)
         Where each iteration starts.
     max_iterations : int
         Steps allowed; the error is checked before each step.
@@ -291,7 +317,7 @@ def inverse_kinematics_gauss_newton(
 
     Returns
     -------
-    joints_rad : numpy.ndarray, shape (N, 6)
+    joints_rad : numpy.ndarray, shape (N, J)
         The last iterate (converged or not).
     converged : bool
         Whether all rows met the tolerances within ``max_iterations`` checks.
@@ -431,6 +457,11 @@ def inverse_kinematics(
     UnreachableError
         If no branch reaches a pose within the tolerance and the joint limits.
     """
+    if model.n_joints != N_JOINTS:
+        raise InvalidInputError(
+            f"the {model.name} has {model.n_joints} joints: spacecal solves inverse kinematics "
+            f"(drives to poses) for {N_JOINTS}-joint UR arms only"
+        )
     targets = np.asarray(base_from_tcp, dtype=float)
     single = targets.ndim == 2
     targets = targets.reshape(-1, 4, 4)
@@ -471,14 +502,14 @@ def inverse_kinematics(
 
 
 def within_joint_limits(model: RobotModel, joints_rad: ArrayLike) -> BoolArray:
-    """Boolean per row of joints (N, 6): inside the model's limits."""
-    q, _ = _as_joint_array(joints_rad)
+    """Boolean per row of joints (N, J): inside the model's limits."""
+    q, _ = _as_joint_array(model, joints_rad)
     return np.all((q >= model.joint_lower_rad) & (q <= model.joint_upper_rad), axis=1)
 
 
 def with_dh_corrections(model: RobotModel, delta: ArrayLike) -> RobotModel:
-    """``model`` with DH corrections (24,): a, d, alpha, theta offset of joints 1..6, in that order."""
-    delta = np.asarray(delta, dtype=float).reshape(4, 6)
+    """``model`` with DH corrections (4 J,): a, d, alpha, theta offset of joints 1..J, in that order."""
+    delta = np.asarray(delta, dtype=float).reshape(4, model.n_joints)
     return model.with_dh_errors(delta[0], delta[1], delta[2], delta[3])
 
 
@@ -492,7 +523,7 @@ def fit_reported_kinematics(
     """The kinematic model a controller computed its reported poses with, from pairs of
     reported joints and TCP poses (when it does not publish its calibrated DH parameters).
 
-    Gauss–Newton on the 24 DH corrections and the 6 tool parameters from ``start``; the DH
+    Gauss–Newton on the 4 J DH corrections and the 6 tool parameters from ``start``; the DH
     parameters of a UR chain are redundant (e.g. the d of parallel joints), so each step is
     the minimum-norm least-squares step: the model found reproduces the poses, its individual
     parameters need not be the controller's.
@@ -501,7 +532,7 @@ def fit_reported_kinematics(
     ----------
     start : RobotModel
         The nominal model with a first guess of the TCP.
-    joints_rad : array_like, shape (N, 6)
+    joints_rad : array_like, shape (N, J)
     base_from_tcp_stack : array_like, shape (N, 4, 4)
         The TCP poses the controller reported at those joints, mm.
     lever_mm : float
@@ -513,27 +544,32 @@ def fit_reported_kinematics(
     rms_mm : float
         RMS position misfit of the model on the pairs, mm.
     """
-    q, _ = _as_joint_array(joints_rad)
+    q, _ = _as_joint_array(start, joints_rad)
     reported = np.asarray(base_from_tcp_stack, dtype=float).reshape(-1, 4, 4)
     if len(q) != len(reported) or len(q) < 6:
         raise InvalidInputError("fitting reported kinematics needs at least 6 pairs of joints and poses")
 
+    dh = 4 * start.n_joints
+
     def model_of(parameters: FloatArray) -> RobotModel:
-        tool = start.flange_from_tcp @ make_transform(rotvec_to_matrix(parameters[27:30]), parameters[24:27])
-        return with_dh_corrections(start, parameters[:24]).with_tcp(tool)
+        tool = start.flange_from_tcp @ make_transform(
+            rotvec_to_matrix(parameters[dh + 3 : dh + 6]), parameters[dh : dh + 3]
+        )
+        return with_dh_corrections(start, parameters[:dh]).with_tcp(tool)
 
     def residuals(parameters: FloatArray) -> FloatArray:
         predicted = forward_kinematics(model_of(parameters), q)
         error = _pose_error_vector(reported, predicted)
         return np.concatenate([error[:, :3], lever_mm * error[:, 3:]], axis=1).ravel()
 
-    parameters = np.zeros(30)
-    scale = np.array([1.0] * 12 + [1e-3] * 12 + [1.0] * 3 + [1e-3] * 3)
+    count = dh + 6
+    parameters = np.zeros(count)
+    scale = np.array([1.0] * (dh // 2) + [1e-3] * (dh // 2) + [1.0] * 3 + [1e-3] * 3)
     current = residuals(parameters)
     for _ in range(iterations):
-        jac = np.empty((len(current), 30))
-        for k in range(30):
-            step = np.zeros(30)
+        jac = np.empty((len(current), count))
+        for k in range(count):
+            step = np.zeros(count)
             step[k] = 1e-3 * scale[k]
             jac[:, k] = (residuals(parameters + step) - current) / step[k]
         # directions the poses barely determine (small motion, redundant parameters) are left
@@ -698,7 +734,7 @@ def points_in_tracker(
     tcp_from_marker: FloatArray,
     points_in_marker: FloatArray,
 ) -> FloatArray:
-    """Marker points (K, 3) seen in the tracker at joint configurations (N, 6): shape (N, K, 3), mm.
+    """Marker points (K, 3) seen in the tracker at joint configurations (N, J): shape (N, K, 3), mm.
 
     The calibration chain ``tracker_from_base @ FK(q) @ tcp_from_marker`` applied to the points.
     """
@@ -718,13 +754,14 @@ def dh_point_jacobian(
     points_in_marker: FloatArray,
     step: float = 1e-6,
 ) -> FloatArray:
-    """d(:func:`points_in_tracker`)/d(24 DH corrections) by central differences: (N, K, 3, 24).
+    """d(:func:`points_in_tracker`)/d(4 J DH corrections) by central differences: (N, K, 3, 4 J).
 
     The pose columns that go with these are :func:`pose_point_jacobian` (analytic).
     """
     columns = []
-    for index in range(24):
-        delta = np.zeros(24)
+    count = 4 * model.n_joints
+    for index in range(count):
+        delta = np.zeros(count)
         delta[index] = step
         plus = points_in_tracker(
             with_dh_corrections(model, delta),

@@ -29,7 +29,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.frames import transform_name
-from spacecal.models.kinematics import RobotModel
+from spacecal.models.kinematics import MAX_JOINTS, RobotModel
 from spacecal.records.fields import (
     as_array,
     as_covariance,
@@ -82,9 +82,13 @@ def robot_model_from_dict(data: Mapping[str, Any], what: str, base: RobotModel |
     """
     name = get_str(data, "name", what, default=base.name if base else "robot")
     values: dict[str, Any] = {"name": name}
+    # the joint count is the DH table's (six on a UR arm); RobotModel checks the rest agree
+    joints = len(data["a_mm"]) if isinstance(data.get("a_mm"), list) else (base.n_joints if base else 6)
+    if not 1 <= joints <= MAX_JOINTS:
+        raise InvalidInputError(f"{what}: robot_model.a_mm has {joints} joints; 1 to {MAX_JOINTS} are read")
     for key in ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad", "joint_lower_rad", "joint_upper_rad"):
         if key in data:
-            values[key] = as_array(data[key], (6,), f"robot_model.{key}", what)
+            values[key] = as_array(data[key], (joints,), f"robot_model.{key}", what)
         elif base is not None:
             values[key] = getattr(base, key)
         elif key in ("a_mm", "d_mm", "alpha_rad"):

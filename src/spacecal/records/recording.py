@@ -29,8 +29,8 @@ class Recording:
         Tracker frame times, strictly increasing, s.
     segment : numpy.ndarray of str, shape (N,)
         Sweep label per sample (``rot_x`` ... ``lin_z``, or any other label).
-    joints_rad : numpy.ndarray, shape (N, 6)
-        Joint angles reported by the robot, rad.
+    joints_rad : numpy.ndarray, shape (N, J)
+        Joint angles reported by the robot, rad (J = 6 on a UR arm); NaN rows where not recorded.
     base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
         TCP pose reported by the robot (its own forward kinematics), mm.
     tracker_from_marker_stack : numpy.ndarray, shape (N, 4, 4)
@@ -66,7 +66,7 @@ class Recording:
         self.time_s = _column(self.time_s, (n,), "time_s")
         self.segment = np.asarray(self.segment).astype(str)
         _check_shape(self.segment, (n,), "segment")
-        self.joints_rad = _column(self.joints_rad, (n, 6), "joints_rad")
+        self.joints_rad = _joint_column(self.joints_rad, n)
         self.base_from_tcp_stack = _column(self.base_from_tcp_stack, (n, 4, 4), "base_from_tcp_stack")
         self.tracker_from_marker_stack = _column(
             self.tracker_from_marker_stack, (n, 4, 4), "tracker_from_marker_stack"
@@ -157,7 +157,7 @@ class RawRecording:
     robot_time_s : numpy.ndarray, shape (R,)
         Controller timestamps (its clock), increasing.
     robot_segment : numpy.ndarray of str, shape (R,)
-    joints_rad : numpy.ndarray, shape (R, 6)
+    joints_rad : numpy.ndarray, shape (R, J)
     base_from_tcp_stack : numpy.ndarray, shape (R, 4, 4)
     tracker_time_s : numpy.ndarray, shape (T,)
         Tracker timestamps (its clock), increasing.
@@ -192,7 +192,7 @@ class RawRecording:
         self.robot_time_s = _column(self.robot_time_s, (r,), "robot_time_s")
         self.robot_segment = np.asarray(self.robot_segment).astype(str)
         _check_shape(self.robot_segment, (r,), "robot_segment")
-        self.joints_rad = _column(self.joints_rad, (r, 6), "joints_rad")
+        self.joints_rad = _joint_column(self.joints_rad, r)
         self.base_from_tcp_stack = _column(self.base_from_tcp_stack, (r, 4, 4), "base_from_tcp_stack")
         self.tracker_time_s = _column(self.tracker_time_s, (t,), "tracker_time_s")
         self.tracker_from_marker_stack = _column(
@@ -238,6 +238,17 @@ class RawRecording:
 def _check_shape(array: np.ndarray, shape: tuple[int, ...], name: str) -> None:
     if array.shape != shape:
         raise InvalidInputError(f"recording: {name} must have shape {shape}, got {array.shape}")
+
+
+def _joint_column(values: object, rows: int) -> np.ndarray:
+    """Joint angles (rows, J): any number J >= 1 of joints, the same in every row."""
+    try:
+        array = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidInputError("recording: joints_rad must be numbers") from None
+    if array.ndim != 2 or array.shape[0] != rows or array.shape[1] < 1:
+        raise InvalidInputError(f"recording: joints_rad must have shape ({rows}, J), got {array.shape}")
+    return array
 
 
 def _column(values: object, shape: tuple[int, ...], name: str) -> np.ndarray:
