@@ -80,3 +80,18 @@ def test_what_seven_joints_cannot_do_is_said_in_one_line():
         RobotModel(name="iiwa7", a_mm=np.zeros(7), d_mm=np.zeros(6), alpha_rad=np.zeros(7))
     with pytest.raises(InvalidInputError, match="13 joints"):
         RobotModel(name="long", a_mm=np.zeros(13), d_mm=np.zeros(13), alpha_rad=np.zeros(13))
+
+
+def test_a_calibration_file_keeps_a_seven_joint_model():
+    from spacecal.records.calibration import robot_model_from_dict, robot_model_to_dict
+
+    again = robot_model_from_dict(robot_model_to_dict(IIWA7), "calibration")
+    assert again.n_joints == 7
+    assert np.array_equal(again.d_mm, IIWA7.d_mm)
+    assert np.array_equal(again.joint_upper_rad, IIWA7.joint_upper_rad)
+    too_long = robot_model_to_dict(IIWA7) | {"a_mm": [0.0] * 13}
+    with pytest.raises(InvalidInputError, match="13 joints; 1 to 12 are read"):
+        robot_model_from_dict(too_long, "calibration")
+    mismatched = robot_model_to_dict(IIWA7) | {"d_mm": [0.0] * 6}
+    with pytest.raises(InvalidInputError, match="d_mm"):
+        robot_model_from_dict(mismatched, "calibration")
