@@ -17,7 +17,7 @@ from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
-from spacecal.workflows.acquisition import AcquisitionStopped, acquire
+from spacecal.workflows.acquisition import AcquisitionStopped, SampleGrid, acquire
 
 
 def setup(**robot_options):
@@ -53,6 +53,45 @@ def test_complete_run_records_the_paper_sweeps_and_calibrates(tmp_path):
     assert np.median(rot) == pytest.approx(0.1) and np.median(lin) == pytest.approx(0.05)
     assert calibration_error(calibrate(recording, "paper", uncertainty=False), world)["tre_rms_mm"] < 0.1
     assert json.loads(progress_path(path).read_text())["moves_completed"] == len(plan.moves)
+
+
+class Jittering(SimulatedTracker):
+    """A tracker that stamps each frame when it takes it, 0-5 ms after its nominal instant,
+    as a streamed OpenIGTLink sender does."""
+
+    def __init__(self, world, robot):
+        super().__init__(world, robot)
+        self.rng = np.random.default_rng(1)
+
+    def next_frame(self, timeout_s):
+        frame = super().next_frame(timeout_s)
+        return dataclasses.replace(frame, time_s=frame.time_s + self.rng.uniform(0.0, 0.005))
+
+
+def test_jittering_timestamps_keep_every_sample_period(tmp_path):
+    counts = {}
+    for name, tracker in (("regular", SimulatedTracker), ("jittering", Jittering)):
+        world, plan, robot = setup()
+        path = tmp_path / f"{name}.csv"
+        acquire(plan, robot, tracker(world, robot), path, recording_metadata(world))
+        recording = read_recording(path)
+        labels, counts[name] = np.unique(recording.segment, return_counts=True)
+        for label, period in (("rot_y", 0.1), ("lin_y", 0.05)):
+            gaps = np.diff(recording.time_s[recording.segment == label])
+            assert np.median(gaps) == pytest.approx(period, abs=0.005)
+    # a stamp a little less than a period after the last recorded one still counts for its
+    # period: a translation sweep at the tracker's rate keeps every frame
+    assert np.all(np.abs(counts["jittering"] - counts["regular"]) <= 1), counts
+
+
+def test_sample_grid_records_one_frame_per_period():
+    rng = np.random.default_rng(2)
+    frames = np.arange(400) * 0.05 + rng.uniform(0.0, 0.01, 400)  # 20 Hz, stamped up to 10 ms late
+    for period, expected in ((0.05, 400), (0.1, 200), (0.07, 286)):
+        grid = SampleGrid(period)
+        taken = frames[[grid.take(t) for t in frames]]
+        assert abs(len(taken) - expected) <= 1 and np.diff(taken).min() > 0.6 * min(period, 0.05)
+    assert not any(SampleGrid(0.0).take(t) for t in frames)  # a transit records nothing
 
 
 class Interrupting(SimulatedTracker):

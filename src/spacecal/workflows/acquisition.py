@@ -38,6 +38,46 @@ from spacecal.workflows.stations import average_stations
 STALE_ROBOT_S = 0.5
 #: ... and only once it has stood still over this many tracker frames.
 STALE_FRAMES = 3
+#: Share of a sample period by which a frame may come before its due time and still count
+#: for it (:class:`SampleGrid`).
+EARLY_SHARE = 0.25
+
+
+class SampleGrid:
+    """Which tracker frames of one move are recorded: at most one in each sample period.
+
+    The periods are a grid anchored at the move's first recorded frame; each runs from a
+    quarter period (:data:`EARLY_SHARE`) before its grid point to three quarters after, and
+    its first frame is recorded. A tracker's timestamps jitter by milliseconds around its
+    frame rate (an OpenIGTLink sender stamps each frame when it takes it): a frame 49.9 ms
+    after the last recorded one still counts for a 50 ms period, and one half a period
+    after it does not. A first frame stamped late would set the grid late: the grid moves
+    to a recorded frame stamped before its grid point, by at most a quarter period in all
+    (so the move still records no more frames than it has periods, plus one).
+    """
+
+    def __init__(self, period_s: float):
+        self.period_s = period_s
+        self._first_s: float | None = None
+        self._anchor_s = 0.0
+        self._last_slot = 0
+
+    def take(self, time_s: float) -> bool:
+        """Whether to record a frame stamped ``time_s`` (called in the order frames come)."""
+        if self.period_s <= 0:
+            return False
+        if self._first_s is None:
+            self._first_s = self._anchor_s = time_s
+            return True
+        periods = (time_s - self._anchor_s) / self.period_s
+        slot = int(np.floor(periods + EARLY_SHARE))
+        if slot <= self._last_slot:
+            return False
+        self._last_slot = slot
+        if periods < slot:  # stamped before its grid point: the grid moves to it, within bounds
+            earliest = self._first_s - EARLY_SHARE * self.period_s
+            self._anchor_s = max(time_s - slot * self.period_s, earliest)
+        return True
 
 
 @dataclass
@@ -205,8 +245,8 @@ def run_plan(
     Parameters
     ----------
     plan : MotionPlan
-        Moves with ``sample_period_s > 0`` are recorded (at most one frame per period);
-        others are transit.
+        Moves with ``sample_period_s > 0`` are recorded (at most one frame per period,
+        :class:`SampleGrid`); others are transit.
     robot, tracker : Robot, Tracker
     sink : SampleSink
         Receives each sample; if it has ``add_robot_states`` it also receives the robot's
@@ -239,7 +279,7 @@ def run_plan(
             robot.move_linear(
                 move.end, settings.linear_speed_mm_s, settings.linear_accel_mm_s2, asynchronous=True
             )
-        last_recorded = -np.inf
+        grid = SampleGrid(move.sample_period_s)
         robot_time: float | None = None
         robot_time_seen_at = 0.0
         frames_since_robot_update = 0
@@ -281,11 +321,7 @@ def run_plan(
                 move_started_at = state.time_s
             settled = state.time_s - move_started_at >= settings.move_start_guard_s
             recorded = False
-            if (
-                settled
-                and move.sample_period_s > 0
-                and frame.time_s - last_recorded >= move.sample_period_s - 1e-6
-            ):
+            if settled and grid.take(frame.time_s):
                 recorded = True
                 seen = frame.status == FRAME_OK
                 sink.append(
@@ -299,7 +335,6 @@ def run_plan(
                     robot_time_s=state.time_s,
                     status=frame.status,
                 )
-                last_recorded = frame.time_s
                 progress.samples_written += 1
                 progress.visible_written += int(seen)
                 if on_sample:
@@ -376,8 +411,8 @@ def acquire(
     Parameters
     ----------
     plan : MotionPlan
-        Moves with ``sample_period_s > 0`` are recorded (at most one frame per period);
-        others are transit.
+        Moves with ``sample_period_s > 0`` are recorded (at most one frame per period,
+        :class:`SampleGrid`); others are transit.
     robot, tracker : Robot, Tracker
     recording_path : str or Path
         The paired recording CSV, ``STEM.csv``; the raw streams ``STEM.robot.csv`` and
