@@ -63,7 +63,12 @@ def acquire_command(world, kind, output, rom, rotation_deg="45", translation_mm=
 @pytest.fixture(scope="module")
 def paper_estimator_spread():
     """The paper estimator's TRE / Cramér–Rao bound for this motion and noise: its 99.5th
-    percentile over 200 noise draws in simulation (same scenario, sweeps and speeds)."""
+    percentile over 1000 noise draws in simulation (same scenario, sweeps and speeds; 8 s).
+
+    The ratio's tail is long (its square is gamma-like with shape 0.7). Over 200 draws the
+    99.5th percentile is about their second largest, here 5.92, which 2.7 % of 600 further
+    draws exceeded: the test then failed a correct acquisition that often. 1000 draws put
+    five beyond the percentile they estimate (7.39; 7.53 from 600 others)."""
     import dataclasses
 
     from spacecal.estimators import calibrate
@@ -80,7 +85,7 @@ def paper_estimator_spread():
             calibrate(simulation.remeasure(trial)[0], "paper", uncertainty=False), simulation.world
         )["tre_rms_mm"]
         / bound
-        for trial in range(200)
+        for trial in range(1000)
     ]
     return float(np.percentile(ratios, 99.5))
 
