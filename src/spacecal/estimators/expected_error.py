@@ -123,14 +123,17 @@ SITE_RADIUS_MM = 100.0
 #: ... and within this rotation of the mean orientation of the frames there (deg).
 SITE_TILT_DEG = 30.0
 
-#: Unit scale of the DH errors whose shape sets the unseen tip error: 1 mm for lengths and
-#: 0.002 rad for angles (the ratio of the spreads :mod:`spacecal.estimators.kinematic` assumes).
-UNIT_DH_SD = np.array([1.0] * 12 + [0.002] * 12)
-
 
 def unit_dh_sd(joints: int) -> FloatArray:
-    """:data:`UNIT_DH_SD` for an arm of ``joints`` joints: (4 J,), a, d, alpha, theta offset."""
+    """The unit scale of the DH errors of an arm of ``joints`` joints, (4 J,): a, d, alpha,
+    theta offset (:data:`UNIT_DH_SD`'s values per joint)."""
     return np.repeat([1.0, 1.0, 0.002, 0.002], joints)
+
+
+#: Unit scale of the DH errors whose shape sets the unseen tip error: 1 mm for lengths and
+#: 0.002 rad for angles (the ratio of the spreads :mod:`spacecal.estimators.kinematic` assumes),
+#: for a six-joint arm.
+UNIT_DH_SD = unit_dh_sd(N_JOINTS)
 
 
 #: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more.
@@ -893,12 +896,11 @@ def systematic_share_in_dh_span(
     other_power = max(rss_all - per_dimension * (6 * len(rows) - int(rank)), 0.0) / len(rows)
     total = dh_power + other_power
     noise_standard_error = per_dimension * np.sqrt(2.0 * max(dh_dimensions, 1))
-    dh_design = dh.reshape(-1, dh.shape[-1])
     if rigid_noise_covariance is not None:
         detected, unit_power = whitened_dh_span_test(residual, seen, pose, dh, rigid_noise_covariance)
     else:
         detected = max(dh_excess - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
-        unit_power = _power_beyond_pose(pose_design, dh_design)
+        unit_power = _power_beyond_pose(pose_design, dh.reshape(-1, dh.shape[-1]))
     return {
         "dh_share": dh_power / total if total > 0 else 1.0,
         "dh_power_mm2": dh_power,

@@ -123,14 +123,18 @@ COMPLIANCE_NAMES = [f"compliance_rad_per_nm[{joint + 1}]" for joint in COMPLIANT
 #: Every candidate of the identification, in the order of its parameter vector.
 PARAMETER_NAMES = DH_NAMES + COMPLIANCE_NAMES
 ANGLE_LEVER_MM = 1000.0
-#: About how far one unit of each DH correction moves the points, mm (lengths 1, angles
-#: :data:`ANGLE_LEVER_MM`): the columns' common footing in the identifiability test.
-DH_COLUMN_SCALE = np.array([1.0] * 12 + [ANGLE_LEVER_MM] * 12)
 
 
 def dh_column_scale(joints: int) -> FloatArray:
-    """:data:`DH_COLUMN_SCALE` for an arm of ``joints`` joints, (4 J,)."""
+    """About how far one unit of each DH correction of an arm of ``joints`` joints moves the
+    points, mm, (4 J,): lengths 1, angles :data:`ANGLE_LEVER_MM`."""
     return np.repeat([1.0, 1.0, ANGLE_LEVER_MM, ANGLE_LEVER_MM], joints)
+
+
+#: About how far one unit of each DH correction moves the points, mm (lengths 1, angles
+#: :data:`ANGLE_LEVER_MM`): the columns' common footing in the identifiability test, for a
+#: six-joint arm.
+DH_COLUMN_SCALE = dh_column_scale(6)
 
 
 #: Prior s.d. of a joint's compliance, rad per N m. Zero mean: a rigid arm is the model the

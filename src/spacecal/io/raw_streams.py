@@ -54,7 +54,14 @@ from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.text import read_text_file
 from spacecal.records import RawRecording
 
-ROBOT_COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS
+
+def robot_columns(joint_count: int) -> list[str]:
+    """The robot stream's columns for an arm of ``joint_count`` joints, in the order written."""
+    return ["time_s", "segment"] + joint_columns(joint_count) + TCP_COLUMNS
+
+
+#: The robot stream's required columns (a six-joint arm's).
+ROBOT_COLUMNS = robot_columns(len(JOINT_COLUMNS))
 TRACKER_COLUMNS = ["time_s"] + MARKER_COLUMNS
 ARRIVAL_COLUMN = "arrival_robot_time_s"
 STATUS_COLUMN = "marker_status"
@@ -87,7 +94,7 @@ def write_raw_recording(raw: RawRecording, stem: str | Path) -> tuple[Path, Path
     robot_path, tracker_path, meta_path = stream_paths(stem)
     robot_text, tracker_text = io.StringIO(), io.StringIO()
     writer = csv.writer(robot_text)
-    writer.writerow(["time_s", "segment"] + joint_columns(raw.joints_rad.shape[1]) + TCP_COLUMNS)
+    writer.writerow(robot_columns(raw.joints_rad.shape[1]))
     positions, quaternions = transform_to_position_quaternion(raw.base_from_tcp_stack)
     for k in range(len(raw.robot_time_s)):
         writer.writerow(

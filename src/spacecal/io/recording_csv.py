@@ -61,7 +61,14 @@ from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.text import read_text_file
 from spacecal.records import Recording
 
-COLUMNS = ["time_s", "segment"] + JOINT_COLUMNS + TCP_COLUMNS + MARKER_COLUMNS
+
+def columns(joint_count: int) -> list[str]:
+    """The required columns of a recording of ``joint_count`` joints, in the order written."""
+    return ["time_s", "segment"] + joint_columns(joint_count) + TCP_COLUMNS + MARKER_COLUMNS
+
+
+#: The required columns of a six-joint (UR) recording.
+COLUMNS = columns(len(JOINT_COLUMNS))
 #: The tracker's frame status; optional when reading (older files), always written.
 STATUS_COLUMN = "marker_status"
 
@@ -117,14 +124,7 @@ class RecordingWriter:
             write_json(metadata, metadata_path(self.path))
         self._file = open(self.path, "w", newline="")
         self._writer = csv.writer(self._file)
-        self._writer.writerow(
-            ["time_s", "segment"]
-            + joint_columns(joint_count)
-            + TCP_COLUMNS
-            + MARKER_COLUMNS
-            + [STATUS_COLUMN]
-            + sphere_columns(sphere_count)
-        )
+        self._writer.writerow(columns(joint_count) + [STATUS_COLUMN] + sphere_columns(sphere_count))
         self._flush()
 
     def _flush(self) -> None:

@@ -57,10 +57,10 @@ def as_array(value: Any, shape: tuple[int | None, ...], name: str, what: str) ->
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        raise InvalidInputError(f"{what}: {name!r} must be numbers of shape {_shape_text(shape)}") from None
-    if array.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, array.shape)):
+        raise InvalidInputError(f"{what}: {name!r} must be numbers of shape {shape_text(shape)}") from None
+    if not has_shape(array, shape):
         raise InvalidInputError(
-            f"{what}: {name!r} must have shape {_shape_text(shape)}, got {tuple(array.shape)}"
+            f"{what}: {name!r} must have shape {shape_text(shape)}, got {tuple(array.shape)}"
         )
     if not np.all(np.isfinite(array)):
         raise InvalidInputError(f"{what}: {name!r} holds NaN or infinite values")
@@ -103,7 +103,13 @@ def as_transform_stack(value: Any, name: str, what: str) -> np.ndarray:
     return stack
 
 
-def _shape_text(shape: tuple[int | None, ...]) -> str:
+def has_shape(array: np.ndarray, shape: tuple[int | None, ...]) -> bool:
+    """Whether ``array`` has ``shape`` (None: any length along that axis)."""
+    return array.ndim == len(shape) and all(s is None or s == n for s, n in zip(shape, array.shape))
+
+
+def shape_text(shape: tuple[int | None, ...]) -> str:
+    """``shape`` as a message shows it, an axis of any length as N."""
     return "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
 
 

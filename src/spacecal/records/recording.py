@@ -12,6 +12,8 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK, FRAME_STATUSES
+from spacecal.models.kinematics import MAX_JOINTS
+from spacecal.records.fields import has_shape, shape_text
 
 #: Segment labels of the paper's sweeps (paper §4). Other labels are allowed in a recording.
 ROTATION_SEGMENTS = ("rot_x", "rot_y", "rot_z")
@@ -235,23 +237,24 @@ class RawRecording:
         )
 
 
-def _check_shape(array: np.ndarray, shape: tuple[int, ...], name: str) -> None:
-    if array.shape != shape:
-        raise InvalidInputError(f"recording: {name} must have shape {shape}, got {array.shape}")
+def _check_shape(array: np.ndarray, shape: tuple[int | None, ...], name: str) -> None:
+    """Refuse ``array`` unless it has ``shape`` (None: any length along that axis)."""
+    if not has_shape(array, shape):
+        raise InvalidInputError(f"recording: {name} must have shape {shape_text(shape)}, got {array.shape}")
 
 
 def _joint_column(values: object, rows: int) -> np.ndarray:
-    """Joint angles (rows, J): any number J >= 1 of joints, the same in every row."""
-    try:
-        array = np.asarray(values, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidInputError("recording: joints_rad must be numbers") from None
-    if array.ndim != 2 or array.shape[0] != rows or array.shape[1] < 1:
-        raise InvalidInputError(f"recording: joints_rad must have shape ({rows}, J), got {array.shape}")
+    """Joint angles (rows, J), the same J in every row: 1 to :data:`MAX_JOINTS` joints (a
+    recording file carries no more)."""
+    array = _column(values, (rows, None), "joints_rad")
+    if not 1 <= array.shape[1] <= MAX_JOINTS:
+        raise InvalidInputError(
+            f"recording: joints_rad has {array.shape[1]} joints per row; 1 to {MAX_JOINTS} are held"
+        )
     return array
 
 
-def _column(values: object, shape: tuple[int, ...], name: str) -> np.ndarray:
+def _column(values: object, shape: tuple[int | None, ...], name: str) -> np.ndarray:
     """A float array of the given shape (the length of ``time_s`` sets N)."""
     try:
         array = np.asarray(values, dtype=float)
