@@ -74,6 +74,20 @@ def test_robust_keeps_a_short_recording_with_a_fifth_of_outliers(white_simulatio
     assert sorted(o["row"] for o in result.diagnostics["outliers"]) == list(range(0, 30, 5))
 
 
+def test_robust_without_fit_rms_takes_no_tracker_noise_level_it_was_not_given(white_simulation):
+    # a pose tracker without fit RMS: robust's kept frames have no known noise level either, so
+    # its expected error measures the noise as ML's does, not from a placeholder sigma
+    recording = _pose_only_views(white_simulation, 30, 0.5, seed=4)
+    ml, robust = calibrate(recording, "ml"), calibrate(recording, "robust")
+    assert robust.diagnostics["outliers"] == []
+    ml_error = ml.diagnostics["expected_error"]
+    robust_error = robust.diagnostics["expected_error"]
+    assert robust_error["components"]["tracker_noise_sphere_rms_mm"] is None
+    assert "fit RMS" not in robust_error["basis"].split("(")[0]
+    # no frame left out: the same frames, the same statement up to the two fits' difference
+    assert abs(robust_error["position_mm"] - ml_error["position_mm"]) < 0.05 * ml_error["position_mm"]
+
+
 def test_the_tracker_kind_is_chosen_from_the_data_or_named(recording_file, tmp_path, capsys):
     # auto: the recording has the tracker's fit RMS, so the noise level is the tracker's
     out = tmp_path / "auto.json"

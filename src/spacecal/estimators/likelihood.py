@@ -29,7 +29,7 @@ from spacecal.estimators.ml import (
     levenberg_marquardt,
     predicted_tre_mm,
 )
-from spacecal.estimators.noise_model import fit_with_noise_model
+from spacecal.estimators.noise_model import NoiseModel, fit_with_noise_model
 from spacecal.estimators.observations import Observations, build_observations
 from spacecal.estimators.robot_world import solve_shah
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IntArray
@@ -371,14 +371,7 @@ def calibrate_ml(
             extra,
             needle_tip=needle_tip,
         )
-    # an unidentifiable problem is refused with its reason before any re-weighting
-    covariance_from_information(information_matrix(obs, fit.tracker_from_base, fit.tcp_from_marker))
-    try:
-        model = fit_with_noise_model(
-            obs, recording.tracker_from_marker_stack[obs.rows], fit.tracker_from_base, fit.tcp_from_marker
-        )
-    except np.linalg.LinAlgError as exc:
-        raise DegenerateDataError(f"noise components cannot be estimated from these frames ({exc})") from exc
+    model = reweighted_by_noise_model(recording, obs, fit.tracker_from_base, fit.tcp_from_marker)
     return _package(
         "ml",
         recording,
@@ -390,6 +383,27 @@ def calibrate_ml(
         noise_information=model.information,
         needle_tip=needle_tip,
     )
+
+
+def reweighted_by_noise_model(
+    recording: Recording, obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
+) -> NoiseModel:
+    """The fit re-weighted by the tracker noise's variance components learnt from its residuals
+    (:mod:`spacecal.estimators.noise_model`), from a plain LM solution of ``obs``.
+
+    Raises
+    ------
+    DegenerateDataError
+        When the problem is unidentifiable (refused with its reason before any re-weighting) or
+        the components cannot be estimated from these frames.
+    """
+    covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
+    try:
+        return fit_with_noise_model(
+            obs, recording.tracker_from_marker_stack[obs.rows], tracker_from_base, tcp_from_marker
+        )
+    except np.linalg.LinAlgError as exc:
+        raise DegenerateDataError(f"noise components cannot be estimated from these frames ({exc})") from exc
 
 
 def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observations, Fit]:
@@ -481,10 +495,16 @@ def calibrate_robust(
     cutoff = max(gaussian_cutoff, SYSTEMATIC_TAIL_FACTOR * np.median(errors))
     keep = errors <= cutoff
     outlier_rows = obs.rows[~keep]
+    # the noise level of all frames where it is known (a given sigma, the tracker's fit RMS);
+    # without either, the kept frames' own noise is unknown too, never the 1 mm placeholder
     kept = build_observations(
-        recording, mask=np.isin(np.arange(len(recording)), obs.rows[keep]), sigma_mm=obs.sigma_mm
+        recording,
+        mask=np.isin(np.arange(len(recording)), obs.rows[keep]),
+        sigma_mm=obs.sigma_mm if obs.sigma_known else None,
     )
+    # ML on the kept frames, re-weighted by the noise's components as ``ml`` is
     final = levenberg_marquardt(kept, tracker_from_base, tcp_from_marker)
+    model = reweighted_by_noise_model(recording, kept, final.tracker_from_base, final.tcp_from_marker)
     outliers = [
         {
             "row": int(r),
@@ -500,11 +520,17 @@ def calibrate_robust(
         "robust",
         recording,
         kept,
-        final.tracker_from_base,
-        final.tcp_from_marker,
+        model.tracker_from_base,
+        model.tcp_from_marker,
         targets_in_base,
-        {"outliers": outliers, "ransac_threshold_mm": threshold, "outlier_cutoff_mm": float(cutoff)},
+        {
+            "outliers": outliers,
+            "ransac_threshold_mm": threshold,
+            "outlier_cutoff_mm": float(cutoff),
+            "noise_model": model.summary(),
+        },
         outlier_rows,
+        noise_information=model.information,
         needle_tip=needle_tip,
     )
 
