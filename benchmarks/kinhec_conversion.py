@@ -65,28 +65,54 @@ def spacecal_robot_model(kinhec_robot: str) -> str | None:
 
 def kinematic_model_of(kinhec_robot: str) -> dict | None:
     """The nominal model of a KinHEC arm that is not a UR arm, as spacecal's
-    ``robot.kinematic_model`` metadata (DH table in mm and rad, KinHEC's flange as the TCP);
-    None for a UR arm (named instead) and for an arm spacecal's standard DH cannot describe."""
+    ``robot.kinematic_model`` metadata (standard DH table in mm and rad, KinHEC's flange as the
+    TCP); None for a UR arm (named instead) and for an arm spacecal's standard DH cannot describe.
+
+    Two of KinHEC's conventions are rewritten exactly:
+
+    - Craig's modified DH (the Panda): link i is Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta_i) Tz(d_i),
+      and a rotation and a translation along one axis commute, so the chain regroups into
+      standard links Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i) that take the next link's a and
+      alpha (the last link's are zero). Exact when the first link's a and alpha are zero, as
+      nothing then stands before the first joint.
+    - A joint counted the other way (``q_sign`` -1, the IRB 120's axis 3): spacecal's joint value
+      is ``q_sign * q`` (:func:`joint_values`), so its limits swap and change sign.
+    """
     from kinhec.robots import get_robot
 
     if spacecal_robot_model(kinhec_robot) is not None:
         return None
     robot = get_robot(kinhec_robot)
-    if robot.convention != "standard" or (robot.q_sign is not None and np.any(np.asarray(robot.q_sign) != 1)):
+    a, alpha = list(robot.a), list(robot.alpha)
+    if robot.convention == "modified":
+        if a[0] != 0.0 or alpha[0] != 0.0:
+            return None
+        a, alpha = a[1:] + [0.0], alpha[1:] + [0.0]
+    elif robot.convention != "standard":
         return None
+    sign = robot.sign
+    lower = np.where(sign > 0, robot.q_min, -np.asarray(robot.q_max))
+    upper = np.where(sign > 0, robot.q_max, -np.asarray(robot.q_min))
     tool = np.array(robot.tool_matrix, dtype=float)
     tool[:3, 3] *= MM_PER_M
     return {
         "name": robot.name,
-        "a_mm": [MM_PER_M * v for v in robot.a],
+        "a_mm": [MM_PER_M * v for v in a],
         "d_mm": [MM_PER_M * v for v in robot.d],
-        "alpha_rad": list(robot.alpha),
+        "alpha_rad": alpha,
         "theta_offset_rad": list(robot.theta_offset),
         "flange_from_tcp": tool.tolist(),
-        "joint_lower_rad": list(robot.q_min),
-        "joint_upper_rad": list(robot.q_max),
+        "joint_lower_rad": lower.tolist(),
+        "joint_upper_rad": upper.tolist(),
         "controller_hz": float(robot.control_rate_hz),
     }
+
+
+def joint_values(kinhec_robot: str, q: np.ndarray) -> np.ndarray:
+    """KinHEC's joint angles (N, J) as the joint values of :func:`kinematic_model_of`'s model."""
+    from kinhec.robots import get_robot
+
+    return np.asarray(q, dtype=float) * get_robot(kinhec_robot).sign
 
 
 def in_mm(stack_m: np.ndarray) -> np.ndarray:
@@ -142,7 +168,7 @@ def _joints(q: np.ndarray | None, rows: int, model: str | None, kinhec_robot: st
     """KinHEC's joint angles where spacecal has the arm's model, else NaN (six columns)."""
     if q is None or (model is None and kinematic_model_of(kinhec_robot) is None):
         return np.full((rows, 6), np.nan)
-    return np.asarray(q, dtype=float)
+    return joint_values(kinhec_robot, q)
 
 
 def _tracker_from_marker(seq, camera_from_target: np.ndarray) -> np.ndarray:

@@ -110,6 +110,28 @@ def test_two_streams_pair_at_the_offset_kinhec_injected():
     assert np.sqrt(np.mean(wrong**2)) > 3.0 * noise_mm
 
 
+#: A small-tier sequence of each KinHEC arm spacecal has no name for: a KUKA LBR iiwa (standard
+#: DH, seven joints), a Franka Panda (Craig's modified DH) and an ABB IRB 120 (axis 3 counted
+#: the other way).
+ARM_SEQUENCES = {"iiwa14": "noise-000096", "panda": "noise-000048", "irb120": "outliers-000028"}
+
+
+@pytest.mark.parametrize("arm", sorted(ARM_SEQUENCES))
+def test_the_metadata_model_gives_the_flange_poses_kinhec_reported(arm):
+    """The model in ``robot.kinematic_model``, at the joint values written, puts the flange where
+    KinHEC's own forward kinematics put it (its noise-free columns: true joint angles and flange
+    poses), whatever DH convention or joint sense KinHEC describes the arm in."""
+    from spacecal.estimators.expected_error import nominal_robot_model
+    from spacecal.models.kinematics import forward_kinematics
+
+    recording = conversion.to_recording(_tier_sequence("small", ARM_SEQUENCES[arm]), noise_free=True)
+    model = nominal_robot_model(recording)
+    assert model is not None and model.name == arm
+    assert np.all(np.isfinite(recording.joints_rad))
+    reported = forward_kinematics(model, recording.joints_rad)
+    assert np.max(np.abs(reported - recording.base_from_tcp_stack)) < 1e-6
+
+
 #: KinHEC's small tier, robot-error track: a UR5e's 30 static camera views with DH errors of
 #: 0.1 or 1 mm and 0.01 or 0.1 deg, two motion seeds each.
 #: The DH-error sequences of KinHEC's small robot-error track, per arm: a UR5e (six joints,
