@@ -177,3 +177,32 @@ def test_the_noise_beyond_the_dh_errors_is_the_camera_noise_kinhec_injected(arm)
     # the mean ratio of eight sequences, within three of its standard errors of one (each
     # estimate's own relative error, from its degrees of freedom, about 0.2)
     assert abs(np.mean(ratios) - 1.0) < 3.0 * np.sqrt(np.mean(np.square(relative_errors)) / len(ratios))
+
+
+@pytest.mark.parametrize("sequence_id", ["noise-000039", "noise-000134"], ids=["UR5e", "iiwa14"])
+def test_twenty_views_of_a_noisy_camera_measure_their_noise_beyond_the_dh_errors(sequence_id):
+    """A camera's 20 static views (KinHEC camera noise c3, mostly along the line of sight) leave
+    14 to 19 effective residual degrees of freedom beyond the pose and the DH errors: enough to
+    measure the noise within its own relative error, and the expected error takes it from there
+    rather than counting all of the misfit as systematic."""
+    from spacecal.estimators.expected_error import nominal_robot_model, white_noise_beyond_kinematics
+    from spacecal.estimators.observations import build_observations
+
+    sequence = _tier_sequence("small", sequence_id)
+    recording = conversion.to_recording(sequence)
+    observations = build_observations(recording)
+    injected = observations.spheres_in_tracker - build_observations(
+        conversion.to_recording(sequence, noise_free=True)
+    ).spheres_in_tracker
+    result = calibrate(recording, "ml")
+    measured = white_noise_beyond_kinematics(
+        nominal_robot_model(recording),
+        recording.joints_rad[observations.rows],
+        observations,
+        result.tracker_from_base,
+        result.tcp_from_marker,
+    )
+    ratio = measured["power_mm2"] / float(np.mean(np.sum(injected**2, axis=(1, 2))))
+    assert measured["dof"] < 20
+    assert abs(ratio - 1.0) < 3.0 * measured["relative_error"]
+    assert "beyond the white noise the residuals leave" in result.diagnostics["expected_error"]["basis"]
