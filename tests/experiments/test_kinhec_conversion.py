@@ -191,9 +191,10 @@ def test_twenty_views_of_a_noisy_camera_measure_their_noise_beyond_the_dh_errors
     sequence = _tier_sequence("small", sequence_id)
     recording = conversion.to_recording(sequence)
     observations = build_observations(recording)
-    injected = observations.spheres_in_tracker - build_observations(
-        conversion.to_recording(sequence, noise_free=True)
-    ).spheres_in_tracker
+    injected = (
+        observations.spheres_in_tracker
+        - build_observations(conversion.to_recording(sequence, noise_free=True)).spheres_in_tracker
+    )
     result = calibrate(recording, "ml")
     measured = white_noise_beyond_kinematics(
         nominal_robot_model(recording),
