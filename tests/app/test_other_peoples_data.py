@@ -74,6 +74,18 @@ def test_robust_keeps_a_short_recording_with_a_fifth_of_outliers(white_simulatio
     assert sorted(o["row"] for o in result.diagnostics["outliers"]) == list(range(0, 30, 5))
 
 
+def test_robust_takes_a_noisy_camera_s_frames_whatever_its_noise_level(white_simulation):
+    # a camera 8 mm noisy, without fit RMS: no fixed inlier bound fits it, the frames'
+    # own median error sets it; a fifth of frames 150 mm off are still found
+    recording = _pose_only_views(white_simulation, 30, 8.0, seed=5)
+    clean = calibrate(recording, "robust")
+    assert clean.diagnostics["outliers"] == []
+    spoilt = recording.tracker_from_marker_stack.copy()
+    spoilt[1::5, :3, 3] += 150.0
+    result = calibrate(dataclasses.replace(recording, tracker_from_marker_stack=spoilt), "robust")
+    assert sorted(o["row"] for o in result.diagnostics["outliers"]) == list(range(1, 30, 5))
+
+
 def test_robust_without_fit_rms_takes_no_tracker_noise_level_it_was_not_given(white_simulation):
     # a pose tracker without fit RMS: robust's kept frames have no known noise level either, so
     # its expected error measures the noise as ML's does, not from a placeholder sigma

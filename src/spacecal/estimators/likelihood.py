@@ -414,6 +414,19 @@ def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observa
     return obs, levenberg_marquardt(obs, start_tracker_from_base, start_tcp_from_marker)
 
 
+def outlier_cutoff(errors: FloatArray, dof: int) -> float:
+    """The frame error (mm) beyond which a frame is an outlier, from the errors' own median.
+
+    An inlier's squared frame error is sigma^2 chi2(dof) / K, so the median gives sigma and
+    :data:`OUTLIER_QUANTILE` of that distribution bounds an inlier; systematic errors make the
+    tail heavier, so never less than :data:`SYSTEMATIC_TAIL_FACTOR` times the median.
+    """
+    median = float(np.median(errors))
+    median_ratio = np.sqrt(chdtri(dof, 0.5) / dof)  # chi-square median
+    gaussian = median / median_ratio * np.sqrt(chdtri(dof, 1.0 - OUTLIER_QUANTILE) / dof)
+    return float(max(gaussian, SYSTEMATIC_TAIL_FACTOR * median))
+
+
 def ransac_start(
     obs: Observations,
     recording: Recording,
@@ -422,13 +435,21 @@ def ransac_start(
     subset: int = 6,
     threshold_mm: float | None = None,
 ) -> tuple[tuple[FloatArray, FloatArray], BoolArray, float]:
-    """Best closed-form (Shah) solution over random frame subsets, by inlier count.
+    """Best closed-form (Shah) solution over random frame subsets.
+
+    With a bound given, or a noise level the tracker measured (its fit RMS), a frame within
+    ``max(1 mm, 10 sigma)`` is an inlier and the subset with the most inliers wins. Without
+    one, no fixed bound fits every tracker (a camera's noise is mm, an optical tracker's a tenth
+    of that): the subset whose frames' median error is least wins (least median of squares,
+    which fewer than half bad frames cannot move), and the inliers are the frames within
+    :func:`outlier_cutoff` of its errors.
 
     Returns the transforms, the inlier mask and the threshold used.
     """
+    by_count = threshold_mm is not None or obs.sigma_known
     threshold = threshold_mm if threshold_mm is not None else max(1.0, 10.0 * obs.sigma_mm)
     poses = recording.tracker_from_marker_stack[obs.rows]
-    best_count, best_start, best_inliers = -1, None, None
+    best_score, best_start, best_errors = -np.inf, None, None
     for _ in range(iterations):
         pick = rng.choice(len(obs.rows), size=min(subset, len(obs.rows)), replace=False)
         try:
@@ -436,16 +457,15 @@ def ransac_start(
         except DegenerateDataError:
             continue
         tracker_from_base = invert_transform(base_from_tracker)
-        inliers = frame_errors(obs, tracker_from_base, tcp_from_marker) < threshold
-        if inliers.sum() > best_count:
-            best_count, best_start, best_inliers = (
-                int(inliers.sum()),
-                (tracker_from_base, tcp_from_marker),
-                inliers,
-            )
-    if best_start is None or best_inliers is None:
+        errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
+        score = float(np.sum(errors < threshold)) if by_count else -float(np.median(errors))
+        if score > best_score:
+            best_score, best_start, best_errors = score, (tracker_from_base, tcp_from_marker), errors
+    if best_start is None or best_errors is None:
         raise DegenerateDataError("no random subset of frames gave a usable closed-form start")
-    return best_start, best_inliers, threshold
+    if not by_count:
+        threshold = outlier_cutoff(best_errors, obs.dof_per_frame)
+    return best_start, best_errors < threshold, threshold
 
 
 def calibrate_robust(
@@ -457,8 +477,9 @@ def calibrate_robust(
 ) -> CalibrationResult:
     """Maximum likelihood that survives bad frames (mis-detected spheres, stale frames, reflections).
 
-    1. RANSAC-style start: Shah's closed form on random 6-frame subsets, the one with most
-       frames within max(1 mm, 10 sigma) wins, refined on its inliers.
+    1. RANSAC-style start: Shah's closed form on random 6-frame subsets (:func:`ransac_start`:
+       most frames within max(1 mm, 10 sigma) where the noise level is known, else the least
+       median frame error), refined on its inliers.
     2. Iteratively reweighted LM with the Cauchy loss on per-frame errors, scaled by a
        robust (median) estimate of the inlier error.
     3. Frames beyond both the 99.9 % chi-square bound of that scale (6 degrees of freedom
@@ -482,8 +503,7 @@ def calibrate_robust(
     # An inlier's squared frame error is sigma^2 chi2(dof) / K: scale the errors by a
     # robust (median) estimate of sigma, so systematic errors larger than the tracker's
     # noise do not turn good frames into outliers.
-    dof = obs.dof_per_frame
-    median_ratio = np.sqrt(chdtri(dof, 0.5) / dof)  # chi-square median
+    median_ratio = np.sqrt(chdtri(obs.dof_per_frame, 0.5) / obs.dof_per_frame)  # chi-square median
     for _ in range(5):
         errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
         scale = np.median(errors) / median_ratio
@@ -491,8 +511,7 @@ def calibrate_robust(
         fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, frame_weights=weights)
         tracker_from_base, tcp_from_marker = fit.tracker_from_base, fit.tcp_from_marker
     errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
-    gaussian_cutoff = np.median(errors) / median_ratio * np.sqrt(chdtri(dof, 1.0 - OUTLIER_QUANTILE) / dof)
-    cutoff = max(gaussian_cutoff, SYSTEMATIC_TAIL_FACTOR * np.median(errors))
+    cutoff = outlier_cutoff(errors, obs.dof_per_frame)
     keep = errors <= cutoff
     outlier_rows = obs.rows[~keep]
     # the noise level of all frames where it is known (a given sigma, the tracker's fit RMS);
