@@ -207,3 +207,54 @@ def test_twenty_views_of_a_noisy_camera_measure_their_noise_beyond_the_dh_errors
     assert measured["dof"] < 20
     assert abs(ratio - 1.0) < 3.0 * measured["relative_error"]
     assert "beyond the white noise the residuals leave" in result.diagnostics["expected_error"]["basis"]
+
+
+@pytest.mark.parametrize(
+    ("sequence_id", "camera_level"),
+    [
+        ("robot_error-000005", "c2"),
+        ("robot_error-000011", "c2"),
+        ("noise-000036", "c1"),
+        ("noise-000039", "c3"),
+    ],
+    ids=["eye-in-hand", "eye-in-hand-2", "eye-to-hand", "eye-to-hand-c3"],
+)
+def test_the_bound_s_camera_noise_is_the_noise_kinhec_injected(sequence_id, camera_level):
+    """``benchmarks/kinhec_identification_bound.py`` whitens by KinHEC's stated camera noise:
+    the noise KinHEC injected, whitened by it, is chi-square with six degrees of freedom per frame
+    (a pose's noise), mean 6 over the 30 views within three of its standard errors."""
+    if "kinhec_identification_bound" not in sys.modules:
+        spec = importlib.util.spec_from_file_location(
+            "kinhec_identification_bound", BENCHMARKS / "kinhec_identification_bound.py"
+        )
+        module = importlib.util.module_from_spec(spec)
+        sys.modules["kinhec_identification_bound"] = module
+        spec.loader.exec_module(module)
+    bound = sys.modules["kinhec_identification_bound"]
+    import kinhec
+    from kinhec.plans import load_tier
+
+    from spacecal.estimators.observations import build_observations
+
+    tier = load_tier(str(Path(kinhec.__file__).parent / "configs" / "small.yaml"))
+    rotation_sd, translation_sd_m = tier["noise_levels"]["camera"][camera_level]
+    sequence = _tier_sequence("small", sequence_id)
+    assert f"camera={camera_level}" in sequence.manifest["level"] or camera_level == "c2"
+    clean = conversion.to_recording(sequence, noise_free=True)
+    observations = build_observations(clean)
+    injected = (
+        build_observations(conversion.to_recording(sequence)).spheres_in_tracker
+        - observations.spheres_in_tracker
+    )
+    covariances = bound.camera_noise_covariances(
+        clean.tracker_from_marker_stack[observations.rows],
+        observations.spheres_in_marker,
+        sequence.eye_in_hand,
+        np.full(3, float(rotation_sd)),
+        1000.0 * np.asarray(translation_sd_m, dtype=float),
+    )
+    flat = injected.reshape(len(injected), -1)
+    statistic = np.einsum(
+        "ni,nij,nj->n", flat, np.linalg.pinv(covariances, rcond=1e-10, hermitian=True), flat
+    )
+    assert abs(np.mean(statistic) - 6.0) < 3.0 * np.sqrt(12.0 / len(statistic))
