@@ -616,6 +616,13 @@ def identify_kinematics(
             diagnostics={**ml.diagnostics, "kinematic_identification": report},
             robot_model=model,
         )
+    if not obs.sigma_known:
+        # no tracker fit RMS: the data are weighed against the prior by the noise level the ML
+        # start's residuals show (its a posteriori variance factor), never by the 1 mm
+        # placeholder, which made the prior's pull depend on the tracker's units of noise
+        level = obs.sigma_mm * np.sqrt(variance_factor_of(obs, tracker_from_base, tcp_from_marker))
+        obs = replace(obs, sigma_mm=float(level))
+        obs_model = replace(obs_model, sigma_mm=float(level))
     selection = None
     if model_selection:
         n_frames = len(joints)
