@@ -8,9 +8,11 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.cli.main import main
+from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators import calibrate
 from spacecal.io.recording_csv import write_recording
 from spacecal.records import Recording
@@ -84,6 +86,19 @@ def test_robust_takes_a_noisy_camera_s_frames_whatever_its_noise_level(white_sim
     spoilt[1::5, :3, 3] += 150.0
     result = calibrate(dataclasses.replace(recording, tracker_from_marker_stack=spoilt), "robust")
     assert sorted(o["row"] for o in result.diagnostics["outliers"]) == list(range(1, 30, 5))
+
+
+def test_robust_refuses_a_recording_half_of_whose_frames_are_bad(white_simulation):
+    # a camera without fit RMS, 15 of 30 frames replaced by unrelated poses: no majority
+    # agrees, and the noise level read off the better frames keeps the bad half out
+    recording = _pose_only_views(white_simulation, 30, 1.0, seed=6)
+    rng = np.random.default_rng(6)
+    spoilt = recording.tracker_from_marker_stack.copy()
+    bad = rng.choice(30, 15, replace=False)
+    spoilt[bad, :3, :3] = Rotation.random(15, random_state=6).as_matrix()
+    spoilt[bad, :3, 3] += rng.normal(0.0, 100.0, (15, 3))
+    with pytest.raises(DegenerateDataError, match="a majority is needed"):
+        calibrate(dataclasses.replace(recording, tracker_from_marker_stack=spoilt), "robust")
 
 
 def test_robust_without_fit_rms_takes_no_tracker_noise_level_it_was_not_given(white_simulation):

@@ -414,16 +414,19 @@ def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observa
     return obs, levenberg_marquardt(obs, start_tracker_from_base, start_tcp_from_marker)
 
 
-def outlier_cutoff(errors: FloatArray, dof: int) -> float:
-    """The frame error (mm) beyond which a frame is an outlier, from the errors' own median.
+def outlier_cutoff(errors: FloatArray, dof: int, quantile: float = 0.5) -> float:
+    """The frame error (mm) beyond which a frame is an outlier, from the errors' own spread.
 
-    An inlier's squared frame error is sigma^2 chi2(dof) / K, so the median gives sigma and
-    :data:`OUTLIER_QUANTILE` of that distribution bounds an inlier; systematic errors make the
-    tail heavier, so never less than :data:`SYSTEMATIC_TAIL_FACTOR` times the median.
+    An inlier's squared frame error is sigma^2 chi2(dof) / K, so a quantile of the errors (the
+    median by default) gives sigma and :data:`OUTLIER_QUANTILE` of that distribution bounds an
+    inlier; systematic errors make the tail heavier, so never less than
+    :data:`SYSTEMATIC_TAIL_FACTOR` times the median that sigma implies. A lower ``quantile``
+    reads sigma off the better frames, which bad frames up to ``1 - quantile`` cannot inflate.
     """
-    median = float(np.median(errors))
-    median_ratio = np.sqrt(chdtri(dof, 0.5) / dof)  # chi-square median
-    gaussian = median / median_ratio * np.sqrt(chdtri(dof, 1.0 - OUTLIER_QUANTILE) / dof)
+    value = float(np.quantile(errors, quantile))
+    sigma = value / np.sqrt(chdtri(dof, 1.0 - quantile) / dof)  # chdtri: upper-tail inverse
+    median = sigma * np.sqrt(chdtri(dof, 0.5) / dof)
+    gaussian = sigma * np.sqrt(chdtri(dof, 1.0 - OUTLIER_QUANTILE) / dof)
     return float(max(gaussian, SYSTEMATIC_TAIL_FACTOR * median))
 
 
@@ -441,8 +444,8 @@ def ransac_start(
     ``max(1 mm, 10 sigma)`` is an inlier and the subset with the most inliers wins. Without
     one, no fixed bound fits every tracker (a camera's noise is mm, an optical tracker's a tenth
     of that): the subset whose frames' median error is least wins (least median of squares,
-    which fewer than half bad frames cannot move), and the inliers are the frames within
-    :func:`outlier_cutoff` of its errors.
+    which fewer than half bad frames cannot move), refined on its better half, and the inliers
+    are the frames within :func:`outlier_cutoff` of its errors' lower quartile.
 
     Returns the transforms, the inlier mask and the threshold used.
     """
@@ -464,7 +467,15 @@ def ransac_start(
     if best_start is None or best_errors is None:
         raise DegenerateDataError("no random subset of frames gave a usable closed-form start")
     if not by_count:
-        threshold = outlier_cutoff(best_errors, obs.dof_per_frame)
+        # refined on its better half, so the errors are the noise's and not the 6-frame
+        # subset's own error; the noise level is read off their lower quartile (the better
+        # half's median), which even half the frames bad cannot inflate, so such a recording
+        # finds no majority and is refused rather than fitted through its bad frames
+        better_half = (best_errors <= np.median(best_errors)).astype(float)
+        fit = levenberg_marquardt(obs, *best_start, frame_weights=better_half)
+        best_start = (fit.tracker_from_base, fit.tcp_from_marker)
+        best_errors = frame_errors(obs, *best_start)
+        threshold = outlier_cutoff(best_errors, obs.dof_per_frame, quantile=0.25)
     return best_start, best_errors < threshold, threshold
 
 
