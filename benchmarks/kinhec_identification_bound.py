@@ -73,8 +73,24 @@ def camera_noise_covariances(
     return np.einsum("nij,j,nkj->nik", design, variances, design)
 
 
-def site_error_bound(seq, dh_len_sd_mm: float, dh_ang_sd_rad: float, rot_sd, trans_sd_mm) -> float:
-    """The least mean site error (mm) any estimator can expect on this sequence's arm draws."""
+def camera_noise_of(tier: dict, seq) -> tuple[np.ndarray, np.ndarray]:
+    """The camera noise KinHEC's tier states for a sequence: rotation s.d. (3,), rad, and
+    translation s.d. (3,), mm. The level is the sequence's ``camera=`` factor, or its track's
+    fixed ``camera_level`` (the robot-error track)."""
+    level = seq.manifest["level"]
+    if "camera=" in level:
+        name = level.split("camera=")[1].split("|")[0]
+    else:
+        name = tier["tracks"][seq.manifest["track"]]["camera_level"]
+    rotation_sd, translation_sd_m = tier["noise_levels"]["camera"][name]
+    return np.full(3, float(rotation_sd)), 1000.0 * np.asarray(translation_sd_m, dtype=float)
+
+
+def site_error_bound(
+    seq, truth: kinhec_tracks.Truth, dh_len_sd_mm: float, dh_ang_sd_rad: float, rot_sd, trans_sd_mm
+) -> float:
+    """The least mean site error (mm) any estimator can expect on this sequence's arm draws, at
+    ``truth``'s site targets."""
     clean = conversion.to_recording(seq, noise_free=True)
     model = nominal_robot_model(clean)
     obs = build_observations(clean)
@@ -101,7 +117,6 @@ def site_error_bound(seq, dh_len_sd_mm: float, dh_ang_sd_rad: float, rot_sd, tra
     )
     information[12:, 12:] += np.diag(1.0 / prior_sd**2)
     posterior = np.linalg.inv(information)
-    truth = kinhec_tracks.Truth(seq)
     covariances_at_site = point_covariances(tracker_from_base, posterior[:6, :6], truth.reported_tcp_mm)
     return float(np.mean([mean_gaussian_length(c) for c in covariances_at_site]))
 
@@ -113,9 +128,6 @@ def main() -> None:
     root = kinhec_tracks.default_data_dir(args.tier)
     kinhec_tracks.ensure_data(args.tier, root, ["robot_error"], 1)
     tier = load_tier(str(kinhec_tracks.tier_config(args.tier)))
-    rot_sd, trans_sd_m = tier["noise_levels"]["camera"][tier["tracks"]["robot_error"]["camera_level"]]
-    rot_sd = np.full(3, float(rot_sd))
-    trans_sd_mm = 1000.0 * np.asarray(trans_sd_m, dtype=float)
     manifest = load_manifest(root)
     rows = manifest[manifest.sequence_id.str.startswith("robot_error") & manifest.level.str.startswith("dh_")]
     print(f"## KinHEC robot-error track ({args.tier} tier): the least site error any estimator can expect")
@@ -130,8 +142,8 @@ def main() -> None:
         seq = load_sequence(root, m["sequence_id"], manifest=pd.DataFrame([m]))
         length_mm = float(m["level"].split("dh_len_mm=")[1].split("|")[0])
         angle_deg = float(m["level"].split("dh_ang_deg=")[1])
-        bound = site_error_bound(seq, length_mm, np.radians(angle_deg), rot_sd, trans_sd_mm)
         truth = kinhec_tracks.Truth(seq)
+        bound = site_error_bound(seq, truth, length_mm, np.radians(angle_deg), *camera_noise_of(tier, seq))
         ml = calibrate(conversion.to_recording(seq), "ml")
         x, y = conversion.kinhec_from_spacecal(ml.tracker_from_base, ml.tcp_from_marker)
         ml_site = truth.errors(x, y)["site_error_mm"]

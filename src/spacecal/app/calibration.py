@@ -23,7 +23,7 @@ from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators import calibrate as estimate
 from spacecal.estimators.diagnostics import ErrorThresholds
-from spacecal.estimators.likelihood import tre_lower_bound, variance_factor_of
+from spacecal.estimators.likelihood import residual_noise_level, tre_lower_bound
 from spacecal.estimators.observations import (
     build_observations,
     marker_geometry_of,
@@ -335,9 +335,7 @@ def recorded_noise(recording: Recording, calibration: CalibrationResult) -> tupl
     if isinstance(stored, (int, float)) and not isinstance(stored, bool) and 0.0 < stored < math.inf:
         return float(stored), "the noise the calibration was computed with"
     obs = build_observations(recording)
-    learnt = obs.sigma_mm * math.sqrt(
-        variance_factor_of(obs, calibration.tracker_from_base, calibration.tcp_from_marker)
-    )
+    learnt = residual_noise_level(obs, calibration.tracker_from_base, calibration.tcp_from_marker)
     if not (math.isfinite(learnt) and learnt > 0.0):
         raise InvalidInputError(
             "the recording shows no noise to bound with (no tracker fit RMS, residuals of zero): "

@@ -88,6 +88,7 @@ from spacecal.estimators.likelihood import (
     calibrate_ml,
     fit_ml,
     report_uncertainty,
+    residual_noise_level,
     variance_factor_of,
 )
 from spacecal.estimators.ml import covariance_from_information, information_matrix
@@ -413,8 +414,9 @@ def dh_error_scale_of(
     (``benchmarks/hardware_paths.py``, UR + OpenIGTLink).
     """
     if not obs.sigma_known:
-        sigma_mm = obs.sigma_mm * np.sqrt(variance_factor_of(obs, tracker_from_base, tcp_from_marker))
-        obs = replace(obs, sigma_mm=float(sigma_mm), sigma_known=True)
+        obs = replace(
+            obs, sigma_mm=residual_noise_level(obs, tracker_from_base, tcp_from_marker), sigma_known=True
+        )
     try:
         covariance = covariance_from_information(information_matrix(obs, tracker_from_base, tcp_from_marker))
         expected = expected_error(
@@ -620,9 +622,9 @@ def identify_kinematics(
         # no tracker fit RMS: the data are weighed against the prior by the noise level the ML
         # start's residuals show (its a posteriori variance factor), never by the 1 mm
         # placeholder, which made the prior's pull depend on the tracker's units of noise
-        level = obs.sigma_mm * np.sqrt(variance_factor_of(obs, tracker_from_base, tcp_from_marker))
-        obs = replace(obs, sigma_mm=float(level))
-        obs_model = replace(obs_model, sigma_mm=float(level))
+        level = residual_noise_level(obs, tracker_from_base, tcp_from_marker)
+        obs = replace(obs, sigma_mm=level)
+        obs_model = replace(obs_model, sigma_mm=level)
     selection = None
     if model_selection:
         n_frames = len(joints)

@@ -100,6 +100,16 @@ def variance_factor_of(
     return float(np.sum(errors**2) * len(obs.spheres_in_marker) / obs.sigma_mm**2) / dof
 
 
+def residual_noise_level(
+    obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
+) -> float:
+    """The per-axis sphere noise (mm) the fit's residuals show: ``obs.sigma_mm`` scaled by the
+    square root of :func:`variance_factor_of`, which holds whatever systematic error the fit
+    leaves as well. For a recording without a known noise level (no tracker fit RMS), whose
+    ``sigma_mm`` is only a placeholder."""
+    return float(obs.sigma_mm * np.sqrt(variance_factor_of(obs, tracker_from_base, tcp_from_marker)))
+
+
 @dataclass(frozen=True)
 class Solution:
     """An estimate with its covariance, before :func:`report_uncertainty` adds what follows
@@ -414,17 +424,22 @@ def fit_ml(recording: Recording, sigma_mm: float | None = None) -> tuple[Observa
     return obs, levenberg_marquardt(obs, start_tracker_from_base, start_tcp_from_marker)
 
 
+def frame_error_sigma(errors: FloatArray, dof: int, quantile: float = 0.5) -> float:
+    """The per-axis noise (mm) a quantile of the frame errors gives: an inlier's squared frame
+    error is sigma^2 chi2(dof) / K. A lower ``quantile`` reads it off the better frames, which
+    bad frames up to ``1 - quantile`` cannot inflate."""
+    value = float(np.quantile(errors, quantile))
+    return value / float(np.sqrt(chdtri(dof, 1.0 - quantile) / dof))  # chdtri: upper-tail inverse
+
+
 def outlier_cutoff(errors: FloatArray, dof: int, quantile: float = 0.5) -> float:
     """The frame error (mm) beyond which a frame is an outlier, from the errors' own spread.
 
-    An inlier's squared frame error is sigma^2 chi2(dof) / K, so a quantile of the errors (the
-    median by default) gives sigma and :data:`OUTLIER_QUANTILE` of that distribution bounds an
-    inlier; systematic errors make the tail heavier, so never less than
-    :data:`SYSTEMATIC_TAIL_FACTOR` times the median that sigma implies. A lower ``quantile``
-    reads sigma off the better frames, which bad frames up to ``1 - quantile`` cannot inflate.
+    :data:`OUTLIER_QUANTILE` of the chi-square distribution :func:`frame_error_sigma` gives
+    bounds an inlier; systematic errors make the tail heavier, so never less than
+    :data:`SYSTEMATIC_TAIL_FACTOR` times the median that sigma implies.
     """
-    value = float(np.quantile(errors, quantile))
-    sigma = value / np.sqrt(chdtri(dof, 1.0 - quantile) / dof)  # chdtri: upper-tail inverse
+    sigma = frame_error_sigma(errors, dof, quantile)
     median = sigma * np.sqrt(chdtri(dof, 0.5) / dof)
     gaussian = sigma * np.sqrt(chdtri(dof, 1.0 - OUTLIER_QUANTILE) / dof)
     return float(max(gaussian, SYSTEMATIC_TAIL_FACTOR * median))
@@ -495,7 +510,8 @@ def calibrate_robust(
        robust (median) estimate of the inlier error.
     3. Frames beyond both the 99.9 % chi-square bound of that scale (6 degrees of freedom
        per fitted pose, 3K for raw spheres) and 4x the median frame error are flagged, with
-       their error, and a plain LM on the rest gives the efficient estimate and covariance.
+       their error, and ML on the rest (re-weighted by the learnt noise components, as
+       ``ml`` is) gives the efficient estimate and covariance.
     """
     obs = build_observations(recording, sigma_mm=sigma_mm)
     rng = np.random.default_rng(seed)
@@ -514,11 +530,9 @@ def calibrate_robust(
     # An inlier's squared frame error is sigma^2 chi2(dof) / K: scale the errors by a
     # robust (median) estimate of sigma, so systematic errors larger than the tracker's
     # noise do not turn good frames into outliers.
-    median_ratio = np.sqrt(chdtri(obs.dof_per_frame, 0.5) / obs.dof_per_frame)  # chi-square median
     for _ in range(5):
         errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
-        scale = np.median(errors) / median_ratio
-        weights = cauchy_weights(errors / scale)
+        weights = cauchy_weights(errors / frame_error_sigma(errors, obs.dof_per_frame))
         fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, frame_weights=weights)
         tracker_from_base, tcp_from_marker = fit.tracker_from_base, fit.tcp_from_marker
     errors = frame_errors(obs, tracker_from_base, tcp_from_marker)
