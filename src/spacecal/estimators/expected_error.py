@@ -139,9 +139,6 @@ UNIT_DH_SD = unit_dh_sd(N_JOINTS)
 #: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more.
 GEOMETRY_FRAMES = 120
 
-#: Frames on which each stand-in arm's geometry is evaluated when the recording names no robot
-#: (several arms are tried, and their ratios need no more).
-STAND_IN_FRAMES = 40
 
 #: A UR arm's usual working posture (deg; shoulder lifted, elbow up, wrist down): joint
 #: angles solved for a recording that has none take the branch nearest it.
@@ -1088,8 +1085,10 @@ def expected_error(
     else:
         # no joint angles: solve them from the reported TCP poses, by the recording's robot
         # model or, without one, by the UR arm whose geometry hides the most of a given misfit
-        frames = GEOMETRY_FRAMES if robot_model is not None else STAND_IN_FRAMES
-        rows = geometry_rows(len(obs.rows), frames)
+        # as many frames as with recorded joint angles: the DH-span test below needs them (on
+        # 40, a camera-grade tracker's arm error went unseen on the bag and TUM paths, up to
+        # 10.6 times the statement)
+        rows = geometry_rows(len(obs.rows), GEOMETRY_FRAMES)
         for arm in stand_in_arms(robot_model, ml_tcp_from_marker):
             joints = solved_joints(arm, obs.base_from_tcp_stack, rows)
             if joints is None:
@@ -1102,7 +1101,6 @@ def expected_error(
                 ml_tcp_from_marker,
                 site,
                 misfit["block_indices"],
-                frames=frames,
                 tip_in_marker=tip_in_marker,
             )
             if unit["sphere_power_mm2"] > 0 and (
