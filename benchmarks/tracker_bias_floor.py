@@ -28,12 +28,24 @@ does):
   that also modelled the field (short of its rigid part) could gain;
 * ``kinematic, no field``: ``kinematic`` on the same scenario and arm with the field off.
 
+With ``--tips``, it prints instead what the needle tip's measurement costs (mean verification
+error, mm, and the tip's distance from the true one in the marker frame, mm):
+
+* ``kinematic``, ``kinematic + pivot``: as above (the pivot :func:`simulate_pivot` records);
+* ``kinematic + pivot without the field``: the same pivot (tilts and noise) through a tracker
+  with no bias field;
+* ``kinematic + true tip``: the needle's true tip in the marker frame;
+* ``kinematic + mean tip``: the mean of the pivot's tip and the one ``kinematic`` puts at the
+  controller's TCP (two measurements of one point, of about equal error);
+* ``pivot tip off``, ``kinematic tip off``, ``mean tip off``: those tips' distances from the
+  true one.
+
 With ``--priors``, it prints instead ``kinematic`` under other arm priors on the same seeds:
 the prior s.d. taken from the data (the default), the true residual's size (0.1 mm,
 0.01 deg per DH parameter, :data:`spacecal.sim.scenario.REALISTIC_CALIBRATION_RESIDUAL`), half
 of it, and held-out model selection.
 
-    python benchmarks/tracker_bias_floor.py [--seeds 10] [--preset NAME ...] [--priors]
+    python benchmarks/tracker_bias_floor.py [--seeds 10] [--preset NAME ...] [--priors | --tips]
 """
 
 from __future__ import annotations
@@ -51,7 +63,7 @@ from spacecal.experiments.verification import (
     verify_in_simulation,
 )
 from spacecal.geometry.fitting import fit_rigid
-from spacecal.geometry.transforms import apply_transform, transform_points_by_stack
+from spacecal.geometry.transforms import apply_transform, invert_transform, transform_points_by_stack
 from spacecal.records import CalibrationResult, NeedleTip, Recording
 from spacecal.sim.devices import SimulatedLaserTracker, SimulatedRobot
 from spacecal.sim.pivot import simulate_pivot
@@ -215,6 +227,56 @@ COLUMNS = (
 )
 
 
+def without_bias_fields(world: World) -> World:
+    """The world with its tracker's bias fields switched off (noise and everything else kept)."""
+    error_field = dataclasses.replace(
+        world.error_field, amplitudes_mm=np.zeros_like(world.error_field.amplitudes_mm)
+    )
+    return dataclasses.replace(world, error_field=error_field, bias_field=None)
+
+
+def run_tips(preset: str, seed: int) -> dict:
+    """The row of one scenario and seed: ``kinematic`` with the needle tip measured in each way
+    of :data:`TIP_COLUMNS` (mean verification error, mm), and how far each tip is off (mm)."""
+    scenario = dataclasses.replace(PRESETS[preset], seed=seed)
+    simulation = simulate(scenario)
+    recording, world = simulation.recording, simulation.world
+    pivot = NeedleTip.from_pivot(simulate_pivot(build_world(scenario)))
+    field_free = NeedleTip.from_pivot(simulate_pivot(without_bias_fields(build_world(scenario))))
+    true_tip = invert_transform(world.tcp_from_marker)[:3, 3]
+    alone = calibrate(recording, "kinematic")
+    own_tip = invert_transform(alone.tcp_from_marker)[:3, 3]
+    mean_tip = dataclasses.replace(pivot, tip_in_marker=0.5 * (pivot.tip_in_marker + own_tip))
+
+    def aimed(tip: NeedleTip) -> float:
+        return verified_mean(calibrate(recording, "kinematic", needle_tip=tip), scenario)
+
+    return {
+        "scenario": preset,
+        "seed": seed,
+        "kinematic": verified_mean(alone, scenario),
+        "kinematic + pivot": aimed(pivot),
+        "kinematic + pivot without the field": aimed(field_free),
+        "kinematic + true tip": aimed(dataclasses.replace(pivot, tip_in_marker=true_tip)),
+        "kinematic + mean tip": aimed(mean_tip),
+        "pivot tip off": float(np.linalg.norm(pivot.tip_in_marker - true_tip)),
+        "kinematic tip off": float(np.linalg.norm(own_tip - true_tip)),
+        "mean tip off": float(np.linalg.norm(mean_tip.tip_in_marker - true_tip)),
+    }
+
+
+TIP_COLUMNS = (
+    "kinematic",
+    "kinematic + pivot",
+    "kinematic + pivot without the field",
+    "kinematic + true tip",
+    "kinematic + mean tip",
+    "pivot tip off",
+    "kinematic tip off",
+    "mean tip off",
+)
+
+
 def table(rows: list[dict], columns: tuple[str, ...] = COLUMNS) -> str:
     """Per scenario: each column's mean ± s.d. over seeds, and per seed."""
     out = ["| scenario | seed | " + " | ".join(columns) + " |", "|---|---|" + "---|" * len(columns)]
@@ -235,15 +297,21 @@ def table(rows: list[dict], columns: tuple[str, ...] = COLUMNS) -> str:
 
 def main() -> None:
     parser = seed_parser(__doc__.splitlines()[0], SCENARIOS)
-    parser.add_argument("--priors", action="store_true", help="kinematic under other arm priors instead")
+    modes = parser.add_mutually_exclusive_group()
+    modes.add_argument("--priors", action="store_true", help="kinematic under other arm priors instead")
+    modes.add_argument("--tips", action="store_true", help="what the needle tip's measurement costs instead")
     args = parser.parse_args()
-    one_row = run_priors if args.priors else run
+    one_row, columns = run, COLUMNS
+    if args.priors:
+        one_row, columns = run_priors, tuple(PRIORS)
+    elif args.tips:
+        one_row, columns = run_tips, TIP_COLUMNS
     rows = [
         one_row(preset, seed)
         for preset in args.preset or SCENARIOS
         for seed in range(args.first_seed, args.first_seed + args.seeds)
     ]
-    print(table(rows, tuple(PRIORS) if args.priors else COLUMNS))
+    print(table(rows, columns))
 
 
 if __name__ == "__main__":
