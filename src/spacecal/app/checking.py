@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -125,10 +125,18 @@ class CheckOutput:
     gate: MotionGateReport | None = None
 
 
-def check(settings: CheckSettings) -> CommandResult[CheckOutput]:
+def check(
+    settings: CheckSettings,
+    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_plan: Callable[[int], None] | None = None,
+) -> CommandResult[CheckOutput]:
     """Check a calibration at two or three poses near where the robot stands (simulated or real
     devices, with the same safety as ``acquire``) or against a recording; the result, whether
     real or simulated and on which devices, is appended to the calibration's check history.
+
+    ``on_plan(moves)`` and ``on_sample(samples, visible, move_index, label)`` follow the robot's
+    check as they follow an acquisition (:func:`spacecal.app.acquire`): the plan's length once
+    it has passed its gate, then every sample.
 
     Returns
     -------
@@ -138,7 +146,7 @@ def check(settings: CheckSettings) -> CommandResult[CheckOutput]:
     """
     ledger = open_record(settings.record) if settings.record else None
     try:
-        out = _check(settings)
+        out = _check(settings, on_sample, on_plan)
         if ledger is not None:
             record_check(ledger, settings.calibration, out, source="cli")
     finally:
@@ -147,7 +155,11 @@ def check(settings: CheckSettings) -> CommandResult[CheckOutput]:
     return out
 
 
-def _check(settings: CheckSettings) -> CommandResult[CheckOutput]:
+def _check(
+    settings: CheckSettings,
+    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_plan: Callable[[int], None] | None = None,
+) -> CommandResult[CheckOutput]:
     from spacecal.app.simulation import scenario_of_calibration
 
     calibration, notes = open_calibration(settings.calibration, "check", settings.accept_edited)
@@ -257,6 +269,8 @@ def _check(settings: CheckSettings) -> CommandResult[CheckOutput]:
                 linear_speed_mm_s=moving.speed_mm_s, linear_accel_mm_s2=moving.accel_mm_s2
             )
         )
+        if on_plan is not None:
+            on_plan(len(plan.moves))
         result = check_with_robot(
             calibration,
             robot,
@@ -269,6 +283,7 @@ def _check(settings: CheckSettings) -> CommandResult[CheckOutput]:
             expected=expected,
             robot_sd_mm=robot_repeatability_sd_mm(model.name),
             basis=basis,
+            on_sample=on_sample,
         )
     identity = (
         {"robot": "sim", "tracker": "sim", "scenario": world.scenario.name}

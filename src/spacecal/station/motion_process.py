@@ -71,7 +71,7 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
                     settings, on_sample=on_sample, observer=observer, on_plan=lambda n: send("plan", n)
                 )
             elif motion == "check":
-                out = app.check(settings)
+                out = app.check(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
             else:
                 raise ValueError(f"no motion {motion!r}")
         send("done", out)

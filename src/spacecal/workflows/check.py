@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -504,10 +505,16 @@ class HeldPose:
 
 
 def hold_check_poses(
-    robot: Robot, tracker: Tracker, plan: MotionPlan, settings: AcquisitionSettings, frames_per_pose: int = 10
+    robot: Robot,
+    tracker: Tracker,
+    plan: MotionPlan,
+    settings: AcquisitionSettings,
+    frames_per_pose: int = 10,
+    on_sample: Callable[[int, int, int, str], None] | None = None,
 ) -> list[HeldPose]:
     """Run the check plan (:func:`spacecal.planning.check_poses.check_plan`) and keep the frames
-    held at each pose.
+    held at each pose; ``on_sample(samples, visible, move_index, label)`` follows it as it
+    follows an acquisition (:func:`~spacecal.workflows.acquisition.run_plan`).
 
     The plan runs through the acquisition loop: a safety stop, a lost tracker or a move past
     its deadline stops the robot and raises :class:`~spacecal.core.errors.DeviceError`.
@@ -522,7 +529,7 @@ def hold_check_poses(
     sink = _CheckSink()
     progress = AcquisitionResult(Path("check"), 0, 0, 0, len(plan.moves))
     try:
-        run_plan(plan, robot, tracker, sink, settings, progress)
+        run_plan(plan, robot, tracker, sink, settings, progress, on_sample=on_sample)
     except (RunFault, SpacecalError, KeyboardInterrupt) as exc:
         robot.stop()
         reason = "interrupted by the user (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else str(exc)
@@ -635,9 +642,11 @@ def check_with_robot(
     expected: list[ExpectedMisfit] | None = None,
     robot_sd_mm: float = 0.0,
     basis: str = "",
+    on_sample: Callable[[int, int, int, str], None] | None = None,
 ) -> CheckResult:
     """Run the check plan, average the frames held at each pose, and compare with the
-    calibration's prediction: :func:`hold_check_poses`, then :func:`judge_check`.
+    calibration's prediction: :func:`hold_check_poses` (which calls ``on_sample``), then
+    :func:`judge_check`.
 
     Raises
     ------
@@ -651,7 +660,7 @@ def check_with_robot(
         raise InvalidInputError(f"{len(expected)} expected misfits for {len(holds)} check poses")
     if expected is None and (threshold_mm is None or threshold_deg is None):
         raise InvalidInputError("a check without expected misfits needs both thresholds")
-    held = hold_check_poses(robot, tracker, plan, settings, frames_per_pose)
+    held = hold_check_poses(robot, tracker, plan, settings, frames_per_pose, on_sample)
     return judge_check(calibration, held, threshold_mm, threshold_deg, expected, robot_sd_mm, basis)
 
 
