@@ -171,38 +171,6 @@ def test_pivot_files_of_both_versions_read_back(tmp_path):
     assert old.rms_mm == pytest.approx(result.rms_mm) and old.frames == len(result.residuals_mm)
 
 
-def test_calibrate_with_a_tip_given_with_its_accuracy(simulated, tmp_path):
-    """``--tip tip.json`` with a tip measured otherwise (schema ``spacecal.needle-tip``): the
-    calibration carries it, says how it was measured, and a tip file that does not say its
-    accuracy once, or how it was measured, is refused in one line."""
-    from spacecal.io.digest import file_sha256
-
-    folder, _ = simulated
-    good = {"schema": "spacecal.needle-tip", "schema_version": 1, "tip_in_marker_mm": [1.0, -2.0, 150.0]}
-    path = tmp_path / "tip.json"
-    path.write_text(json.dumps({**good, "sd_mm": 0.05, "basis": "CMM report <b>7</b>"}))
-    out = app.calibrate(
-        app.CalibrateSettings(str(folder / "rec.csv"), str(tmp_path / "cal.json"), "ml", tip=str(path))
-    )
-    tip = read_calibration(tmp_path / "cal.json").needle_tip
-    assert tip is not None and tip.source_sha256 == file_sha256(path) and tip.frames == 0
-    assert np.allclose(tip.tip_in_marker, good["tip_in_marker_mm"]) and tip.sd_mm == pytest.approx(0.05)
-    assert any(line.startswith("needle tip (given: CMM report <b>7</b>, 0.050 mm") for line in out.lines)
-    assert "needle tip measured (given: CMM report" in out.record.diagnostics["expected_error"]["basis"]
-    for bad, reason in (
-        ({**good, "basis": "CMM"}, "sd_mm or covariance_mm2"),
-        ({**good, "sd_mm": 0.05, "covariance_mm2": np.eye(3).tolist(), "basis": "CMM"}, "one of them"),
-        ({**good, "sd_mm": -0.05, "basis": "CMM"}, "positive"),
-        ({**good, "sd_mm": 0.05}, "how the tip was measured"),
-        ({**good, "schema_version": 2, "sd_mm": 0.05, "basis": "CMM"}, "newer"),
-    ):
-        path.write_text(json.dumps(bad))
-        with pytest.raises(InvalidInputError, match=reason):
-            app.calibrate(
-                app.CalibrateSettings(str(folder / "rec.csv"), str(tmp_path / "no.json"), "ml", tip=str(path))
-            )
-
-
 def test_calibrate_with_a_pivot_measured_tip(simulated, tmp_path):
     """``--tip pivot.json``: the calibration carries the tip and the pivot file's sha256, says
     where IK aims, and refuses a file that is not a pivot result in one line."""

@@ -1,6 +1,5 @@
-"""A needle tip measured in the marker frame, by a pivot or given with its accuracy: carried by
-the calibration, aimed by IK, and the expected error stated at it (issue: errors the marker
-cannot see behind a nominal controller)."""
+"""A needle tip measured by a pivot: carried by the calibration, aimed by IK, and the expected
+error stated at it (issue: errors the marker cannot see behind a nominal controller)."""
 
 from __future__ import annotations
 
@@ -69,27 +68,4 @@ def test_the_stated_error_holds_at_a_pivot_measured_tip(nominal, method):
     stated = result.diagnostics["expected_error"]["position_mm"]
     measured = float(np.mean(verify_in_simulation(result, scenario).position_error_mm))
     assert MOST_OVERSTATED <= measured / stated <= MOST_UNDERSTATED, (measured, stated)
-    assert "needle tip measured (pivot, 200 frames)" in result.diagnostics["expected_error"]["basis"]
-
-
-def test_a_tip_measured_to_a_twentieth_of_a_millimetre_beats_the_pivot_through_the_biased_tracker(nominal):
-    """A tip given from a measurement of the tool (0.05 mm per axis, drawn here) against the
-    pivot through the tracker's 0.2 mm RMS bias field (0.28 mm off on this seed): ``kinematic``
-    aims it closer, states its error honestly, and the file says how the tip was measured."""
-    scenario, world, recording = nominal
-    true_tip = invert_transform(world.tcp_from_marker)[:3, 3]
-    sd = 0.05
-    given = NeedleTip.measured(
-        true_tip + np.random.default_rng(7).normal(scale=sd, size=3), np.eye(3) * sd**2, "CMM report"
-    )
-    pivot = NeedleTip.from_pivot(simulate_pivot(world))
-    assert np.linalg.norm(pivot.tip_in_marker - true_tip) > 4 * sd
-    results = [calibrate(recording, "kinematic", needle_tip=tip) for tip in (pivot, given)]
-    measured = [float(np.mean(verify_in_simulation(r, scenario).position_error_mm)) for r in results]
-    assert measured[1] < measured[0]
-    stated = results[1].diagnostics["expected_error"]
-    assert MOST_OVERSTATED <= measured[1] / stated["position_mm"] <= MOST_UNDERSTATED
-    assert "needle tip measured (given: CMM report)" in stated["basis"]
-    read = CalibrationResult.from_dict(json.loads(json.dumps(results[1].to_dict())))
-    assert read.needle_tip is not None and not read.needle_tip.from_pivot_calibration
-    assert read.needle_tip.frames == 0 and read.needle_tip.sd_mm == pytest.approx(sd)
+    assert "needle tip measured by a pivot" in result.diagnostics["expected_error"]["basis"]

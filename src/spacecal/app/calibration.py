@@ -37,7 +37,7 @@ from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_json_object, write_calibration, write_json
-from spacecal.records import TIP_SCHEMA, CalibrationResult, NeedleTip, PivotResult, Recording
+from spacecal.records import CalibrationResult, NeedleTip, PivotResult, Recording
 from spacecal.registration.pivot import pivot_calibration
 
 Point = tuple[float, float, float]
@@ -240,19 +240,15 @@ def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
 
 
 def read_needle_tip(path: str) -> NeedleTip:
-    """The needle tip of a pivot result file (``spacecal pivot -o``) or of a tip file (schema
-    ``spacecal.needle-tip``: a tip measured otherwise, with its accuracy), with its error
+    """The needle tip of a pivot result file (``spacecal pivot -o``), with its error
     covariance and the file's name and sha256.
 
     Raises
     ------
     InvalidInputError
-        For a file that is neither.
+        For a file that is not a pivot result.
     """
-    data = read_json_object(path, "pivot result or tip file")
-    if data.get("schema") == TIP_SCHEMA:
-        return NeedleTip.from_tip_file(data, f"{path}", str(path), file_sha256(path))
-    pivot = PivotResult.from_dict(data, f"{path}")
+    pivot = PivotResult.from_dict(read_json_object(path, "pivot result"), f"{path}")
     return NeedleTip.from_pivot(pivot, str(path), file_sha256(path))
 
 
@@ -292,7 +288,7 @@ def calibrate_result(
     tip = result.tcp_from_needle
     if result.needle_tip is not None and tip is not None:
         lines.append(
-            f"needle tip ({sanitize_for_terminal(result.needle_tip.describe(), 80)}, "
+            "needle tip (pivot, "
             f"{result.needle_tip.sd_mm:.3f} mm per axis): IK aims it at "
             + ", ".join(f"{v:.2f}" for v in tip[:3, 3])
             + " mm in the TCP frame"

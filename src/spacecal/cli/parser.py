@@ -130,10 +130,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "auto, from what the recording holds",
     )
     p.add_argument(
-        "--tip",
-        metavar="TIP.json",
-        help="the needle tip IK aims: a pivot (spacecal pivot -o) or a tip file with its accuracy "
-        "(schema spacecal.needle-tip; docs/formats)",
+        "--tip", metavar="PIVOT.json", help="the needle's pivot (spacecal pivot -o): IK aims that tip"
     )
 
     p = command("pivot", "pivot calibration of a pointer or needle tip")

@@ -1006,10 +1006,9 @@ def expected_error(
         corrections have absorbed the misfit they were fitted to, so the held-out misfit of
         refits that keep them would understate it.
     needle_tip : NeedleTip, optional
-        A tip measured in the marker frame (a pivot, or given with its accuracy), which IK
-        aims instead of the controller's TCP: the errors the marker cannot see are then only
-        those its chain cannot describe at that point, and the tip's own error (its
-        covariance, turned into the tracker frame) is added.
+        A tip measured by a pivot, which IK aims instead of the controller's TCP: the errors
+        the marker cannot see are then only those its chain cannot describe at that point,
+        and the pivot's own error (its covariance, turned into the tracker frame) is added.
 
     Returns
     -------
@@ -1293,7 +1292,7 @@ def expected_error(
         tip_covariance = np.mean(rotations @ needle_tip.covariance_mm2 @ np.swapaxes(rotations, 1, 2), axis=0)
         components["needle_tip_sd_mm"] = needle_tip.sd_mm
         basis += (
-            f"; the needle tip measured ({needle_tip.describe()}), its error "
+            f"; the needle tip measured by a pivot ({needle_tip.frames} frames), its error "
             f"{needle_tip.sd_mm:.3f} mm per axis added"
         )
     position_covariance = noise_covariance + unseen_covariance + deviation_covariance + tip_covariance

@@ -522,8 +522,7 @@ def identify_kinematics(
         standard errors of the noise's. A tracker that reports no fit RMS has its noise taken
         from the fit's residuals (:func:`dh_error_scale_of`).
     needle_tip : NeedleTip, optional
-        A tip measured in the marker frame (a pivot, or given with its accuracy), which IK
-        aims: the expected error is stated at it.
+        A tip measured by a pivot, which IK aims: the expected error is stated at it.
     joint_compliance : bool
         Identify the shoulder's and elbow's compliance under gravity with the DH corrections
         (see the module, and why it is off by default); only for an arm whose link dynamics are

@@ -171,8 +171,7 @@ class UncertaintySettings:
     targets_in_base : array_like, shape (M, 3), optional
         Points (mm, base frame) at which to predict the TRE, besides the site.
     needle_tip : NeedleTip, optional
-        A tip measured in the marker frame (a pivot, or given with its accuracy), which IK
-        aims (the expected error is at it).
+        A tip measured by a pivot, which IK aims (the expected error is at it).
     """
 
     likelihood_based: bool
@@ -360,8 +359,7 @@ def calibrate_ml(
         :func:`fit_ml`'s result for this recording and ``sigma_mm``, when the caller has it
         already (it is not fitted again).
     needle_tip : NeedleTip, optional
-        A tip measured in the marker frame (a pivot, or given with its accuracy), which IK
-        aims: the expected error is stated at it.
+        A tip measured by a pivot, which IK aims: the expected error is stated at it.
 
     Raises
     ------

@@ -7,7 +7,6 @@ Each result record has ``to_dict()`` (the file content, with ``schema`` and
 
 from spacecal.records.calibration import (
     CALIBRATION_SCHEMA_VERSION,
-    TIP_SCHEMA,
     CalibrationResult,
     NeedleTip,
     Provenance,
@@ -26,7 +25,6 @@ __all__ = [
     "CALIBRATION_SCHEMA_VERSION",
     "PAPER_SEGMENTS",
     "ROTATION_SEGMENTS",
-    "TIP_SCHEMA",
     "TRANSLATION_SEGMENTS",
     "CalibrationResult",
     "NeedleTip",

@@ -26,7 +26,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.frames import transform_name
@@ -200,14 +199,9 @@ def _version() -> str:
     return __version__
 
 
-#: The schema of a tip file: a needle tip measured otherwise than by a pivot.
-TIP_SCHEMA = "spacecal.needle-tip"
-
-
 @dataclass(frozen=True)
 class NeedleTip:
-    """The needle tip measured in the marker frame: by a pivot calibration, or given with its
-    accuracy from a measurement of the tool itself (a drawing, a coordinate measuring machine).
+    """The needle tip as a pivot calibration measured it: a point fixed to the marker.
 
     The last link's kinematic errors move the tip in the flange frame, where no marker on the
     tool sees them (``tcp_from_marker`` absorbs them, and the controller's TCP stays off by
@@ -221,14 +215,14 @@ class NeedleTip:
     covariance_mm2 : numpy.ndarray, shape (3, 3)
         The tip's error covariance in the marker frame, mm^2.
     covariance_basis : str
-        Where the covariance comes from (the pivot's residual RMS, or how a tip given from
-        elsewhere was measured).
-    pivot_rms_mm : float or None
-        The pivot's 3-D RMS residual, mm; None for a tip given from elsewhere.
+        Where the covariance comes from (the pivot fit's, or its residual RMS when the pivot
+        file has none).
+    pivot_rms_mm : float
+        The pivot's 3-D RMS residual, mm.
     frames : int
-        Frames of the pivot; 0 for a tip given from elsewhere.
+        Frames of the pivot.
     source : str or None
-        The pivot file, or the file that gave the tip.
+        The pivot file.
     source_sha256 : str or None
         Its sha256.
     """
@@ -236,7 +230,7 @@ class NeedleTip:
     tip_in_marker: np.ndarray
     covariance_mm2: np.ndarray
     covariance_basis: str
-    pivot_rms_mm: float | None
+    pivot_rms_mm: float
     frames: int
     source: str | None = None
     source_sha256: str | None = None
@@ -247,11 +241,8 @@ class NeedleTip:
         if np.max(np.abs(tip)) > MAX_TRANSLATION_MM:
             raise InvalidInputError(f"{what}: the tip is {np.max(np.abs(tip)):.3g} mm from the marker")
         covariance = as_covariance(self.covariance_mm2, 3, "covariance_mm2", what)
-        rms = self.pivot_rms_mm
-        if rms is not None and not (np.isfinite(rms) and rms >= 0 and int(self.frames) >= 1):
+        if not (np.isfinite(self.pivot_rms_mm) and self.pivot_rms_mm >= 0) or int(self.frames) < 1:
             raise InvalidInputError(f"{what}: pivot_rms_mm and frames must be a distance and a count")
-        if rms is None and int(self.frames) != 0:
-            raise InvalidInputError(f"{what}: a tip given without a pivot has frames 0")
         object.__setattr__(self, "tip_in_marker", tip)
         object.__setattr__(self, "covariance_mm2", covariance)
 
@@ -271,60 +262,6 @@ class NeedleTip:
         covariance = np.eye(3) * pivot.rms_per_axis_mm**2
         basis = "the pivot's residual RMS per axis (it holds the tracker's bias over the cone)"
         return cls(pivot.tip_in_marker, covariance, basis, pivot.rms_mm, pivot.frames, source, source_sha256)
-
-    @classmethod
-    def measured(
-        cls,
-        tip_in_marker: ArrayLike,
-        covariance_mm2: ArrayLike,
-        basis: str,
-        source: str | None = None,
-        source_sha256: str | None = None,
-    ) -> NeedleTip:
-        """A tip measured otherwise than by a pivot through the tracker (the tool on a coordinate
-        measuring machine, its drawing), with that measurement's covariance (marker frame, mm^2).
-
-        A pivot through the tracker carries the tracker's smooth bias over its cone: through a
-        0.2 mm RMS bias it was 0.21 mm off on average, and a tip known to about 0.1 mm is what
-        brings the verification from 0.30 to 0.18 mm (``benchmarks/tracker_bias_floor.py --tips``).
-        """
-        tip = np.asarray(tip_in_marker, dtype=float)
-        return cls(tip, np.asarray(covariance_mm2, dtype=float), basis, None, 0, source, source_sha256)
-
-    @classmethod
-    def from_tip_file(
-        cls, data: Mapping[str, Any], what: str, source: str | None = None, source_sha256: str | None = None
-    ) -> NeedleTip:
-        """A tip file (schema ``spacecal.needle-tip``, version 1): ``tip_in_marker_mm``, its
-        accuracy as ``sd_mm`` (per axis) or ``covariance_mm2`` (3x3, marker frame), and
-        ``basis``, how it was measured (see :meth:`measured`)."""
-        check_schema(data, TIP_SCHEMA, (1,), what)
-        has_sd, has_covariance = data.get("sd_mm") is not None, data.get("covariance_mm2") is not None
-        if has_sd == has_covariance:
-            raise InvalidInputError(f"{what}: give the accuracy as sd_mm or covariance_mm2, one of them")
-        if has_sd:
-            sd = get_number(data, "sd_mm", what)
-            if not sd > 0:
-                raise InvalidInputError(f"{what}: sd_mm must be a positive number of millimetres")
-            covariance = np.eye(3) * sd**2
-        else:
-            covariance = as_array(data.get("covariance_mm2"), (3, 3), "covariance_mm2", what)
-        basis = get_str(data, "basis", what, default="")
-        if not basis.strip():
-            raise InvalidInputError(f'{what}: say how the tip was measured in "basis"')
-        tip = as_array(data.get("tip_in_marker_mm"), (3,), "tip_in_marker_mm", what)
-        return cls.measured(tip, covariance, basis, source, source_sha256)
-
-    @property
-    def from_pivot_calibration(self) -> bool:
-        """Whether a pivot through the tracker measured the tip."""
-        return self.pivot_rms_mm is not None
-
-    def describe(self) -> str:
-        """How the tip was measured, for a sentence: ``pivot, 200 frames`` or the given basis."""
-        if self.from_pivot_calibration:
-            return f"pivot, {int(self.frames)} frames"
-        return f"given: {self.covariance_basis}" if self.covariance_basis else "given"
 
     @property
     def sd_mm(self) -> float:
@@ -355,7 +292,7 @@ class NeedleTip:
             tip_in_marker=as_array(data.get("tip_in_marker_mm"), (3,), "tip_in_marker_mm", what),
             covariance_mm2=as_array(data.get("covariance_mm2"), (3, 3), "covariance_mm2", what),
             covariance_basis=get_str(data, "covariance_basis", what, default=""),
-            pivot_rms_mm=None if data.get("pivot_rms_mm") is None else get_number(data, "pivot_rms_mm", what),
+            pivot_rms_mm=get_number(data, "pivot_rms_mm", what),
             frames=int(get_number(data, "frames", what)),
             source=source,
             source_sha256=digest,
