@@ -50,7 +50,12 @@ from spacecal.sim.devices import RealClock, SimClock, SimulatedRobot, SimulatedT
 from spacecal.sim.motion import plan_for_world, recording_metadata
 from spacecal.sim.scenario import Scenario, load_scenario
 from spacecal.sim.world import World, build_world
-from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, FrameObserver
+from spacecal.workflows.acquisition import (
+    AcquisitionResult,
+    AcquisitionSettings,
+    FrameObserver,
+    SampleCallback,
+)
 from spacecal.workflows.acquisition import acquire as run_acquisition
 
 #: Accepted ranges of the acquisition's numeric settings (a tiny speed would never finish).
@@ -241,7 +246,7 @@ def _known(hardware: HardwareModel | None) -> HardwareModel:
 
 def acquire(
     settings: AcquireSettings,
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: SampleCallback | None = None,
     observer: FrameObserver | None = None,
     on_plan: Callable[[int], None] | None = None,
     on_line: Callable[[str], None] | None = None,
@@ -314,7 +319,7 @@ def acquire_result(output: AcquireOutput, notes: tuple[str, ...] = ()) -> Comman
 
 def _acquire(
     settings: AcquireSettings,
-    on_sample: Callable[[int, int, int, str], None] | None,
+    on_sample: SampleCallback | None,
     observer: FrameObserver | None,
     on_plan: Callable[[int], None] | None,
 ) -> tuple[AcquireOutput, tuple[str, ...]]:

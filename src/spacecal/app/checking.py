@@ -36,6 +36,7 @@ from spacecal.records import CheckResult
 from spacecal.sim.scenario import Scenario, load_scenario
 from spacecal.workflows.acquisition import (
     AcquisitionSettings,
+    SampleCallback,
 )
 from spacecal.workflows.check import (
     check_thresholds,
@@ -127,7 +128,7 @@ class CheckOutput:
 
 def check(
     settings: CheckSettings,
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: SampleCallback | None = None,
     on_plan: Callable[[int], None] | None = None,
 ) -> CommandResult[CheckOutput]:
     """Check a calibration at two or three poses near where the robot stands (simulated or real
@@ -157,7 +158,7 @@ def check(
 
 def _check(
     settings: CheckSettings,
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: SampleCallback | None = None,
     on_plan: Callable[[int], None] | None = None,
 ) -> CommandResult[CheckOutput]:
     from spacecal.app.simulation import scenario_of_calibration

@@ -136,9 +136,9 @@ def unit_dh_sd(joints: int) -> FloatArray:
 UNIT_DH_SD = unit_dh_sd(N_JOINTS)
 
 
-#: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more.
+#: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more,
+#: and the DH-span test of the misfit's shape runs on them (with recorded or solved joints).
 GEOMETRY_FRAMES = 120
-
 
 #: A UR arm's usual working posture (deg; shoulder lifted, elbow up, wrist down): joint
 #: angles solved for a recording that has none take the branch nearest it.

@@ -207,6 +207,11 @@ class RunFault(DeviceError):
 #: warning on stderr and the run goes on.
 FrameObserver = Callable[[float, str, "np.ndarray | None", np.ndarray, bool], None]
 
+#: ``on_sample(samples, visible, move_index, label)``, called after every sample a run records
+#: (an acquisition's or a check's): the samples and the visible ones so far, the move's index
+#: in the plan and its label.
+SampleCallback = Callable[[int, int, int, str], None]
+
 
 def _notify(observer: FrameObserver, *frame: Any) -> FrameObserver | None:
     """Call ``observer``; on an exception warn once and return None (detach it)."""
@@ -231,7 +236,7 @@ def run_plan(
     settings: AcquisitionSettings,
     progress: AcquisitionResult,
     approach_first_move: bool = False,
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: SampleCallback | None = None,
     on_move_done: Callable[[int], None] | None = None,
     observer: FrameObserver | None = None,
 ) -> None:
@@ -402,7 +407,7 @@ def acquire(
     metadata: dict,
     settings: AcquisitionSettings | None = None,
     resume: bool = False,
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: SampleCallback | None = None,
     observer: FrameObserver | None = None,
 ) -> AcquisitionResult:
     """Run ``plan`` on ``robot`` while sampling ``tracker``; write the raw streams as they

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -36,7 +35,13 @@ from spacecal.models.kinematics import forward_kinematics
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD, UR_REPEATABILITY_MM
 from spacecal.planning.motion import MotionPlan
 from spacecal.records import CalibrationResult, CheckResult, Recording
-from spacecal.workflows.acquisition import AcquisitionResult, AcquisitionSettings, RunFault, run_plan
+from spacecal.workflows.acquisition import (
+    AcquisitionResult,
+    AcquisitionSettings,
+    RunFault,
+    SampleCallback,
+    run_plan,
+)
 
 #: A check fails beyond this many standard deviations of what a sound calibration leaves.
 CHECK_SIGMAS = 3.0
@@ -510,7 +515,7 @@ def hold_check_poses(
     plan: MotionPlan,
     settings: AcquisitionSettings,
     frames_per_pose: int = 10,
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: SampleCallback | None = None,
 ) -> list[HeldPose]:
     """Run the check plan (:func:`spacecal.planning.check_poses.check_plan`) and keep the frames
     held at each pose; ``on_sample(samples, visible, move_index, label)`` follows it as it
@@ -642,7 +647,7 @@ def check_with_robot(
     expected: list[ExpectedMisfit] | None = None,
     robot_sd_mm: float = 0.0,
     basis: str = "",
-    on_sample: Callable[[int, int, int, str], None] | None = None,
+    on_sample: SampleCallback | None = None,
 ) -> CheckResult:
     """Run the check plan, average the frames held at each pose, and compare with the
     calibration's prediction: :func:`hold_check_poses` (which calls ``on_sample``), then
