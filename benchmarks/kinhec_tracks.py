@@ -71,7 +71,12 @@ from kinhec.metrics import calibration_errors  # noqa: E402
 from spacecal import app  # noqa: E402
 from spacecal.core.errors import SpacecalError  # noqa: E402
 from spacecal.estimators import ESTIMATORS, Need  # noqa: E402
-from spacecal.estimators.expected_error import SITE_RADIUS_MM, SITE_TILT_DEG, near_site  # noqa: E402
+from spacecal.estimators.expected_error import (  # noqa: E402
+    SITE_RADIUS_MM,
+    SITE_TILT_DEG,
+    near_site,
+    probability_within,
+)
 from spacecal.io.raw_streams import write_raw_recording  # noqa: E402
 from spacecal.io.recording_csv import write_recording  # noqa: E402
 
@@ -260,6 +265,10 @@ def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[di
                 expected_position_mm=stated,
                 expected_refusal=expected.get("refusal"),
             )
+            if "position_covariance_mm2" in expected:
+                # how often an error of the stated covariance is within 1 mm: an honest statement
+                # above the unusable limit still meets a small error by chance this often
+                row["chance_within_1mm"] = probability_within(expected["position_covariance_mm2"], 1.0)
             if "time_offset_s" in d and "true_offset_s" in notes:
                 row["time_offset_err_ms"] = 1000.0 * abs(float(d["time_offset_s"]) - notes["true_offset_s"])
         row["runtime_s"] = time.perf_counter() - started
@@ -492,9 +501,10 @@ def ratio_lines(rows: list[dict], reference: str) -> list[str]:
 def grade_table(rows: list[dict]) -> list[str]:
     lines = [
         "| method | results | good | acceptable | poor | unusable | unusable, site error ≤ 1 mm | "
+        "… expected by chance were each statement exact | "
         "unusable without an expected error | stated expected error median (mm) | "
         "site error / stated: median, max | verification error / stated: median, max |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for method in method_order(rows):
         ok = [
@@ -505,13 +515,15 @@ def grade_table(rows: list[dict]) -> list[str]:
         grades = Counter(r.get("grade") for r in ok)
         unusable = [r for r in ok if r.get("grade") == "unusable"]
         close = sum(1 for r in unusable if (r.get("site_error_mm") or math.inf) <= 1.0)
+        chance = sum(r.get("chance_within_1mm") or 0.0 for r in unusable)
         without = sum(1 for r in unusable if r.get("expected_position_mm") is None)
         stated = [r for r in ok if r.get("expected_position_mm")]
         site = np.array([r["site_error_mm"] / r["expected_position_mm"] for r in stated])
         verification = np.array([r["verification_error_mm"] / r["expected_position_mm"] for r in stated])
         lines.append(
             f"| {method} | {len(ok)} | {grades['good']} | {grades['acceptable']} | {grades['poor']} | "
-            f"{grades['unusable']} | {close} | {without} | {_fmt(_median(stated, 'expected_position_mm'))} | "
+            f"{grades['unusable']} | {close} | {chance:.1f} | {without} | "
+            f"{_fmt(_median(stated, 'expected_position_mm'))} | "
             + (f"{_fmt(float(np.median(site)))}, {_fmt(float(np.max(site)))} | " if len(site) else "– | ")
             + (
                 f"{_fmt(float(np.median(verification)))}, {_fmt(float(np.max(verification)))} |"

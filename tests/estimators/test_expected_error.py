@@ -4,16 +4,19 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.special import erf
+from scipy.stats import chi2
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.diagnostics import ErrorThresholds, grade
+from spacecal.estimators.diagnostics import ErrorThresholds, grade, verdict
 from spacecal.estimators.expected_error import (
     MEAN_OVER_RMS_3D,
     OVERLAPPING_PAIRS_VARIANCE,
     held_out_blocks,
     mean_gaussian_length,
     noise_level_relative_error,
+    probability_within,
     rigid_part,
     white_noise_power,
 )
@@ -22,6 +25,7 @@ from spacecal.estimators.registry import ESTIMATORS
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.models.kinematics import UR_TABLES
+from spacecal.records.verdict import Verdict
 from spacecal.sim.scenario import PRESETS, load_scenario
 
 GRADES = ("good", "acceptable", "poor", "unusable")
@@ -103,6 +107,34 @@ def test_thresholds_grade_and_are_checked(white_simulation):
             ErrorThresholds.parse(bad)
 
 
+def test_the_verdict_states_the_chance_a_target_is_within_the_tolerable_error():
+    # the same stated mean length, 3 mm, along one direction (a camera's depth) and even: both
+    # unusable, and the first is within the tolerable 2 mm far more often
+    spread = {"rotation_sd_deg": [30.0, 20.0, 10.0], "position_sd_mm": [100.0, 80.0, 50.0]}
+    along_sd = 3.0 / np.sqrt(2.0 / np.pi)
+    even_sd = 3.0 / (MEAN_OVER_RMS_3D * np.sqrt(3.0))
+    chances = []
+    for covariance in (np.diag([along_sd**2, 0.0, 0.0]), np.eye(3) * even_sd**2):
+        expected = {
+            "position_mm": mean_gaussian_length(covariance),
+            "posture_deg": 0.1,
+            "position_covariance_mm2": covariance.tolist(),
+            "components": {},
+        }
+        judged = verdict(expected, spread)
+        assert judged.grade == "unusable" and judged.tolerable_mm == 2.0
+        assert "a target there is within 2 mm with a chance of" in judged.text
+        assert Verdict.from_value(judged.to_dict()) == judged
+        chances.append(judged.chance_within_tolerable)
+    assert chances[0] == pytest.approx(erf(2.0 / (along_sd * np.sqrt(2.0))), abs=1e-3)
+    assert chances[1] == pytest.approx(chi2.cdf((2.0 / even_sd) ** 2, 3), abs=1e-3)
+    assert chances[0] > 1.5 * chances[1]
+    # a file written before the chance was stated still reads
+    assert Verdict.from_value({"grade": "poor", "reasons": ["because"]}).chance_within_tolerable is None
+    with pytest.raises(InvalidInputError):
+        Verdict("poor", chance_within_tolerable=1.5)
+
+
 def test_blocks_are_segments_or_contiguous_time_blocks():
     segments = np.array(["a"] * 10 + ["b"] * 10 + ["c"] * 10 + ["d"] * 2)
     assert [len(b) for b in held_out_blocks(segments)] == [10, 10, 10]
@@ -123,6 +155,36 @@ def test_mean_gaussian_length_matches_closed_forms_and_sampling():
     assert mean_gaussian_length(covariance) == pytest.approx(
         lengths.mean(), abs=4 * lengths.std() / np.sqrt(len(lengths))
     )
+
+
+def test_probability_within_matches_closed_forms_and_sampling():
+    # isotropic: the chi-square CDF with three degrees of freedom; one direction: erf (to the
+    # quasi-Monte Carlo rule's 1e-4, with a margin)
+    assert probability_within(np.eye(3) * 4.0, 3.0) == pytest.approx(chi2.cdf(9.0 / 4.0, 3), abs=1e-3)
+    assert probability_within(np.diag([9.0, 0.0, 0.0]), 1.0) == pytest.approx(
+        erf(1.0 / (3.0 * np.sqrt(2))), abs=1e-3
+    )
+    assert probability_within(np.zeros((3, 3)), 0.1) == 1.0
+    assert probability_within(np.eye(3) * 1e-6, 1.0) == 1.0
+    assert probability_within(np.eye(3), 0.0) == 0.0
+    assert probability_within(np.eye(3) * 1e6, 1.0) < 1e-3
+    covariance = np.array([[4.0, 1.0, 0.0], [1.0, 1.0, 0.3], [0.0, 0.3, 0.2]])
+    lengths = np.linalg.norm(
+        np.random.default_rng(3).normal(size=(200_000, 3)) @ np.linalg.cholesky(covariance).T, axis=1
+    )
+    for radius in (0.5, 1.5, 4.0):
+        share = np.mean(lengths <= radius)
+        # 200000 samples: the share is known to 4 binomial standard errors
+        assert probability_within(covariance, radius) == pytest.approx(
+            share, abs=4 * np.sqrt(share * (1 - share) / len(lengths)) + 1e-3
+        )
+
+
+def test_the_stated_error_comes_with_its_covariance(realistic_simulation):
+    expected = calibrate(realistic_simulation.recording, "ml").diagnostics["expected_error"]
+    covariance = np.asarray(expected["position_covariance_mm2"])
+    assert covariance.shape == (3, 3) and np.allclose(covariance, covariance.T)
+    assert expected["position_mm"] == pytest.approx(mean_gaussian_length(covariance), rel=1e-12)
 
 
 def test_noise_level_error_is_that_of_a_median_of_chi_square_values():

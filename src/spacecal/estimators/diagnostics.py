@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.estimators.expected_error import probability_within
 from spacecal.geometry.arrays import ArrayLike, FloatArray, IndexArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
@@ -211,6 +212,7 @@ def verdict(
     position: float | None = None
     posture: float | None = None
     limit: float | None = None
+    chance: float | None = None
     if refusal is not None or expected is None:
         word = "unusable"
         reasons.append(
@@ -230,6 +232,11 @@ def verdict(
             f"expected error at a target near the site {position:.2f} mm, {posture:.2f} deg "
             f"({relation} {limit:g} mm)"
         )
+        if expected.get("position_covariance_mm2") is not None:
+            chance = probability_within(expected["position_covariance_mm2"], thresholds.poor_mm)
+            reasons.append(
+                f"a target there is within {thresholds.poor_mm:g} mm with a chance of {percent(chance)}"
+            )
         components = expected.get("components", {})
         noise = components.get("noise_tre_rms_mm")
         factor = 0.0 if variance_factor is None else variance_factor
@@ -251,7 +258,25 @@ def verdict(
             f"{outlier_fraction:.0%} of frames were outliers: check for reflections, "
             "occlusion or a loose marker"
         )
-    return Verdict(word, position, posture, limit, tuple(reasons))
+    return Verdict(
+        word,
+        position,
+        posture,
+        limit,
+        tuple(reasons),
+        tolerable_mm=thresholds.poor_mm,
+        chance_within_tolerable=chance,
+    )
+
+
+def percent(chance: float) -> str:
+    """A chance as a person reads it: whole percent, and "< 1 %" or "> 99 %" at the ends
+    (a rounded "0 %" or "100 %" would claim a certainty no statement has)."""
+    if chance < 0.01:
+        return "< 1 %"
+    if chance > 0.99:
+        return "> 99 %"
+    return f"{100 * chance:.0f} %"
 
 
 def site_in_base(recording: Recording, rows: IndexArray | None = None) -> FloatArray:

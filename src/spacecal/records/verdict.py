@@ -39,6 +39,12 @@ class Verdict:
         or the ``poor`` limit an ``unusable`` error is above).
     reasons : tuple of str
         The sentences that explain the grade and what to do, most important first.
+    tolerable_mm : float or None
+        The largest error the application tolerates (the ``poor`` limit), mm.
+    chance_within_tolerable : float or None
+        The chance, in [0, 1], that the error at a target near the site is within
+        ``tolerable_mm``, from the expected error's covariance: an error mostly along one
+        direction (a camera's depth) is small more often than an even one of the same mean.
     """
 
     grade: str
@@ -46,14 +52,21 @@ class Verdict:
     expected_posture_deg: float | None = None
     limit_mm: float | None = None
     reasons: tuple[str, ...] = ()
+    tolerable_mm: float | None = None
+    chance_within_tolerable: float | None = None
 
     def __post_init__(self) -> None:
         if self.grade not in GRADES:
             raise InvalidInputError(f"verdict grade must be one of {', '.join(GRADES)}, got {self.grade!r}")
-        for name in ("expected_error_mm", "expected_posture_deg", "limit_mm"):
+        for name in ("expected_error_mm", "expected_posture_deg", "limit_mm", "tolerable_mm"):
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value)):
                 raise InvalidInputError(f"verdict {name} must be a finite number or null, got {value!r}")
+        chance = self.chance_within_tolerable
+        if chance is not None and not (isinstance(chance, (int, float)) and 0.0 <= chance <= 1.0):
+            raise InvalidInputError(
+                f"verdict chance_within_tolerable must be in [0, 1] or null, got {chance!r}"
+            )
 
     @property
     def usable(self) -> bool:
@@ -78,6 +91,8 @@ class Verdict:
             "limit_mm": self.limit_mm,
             "reasons": list(self.reasons),
             "text": self.text,
+            "tolerable_mm": self.tolerable_mm,
+            "chance_within_tolerable": self.chance_within_tolerable,
         }
 
     @classmethod
@@ -112,6 +127,8 @@ class Verdict:
                     value.get("expected_posture_deg"),
                     value.get("limit_mm"),
                     tuple(reasons),
+                    value.get("tolerable_mm"),
+                    value.get("chance_within_tolerable"),
                 )
             except TypeError as exc:
                 raise InvalidInputError(f"{what}: verdict is malformed ({exc})") from exc
