@@ -75,7 +75,7 @@ from typing import Any
 import numpy as np
 from scipy.integrate import quad
 from scipy.special import chdtri, gammaln, ndtri
-from scipy.stats import qmc
+from scipy.stats import norm, qmc
 
 from spacecal.core.errors import DegenerateDataError, UnreachableError
 from spacecal.estimators.ml import (
@@ -184,6 +184,10 @@ MINIMUM_NUGGET_PAIRS = 10
 #: its noise mostly along the line of sight) were stated 11.5 and 16.7 mm for errors of 0.82 and
 #: 0.46 mm on KinHEC's noise track, and 2.5 and 2.7 mm with the noise taken from them.
 MINIMUM_RESIDUAL_DOF = 12
+
+#: The fewest degrees of freedom a 6 x 6 noise covariance whitens the DH-span test with
+#: (:func:`whitened_dh_span_test`): the inflation ``n / (n - 7)`` is then at most 2.
+MINIMUM_WHITENING_DOF = 14.0
 
 #: Overlapping pairs (i, i + 1), (i + 1, i + 2) share a frame: under Gaussian noise their
 #: half squared differences correlate by 1/4, so the variance of their mean is at most 1.5
@@ -679,7 +683,9 @@ def white_noise_power(
         errors); ``pairs``; ``displacement_mm``: the median RMS displacement of the spheres
         between the frames of a pair; ``rigid_covariance_mm2`` (6, 6): the noise's covariance
         in the rigid motion of a frame's spheres (:func:`rigid_coordinates`, mm and rad), from
-        the same pairs: a camera's depth noise is many times its lateral noise.
+        the same pairs: a camera's depth noise is many times its lateral noise;
+        ``rigid_covariance_dof``: the independent steps it rests on (the pairs, fewer where they
+        overlap, :data:`OVERLAPPING_PAIRS_VARIANCE`).
 
     Raises
     ------
@@ -708,6 +714,9 @@ def white_noise_power(
     steps = motion[first + 1] - motion[first]
     return {
         "rigid_covariance_mm2": 0.5 * steps.T @ steps / len(first),
+        # overlapping pairs share frames: fewer independent steps than pairs
+        "rigid_covariance_dof": len(first)
+        / (OVERLAPPING_PAIRS_VARIANCE if np.any(np.diff(first) == 1) else 1.0),
         "power_mm2": float(np.mean(half_squares)),
         "variance_mm4": float(np.var(half_squares)),
         "pairs": len(first),
@@ -864,6 +873,7 @@ def systematic_share_in_dh_span(
     white_power_mm2: float,
     frames: int = GEOMETRY_FRAMES,
     rigid_noise_covariance: FloatArray | None = None,
+    rigid_noise_dof: float | None = None,
 ) -> dict[str, Any]:
     """How much of the systematic misfit has the shape of the arm's DH errors.
 
@@ -899,6 +909,8 @@ def systematic_share_in_dh_span(
         simulated camera-grade pose tracker (depth noise three times the lateral), the test's
         statistic over its standard error rose from 2.0-18 (median 9.4) to 5.4-58 (median 27)
         over 20 seeds; on white noise both stay near 0 (-1.5 to 2.7).
+    rigid_noise_dof : float, optional
+        The degrees of freedom ``rigid_noise_covariance`` was estimated with.
 
     Returns
     -------
@@ -942,7 +954,9 @@ def systematic_share_in_dh_span(
     total = dh_power + other_power
     noise_standard_error = per_dimension * np.sqrt(2.0 * max(dh_dimensions, 1))
     if rigid_noise_covariance is not None:
-        detected, unit_power = whitened_dh_span_test(residual, seen, pose, dh, rigid_noise_covariance)
+        detected, unit_power = whitened_dh_span_test(
+            residual, seen, pose, dh, rigid_noise_covariance, rigid_noise_dof
+        )
     else:
         detected = max(dh_excess - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
         unit_power = _power_beyond_pose(pose_design, dh.reshape(-1, dh.shape[-1]))
@@ -956,7 +970,12 @@ def systematic_share_in_dh_span(
 
 
 def whitened_dh_span_test(
-    residual: FloatArray, seen: FloatArray, pose: FloatArray, dh: FloatArray, covariance: FloatArray
+    residual: FloatArray,
+    seen: FloatArray,
+    pose: FloatArray,
+    dh: FloatArray,
+    covariance: FloatArray,
+    covariance_dof: float | None = None,
 ) -> tuple[float, float]:
     """The DH-span chi-square test of :func:`systematic_share_in_dh_span` on rigid motions
     whitened by the noise's covariance.
@@ -969,6 +988,13 @@ def whitened_dh_span_test(
         The pose's Jacobian and the unit-scale DH errors' (:func:`residuals_and_shapes`).
     covariance : numpy.ndarray, shape (6, 6)
         The white noise's covariance in a frame's rigid motion (:func:`rigid_coordinates`).
+    covariance_dof : float, optional
+        The degrees of freedom ``covariance`` was estimated with (pairs of frames), None for a
+        known one. Whitening by an estimate inflates the whitened noise: by ``n / (n - 7)`` on
+        average for a 6 x 6 covariance from n degrees of freedom (the mean of an inverse
+        Wishart matrix), 2.75 times from the 11 pairs of a 10 Hz camera's sweep, where taking
+        it as one unit flagged an arm error on KinHEC's noise-only temporal sequences. With
+        fewer than :data:`MINIMUM_WHITENING_DOF` nothing is detected.
 
     Returns
     -------
@@ -995,11 +1021,27 @@ def whitened_dh_span_test(
     beyond_all, _, rank, _ = np.linalg.lstsq(design, stacked, rcond=RANK_RCOND)
     rss_pose = float(np.sum((stacked - pose_design @ beyond_pose) ** 2))
     rss_all = float(np.sum((stacked - design @ beyond_all) ** 2))
-    # whitened noise: one unit per dimension, chi-square with the DH span's dimensions
-    dimensions = int(rank) - int(pose_rank)
-    excess = rss_pose - rss_all - dimensions
-    detected = max(excess - DETECTION_STANDARD_ERRORS * np.sqrt(2.0 * max(dimensions, 1)), 0.0)
-    return detected, _power_beyond_pose(pose_design, dh_design)
+    unit_power = _power_beyond_pose(pose_design, dh_design)
+    # whitened noise: one unit per dimension (times the inflation of an estimated covariance),
+    # chi-square with the DH span's dimensions
+    dimensions = max(int(rank) - int(pose_rank), 1)
+    inflation, estimate_margin = 1.0, 0.0
+    if covariance_dof is not None:
+        if covariance_dof < MINIMUM_WHITENING_DOF:
+            return 0.0, unit_power
+        inflation = covariance_dof / (covariance_dof - 7.0)
+        # One estimate whitens every frame, so its error does not average out over them: along
+        # any direction the whitened power is n / chi^2(n - 5) times the truth (an inverse
+        # Wishart's diagonal), a skewed factor; its upper quantile at the chi-square margin's
+        # level is taken on the whole sum.
+        level = float(norm.sf(DETECTION_STANDARD_ERRORS))
+        estimate_margin = dimensions * (
+            covariance_dof / chdtri(covariance_dof - 5.0, 1.0 - level) - inflation
+        )
+    excess = rss_pose - rss_all - dimensions * inflation
+    margin = np.hypot(DETECTION_STANDARD_ERRORS * inflation * np.sqrt(2.0 * dimensions), estimate_margin)
+    detected = max(excess - margin, 0.0)
+    return detected, unit_power
 
 
 def _power_beyond_pose(pose_design: FloatArray, dh_design: FloatArray) -> float:
@@ -1281,6 +1323,7 @@ def expected_error(
                     ml_tcp_from_marker,
                     white_power,
                     rigid_noise_covariance=None if white is None else white["rigid_covariance_mm2"],
+                    rigid_noise_dof=None if white is None else white["rigid_covariance_dof"],
                 )
                 if systematic > 0:
                     dh_share = split["dh_share"]
