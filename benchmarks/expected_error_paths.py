@@ -89,6 +89,8 @@ PARTS = {
     "15-pose set, tracker field only": ("static-15-poses-field-only", 0.0),
     "15-pose set, arm residual only": ("static-15-poses-arm-only", 0.0),
 }
+#: Every scenario a case can name.
+RUNNABLE = {**SCENARIOS, **PARTS}
 PATHS = ("paired CSV", "raw streams", "ROS 2 bag", "TUM", "pose-only", "no joints")
 
 #: Acquisitions taken at rest: their streams' angular speeds cannot fix the clock offset, so
@@ -184,7 +186,7 @@ def scored(result: CalibrationResult, scenario: Scenario) -> tuple[float, float]
 def acquisition(label: str, seed: int, cache: str | None) -> tuple[Scenario, RawRecording, Recording]:
     """The scenario, its raw streams and its paired recording (simulated, or from ``cache``:
     the simulation costs most of a case, and does not change with the estimators)."""
-    name, offset_s = {**SCENARIOS, **PARTS}[label]
+    name, offset_s = RUNNABLE[label]
     scenario = dataclasses.replace(load_scenario(name), seed=seed)
     stored = None if cache is None else Path(cache) / f"{name}-{offset_s * 1000:g}ms-{seed}.pickle"
     if stored is not None and stored.exists():
@@ -209,7 +211,7 @@ def run_case(case: tuple[str, int, tuple[str, ...], str | None]) -> list[tuple[s
     with tempfile.TemporaryDirectory() as temporary:
         folder = Path(temporary)
 
-        robot_ahead_s = {**SCENARIOS, **PARTS}[label][1]
+        robot_ahead_s = RUNNABLE[label][1]
 
         def from_files(
             recording: str | Path, tracker_stream: str | Path | None = None, tracker_behind_s: float = 0.0
@@ -295,7 +297,7 @@ def main() -> None:
     parser.add_argument("--first-seed", type=int, default=1)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument(
-        "--scenario", action="append", choices=[*SCENARIOS, *PARTS], help="default: all but the 15-pose parts"
+        "--scenario", action="append", choices=list(RUNNABLE), help="default: all but the 15-pose parts"
     )
     parser.add_argument("--path", action="append", choices=list(PATHS), help="default: all")
     parser.add_argument("--rows", help="also write every run (scenario, path, seed, measured, stated) here")
