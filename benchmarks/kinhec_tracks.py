@@ -293,7 +293,7 @@ def kinhec_keyframe_data(seq, time_offset: float | None):
     return a_abs, b_abs, kinhec_se3.relative_motions(a_abs, pairs), kinhec_se3.relative_motions(b_abs, pairs)
 
 
-def _solve_kinhec(name: str, data, truth: Truth, seed: int) -> dict:
+def solve_kinhec(name: str, data, truth: Truth, seed: int) -> dict:
     """One KinHEC solver on prepared data; a failure is an outcome (as KinHEC counts it)."""
     row: dict = {}
     started = time.perf_counter()
@@ -335,7 +335,7 @@ def run_kinhec(seq, truth: Truth, solvers: list[str], seed: int) -> list[dict]:
         used = seq.time_offset if variant == TRUE_OFFSET else offset
         if used is not None:
             row["time_offset_err_ms"] = 1000.0 * abs(used - seq.time_offset)
-        rows.append(dict(row, **_solve_kinhec(name, data, truth, seed)))
+        rows.append(dict(row, **solve_kinhec(name, data, truth, seed)))
     return rows
 
 
