@@ -18,8 +18,11 @@ far below it, that the statement is too high. A mean above the ``unusable`` limi
 both solvers says an honest statement must grade the set-up ``unusable``, whatever one draw
 gave.
 
-Needs the sequences of ``kinhec_tracks.py`` (run it first, or pass ``--data``); synchronous
-sequences with KinHEC's ``se3_gaussian`` camera and robot noise only.
+Each fit goes the way ``kinhec_tracks.py`` runs it: files through ``spacecal calibrate``, raw
+streams with the clock offset estimated where the sequence is asynchronous (the redrawn poses
+keep the recorded times, drops and clock faults), and KinHEC's keyframe protocol. Needs the
+sequences of ``kinhec_tracks.py`` (run it first, or pass ``--data``); sequences with KinHEC's
+``se3_gaussian`` camera and robot noise only.
 
     python benchmarks/kinhec_redraw.py noise-000134 noise-000038 [--draws 50] [--tier small]
 """
@@ -30,6 +33,7 @@ import argparse
 import copy
 import dataclasses
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -39,24 +43,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import kinhec_tracks
 from kinhec import noise as kinhec_noise
 
-from spacecal.estimators import calibrate
-
-conversion = kinhec_tracks.conversion
-
 #: The noise models this script can draw again (KinHEC's manifest names).
 DRAWABLE = "se3_gaussian"
-
-
-def site_error(
-    truth: kinhec_tracks.Truth, tracker_from_base: np.ndarray, tcp_from_marker: np.ndarray
-) -> float:
-    x, y = conversion.kinhec_from_spacecal(tracker_from_base, tcp_from_marker)
-    return float(truth.errors(x, y)["site_error_mm"])
+#: KinHEC's reference solver, refitted on the same draws.
+REFERENCE = "shah+lm"
 
 
 def redrawn(seq, row: dict, rng: np.random.Generator):
     """A copy of ``seq`` whose measured camera and robot poses are drawn again about the true
-    ones, by KinHEC's noise functions with the sequence's own parameters (metres, rad)."""
+    ones, by KinHEC's noise functions with the sequence's own parameters (metres, rad). The
+    streams' times, drops and any clock faults stay as recorded."""
     camera, robot = seq.camera, seq.robot
     seen = np.isfinite(camera.T_cam_target_meas).all(axis=(1, 2))
     measured = camera.T_cam_target_meas.copy()
@@ -75,20 +71,23 @@ def redrawn(seq, row: dict, rng: np.random.Generator):
     return out
 
 
-def fitted(seq, truth: kinhec_tracks.Truth) -> dict:
-    """``ml`` on the sequence (site error, statement, its noise-only part) and KinHEC's
-    ``shah+lm`` under KinHEC's protocol (site error)."""
-    result = calibrate(conversion.to_recording(seq), method="ml")
-    expected = result.diagnostics["expected_error"]
-    components = expected["components"]
-    reference = kinhec_tracks.solve_kinhec(
-        "shah+lm", kinhec_tracks.kinhec_keyframe_data(seq, None), truth, seed=0
+def fitted(seq, truth: kinhec_tracks.Truth, folder: Path) -> dict:
+    """``ml`` on the sequence as the track benchmark runs it (files, ``spacecal calibrate``; raw
+    streams with the clock offset estimated where the sequence is asynchronous), and KinHEC's
+    ``shah+lm`` under KinHEC's protocol: site errors, the statement and its parts."""
+    (ml,) = kinhec_tracks.run_spacecal(seq, truth, ["ml"], folder)
+    reference = next(
+        r
+        for r in kinhec_tracks.run_kinhec(seq, truth, [REFERENCE], seed=0)
+        if r["method"] == kinhec_tracks.REFERENCE
     )
+    if ml.get("status") != "result":
+        raise SystemExit(f"{seq.id}: ml gave no result: {ml.get('message')}")
     return {
-        "site": site_error(truth, result.tracker_from_base, result.tcp_from_marker),
-        "stated": float(expected["position_mm"]),
-        "noise_only_rms": float(components["noise_tre_rms_mm"]),
-        "unseen_rms": float(components.get("unseen_tip_rms_mm") or 0.0),
+        "site": ml["site_error_mm"],
+        "stated": ml["expected_position_mm"],
+        "noise_only_rms": ml.get("noise_only_rms_mm") or 0.0,
+        "unseen_rms": ml.get("unseen_rms_mm") or 0.0,
         "reference_site": reference.get("site_error_mm", np.nan),
     }
 
@@ -98,16 +97,17 @@ def redraw(sequence_id: str, root: Path, draws: int, seed: int) -> dict:
     manifest = pd.read_csv(root / "sequences.csv")
     row = manifest[manifest.sequence_id == sequence_id].iloc[0].to_dict()
     models = (row["camera_noise_model"], row["robot_noise_models"])
-    if row["sync"] != "synchronous" or any(model != DRAWABLE for model in models):
+    if any(model != DRAWABLE for model in models):
         raise SystemExit(
-            f"{sequence_id}: only synchronous sequences with {DRAWABLE} noise can be drawn again "
-            f"(this one: {row['sync']}, camera {models[0]}, robot {models[1]})"
+            f"{sequence_id}: only sequences with {DRAWABLE} noise can be drawn again "
+            f"(this one: camera {models[0]}, robot {models[1]})"
         )
     sequence = kinhec_tracks.load_sequence(root, sequence_id, manifest=pd.DataFrame([row]))
     truth = kinhec_tracks.Truth(sequence)
-    own = fitted(sequence, truth)
     rng = np.random.default_rng(seed)
-    runs = [fitted(redrawn(sequence, row, rng), truth) for _ in range(draws)]
+    with tempfile.TemporaryDirectory() as folder:
+        own = fitted(sequence, truth, Path(folder))
+        runs = [fitted(redrawn(sequence, row, rng), truth, Path(folder)) for _ in range(draws)]
     sites = np.array([r["site"] for r in runs])
     return {
         "sequence": sequence_id,
@@ -123,7 +123,7 @@ def redraw(sequence_id: str, root: Path, draws: int, seed: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("sequences", nargs="+", help="KinHEC sequence ids (synchronous)")
+    parser.add_argument("sequences", nargs="+", help="KinHEC sequence ids")
     parser.add_argument("--draws", type=int, default=50)
     parser.add_argument("--tier", default="small")
     parser.add_argument("--data", type=Path, help="KinHEC data folder (default: the benchmark's cache)")

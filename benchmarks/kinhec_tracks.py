@@ -71,6 +71,7 @@ from kinhec.metrics import calibration_errors  # noqa: E402
 from spacecal import app  # noqa: E402
 from spacecal.core.errors import SpacecalError  # noqa: E402
 from spacecal.estimators import ESTIMATORS, Need  # noqa: E402
+from spacecal.estimators.diagnostics import ErrorThresholds  # noqa: E402
 from spacecal.estimators.expected_error import (  # noqa: E402
     SITE_RADIUS_MM,
     SITE_TILT_DEG,
@@ -102,6 +103,8 @@ SPACECAL_METHODS = tuple(ESTIMATORS)
 KINHEC = "kinhec:"
 #: KinHEC's reference the ratios compare ``ml`` with
 REFERENCE = KINHEC + "shah+lm"
+#: The limit an ``unusable`` statement is above: the default ``poor`` limit the runs grade by.
+UNUSABLE_ABOVE_MM = ErrorThresholds().poor_mm
 #: variants of the reference: every paired frame (no keyframes), the true clock offset
 ALL_FRAMES = " (all frames)"
 TRUE_OFFSET = " (true offset)"
@@ -265,6 +268,13 @@ def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[di
                 expected_position_mm=stated,
                 expected_refusal=expected.get("refusal"),
             )
+            components = expected.get("components") or {}
+            # the statement's parts: the noise alone (the fit's inverse Fisher information at
+            # the site) and what the marker cannot see (RMS, mm)
+            row["noise_only_rms_mm"] = _finite(components.get("noise_tre_rms_mm"))
+            # the statement with its systematic misfit one standard error either way
+            row["expected_range_mm"] = expected.get("position_range_mm")
+            row["unseen_rms_mm"] = _finite(components.get("unseen_tip_rms_mm"))
             if "position_covariance_mm2" in expected:
                 # how often an error of the stated covariance is within 1 mm: an honest statement
                 # above the unusable limit still meets a small error by chance this often
@@ -502,9 +512,10 @@ def grade_table(rows: list[dict]) -> list[str]:
     lines = [
         "| method | results | good | acceptable | poor | unusable | unusable, site error ≤ 1 mm | "
         "… expected by chance were each statement exact | "
+        "… of them, the statement's own range reaching below the unusable limit | "
         "unusable without an expected error | stated expected error median (mm) | "
         "site error / stated: median, max | verification error / stated: median, max |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for method in method_order(rows):
         ok = [
@@ -514,7 +525,14 @@ def grade_table(rows: list[dict]) -> list[str]:
             continue
         grades = Counter(r.get("grade") for r in ok)
         unusable = [r for r in ok if r.get("grade") == "unusable"]
-        close = sum(1 for r in unusable if (r.get("site_error_mm") or math.inf) <= 1.0)
+        close_rows = [r for r in unusable if (r.get("site_error_mm") or math.inf) <= 1.0]
+        close = len(close_rows)
+        # the range's low end at or below the limit an unusable statement is above
+        unpinned = sum(
+            1
+            for r in close_rows
+            if r.get("expected_range_mm") and r["expected_range_mm"][0] <= UNUSABLE_ABOVE_MM
+        )
         chance = sum(r.get("chance_within_1mm") or 0.0 for r in unusable)
         without = sum(1 for r in unusable if r.get("expected_position_mm") is None)
         stated = [r for r in ok if r.get("expected_position_mm")]
@@ -522,7 +540,7 @@ def grade_table(rows: list[dict]) -> list[str]:
         verification = np.array([r["verification_error_mm"] / r["expected_position_mm"] for r in stated])
         lines.append(
             f"| {method} | {len(ok)} | {grades['good']} | {grades['acceptable']} | {grades['poor']} | "
-            f"{grades['unusable']} | {close} | {chance:.1f} | {without} | "
+            f"{grades['unusable']} | {close} | {chance:.1f} | {unpinned} | {without} | "
             f"{_fmt(_median(stated, 'expected_position_mm'))} | "
             + (f"{_fmt(float(np.median(site)))}, {_fmt(float(np.max(site)))} | " if len(site) else "– | ")
             + (
