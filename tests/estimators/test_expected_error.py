@@ -135,6 +135,44 @@ def test_the_verdict_states_the_chance_a_target_is_within_the_tolerable_error():
         Verdict("poor", chance_within_tolerable=1.5)
 
 
+def test_the_verdict_says_when_the_statement_itself_cannot_pin_the_grade():
+    spread = {"rotation_sd_deg": [30.0, 20.0, 10.0], "position_sd_mm": [100.0, 80.0, 50.0]}
+    covariance = np.eye(3) * 1.5**2
+    expected = {
+        "position_mm": mean_gaussian_length(covariance),
+        "posture_deg": 0.1,
+        "position_covariance_mm2": covariance.tolist(),
+        "components": {},
+    }
+    # a range across the poor and unusable limits: said, with what pins it
+    wide = verdict(dict(expected, position_range_mm=[0.8, 3.6]), spread)
+    assert wide.expected_error_range_mm == (0.8, 3.6)
+    assert "one standard error either way puts it at 0.80-3.60 mm (acceptable to unusable)" in wide.text
+    assert Verdict.from_value(wide.to_dict()) == wide
+    # one within a grade: kept, not said
+    narrow = verdict(dict(expected, position_range_mm=[2.3, 2.6]), spread)
+    assert narrow.expected_error_range_mm == (2.3, 2.6) and "standard error either way" not in narrow.text
+    # files written before the range still read; a range must be ordered and finite
+    assert Verdict.from_value({"grade": "poor", "reasons": ["because"]}).expected_error_range_mm is None
+    for bad in ((2.0, 1.0), (float("nan"), 1.0), (1.0,)):
+        with pytest.raises(InvalidInputError):
+            Verdict("poor", expected_error_range_mm=bad)
+
+
+def test_the_statement_s_own_range_holds_it_and_narrows_with_more_poses():
+    # the systematic misfit one standard error either way: the statement lies within, and four
+    # times the poses halve the standard error, so the range narrows relative to the statement
+    for seed in (1, 2):
+        widths = []
+        for stations in (15, 60):
+            scenario = dataclasses.replace(load_scenario("static-15-poses"), seed=seed, stations=stations)
+            expected = calibrate(simulate(scenario).recording, "ml").diagnostics["expected_error"]
+            low, high = expected["position_range_mm"]
+            assert low <= expected["position_mm"] <= high
+            widths.append((high - low) / expected["position_mm"])
+        assert widths[1] < 0.8 * widths[0]
+
+
 def test_blocks_are_segments_or_contiguous_time_blocks():
     segments = np.array(["a"] * 10 + ["b"] * 10 + ["c"] * 10 + ["d"] * 2)
     assert [len(b) for b in held_out_blocks(segments)] == [10, 10, 10]

@@ -213,6 +213,7 @@ def verdict(
     posture: float | None = None
     limit: float | None = None
     chance: float | None = None
+    span: tuple[float, float] | None = None
     if refusal is not None or expected is None:
         word = "unusable"
         reasons.append(
@@ -237,6 +238,16 @@ def verdict(
             reasons.append(
                 f"a target there is within {thresholds.poor_mm:g} mm with a chance of {percent(chance)}"
             )
+        if expected.get("position_range_mm") is not None:
+            low, high = (float(v) for v in expected["position_range_mm"])
+            span = (low, high)
+            if grade(low, thresholds) != grade(high, thresholds):
+                # the grade itself is not pinned by so few frames: say so, and what pins it
+                reasons.append(
+                    f"the statement rests on a misfit this recording measures only roughly: one standard "
+                    f"error either way puts it at {low:.2f}-{high:.2f} mm ({grade(low, thresholds)} to "
+                    f"{grade(high, thresholds)}); more poses would pin it"
+                )
         components = expected.get("components", {})
         noise = components.get("noise_tre_rms_mm")
         factor = 0.0 if variance_factor is None else variance_factor
@@ -266,6 +277,7 @@ def verdict(
         tuple(reasons),
         tolerable_mm=thresholds.poor_mm,
         chance_within_tolerable=chance,
+        expected_error_range_mm=span,
     )
 
 

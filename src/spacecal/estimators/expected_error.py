@@ -159,7 +159,8 @@ DETECTION_STANDARD_ERRORS = 2.0
 #: ... and none where the noise is what the residuals leave beyond the DH errors (a camera's
 #: static views): there the noise is several times the misfit an arm's 1 mm DH errors leave,
 #: two standard errors hide that misfit whole, and the tip error it scales to is four times
-#: it. The held-out excess itself is the unbiased estimate. Measured on KinHEC's 24
+#: it. The held-out excess itself is the unbiased estimate (its positive part, the one a
+#: statement can take, errs upward where there is none). Measured on KinHEC's 24
 #: robot-error sequences (30 camera views each): a 15-point verification's error over the
 #: stated one, median (max), 1.43 (4.4) with two standard errors taken off and 0.86 (2.6)
 #: without (docs, "One frame per pose and no fit RMS").
@@ -1051,6 +1052,49 @@ def _power_beyond_pose(pose_design: FloatArray, dh_design: FloatArray) -> float:
     return float(np.sum((dh_design - fitted) ** 2))
 
 
+def arm_and_other_parts(
+    systematic_mm2: float, unit_sphere_power_mm2: float, split: dict[str, Any] | None, spheres: int
+) -> tuple[float, float, float, bool]:
+    """How a systematic held-out misfit divides between the arm's DH errors and the rest.
+
+    Parameters
+    ----------
+    systematic_mm2 : float
+        The held-out misfit beyond the noise's, per frame over all its spheres, mm^2.
+    unit_sphere_power_mm2 : float
+        The misfit a DH error scale of 1 mm leaves per frame (:func:`unseen_kinematic_error`).
+    split : dict or None
+        :func:`systematic_share_in_dh_span`'s split of the residuals, where the noise was
+        measured apart from the misfit; None where the noise is what DH errors leave (all the
+        misfit is then the arm's).
+    spheres : int
+        Spheres of the marker.
+
+    Returns
+    -------
+    arm_scale_sq : float
+        The arm's DH error scale, squared (mm^2).
+    other_ms : float
+        The mean square at the tip of the error beyond the arm's (a tracker's bias field), mm^2:
+        as large as at one sphere of the marker, which is a point of the same chain.
+    dh_share : float
+        The share of the misfit in the DH span.
+    detected_in_dh_span : bool
+        True where the held-out misfit is within the noise's scatter yet the arm's errors show
+        in the DH span's few dimensions in-sample (a noisy tracker): the scale is then theirs.
+    """
+    scale_sq = systematic_mm2 / unit_sphere_power_mm2 if unit_sphere_power_mm2 > 0 else 0.0
+    if split is None:
+        return scale_sq, 0.0, 1.0, False
+    if systematic_mm2 > 0:
+        share = float(split["dh_share"])
+        return share * scale_sq, (1.0 - share) * systematic_mm2 / spheres, share, False
+    if split["unit_dh_power_mm2"] > 0:
+        arm_scale_sq = float(split["dh_detected_power_mm2"] / split["unit_dh_power_mm2"])
+        return arm_scale_sq, 0.0, 1.0, arm_scale_sq > 0
+    return 0.0, 0.0, 1.0, False
+
+
 def expected_error(
     obs: Observations,
     segments: np.ndarray,
@@ -1100,7 +1144,12 @@ def expected_error(
     Returns
     -------
     dict
-        ``position_mm``, ``posture_deg``, ``basis`` (one sentence), ``components``.
+        ``position_mm``, ``posture_deg``, ``basis`` (one sentence), ``components``;
+        ``position_covariance_mm2`` (3 x 3, tracker frame, mm^2), whose mean Gaussian length
+        ``position_mm`` is; ``position_range_mm``, ``[low, high]`` mm: ``position_mm`` with
+        the systematic misfit taken one standard error of the noise's misfit lower and higher,
+        how far the statement itself can be off on this many frames (None where the arm's
+        error scale was given).
     """
     site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
     tip_in_marker = None if needle_tip is None else needle_tip.tip_in_marker
@@ -1303,15 +1352,26 @@ def expected_error(
     if dh_error_scale_mm is not None and has_model:
         blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
     detected_in_dh_span = False
+    # the systematic misfit one standard error lower and higher: how far the statement's own
+    # estimate of it can be off on this many frames (its positive part errs upward where
+    # there is none)
+    systematic_range = [
+        max(held_out_ms - noise_ms - (detection_standard_errors + step) * noise_standard_error, 0.0)
+        if computed
+        else 0.0
+        for step in (1.0, -1.0)
+    ]
+    unseen_range: list[FloatArray] | None = None
     if geometry is not None:
         arm, unit, _ = geometry
-        dh_share, other_ms = 1.0, 0.0
+        spheres_in_marker = len(obs.spheres_in_marker)
         if dh_error_scale_mm is not None:
             scale_sq = dh_error_scale_mm**2
-            arm_scale_sq = scale_sq  # kinematic identification: its corrections took the arm's part
+            # kinematic identification: its corrections took the arm's part
+            arm_scale_sq, other_ms, dh_share = scale_sq, 0.0, 1.0
         else:
             scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
-            arm_scale_sq = scale_sq
+            split = None
             # the noise measured apart from the misfit (pairs, fit RMS): split the misfit by its
             # shape; the noise taken as what DH errors leave has counted the rest as noise already
             if white is not None or obs.sigma_known:
@@ -1325,17 +1385,17 @@ def expected_error(
                     rigid_noise_covariance=None if white is None else white["rigid_covariance_mm2"],
                     rigid_noise_dof=None if white is None else white["rigid_covariance_dof"],
                 )
-                if systematic > 0:
-                    dh_share = split["dh_share"]
-                    # beyond the arm's errors (a tracker's bias field): at the tip as large as at
-                    # one sphere of the marker, which is a point of the same chain
-                    other_ms = (1.0 - dh_share) * systematic / len(obs.spheres_in_marker)
-                    arm_scale_sq = dh_share * scale_sq
-                elif split["unit_dh_power_mm2"] > 0:
-                    # the held-out misfit is within the noise's scatter (a noisy tracker), yet the
-                    # arm's errors may show in the DH span's few dimensions in-sample
-                    arm_scale_sq = split["dh_detected_power_mm2"] / split["unit_dh_power_mm2"]
-                    detected_in_dh_span = arm_scale_sq > 0
+            arm_scale_sq, other_ms, dh_share, detected_in_dh_span = arm_and_other_parts(
+                systematic, unit["sphere_power_mm2"], split, spheres_in_marker
+            )
+            unseen_range = []
+            for value in systematic_range:
+                arm_sq, other, _, _ = arm_and_other_parts(
+                    value, unit["sphere_power_mm2"], split, spheres_in_marker
+                )
+                unseen_range.append(
+                    arm_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other / 3.0
+                )
         unseen_ms = arm_scale_sq * unit["tip_position_ms_mm2"] + other_ms
         unseen_covariance = (
             arm_scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
@@ -1359,9 +1419,11 @@ def expected_error(
         # no arm reaches the poses: the held-out power of a frame (over all its spheres) stands
         # for the tip's mean square, as a UR arm's geometry makes it on the paper's sweeps; a
         # measured tip is a point of the marker's chain, off by what one sphere is
-        unseen_ms = systematic if tip_in_marker is None else systematic / len(obs.spheres_in_marker)
+        per_tip = 1.0 if tip_in_marker is None else 1.0 / len(obs.spheres_in_marker)
+        unseen_ms = systematic * per_tip
         # the misfit says nothing of its direction at the tip: isotropic
         unseen_covariance = np.eye(3) * unseen_ms / 3.0
+        unseen_range = [np.eye(3) * value * per_tip / 3.0 for value in systematic_range]
         unseen_rotation_ms = 0.0
         components["kinematic_geometry"] = None
         basis = (
@@ -1388,8 +1450,17 @@ def expected_error(
         np.sqrt(tre_ms + unseen_ms + deviation_ms + np.trace(tip_covariance))
     )
     posture_rms = np.sqrt(rotation_noise_ms + unseen_rotation_ms + rotation_deviation_ms)
+    position_mm = mean_gaussian_length(position_covariance)
+    position_range = None
+    if unseen_range is not None:
+        # the statement lies within (an arm scale found in the DH span alone, where the misfit
+        # is within the noise's scatter, need not grow with the misfit)
+        known = noise_covariance + deviation_covariance + tip_covariance
+        ends = [mean_gaussian_length(known + unseen) for unseen in unseen_range] + [position_mm]
+        position_range = [min(ends), max(ends)]
     return {
-        "position_mm": mean_gaussian_length(position_covariance),
+        "position_mm": position_mm,
+        "position_range_mm": position_range,
         "posture_deg": float(np.degrees(MEAN_OVER_RMS_3D * posture_rms)),
         "position_covariance_mm2": position_covariance.tolist(),
         "basis": basis,

@@ -45,6 +45,10 @@ class Verdict:
         The chance, in [0, 1], that the error at a target near the site is within
         ``tolerable_mm``, from the expected error's covariance: an error mostly along one
         direction (a camera's depth) is small more often than an even one of the same mean.
+    expected_error_range_mm : tuple of float or None
+        ``(low, high)`` mm: the expected error with the systematic misfit it rests on taken one
+        standard error lower and higher. How far the statement itself can be off on the
+        frames it had; None where it was not estimated.
     """
 
     grade: str
@@ -54,6 +58,7 @@ class Verdict:
     reasons: tuple[str, ...] = ()
     tolerable_mm: float | None = None
     chance_within_tolerable: float | None = None
+    expected_error_range_mm: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.grade not in GRADES:
@@ -66,6 +71,17 @@ class Verdict:
         if chance is not None and not (isinstance(chance, (int, float)) and 0.0 <= chance <= 1.0):
             raise InvalidInputError(
                 f"verdict chance_within_tolerable must be in [0, 1] or null, got {chance!r}"
+            )
+        span = self.expected_error_range_mm
+        if span is not None and not (
+            isinstance(span, tuple)
+            and len(span) == 2
+            and all(isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 for v in span)
+            and span[0] <= span[1]
+        ):
+            raise InvalidInputError(
+                "verdict expected_error_range_mm must be [low, high] in mm with low <= high, or null, "
+                f"got {span!r}"
             )
 
     @property
@@ -93,6 +109,9 @@ class Verdict:
             "text": self.text,
             "tolerable_mm": self.tolerable_mm,
             "chance_within_tolerable": self.chance_within_tolerable,
+            "expected_error_range_mm": (
+                None if self.expected_error_range_mm is None else list(self.expected_error_range_mm)
+            ),
         }
 
     @classmethod
@@ -120,6 +139,11 @@ class Verdict:
             reasons = value.get("reasons", ())
             if not isinstance(reasons, (list, tuple)) or not all(isinstance(r, str) for r in reasons):
                 raise InvalidInputError(f"{what}: verdict reasons must be a list of sentences")
+            span = value.get("expected_error_range_mm")
+            if span is not None:
+                if not isinstance(span, (list, tuple)):
+                    raise InvalidInputError(f"{what}: verdict expected_error_range_mm must be [low, high]")
+                span = tuple(span)
             try:
                 return cls(
                     str(value.get("grade")),
@@ -129,6 +153,7 @@ class Verdict:
                     tuple(reasons),
                     value.get("tolerable_mm"),
                     value.get("chance_within_tolerable"),
+                    span,
                 )
             except TypeError as exc:
                 raise InvalidInputError(f"{what}: verdict is malformed ({exc})") from exc
