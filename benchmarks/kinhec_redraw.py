@@ -76,11 +76,8 @@ def fitted(seq, truth: kinhec_tracks.Truth, folder: Path) -> dict:
     streams with the clock offset estimated where the sequence is asynchronous), and KinHEC's
     ``shah+lm`` under KinHEC's protocol: site errors, the statement and its parts."""
     (ml,) = kinhec_tracks.run_spacecal(seq, truth, ["ml"], folder)
-    reference = next(
-        r
-        for r in kinhec_tracks.run_kinhec(seq, truth, [REFERENCE], seed=0)
-        if r["method"] == kinhec_tracks.REFERENCE
-    )
+    keyframes = kinhec_tracks.kinhec_keyframe_data(seq, kinhec_tracks.kinhec_offset(seq))
+    reference = kinhec_tracks.solve_kinhec(REFERENCE, keyframes, truth, seed=0)
     if ml.get("status") != "result":
         raise SystemExit(f"{seq.id}: ml gave no result: {ml.get('message')}")
     return {

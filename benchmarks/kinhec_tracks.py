@@ -272,9 +272,9 @@ def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[di
             # the statement's parts: the noise alone (the fit's inverse Fisher information at
             # the site) and what the marker cannot see (RMS, mm)
             row["noise_only_rms_mm"] = _finite(components.get("noise_tre_rms_mm"))
+            row["unseen_rms_mm"] = _finite(components.get("unseen_tip_rms_mm"))
             # the statement with its systematic misfit one standard error either way
             row["expected_range_mm"] = expected.get("position_range_mm")
-            row["unseen_rms_mm"] = _finite(components.get("unseen_tip_rms_mm"))
             if "position_covariance_mm2" in expected:
                 # how often an error of the stated covariance is within 1 mm: an honest statement
                 # above the unusable limit still meets a small error by chance this often
@@ -323,15 +323,21 @@ def solve_kinhec(name: str, data, truth: Truth, seed: int) -> dict:
     return row
 
 
+def kinhec_offset(seq) -> float | None:
+    """The clock offset (s) KinHEC's protocol pairs the streams at: estimated from the streams
+    by KinHEC's own cross-correlation; None for synchronous streams."""
+    if seq.synchronous:
+        return None
+    offset, _ = kinhec_solvers.estimate_time_offset(
+        seq.robot.t, seq.robot.T_base_ee_meas, seq.camera.t, seq.camera.T_cam_target_meas
+    )
+    return float(offset)
+
+
 def run_kinhec(seq, truth: Truth, solvers: list[str], seed: int) -> list[dict]:
     """KinHEC's solvers under its protocol; for the reference also on every paired frame (as
     spacecal gets them) and, on asynchronous streams, at the true clock offset."""
-    offset = None
-    if not seq.synchronous:
-        offset, _ = kinhec_solvers.estimate_time_offset(
-            seq.robot.t, seq.robot.T_base_ee_meas, seq.camera.t, seq.camera.T_cam_target_meas
-        )
-        offset = float(offset)
+    offset = kinhec_offset(seq)
     runs = [(name, "", kinhec_keyframe_data(seq, offset)) for name in solvers]
     reference = REFERENCE[len(KINHEC) :]
     if reference in solvers:

@@ -1365,6 +1365,12 @@ def expected_error(
     if geometry is not None:
         arm, unit, _ = geometry
         spheres_in_marker = len(obs.spheres_in_marker)
+
+        def unseen_tip_covariance(arm_scale_sq: float, other_ms: float) -> FloatArray:
+            """The tip's error the marker cannot see (tracker frame, mm^2): the arm's, shaped
+            by its geometry, and the rest, isotropic."""
+            return arm_scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
+
         if dh_error_scale_mm is not None:
             scale_sq = dh_error_scale_mm**2
             # kinematic identification: its corrections took the arm's part
@@ -1388,18 +1394,14 @@ def expected_error(
             arm_scale_sq, other_ms, dh_share, detected_in_dh_span = arm_and_other_parts(
                 systematic, unit["sphere_power_mm2"], split, spheres_in_marker
             )
-            unseen_range = []
-            for value in systematic_range:
-                arm_sq, other, _, _ = arm_and_other_parts(
-                    value, unit["sphere_power_mm2"], split, spheres_in_marker
+            unseen_range = [
+                unseen_tip_covariance(
+                    *arm_and_other_parts(value, unit["sphere_power_mm2"], split, spheres_in_marker)[:2]
                 )
-                unseen_range.append(
-                    arm_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other / 3.0
-                )
+                for value in systematic_range
+            ]
         unseen_ms = arm_scale_sq * unit["tip_position_ms_mm2"] + other_ms
-        unseen_covariance = (
-            arm_scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
-        )
+        unseen_covariance = unseen_tip_covariance(arm_scale_sq, other_ms)
         unseen_rotation_ms = arm_scale_sq * unit["tip_rotation_ms_rad2"]
         # the whole misfit's scale: what kinematic identification takes as its DH prior
         components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
