@@ -32,3 +32,8 @@ class DeviceError(SpacecalError, OSError):
 
 class MissingExtraError(SpacecalError, ImportError):
     """An optional dependency is not installed; the message names the extra."""
+
+
+class RecordError(SpacecalError, OSError):
+    """The record (the ledger of calibrations and checks) could not be read or written: locked,
+    damaged or unreachable. What was to be recorded is not recorded."""
