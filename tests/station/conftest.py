@@ -158,3 +158,22 @@ def page() -> Iterator[Any]:
             yield context.new_page()
         finally:
             browser.close()
+
+
+#: How often :func:`wait_js` asks the page, s.
+WAIT_JS_POLL_S = 0.1
+
+
+def wait_js(page: Any, expression: str, timeout: float = BROWSER_TIMEOUT_MS) -> None:
+    """Wait until the page's JavaScript ``expression`` is true, for ``timeout`` ms.
+
+    Playwright's ``wait_for_function`` evaluates its expression with ``eval`` inside the page,
+    which the station's content security policy forbids (as it should); ``page.evaluate`` goes
+    through the browser's debugging protocol, which the policy does not govern."""
+    from playwright.sync_api import TimeoutError as PageTimeout
+
+    deadline = time.monotonic() + timeout / 1000.0
+    while not page.evaluate(expression):
+        if time.monotonic() > deadline:
+            raise PageTimeout(f"{expression} did not hold within {timeout / 1000.0:.0f} s")
+        time.sleep(WAIT_JS_POLL_S)

@@ -26,7 +26,7 @@ def test_the_station_listens_on_loopback_unless_told_otherwise():
     from spacecal.cli.parser import build_parser
 
     args = build_parser({name: None for name in _commands()}).parse_args(["station"])
-    assert args.host == "127.0.0.1" and args.token is None
+    assert args.host == "127.0.0.1" and args.token_file is None and not hasattr(args, "token")
 
 
 def _commands():
@@ -40,26 +40,26 @@ def test_another_interface_needs_a_token(tmp_path, capsys):
     from spacecal.station.access import check_bind
 
     for host in ("0.0.0.0", "192.168.1.20", "::"):
-        with pytest.raises(InvalidInputError, match="only with --token"):
+        with pytest.raises(InvalidInputError, match="only with an access token"):
             check_bind(host, None)
     check_bind("127.0.0.1", None)
     check_bind("localhost", None)
-    with pytest.raises(InvalidInputError, match="at least 16"):
+    with pytest.raises(InvalidInputError, match="16 to 256 characters"):
         check_bind("0.0.0.0", "short")
     assert main(["station", "--host", "0.0.0.0", "--data", str(tmp_path)]) == 1
     err = capsys.readouterr().err
-    assert "only with --token" in err and err.count("\n") == 1
+    assert "only with an access token" in err and err.count("\n") == 1
 
 
 def test_requests_without_the_token_are_refused(tmp_path):
     token = "a-long-enough-token-1234"
     station, web = client(tmp_path, host="192.168.1.20", token=token)
     try:
-        assert web.get("/").status_code == 403
-        assert web.get("/", headers={"X-Station-Token": "wrong-token-wrong-token"}).status_code == 403
-        assert web.post("/devices", data={"kind": "robot", "name": "r", "url": "sim"}).status_code == 403
+        assert web.get("/").status_code == 401
+        assert web.get("/", headers={"X-Station-Token": "wrong-token-wrong-token"}).status_code == 401
+        assert web.post("/devices", data={"kind": "robot", "name": "r", "url": "sim"}).status_code == 401
         assert station.ledger.robots() == []
-        # the address the station prints carries the token; the browser keeps it in a cookie
+        # an address carrying the token: the browser keeps it in a cookie
         opened = web.get(f"/?token={token}")
         assert opened.status_code == 200
         assert web.get("/").status_code == 200

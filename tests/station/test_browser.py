@@ -17,6 +17,7 @@ from urllib.parse import urljoin
 from spacecal import app as spacecal_app
 from spacecal.io.check_history import history_path
 from spacecal.io.recording_csv import read_recording
+from tests.station.conftest import wait_js
 
 #: The command line's stop times (tests/adapters/test_ur_stops.py): from the stop to the robot
 #: standing still, and to the end of the command, s. As there, the end bound leaves out the time
@@ -80,7 +81,7 @@ def wait_for_run_end(page, disk, expression: str, within_ms: float = ACQUISITION
                 f"the page then showed: {run_page_state(page)}"
             )
         try:
-            page.wait_for_function(expression, timeout=min(left_s, 30.0) * 1000.0)
+            wait_js(page, expression, timeout=min(left_s, 30.0) * 1000.0)
             return
         except PageTimeout:
             progress.append((round(time.monotonic() - started), shown_text(page, "samples")))
@@ -211,12 +212,10 @@ def test_from_a_new_robot_to_an_exported_calibration(served, page, disk):
     shot(page, "2-confirm")
 
     def acquiring() -> None:
-        page.wait_for_function(
-            f"Number(document.getElementById('samples').textContent) >= 100 || {RUN_ENDED_JS}"
-        )
+        wait_js(page, f"Number(document.getElementById('samples').textContent) >= 100 || {RUN_ENDED_JS}")
         # the live view draws the marker's sweeps
         # the view redraws at most every five times its last draw took (a busy machine: seconds)
-        page.wait_for_function("(document.getElementById('view').data || []).some(t => t.x.length > 10)")
+        wait_js(page, "(document.getElementById('view').data || []).some(t => t.x.length > 10)")
         shot(page, "3-acquiring")
 
     def acquire_again() -> None:
@@ -265,7 +264,7 @@ def start_acquisition(page, url: str, robot: str):
     page.click("#acquire")
     page.click("#confirm")
     page.wait_for_url(re.compile(r"/runs/\d+$"))
-    page.wait_for_function(f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}")
+    wait_js(page, f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}")
 
 
 def assert_stilled(run, reason: str, disk) -> None:
@@ -294,7 +293,7 @@ def assert_stilled(run, reason: str, disk) -> None:
 def test_stop_mid_acquisition_stills_the_robot(served, page, disk):
     start_acquisition(page, served.url, "UR10 bay 2")
     page.click("#stop")
-    page.wait_for_function("document.getElementById('run-state').textContent === 'stopped'")
+    wait_js(page, "document.getElementById('run-state').textContent === 'stopped'")
     message = page.inner_text("#message")
     assert "acquisition stopped: interrupted by the user (STOP pressed at the station)" in message
     shot(page, "6-stopped")
@@ -351,7 +350,7 @@ def test_stop_mid_check_stops_the_robot_and_logs_nothing(served, page, disk):
     page.click("#check")
     page.click("#confirm")
     page.wait_for_url(re.compile(r"/runs/\d+$"))
-    page.wait_for_function("document.getElementById('run-state').textContent === 'running'")
+    wait_js(page, "document.getElementById('run-state').textContent === 'running'")
     run = served.station.runs.get(1)
     # STOP while the robot moves: after the check's first sample, not while it still computes
     # its plan (pressed then, the run says "stopped", true but not what this test is about)
@@ -362,7 +361,7 @@ def test_stop_mid_check_stops_the_robot_and_logs_nothing(served, page, disk):
     time.sleep(CHECK_STOP_AFTER_S)
     assert run.active, run.message  # the check is still moving when STOP is pressed
     page.click("#stop")
-    page.wait_for_function("document.getElementById('run-state').textContent === 'stopped'")
+    wait_js(page, "document.getElementById('run-state').textContent === 'stopped'")
     message = page.inner_text("#message")
     assert "check stopped: interrupted by the user (STOP pressed at the station)" in message
     assert "the robot was stopped and nothing was logged" in message

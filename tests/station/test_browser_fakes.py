@@ -18,6 +18,7 @@ import pytest
 
 from tests.adapters.conftest import ahead_of_other_tests, hardware_lane, rom_file, watchdog  # noqa: F401
 from tests.adapters.ur_runs import ROBOT_MODEL, assert_everything_closed, tracker_url, ur_world
+from tests.station.conftest import wait_js
 from tests.station.test_browser import (
     ENDED_WITHIN_S,
     JOIN_WITHIN_S,
@@ -62,7 +63,7 @@ def start_acquisition_on_the_fakes(page, served, world, rom):
     assert ROBOT in page.inner_text("#confirm-text")
     page.click("#confirm")
     page.wait_for_url(re.compile(r"/runs/\d+$"))
-    page.wait_for_function(f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}")
+    wait_js(page, f"Number(document.getElementById('samples').textContent) >= {STOP_AFTER_SAMPLES}")
     run = served.station.runs.get(1)
     assert run.active, run.message
     return run
@@ -92,7 +93,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
         assert re.search(r"(\d+)/\1 moves", message), message
         # the live view drew the marker's sweeps
         # the view redraws at most every five times its last draw took (a busy machine: seconds)
-        page.wait_for_function("(document.getElementById('view').data || []).some(t => t.x.length > 10)")
+        wait_js(page, "(document.getElementById('view').data || []).some(t => t.x.length > 10)")
         shot(page, "8-fakes-acquired")
         steps.done("acquire")
 
@@ -128,7 +129,7 @@ def test_stop_on_the_protocol_fakes_stills_the_arm(served, page, rom_file, disk)
         world.control("ur mark")
         marked_at = time.monotonic()
         page.click("#stop")
-        page.wait_for_function("document.getElementById('run-state').textContent === 'stopped'")
+        wait_js(page, "document.getElementById('run-state').textContent === 'stopped'")
         assert "interrupted by the user (STOP pressed at the station)" in page.inner_text("#message")
         after = assert_everything_closed(world)
         run.thread.join(timeout=JOIN_WITHIN_S)

@@ -16,10 +16,9 @@ def test_no_motion_without_its_confirmation(simulated_workspace):
     assert work.dry_run_ok
     # no ticket, a made-up one, and one issued for the other motion: refused, nothing moves
     for data in ({}, {"ticket": "made-up"}):
-        refused = web.post("/workspaces/1/motion/acquire", data=data)
-        assert refused.status_code == 403 and "confirmation" in refused.text
-    check_ticket = station.tickets.issue(1, "UR10 bay 1", "check")
-    assert web.post("/workspaces/1/motion/acquire", data={"ticket": check_ticket}).status_code == 403
+        assert_refused(web.post("/workspaces/1/motion/acquire", data=data))
+    check_ticket = station.tickets.issue(1, "UR10 bay 1", "check", work.motion_basis("acquire"))
+    assert_refused(web.post("/workspaces/1/motion/acquire", data={"ticket": check_ticket}))
     assert station.runs.active() is None and station.runs.get(1) is None
     assert not work.recording_path.exists()
     # the confirmation names the robot and the motion
@@ -33,5 +32,11 @@ def test_no_motion_without_its_confirmation(simulated_workspace):
     run.request_stop("the test ended")
     run.thread.join(timeout=60)
     # a ticket is used once
-    again = web.post("/workspaces/1/motion/acquire", data={"ticket": ticket})
-    assert again.status_code == 403 and station.runs.get(2) is None
+    assert_refused(web.post("/workspaces/1/motion/acquire", data={"ticket": ticket}))
+    assert station.runs.get(2) is None
+
+
+def assert_refused(response) -> None:
+    """A refused start: back on the calibration's page, which says the robot did not move."""
+    assert response.status_code == 200 and response.url.path == "/workspaces/1", response.url
+    assert "the robot did not move: a motion starts only from its confirmation page" in response.text

@@ -26,13 +26,14 @@ STARTS_WITHIN_S = 120.0
 
 def silent_page(url: str, path: str) -> socket.socket:
     """Opens the live view's websocket by hand and then never reads from it: the pings go
-    unanswered, as from a frozen page, while the connection stays open."""
+    unanswered, as from a frozen page, while the connection stays open. It names the station's
+    origin, as the station's own page does (a socket of any other origin is refused)."""
     address = urlsplit(url)
     connection = socket.create_connection((address.hostname, address.port), timeout=10)
     key = base64.b64encode(os.urandom(16)).decode()
     connection.sendall(
         (
-            f"GET {path} HTTP/1.1\r\nHost: {address.netloc}\r\nUpgrade: websocket\r\n"
+            f"GET {path} HTTP/1.1\r\nHost: {address.netloc}\r\nOrigin: {url}\r\nUpgrade: websocket\r\n"
             f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n"
         ).encode()
     )

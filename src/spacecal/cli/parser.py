@@ -360,10 +360,14 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--host",
         default="127.0.0.1",
-        help="interface to listen on (default 127.0.0.1; any other needs --token)",
+        help="interface to listen on (default 127.0.0.1; any other needs an access token)",
     )
     p.add_argument("--port", type=port_number, default=8770, help="TCP port (default 8770; 0: any free one)")
-    p.add_argument("--token", help="access token every request must carry (required off loopback)")
+    p.add_argument(
+        "--token-file",
+        help="file holding the access token every request must carry, created with a fresh one when "
+        "missing (required off loopback unless SPACECAL_STATION_TOKEN is set; on loopback: a shared PC)",
+    )
     p.add_argument(
         "--data", default="spacecal-station", help="folder for recordings, calibrations and reports"
     )

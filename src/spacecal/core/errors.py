@@ -35,5 +35,5 @@ class MissingExtraError(SpacecalError, ImportError):
 
 
 class RecordError(SpacecalError, OSError):
-    """The record (the ledger of calibrations and checks) could not be read or written: locked,
-    damaged or unreachable. What was to be recorded is not recorded."""
+    """The calibration record (its database) could not be read or written: locked, damaged,
+    unreachable, full; the message says which in one line and never holds a password."""

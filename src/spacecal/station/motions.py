@@ -2,8 +2,9 @@
 a process of its own with its STOP.
 
 A motion starts only from a ticket (:class:`Tickets`): the confirmation page issues one that
-names the robot and the motion; the start request must hand it back, once, within
-:data:`TICKET_LIFETIME_S`. No ticket, no motion.
+names the robot, the motion and what was confirmed (the dry run that passed, with its plan's
+hash, or the calibration to check); the start request must hand it back, once, within
+:data:`TICKET_LIFETIME_S`, while that is still what the workspace holds. No ticket, no motion.
 
 Each motion runs as the command line runs it, in a child process
 (:mod:`spacecal.station.motion_process`), followed by a thread of the station that shows its
@@ -35,6 +36,8 @@ from spacecal.station.motion_process import LAST_MESSAGES
 
 #: How long a confirmation stays valid, s.
 TICKET_LIFETIME_S = 300.0
+#: Confirmations open at once (a person has one or two; each page load issues one).
+MAX_OPEN_TICKETS = 32
 #: A run's motion starts only once its page watches it; a run whose page has not connected
 #: within this time after the confirmation ends without moving the robot, s. Generous: nothing
 #: moves while it waits, and a browser on a busy machine may take long to open a page.
@@ -55,36 +58,52 @@ MOTION_WORDS = {"acquire": "acquisition", "check": "check"}
 
 @dataclass(frozen=True)
 class Ticket:
-    """A confirmed motion: which workspace, robot and motion it is for."""
+    """A confirmed motion: which workspace, robot and motion it is for, and what was confirmed
+    (``basis``: the dry run that passed, or the calibration to check)."""
 
     workspace: int
     robot: str
     motion: str
+    basis: str
     issued: float
 
 
 class Tickets:
-    """Single-use confirmations of motions."""
+    """Single-use confirmations of motions, at most :data:`MAX_OPEN_TICKETS` open at once
+    (every confirmation page issues one: the oldest go first, and expired ones are dropped at
+    each issue)."""
 
     def __init__(self) -> None:
         self._open: dict[str, Ticket] = {}
         self._lock = threading.Lock()
 
-    def issue(self, workspace: int, robot: str, motion: str) -> str:
-        """A new ticket for the motion ``motion`` of robot ``robot``."""
-        key = secrets.token_urlsafe(24)
+    def __len__(self) -> int:
         with self._lock:
-            self._open[key] = Ticket(workspace, robot, motion, time.monotonic())
+            return len(self._open)
+
+    def issue(self, workspace: int, robot: str, motion: str, basis: str) -> str:
+        """A new ticket for the motion ``motion`` of robot ``robot``, confirmed on ``basis``."""
+        key = secrets.token_urlsafe(24)
+        now = time.monotonic()
+        with self._lock:
+            for old in [k for k, t in self._open.items() if now - t.issued > TICKET_LIFETIME_S]:
+                del self._open[old]
+            while len(self._open) >= MAX_OPEN_TICKETS:
+                del self._open[next(iter(self._open))]  # dicts keep their order: the oldest
+            self._open[key] = Ticket(workspace, robot, motion, basis, now)
         return key
 
-    def redeem(self, key: str | None, workspace: int, motion: str) -> Ticket | None:
-        """The ticket ``key`` when it was issued for this workspace and motion and is still
-        valid; it is used up either way."""
+    def redeem(self, key: str | None, workspace: int, motion: str, basis: str | None) -> Ticket | None:
+        """The ticket ``key`` when it was issued for this workspace and motion on the same
+        ``basis`` (a dry run run again, or one that failed since, leaves no basis or another)
+        and is still valid; it is used up either way."""
         if not key:
             return None
         with self._lock:
             ticket = self._open.pop(key, None)
         if ticket is None or ticket.workspace != workspace or ticket.motion != motion:
+            return None
+        if basis is None or not secrets.compare_digest(ticket.basis, basis):
             return None
         if time.monotonic() - ticket.issued > TICKET_LIFETIME_S:
             return None

@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
+import threading
 import webbrowser
 from dataclasses import dataclass
+from html import escape
 from pathlib import Path
 from typing import Any
 
 import uvicorn
 
 from spacecal.ledger import SIMULATED_ROBOT, SIMULATED_TRACKER, Ledger
-from spacecal.station.access import check_bind
+from spacecal.station.access import check_bind, load_token
+from spacecal.station.limits import MAX_CONNECTIONS, HeaderDeadlineProtocol
 from spacecal.station.web import Station, create_app
 
 #: How often the station pings each page's live view, and how long a page may take to answer,
@@ -33,7 +38,12 @@ class StationOptions:
     port : int
         TCP port (0: any free one).
     token : str or None
-        Access token every request must carry.
+        Access token every request must carry (from a program: the command line reads it
+        from ``token_file`` or the environment, never from its own arguments).
+    token_file : str or None
+        File holding the token (created with a fresh one, readable by its owner only, when it
+        does not exist); without it, ``SPACECAL_STATION_TOKEN`` when set
+        (:func:`spacecal.station.access.load_token`). On loopback too: a shared station PC.
     data : str
         Folder for each calibration's files; the record defaults to ``DATA/record.db``.
     record : str or None
@@ -48,6 +58,7 @@ class StationOptions:
     host: str = "127.0.0.1"
     port: int = 8770
     token: str | None = None
+    token_file: str | None = None
     data: str = "spacecal-station"
     record: str | None = None
     open: bool = False
@@ -56,7 +67,8 @@ class StationOptions:
 
 def build(options: StationOptions) -> tuple[Station, Any]:
     """The station's state and its ASGI application (refusing an unsafe bind first)."""
-    check_bind(options.host, options.token)
+    token = options.token if options.token is not None else load_token(options.token_file)
+    check_bind(options.host, token)
     data = Path(options.data).expanduser().resolve()
     data.mkdir(parents=True, exist_ok=True)
     ledger = Ledger.open(options.record or str(data / "record.db"))
@@ -64,7 +76,7 @@ def build(options: StationOptions) -> tuple[Station, Any]:
         ledger.add_robot(SIMULATED_ROBOT, "sim")
         ledger.add_tracker(SIMULATED_TRACKER, "sim")
     station = Station(ledger, data)
-    return station, create_app(station, options.token, options.host)
+    return station, create_app(station, token, options.host)
 
 
 def server_config(
@@ -74,15 +86,20 @@ def server_config(
     ping_interval_s: float = PAGE_PING_INTERVAL_S,
     ping_timeout_s: float = PAGE_PING_TIMEOUT_S,
 ) -> uvicorn.Config:
-    """uvicorn's settings for the station: quiet, no lifespan, and the pages' liveness above."""
+    """uvicorn's settings for the station: quiet, no lifespan, the pages' liveness above, a
+    deadline on every request's headers and a bound on the connections served at once
+    (:mod:`spacecal.station.limits`)."""
     return uvicorn.Config(
         application,
         host=host,
         port=port,
         log_level="warning",
         lifespan="off",
+        http=HeaderDeadlineProtocol,
+        limit_concurrency=MAX_CONNECTIONS,
         ws_ping_interval=ping_interval_s,
         ws_ping_timeout=ping_timeout_s,
+        server_header=False,
     )
 
 
@@ -92,10 +109,13 @@ def serve(options: StationOptions) -> None:
     station, application = build(options)
     server = uvicorn.Server(server_config(application, options.host, options.port))
     address = f"http://{'localhost' if options.host == '127.0.0.1' else options.host}:{options.port}/"
-    shown = address + (f"?token={options.token}" if options.token else "")
-    print(f"spacecal station: {shown} (record: {station.ledger.engine.url.render_as_string()})", flush=True)
+    token = application.token
+    where = f"token in {options.token_file}" if options.token_file else "token from SPACECAL_STATION_TOKEN"
+    signing = f" (sign in with the access token: {where})" if token else ""
+    record = station.ledger.engine.url.render_as_string(hide_password=True)
+    print(f"spacecal station: {address}{signing} (record: {record})", flush=True)
     if options.open:
-        webbrowser.open(shown)
+        open_in_browser(address, token)
     try:
         server.run()
     except KeyboardInterrupt:
@@ -103,3 +123,26 @@ def serve(options: StationOptions) -> None:
     finally:
         station.runs.stop_all("the station shut down")
         station.ledger.close()
+
+
+#: How long the page that hands the browser its token lives on disk, s.
+HANDOVER_FILE_LIFETIME_S = 60.0
+
+
+def open_in_browser(address: str, token: str | None) -> None:
+    """Open the station in the default web browser, signed in when it has a token. The token
+    never goes on the browser's command line (every user reads that in the process list): the
+    browser opens a page in a private file (mode 600) that goes on to the station's address
+    with the token, which the station swaps for its cookie at once; the file is removed soon
+    after."""
+    if token is None:
+        webbrowser.open(address)
+        return
+    target = escape(f"{address}?token={token}", quote=True)
+    descriptor, name = tempfile.mkstemp(prefix="spacecal-station-", suffix=".html")
+    with os.fdopen(descriptor, "w") as page:
+        page.write(f'<!DOCTYPE html><meta http-equiv="refresh" content="0; url={target}">')
+    webbrowser.open(Path(name).as_uri())
+    timer = threading.Timer(HANDOVER_FILE_LIFETIME_S, lambda: Path(name).unlink(missing_ok=True))
+    timer.daemon = True
+    timer.start()

@@ -11,23 +11,27 @@ from __future__ import annotations
 import asyncio
 import functools
 import json
+import re
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from starlette.applications import Starlette
+from starlette.convertors import Convertor, register_url_convertor
 from starlette.requests import Request
-from starlette.responses import FileResponse, PlainTextResponse, RedirectResponse, Response
+from starlette.responses import FileResponse, RedirectResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.templating import Jinja2Templates
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from spacecal import app as spacecal_app
-from spacecal.core.errors import SpacecalError
+from spacecal.core.errors import InvalidInputError, RecordError, SpacecalError
 from spacecal.core.text import exception_line
 from spacecal.ledger import Ledger
-from spacecal.station.access import AccessMiddleware, is_loopback
+from spacecal.station.access import FILE_POLICY, AccessMiddleware, foreign_request, is_loopback
+from spacecal.station.error_pages import EXCEPTION_HANDLERS, error_page, refuse
+from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
 from spacecal.station.workspace import EXPORTS, Workspace, new_folder
@@ -36,6 +40,28 @@ HERE = Path(__file__).resolve().parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
 #: The live view's update period, s.
 PUSH_PERIOD_S = 0.25
+#: New calibrations a station starts, at most, in :data:`NEW_WORKSPACE_WINDOW_S` (a person
+#: starts one every few minutes; a script that starts hundreds fills the disk with folders).
+NEW_WORKSPACES_PER_WINDOW = 10
+NEW_WORKSPACE_WINDOW_S = 60.0
+#: A file name the station serves from a calibration's folder: the names it writes itself.
+FILE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+
+
+class IdConvertor(Convertor[int]):
+    """A number in the station's addresses (a calibration, a run): at most 9 digits, so a
+    5000-digit one is no route (404) rather than an integer conversion's error."""
+
+    regex = "[0-9]{1,9}"
+
+    def convert(self, value: str) -> int:
+        return int(value)
+
+    def to_string(self, value: int) -> str:
+        return str(int(value))
+
+
+register_url_convertor("id", IdConvertor())
 
 
 @dataclass
@@ -48,6 +74,10 @@ class Station:
     tickets: Tickets = field(default_factory=Tickets)
     workspaces: dict[int, Workspace] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    notes: Notes = field(default_factory=Notes)
+    new_workspaces: RateLimit = field(
+        default_factory=lambda: RateLimit(NEW_WORKSPACES_PER_WINDOW, NEW_WORKSPACE_WINDOW_S)
+    )
 
     def workspace(self, workspace_id: int) -> Workspace:
         found = self.workspaces.get(workspace_id)
@@ -62,6 +92,8 @@ def _station(request: Request | WebSocket) -> Station:
 
 
 def _page(request: Request, name: str, status: int = 200, **context: Any) -> Response:
+    """A page of the station, with the note a step left for it (``?note=KEY``) as its error."""
+    context.setdefault("error", _station(request).notes.get(request.query_params.get("note")))
     return templates.TemplateResponse(request, name, context, status_code=status)
 
 
@@ -76,49 +108,102 @@ def home(request: Request) -> Response:
         robots=station.ledger.robots(),
         trackers=station.ledger.trackers(),
         workspaces=sorted(station.workspaces.values(), key=lambda w: -w.id),
-        error=request.query_params.get("error"),
     )
+
+
+def back(request: Request, route: str, error: str | None = None, **params: Any) -> Response:
+    """303 to the page ``route``, carrying ``error`` as a note the station keeps (the address
+    names the note, never its text: a link from elsewhere cannot make a page say anything)."""
+    url = request.url_for(route, **params)
+    if error is not None:
+        url = url.include_query_params(note=_station(request).notes.add(error))
+    return RedirectResponse(url, 303)
+
+
+#: Longest device address, model name or tool definition path taken from a form, characters.
+FORM_TEXT_LIMIT = 4096
+
+
+def form_text(form: Any, key: str, default: str = "") -> str:
+    """A form's text field, stripped; one that is not text, or too long, is refused.
+
+    Raises
+    ------
+    InvalidInputError
+    """
+    value = form.get(key, default)
+    if not isinstance(value, str):
+        raise InvalidInputError(f"{key} must be text")
+    if len(value) > FORM_TEXT_LIMIT:
+        raise InvalidInputError(f"{key} is longer than {FORM_TEXT_LIMIT} characters")
+    return value.strip()
 
 
 async def add_device(request: Request) -> Response:
     station = _station(request)
     form = await request.form()
-    kind = str(form.get("kind", ""))
-    name, url = str(form.get("name", "")).strip(), str(form.get("url", "")).strip() or "sim"
     try:
+        kind = form_text(form, "kind")
+        name, url = form_text(form, "name"), form_text(form, "url")
+        if not url:
+            raise InvalidInputError("give the device's address (sim for the simulated one)")
         if kind == "robot":
-            station.ledger.add_robot(name, url, str(form.get("model", "")).strip() or None)
+            station.ledger.add_robot(name, url, form_text(form, "model") or None)
         elif kind == "tracker":
-            rate = str(form.get("rate_hz", "")).strip()
-            station.ledger.add_tracker(name, url, float(rate) if rate else None)
+            station.ledger.add_tracker(name, url, tracker_rate(form_text(form, "rate_hz")))
         else:
-            return PlainTextResponse("add a robot or a tracker", status_code=400)
-    except (SpacecalError, ValueError) as exc:
-        return RedirectResponse(request.url_for("home").include_query_params(error=exception_line(exc)), 303)
-    return RedirectResponse(request.url_for("home"), 303)
+            raise InvalidInputError("add a robot or a tracker")
+    except SpacecalError as exc:
+        return back(request, "home", exception_line(exc))
+    return back(request, "home")
+
+
+def tracker_rate(text: str) -> float | None:
+    """The tracker's frame rate from the form, Hz, or None when left empty.
+
+    Raises
+    ------
+    InvalidInputError
+        Not a number (the record then checks its range).
+    """
+    if not text:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise InvalidInputError(
+            f"the frame rate must be a number of frames per second, not {text[:40]!r}"
+        ) from None
 
 
 async def new_workspace(request: Request) -> Response:
     station = _station(request)
     form = await request.form()
     try:
-        robot = station.ledger.robot(int(str(form.get("robot", ""))))
-        tracker = station.ledger.tracker(int(str(form.get("tracker", ""))))
-    except ValueError:
-        robot = tracker = None
+        robot = station.ledger.robot(int(form_text(form, "robot")))
+        tracker = station.ledger.tracker(int(form_text(form, "tracker")))
+        rom = form_text(form, "rom") or None
+    except (ValueError, InvalidInputError):
+        robot = tracker = rom = None
     if robot is None or tracker is None:
-        return RedirectResponse(
-            request.url_for("home").include_query_params(error="choose a robot and a tracker"), 303
-        )
-    rom = str(form.get("rom", "")).strip() or None
+        return back(request, "home", "choose a robot and a tracker")
     tool_id = None
     if rom is not None:
-        if not Path(rom).is_file():
-            return RedirectResponse(
-                request.url_for("home").include_query_params(error=f"no tool definition file {rom}"), 303
-            )
+        try:
+            found = Path(rom).is_file()
+        except (OSError, ValueError):
+            found = False
+        if not found:
+            return back(request, "home", f"no tool definition file {rom[:200]}")
         rom = str(Path(rom).resolve())
         tool_id = station.ledger.add_tool(rom, definition=rom)
+    if not station.new_workspaces.allow():
+        return back(
+            request,
+            "home",
+            f"at most {NEW_WORKSPACES_PER_WINDOW} new calibrations a minute: "
+            f"try again in {station.new_workspaces.wait_s():.0f} s",
+        )
     with station.lock:
         workspace_id = len(station.workspaces) + 1
         folder = new_folder(station.data, robot["name"])
@@ -131,10 +216,7 @@ async def new_workspace(request: Request) -> Response:
 
 async def workspace_page(request: Request) -> Response:
     station = _station(request)
-    try:
-        work = station.workspace(int(request.path_params["workspace_id"]))
-    except LookupError as exc:
-        return PlainTextResponse(str(exc), status_code=404)
+    work = station.workspace(int(request.path_params["workspace_id"]))
     findings = work.findings
     if findings is None:
         try:
@@ -146,29 +228,30 @@ async def workspace_page(request: Request) -> Response:
     if work.calibration_record_id is not None:
         history = station.ledger.checks(work.calibration_record_id)
     return _page(
-        request,
-        "workspace.html",
-        work=work,
-        findings=findings,
-        run=run,
-        exports=EXPORTS,
-        history=history,
-        error=request.query_params.get("error"),
+        request, "workspace.html", work=work, findings=findings, run=run, exports=EXPORTS, history=history
     )
 
 
+#: The steps a calibration's page posts (none of them moves the robot).
+STEPS = ("doctor", "plan", "dry-run", "calibrate", "report")
+
+
 async def step(request: Request) -> Response:
-    """POST /workspaces/N/<step>: doctor, plan, dry-run, calibrate, report (no motion)."""
-    form = await request.form()
-    method = str(form.get("method", "ml"))
-    return await asyncio.to_thread(_step, request, method)
-
-
-def _step(request: Request, method: str) -> Response:
+    """POST /workspaces/N/step/<step>: doctor, plan, dry-run, calibrate, report (no motion)."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
+    if request.path_params["step"] not in STEPS:
+        return error_page(404, f"there is no step {request.path_params['step'][:40]!r}")
+    form = await request.form()
+    try:
+        method = form_text(form, "method", "ml")
+    except InvalidInputError as exc:
+        return back(request, "workspace", exception_line(exc), workspace_id=work.id)
+    return await asyncio.to_thread(_step, request, station, work, method)
+
+
+def _step(request: Request, station: Station, work: Workspace, method: str) -> Response:
     name = request.path_params["step"]
-    here = request.url_for("workspace", workspace_id=work.id)
     try:
         if name == "doctor":
             work.doctor()
@@ -178,21 +261,27 @@ def _step(request: Request, method: str) -> Response:
             work.dry_run()
         elif name == "calibrate":
             out = work.calibrate(method)
-            work.calibration_record_id = spacecal_app.record_calibration(
-                station.ledger,
-                out,
-                "station",
-                robot_id=work.robot["id"],
-                tracker_id=work.tracker["id"],
-                tool_id=work.tool_id,
-            )
-        elif name == "report":
-            work.make_report()
+            try:
+                work.calibration_record_id = spacecal_app.record_calibration(
+                    station.ledger,
+                    out,
+                    "station",
+                    robot_id=work.robot["id"],
+                    tracker_id=work.tracker["id"],
+                    tool_id=work.tool_id,
+                )
+            except RecordError as exc:
+                # a calibration the record does not hold is not shown as done
+                work.calibration = None
+                raise RecordError(
+                    f"{out.files_written[0].name} was written but not recorded ({exception_line(exc)}): "
+                    "calibrate again once the record can be written"
+                ) from exc
         else:
-            return PlainTextResponse(f"no step {name}", status_code=404)
+            work.make_report()
     except (SpacecalError, OSError) as exc:
-        return RedirectResponse(here.include_query_params(error=exception_line(exc)), 303)
-    return RedirectResponse(here, 303)
+        return back(request, "workspace", exception_line(exc), workspace_id=work.id)
+    return back(request, "workspace", workspace_id=work.id)
 
 
 async def export(request: Request) -> Response:
@@ -200,25 +289,34 @@ async def export(request: Request) -> Response:
     work = station.workspace(int(request.path_params["workspace_id"]))
     form = await request.form()
     targets = [key for key in EXPORTS if form.get(key)]
-    here = request.url_for("workspace", workspace_id=work.id)
     if not targets:
-        return RedirectResponse(here.include_query_params(error="choose where to export"), 303)
+        return back(request, "workspace", "choose where to export", workspace_id=work.id)
     try:
         await asyncio.to_thread(work.export, targets)
     except (SpacecalError, OSError) as exc:
-        return RedirectResponse(here.include_query_params(error=exception_line(exc)), 303)
-    return RedirectResponse(here, 303)
+        return back(request, "workspace", exception_line(exc), workspace_id=work.id)
+    return back(request, "workspace", workspace_id=work.id)
 
 
 def workspace_file(request: Request) -> Response:
-    """A file of the calibration's folder (report, exports), by name only."""
+    """A file of the calibration's folder (report, exports), by name only: a name of the kind
+    the station writes, a regular file that resolves inside the folder (no link out of it), in
+    a sandbox of its own (:data:`~spacecal.station.access.FILE_POLICY`): a report's scripts run,
+    but never as the station's page."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     name = request.path_params["name"]
-    path = work.folder / name
-    if "/" in name or "\\" in name or name.startswith(".") or not path.is_file():
-        return PlainTextResponse("no such file", status_code=404)
-    return FileResponse(path)
+    if not FILE_NAME.fullmatch(name):
+        return error_page(404, "no such file")
+    folder = work.folder.resolve()
+    try:
+        path = (work.folder / name).resolve(strict=True)
+        inside = path.parent == folder and path.is_file()
+    except (OSError, RuntimeError):
+        inside = False
+    if not inside:
+        return error_page(404, "no such file")
+    return FileResponse(path, headers={"Content-Security-Policy": FILE_POLICY, "Cache-Control": "no-store"})
 
 
 # -- motions: confirmation, acquisition, check ----------------------------------------------
@@ -227,18 +325,18 @@ MOTIONS = ("acquire", "check")
 
 
 def confirm_page(request: Request) -> Response:
-    """The confirmation that names the robot and the motion; issues the motion's ticket."""
+    """The confirmation that names the robot and the motion; issues the motion's ticket, bound
+    to what was confirmed (the dry run that passed, or the calibration to check)."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     motion = request.path_params["motion"]
     if motion not in MOTIONS:
-        return PlainTextResponse(f"no motion {motion}", status_code=404)
-    here = request.url_for("workspace", workspace_id=work.id)
-    if motion == "acquire" and not work.dry_run_ok:
-        return RedirectResponse(here.include_query_params(error="run the dry run first: it must pass"), 303)
-    if motion == "check" and work.calibration is None:
-        return RedirectResponse(here.include_query_params(error="calibrate first"), 303)
-    ticket = station.tickets.issue(work.id, work.robot["name"], motion)
+        return error_page(404, f"there is no motion {motion[:40]!r}")
+    basis = work.motion_basis(motion)
+    if basis is None:
+        needed = "run the dry run first: it must pass" if motion == "acquire" else "calibrate first"
+        return back(request, "workspace", needed, workspace_id=work.id)
+    ticket = station.tickets.issue(work.id, work.robot["name"], motion, basis)
     return _page(
         request, "confirm.html", work=work, motion=motion, words=work.motion_words(motion), ticket=ticket
     )
@@ -250,12 +348,17 @@ async def start_motion(request: Request) -> Response:
     work = station.workspace(int(request.path_params["workspace_id"]))
     motion = request.path_params["motion"]
     form = await request.form()
-    ticket = station.tickets.redeem(str(form.get("ticket", "")), work.id, motion)
+    ticket = station.tickets.redeem(
+        str(form.get("ticket", ""))[:100], work.id, motion, work.motion_basis(motion)
+    )
     if ticket is None:
-        return PlainTextResponse(
-            "refused: a motion starts only from its confirmation page (confirm it again)", status_code=403
+        return back(
+            request,
+            "workspace",
+            "the robot did not move: a motion starts only from its confirmation page, once, "
+            "for the dry run or calibration it named (confirm it again)",
+            workspace_id=work.id,
         )
-    here = request.url_for("workspace", workspace_id=work.id)
     try:
         if motion == "acquire":
             if station.runs.active() is None:
@@ -271,50 +374,59 @@ async def start_motion(request: Request) -> Response:
                 functools.partial(_checked, station, work),
             )
     except RuntimeError as exc:
-        return RedirectResponse(here.include_query_params(error=str(exc)), 303)
+        return back(request, "workspace", str(exc), workspace_id=work.id)
     return RedirectResponse(request.url_for("run", run_id=run.id), 303)
 
 
 def _checked(station: Station, work: Workspace, run: Any) -> None:
-    """A check that ran to its end: the calibration's list and the record."""
-    work.checks.append(run.output.record)
+    """A check that ran to its end: the record, then the calibration's list (a check the record
+    could not hold is not listed as done)."""
     spacecal_app.record_check(station.ledger, work.calibration_path, run.output, "station")
+    work.checks.append(run.output.record)
+
+
+def _run(request: Request | WebSocket) -> Any:
+    run = _station(request).runs.get(int(request.path_params["run_id"]))
+    if run is None:
+        raise LookupError("no such run at this station")
+    return run
 
 
 def run_page(request: Request) -> Response:
-    station = _station(request)
-    run = station.runs.get(int(request.path_params["run_id"]))
-    if run is None:
-        return PlainTextResponse("no such run", status_code=404)
-    work = station.workspace(run.workspace)
-    return _page(request, "run.html", run=run, work=work)
+    run = _run(request)
+    return _page(request, "run.html", run=run, work=_station(request).workspace(run.workspace))
 
 
 async def stop_run(request: Request) -> Response:
-    station = _station(request)
-    run = station.runs.get(int(request.path_params["run_id"]))
-    if run is None:
-        return PlainTextResponse("no such run", status_code=404)
-    run.request_stop("STOP pressed at the station")
-    return PlainTextResponse("stopping")
+    _run(request).request_stop("STOP pressed at the station")
+    return Response("stopping", media_type="text/plain")
 
 
 async def run_socket(websocket: WebSocket) -> None:
     """The live view: pushes the run's frames and state; STOP arrives here too. A connection
-    lost while the run moves stops it (unless another page still watches it)."""
-    station = _station(websocket)
-    run = station.runs.get(int(websocket.path_params["run_id"]))
-    await websocket.accept()
+    lost while the run moves stops it (unless another page of the station still watches it).
+    Only the station's own pages count as watchers (the doors refuse any other, and this checks
+    again), and the socket is closed once the run has ended and its last state was sent."""
+    headers = {k.lower(): v for k, v in websocket.headers.items()}
+    if foreign_request(websocket.scope, headers, headers.get("host", "")) is not None:
+        await websocket.close(code=1008)
+        return
+    run = _station(websocket).runs.get(int(websocket.path_params["run_id"]))
     if run is None:
         await websocket.close(code=1008)
         return
+    await websocket.accept()
     run.page_connected()
     since = 0
     try:
         while True:
+            ended = not run.active and run.ended_at is not None
             data = run.snapshot(since)
             since = data["sequence"]
             await websocket.send_text(json.dumps(data))
+            if ended:
+                await websocket.close(code=1000)
+                break
             try:
                 message = await asyncio.wait_for(websocket.receive_text(), timeout=PUSH_PERIOD_S)
             except asyncio.TimeoutError:
@@ -363,36 +475,38 @@ def plotly_js(request: Request) -> Response:
     )
 
 
+#: The station's own page scripts and style.
+STATIC_FILES = ("station.js", "station.css", "trends.js")
+
+
 def static_file(request: Request) -> Response:
     name = request.path_params["name"]
-    if name not in ("station.js", "station.css"):
-        return PlainTextResponse("no such file", status_code=404)
+    if name not in STATIC_FILES:
+        return error_page(404, "no such file")
     return FileResponse(HERE / "static" / name)
 
 
 def create_app(station: Station, token: str | None = None, host: str = "127.0.0.1") -> Any:
-    """The station's ASGI application, behind its access rules
+    """The station's ASGI application, behind its doors
     (:class:`~spacecal.station.access.AccessMiddleware`)."""
     routes = [
         Route("/", home, name="home"),
         Route("/devices", add_device, methods=["POST"]),
         Route("/workspaces", new_workspace, methods=["POST"]),
-        Route("/workspaces/{workspace_id:int}", workspace_page, name="workspace"),
-        Route("/workspaces/{workspace_id:int}/step/{step}", step, methods=["POST"]),
-        Route("/workspaces/{workspace_id:int}/export", export, methods=["POST"]),
-        Route("/workspaces/{workspace_id:int}/files/{name}", workspace_file, name="file"),
-        Route("/workspaces/{workspace_id:int}/confirm/{motion}", confirm_page, name="confirm"),
-        Route(
-            "/workspaces/{workspace_id:int}/motion/{motion}", start_motion, methods=["POST"], name="motion"
-        ),
-        Route("/runs/{run_id:int}", run_page, name="run"),
-        Route("/runs/{run_id:int}/stop", stop_run, methods=["POST"], name="stop"),
-        WebSocketRoute("/runs/{run_id:int}/ws", run_socket),
+        Route("/workspaces/{workspace_id:id}", workspace_page, name="workspace"),
+        Route("/workspaces/{workspace_id:id}/step/{step}", step, methods=["POST"]),
+        Route("/workspaces/{workspace_id:id}/export", export, methods=["POST"]),
+        Route("/workspaces/{workspace_id:id}/files/{name}", workspace_file, name="file"),
+        Route("/workspaces/{workspace_id:id}/confirm/{motion}", confirm_page, name="confirm"),
+        Route("/workspaces/{workspace_id:id}/motion/{motion}", start_motion, methods=["POST"], name="motion"),
+        Route("/runs/{run_id:id}", run_page, name="run"),
+        Route("/runs/{run_id:id}/stop", stop_run, methods=["POST"], name="stop"),
+        WebSocketRoute("/runs/{run_id:id}/ws", run_socket),
         Route("/trends", trends, name="trends"),
         Route("/static/plotly.js", plotly_js, name="plotly"),
         Route("/static/{name}", static_file, name="static"),
     ]
     plotly_bytes()  # read before any run starts, so the live view's page loads at once
-    web = Starlette(routes=routes)
+    web = Starlette(routes=routes, exception_handlers=EXCEPTION_HANDLERS)
     web.state.station = station
-    return AccessMiddleware(web, token, loopback_only=is_loopback(host))
+    return AccessMiddleware(web, token, loopback_only=is_loopback(host), refuse=refuse)

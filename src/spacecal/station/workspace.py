@@ -4,7 +4,9 @@ of the workflow, each one call of a :mod:`spacecal.app` function."""
 from __future__ import annotations
 
 import datetime
+import hashlib
 import re
+import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,6 +59,7 @@ class Workspace:
     plan_summary: str | None = None
     dry_run_lines: list[str] = field(default_factory=list)
     dry_run_ok: bool = False
+    dry_run_basis: str | None = None
     moves: int = 0
     motion_time_s: float = 0.0
     acquired: bool = False
@@ -118,7 +121,9 @@ class Workspace:
 
     def plan(self) -> None:
         """The calibration motion: the paper's sweeps, as a plan file for simulated devices; a
-        real robot plans them from where it stands (at the dry run)."""
+        real robot plans them from where it stands (at the dry run). A new plan needs a new
+        dry run."""
+        self.dry_run_ok, self.dry_run_basis = False, None
         if not self.simulated:
             self.plan_summary = "the paper's sweeps, planned from where the robot stands (see the dry run)"
             return
@@ -155,13 +160,43 @@ class Workspace:
         return kept
 
     def dry_run(self) -> None:
-        """Check the plan without moving (reach, limits, visibility, workspace)."""
+        """Check the plan without moving (reach, limits, visibility, workspace). The earlier
+        dry run's verdict is gone first: a dry run that fails, or raises, leaves none standing,
+        and a confirmation issued for an earlier one is no longer accepted
+        (:meth:`motion_basis`)."""
+        self.dry_run_ok, self.dry_run_basis, self.dry_run_lines = False, None, []
+        plan_before = self.plan_sha256()
         done = app.acquire(self.acquire_settings(dry_run=True))
         out = done.record
         self.moves, self.motion_time_s = out.moves, out.motion_time_s
         gate = [out.gate.summary(), *out.gate.lines()] if out.gate is not None else []
         self.dry_run_lines = [*gate, *done.notes, "dry run: nothing moved"]
-        self.dry_run_ok = out.gate is None or out.gate.passed
+        passed = out.gate is None or out.gate.passed
+        if passed and self.plan_sha256() == plan_before:
+            # this dry run, of this plan: a confirmation names it, and the plan file must not
+            # change between the two
+            self.dry_run_basis = f"dry-run {secrets.token_hex(8)} plan {plan_before}"
+        self.dry_run_ok = self.dry_run_basis is not None
+
+    def plan_sha256(self) -> str:
+        """The plan file's sha256 (``none`` while there is none: a real robot plans the sweeps
+        from where it stands)."""
+        if not self.plan_path.is_file():
+            return "none"
+        return hashlib.sha256(self.plan_path.read_bytes()).hexdigest()
+
+    def motion_basis(self, motion: str) -> str | None:
+        """What a confirmation of ``motion`` confirms, while it still holds: the dry run that
+        passed of the plan now on disk (``acquire``), or the calibration file now on disk
+        (``check``); None when there is nothing to confirm."""
+        if motion == "acquire":
+            basis = self.dry_run_basis
+            if basis is None or not basis.endswith(f"plan {self.plan_sha256()}"):
+                return None
+            return basis
+        if self.calibration is None or not self.calibration_path.is_file():
+            return None
+        return f"calibration {hashlib.sha256(self.calibration_path.read_bytes()).hexdigest()}"
 
     def motion_words(self, motion: str) -> str:
         """The motion a confirmation names."""
