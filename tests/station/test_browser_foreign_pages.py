@@ -254,16 +254,24 @@ def test_a_foreign_socket_neither_watches_nor_keeps_a_run_alive(station, attacke
         assert time.monotonic() < deadline and run.active, run.message
         time.sleep(0.2)
     ws_url = station.url.replace("http://", "ws://") + "/runs/1/ws"
-    attacker.html = (
-        "<script>window.messages = 0; window.socketEnded = false;"
+    # from the page itself, and from a sandboxed frame (Origin: null), again and again
+    watch = (
         "function watch() { const s = new WebSocket('" + ws_url + "');"
-        " s.onmessage = () => { window.messages++; };"
-        " s.onclose = () => { window.socketEnded = true; setTimeout(watch, 500); }; }"
-        "watch();</script>"
+        " s.onmessage = () => { parent.postMessage('message', '*'); };"
+        " s.onclose = () => { parent.postMessage('closed', '*'); setTimeout(watch, 500); }; }"
+        "watch();"
+    )
+    attacker.html = (
+        "<script>window.messages = 0; window.ended = 0;"
+        "window.addEventListener('message', (e) => { if (e.data === 'message') { window.messages++; }"
+        " else { window.ended++; } });"
+        + watch
+        + "</script>"
+        + f'<iframe sandbox="allow-scripts" srcdoc="<script>{watch}</script>"></iframe>'
     )
     page = browser.new_page()
     page.goto(attacker.url)
-    wait_js(page, "window.socketEnded === true", timeout=60_000)
+    wait_js(page, "window.ended >= 4", timeout=60_000)  # both refused, twice
     assert run.watchers == 1  # the operator's page only
     operator.close()  # the operator's page goes: the run must stop, whoever else tries to watch
     deadline = time.monotonic() + STOPPED_WITHIN_S

@@ -100,6 +100,7 @@ def server_config(
         ws_ping_interval=ping_interval_s,
         ws_ping_timeout=ping_timeout_s,
         server_header=False,
+        proxy_headers=False,  # a local program's X-Forwarded-Proto must not change the origin
     )
 
 
