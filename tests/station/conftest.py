@@ -144,8 +144,9 @@ def chromium_binary() -> str:
 
 
 @pytest.fixture
-def page() -> Iterator[Any]:
-    """A page of headless Chromium (Debian's), closed with its browser on every way out."""
+def browser_context() -> Iterator[Any]:
+    """A context of headless Chromium (Debian's): its pages share cookies, as one browser's
+    tabs do; closed with its browser on every way out."""
     sync_api = need("playwright.sync_api")
     binary = chromium_binary()
     with sync_api.sync_playwright() as playwright:
@@ -155,9 +156,15 @@ def page() -> Iterator[Any]:
         try:
             context = browser.new_context(viewport={"width": 1280, "height": 900})
             context.set_default_timeout(BROWSER_TIMEOUT_MS)
-            yield context.new_page()
+            yield context
         finally:
             browser.close()
+
+
+@pytest.fixture
+def page(browser_context) -> Any:
+    """A page of headless Chromium (Debian's), closed with its browser on every way out."""
+    return browser_context.new_page()
 
 
 #: How often :func:`wait_js` asks the page, s.

@@ -25,14 +25,7 @@ from typing import Any
 
 import pytest
 
-from tests.station.conftest import (
-    BROWSER_LAUNCH_TIMEOUT_MS,
-    BROWSER_TIMEOUT_MS,
-    chromium_binary,
-    free_port,
-    need,
-    wait_js,
-)
+from tests.station.conftest import free_port, need, wait_js
 
 TOKEN = "operator-token-0123456789abcdef"
 #: The run stops within this of its last page closing (the station sees a closed socket at once;
@@ -113,19 +106,9 @@ def attacker(request) -> Iterator[Attacker]:
 
 
 @pytest.fixture
-def browser() -> Iterator[Any]:
-    sync_api = need("playwright.sync_api")
-    binary = chromium_binary()
-    with sync_api.sync_playwright() as playwright:
-        launched = playwright.chromium.launch(
-            executable_path=binary, args=["--no-sandbox"], timeout=BROWSER_LAUNCH_TIMEOUT_MS
-        )
-        try:
-            context = launched.new_context(viewport={"width": 1280, "height": 900})
-            context.set_default_timeout(BROWSER_TIMEOUT_MS)
-            yield context
-        finally:
-            launched.close()
+def browser(browser_context) -> Any:
+    """One browser: the operator's pages and the foreign page share its cookies."""
+    return browser_context
 
 
 def operator_prepares(context, station: Station) -> Any:

@@ -44,6 +44,18 @@ def station_client(tmp_path):
         station.ledger.close()
 
 
+def new_devices(web) -> None:
+    """A simulated robot and tracker, added at the station's own page."""
+    for kind, name in (("robot", "r"), ("tracker", "t")):
+        web.post("/devices", data={"kind": kind, "name": name, "url": "sim"}, headers=OWN_PAGE)
+
+
+def new_calibration(web) -> None:
+    """The devices and a calibration of them (workspace 1), at the station's own page."""
+    new_devices(web)
+    web.post("/workspaces", data={"robot": "1", "tracker": "1"}, headers=OWN_PAGE)
+
+
 def add_robot(web, headers, name="r"):
     return web.post(
         "/devices",
@@ -88,9 +100,7 @@ def test_no_page_of_another_origin_confirms_starts_or_watches_a_motion(station_c
     websockets = need("starlette.websockets")
     station, web = station_client
     headers = FOREIGN_HEADERS[who]
-    for kind, name in (("robot", "r"), ("tracker", "t")):
-        web.post("/devices", data={"kind": kind, "name": name, "url": "sim"}, headers=OWN_PAGE)
-    web.post("/workspaces", data={"robot": "1", "tracker": "1"}, headers=OWN_PAGE)
+    new_calibration(web)
     web.post("/workspaces/1/step/dry-run", headers=OWN_PAGE)
     assert station.workspaces[1].dry_run_ok
     # a foreign page's frame or fetch of the confirmation gets no ticket
@@ -246,9 +256,7 @@ def test_a_token_in_the_address_is_swapped_for_a_cookie_and_the_address_cleaned(
 
 def test_files_stay_inside_the_calibrations_folder(station_client, tmp_path):
     station, web = station_client
-    for kind, name in (("robot", "r"), ("tracker", "t")):
-        web.post("/devices", data={"kind": kind, "name": name, "url": "sim"}, headers=OWN_PAGE)
-    web.post("/workspaces", data={"robot": "1", "tracker": "1"}, headers=OWN_PAGE)
+    new_calibration(web)
     folder = station.workspaces[1].folder
     (folder / "passwd").symlink_to("/etc/passwd")
     (folder / "record.db").symlink_to(station.data / "record.db")
@@ -286,9 +294,7 @@ def test_files_stay_inside_the_calibrations_folder(station_client, tmp_path):
 )
 def test_an_unknown_address_is_a_page_saying_so_never_a_500(station_client, method, path):
     station, web = station_client
-    for kind, name in (("robot", "r"), ("tracker", "t")):
-        web.post("/devices", data={"kind": kind, "name": name, "url": "sim"}, headers=OWN_PAGE)
-    web.post("/workspaces", data={"robot": "1", "tracker": "1"}, headers=OWN_PAGE)
+    new_calibration(web)
     response = web.request(method, path, headers=OWN_PAGE)
     assert response.status_code == 404, response.text[:300]
     assert "<h1>Not Found</h1>" in response.text and 'id="error"' in response.text
@@ -299,9 +305,7 @@ def test_a_record_that_cannot_be_written_is_never_shown_as_done(station_client, 
     from spacecal.station import web as station_web
 
     station, web = station_client
-    for kind, name in (("robot", "r"), ("tracker", "t")):
-        web.post("/devices", data={"kind": kind, "name": name, "url": "sim"}, headers=OWN_PAGE)
-    web.post("/workspaces", data={"robot": "1", "tracker": "1"}, headers=OWN_PAGE)
+    new_calibration(web)
     work = station.workspaces[1]
     from spacecal import app
 
@@ -345,8 +349,7 @@ def test_new_calibrations_are_rate_limited(station_client):
     from spacecal.station.web import NEW_WORKSPACES_PER_WINDOW
 
     station, web = station_client
-    for kind, name in (("robot", "r"), ("tracker", "t")):
-        web.post("/devices", data={"kind": kind, "name": name, "url": "sim"}, headers=OWN_PAGE)
+    new_devices(web)
     for _ in range(NEW_WORKSPACES_PER_WINDOW + 5):
         last = web.post("/workspaces", data={"robot": "1", "tracker": "1"}, headers=OWN_PAGE)
     assert len(station.workspaces) == NEW_WORKSPACES_PER_WINDOW
@@ -367,9 +370,7 @@ def test_a_failed_or_repeated_dry_run_leaves_no_confirmation_standing(station_cl
     from spacecal.station import workspace as station_workspace
 
     station, web = station_client
-    for kind, name in (("robot", "r"), ("tracker", "t")):
-        web.post("/devices", data={"kind": kind, "name": name, "url": "sim"}, headers=OWN_PAGE)
-    web.post("/workspaces", data={"robot": "1", "tracker": "1"}, headers=OWN_PAGE)
+    new_calibration(web)
     work = station.workspaces[1]
     web.post("/workspaces/1/step/plan", headers=OWN_PAGE)
     web.post("/workspaces/1/step/dry-run", headers=OWN_PAGE)
