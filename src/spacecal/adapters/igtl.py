@@ -23,9 +23,22 @@ Status: ``TransformStatus`` metadata (PLUS, header v2) OK -> ``ok``; anything el
 with the pose kept, unless the pose is a placeholder. A placeholder (identity, all-zero, NaN,
 or not a rigid transform) is never a pose: it is ``missing``. PLUS by default
 (``SendValidTransformsOnly``) sends nothing at all for an invalid tool while the other
-transforms of the frame keep coming: a tracker frame (a sender timestamp seen on any message)
-that passes without the marker is a ``missing`` frame. Only a closed connection or the silence
-of the whole stream ends the run. A message with a bad CRC is dropped and counted.
+transforms of the frame keep coming: a tracker frame (a sender timestamp seen on a message of
+the stream, STATUS aside) that passes without the marker is a ``missing`` frame.
+
+Silence: with the marker the only transform PLUS is configured to send, an occlusion is silence.
+When no message of the stream has come for :data:`PROBE_AFTER_S`, the reader asks GET_STATUS
+(a header-only message, protocol v1 on) every :data:`PROBE_INTERVAL_S`; PlusServer answers each
+with STATUS (OK) while it runs (PlusLib ``vtkPlusOpenIGTLinkServer::DataReceiverThread``). A
+STATUS proves the frames due before it were not sent (one TCP stream keeps the server's order):
+each frame period that passed before the answer, by :func:`frame_late_s`, is a ``missing``
+frame, stamped on the sender's clock one period after the last. The run ends only when the
+server is gone: the connection closed or reset, no answer to GET_STATUS (nor any message) for
+the frame timeout, or STATUS messages beyond those asked for, which PlusServer sends as its
+keep-alive only while its tracker delivers no frames at all (``KeepAliveIntervalSec``, 0.25 s).
+A sender that does not answer GET_STATUS (not known of 3D Slicer) ends the run after the frame
+timeout of silence, as before. STATUS timestamps are never frame times (PLUS leaves them
+unset). A message with a bad CRC is dropped and counted.
 
 Bounds, against a sender that is not what it claims: a pose message announcing a body larger
 than :data:`POSE_BODY_MAX_BYTES`, or any message larger than :data:`MAX_BODY_BYTES`, ends the
@@ -90,6 +103,36 @@ POSE_BODY_MAX_BYTES = 64 * 1024
 TDATA_ELEMENT, QTDATA_ELEMENT = 70, 50
 #: Message types that carry tool poses.
 POSE_TYPES = ("TRANSFORM", "POSITION", "TDATA", "QTDATA")
+#: Message types about the link, not a tracker frame (their timestamps are no frame times).
+LINK_TYPES = ("STATUS",)
+
+#: Silence (no message of the stream) after which GET_STATUS is asked, and the interval it is
+#: asked at while the silence lasts, s: two frames of a 20 Hz tracker, and a 58-byte message
+#: ten times a second, which PlusServer answers at once from its receiving thread.
+PROBE_AFTER_S = 0.1
+PROBE_INTERVAL_S = 0.1
+#: A frame this much later than its period (s) counts as not sent (see :func:`frame_late_s`):
+#: the jitter of a sender's frames on a busy computer and its network.
+FRAME_LATE_S = 0.05
+#: STATUS messages beyond the GET_STATUS asked during one silence that show a sender with no
+#: tracker frames: PlusServer's keep-alive, every 0.25 s only then (two: not one answer late).
+KEEP_ALIVES_WITHOUT_FRAMES = 2
+
+
+def frame_late_s(period_s: float) -> float:
+    """How long after its due time (the last frame's arrival plus whole periods) a frame that
+    has not come counts as not sent, s: one period and :data:`FRAME_LATE_S`."""
+    return period_s + FRAME_LATE_S
+
+
+def get_status_message(timestamp_s: float | None = None) -> bytes:
+    """A GET_STATUS message: header version 1, empty device name, no body (CRC of nothing: 0).
+
+    Version 1 so that PlusServer keeps the stream in the header version it has (it answers,
+    and streams, in the highest version a client has sent)."""
+    now = time.time() if timestamp_s is None else timestamp_s
+    stamp = (int(now) << 32) | (int((now % 1.0) * 2**32) & 0xFFFFFFFF)
+    return HEADER.pack(1, b"GET_STATUS", b"", stamp, 0, crc64(b""))
 
 
 def oversized(header: bytes, url: str) -> str | None:
@@ -250,6 +293,10 @@ def tool_poses(message: Message) -> dict[str, np.ndarray]:
     return {}
 
 
+class _PeerGone(Exception):
+    """The peer closed or reset the connection while GET_STATUS was being sent."""
+
+
 def is_placeholder(matrix: np.ndarray) -> bool:
     """A matrix a sender puts where it has no pose: NaN, all zeros, exactly identity, or not a
     rigid transform. (A real marker is never exactly at the tracker's origin.)"""
@@ -288,10 +335,25 @@ class IGTLTracker:
         self._frames: collections.deque = collections.deque(maxlen=64)
         self._fatal: str | None = None
         self._closed = False
+        #: When the last message of the stream (STATUS aside) came, monotonic s.
         self._last_message_at = time.monotonic()
         self._last_new_stamp_at = time.monotonic()
         self._group_stamp: float | None = None
         self._group_has_marker = False
+        #: The newest frame's frame without the marker was handed on (a silence closed it).
+        self._group_closed = False
+        self._group_at = time.monotonic()  # when the newest frame's first message came
+        # the silence since the last message: GET_STATUS asked, STATUS received, and the frame
+        # periods in it handed on as frames without the marker
+        self._last_probe_at = -np.inf
+        self._last_status_at = -np.inf
+        self._silence_probes = 0
+        self._silence_statuses = 0
+        self._silent_frames = 0
+        self._outgoing = bytearray()  # the reader thread's alone: GET_STATUS not yet sent
+        #: GET_STATUS asked and STATUS received over the connection.
+        self.probes_sent = 0
+        self.status_messages = 0
         self._last_returned_stamp = -np.inf
         self._frame_number = 0
         #: What the stream carried: message counts by (type, device name), header versions,
@@ -310,7 +372,8 @@ class IGTLTracker:
             raise DeviceError(
                 f"no {device_name} message from {self.url}: could not connect ({exc})"
             ) from None
-        self._socket.settimeout(0.2)
+        # short: the reader thread also asks GET_STATUS when the stream falls silent
+        self._socket.settimeout(PROBE_INTERVAL_S / 2)
         self._thread = threading.Thread(target=self._read_loop, daemon=True)
         self._thread.start()
         with self._condition:
@@ -345,6 +408,7 @@ class IGTLTracker:
         skip = 0  # bytes still to read past of a large message that is not kept
         try:
             while not self._closed:
+                self._probe_if_silent()
                 try:
                     chunk = self._socket.recv(1 << 16)
                 except TimeoutError:
@@ -375,17 +439,56 @@ class IGTLTracker:
                     body = bytes(buffer[HEADER.size : HEADER.size + body_size])
                     del buffer[: HEADER.size + body_size]
                     self._receive(header, body)
+        except _PeerGone as exc:
+            if not self._closed:
+                self._fail(f"{self.url} {exc}")
+        except ConnectionResetError as exc:
+            # a peer that closes with bytes unread (a GET_STATUS) resets the connection (RST)
+            if not self._closed:
+                self._fail(f"{self.url} reset the connection ({exc.strerror or exc})")
         except OSError as exc:
             if not self._closed:
                 self._fail(f"{self.url} connection lost ({exc})")
         except InvalidInputError as exc:
             self._fail(str(exc))
 
-    def _read_past(self, header: bytes) -> None:
-        """Count a large message that is not a pose (its body is not kept)."""
-        version, kind, name, _, _, _ = HEADER.unpack(header)
+    def _probe_if_silent(self) -> None:
+        """Ask GET_STATUS when the stream has been silent for :data:`PROBE_AFTER_S`, then every
+        :data:`PROBE_INTERVAL_S` while it stays silent (never more than one waiting to be sent).
+
+        Raises
+        ------
+        _PeerGone
+            Sending failed: the peer closed or reset the connection (ends the reader with one
+            line).
+        """
+        now = time.monotonic()
         with self._condition:
-            self._last_message_at = time.monotonic()
+            if (
+                not self._outgoing
+                and now - self._last_message_at >= PROBE_AFTER_S
+                and now - self._last_probe_at >= PROBE_INTERVAL_S
+            ):
+                self._last_probe_at = now
+                self._silence_probes += 1
+                self.probes_sent += 1
+                self._outgoing += get_status_message()
+        while self._outgoing:
+            try:
+                sent = self._socket.send(self._outgoing)
+            except TimeoutError:
+                return  # the peer reads nothing: no answer will come, which the deadline tells
+            except OSError as exc:
+                raise _PeerGone(f"closed the connection (sending GET_STATUS: {exc.strerror or exc})") from exc
+            del self._outgoing[:sent]
+
+    def _read_past(self, header: bytes) -> None:
+        """Count a large message that is not a pose (its body is not kept); it is a message of
+        the stream, and its timestamp a tracker frame's."""
+        version, kind, name, stamp, _, _ = HEADER.unpack(header)
+        with self._condition:
+            now = time.monotonic()
+            self._last_message_at = now
             self.seen[
                 (
                     kind.rstrip(b"\0 ").decode("ascii", "replace"),
@@ -393,6 +496,8 @@ class IGTLTracker:
                 )
             ] += 1
             self.header_versions.add(version)
+            self._frame_stamp((stamp >> 32) + (stamp & 0xFFFFFFFF) / 2**32, now)
+            self._condition.notify_all()
 
     def _fail(self, reason: str) -> None:
         with self._condition:
@@ -416,6 +521,14 @@ class IGTLTracker:
                 raise  # the marker in a form that gives no pose: one clear line ends the run
             poses = {}  # another device's odd message is none of our business
         with self._condition:
+            if message.kind in LINK_TYPES:
+                # an answer to GET_STATUS, or a keep-alive: the server is there, but this is
+                # no tracker frame (PLUS leaves its timestamp unset)
+                self._last_status_at = now
+                self._silence_statuses += 1
+                self.status_messages += 1
+                self._condition.notify_all()
+                return
             self._last_message_at = now
             self.seen[(message.kind, message.device_name)] += 1
             for name in poses:
@@ -423,16 +536,7 @@ class IGTLTracker:
                     self.seen[(message.kind + " tool", name)] += 1
             self.header_versions.add(message.version)
             stamp = message.timestamp_s
-            if stamp != self._group_stamp:
-                # a new tracker frame; the last one closes, and if it never carried the
-                # marker, that frame did not see it (PLUS sends nothing for an invalid tool)
-                if self._group_stamp is not None and stamp > self._group_stamp:
-                    if not self._group_has_marker:
-                        self._push(TrackerFrame(self._group_stamp, 0, FRAME_MISSING, None))
-                if self._group_stamp is None or stamp > self._group_stamp:
-                    self._group_stamp, self._group_has_marker = stamp, False
-                    self._last_new_stamp_at = now
-                    self.stamps.append((now, stamp))
+            self._frame_stamp(stamp, now)
             if self.device_name in poses and stamp == self._group_stamp:
                 self._group_has_marker = True
                 frame = self._marker_frame(stamp, poses[self.device_name], message.metadata)
@@ -440,6 +544,62 @@ class IGTLTracker:
                 self.refused_poses += frame.refused_pose
                 self._push(frame)
             self._condition.notify_all()
+
+    def _frame_stamp(self, stamp: float, now: float) -> None:
+        """A message of the tracker frame stamped ``stamp`` came at ``now`` (the lock held): a
+        newer stamp starts a frame and closes the last, which, if it never carried the marker,
+        did not see it (PLUS sends nothing for an invalid tool). Any message ends a silence."""
+        self._silence_probes = self._silence_statuses = 0
+        if stamp == self._group_stamp:
+            return
+        if self._group_stamp is not None and stamp > self._group_stamp:
+            if not self._group_has_marker and not self._group_closed:
+                self._push(TrackerFrame(self._group_stamp, 0, FRAME_MISSING, None))
+        if self._group_stamp is None or stamp > self._group_stamp:
+            self._group_stamp, self._group_has_marker, self._group_closed = stamp, False, False
+            self._group_at = now
+            self._silent_frames = 0
+            self._last_new_stamp_at = now
+            self.stamps.append((now, stamp))
+
+    def _frame_period_s(self) -> float | None:
+        """The sender's frame period, s: the median step between its recent frame timestamps
+        (a silence in them is one large step, which the median passes over); None before two."""
+        stamps = [stamp for _, stamp in list(self.stamps)[-65:]]
+        steps = np.diff(stamps)
+        steps = steps[steps > 0]
+        return float(np.median(steps)) if len(steps) else None
+
+    def _keep_alives_only(self) -> bool:
+        """More STATUS messages in this silence than GET_STATUS asked: the sender's keep-alive,
+        which PlusServer sends only while its tracker delivers no frames."""
+        return self._silence_statuses - self._silence_probes >= KEEP_ALIVES_WITHOUT_FRAMES
+
+    def _frames_of_silence(self) -> bool:
+        """Hand on, as frames without the marker, the frame periods of the present silence that
+        passed before the sender's last answer to GET_STATUS (the lock held); True if any.
+
+        The answer came after every frame the sender had sent before it: a frame due
+        :func:`frame_late_s` before the answer and not come was not sent. The frames are
+        stamped on the sender's clock, one frame period apart from the last frame that came.
+        """
+        answered_at = self._last_status_at
+        if self._group_stamp is None or answered_at <= self._last_message_at or self._keep_alives_only():
+            return False
+        period = self._frame_period_s()
+        if period is None:
+            return False
+        pushed = False
+        if not self._group_has_marker and not self._group_closed:
+            self._push(TrackerFrame(self._group_stamp, 0, FRAME_MISSING, None))
+            self._group_closed = pushed = True
+        late = frame_late_s(period)
+        while self._group_at + (self._silent_frames + 1) * period + late <= answered_at:
+            self._silent_frames += 1
+            stamp = self._group_stamp + self._silent_frames * period
+            self._push(TrackerFrame(stamp, 0, FRAME_MISSING, None))
+            pushed = True
+        return pushed
 
     def _marker_frame(self, stamp: float, matrix: np.ndarray, metadata: dict) -> TrackerFrame:
         if is_placeholder(matrix):
@@ -454,11 +614,15 @@ class IGTLTracker:
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         """The next frame (the marker's pose, or a frame without it) newer than the last one.
 
+        Through a silence the sender answers GET_STATUS in, its frame periods come as frames
+        without the marker (see the module's notes).
+
         Raises
         ------
         DeviceError
-            The connection closed, the whole stream fell silent or its timestamps stopped
-            advancing for ``timeout_s``, or the marker came in a form that gives no pose.
+            The connection closed; for ``timeout_s``: no message and no answer to GET_STATUS,
+            keep-alives only (a server without tracker frames), or timestamps that stopped
+            advancing; or the marker came in a form that gives no pose.
         """
         deadline = time.monotonic() + timeout_s
         with self._condition:
@@ -475,21 +639,43 @@ class IGTLTracker:
                     break
                 if self._fatal is not None:
                     raise DeviceError(self._fatal)
+                if self._frames_of_silence():
+                    continue
                 now = time.monotonic()
-                if now > deadline:
-                    if now - self._last_message_at >= timeout_s:
-                        raise DeviceError(
-                            f"no OpenIGTLink message for {timeout_s:.1f} s: stream stalled or lost"
-                        )
-                    raise DeviceError(
-                        f"{self.url}: timestamps stopped advancing for {timeout_s:.1f} s: stale stream"
-                    )
+                if now > deadline or self._gone_for(now, timeout_s):
+                    raise DeviceError(self._why_no_frame(now, timeout_s))
                 self._condition.wait(min(0.05, max(deadline - now, 0.001)))
         self._last_returned_stamp = frame.time_s
         self._frame_number += 1
         return TrackerFrame(
             frame.time_s, self._frame_number, frame.status, frame.tracker_from_marker, frame.rms_mm
         )
+
+    def _gone_for(self, now: float, timeout_s: float) -> bool:
+        """Whether the silence has lasted ``timeout_s`` without a sign of a tracker (the lock
+        held): no answer either, or keep-alives only. Counted from the last sign, not from
+        the call, so that frames handed on in between do not lengthen it."""
+        silent_s = now - self._last_message_at
+        if silent_s < timeout_s:
+            return False
+        return self._keep_alives_only() or now - self._last_status_at >= timeout_s
+
+    def _why_no_frame(self, now: float, timeout_s: float) -> str:
+        """Why no frame came for ``timeout_s`` (one line; the lock held)."""
+        silent_s = now - self._last_message_at
+        if silent_s < timeout_s:
+            return f"{self.url}: timestamps stopped advancing for {timeout_s:.1f} s: stale stream"
+        if self._keep_alives_only():
+            return (
+                f"{self.url} sends keep-alive STATUS only, no tracker frames for {silent_s:.1f} s: "
+                "its tracker stalled or was unplugged at the server"
+            )
+        if now - self._last_status_at >= timeout_s:
+            return (
+                f"no OpenIGTLink message for {timeout_s:.1f} s and no answer to GET_STATUS: "
+                "stream stalled or lost"
+            )
+        return f"{self.url} answers GET_STATUS but sent no tracker frame for {silent_s:.1f} s: stream stalled"
 
     def preflight(self, duration_s: float = 1.0) -> list[DeviceFinding]:
         """Read-only checks: what the sender sends (types, device names, header versions), its

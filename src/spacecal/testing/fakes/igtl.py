@@ -19,7 +19,8 @@ Senders (``--igtl-sender``), as they behave for a tool that is not seen:
 
 * ``plus``: PLUS Server with its default ``SendValidTransformsOnly="TRUE"``: header v2,
   ``TransformStatus=OK`` metadata, and *nothing* for an invalid tool, while the other
-  transforms of the frame (``ReferenceToTracker``) keep coming. ``igtl send_invalid on`` is
+  transforms of the frame (``ReferenceToTracker``) keep coming (a TDATA leaves the invalid
+  tool out, and is sent with none left). ``igtl send_invalid on`` is
   ``SendValidTransformsOnly="FALSE"``: the invalid tool comes as identity with
   ``TransformStatus=INVALID``.
 * ``slicer``: 3D Slicer's OpenIGTLinkIF: header v2 without status metadata; a node that is not
@@ -27,15 +28,34 @@ Senders (``--igtl-sender``), as they behave for a tool that is not seen:
 * ``old``: an old sender with header v1 and no status at all, which keeps sending a
   placeholder for an invalid tool (``igtl placeholder identity|zero|nan``).
 
+What a client sends, and what PLUS Server answers (PlusLib ``vtkPlusOpenIGTLinkServer.cxx``,
+``DataReceiverThread``, ``SendLatestFramesToClients``, ``KeepAlive``):
+
+* GET_STATUS (header only, no body): ``plus`` answers at once with STATUS code 1 (OK), empty
+  device name, in the client's header version (the stream's here); ``slicer`` and ``old`` do
+  not answer (not known of them, so the fake assumes the worse);
+* STATUS from a client is PLUS's keep-alive from the other side: read past, nothing answered;
+* TRANSFORM: kept for ``received NAME`` (the calibration export); anything else is read past.
+
+PLUS's keep-alive: its sender thread sends a STATUS (OK, header version 1, empty device name,
+timestamp 0) to every client when it has had no *new tracker frame* for
+:data:`KEEP_ALIVE_INTERVAL_S`. A frame whose transforms are all invalid is still a frame: an
+occlusion is silence (with only the marker configured), not keep-alives; a tracker that stopped
+(``unplug``) or repeats its last frame (``stale``: PLUS keeps no frame that is not newer) gives
+keep-alives only.
+
 Control (the world's ``igtl ...`` command): ``form transform|position|position24|position12|
 tdata|qtdata``, ``header 1|2|3``, ``send_invalid on|off``, ``placeholder identity|zero|nan``,
-``mute on|off`` (connection kept, nothing sent), ``hang_up`` (close every connection),
-``reference on|off``. Messages clients send (TRANSFORM) are kept for ``received NAME``.
+``mute on|off`` (a hung sender: the connection kept, nothing sent, nothing answered),
+``hang_up`` (close every connection), ``reference on|off`` (``ReferenceToTracker`` among the
+transforms sent, or only the marker's), ``stats`` (JSON: GET_STATUS received, keep-alives
+sent). Messages clients send (TRANSFORM) are kept for ``received NAME``.
 """
 
 from __future__ import annotations
 
 import functools
+import json
 import socket
 import struct
 import threading
@@ -67,6 +87,17 @@ def crc64(data: bytes) -> int:
 HEADER = struct.Struct(">H12s20sQQQ")
 ENCODING_US_ASCII = 3
 TDATA_6D = 2
+#: STATUS code 1: OK (OpenIGTLink status codes, ``igtlStatusMessage.h``).
+STATUS_OK = 1
+#: PlusServer's keep-alive interval: ``KeepAliveIntervalSec``, by default half its client socket
+#: timeout of 0.5 s.
+KEEP_ALIVE_INTERVAL_S = 0.25
+
+
+def status_content(code: int = STATUS_OK) -> bytes:
+    """A STATUS body: u16 code, i64 sub-code, char[20] error name, then the status message,
+    NUL-terminated (``igtl::StatusMessage`` packs an empty one as a single NUL: 31 bytes)."""
+    return struct.pack(">Hq20s", code, 0, b"") + b"\0"
 
 
 def igtl_timestamp(seconds: float) -> int:
@@ -152,12 +183,19 @@ class FakeIGTLSender:
         self.muted = False
         self.reference = True
         self.received: dict[str, list] = {}
+        #: PLUS answers GET_STATUS and sends keep-alives; of the others it is not known.
+        self.answers_status = sender == "plus"
+        #: GET_STATUS messages clients sent, and keep-alives sent (the tests' view).
+        self.status_requests = 0
+        self.keep_alives = 0
 
     def control(self, words: list[str]) -> str:
         if not words:
             return "ERROR igtl needs a switch"
         name, value = words[0], (words[1] if len(words) > 1 else "on")
         with self.lock:
+            if name == "stats":
+                return json.dumps({"status_requests": self.status_requests, "keep_alives": self.keep_alives})
             if name == "form" and value in (
                 "transform",
                 "position",
@@ -198,8 +236,8 @@ class FakeIGTLSender:
             tools.append(("ReferenceToTracker", REFERENCE_TO_TRACKER, True))
         version = self.header
         if self.form in ("tdata", "qtdata"):
-            if not tools:
-                return []
+            if not tools and self.sender != "plus":
+                return []  # PLUS sends its TDATA without the invalid tools, even with none left
             pack = tdata_content if self.form == "tdata" else qtdata_content
             content = pack([(name, matrix) for name, matrix, _ in tools])
             return [pack_message(self.form.upper(), "Tracker", content, stamp, version)]
@@ -218,22 +256,42 @@ class FakeIGTLSender:
         threading.Thread(target=self._accept, args=(server, stop), daemon=True).start()
         period = 1.0 / rate_hz
         next_time = time.monotonic()
+        last_stamp = None
+        quiet_since = time.monotonic()  # the last new tracker frame, or keep-alive
         while not stop.is_set():
             next_time += period
             time.sleep(max(next_time - time.monotonic(), 0.0))
-            if self.world.unplugged:
-                continue
-            stamp, pose, _, _ = self.world.marker_frame()
-            stamp += self.world.igtl_epoch_s  # the sender's clock, not the robot's
+            frame = None if self.world.unplugged else self.world.marker_frame()
+            # PLUS keeps a tracker frame only when it is newer than the last (a stale tracker
+            # repeats its last one); the other senders send what the tracker gives them
+            new = frame is not None and (frame[0] != last_stamp or self.sender != "plus")
             with self.lock:
                 if self.muted:
                     continue
-                data = b"".join(self.frame_messages(stamp, pose))
-                for client in list(self.clients):
-                    try:
-                        client.sendall(data)
-                    except OSError:
-                        self.clients.remove(client)
+                if new:
+                    assert frame is not None
+                    stamp, pose, _, _ = frame
+                    last_stamp = stamp
+                    quiet_since = time.monotonic()
+                    # the sender's clock, not the robot's
+                    data = b"".join(self.frame_messages(stamp + self.world.igtl_epoch_s, pose))
+                elif self.sender == "plus" and time.monotonic() - quiet_since > KEEP_ALIVE_INTERVAL_S:
+                    quiet_since = time.monotonic()
+                    self.keep_alives += 1
+                    data = pack_message("STATUS", "", status_content(), 0.0, 1)
+                else:
+                    continue
+                self._send_to_all(data)
+
+    def _send_to_all(self, data: bytes) -> None:
+        """Send ``data`` to every client (the lock held); a client that cannot take it is dropped."""
+        if not data:
+            return
+        for client in list(self.clients):
+            try:
+                client.sendall(data)
+            except OSError:
+                self.clients.remove(client)
 
     def _accept(self, server, stop: threading.Event) -> None:
         for connection in accept_connections(server, stop):
@@ -243,7 +301,8 @@ class FakeIGTLSender:
             threading.Thread(target=self._read, args=(connection,), daemon=True).start()
 
     def _read(self, connection: socket.socket) -> None:
-        """Keep TRANSFORMs a client sends (the calibration export)."""
+        """What a client sends: TRANSFORMs are kept (the calibration export), GET_STATUS is
+        answered as PLUS answers it, everything else is read past."""
         buffer = b""
         try:
             while True:
@@ -256,14 +315,31 @@ class FakeIGTLSender:
                     if len(buffer) < HEADER.size + size:
                         break
                     body, buffer = buffer[HEADER.size : HEADER.size + size], buffer[HEADER.size + size :]
-                    if kind.rstrip(b"\0") == b"TRANSFORM":
-                        start = 0
-                        if version >= 2:
-                            start = struct.unpack(">H", body[:2])[0]
-                        values = struct.unpack(">12f", body[start : start + 48])
-                        matrix = np.eye(4)
-                        matrix[:3, :3] = np.array(values[:9]).reshape(3, 3).T
-                        matrix[:3, 3] = values[9:]
-                        self.received[name.rstrip(b"\0").decode()] = matrix.tolist()
+                    kind = kind.rstrip(b"\0")
+                    if kind == b"TRANSFORM":
+                        self._keep_transform(version, name, body)
+                    elif kind == b"GET_STATUS":
+                        self._answer_status(connection)
         except OSError:
             return
+
+    def _keep_transform(self, version: int, name: bytes, body: bytes) -> None:
+        start = struct.unpack(">H", body[:2])[0] if version >= 2 else 0
+        values = struct.unpack(">12f", body[start : start + 48])
+        matrix = np.eye(4)
+        matrix[:3, :3] = np.array(values[:9]).reshape(3, 3).T
+        matrix[:3, 3] = values[9:]
+        self.received[name.rstrip(b"\0").decode()] = matrix.tolist()
+
+    def _answer_status(self, connection: socket.socket) -> None:
+        """PLUS's answer to GET_STATUS: STATUS OK in the client's header version, at once (a
+        hung sender, ``mute``, answers nothing; senders not known to answer do not)."""
+        with self.lock:
+            self.status_requests += 1
+            if self.muted or not self.answers_status:
+                return
+            reply = pack_message("STATUS", "", status_content(), 0.0, self.header)
+            try:
+                connection.sendall(reply)
+            except OSError:
+                pass
