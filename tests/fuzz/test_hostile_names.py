@@ -301,3 +301,74 @@ def test_urdf_rendered_from_unchecked_names_is_escaped_or_refused(name):
         f"<r>{text}</r>", parser=ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
     )
     assert [e.tag for e in with_comments][0] is ET.Comment and len(with_comments) == 3
+
+
+def _prints_as_itself(name: str) -> bool:
+    return name == sanitize_for_terminal(name, 10**6)
+
+
+@pytest.mark.parametrize("name", NAMES, ids=_ids)
+def test_the_one_name_rule_takes_exactly_what_prints_as_itself(name):
+    from spacecal.core.text import MAX_NAME_CHARS, check_name
+
+    expected = (
+        _prints_as_itself(name) and 0 < len(name) <= MAX_NAME_CHARS and name.strip() == name and name != ""
+    )
+    try:
+        assert check_name(name, "robot name") == name
+        accepted = True
+    except InvalidInputError as error:
+        _refused_in_one_line(error)
+        assert str(error).startswith("robot name")
+        accepted = False
+    assert accepted == expected
+
+
+@pytest.mark.parametrize(
+    "character",
+    [
+        *map(chr, [*range(0x20), 0x7F, *range(0x80, 0xA0)]),
+        *map(chr, [*range(0x202A, 0x202F), *range(0x2066, 0x206A), 0x200E, 0x200F, 0x061C]),
+        "\u2028", "\u2029", "\u200b", "\u200d", "\ufeff", "\u00a0", "\u3000", "\ud800", "\ue000",
+    ],
+    ids=lambda c: f"U+{ord(c):04X}",
+)  # fmt: skip
+def test_controls_and_bidirectional_marks_are_no_part_of_a_name(character):
+    from spacecal.core.text import check_name
+
+    for name in (f"bay{character}1", f"{character}bay", f"bay{character}"):
+        with pytest.raises(InvalidInputError) as refused:
+            check_name(name, "robot name")
+        _refused_in_one_line(refused.value)
+        assert f"U+{ord(character):04X}" in str(refused.value)
+
+
+@pytest.mark.parametrize("name", NAMES, ids=_ids)
+def test_the_record_keeps_a_name_exactly_or_refuses_it(tmp_path, name):
+    pytest.importorskip("sqlalchemy")
+    from spacecal.core.text import check_name
+    from spacecal.ledger import Ledger
+
+    try:
+        check_name(name, "name")
+        valid = True
+    except InvalidInputError:
+        valid = False
+    ledger = Ledger.open(str(tmp_path / "record.db"))
+    try:
+        for kind, add, listed in (
+            ("robot", lambda: ledger.add_robot(name, "sim"), ledger.robots),
+            ("tracker", lambda: ledger.add_tracker(name, "sim"), ledger.trackers),
+            ("tool", lambda: ledger.add_tool(name), None),
+        ):
+            try:
+                add()
+            except InvalidInputError as error:
+                _refused_in_one_line(error)
+                assert not valid and str(error).startswith(f"{kind} name")
+                continue
+            assert valid
+            if listed is not None:
+                assert [row["name"] for row in listed()] == [name]
+    finally:
+        ledger.close()

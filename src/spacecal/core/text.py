@@ -12,6 +12,8 @@ from __future__ import annotations
 import reprlib
 import unicodedata
 
+from spacecal.core.errors import InvalidInputError
+
 #: Unicode categories escaped for the terminal: controls (C0, DEL, C1 - including the 8-bit
 #: CSI), format characters (bidirectional overrides, zero-width joiners), surrogates, private
 #: use, unassigned code points, the line and paragraph separators, and every space but the
@@ -22,6 +24,82 @@ _NAMED_ESCAPES = {"\n": "\\n", "\r": "\\r", "\t": "\\t"}
 DEFAULT_LIMIT = 200
 #: What replaces the cut end of a text.
 ELLIPSIS = "..."
+
+
+#: Longest name of a robot, tracker or tool (and of anything else a person names) accepted.
+MAX_NAME_CHARS = 200
+
+
+#: What the categories of characters without a Unicode name are, for messages.
+_CATEGORY_NAMES = {
+    "Cc": "a control character",
+    "Cs": "a surrogate",
+    "Co": "a private-use character",
+    "Cn": "an unassigned code point",
+}
+
+
+def _hidden(character: str) -> bool:
+    """True for a character :func:`sanitize_for_terminal` escapes (every space but the ASCII one,
+    controls, format characters...): one that would not print as itself."""
+    return character != " " and unicodedata.category(character) in _ESCAPED_CATEGORIES
+
+
+def _refused_character(text: str, spaces: bool) -> str | None:
+    return next((c for c in text if _hidden(c) or (c == " " and not spaces)), None)
+
+
+def check_name(name: object, what: str, max_chars: int = MAX_NAME_CHARS) -> str:
+    """``name`` if a person reads it as it is, else one line naming ``what``.
+
+    The one rule for names that people give and read (a robot, a tracker, a tool in the
+    station's record): 1 to ``max_chars`` characters, none of which
+    :func:`sanitize_for_terminal` would escape (so no newline, no C0 or C1 control, no DEL, no
+    bidirectional override, isolate or mark, no zero-width or other invisible character, no
+    space but the ASCII one), not starting or ending with a space. Letters of any script are
+    names. Such a name prints as itself in a terminal and on a page, and two names that look
+    the same are the same string.
+
+    Parameters
+    ----------
+    name : object
+        The name (anything but a ``str`` is refused).
+    what : str
+        Named in the error, e.g. ``"robot name"``.
+    max_chars : int
+        Longest name accepted.
+
+    Raises
+    ------
+    InvalidInputError
+        One line: what is wrong, the name shown escaped and cut.
+    """
+    return _checked(name, what, max_chars, spaces=True)
+
+
+def check_printable_token(value: object, what: str, max_chars: int) -> str:
+    """``value`` if it is 1 to ``max_chars`` characters that print as themselves, spaces
+    excluded: :func:`check_name`'s rule for a device URL or a model name, where a space or a
+    line break would smuggle a second value into one."""
+    return _checked(value, what, max_chars, spaces=False)
+
+
+def _checked(value: object, what: str, max_chars: int, spaces: bool) -> str:
+    if not isinstance(value, str):
+        raise InvalidInputError(f"{what}: expected text, got {type(value).__name__}")
+    if not value.strip():
+        raise InvalidInputError(f"{what} is empty")
+    if len(value) > max_chars:
+        raise InvalidInputError(f"{what} {quoted(value)} is longer than {max_chars} characters")
+    bad = _refused_character(value, spaces)
+    if bad is not None:
+        label = unicodedata.name(bad, "").lower() or _CATEGORY_NAMES.get(unicodedata.category(bad), "")
+        kind = "a space" if bad == " " else f"U+{ord(bad):04X} ({label})"
+        allowed = "printable characters and spaces" if spaces else "printable characters, no spaces"
+        raise InvalidInputError(f"{what} {quoted(value)} holds {kind}; it takes {allowed}")
+    if value != value.strip(" "):
+        raise InvalidInputError(f"{what} {quoted(value)} must not start or end with a space")
+    return value
 
 
 def _escape(character: str) -> str:
