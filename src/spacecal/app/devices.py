@@ -32,6 +32,7 @@ from spacecal.core.ports import (
     Robot,
     Tracker,
 )
+from spacecal.core.text import check_printable_token, quoted
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 from spacecal.io.ndi_rom import read_rom_marker
@@ -73,12 +74,7 @@ class DeviceSettings:
     tool: tuple[float, float, float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        low, high = TRACKER_RATE_RANGE_HZ
-        rate = self.tracker_rate_hz
-        if not (isinstance(rate, (int, float)) and math.isfinite(rate) and low <= rate <= high):
-            raise InvalidInputError(
-                f"--tracker-rate-hz must be a positive number in {low:g}..{high:g}, got {rate}"
-            )
+        check_tracker_rate_hz(self.tracker_rate_hz)
         if self.tool is not None:
             tool = np.asarray(self.tool, dtype=float)
             if (
@@ -96,6 +92,59 @@ class DeviceSettings:
     def simulated(self) -> bool:
         """Both devices are the simulated ones."""
         return self.robot == SIMULATED and self.tracker == SIMULATED
+
+
+def check_tracker_rate_hz(rate_hz: object, what: str = "--tracker-rate-hz") -> float:
+    """``rate_hz`` if it is a tracker frame rate spacecal accepts (a finite number in
+    :data:`TRACKER_RATE_RANGE_HZ`), as a float; else one line naming ``what``.
+
+    Raises
+    ------
+    InvalidInputError
+    """
+    low, high = TRACKER_RATE_RANGE_HZ
+    if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float)):
+        raise InvalidInputError(
+            f"{what} must be a positive number in {low:g}..{high:g}, got {quoted(rate_hz)}"
+        )
+    if not (math.isfinite(rate_hz) and low <= rate_hz <= high):
+        raise InvalidInputError(f"{what} must be a positive number in {low:g}..{high:g}, got {rate_hz}")
+    return float(rate_hz)
+
+
+#: Longest device URL accepted (what the record keeps).
+MAX_DEVICE_URL_CHARS = 500
+
+
+def validate_device_url(kind: str, url: object) -> str:
+    """``url`` if it names a ``kind`` device (``"robot"`` or ``"tracker"``) the way ``--robot``
+    and ``--tracker`` take it: ``sim``, or a URL of the adapters' table (``ur://HOST``;
+    ``ndi://SERIAL_PORT_OR_HOST[:PORT]``, ``igtl://HOST[:PORT]``), parsed by the same parser
+    that opens the device (:func:`spacecal.adapters.device_address`). Nothing is opened.
+
+    The URL is first held to :func:`spacecal.core.text.check_printable_token` (at most
+    :data:`MAX_DEVICE_URL_CHARS` printable characters, no space, no line break): the URL
+    parser would drop a tab or a line break silently, and its message quotes the URL.
+
+    Returns
+    -------
+    str
+        ``url`` as given.
+
+    Raises
+    ------
+    InvalidInputError
+        One line: not a URL of that kind of device, no host, a bad port, too long, a
+        character that does not print as itself; or ``kind`` is neither.
+    """
+    from spacecal.adapters import ROBOT, TRACKER, device_address
+
+    if kind not in (ROBOT, TRACKER):
+        raise InvalidInputError(f"a device is a {ROBOT} or a {TRACKER}, not {quoted(kind)}")
+    text = check_printable_token(url, f"the {kind}'s URL", MAX_DEVICE_URL_CHARS)
+    if text != SIMULATED:
+        device_address(text, kind)
+    return text
 
 
 #: Largest distance (mm) between where our model puts the TCP and where the controller reports it.
