@@ -17,6 +17,15 @@ from spacecal.ledger.store import (
     CheckRow,
     Ledger,
     ledger_url,
+    redacted_url,
 )
 
-__all__ = ["SIMULATED_ROBOT", "SIMULATED_TRACKER", "CalibrationRow", "CheckRow", "Ledger", "ledger_url"]
+__all__ = [
+    "SIMULATED_ROBOT",
+    "SIMULATED_TRACKER",
+    "CalibrationRow",
+    "CheckRow",
+    "Ledger",
+    "ledger_url",
+    "redacted_url",
+]

@@ -1,28 +1,118 @@
 """Reading and writing the record (:mod:`spacecal.ledger.schema`): robots, trackers, tools,
-calibrations and their checks."""
+calibrations and their checks.
+
+Every method that touches the database raises :class:`~spacecal.core.errors.RecordError`, in
+one line, when the database cannot do it (locked past the busy timeout, damaged, unreachable,
+full, read-only): whatever the caller was told was done is then known not to be recorded. A
+record URL is only ever shown with its password replaced (:func:`redacted_url`).
+"""
 
 from __future__ import annotations
 
 import datetime
+import functools
 import json
 import math
+import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
-from spacecal.core.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError, MissingExtraError, RecordError
+from spacecal.core.text import (
+    check_name,
+    check_printable_token,
+    exception_line,
+    quoted,
+    sanitize_for_terminal,
+)
 from spacecal.ledger import schema
 from spacecal.ledger.schema import sa
+from spacecal.models.kinematics import UR_TABLES
 from spacecal.records import CalibrationResult, CheckResult
 
 #: The names under which the record keeps the simulated robot and tracker.
 SIMULATED_ROBOT, SIMULATED_TRACKER = "simulated robot", "simulated tracker"
 #: The history line key that binds a JSONL check to the calibration it checked.
 CALIBRATION_HASH_KEY = "calibration_sha256"
+#: How long a write waits for another writer's lock on an SQLite record before it fails, s:
+#: the record's transactions last milliseconds, so a longer wait is a stuck writer.
+BUSY_TIMEOUT_S = 5.0
+#: How long a PostgreSQL record waits for a row or table lock, ms (the same bound).
+LOCK_TIMEOUT_MS = 5000
+#: How long connecting to a PostgreSQL server may take, s (an unreachable host otherwise waits
+#: for the operating system's TCP timeout, minutes).
+CONNECT_TIMEOUT_S = 10
+#: The longest names, URLs, model names and texts of each column (the schema's lengths).
+MAX_URL_CHARS, MAX_MODEL_CHARS, MAX_PATH_CHARS, MAX_TCP_TEXT_CHARS = 500, 100, 1000, 200
+#: Tracker frame rates the record keeps, Hz: ``--tracker-rate-hz``'s range
+#: (:data:`spacecal.app.devices.TRACKER_RATE_RANGE_HZ`, which the ledger's layer cannot import;
+#: a test holds the two equal).
+TRACKER_RATE_RANGE_HZ = (1.0, 1000.0)
+#: Longest driver message kept in a :class:`RecordError`.
+REASON_CHARS = 300
+_URL_SCHEME = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://\S+", re.ASCII)
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 
 
 def _now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def redacted_url(text: str) -> str:
+    """A record URL (``--record``'s text or an SQLAlchemy URL) fit to print: its password as
+    ``***`` (SQLAlchemy's ``URL.render_as_string(hide_password=True)``), terminal-safe and cut to
+    200 characters. A text SQLAlchemy cannot parse loses everything between ``://`` and its last
+    ``@`` instead, so no password survives a malformed URL either."""
+    text = str(text)
+    if "://" in text:
+        try:
+            address = sa.engine.make_url(text)
+            if "@" in (address.host or ""):  # an '@' of the password not written %40
+                raise ValueError("two '@'")
+            text = address.render_as_string(hide_password=True)
+        except (sa.exc.ArgumentError, ValueError):
+            scheme, _, rest = text.partition("://")
+            if "@" in rest:
+                text = f"{scheme}://***@{rest.rpartition('@')[2]}"
+    return sanitize_for_terminal(text)
+
+
+def _password_of(address: sa.URL) -> str | None:
+    return address.password if isinstance(address.password, str) and address.password else None
+
+
+def _reason(exc: BaseException, password: str | None) -> str:
+    """A database error's own message (the driver's, without SQLAlchemy's statement and link),
+    on one line, without the password, terminal-safe and bounded."""
+    orig = getattr(exc, "orig", None)
+    text = exception_line(orig) if isinstance(orig, BaseException) else exception_line(exc)
+    text = text.split("(Background on this error at:")[0].strip() or type(exc).__name__
+    if password:
+        text = text.replace(password, "***")
+    return sanitize_for_terminal(text, REASON_CHARS)
+
+
+def _database(doing: str) -> Callable[[Callable[_P, _R]], Callable[_P, _R]]:
+    """Turn every SQLAlchemy error of a ledger method into one :class:`RecordError`: "the record
+    could not be ``doing``: REASON"."""
+
+    def wrap(method: Callable[_P, _R]) -> Callable[_P, _R]:
+        @functools.wraps(method)
+        def run(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+            try:
+                return method(*args, **kwargs)
+            except sa.exc.SQLAlchemyError as exc:
+                ledger = args[0]
+                password = ledger._password if isinstance(ledger, Ledger) else None
+                raise RecordError(f"the record could not be {doing}: {_reason(exc, password)}") from exc
+
+        return run
+
+    return wrap
 
 
 def ledger_url(text: str) -> str:
@@ -83,24 +173,69 @@ class Ledger:
     ----------
     engine : sqlalchemy.Engine
         Use :meth:`open` to make one from a URL.
+
+    Every method but :meth:`open` and :meth:`close` raises
+    :class:`~spacecal.core.errors.RecordError` when the database fails it; the ``add_*``
+    methods raise :class:`~spacecal.core.errors.InvalidInputError` for a value they refuse.
     """
 
     def __init__(self, engine: sa.Engine):
         self.engine = engine
+        self._password = _password_of(engine.url)
+
+    @property
+    def shown_url(self) -> str:
+        """The record's URL fit to print (password as ``***``; see :func:`redacted_url`)."""
+        return redacted_url(self.engine.url.render_as_string(hide_password=True))
 
     @classmethod
     def open(cls, url: str) -> Ledger:
-        """Open (creating or migrating) the record at ``url`` (see :func:`ledger_url`)."""
-        address = ledger_url(url)
+        """Open (creating or migrating) the record at ``url`` (see :func:`ledger_url`).
+
+        An SQLite record is checked whole first (``PRAGMA quick_check``); its writes wait
+        :data:`BUSY_TIMEOUT_S` for another writer's lock. Connecting to PostgreSQL may take
+        :data:`CONNECT_TIMEOUT_S`, and its writes wait :data:`LOCK_TIMEOUT_MS` for a lock.
+
+        Raises
+        ------
+        InvalidInputError
+            ``url`` is not a database URL, or the record is of a newer spacecal.
+        RecordError
+            The database cannot be opened (unreachable, locked, not permitted) or an SQLite
+            file is damaged (the message names the file).
+        MissingExtraError
+            The URL's database driver is not installed.
+        """
+        shown = redacted_url(url)
         try:
-            engine = sa.create_engine(address, future=True)
-            schema.migrate(engine, _now())
+            address = sa.engine.make_url(ledger_url(url))
+            engine = sa.create_engine(address, connect_args=_connect_args(address))
         except sa.exc.ArgumentError as exc:
-            raise InvalidInputError(f"--record {url}: not a database URL ({exc})") from exc
-        except sa.exc.OperationalError as exc:
-            raise InvalidInputError(
-                f"--record {url}: cannot open the record ({' '.join(str(exc.orig).split())})"
-            ) from exc
+            reason = _reason(exc, None)
+            raise InvalidInputError(f"--record {shown}: not a database URL ({reason})") from None
+        except ValueError:  # make_url's port that is not a number
+            raise InvalidInputError(f"--record {shown}: not a database URL") from None
+        except ImportError as exc:
+            raise MissingExtraError(
+                f"--record {shown}: the database driver is not installed ({exception_line(exc)}); "
+                "pip install 'spacecal[station]'"
+            ) from None
+        if "@" in (address.host or ""):
+            engine.dispose()
+            raise InvalidInputError(f"--record {shown}: write an '@' of the user name or password as %40")
+        password = _password_of(address)
+        try:
+            if engine.dialect.name == "sqlite":
+                _refuse_damaged(engine, shown, password)
+            schema.migrate(engine, _now())
+        except sa.exc.SQLAlchemyError as exc:
+            engine.dispose()
+            raise RecordError(
+                f"--record {shown}: cannot open the record ({_reason(exc, password)})"
+            ) from None
+        except BaseException:
+            engine.dispose()
+            raise
         return cls(engine)
 
     def close(self) -> None:
@@ -108,37 +243,102 @@ class Ledger:
 
     # -- devices ----------------------------------------------------------------------------
 
+    def _insert_once(self, table: sa.Table, where: list[Any], values: dict[str, Any]) -> int:
+        """The id of the row of ``table`` that ``where`` finds, inserted with ``values`` if none.
+
+        Once also when another station inserts the same row at the same moment: the unique
+        constraint refuses the second insert, which then finds the first one's row."""
+        for attempt in range(2):
+            try:
+                with self.engine.begin() as connection:
+                    found = connection.execute(sa.select(table.c.id).where(*where)).scalar()
+                    if found is not None:
+                        return int(found)
+                    inserted = connection.execute(sa.insert(table).values(**values)).inserted_primary_key
+                    assert inserted is not None
+                    return int(inserted[0])
+            except sa.exc.IntegrityError:
+                if attempt:
+                    raise
+        raise AssertionError("unreachable")  # pragma: no cover
+
     def _named(self, table: sa.Table, name: str, values: dict[str, Any]) -> int:
         """The id of the row named ``name`` in ``table``, added with ``values`` if new."""
-        with self.engine.begin() as connection:
-            found = connection.execute(sa.select(table.c.id).where(table.c.name == name)).scalar()
-            if found is not None:
-                return int(found)
-            inserted = connection.execute(
-                sa.insert(table).values(name=name, created_utc=_now(), **values)
-            ).inserted_primary_key
-            assert inserted is not None
-            return int(inserted[0])
+        return self._insert_once(
+            table, [table.c.name == name], {"name": name, "created_utc": _now(), **values}
+        )
 
+    @_database("written")
     def add_robot(self, name: str, url: str, model: str | None = None) -> int:
-        """The robot's id (added when new)."""
-        _check_name(name, "robot")
-        return self._named(schema.robots, name, {"url": url, "model": model})
+        """The robot's id (added when new; a robot of that name already recorded keeps its URL
+        and model).
 
+        Parameters
+        ----------
+        name : str
+            A name as :func:`spacecal.core.text.check_name` takes it (at most 200 characters).
+        url : str
+            ``sim`` or a device URL (at most :data:`MAX_URL_CHARS` printable characters, no
+            space). The ledger checks only this form; the station checks that the URL is one a
+            robot is opened with (:func:`spacecal.app.devices.validate_device_url`) first.
+        model : str or None
+            A UR model spacecal knows (``UR10``, ``UR10e``, ...).
+
+        Raises
+        ------
+        InvalidInputError
+            A name, URL or model refused (one line).
+        RecordError
+            The database failed the write.
+        """
+        check_name(name, "robot name")
+        _check_device_url(url, "robot")
+        return self._named(schema.robots, name, {"url": url, "model": _check_model(model)})
+
+    @_database("written")
     def add_tracker(self, name: str, url: str, rate_hz: float | None = None) -> int:
-        """The tracker's id (added when new)."""
-        _check_name(name, "tracker")
-        return self._named(schema.trackers, name, {"url": url, "rate_hz": rate_hz})
+        """The tracker's id (added when new; a tracker of that name already recorded keeps its
+        URL and rate).
 
+        ``name`` and ``url`` as :meth:`add_robot` takes them; ``rate_hz`` None or a finite
+        frame rate in :data:`TRACKER_RATE_RANGE_HZ` (``--tracker-rate-hz``'s range).
+
+        Raises
+        ------
+        InvalidInputError
+            A name, URL or rate refused (one line).
+        RecordError
+            The database failed the write.
+        """
+        check_name(name, "tracker name")
+        _check_device_url(url, "tracker")
+        return self._named(schema.trackers, name, {"url": url, "rate_hz": _check_rate(rate_hz)})
+
+    @_database("written")
     def add_tool(self, name: str, definition: str | None = None, tcp_in_flange: str | None = None) -> int:
-        """The tool's id (added when new)."""
-        _check_name(name, "tool")
+        """The tool's id (added when new): ``definition`` is the path of its NDI tool definition,
+        ``tcp_in_flange`` the TCP as given (``X,Y,Z,RX,RY,RZ``), both printable, one line.
+
+        Raises
+        ------
+        InvalidInputError
+            A name or text refused (one line).
+        RecordError
+            The database failed the write.
+        """
+        check_name(name, "tool name")
+        if definition is not None:
+            check_name(definition, "the tool definition's path", MAX_PATH_CHARS)
+        if tcp_in_flange is not None:
+            check_printable_token(tcp_in_flange, "the tool's TCP", MAX_TCP_TEXT_CHARS)
         return self._named(schema.tools, name, {"definition": definition, "tcp_in_flange": tcp_in_flange})
 
+    @_database("read")
     def robots(self) -> list[dict[str, Any]]:
         """Every robot, by name."""
         return self._rows(schema.robots)
 
+    @_database("read")
     def trackers(self) -> list[dict[str, Any]]:
         """Every tracker, by name."""
         return self._rows(schema.trackers)
@@ -147,9 +347,11 @@ class Ledger:
         with self.engine.connect() as connection:
             return [dict(row._mapping) for row in connection.execute(sa.select(table).order_by(table.c.name))]
 
+    @_database("read")
     def robot(self, robot_id: int) -> dict[str, Any] | None:
         return self._one(schema.robots, robot_id)
 
+    @_database("read")
     def tracker(self, tracker_id: int) -> dict[str, Any] | None:
         return self._one(schema.trackers, tracker_id)
 
@@ -160,6 +362,7 @@ class Ledger:
 
     # -- calibrations and checks ------------------------------------------------------------
 
+    @_database("written")
     def record_calibration(
         self,
         calibration: CalibrationResult,
@@ -170,7 +373,15 @@ class Ledger:
         tool_id: int | None = None,
     ) -> int:
         """Record a calibration (once per content hash) and return its id. Without a robot or
-        tracker given, the devices the calibration's provenance names are recorded by URL."""
+        tracker given, the devices the calibration's provenance names are recorded by URL (a
+        device whose URL or model the record refuses is left unnamed; the calibration file
+        keeps what its provenance says).
+
+        Raises
+        ------
+        RecordError
+            The database failed the write: the calibration is not recorded.
+        """
         devices = calibration.provenance.devices if calibration.provenance is not None else {}
         if robot_id is None:
             robot_id = self._device_from_provenance(devices.get("robot"), "robot", calibration)
@@ -178,32 +389,26 @@ class Ledger:
             tracker_id = self._device_from_provenance(devices.get("tracker"), "tracker", calibration)
         verdict = calibration.verdict
         digest = calibration.content_sha256
-        with self.engine.begin() as connection:
-            found = connection.execute(
-                sa.select(schema.calibrations.c.id).where(schema.calibrations.c.content_sha256 == digest)
-            ).scalar()
-            if found is not None:
-                return int(found)
-            inserted = connection.execute(
-                sa.insert(schema.calibrations).values(
-                    content_sha256=digest,
-                    path=str(Path(path).resolve()),
-                    robot_id=robot_id,
-                    tracker_id=tracker_id,
-                    tool_id=tool_id,
-                    method=calibration.method,
-                    grade=None if verdict is None else verdict.grade,
-                    expected_error_mm=None if verdict is None else verdict.expected_error_mm,
-                    simulated=None if calibration.provenance is None else calibration.provenance.simulated,
-                    created_utc=(
-                        calibration.provenance.created_utc if calibration.provenance is not None else _now()
-                    ),
-                    recorded_utc=_now(),
-                    source=source,
-                )
-            ).inserted_primary_key
-            assert inserted is not None
-            return int(inserted[0])
+        return self._insert_once(
+            schema.calibrations,
+            [schema.calibrations.c.content_sha256 == digest],
+            dict(
+                content_sha256=digest,
+                path=str(Path(path).resolve()),
+                robot_id=robot_id,
+                tracker_id=tracker_id,
+                tool_id=tool_id,
+                method=calibration.method,
+                grade=None if verdict is None else verdict.grade,
+                expected_error_mm=None if verdict is None else verdict.expected_error_mm,
+                simulated=None if calibration.provenance is None else calibration.provenance.simulated,
+                created_utc=(
+                    calibration.provenance.created_utc if calibration.provenance is not None else _now()
+                ),
+                recorded_utc=_now(),
+                source=source,
+            ),
+        )
 
     def _device_from_provenance(self, device: Any, kind: str, calibration: CalibrationResult) -> int | None:
         simulated = calibration.provenance is not None and calibration.provenance.simulated
@@ -212,11 +417,16 @@ class Ledger:
             return None
         url = str(url or "sim")
         name = {"robot": SIMULATED_ROBOT, "tracker": SIMULATED_TRACKER}[kind] if url == "sim" else url
-        if kind == "robot":
-            model = device.get("model") if isinstance(device, dict) else None
-            return self.add_robot(name, url, None if model is None else str(model))
-        return self.add_tracker(name, url)
+        try:
+            if kind == "robot":
+                model = device.get("model") if isinstance(device, dict) else None
+                known = model if isinstance(model, str) and model in UR_TABLES else None
+                return self.add_robot(name, url, known)
+            return self.add_tracker(name, url)
+        except InvalidInputError:  # a calibration file's provenance is not the record's to trust
+            return None
 
+    @_database("read")
     def calibration_id(self, content_sha256: str) -> int | None:
         with self.engine.connect() as connection:
             found = connection.execute(
@@ -226,46 +436,63 @@ class Ledger:
             ).scalar()
             return None if found is None else int(found)
 
+    @_database("written")
     def record_check(self, calibration_id: int, check: CheckResult, source: str) -> int:
         """Record a check of the calibration ``calibration_id``; a check already recorded (the
-        same record) is not added twice. Returns its id."""
-        text = json.dumps(check.to_dict(), sort_keys=True, allow_nan=False)
-        with self.engine.begin() as connection:
-            found = connection.execute(
-                sa.select(schema.checks.c.id).where(
-                    schema.checks.c.calibration_id == calibration_id,
-                    schema.checks.c.checked_utc == check.checked_utc,
-                    schema.checks.c.record_json == text,
-                )
-            ).scalar()
-            if found is not None:
-                return int(found)
-            inserted = connection.execute(
-                sa.insert(schema.checks).values(
-                    calibration_id=calibration_id,
-                    checked_utc=check.checked_utc,
-                    passed=bool(check.passed),
-                    max_tcp_error_mm=float(max(check.tcp_error_mm)),
-                    max_rotation_error_deg=float(max(check.rotation_error_deg)),
-                    threshold_mm=float(check.threshold_mm),
-                    simulated=check.simulated,
-                    source=source,
-                    record_json=text,
-                )
-            ).inserted_primary_key
-            assert inserted is not None
-            return int(inserted[0])
+        same record) is not added twice. Returns its id.
 
+        Raises
+        ------
+        RecordError
+            The database failed the write: the check is not recorded.
+        """
+        text = json.dumps(check.to_dict(), sort_keys=True, allow_nan=False)
+        k = schema.checks
+        return self._insert_once(
+            k,
+            [
+                k.c.calibration_id == calibration_id,
+                k.c.checked_utc == check.checked_utc,
+                k.c.record_json == text,
+            ],
+            dict(
+                calibration_id=calibration_id,
+                checked_utc=check.checked_utc,
+                passed=bool(check.passed),
+                max_tcp_error_mm=float(max(check.tcp_error_mm)),
+                max_rotation_error_deg=float(max(check.rotation_error_deg)),
+                threshold_mm=float(check.threshold_mm),
+                simulated=check.simulated,
+                source=source,
+                record_json=text,
+            ),
+        )
+
+    @_database("written")
     def import_history(
         self, history: str | Path, calibration: CalibrationResult, calibration_path: str
     ) -> int:
         """Import a JSONL check history (``cal.checks.jsonl``) of ``calibration``: its lines
         bound to this calibration's content hash are recorded (once each); returns how many
         lines were new. Lines of another calibration or unreadable are left out, as
-        ``spacecal report`` leaves them out."""
+        ``spacecal report`` leaves them out.
+
+        Raises
+        ------
+        InvalidInputError
+            The history file cannot be read.
+        RecordError
+            The database failed a write: the lines from that one on are not recorded.
+        """
+        try:
+            lines = Path(history).read_text(encoding="utf-8", errors="replace").splitlines()
+        except OSError as exc:
+            raise InvalidInputError(
+                f"cannot read the check history {quoted(str(history))}: {exception_line(exc)}"
+            ) from None
         calibration_id = self.record_calibration(calibration, calibration_path, source="import")
         before = len(self.checks(calibration_id))
-        for line in Path(history).read_text(encoding="utf-8", errors="replace").splitlines():
+        for line in lines:
             if not line.strip():
                 continue
             try:
@@ -278,6 +505,7 @@ class Ledger:
             self.record_check(calibration_id, check, source="import")
         return len(self.checks(calibration_id)) - before
 
+    @_database("read")
     def calibrations(self) -> list[CalibrationRow]:
         """Every calibration, oldest first."""
         c, r, t = schema.calibrations, schema.robots, schema.trackers
@@ -303,6 +531,7 @@ class Ledger:
                 for row in connection.execute(query)
             ]
 
+    @_database("read")
     def checks(self, calibration_id: int | None = None) -> list[CheckRow]:
         """Every check (of one calibration when given), oldest first."""
         k, c, r = schema.checks, schema.calibrations, schema.robots
@@ -337,11 +566,67 @@ class Ledger:
             ]
 
 
-def _check_name(name: str, what: str) -> None:
-    if not isinstance(name, str) or not name.strip() or len(name) > 200:
-        raise InvalidInputError(f"a {what} needs a name of 1..200 characters")
-    if any(ord(ch) < 32 for ch in name):
-        raise InvalidInputError(f"the {what}'s name must not contain control characters")
+def _connect_args(address: sa.URL) -> dict[str, Any]:
+    """The driver's deadlines: SQLite's busy timeout; libpq's connect and lock timeouts."""
+    if address.get_backend_name() == "sqlite":
+        return {"timeout": BUSY_TIMEOUT_S}
+    if address.get_backend_name() == "postgresql" and address.get_driver_name() in ("psycopg", "psycopg2"):
+        return {"connect_timeout": CONNECT_TIMEOUT_S, "options": f"-c lock_timeout={LOCK_TIMEOUT_MS}"}
+    return {}
+
+
+def _refuse_damaged(engine: sa.Engine, shown: str, password: str | None) -> None:
+    """Refuse an SQLite record whose file is not a database or fails ``PRAGMA quick_check``
+    (SQLite's own page, index and constraint check, without comparing index contents), naming
+    the file: writing to a damaged record could lose what it still holds."""
+    try:
+        with engine.connect() as connection:
+            findings = [str(row[0]) for row in connection.exec_driver_sql("PRAGMA quick_check")]
+    except sa.exc.OperationalError:
+        raise  # locked, not permitted, no such folder: not damage
+    except sa.exc.DatabaseError as exc:  # SQLITE_NOTADB, SQLITE_CORRUPT
+        findings = [_reason(exc, password)]
+    if findings != ["ok"]:
+        first = sanitize_for_terminal(" ".join(findings[0].split()), REASON_CHARS)
+        more = f" (and {len(findings) - 1} more findings)" if len(findings) > 1 else ""
+        raise RecordError(
+            f"--record {shown}: the record file {sanitize_for_terminal(engine.url.database)} is damaged: "
+            f"{first}{more}; restore it from a backup or move it aside (a new record is made where none is)"
+        )
+
+
+def _check_device_url(url: object, kind: str) -> str:
+    """``url`` if it is ``sim`` or looks like a device URL (``scheme://...``), printable, one
+    line, at most :data:`MAX_URL_CHARS` characters."""
+    text = check_printable_token(url, f"the {kind}'s URL", MAX_URL_CHARS)
+    if text != "sim" and not _URL_SCHEME.fullmatch(text):
+        raise InvalidInputError(f"the {kind}'s URL {quoted(text)} is not a device URL (scheme://...) or sim")
+    return text
+
+
+def _check_model(model: object) -> str | None:
+    """``model`` if it is None or a UR model spacecal has the kinematics of."""
+    if model is None:
+        return None
+    text = check_printable_token(model, "the robot's model", MAX_MODEL_CHARS)
+    if text not in UR_TABLES:
+        known = ", ".join(k for k in UR_TABLES if not k.startswith("_"))
+        raise InvalidInputError(f"unknown robot model {quoted(text)}; known: {known}")
+    return text
+
+
+def _check_rate(rate_hz: object) -> float | None:
+    """``rate_hz`` if it is None or a finite frame rate in :data:`TRACKER_RATE_RANGE_HZ`."""
+    if rate_hz is None:
+        return None
+    low, high = TRACKER_RATE_RANGE_HZ
+    if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float)):
+        raise InvalidInputError(f"the tracker's frame rate must be a number in {low:g}..{high:g} Hz")
+    if not (math.isfinite(rate_hz) and low <= rate_hz <= high):
+        raise InvalidInputError(
+            f"the tracker's frame rate must be a number in {low:g}..{high:g} Hz, got {rate_hz}"
+        )
+    return float(rate_hz)
 
 
 def finite_or_none(value: float | None) -> float | None:
