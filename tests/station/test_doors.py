@@ -444,3 +444,61 @@ def test_a_slow_or_idle_connection_is_closed_and_the_station_keeps_answering(tmp
         server.should_exit = True
         thread.join(timeout=15)
         station.ledger.close()
+
+
+def test_a_locked_record_is_said_so_and_nothing_is_shown_as_recorded(station_client):
+    """The record's SQLite file held by another writer (a second station, a backup tool): the
+    calibration is written but not recorded, and pages that read the record say why."""
+    import sqlite3
+
+    from spacecal import app
+
+    station, web = station_client
+    new_calibration(web)
+    work = station.workspaces[1]
+    app.simulate(app.SimulateSettings(output=str(work.recording_path), force=True))
+    holder = sqlite3.connect(station.data / "record.db", timeout=0)
+    try:
+        holder.execute("BEGIN EXCLUSIVE")
+        page = web.post("/workspaces/1/step/calibrate", data={"method": "ml"}, headers=OWN_PAGE)
+        assert page.status_code == 200 and "was written but not recorded" in page.text
+        assert 'id="verdict"' not in page.text and 'id="calibrate-result"' not in page.text
+        assert work.calibration is None and work.calibration_record_id is None
+        trends = web.get("/trends")
+        assert trends.status_code == 503 and "<h1>Service Unavailable</h1>" in trends.text
+        assert "record" in trends.text and "Traceback" not in trends.text
+    finally:
+        holder.rollback()
+        holder.close()
+    # once the record can be written, calibrating again records it
+    page = web.post("/workspaces/1/step/calibrate", data={"method": "ml"}, headers=OWN_PAGE)
+    assert 'id="verdict"' in page.text and work.calibration_record_id is not None
+    assert len(station.ledger.calibrations()) == 1
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("name", "bay\u202e1"),  # a bidirectional override
+        ("name", "bay\x851"),  # a C1 control
+        ("name", "bay\x7f"),  # DEL
+        ("name", "bay\n1"),
+        ("url", "ur://" + "h" * 10_000),
+        ("url", "ur://host\nX-Injected: 1"),
+        ("url", ""),
+        ("model", "ur10e\n" + "x" * 5000),
+        ("rate_hz", "abc"),
+        ("rate_hz", "-20"),
+        ("rate_hz", "1e9"),
+    ],
+)
+def test_a_device_form_with_a_bad_value_adds_nothing_and_says_why(station_client, field, value):
+    station, web = station_client
+    kind = "tracker" if field == "rate_hz" else "robot"
+    form = {"kind": kind, "name": "bay 1", "url": "sim", field: value}
+    page = web.post("/devices", data=form, headers=OWN_PAGE)
+    assert page.status_code == 200 and page.url.path == "/"
+    error = re.search(r'<p class="error" id="error">(.*?)</p>', page.text, re.S)
+    assert error is not None and "\n" not in error.group(1) and len(error.group(1)) < 500
+    assert "could not convert" not in error.group(1)  # words for a person, not Python's
+    assert station.ledger.robots() == [] and station.ledger.trackers() == []
