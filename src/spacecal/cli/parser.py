@@ -372,6 +372,12 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "--data", default="spacecal-station", help="folder for recordings, calibrations and reports"
     )
     p.add_argument("--record", help="the record: SQLite file or database URL (default DATA/record.db)")
+    p.add_argument(
+        "--thresholds-mm",
+        dest="error_thresholds",
+        metavar="GOOD,ACCEPTABLE,POOR",
+        help="the site's expected-error limits of the verdict's grades, mm (default 0.5,1,2)",
+    )
     p.add_argument("--open", action="store_true", help="open the station in the default web browser")
     p.add_argument(
         "--simulated",

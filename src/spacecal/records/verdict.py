@@ -95,6 +95,24 @@ class Verdict:
         return self.grade in ("poor", "unusable")
 
     @property
+    def headline(self) -> str:
+        """What every display of the calibration says first, the same words everywhere (the
+        command line's verdict, the report's headline, the station's page): the grade and what it
+        means for use at the thresholds the calibration was graded against."""
+        within = f" {self.tolerable_mm:g} mm" if self.tolerable_mm is not None else ""
+        return {
+            "good": "Good",
+            "acceptable": "Acceptable",
+            "poor": f"Poor: use only where an error up to{within or ' the tolerable limit'} is tolerable",
+            "unusable": "Do not use: unusable",
+        }[self.grade]
+
+    @property
+    def level(self) -> str:
+        """How a display colours it: ``ok`` (good, acceptable) or ``alarm`` (poor, unusable)."""
+        return "alarm" if self.alarming else "ok"
+
+    @property
     def text(self) -> str:
         """The sentence a person reads: ``<grade>: <reason>; <reason>...``."""
         return f"{self.grade}: " + "; ".join(self.reasons) if self.reasons else self.grade

@@ -4,14 +4,18 @@ The HTML report's first screen is built from :func:`assess` (the verdict, colour
 reasons for a red flag) and :func:`provenance_facts` (what was calibrated with what, when,
 from which data, by which software). Both read records only; no figure is drawn here.
 
-A red flag is raised when any of these holds:
+The judgement of the calibration itself is its verdict (:class:`spacecal.records.Verdict`),
+graded once, when it was made, against the thresholds in force then (``calibrate
+--thresholds-mm``): the report shows its headline and colour (:attr:`Verdict.headline`,
+:attr:`Verdict.level`), the same words the command line prints and the station shows; it
+grades nothing again. Evidence the verdict could not see raises a red flag of its own, named
+in the headline:
 
-* the calibration's own verdict is ``poor`` or ``unusable`` (:class:`spacecal.records.Verdict`);
 * the calibration does not explain the recording at hand: its residuals are far above those of
   the recording's own closed-form fit (:func:`spacecal.estimators.conventions.calibration_mismatch`;
   no fixed limit, since a distant camera leaves several mm);
-* the predicted or expected error at the target exceeds :data:`TARGET_ERROR_LIMIT_MM`;
-* a verification's mean position error exceeds the paper's bound, or the last check failed.
+* a verification's mean position error exceeds the paper's bound;
+* the last check failed.
 """
 
 from __future__ import annotations
@@ -28,9 +32,6 @@ from spacecal.estimators.registry import ESTIMATORS
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.records import CalibrationResult, CheckResult, Recording, VerificationResult
 from spacecal.records.paper_reference import PAPER_VERIFICATION
-
-#: Predicted or expected error at the target (mm) above which the calibration is flagged.
-TARGET_ERROR_LIMIT_MM = 1.0
 
 
 @dataclass
@@ -117,7 +118,8 @@ class Assessment:
     level : str
         ``ok`` (green), ``alarm`` (red) or ``unknown`` (grey: no verdict and no red flag).
     headline : str
-        A few words: ``Good``, ``Check before use``, ``Do not use: errors too large``...
+        The verdict's headline (:attr:`spacecal.records.Verdict.headline`), or ``Do not use:``
+        and the evidence the verdict did not see.
     verdict : str or None
         The calibration's own verdict sentence.
     reasons : list of str
@@ -157,9 +159,8 @@ def assess(
     """Judge a calibration from its verdict, residuals, predicted error, verification and checks."""
     judged = calibration.verdict
     verdict = judged.text if judged is not None else None
-    word = judged.grade if judged is not None else ""
     reasons: list[str] = []
-    hard: list[str] = []
+    hard: list[tuple[str, str]] = []  # (in the headline, in the reasons): evidence the verdict did not see
     numbers: list[tuple[str, str]] = []
 
     expected = expected_error(calibration)
@@ -171,14 +172,8 @@ def assess(
         text = f"{position:.2f} mm" + (f", {posture:.2f} deg" if posture is not None else "")
         basis = expected.get("basis")
         numbers.append(("expected error at the target", text + (f" ({basis})" if basis else "")))
-        if position > TARGET_ERROR_LIMIT_MM:
-            hard.append(
-                f"expected error at the target {position:.2f} mm exceeds {TARGET_ERROR_LIMIT_MM:g} mm"
-            )
     if site is not None:
         numbers.append(("predicted error at the site (RMS)", f"{site:.3f} mm"))
-        if site > TARGET_ERROR_LIMIT_MM:
-            hard.append(f"predicted error at the site {site:.2f} mm exceeds {TARGET_ERROR_LIMIT_MM:g} mm")
     if cube is not None:
         side = _number(tre.get("cube_side_mm"))
         label = f"predicted error over a {side:g} mm cube (RMS)" if side else "predicted error over the cube"
@@ -197,7 +192,12 @@ def assess(
         # no fixed limit on the residuals: a distant camera leaves several mm and is sound;
         # the flag is raised when the recording's own closed-form fit explains it far better
         if residuals.mismatch is not None:
-            hard.append(f"marker residuals are {rms:.2f} mm RMS: {residuals.mismatch}")
+            hard.append(
+                (
+                    "it does not explain this recording",
+                    f"marker residuals are {rms:.2f} mm RMS: {residuals.mismatch}",
+                )
+            )
     else:
         stored = _number(calibration.diagnostics.get("residual_position_rms_mm"))
         if stored is not None:
@@ -217,7 +217,11 @@ def assess(
         )
         if stats["mean"] > bound:
             hard.append(
-                f"verification mean position error {stats['mean']:.2f} mm is above the paper's {bound:g} mm"
+                (
+                    "the verification missed",
+                    f"verification mean position error {stats['mean']:.2f} mm is above the paper's "
+                    f"{bound:g} mm",
+                )
             )
     if check_history:
         last = check_history[-1]
@@ -230,18 +234,16 @@ def assess(
             )
         )
         if not last.passed:
-            hard.append(f"the last check ({_date(last.checked_utc)}) failed")
+            hard.append(("the last check failed", f"the last check ({_date(last.checked_utc)}) failed"))
 
     # the verdict sentence is shown beside the reasons: they list only what it does not say
-    reasons.extend(hard)
+    reasons.extend(long for _, long in hard)
     if hard:
-        level, headline = "alarm", "Do not use: errors too large"
-    elif judged is not None and judged.alarming:
-        level, headline = "alarm", word.capitalize()
-    elif word in ("good", "acceptable"):
-        level, headline = "ok", word.capitalize()
+        level, headline = "alarm", "Do not use: " + "; ".join(short for short, _ in hard)
+    elif judged is not None:
+        level, headline = judged.level, judged.headline
     else:
-        level, headline = "unknown", "No verdict" if verdict is None else verdict.split(":")[0].capitalize()
+        level, headline = "unknown", "No verdict"
     return Assessment(level, headline, verdict, reasons, numbers)
 
 

@@ -13,6 +13,7 @@ from typing import Any
 
 import uvicorn
 
+from spacecal.app import ErrorThresholds
 from spacecal.ledger import SIMULATED_ROBOT, SIMULATED_TRACKER, Ledger
 from spacecal.station.access import check_bind, load_token
 from spacecal.station.limits import MAX_CONNECTIONS, HeaderDeadlineProtocol
@@ -50,6 +51,9 @@ class StationOptions:
         The record: SQLite file or database URL.
     open : bool
         Open the station in the default web browser.
+    error_thresholds : ErrorThresholds or None
+        The site's limits of the verdict's grades (``--thresholds-mm``); every calibration made
+        at the station is graded against them (default: 0.5, 1, 2 mm).
     simulated : bool
         Offer the simulated robot and tracker (added to the record when missing), under the
         names the record gives simulated devices of a calibration made with ``--record``.
@@ -63,6 +67,7 @@ class StationOptions:
     record: str | None = None
     open: bool = False
     simulated: bool = False
+    error_thresholds: ErrorThresholds | None = None
 
 
 def build(options: StationOptions) -> tuple[Station, Any]:
@@ -75,7 +80,7 @@ def build(options: StationOptions) -> tuple[Station, Any]:
     if options.simulated:
         ledger.add_robot(SIMULATED_ROBOT, "sim")
         ledger.add_tracker(SIMULATED_TRACKER, "sim")
-    station = Station(ledger, data)
+    station = Station(ledger, data, error_thresholds=options.error_thresholds)
     return station, create_app(station, token, options.host)
 
 

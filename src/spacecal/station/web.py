@@ -70,6 +70,7 @@ class Station:
 
     ledger: Ledger
     data: Path
+    error_thresholds: spacecal_app.ErrorThresholds | None = None
     runs: Runs = field(default_factory=Runs)
     tickets: Tickets = field(default_factory=Tickets)
     workspaces: dict[int, Workspace] = field(default_factory=dict)
@@ -207,7 +208,9 @@ async def new_workspace(request: Request) -> Response:
     with station.lock:
         workspace_id = len(station.workspaces) + 1
         folder = new_folder(station.data, robot["name"])
-        station.workspaces[workspace_id] = Workspace(workspace_id, robot, tracker, folder, rom, tool_id)
+        station.workspaces[workspace_id] = Workspace(
+            workspace_id, robot, tracker, folder, rom, tool_id, error_thresholds=station.error_thresholds
+        )
     return RedirectResponse(request.url_for("workspace", workspace_id=workspace_id), 303)
 
 

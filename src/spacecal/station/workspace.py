@@ -55,6 +55,7 @@ class Workspace:
     folder: Path
     rom: str | None = None
     tool_id: int | None = None
+    error_thresholds: app.ErrorThresholds | None = None
     findings: list[tuple[str, str, str]] | None = None
     plan_summary: str | None = None
     dry_run_lines: list[str] = field(default_factory=list)
@@ -209,7 +210,13 @@ class Workspace:
 
     def calibrate(self, method: str = "ml") -> app.CommandResult[CalibrationResult]:
         out = app.calibrate(
-            app.CalibrateSettings(str(self.recording_path), str(self.calibration_path), method, force=True)
+            app.CalibrateSettings(
+                str(self.recording_path),
+                str(self.calibration_path),
+                method,
+                force=True,
+                error_thresholds=self.error_thresholds,
+            )
         )
         self.calibration = out
         return out
