@@ -486,6 +486,8 @@ def test_a_locked_record_is_said_so_and_nothing_is_shown_as_recorded(station_cli
         ("url", "ur://" + "h" * 10_000),
         ("url", "ur://host\nX-Injected: 1"),
         ("url", ""),
+        ("url", "ur//host"),
+        ("url", "ndi:/dev/ttyUSB0"),
         ("model", "ur10e\n" + "x" * 5000),
         ("rate_hz", "abc"),
         ("rate_hz", "-20"),

@@ -26,6 +26,7 @@ from starlette.templating import Jinja2Templates
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from spacecal import app as spacecal_app
+from spacecal.app.devices import validate_device_url
 from spacecal.core.errors import InvalidInputError, RecordError, SpacecalError
 from spacecal.core.text import exception_line
 from spacecal.ledger import Ledger
@@ -148,12 +149,13 @@ async def add_device(request: Request) -> Response:
         name, url = form_text(form, "name"), form_text(form, "url")
         if not url:
             raise InvalidInputError("give the device's address (sim for the simulated one)")
+        if kind not in ("robot", "tracker"):
+            raise InvalidInputError("add a robot or a tracker")
+        validate_device_url(kind, url)  # the parser that will open it, so a typo is said now
         if kind == "robot":
             station.ledger.add_robot(name, url, form_text(form, "model") or None)
-        elif kind == "tracker":
-            station.ledger.add_tracker(name, url, tracker_rate(form_text(form, "rate_hz")))
         else:
-            raise InvalidInputError("add a robot or a tracker")
+            station.ledger.add_tracker(name, url, tracker_rate(form_text(form, "rate_hz")))
     except SpacecalError as exc:
         return back(request, "home", exception_line(exc))
     return back(request, "home")
