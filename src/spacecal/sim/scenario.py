@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import check_name
 from spacecal.io.results_json import read_json_object
 from spacecal.planning.motion import MotionLimits
 from spacecal.planning.paper_sweeps import PaperSweepSettings
@@ -311,13 +312,22 @@ def _check_value(key: str, value, default):
 
 
 def scenario_from_dict(values: dict) -> Scenario:
-    """Build a scenario from a preset (``values["preset"]``, default paper-realistic) and overrides.
+    """Build a scenario from a preset (``values["preset"]``) and overrides.
 
-    Every value is checked: its type, finiteness and range (:data:`RANGES`); one line names
-    the key, the value and what is expected.
+    Without a ``preset`` key the base is the preset of the scenario's ``name`` when that names
+    one (a saved preset, :meth:`Scenario.to_dict`, loads as itself), else paper-realistic: a
+    scenario of one's own keeps its own name. Every value is checked: its type, finiteness and
+    range (:data:`RANGES`); one line names the key, the value and what is expected.
     """
     values = dict(values)
-    preset = values.pop("preset", values.get("name", "paper-realistic"))
+    if "preset" in values:
+        preset = values.pop("preset")
+    else:
+        name = values.get("name")
+        preset = name if isinstance(name, str) and name in PRESETS else "paper-realistic"
+    if "name" in values:
+        # it reaches recordings, reports and messages: a name a person reads as it is
+        values["name"] = check_name(values["name"], "scenario name")
     if not isinstance(preset, str) or preset not in PRESETS:
         if not isinstance(preset, str):
             raise InvalidInputError(f"scenario preset must be a name ({', '.join(PRESETS)})")
