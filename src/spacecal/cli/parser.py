@@ -117,12 +117,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--sigma-mm", type=decimal, help="per-axis sphere noise (ml, robust); default: from marker_rms_mm"
     )
-    p.add_argument(
-        "--thresholds-mm",
-        dest="error_thresholds",
-        metavar="GOOD,ACCEPTABLE,POOR",
-        help="expected-error limits of the verdict's grades, mm (default 0.5,1,2); above POOR: unusable",
-    )
+    add_thresholds(p)
     p.add_argument(
         "--tracker-kind",
         choices=app.TRACKER_KINDS,
@@ -357,27 +352,15 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p = command("scenario", "print a scenario preset as JSON, to edit")
     p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
     p = command("station", "the calibration station: the whole workflow in a web browser (spacecal[station])")
-    p.add_argument(
-        "--host",
-        default="127.0.0.1",
-        help="interface to listen on (default 127.0.0.1; any other needs an access token)",
-    )
+    p.add_argument("--host", default="127.0.0.1", help="interface (default 127.0.0.1; others need a token)")
     p.add_argument("--port", type=port_number, default=8770, help="TCP port (default 8770; 0: any free one)")
-    p.add_argument(
-        "--token-file",
-        help="file holding the access token every request must carry, created with a fresh one when "
-        "missing (required off loopback unless SPACECAL_STATION_TOKEN is set; on loopback: a shared PC)",
-    )
+    token = "file of the access token, made when missing (off loopback: it or SPACECAL_STATION_TOKEN)"
+    p.add_argument("--token-file", help=token)
     p.add_argument(
         "--data", default="spacecal-station", help="folder for recordings, calibrations and reports"
     )
     p.add_argument("--record", help="the record: SQLite file or database URL (default DATA/record.db)")
-    p.add_argument(
-        "--thresholds-mm",
-        dest="error_thresholds",
-        metavar="GOOD,ACCEPTABLE,POOR",
-        help="the site's expected-error limits of the verdict's grades, mm (default 0.5,1,2)",
-    )
+    add_thresholds(p)
     p.add_argument("--open", action="store_true", help="open the station in the default web browser")
     p.add_argument(
         "--simulated",
@@ -394,6 +377,12 @@ def duration_s(text: str) -> float:
     if match is None or not math.isfinite(float(match.group(1))):
         raise argparse.ArgumentTypeError(f"takes seconds, e.g. 30s; got {text!r}")
     return float(match.group(1))
+
+
+def add_thresholds(p: argparse.ArgumentParser) -> None:
+    """``--thresholds-mm``: the one grading a calibration's verdict gets (``calibrate``, the station)."""
+    limits = "expected-error limits of the verdict's grades, mm (default 0.5,1,2); above POOR: unusable"
+    p.add_argument("--thresholds-mm", dest="error_thresholds", metavar="GOOD,ACCEPTABLE,POOR", help=limits)
 
 
 def add_devices(p: argparse.ArgumentParser, simulated_by_default: bool = True) -> None:
