@@ -177,7 +177,7 @@ def _check(
             else (basis + "; partly given on the command line")
         )
     if settings.recording:
-        opened = open_calibrated_recording(calibration, settings.recording)
+        opened = open_calibrated_recording(calibration, settings.recording, bool(settings.accept_edited))
         if opened is None:
             raise InvalidInputError(f"{settings.recording}: no such recording")
         result = check_with_recording(calibration, opened.recording, threshold_mm, threshold_deg)

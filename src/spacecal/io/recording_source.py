@@ -17,6 +17,7 @@ from pathlib import Path
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators.time_offset import estimate_time_offset, pair_streams
 from spacecal.io.csv_core import RAW_ROBOT_SUFFIX
+from spacecal.io.digest import file_sha256
 from spacecal.io.raw_streams import read_raw_recording
 from spacecal.io.recording_csv import read_recording
 from spacecal.records import CalibrationResult, Recording
@@ -110,10 +111,23 @@ def open_recording(
 
 
 def open_calibrated_recording(
-    calibration: CalibrationResult, path: str | Path | None = None
+    calibration: CalibrationResult, path: str | Path | None = None, accept_edited: bool = False
 ) -> OpenedRecording | None:
     """The recording ``calibration`` came from (or ``path``, when given), paired as the
-    calibration paired it; None when its provenance names none or the file is gone."""
+    calibration paired it; None when its provenance names none or the file is gone.
+
+    The calibration's own recording must still be the file it was made from: its sha256 (and
+    its tracker stream's) must be the one the calibration recorded
+    (:class:`~spacecal.records.Provenance`). A recording changed since, or another one written
+    over it (an acquisition started again), is not what the calibration describes: its
+    residuals and figures would be shown beside numbers of another recording.
+
+    Raises
+    ------
+    InvalidInputError
+        The calibration's own recording (or tracker stream) changed since it was made, unless
+        ``accept_edited`` (``--accept-edited``); its tracker stream is missing.
+    """
     provenance = calibration.provenance
     named = path if path is not None else provenance.recording
     if not named or not Path(named).is_file():
@@ -124,6 +138,17 @@ def open_calibrated_recording(
     stream = provenance.tracker_stream if same else None
     if stream is not None and not Path(stream).is_file():
         raise InvalidInputError(f"{named}: the calibration's tracker stream {stream} is missing")
+    if same and not accept_edited:
+        for file, recorded in (
+            (named, provenance.recording_sha256),
+            (stream, provenance.tracker_stream_sha256),
+        ):
+            if file is not None and recorded is not None and file_sha256(file) != recorded:
+                raise InvalidInputError(
+                    f"{file}: changed since the calibration was made from it (sha256 {recorded[:12]}... "
+                    f"then, {file_sha256(file)[:12]}... now): the calibration does not describe it; "
+                    "--accept-edited uses it anyway"
+                )
     offset = calibration.diagnostics.get("time_offset_s") if same else None
     offset = float(offset) if isinstance(offset, (int, float)) else None
     return open_recording(named, stream, offset)
