@@ -30,7 +30,7 @@ from spacecal.app.devices import (
     tracker_findings,
     upload_control_program,
 )
-from spacecal.app.gate import acquisition_gate
+from spacecal.app.gate import acquisition_gate, approach_line, resumed_move
 from spacecal.app.result import CommandResult, note_lines
 from spacecal.app.run_plan import hardware_plan, motion_limits, planned_motion
 from spacecal.app.simulation import DEFAULT_SCENARIO
@@ -166,6 +166,8 @@ class AcquireOutput:
     simulated: bool = True
     #: What the motion gate checked before anything moved (None: nothing was left to run).
     gate: MotionGateReport | None = None
+    #: A resumed run: the move back onto the plan it makes first (see ``app.gate.approach_line``).
+    approach: str | None = None
 
 
 def simulated_devices(
@@ -299,6 +301,7 @@ def acquire_result(output: AcquireOutput, notes: tuple[str, ...] = ()) -> Comman
         f"plan: {output.moves} moves, {output.motion_time_s:.1f} s of motion"
         + (" (simulated devices, simulated time)" if output.simulated else ""),
         *note_lines(notes),
+        *([output.approach] if output.approach else []),
     ]
     files: tuple[Path, ...] = ()
     if output.dry_run:
@@ -366,15 +369,22 @@ def _acquire(
             )
         if on_plan is not None:
             on_plan(len(plan.moves))
-        gate = acquisition_gate(settings, plan, model, robot.state(), motion_limits(settings), world)
+        state = robot.state()
+        gate = acquisition_gate(settings, plan, model, state, motion_limits(settings), world)
         output = AcquireOutput(len(plan.moves), plan.motion_time_s, simulated=world is not None, gate=gate)
+        resumed = resumed_move(settings, plan)
+        if gate is not None and resumed is not None:
+            # a stop mid-move left the arm between two poses of the plan: the run first moves
+            # back onto it (the gate checked that move with the rest)
+            output.approach = approach_line(plan, resumed, state.base_from_tcp, motion_limits(settings))
         notes = (*checks, *plan.messages)
         if settings.dry_run:
             output.dry_run = True
             return output, notes
         if world is None and not settings.confirm_robot_motion:
+            first = "" if output.approach is None else f"; {output.approach}"
             raise InvalidInputError(
-                "moving a real robot needs --confirm-robot-motion (check the workspace is clear)"
+                f"moving a real robot needs --confirm-robot-motion (check the workspace is clear{first})"
             )
         metadata = (
             recording_metadata(world)

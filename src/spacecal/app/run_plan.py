@@ -14,7 +14,7 @@ from spacecal.core.ports import (
     Robot,
 )
 from spacecal.geometry.rotations import rotation_angle
-from spacecal.io.acquisition_progress import resume_home_joints
+from spacecal.io.acquisition_progress import read_progress, resume_home_joints
 from spacecal.io.ndi_rom import read_rom_marker
 from spacecal.io.results_json import read_json_object
 from spacecal.models.kinematics import RobotModel
@@ -24,6 +24,7 @@ from spacecal.planning.motion import MotionLimits, MotionPlan, motion_plan_from_
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
 from spacecal.planning.visibility import VisibilityModel
 from spacecal.records import PlanRecord
+from spacecal.workflows.acquisition import plan_fingerprint
 
 if TYPE_CHECKING:
     from spacecal.app.acquisition import AcquireSettings
@@ -78,7 +79,7 @@ def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -
     ------
     InvalidInputError
         The file holds no runnable plan, was made for another robot or tool, or the robot
-        does not stand at its home (nothing has moved).
+        does not stand at its home, unless a stopped run of it is resumed (nothing has moved).
     """
     assert settings.plan is not None
     record = PlanRecord.from_dict(read_json_object(settings.plan, "plan"), what=settings.plan)
@@ -101,7 +102,10 @@ def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -
     state = robot.state()
     joints_off = float(np.max(np.abs(state.joints_rad - record.home_joints_rad)))
     tcp_off = float(np.linalg.norm(state.base_from_tcp[:3, 3] - record.home_base_from_tcp[:3, 3]))
-    if joints_off > PLAN_HOME_RAD or tcp_off > PLAN_HOME_MM:
+    # a resumed run of this plan starts where it stopped, which may be anywhere along it: the
+    # motion gate checks the way back onto it from where the robot stands
+    resuming = settings.resume and _resumes(settings.output, plan)
+    if not resuming and (joints_off > PLAN_HOME_RAD or tcp_off > PLAN_HOME_MM):
         raise InvalidInputError(
             f"the robot stands {tcp_off:.1f} mm (joints up to {np.degrees(joints_off):.1f} deg) "
             "from the plan's home; "
@@ -114,3 +118,9 @@ def planned_motion(settings: AcquireSettings, robot: Robot, model: RobotModel) -
             "was predicted there, not for this tracker"
         )
     return plan
+
+
+def _resumes(recording: str, plan: MotionPlan) -> bool:
+    """Whether ``recording`` has a progress file of ``plan`` (a run of it to resume)."""
+    progress = read_progress(recording)
+    return progress is not None and progress.plan_fingerprint == plan_fingerprint(plan)
