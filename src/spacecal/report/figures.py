@@ -4,17 +4,52 @@ HTML report, for papers, service records and pages that cannot run scripts.
 Independent cases (verification targets, phantom cases, checks) are drawn as points, not
 joined by lines: nothing lies between two targets. The paper reports its mean position error
 as a bound ("< 1.05 mm"), so it is drawn as a bound, not as a measured mean.
+
+Text that comes from files (segment labels, transform names of a covariance, check times) is
+drawn as the characters it holds: every figure is made with matplotlib's mathtext parsing
+off (a label ``$\\frac{x}$`` or ``$\\undefined$`` would otherwise be parsed as TeX, and an
+unknown command raises), and a label starting with ``_`` is shown rather than dropped
+from the legend.
 """
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from pathlib import Path
+from typing import ParamSpec, TypeVar
 
 import numpy as np
 
 from spacecal.records import CalibrationResult, CheckResult, Recording
 from spacecal.records.paper_reference import PAPER_PHANTOM, PAPER_VERIFICATION
 from spacecal.report.evidence import check_series, fitted_sphere, sweeps, uncertainty
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _text_as_text(plot: Callable[_P, _R]) -> Callable[_P, _R]:
+    """Run ``plot`` with mathtext parsing off, so text from data never reaches the TeX parser.
+
+    The setting is read when each Text is made, and tick labels are made when the figure is
+    drawn, so the whole function, saving included, runs inside the context.
+    """
+
+    @functools.wraps(plot)
+    def plain(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        import matplotlib
+
+        with matplotlib.rc_context({"text.parse_math": False}):
+            return plot(*args, **kwargs)
+
+    return plain
+
+
+def _label(text: object) -> str:
+    """A legend label from data: matplotlib leaves out labels starting with ``_``."""
+    text = str(text)
+    return " " + text if text.startswith("_") else text
 
 
 def _pyplot():
@@ -42,6 +77,7 @@ def _points_axis(ax, count: int, label: str) -> None:
     ax.grid(alpha=0.3)
 
 
+@_text_as_text
 def plot_verification_errors(
     position_error_mm,
     posture_error_deg,
@@ -88,6 +124,7 @@ def plot_verification_errors(
     return _save(fig, path)
 
 
+@_text_as_text
 def plot_phantom_errors(entry_error_mm, target_error_mm, direction_error_deg, path: str | Path) -> Path:
     """The paper's Fig. 9, one point per case: (A) entry and target position errors,
     (B) puncture direction error, with the paper's smallest errors (Table 2) for reference."""
@@ -119,6 +156,7 @@ def plot_phantom_errors(entry_error_mm, target_error_mm, direction_error_deg, pa
     return _save(fig, path)
 
 
+@_text_as_text
 def plot_residuals(
     time_s, position_residual_mm, path: str | Path, rotation_residual_deg=None, segment=None
 ) -> Path:
@@ -138,7 +176,7 @@ def plot_residuals(
     for ax, (values, label) in zip(axes[:, 0], columns):
         for name in dict.fromkeys(segment.tolist()):
             rows = segment == name
-            ax.plot(time_s[rows], values[rows], ".", ms=3, label=name)
+            ax.plot(time_s[rows], values[rows], ".", ms=3, label=_label(name))
         ax.set_ylabel(label)
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
@@ -149,6 +187,7 @@ def plot_residuals(
     return _save(fig, path)
 
 
+@_text_as_text
 def plot_sweeps(recording: Recording, calibration: CalibrationResult, path: str | Path) -> Path:
     """The marker origin over the sweeps in the tracker frame (mm), with the fitted lines and
     sphere of the paper's method where it made them."""
@@ -159,7 +198,7 @@ def plot_sweeps(recording: Recording, calibration: CalibrationResult, path: str 
     for sweep in sweeps(recording, calibration):
         p = sweep.marker_in_tracker
         everything.append(p)
-        ax.plot(p[:, 0], p[:, 1], p[:, 2], ".", ms=2, label=sweep.label)
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], ".", ms=2, label=_label(sweep.label))
         if sweep.line_in_tracker is not None:
             line = sweep.line_in_tracker
             ax.plot(line[:, 0], line[:, 1], line[:, 2], "-", color="k", lw=1)
@@ -186,6 +225,7 @@ def plot_sweeps(recording: Recording, calibration: CalibrationResult, path: str 
     return _save(fig, path)
 
 
+@_text_as_text
 def plot_uncertainty(calibration: CalibrationResult, path: str | Path) -> Path | None:
     """Standard deviations of both transforms: translations (mm) and rotations (deg) on their
     own axes. None when the calibration has no covariance."""
@@ -201,7 +241,7 @@ def plot_uncertainty(calibration: CalibrationResult, path: str | Path) -> Path |
     ):
         width = 0.8 / max(len(values), 1)
         for k, (name, sd) in enumerate(values.items()):
-            ax.bar(x + (k - (len(values) - 1) / 2) * width, sd, width, label=name)
+            ax.bar(x + (k - (len(values) - 1) / 2) * width, sd, width, label=_label(name))
         ax.set_xticks(x, [f"{title} {a}" for a in split.axes])
         ax.set_ylabel(f"standard deviation ({unit})")
         ax.set_title(f"{title.capitalize()}s ({unit})")
@@ -210,6 +250,7 @@ def plot_uncertainty(calibration: CalibrationResult, path: str | Path) -> Path |
     return _save(fig, path)
 
 
+@_text_as_text
 def plot_check_history(history: list[CheckResult], path: str | Path) -> Path | None:
     """Worst TCP and rotation error of each check over time, with the thresholds."""
     if not history:
