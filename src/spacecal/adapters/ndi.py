@@ -283,6 +283,65 @@ def identity_from_version_text(text: str) -> DeviceIdentity:
     )
 
 
+#: Hexadecimal digits of a reply, ASCII only: ``int(text, 16)`` also takes ``0x``, ``_``, spaces
+#: and digits of other scripts, which no NDI reply holds.
+_HEX_DIGITS = "0123456789ABCDEFabcdef"
+#: A ``PHSR`` reply (after ndicapi took its CRC off): 2 hex digits counting the port handles,
+#: then 2 hex digits of each handle and 3 of its status.
+_PHSR_ENTRY_CHARS = 5
+
+
+def _reply_text(reply: object, limit: int = 40) -> str:
+    """A reply as a short, printable quotation for an error message."""
+    text = repr(reply if isinstance(reply, str) else str(reply))
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _hex(text: str, what: str, reply: object) -> int:
+    """The value of ``text``, ASCII hexadecimal digits only, else a DeviceError naming ``what``."""
+    if not text or any(c not in _HEX_DIGITS for c in text):
+        raise DeviceError(f"the NDI tracker sent {what} that is not hexadecimal: {_reply_text(reply)}")
+    return int(text, 16)
+
+
+def port_handle(reply: object) -> int:
+    """The port handle of a ``PHRQ`` reply (2 hex digits, CRC taken off).
+
+    Raises
+    ------
+    DeviceError
+        The reply is anything else.
+    """
+    text = reply.strip() if isinstance(reply, str) else ""
+    if len(text) != 2:
+        raise DeviceError(
+            f"the NDI tracker sent a PHRQ reply that is not a port handle: {_reply_text(reply)}"
+        )
+    return _hex(text, "a PHRQ reply", reply)
+
+
+def port_handle_statuses(reply: object) -> list[tuple[int, int]]:
+    """(handle, port status) of each port handle of a ``PHSR`` reply (CRC taken off).
+
+    Raises
+    ------
+    DeviceError
+        The reply is not 2 hex digits of a count followed by that many 5-hex-digit entries.
+    """
+    text = reply.strip() if isinstance(reply, str) else ""
+    count = _hex(text[:2], "a PHSR reply", reply)
+    body = text[2:]
+    if len(body) != count * _PHSR_ENTRY_CHARS:
+        raise DeviceError(
+            f"the NDI tracker sent a PHSR reply of {len(body)} characters for {count} port "
+            f"handle(s) (expected {count * _PHSR_ENTRY_CHARS}): {_reply_text(reply)}"
+        )
+    entries = [body[k : k + _PHSR_ENTRY_CHARS] for k in range(0, len(body), _PHSR_ENTRY_CHARS)]
+    return [
+        (_hex(entry[:2], "a PHSR reply", reply), _hex(entry[2:], "a PHSR reply", reply)) for entry in entries
+    ]
+
+
 class NDITracker:
     """An NDI tracker following one passive marker (Tracker protocol).
 
@@ -378,8 +437,7 @@ class NDITracker:
             self._command(f"COMM:{ndi.NDI_115200:d}{ndi.NDI_8N1:03d}{ndi.NDI_NOHANDSHAKE:d}")
         self.handles = []
         for rom in rom_files:
-            self._command("PHRQ:*********1****")
-            handle = ndi.ndiGetPHRQHandle(self._device)
+            handle = port_handle(self._command("PHRQ:*********1****"))
             self._upload(handle, Path(rom))
             self._command(f"PINIT:{handle:02X}")
             self._command(f"PENA:{handle:02X}D")
@@ -657,12 +715,17 @@ class NDITracker:
             findings.append(DeviceFinding(FINDING_PROBLEM, "frame rate", "the frame number did not advance"))
         reply, error = self._request("PHSR:00")
         if error == ndi.NDI_OKAY and reply:
-            count = int(reply[:2], 16)
-            ports = [reply[2 + 5 * k : 7 + 5 * k] for k in range(count)]
-            text = ", ".join(
-                f"{p[:2]} {'enabled' if int(p[2:], 16) & PORT_ENABLED else 'not enabled'}" for p in ports
-            )
-            findings.append(DeviceFinding(FINDING_OK, "tools", f"{count} port handle(s): {text}"))
+            try:
+                ports = port_handle_statuses(reply)
+            except DeviceError as exc:
+                # a tracker whose replies cannot be read does not pass, whatever else it says
+                findings.append(DeviceFinding(FINDING_PROBLEM, "tools", str(exc)))
+            else:
+                text = ", ".join(
+                    f"{handle:02X} {'enabled' if status & PORT_ENABLED else 'not enabled'}"
+                    for handle, status in ports
+                )
+                findings.append(DeviceFinding(FINDING_OK, "tools", f"{len(ports)} port handle(s): {text}"))
         statuses = [f.status for f in frames]
         seen = statuses.count(FRAME_OK)
         # an occasional dropout is normal; mostly not ok is not
