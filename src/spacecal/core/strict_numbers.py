@@ -17,6 +17,7 @@ ignored, as in a CSV written with ``", "`` separators.
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
@@ -79,3 +80,54 @@ def decimal(text: str) -> float:
 def integer(text: str) -> int:
     """:func:`parse_int` under the name a command line's usage error shows."""
     return parse_int(text)
+
+
+def number_value(value: object, max_abs: float | None = None) -> float:
+    """The float of a number a parser already made (a YAML or JSON ``int`` or ``float``), when it
+    is finite and, with ``max_abs``, no larger in magnitude.
+
+    A parser gives integers as Python ints of any size: ``10**31`` (a translation in metres
+    written as 32 digits) is no number ``numpy`` takes, and one beyond 1.8e308 is no float at
+    all; a float such as ``1e308`` is finite, but multiplied once (metres to mm) it is not.
+    Integers are compared with ``max_abs`` before they are converted, so no size of them
+    raises anything but this ValueError.
+
+    Parameters
+    ----------
+    value : object
+    max_abs : float, optional
+        The largest magnitude accepted (in the caller's unit).
+
+    Raises
+    ------
+    ValueError
+        A bool or anything but an int or float ("not a number"), NaN or infinity ("not
+        finite"), an integer beyond a float's range, or a magnitude beyond ``max_abs``; the
+        message says which (the caller adds the file and field).
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError("not a number")
+    if isinstance(value, int):
+        if max_abs is not None and abs(value) > max_abs:
+            raise ValueError(f"an integer beyond {max_abs:g} in magnitude")
+        try:
+            value = float(value)
+        except OverflowError:
+            raise ValueError("an integer too large for a floating-point number") from None
+    if not np.isfinite(value):
+        raise ValueError("not finite")
+    if max_abs is not None and abs(value) > max_abs:
+        raise ValueError(f"beyond {max_abs:g} in magnitude")
+    return float(value)
+
+
+def number_shown(value: object, limit: int = 40) -> str:
+    """A number read from a file, short enough for an error message: an integer of more
+    digits than ``limit`` as its digit count (``str()`` of one beyond 4,300 digits raises)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**limit:
+        digits = int(math.log10(abs(value))) + 1
+        # the float logarithm may be one off near a power of ten: settle it with exact ints
+        digits += (abs(value) >= 10**digits) - (abs(value) < 10 ** (digits - 1))
+        return f"an integer of {digits} digits"
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."

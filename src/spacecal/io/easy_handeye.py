@@ -49,7 +49,14 @@ from spacecal.core.text import quoted
 from spacecal.geometry.transforms import invert_transform
 from spacecal.io.atomic import write_text_atomic
 from spacecal.io.names import check_calibration_name, check_ros_frame_name
-from spacecal.io.ros_common import field, number_field, transform_from_ros, transform_to_ros
+from spacecal.io.ros_common import (
+    MAX_QUATERNION_COMPONENT,
+    MAX_TRANSLATION_M,
+    field,
+    number_field,
+    transform_from_ros,
+    transform_to_ros,
+)
 from spacecal.io.yaml_text import load_yaml_mapping, yaml_comment, yaml_number, yaml_string
 from spacecal.records import Recording
 
@@ -110,8 +117,10 @@ def _transform_message(message, where: str) -> np.ndarray:
     """``geometry_msgs/Transform`` as parsed YAML -> 4x4 mm."""
     translation = field(message, "translation", where)
     rotation = field(message, "rotation", where)
-    xyz = [number_field(translation, k, f"{where}.translation") for k in ("x", "y", "z")]
-    xyzw = [number_field(rotation, k, f"{where}.rotation") for k in ("x", "y", "z", "w")]
+    xyz = [number_field(translation, k, f"{where}.translation", MAX_TRANSLATION_M) for k in ("x", "y", "z")]
+    xyzw = [
+        number_field(rotation, k, f"{where}.rotation", MAX_QUATERNION_COMPONENT) for k in ("x", "y", "z", "w")
+    ]
     return transform_from_ros(xyz, xyzw, where)
 
 
@@ -182,8 +191,8 @@ def read_easy_handeye_calibration(path: str | Path) -> HandEyeCalibration:
         parameters = _parameters1(data, where)
         block = data["transformation"]
         tw = f"{where}: transformation"
-        xyz = [number_field(block, k, tw) for k in ("x", "y", "z")]
-        xyzw = [number_field(block, k, tw) for k in ("qx", "qy", "qz", "qw")]
+        xyz = [number_field(block, k, tw, MAX_TRANSLATION_M) for k in ("x", "y", "z")]
+        xyzw = [number_field(block, k, tw, MAX_QUATERNION_COMPONENT) for k in ("qx", "qy", "qz", "qw")]
         matrix = transform_from_ros(xyz, xyzw, tw)
         source = "easy_handeye"
     else:

@@ -12,12 +12,20 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.strict_numbers import number_shown, number_value
 from spacecal.core.text import quoted
 from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
 
 #: Largest deviation of a quaternion's norm from 1 accepted in a file (ROS tools write 1e-9 or better).
 QUATERNION_NORM_TOLERANCE = 1e-6
+#: Largest translation of a pose along an axis accepted, m: no robot or optical tracker of a
+#: calibration set-up spans this; a larger value (1e300, a flipped exponent bit, mm written as
+#: m) is a damaged message or file.
+MAX_TRANSLATION_M = 100.0
+#: Largest magnitude of a quaternion component read (its norm is checked after): it only keeps
+#: absurd values (1e300) from overflowing the norm into a message about infinity.
+MAX_QUATERNION_COMPONENT = 2.0
 
 
 def transform_from_ros(translation_m, quaternion_xyzw, what: str = "transform") -> np.ndarray:
@@ -77,9 +85,20 @@ def field(mapping, key: str, where: str):
     return mapping[key]
 
 
-def number_field(mapping, key: str, where: str) -> float:
-    """A finite number from ``mapping[key]``; one clear line otherwise."""
+def number_field(mapping, key: str, where: str, max_abs: float | None = None) -> float:
+    """A finite number from ``mapping[key]`` (no larger in magnitude than ``max_abs`` when given);
+    one clear line naming ``where`` and the field otherwise.
+
+    An integer of any size is refused without being converted first
+    (:func:`~spacecal.core.strict_numbers.number_value`).
+    """
     value = field(mapping, key, where)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise InvalidInputError(f"{where}: field {key!r} is {quoted(value)}, expected a finite number")
-    return float(value)
+    try:
+        return number_value(value, max_abs)
+    except ValueError:
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        shown = number_shown(value) if number else quoted(value)
+        bound = "" if max_abs is None else f" of magnitude at most {max_abs:g}"
+        raise InvalidInputError(
+            f"{where}: field {key!r} is {shown}, expected a finite number{bound}"
+        ) from None
