@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterator
@@ -15,7 +17,7 @@ import numpy as np
 from spacecal.app._common import check_belongs, guard_outputs, open_calibration, refuse_overwriting_inputs
 from spacecal.app.result import NOTE_CHARS, CommandResult, note_lines, paths
 from spacecal.core.errors import InvalidInputError
-from spacecal.core.text import sanitize_for_terminal
+from spacecal.core.text import quoted, sanitize_for_terminal
 from spacecal.io.atomic import atomic_path
 from spacecal.io.check_history import history_path, read_history
 from spacecal.io.csv_core import metadata_path
@@ -149,7 +151,7 @@ def report(settings: ReportSettings) -> CommandResult[tuple[str, ...]]:
         force=settings.force,
     )
     calibration, notes = open_calibration(settings.calibration, "report", settings.accept_edited)
-    opened = open_calibrated_recording(calibration, settings.recording)
+    opened = open_calibrated_recording(calibration, settings.recording, bool(settings.accept_edited))
     recording = None
     if opened is not None:
         recording = opened.recording
@@ -223,6 +225,53 @@ def _staged_folder(folder: str | None) -> Iterator[str | None]:
         shutil.rmtree(staging, ignore_errors=True)
 
 
+#: A host name (RFC 1123): dot-separated labels of ASCII letters, digits and inner hyphens.
+_HOST_NAME = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)(?:\.(?!-)[A-Za-z0-9-]{1,63}(?<!-))*\.?", re.ASCII)
+_PORT = re.compile(r"[0-9]{1,5}", re.ASCII)
+
+
+def igtl_host_port(text: str) -> tuple[str, int | None]:
+    """The host and port of ``--igtl HOST[:PORT]``: a host name, an IPv4 address or an IPv6
+    address in brackets (``[::1]:18944``); the port None when not given.
+
+    Checked here as a whole, not through a URL parser: that one raises on an unclosed
+    bracket, and reads ``ho/st``, ``user@host`` or ``host?x`` as the host ``ho`` or ``host``,
+    which would connect somewhere not named.
+
+    Raises
+    ------
+    InvalidInputError
+        Anything else, named.
+    """
+    where = f"--igtl {quoted(text)}"
+    host, port = text, None
+    if text.startswith("["):
+        closing = text.find("]")
+        if closing < 0:
+            raise InvalidInputError(f"{where}: an IPv6 address opened with '[' is not closed with ']'")
+        host, rest = text[1:closing], text[closing + 1 :]
+        try:
+            host = str(ipaddress.IPv6Address(host))
+        except ValueError:
+            raise InvalidInputError(f"{where}: {quoted(host)} in brackets is not an IPv6 address") from None
+        if rest:
+            if not rest.startswith(":"):
+                raise InvalidInputError(f"{where}: expected ':PORT' after the IPv6 address in brackets")
+            port = rest[1:]
+    elif text.count(":") > 1:
+        raise InvalidInputError(f"{where}: write an IPv6 address in brackets, e.g. [::1]:18944")
+    else:
+        host, colon, after = text.partition(":")
+        port = after if colon else None
+        if not (_HOST_NAME.fullmatch(host) and len(host) <= 253):
+            raise InvalidInputError(f"{where}: {quoted(host)} is not a host name or IPv4 address (HOST:PORT)")
+    if port is None:
+        return host, None
+    if not _PORT.fullmatch(port) or not 1 <= int(port) <= 65535:
+        raise InvalidInputError(f"{where}: the port must be a number from 1 to 65535, not {quoted(port)}")
+    return host, int(port)
+
+
 @dataclass(frozen=True)
 class ExportSettings:
     """``spacecal export``: a calibration for 3D Slicer, PLUS, or over OpenIGTLink."""
@@ -269,14 +318,12 @@ def export(settings: ExportSettings) -> CommandResult[CalibrationResult]:
         files.append(path)
         done.append(f"wrote {path} (PLUS CoordinateDefinitions: BaseToTracker, MarkerToTCP)")
     if settings.igtl:
-        from spacecal.adapters import device_address
         from spacecal.adapters.igtl import IGTL_DEFAULT_PORT, publish_transform
 
-        address = device_address("igtl://" + settings.igtl)
-        publish_transform(
-            address.host, address.port or IGTL_DEFAULT_PORT, "BaseToTracker", calibration.tracker_from_base
-        )
-        done.append(f"sent BaseToTracker to {address.url}")
+        host, port = igtl_host_port(settings.igtl)
+        port = IGTL_DEFAULT_PORT if port is None else port
+        publish_transform(host, port, "BaseToTracker", calibration.tracker_from_base)
+        done.append(f"sent BaseToTracker to igtl://{f'[{host}]' if ':' in host else host}:{port}")
     return CommandResult(
         calibration,
         tuple(Path(f) for f in files),
