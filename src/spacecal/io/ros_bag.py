@@ -52,7 +52,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from spacecal.core.errors import InvalidInputError, MissingExtraError, SpacecalError
 from spacecal.core.text import quoted, sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, make_transform
-from spacecal.io.ros_common import QUATERNION_NORM_TOLERANCE, transform_from_ros
+from spacecal.io.ros_common import MAX_TRANSLATION_M, QUATERNION_NORM_TOLERANCE, transform_from_ros
 from spacecal.io.yaml_text import check_yaml_file
 from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.records import RawRecording
@@ -81,9 +81,6 @@ CAUSE_CHARS = 200
 MAX_TOPIC_MESSAGES = 2_000_000
 #: Largest serialized message read (a tf message of a few hundred frames is tens of kB).
 MAX_MESSAGE_BYTES = 1 << 20
-#: Largest translation of a pose along an axis accepted, m: no robot or optical tracker of a calibration
-#: set-up spans this; a larger value (1e300, a flipped exponent bit) is a damaged message.
-MAX_TRANSLATION_M = 100.0
 #: Largest joint position accepted, rad (UR joints turn +-360 deg).
 MAX_JOINT_RAD = 4 * np.pi
 #: Largest share of a stream's messages that may be invalid or out of time order and be
@@ -141,6 +138,188 @@ def _check_listing(reader, path: Path) -> None:
             )
 
 
+# -- MCAP declared sizes --------------------------------------------------------------------
+# rosbags reads an MCAP file's records, chunks and chunk index entries by the sizes they declare:
+# it asks for that many bytes before it learns the file is shorter (a record of 2**62 bytes ends
+# only in a MemoryError), and it decompresses a whole chunk before it compares the result with
+# the declared size (a zstd chunk of 1 kB may expand to 30 MB, a 1 MB file to 30 GB). So every
+# size is checked here against the file's real size, and every compressed chunk is expanded once
+# with its output bounded, before rosbags opens the file. Layout (MCAP specification): 8 bytes of
+# magic, then records of an opcode (1 byte), a length (u64 LE) and that many bytes.
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_MCAP_FOOTER, _MCAP_CHUNK, _MCAP_CHUNK_INDEX, _MCAP_SUMMARY_OFFSET = 0x02, 0x06, 0x08, 0x0E
+_MCAP_FOOTER_BYTES = 37
+#: Largest chunk read, uncompressed, bytes: ROS 2's MCAP writer closes its chunks at 768 kB and
+#: its presets at a few MB; a larger one is damaged or hostile, not a recording.
+MAX_MCAP_CHUNK_BYTES = 128 << 20
+
+
+@dataclass(frozen=True)
+class _McapChunk:
+    """Where a chunk's compressed records lie and what it declares of them."""
+
+    data_offset: int
+    compressed_bytes: int
+    compression: str
+    uncompressed_bytes: int
+    declared_at: str
+
+
+class _McapBody:
+    """The body of one MCAP record, read field by field within its declared length."""
+
+    def __init__(self, file, path: Path, start: int, length: int, what: str):
+        self.file, self.path, self.end, self.what = file, path, start + length, what
+        file.seek(start)
+
+    def take(self, count: int) -> bytes:
+        if count > self.end - self.file.tell():
+            raise InvalidInputError(f"{self.path}: damaged MCAP file: {self.what} runs past its own end")
+        return self.file.read(count)
+
+    def u32(self) -> int:
+        return int.from_bytes(self.take(4), "little")
+
+    def u64(self) -> int:
+        return int.from_bytes(self.take(8), "little")
+
+    def text(self) -> str:
+        return self.take(self.u32()).decode("utf-8", errors="replace")
+
+
+def _mcap_records(file, path: Path, size: int, start: int, ends: set[int], chunks: list[_McapChunk]) -> None:
+    """Walk the records from byte ``start`` to one whose opcode is in ``ends`` (or the file's end),
+    refusing any that declares more bytes than the file has left; the chunks and chunk index
+    entries met are added to ``chunks``."""
+    position = start
+    while position + 9 <= size:
+        file.seek(position)
+        head = file.read(9)
+        opcode, length = head[0], int.from_bytes(head[1:], "little")
+        left = size - position - 9
+        if length > left:
+            raise InvalidInputError(
+                f"{path}: damaged MCAP file: the record at byte {position} (opcode 0x{opcode:02x}) "
+                f"declares {length} bytes, and {left} are left in the file"
+            )
+        if opcode in ends:
+            return
+        if opcode == _MCAP_CHUNK:
+            where = f"the chunk at byte {position}"
+            body = _McapBody(file, path, position + 9, length, where)
+            body.take(16)  # message start and end times
+            uncompressed, _crc, compression = body.u64(), body.u32(), body.text()
+            compressed = body.u64()
+            if compressed > body.end - file.tell():
+                raise InvalidInputError(
+                    f"{path}: damaged MCAP file: {where} declares {compressed} bytes of records in a "
+                    f"record of {length}"
+                )
+            chunks.append(_McapChunk(file.tell(), compressed, compression, uncompressed, where))
+        elif opcode == _MCAP_CHUNK_INDEX:
+            where = f"the chunk index entry at byte {position}"
+            body = _McapBody(file, path, position + 9, length, where)
+            body.take(16)
+            chunk_start, chunk_length = body.u64(), body.u64()
+            body.take(body.u32())  # message index offsets
+            body.take(8)  # message index length
+            compression = body.text()
+            compressed, uncompressed = body.u64(), body.u64()
+            if chunk_start + chunk_length > size:
+                raise InvalidInputError(
+                    f"{path}: damaged MCAP file: {where} puts a chunk "
+                    f"of {chunk_length} bytes at byte {chunk_start}, beyond the file's {size} bytes"
+                )
+            # rosbags reads the records from where a chunk record of this compression holds them
+            data_offset = chunk_start + 9 + 40 + len(compression.encode("utf-8"))
+            if data_offset + compressed > size:
+                raise InvalidInputError(
+                    f"{path}: damaged MCAP file: {where} declares "
+                    f"{compressed} compressed bytes at byte {data_offset}, beyond the file's {size} bytes"
+                )
+            chunks.append(_McapChunk(data_offset, compressed, compression, uncompressed, where))
+        position += 9 + length
+
+
+def _check_mcap_chunk(file, path: Path, chunk: _McapChunk) -> None:
+    """Refuse a chunk larger than :data:`MAX_MCAP_CHUNK_BYTES` uncompressed, or one that expands
+    beyond the size it declares (checked with the output bounded)."""
+    if chunk.uncompressed_bytes > MAX_MCAP_CHUNK_BYTES or chunk.compressed_bytes > MAX_MCAP_CHUNK_BYTES:
+        raise InvalidInputError(
+            f"{path}: {chunk.declared_at} declares a chunk of {chunk.uncompressed_bytes} bytes "
+            f"({chunk.compressed_bytes} compressed), more than spacecal reads of one chunk "
+            f"({MAX_MCAP_CHUNK_BYTES} bytes)"
+        )
+    if chunk.compression not in ("lz4", "zstd"):
+        return  # uncompressed (or unknown: rosbags refuses it) holds only its declared bytes
+    file.seek(chunk.data_offset)
+    data = file.read(chunk.compressed_bytes)
+    bound = chunk.uncompressed_bytes + 1
+    try:
+        if chunk.compression == "lz4":
+            import lz4.frame  # type: ignore[import-untyped]
+
+            # lz4.frame.decompress allocates the content size a frame header states, first
+            stated = lz4.frame.get_frame_info(data).get("content_size") or 0
+            if stated > chunk.uncompressed_bytes:
+                raise InvalidInputError(
+                    f"{path}: damaged MCAP file: {chunk.declared_at} declares a chunk of "
+                    f"{chunk.uncompressed_bytes} bytes whose lz4 frame states {stated}"
+                )
+            expanded = len(lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=bound))
+        else:
+            try:
+                from compression import zstd  # type: ignore[import-not-found]
+            except ImportError:
+                from backports import zstd
+            expanded = len(zstd.ZstdDecompressor().decompress(data, max_length=bound))
+    except SpacecalError:
+        raise
+    except Exception:  # damaged compressed data: rosbags refuses it, with its own words
+        return
+    if expanded > chunk.uncompressed_bytes:
+        raise InvalidInputError(
+            f"{path}: damaged MCAP file: {chunk.declared_at} declares a chunk of {chunk.uncompressed_bytes} "
+            f"bytes that expands to more"
+        )
+
+
+def check_mcap_sizes(path: Path) -> None:
+    """Refuse an MCAP file whose records, chunks or chunk index declare sizes it does not hold.
+
+    Raises
+    ------
+    InvalidInputError
+        A record longer than the rest of the file, a chunk index entry beyond the file's end, a
+        chunk larger than :data:`MAX_MCAP_CHUNK_BYTES` or expanding beyond its declared size.
+        A file that is no MCAP (no magic) is left to the reader.
+    """
+    size = path.stat().st_size
+    chunks: list[_McapChunk] = []
+    with path.open("rb") as file:
+        if file.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+            return
+        # the data section record by record, and the summary where the footer says it starts,
+        # as rosbags walks it (a footer may point anywhere)
+        _mcap_records(file, path, size, len(_MCAP_MAGIC), {_MCAP_FOOTER}, chunks)
+        if size >= len(_MCAP_MAGIC) + _MCAP_FOOTER_BYTES:
+            file.seek(size - _MCAP_FOOTER_BYTES)
+            footer = file.read(_MCAP_FOOTER_BYTES)
+            summary_start = int.from_bytes(footer[9:17], "little")
+            if footer[0] == _MCAP_FOOTER and len(_MCAP_MAGIC) <= summary_start < size - _MCAP_FOOTER_BYTES:
+                _mcap_records(file, path, size, summary_start, {_MCAP_FOOTER, _MCAP_SUMMARY_OFFSET}, chunks)
+        for chunk in dict.fromkeys(chunks):
+            _check_mcap_chunk(file, path, chunk)
+
+
+def _mcap_files(path: Path) -> list[Path]:
+    """The MCAP files of a bag: the file itself, or those of a ROS 2 bag folder."""
+    if path.is_dir():
+        return sorted(p for p in path.iterdir() if p.suffix == ".mcap" and p.is_file())
+    return [path] if path.suffix == ".mcap" and path.is_file() else []
+
+
 @contextmanager
 def _open_bag(path: Path, typestore: str | None):
     AnyReader, AnyReaderError, Stores, get_typestore = _rosbags()
@@ -149,6 +328,8 @@ def _open_bag(path: Path, typestore: str | None):
     metadata = path / "metadata.yaml"
     if path.is_dir() and metadata.is_file():
         _check_bag_metadata(metadata)
+    for mcap in _mcap_files(path):
+        check_mcap_sizes(mcap)
     store_name = typestore or ("ros1_noetic" if path.suffix == ".bag" else "ros2_humble")
     try:
         store = get_typestore(Stores(store_name))
@@ -464,6 +645,9 @@ class BagContents:
                 lines.append(
                     f"  {show(e.parent)} -> {show(e.child)}  ({e.count}{', static' if e.static else ''})"
                 )
+            cycle = _tf_cycle((e.parent, e.child) for e in self.tf_edges)
+            if cycle is not None:
+                lines.append(f"tf loop (no pose is composed through it): {_cycle_text(cycle)}")
             chains = self.tf_chains()
             if chains:
                 lines.append(
@@ -471,6 +655,51 @@ class BagContents:
                     + "; ".join(f"{show(a)} -> {show(b)}" for a, b in chains)
                 )
         return "\n".join(lines)
+
+
+def _tf_cycle(pairs) -> list[str] | None:
+    """The frames of one loop of tf edges ``(parent, child)`` (first frame repeated at the end),
+    or None: tf is a tree, and a walk up a loop never reaches a root."""
+    children: dict[str, list[str]] = {}
+    for parent, child in pairs:
+        children.setdefault(parent, []).append(child)
+        children.setdefault(child, [])
+    state: dict[str, int] = {}  # 1 on the path being walked, 2 done
+    for root in sorted(children):
+        if root in state:
+            continue
+        path, branches = [root], [iter(children[root])]
+        state[root] = 1
+        while path:
+            child = next(branches[-1], None)
+            if child is None:
+                state[path.pop()] = 2
+                branches.pop()
+            elif state.get(child) == 1:
+                return path[path.index(child) :] + [child]
+            elif child not in state:
+                state[child] = 1
+                path.append(child)
+                branches.append(iter(children[child]))
+    return None
+
+
+def _cycle_text(cycle: list[str], count: int = 8) -> str:
+    """A tf loop for a message: its frames escaped and cut, the loop cut to ``count`` frames."""
+    shown = [sanitize_for_terminal(f, 60) for f in cycle]
+    if len(shown) > count + 1:
+        shown = shown[:count] + [f"... ({len(cycle) - 1} frames)", shown[-1]]
+    return " -> ".join(shown)
+
+
+def _refuse_tf_cycle(pairs, where: str) -> None:
+    """Refuse tf edges that form a loop, naming its frames."""
+    cycle = _tf_cycle(pairs)
+    if cycle is not None:
+        raise InvalidInputError(
+            f"{where}: the tf frames form a loop ({_cycle_text(cycle)}); tf is a tree, so no pose "
+            "can be composed through it"
+        )
 
 
 def _parents(edges) -> dict[str, str]:
@@ -615,6 +844,7 @@ def _chain(
     edges walked is appended to ``notes``.
     """
     notes = [] if notes is None else notes
+    _refuse_tf_cycle(edges, where)
     parents: dict[str, str] = {}
     for parent, child in edges:
         if child in parents and parents[child] != parent:
@@ -1015,6 +1245,7 @@ def read_ros_bag(
     robot_from_tf = joint_state_topic is None
     marker_from_tf = marker_topic is None
     if robot_from_tf or marker_from_tf:
+        _refuse_tf_cycle(((e.parent, e.child) for e in contents.tf_edges), where)
         frames = {
             "base_frame": base_frame,
             "tool_frame": tool_frame,
