@@ -18,28 +18,38 @@ from spacecal.records.fields import plain
 
 #: Larger than this is not a spacecal result file.
 MAX_JSON_BYTES = 200 * 1024 * 1024
-#: Longest integer read from JSON (a count or a seed has a few digits).
-MAX_INT_DIGITS = 100
+#: The integers a result file holds: counts, seeds, schema versions and nanosecond times all fit
+#: in 64 bits. A larger one is no number numpy takes (an object array, whose ``isfinite``
+#: raises), and past 4,300 digits Python's ``int()`` raises a plain ValueError.
+MIN_INT, MAX_INT = -(2**63), 2**63 - 1
+#: Characters of a number shown in an error message.
+_SHOWN_CHARS = 40
 
 
-class _NotFinite(ValueError):
-    pass
+class _NotANumber(ValueError):
+    """The complete reason, for the error line after the file's name."""
+
+
+def _shown(text: str) -> str:
+    return text if len(text) <= _SHOWN_CHARS else f"{text[:_SHOWN_CHARS]}... ({len(text)} characters)"
 
 
 def _no_constant(name: str) -> float:
-    raise _NotFinite(name)
+    raise _NotANumber(f"{name} is not a number JSON allows")
 
 
 def _finite_float(text: str) -> float:
     value = float(text)
     if value in (float("inf"), float("-inf")):
-        raise _NotFinite(text)
+        raise _NotANumber(f"{_shown(text)} is too large for a floating-point number")
     return value
 
 
 def _bounded_int(text: str) -> int:
-    if len(text) > MAX_INT_DIGITS:  # int() refuses 4,300 digits with a plain ValueError
-        raise _NotFinite(f"an integer of {len(text)} digits (at most {MAX_INT_DIGITS})")
+    digits = len(text.lstrip("-"))
+    # the length first: int() of thousands of digits is slow, and raises past 4,300
+    if digits > len(str(MAX_INT)) or not MIN_INT <= int(text) <= MAX_INT:
+        raise _NotANumber(f"an integer of {digits} digits is beyond the 64-bit integers a result file holds")
     return int(text)
 
 
@@ -63,10 +73,8 @@ def read_json_object(path: str | Path, what: str) -> dict[str, Any]:
         raise InvalidInputError(f"{path}: not valid JSON: {exc.msg} (line {exc.lineno})") from None
     except RecursionError:
         raise InvalidInputError(f"{path}: JSON nested too deeply for a {what} file") from None
-    except _NotFinite as exc:
-        raise InvalidInputError(
-            f"{path}: {exc.args[0]} is not a number JSON allows (a {what} file)"
-        ) from None
+    except _NotANumber as exc:
+        raise InvalidInputError(f"{path}: {exc.args[0]} (a {what} file)") from None
     if not isinstance(data, dict):
         raise InvalidInputError(f"{path}: a {what} file holds a JSON object, not {type(data).__name__}")
     return data
