@@ -18,6 +18,14 @@ How it stays out of the robot's way:
   the view.
 * The page is served by a ``ThreadingHTTPServer`` on 127.0.0.1 in a daemon thread; the
   browser polls ``/data?since=N`` for the frames after the N-th, twice a second.
+* Nothing another program does with its connections can stop the view answering: each
+  connection serves one request (HTTP/1.0, no keep-alive), has :data:`READ_TIMEOUT_S` to send
+  it whole (however slowly it trickles in) and each read and write of it that long; at most
+  :data:`MAX_CONNECTIONS` are open at once, and a new one beyond them closes the one that has
+  waited longest for its request (a browser sends its request at once, so only idle or
+  half-open connections are ever closed so), and the listening queue holds
+  :data:`LISTEN_BACKLOG` connections not yet taken (the standard library's 5 let a burst of
+  connections make a browser's wait seconds long).
 * A view that cannot start (the port is taken) warns once on stderr and the run goes on
   without it; an exception inside the observer is caught by the acquisition loop, which
   warns once and detaches it.
@@ -26,11 +34,14 @@ How it stays out of the robot's way:
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
+import socket
 import sys
 import threading
+import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any
+from typing import Any, cast
 from urllib.parse import parse_qs, urlparse
 
 import numpy as np
@@ -43,6 +54,13 @@ DEFAULT_PORT = 8765
 DEFAULT_CAPACITY = 20_000
 #: Frames sent in one reply at most (a page that fell behind catches up over a few polls).
 MAX_FRAMES_PER_REPLY = 5_000
+#: How long a connection may take to send its whole request, and each read or write of it, s
+#: (a browser sends its request at once and reads the reply as it comes).
+READ_TIMEOUT_S = 10.0
+#: Connections served at once (a page polls over one at a time; a few tabs, a few more).
+MAX_CONNECTIONS = 64
+#: Connections the listening socket queues before they are taken.
+LISTEN_BACKLOG = 128
 
 
 class LiveView:
@@ -170,6 +188,14 @@ class LiveView:
         view = self
 
         class Handler(BaseHTTPRequestHandler):
+            timeout = READ_TIMEOUT_S  # each read and write of the connection (StreamRequestHandler)
+
+            def parse_request(self) -> bool:
+                parsed = super().parse_request()
+                # its request is in: the connection is no longer idle
+                cast(_BoundedThreadingServer, self.server).request_read(self.connection)
+                return parsed
+
             def do_GET(self) -> None:
                 if not _local_host(self.headers.get("Host"), view.port):
                     # a page served under another name (DNS rebinding) gets nothing
@@ -198,7 +224,7 @@ class LiveView:
             def log_message(self, format: str, *args: Any) -> None:
                 pass  # the acquisition's progress line owns the terminal
 
-        class Server(ThreadingHTTPServer):
+        class Server(_BoundedThreadingServer):
             def handle_error(self, request: Any, client_address: Any) -> None:
                 # a browser that closes the tab mid-reply is not an error worth a traceback on the
                 # terminal the acquisition's progress line owns
@@ -239,6 +265,67 @@ class LiveView:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+class _BoundedThreadingServer(ThreadingHTTPServer):
+    """A ``ThreadingHTTPServer`` that no number of idle, slow or half-open connections fills.
+
+    Each accepted connection is waiting for its request until its handler has read it
+    (:meth:`request_read`); one waiting longer than :data:`READ_TIMEOUT_S` is shut down at the
+    next poll of the serving loop (:meth:`service_actions`), and a connection beyond
+    :data:`MAX_CONNECTIONS` shuts down the one waiting longest (or, when every one is busy
+    with a reply, is itself closed at once). Shutting a socket down wakes its handler's
+    blocked read, which then ends and closes it.
+    """
+
+    daemon_threads = True
+    request_queue_size = LISTEN_BACKLOG
+
+    def __init__(self, *args: Any, **kwargs: Any):
+        self._lock = threading.Lock()
+        self._open: set[socket.socket] = set()
+        self._waiting: dict[socket.socket, float] = {}  # accepted at (monotonic s)
+        #: Connections closed unserved: idle past the deadline or pushed out by newer ones.
+        self.dropped_connections = 0
+        super().__init__(*args, **kwargs)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        with self._lock:
+            if len(self._open) >= MAX_CONNECTIONS:
+                if not self._waiting:  # all busy with replies: this one waits for none
+                    self.dropped_connections += 1
+                    self.shutdown_request(request)
+                    return
+                self._drop(min(self._waiting, key=self._waiting.__getitem__))
+            self._open.add(request)
+            self._waiting[request] = time.monotonic()
+        super().process_request(request, client_address)
+
+    def request_read(self, connection: socket.socket) -> None:
+        """A handler has read its connection's request: the connection is no longer idle."""
+        with self._lock:
+            self._waiting.pop(connection, None)
+
+    def service_actions(self) -> None:
+        # run by serve_forever between polls: close the connections past their deadline
+        now = time.monotonic()
+        with self._lock:
+            for connection in [c for c, since in self._waiting.items() if now - since > READ_TIMEOUT_S]:
+                self._drop(connection)
+
+    def _drop(self, connection: socket.socket) -> None:
+        """Shut a waiting connection down (its handler's read ends and closes it); under the lock."""
+        self._waiting.pop(connection, None)
+        self._open.discard(connection)
+        self.dropped_connections += 1
+        with contextlib.suppress(OSError):
+            connection.shutdown(socket.SHUT_RDWR)
+
+    def shutdown_request(self, request: Any) -> None:
+        with self._lock:
+            self._open.discard(request)
+            self._waiting.pop(request, None)
+        super().shutdown_request(request)
 
 
 #: The names the page may be asked for under: the loopback address and ``localhost``.
