@@ -372,3 +372,14 @@ def test_the_live_view_answers_beside_300_idle_connections_and_closes_them(monke
         for s in idle:
             s.close()
         view.close()
+
+
+@pytest.mark.parametrize("url", ["igtl://[::1", "ur://[zz", "ndi://[fe80::1:8765"])
+def test_a_device_url_with_an_unclosed_bracket_is_one_line(url):
+    """``--robot``/``--tracker`` are split by the device URL table's parser, which met the
+    standard library's 'Invalid IPv6 URL' as an internal error."""
+    from spacecal.adapters import parse_device_url
+    from spacecal.core.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match="Invalid IPv6 URL"):
+        parse_device_url(url, ("igtl", "ur", "ndi"))

@@ -148,7 +148,10 @@ def require(module: str, extra: str):
 
 def parse_device_url(url: str, schemes: tuple[str, ...]) -> tuple[str, str, int | None]:
     """Split ``scheme://host[:port]`` (or ``ndi:///dev/ttyUSB0``) into scheme, address, port."""
-    parsed = urlparse(url)
+    try:
+        parsed = urlparse(url)
+    except ValueError as exc:  # an unclosed IPv6 bracket, "igtl://[::1"
+        raise InvalidInputError(f"device {url!r}: {exc}") from None
     if parsed.scheme not in schemes:
         forms = ", ".join(DEVICE_SCHEMES[s].form if s in DEVICE_SCHEMES else s + "://" for s in schemes)
         raise InvalidInputError(f"device {url!r}: expected {forms} or sim")
