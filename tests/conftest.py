@@ -1,6 +1,5 @@
 """Shared, session-scoped simulations (each costs about two seconds, so build them once), the
-``realtime`` mark of the tests that keep real-time deadlines, and the disk probe of the tests
-that bound how fast a run ends."""
+guard of the ``realtime`` mark, and the disk probe of the tests that bound how fast a run ends."""
 
 from __future__ import annotations
 
@@ -25,14 +24,27 @@ NOISE_FREE = dataclasses.replace(
 )
 
 
-def pytest_collection_modifyitems(items):
-    """Mark ``realtime`` every test that takes a hardware lane (``tests/adapters/conftest.py``):
-    real client libraries against protocol fakes, on real time. The README's test command runs
-    them apart from the rest (``-m realtime``), so their deadlines share a busy machine with
-    nothing of the suite's own."""
-    for item in items:
-        if "hardware_lane" in getattr(item, "fixturenames", ()):
-            item.add_marker(pytest.mark.realtime)
+@pytest.fixture(autouse=True)
+def realtime_mark_is_true(request, monkeypatch):
+    """A test that starts a protocol-fake world (:class:`~spacecal.testing.fakes.client.
+    WorldProcess`: real client libraries against fakes on real time) carries the ``realtime``
+    mark, given in its module (``pytestmark = pytest.mark.realtime``) or on the test itself. The
+    README's test command runs the marked tests apart from the rest (``-m realtime``), so their
+    deadlines share a busy machine with nothing of the suite's own; an unmarked one fails here
+    rather than run beside them."""
+    if request.node.get_closest_marker("realtime") is not None:
+        yield
+        return
+    from spacecal.testing.fakes.client import WorldProcess
+
+    def refused(*_args, **_kwargs):
+        raise AssertionError(
+            f"{request.node.nodeid} starts a protocol-fake world on real time without the realtime "
+            "mark: add pytestmark = pytest.mark.realtime to its module, or @pytest.mark.realtime"
+        )
+
+    monkeypatch.setattr(WorldProcess, "__init__", refused)
+    yield
 
 
 @pytest.fixture

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -31,10 +33,21 @@ def collect(*arguments: str) -> subprocess.CompletedProcess:
     )
 
 
-def test_every_hardware_test_is_marked_real_time():
-    """Collected without the mark, the adapter tests and the station's protocol-fakes tests
-    leave nothing: each takes a hardware lane, and so is marked (``tests/conftest.py``)."""
-    unmarked = collect("-m", "not realtime", "tests/adapters", "tests/station/test_browser_fakes.py")
+def test_the_real_time_tests_are_those_that_run_on_real_time():
+    """The mark is given by what a test does (``pytestmark`` in its module, or on the test):
+    the station's runs on the protocol fakes and the stop tests are marked; the URL table's
+    tests, which open nothing, are not. ``tests/conftest.py`` fails an unmarked test that
+    starts a protocol-fake world."""
+    unmarked = collect("-m", "not realtime", "tests/station/test_browser_fakes.py")
     assert unmarked.returncode == 5, unmarked.stdout[-2000:]  # 5: no tests collected
     marked = collect("-m", "realtime", "tests/adapters/test_ur_stops.py")
     assert marked.returncode == 0 and "test_each_stop_ends_the_run" in marked.stdout, marked.stdout[-2000:]
+    parsing = collect("-m", "realtime", "tests/adapters/test_device_urls.py")
+    assert parsing.returncode == 5, parsing.stdout[-2000:]
+
+
+def test_an_unmarked_test_cannot_start_a_protocol_fake_world():
+    from spacecal.testing.fakes.client import WorldProcess
+
+    with pytest.raises(AssertionError, match="without the realtime mark"):
+        WorldProcess("--host", "127.0.0.1")

@@ -41,9 +41,18 @@ _LANES = (
 )
 
 
+def _real_time(request) -> bool:
+    """True for a test marked ``realtime`` (it runs protocol fakes on real time); the others here
+    (URL tables, reply parsers) take no lane and keep their priority."""
+    return request.node.get_closest_marker("realtime") is not None
+
+
 @pytest.fixture(autouse=True)
-def hardware_lane():
-    """Hold one of :data:`HARDWARE_LANES` lanes (a file lock) for the test's whole run."""
+def hardware_lane(request):
+    """Hold one of :data:`HARDWARE_LANES` lanes (a file lock) for a real-time test's whole run."""
+    if not _real_time(request):
+        yield
+        return
     _LANES.mkdir(exist_ok=True)
     while True:
         for lane in range(HARDWARE_LANES):
@@ -73,8 +82,11 @@ def watchdog(request):
 
 
 @pytest.fixture(autouse=True)
-def ahead_of_other_tests():
-    """Run the test, and what it starts, at :data:`~tests.adapters.ur_runs.HARDWARE_TEST_NICENESS`."""
+def ahead_of_other_tests(request):
+    """Run a real-time test, and what it starts, at :data:`~tests.adapters.ur_runs.HARDWARE_TEST_NICENESS`."""
+    if not _real_time(request):
+        yield
+        return
     before = os.getpriority(os.PRIO_PROCESS, 0)
     try:
         os.setpriority(os.PRIO_PROCESS, 0, HARDWARE_TEST_NICENESS)

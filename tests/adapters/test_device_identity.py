@@ -23,6 +23,7 @@ from .ur_runs import ur_world
         ("eseries", DeviceIdentity("UR10e", "20195500000", "PolyScope 5.11.1.108318")),
     ],
 )
+@pytest.mark.realtime
 def test_a_ur_controller_says_its_model_version_and_serial(generation, expected):
     world = ur_world(generation)
     robot = URRobot(world.info["host"])
@@ -34,6 +35,7 @@ def test_a_ur_controller_says_its_model_version_and_serial(generation, expected)
 
 
 @pytest.mark.parametrize("transport", ["tcp", "pty"])
+@pytest.mark.realtime
 def test_an_ndi_tracker_says_its_model_serial_and_firmware(world, rom_file, transport):
     if transport == "tcp":
         tracker = NDITracker(world.info["host"], world.info["ndi_port"], [rom_file])

@@ -8,6 +8,9 @@ pytest.importorskip("ndicapy")
 
 from .ur_runs import SPACECAL, assert_everything_closed, last_line, run, stats, tracker_url, ur_world
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 
 @pytest.fixture(scope="module")
 def world():

@@ -17,6 +17,9 @@ from spacecal.testing.fakes.igtl import pack_message, transform_content
 from spacecal.testing.fakes.ndi import FakeNDI, serve_commands
 from spacecal.testing.fakes.peers import Peer
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 #: The doctor samples the tracker for 1 s; the rest is connecting and closing on a busy machine.
 DOCTOR_WITHIN_S = 30.0
 

@@ -24,6 +24,9 @@ from spacecal.io.recording_csv import read_recording
 
 from .ur_runs import WhenRecorded, outside_the_robot_stream, wait_for_rows
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 SPACECAL = [sys.executable, "-m", "spacecal"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
 SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)

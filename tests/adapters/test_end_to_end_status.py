@@ -17,6 +17,9 @@ from spacecal.io.recording_csv import read_recording
 
 from .test_end_to_end import SPACECAL, acquire_command
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 
 def rows_written(recording):
     """Frames written so far: ``acquire`` writes the raw tracker stream frame by frame (the

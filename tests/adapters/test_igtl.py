@@ -12,6 +12,9 @@ from spacecal.adapters.igtl import IGTLTracker, publish_transform
 from spacecal.core.errors import DeviceError
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 
 def test_marker_to_tracker_stream_with_status(world):
     tracker = IGTLTracker("127.0.0.1", world.info["igtl_port"])

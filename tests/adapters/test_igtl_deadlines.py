@@ -16,6 +16,9 @@ from spacecal.core.errors import DeviceError
 from spacecal.testing.fakes.igtl import pack_message, transform_content
 from spacecal.testing.fakes.peers import Peer, announce, drip, hang_up, silent
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 #: Time on top of a deadline for a loaded machine, s.
 MARGIN_S = 5.0
 #: How long the reader waits for the marker's first message in these tests, s.

@@ -49,6 +49,7 @@ FORMS = [
 
 
 @pytest.mark.parametrize(("sender", "form", "header"), FORMS)
+@pytest.mark.realtime
 def test_every_form_gives_the_pose_and_a_missing_marker(make_world, sender, form, header):
     world = make_world("--igtl-sender", sender, "--igtl-marker-name", "StylusToTracker")
     world.control(f"igtl form {form}")
@@ -69,6 +70,7 @@ def test_every_form_gives_the_pose_and_a_missing_marker(make_world, sender, form
 
 
 @pytest.mark.parametrize("placeholder", ["identity", "zero", "nan"])
+@pytest.mark.realtime
 def test_an_old_senders_placeholder_is_missing(make_world, placeholder):
     world = make_world("--igtl-sender", "old")
     world.control(f"igtl placeholder {placeholder}")
@@ -80,6 +82,7 @@ def test_an_old_senders_placeholder_is_missing(make_world, placeholder):
     assert all(f.status == FRAME_MISSING and f.tracker_from_marker is None for f in frames)
 
 
+@pytest.mark.realtime
 def test_plus_silence_of_one_tool_is_not_seen_not_lost(make_world):
     world = make_world("--igtl-sender", "plus")
     tracker = IGTLTracker("127.0.0.1", world.info["igtl_port"])
@@ -102,6 +105,7 @@ def test_plus_silence_of_one_tool_is_not_seen_not_lost(make_world):
     tracker.close()
 
 
+@pytest.mark.realtime
 def test_a_closed_connection_ends_the_run(make_world):
     world = make_world()
     tracker = IGTLTracker("127.0.0.1", world.info["igtl_port"])
@@ -113,6 +117,7 @@ def test_a_closed_connection_ends_the_run(make_world):
     tracker.close()
 
 
+@pytest.mark.realtime
 def test_position_without_orientation_is_refused_in_one_line(make_world):
     world = make_world("--igtl-sender", "plus")
     world.control("igtl form position12")
@@ -121,6 +126,7 @@ def test_position_without_orientation_is_refused_in_one_line(make_world):
         tracker.next_frame(2.0)
 
 
+@pytest.mark.realtime
 def test_a_wrong_marker_name_lists_what_the_sender_sends(make_world):
     world = make_world("--igtl-sender", "plus")
     with pytest.raises(DeviceError, match="it sends .*MarkerToTracker.*ReferenceToTracker"):

@@ -26,6 +26,9 @@ from spacecal.io.recording_csv import read_recording
 from .test_end_to_end import acquire_command
 from .test_end_to_end_status import rows_written
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 #: The occlusion, s.
 OCCLUSION_S = 2.0
 #: The run's longest wait for a tracker frame (``AcquisitionSettings.frame_timeout_s``), s.

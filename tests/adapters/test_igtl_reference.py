@@ -17,6 +17,9 @@ import pytest
 from spacecal.adapters.igtl import IGTLTracker, publish_transform
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 SOURCES = Path(__file__).resolve().parents[1] / "igtl_reference"
 INCLUDE = Path(os.environ.get("OPENIGTLINK_INCLUDE", "/usr/include/openigtlink"))
 

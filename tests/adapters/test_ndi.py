@@ -10,6 +10,9 @@ from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 from spacecal.testing.fakes.ndi import crc16
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 
 def test_crc_check_values():
     assert [crc16(t) for t in (b"OKAY", b"RESET", b"INIT:")] == [0xA896, 0xBE6F, 0xE3A5]

@@ -22,6 +22,9 @@ from spacecal.core.errors import DeviceError
 from spacecal.testing.fakes.ndi import FakeNDI, crc16, split_command
 from spacecal.testing.fakes.peers import Peer, announce, drip, hang_up, silent
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 #: Time on top of a deadline for a loaded machine, s.
 MARGIN_S = 5.0
 

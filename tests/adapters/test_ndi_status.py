@@ -60,6 +60,7 @@ def settle(tracker, status, tries=20):
 
 
 @pytest.mark.parametrize("reply", ["bx", "tx"])
+@pytest.mark.realtime
 def test_volume_and_status_bits_become_frame_statuses(world, rom_file, reply):
     tracker = connect(world, "tcp", [rom_file], reply=reply)
     truth = marker_position_truth(world)
@@ -90,6 +91,7 @@ def test_volume_and_status_bits_become_frame_statuses(world, rom_file, reply):
     ("generation", "transport", "reply"),
     [("polaris-old", "pty", "tx"), ("vicra", "pty", "bx"), ("spectra", "pty", "bx"), ("vega", "tcp", "bx")],
 )
+@pytest.mark.realtime
 def test_every_generation_tracks_and_reports_itself(make_world, rom_file, generation, transport, reply):
     world = make_world("--ndi-generation", generation)
     tracker = connect(world, transport, [rom_file])
@@ -106,6 +108,7 @@ def test_every_generation_tracks_and_reports_itself(make_world, rom_file, genera
 
 @pytest.mark.parametrize(("transport", "fault"), [("tcp", "crc_error"), ("pty", "short_reply")])
 @pytest.mark.parametrize("reply", ["bx", "tx"])
+@pytest.mark.realtime
 def test_a_spoiled_reply_is_retried(world, rom_file, transport, fault, reply):
     if fault == "short_reply" and reply == "bx":
         pytest.skip("a short binary reply is a reply timeout: covered by the drop test")
@@ -123,6 +126,7 @@ def test_a_spoiled_reply_is_retried(world, rom_file, transport, fault, reply):
     tracker.close()
 
 
+@pytest.mark.realtime
 def test_a_reply_that_never_comes_is_retried_after_the_serial_timeout(world, rom_file):
     tracker = connect(world, "pty", [rom_file])
     tracker.next_frame(2.0)
@@ -136,6 +140,7 @@ def test_a_reply_that_never_comes_is_retried_after_the_serial_timeout(world, rom
     tracker.close()
 
 
+@pytest.mark.realtime
 def test_preflight_reports_a_doubtful_marker(world, rom_file):
     tracker = connect(world, "tcp", [rom_file])
     world.control("ndi partial_volume on")

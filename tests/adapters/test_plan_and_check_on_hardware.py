@@ -23,6 +23,9 @@ from spacecal.geometry.metrics import cube_grid, target_registration_errors
 from spacecal.io.check_history import read_history
 from spacecal.io.recording_csv import read_recording
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 SPACECAL = [sys.executable, "-m", "spacecal"]
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
 SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)

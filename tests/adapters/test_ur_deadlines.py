@@ -17,6 +17,9 @@ from spacecal.testing.fakes.peers import Peer, announce, drip, hang_up, silent
 
 from .loopback import NETWORK as _NETWORK
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 #: Time on top of a deadline for a loaded machine, s.
 MARGIN_S = 5.0
 _addresses = itertools.count(1)

@@ -22,6 +22,9 @@ from spacecal.models.kinematics import forward_kinematics, ur_model
 
 from .ur_runs import SPACECAL, acquire_argv, assert_everything_closed, run, stats, ur_world
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 PENDANT_TCP = "5,-3,195,0.02,0.25,-0.1"
 #: The fake world runs the paper-white scenario: 0.25 mm RMS white noise per sphere.
 SPHERE_SIGMA_MM = 0.25 / np.sqrt(3)

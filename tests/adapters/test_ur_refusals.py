@@ -9,6 +9,9 @@ pytest.importorskip("ndicapy")
 
 from .ur_runs import acquire_argv, assert_everything_closed, last_line, run, stats, ur_world
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 #: name -> (generation, what the pendant / another client did, how it is undone, the line says)
 REFUSALS = {
     "local control (e-Series)": (

@@ -27,6 +27,9 @@ from .ur_runs import (
     ur_world,
 )
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 GENERATION = "eseries"
 #: A slow rotation (10 deg/s), so that the first move (rot_x, 0 to +10 deg) lasts a second and a
 #: stop after a few samples leaves the arm degrees from the move's start.

@@ -33,6 +33,9 @@ from .ur_runs import (
     wait_for_rows,
 )
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 #: From the fault to the robot standing still (the fake's joint angles stop changing), s.
 STILL_WITHIN_S = 1.0
 #: From the fault to the end of the command, s: stopping, then closing the devices (ur_rtde's

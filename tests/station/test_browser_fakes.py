@@ -30,6 +30,9 @@ from tests.station.test_browser import (
     shot,
 )
 
+#: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
 pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
