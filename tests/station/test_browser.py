@@ -234,7 +234,7 @@ def test_from_a_new_robot_to_an_exported_calibration(served, page, disk):
     page.select_option("#method", "ml")
     page.click("#calibrate")
     verdict = page.inner_text("#verdict")
-    assert verdict.startswith("GOOD") and "expected error" in verdict
+    assert verdict.startswith("Good:") and "expected error" in verdict
     steps.done("calibrate")
 
     page.click("#check")
@@ -346,7 +346,7 @@ def test_stop_mid_check_stops_the_robot_and_logs_nothing(served, page, disk):
     )
     page.reload()
     page.click("#calibrate")
-    assert page.inner_text("#verdict").startswith("GOOD")
+    assert page.inner_text("#verdict").startswith("Good:")
     page.click("#check")
     page.click("#confirm")
     page.wait_for_url(re.compile(r"/runs/\d+$"))

@@ -104,7 +104,7 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
         page.select_option("#method", "ml")
         page.click("#calibrate")
         verdict = page.inner_text("#verdict")
-        assert verdict.split(":")[0] in ("GOOD", "ACCEPTABLE"), verdict
+        assert verdict.split(":")[0] in ("Good", "Acceptable"), verdict
         steps.done("calibrate")
 
         page.click("#check")

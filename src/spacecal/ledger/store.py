@@ -169,14 +169,14 @@ class CheckRow:
 class Ledger:
     """The record, open on one database.
 
+    Every method but :meth:`open` and :meth:`close` raises
+    :class:`~spacecal.core.errors.RecordError` when the database fails it; the ``add_*``
+    methods raise :class:`~spacecal.core.errors.InvalidInputError` for a value they refuse.
+
     Parameters
     ----------
     engine : sqlalchemy.Engine
         Use :meth:`open` to make one from a URL.
-
-    Every method but :meth:`open` and :meth:`close` raises
-    :class:`~spacecal.core.errors.RecordError` when the database fails it; the ``add_*``
-    methods raise :class:`~spacecal.core.errors.InvalidInputError` for a value they refuse.
     """
 
     def __init__(self, engine: sa.Engine):
