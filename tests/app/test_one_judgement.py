@@ -84,9 +84,7 @@ def test_the_cli_the_report_the_station_and_the_record_agree(grade, recording, t
         page = web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).text
         shown = re.search(r'id="verdict" class="verdict grade-(\w+) level-(\w+)"', page)
         assert shown is not None and shown.groups() == (grade, verdict.level)
-        assert re.search(r'id="verdict-headline">(.*?)</b>', page).group(1) == html.escape(
-            verdict.headline
-        )
+        assert re.search(r'id="verdict-headline">(.*?)</b>', page).group(1) == html.escape(verdict.headline)
         [row] = station.ledger.calibrations()
         assert row.grade == grade
     finally:
