@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 
 from spacecal.testing.fuzz import Case, run_case
+from tests.idle_connections import closed_by_the_server
 
 from .bags import storage_file, write_small_bag
 
@@ -360,14 +361,7 @@ def test_the_live_view_answers_beside_300_idle_connections_and_closes_them(monke
         # no more handler threads than connections served at once, whatever was opened
         assert threading.active_count() <= live.MAX_CONNECTIONS + 4
         time.sleep(live.READ_TIMEOUT_S + 2.0)
-        closed = 0
-        for s in idle:
-            s.settimeout(5)
-            try:
-                closed += s.recv(1) == b""
-            except OSError:
-                closed += 1
-        assert closed == len(idle)
+        assert closed_by_the_server(idle) == len(idle)
     finally:
         for s in idle:
             s.close()

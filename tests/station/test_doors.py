@@ -19,6 +19,7 @@ import time
 import pytest
 
 from spacecal.core.errors import InvalidInputError, RecordError
+from tests.idle_connections import closed_by_the_server
 from tests.station.conftest import free_port, need
 
 STATION = "http://127.0.0.1:8770"
@@ -427,14 +428,7 @@ def test_a_slow_or_idle_connection_is_closed_and_the_station_keeps_answering(tmp
             s.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")
             idle.append(s)
         time.sleep(2.0 + 3.0)
-        closed = 0
-        for s in idle:
-            s.settimeout(5)
-            try:
-                closed += s.recv(1) == b""
-            except OSError:
-                closed += 1
-        assert closed == len(idle)
+        assert closed_by_the_server(idle) == len(idle)
         with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
             s.sendall(f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n".encode())
             assert s.recv(64).startswith(b"HTTP/1.1 200")
