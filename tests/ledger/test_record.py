@@ -3,13 +3,28 @@ calibrations, checks, imported JSONL histories, the versioned schema and ``--rec
 
 from __future__ import annotations
 
+import contextlib
 import json
+import sqlite3
+from collections.abc import Iterator
 
 import pytest
 
 from spacecal import app
 from spacecal.cli.main import main
 from tests.station.conftest import need
+
+
+@contextlib.contextmanager
+def another_writer(record) -> Iterator[None]:
+    """The SQLite record held by another writer (BEGIN IMMEDIATE) for the ``with`` block."""
+    other = sqlite3.connect(record, isolation_level=None)
+    try:
+        other.execute("BEGIN IMMEDIATE")
+        yield
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
 
 
 @pytest.fixture(scope="module")
@@ -431,7 +446,6 @@ def test_two_stations_adding_the_same_device_at_once_get_one_row(record_url):
 
 def test_a_calibration_not_recorded_is_said_so_in_one_line(tmp_path, calibrated, monkeypatch, capsys):
     need("sqlalchemy")
-    import sqlite3
 
     from spacecal.ledger import Ledger, store
 
@@ -439,10 +453,8 @@ def test_a_calibration_not_recorded_is_said_so_in_one_line(tmp_path, calibrated,
     record = tmp_path / "record.db"
     Ledger.open(str(record)).close()
     cal = tmp_path / "cal.json"
-    other = sqlite3.connect(record, isolation_level=None)
-    try:
-        # another writer: reading (opening the record) still works, writing waits and fails
-        other.execute("BEGIN IMMEDIATE")
+    # another writer: reading (opening the record) still works, writing waits and fails
+    with another_writer(record):
         code = main(
             [
                 "calibrate",
@@ -455,9 +467,6 @@ def test_a_calibration_not_recorded_is_said_so_in_one_line(tmp_path, calibrated,
                 str(record),
             ]
         )
-    finally:
-        other.execute("ROLLBACK")
-        other.close()
     err = capsys.readouterr().err
     assert code == 1 and err.count("\n") == 1, err
     assert err == (
@@ -465,13 +474,8 @@ def test_a_calibration_not_recorded_is_said_so_in_one_line(tmp_path, calibrated,
         "database is locked\n"
     )
     assert cal.exists()
-    other = sqlite3.connect(record, isolation_level=None)
-    try:
-        other.execute("BEGIN IMMEDIATE")
+    with another_writer(record):
         code = main(["check", str(cal), "--poses", "2", "--record", str(record)])
-    finally:
-        other.execute("ROLLBACK")
-        other.close()
     err = capsys.readouterr().err
     assert code == 1 and err.count("\n") == 1, err
     assert err == (
