@@ -11,7 +11,9 @@ hardware lanes and their raised priority: its fake world keeps real-time deadlin
 
 from __future__ import annotations
 
+import os
 import re
+import signal
 import time
 
 import pytest
@@ -70,6 +72,33 @@ def start_acquisition_on_the_fakes(page, served, world, rom):
     run = served.station.runs.get(1)
     assert run.active, run.message
     return run
+
+
+def wait_stopped(page, run) -> None:
+    """Wait for the page to show the run stopped; if it does not, fail saying where the run and
+    its motion process stood (the process prints every thread's stack on SIGUSR1)."""
+    from playwright.sync_api import TimeoutError as PageTimeout
+
+    def where() -> str:
+        return (
+            f"the page shows {page.inner_text('#run-state')!r} ({page.inner_text('#message')!r}); the "
+            f"station's run: {run.state!r} ({run.message!r}), STOP at {run.stop_requested_at}, ended at "
+            f"{run.ended_at}"
+        )
+
+    try:
+        # any end first: a run that ended otherwise (failed, finished) says so at once
+        wait_js(page, "!['starting', 'running'].includes(document.getElementById('run-state').textContent)")
+    except PageTimeout:
+        process = run._process
+        alive = process is not None and process.poll() is None
+        if alive:
+            os.kill(process.pid, signal.SIGUSR1)
+            time.sleep(2.0)
+        raise AssertionError(
+            f"{where()}, its process {'still running (its stacks on stderr)' if alive else 'ended'}"
+        ) from None
+    assert page.inner_text("#run-state") == "stopped", where()
 
 
 def plan_and_acquire(page) -> None:
@@ -132,7 +161,7 @@ def test_stop_on_the_protocol_fakes_stills_the_arm(served, page, rom_file, disk)
         world.control("ur mark")
         marked_at = time.monotonic()
         page.click("#stop")
-        wait_js(page, "document.getElementById('run-state').textContent === 'stopped'")
+        wait_stopped(page, run)
         assert "interrupted by the user (STOP pressed at the station)" in page.inner_text("#message")
         after = assert_everything_closed(world)
         run.thread.join(timeout=JOIN_WITHIN_S)

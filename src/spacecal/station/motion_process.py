@@ -25,8 +25,10 @@ The protocol on the child's pipes (trusted: the station starts this child itself
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import pickle
+import signal
 import sys
 import warnings
 from typing import IO, Any
@@ -87,6 +89,9 @@ def main() -> None:
     from spacecal.core import interrupts
 
     channel = _channel()
+    # a motion that does not end after STOP is a fault to diagnose: SIGUSR1 prints where every
+    # thread of it stands (on standard error, which the station passes through)
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     lost = False
 
     def send(kind: str, payload: Any) -> None:
