@@ -524,9 +524,7 @@ class CalibrationResult:
             model_data = diagnostics.get("kinematic_model")
             recording = _optional_path(get_mapping(data, "source", what).get("recording"), what)
             provenance = Provenance(
-                source=None
-                if recording is None
-                else RecordingSource(PAIRED_CSV, (SourceFile(RECORDING, recording),)),
+                source=None if recording is None else RecordingSource.paired_csv(recording),
                 tracker_kind=_optional_kind(diagnostics.get("tracker_kind")),
                 created_utc=str(data.get("created_utc", "")),
                 software=f"spacecal {data.get('spacecal_version', '')}".strip(),
