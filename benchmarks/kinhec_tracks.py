@@ -279,8 +279,10 @@ def run_spacecal(seq, truth: Truth, methods: list[str], folder: Path) -> list[di
                 # how often an error of the stated covariance is within 1 mm: an honest statement
                 # above the unusable limit still meets a small error by chance this often
                 row["chance_within_1mm"] = probability_within(expected["position_covariance_mm2"], 1.0)
-            if "time_offset_s" in d and "true_offset_s" in notes:
-                row["time_offset_err_ms"] = 1000.0 * abs(float(d["time_offset_s"]) - notes["true_offset_s"])
+            source = result.provenance.source
+            offset_s = None if source is None else source.time_offset_s
+            if offset_s is not None and "true_offset_s" in notes:
+                row["time_offset_err_ms"] = 1000.0 * abs(offset_s - notes["true_offset_s"])
         row["runtime_s"] = time.perf_counter() - started
         rows.append(row)
     if notes.get("reordered_frames"):

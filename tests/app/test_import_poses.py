@@ -113,7 +113,7 @@ def test_a_tum_pair_calibrates_as_the_same_csv_streams(tmp_path, pose_only, caps
     with capsys.disabled():
         print(f"TUM vs CSV, offset estimated: largest difference {difference:.3g}")
     assert difference < 1e-6
-    offsets = [c.diagnostics["time_offset_s"] for c in (from_csv, from_tum)]
+    offsets = [c.provenance.source.time_offset_s for c in (from_csv, from_tum)]
     assert abs(offsets[0] - CLOCK_OFFSET_S) < 2e-3 and abs(offsets[1] - offsets[0]) < 1e-9
     # an existing import is not replaced without --force
     assert _run("import-poses", "--robot", robot, "--tracker", tracker, "-o", tmp_path / "tum") == 1

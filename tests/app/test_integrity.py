@@ -257,12 +257,16 @@ def test_the_calibration_records_what_it_belongs_to(calibrated):
 
 
 def test_two_raw_streams_are_both_hashed(white_simulation, tmp_path):
-    robot, tracker = tmp_path / "s.robot.csv", tmp_path / "s.tracker.csv"
-    robot.write_text("time_s\n1\n")
-    tracker.write_text("time_s\n2\n")
-    provenance = provenance_of(white_simulation.recording, robot, tracker)
+    from spacecal.io.recordings import open_path, write_raw_recording
+    from spacecal.records import RawRecording
+
+    robot, tracker = write_raw_recording(RawRecording.from_paired(white_simulation.recording), tmp_path / "s")
+    opened = open_path(robot, tracker, 0.0)
+    provenance = provenance_of(opened.recording, opened.source, robot)
     assert provenance.recording_sha256 == file_sha256(robot) != provenance.tracker_stream_sha256
     assert provenance.tracker_stream_sha256 == file_sha256(tracker)
+    assert provenance.source is not None and provenance.source.time_offset_s == 0.0
+    assert provenance.source.pairing is not None and provenance.source.pairing.offset_origin == "given"
 
 
 def test_a_missing_tool_definition_is_recorded_by_path_with_a_note(calibrated, tmp_path, white_simulation):

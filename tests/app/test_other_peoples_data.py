@@ -119,16 +119,19 @@ def test_the_tracker_kind_is_chosen_from_the_data_or_named(recording_file, tmp_p
     # auto: the recording has the tracker's fit RMS, so the noise level is the tracker's
     out = tmp_path / "auto.json"
     assert main(["calibrate", str(recording_file), "--method", "ml", "-o", str(out)]) == 0
-    auto = json.loads(out.read_text())["diagnostics"]
-    assert auto["tracker_kind"] == "auto" and auto["noise"]["sigma_per_axis_mm"] is not None
+    written = json.loads(out.read_text())
+    auto = written["diagnostics"]
+    assert written["provenance"]["tracker_kind"] == "auto" and "tracker_kind" not in auto
+    assert auto["noise"]["sigma_per_axis_mm"] is not None
     # pose: the same frames as a camera or PLUS sends them; the noise is learnt from residuals
     out = tmp_path / "pose.json"
     assert (
         main(["calibrate", str(recording_file), "--method", "ml", "--tracker-kind", "pose", "-o", str(out)])
         == 0
     )
-    pose = json.loads(out.read_text())["diagnostics"]
-    assert pose["tracker_kind"] == "pose" and pose["noise"]["sigma_per_axis_mm"] is None
+    written = json.loads(out.read_text())
+    pose = written["diagnostics"]
+    assert written["provenance"]["tracker_kind"] == "pose" and pose["noise"]["sigma_per_axis_mm"] is None
     capsys.readouterr()
     # spheres on a recording without fit RMS: one line naming the other kind
     recording, _ = storz_handeye()

@@ -123,7 +123,7 @@ def test_acquire_writes_both_raw_streams_and_pairs_them(tmp_path):
     assert result.samples_written - len(recording) <= 6
     assert raw.spheres_in_tracker is not None and raw.arrival_robot_time_s is not None
     # simulated devices share one clock: the estimated offset is (close to) zero
-    assert result.pairing.estimated and abs(result.pairing.offset_s) < 2e-3
+    assert result.pairing.offset_origin == "estimated" and abs(result.pairing.offset_s) < 2e-3
     assert json.loads((tmp_path / "rec.meta.json").read_text())["pairing"]["estimated"] is True
     world = build_world(load_scenario("paper-white"))
     error = calibration_error(calibrate(recording, "ml", uncertainty=False), world)

@@ -1,6 +1,6 @@
-"""A recording is the file its calibration was made from: ``report``, ``check --recording`` and
-``bound`` refuse the calibration's own recording in one line once it changed (an edit, or an
-acquisition written over it), unless ``--accept-edited``."""
+"""A recording is the file its calibration was made from: ``report``, ``verify``, ``check
+--recording`` and ``bound`` refuse the calibration's own recording in one line once it changed
+(an edit, or an acquisition written over it), unless ``--accept-edited``."""
 
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ def commands(folder, calibration):
         "report": ["report", str(calibration), "-o", str(folder / "report.html"), "--force"],
         "check": ["check", str(calibration), "--recording", str(folder / "recording.csv")],
         "bound": ["bound", str(folder / "recording.csv"), "--calibration", str(calibration)],
+        "verify": ["verify", str(calibration), "--points", "3"],
     }
 
 
@@ -49,8 +50,8 @@ def test_an_edited_recording_is_refused_in_one_line(calibrated, capsys):
                 err,
             )
             assert "--accept-edited" in err
-        # said so, it is used anyway (report and check take --accept-edited)
-        for name in ("report", "check"):
+        # said so, it is used anyway (each takes --accept-edited for its recording)
+        for name in ("report", "check", "bound", "verify"):
             assert main([*commands(folder, calibration)[name], "--accept-edited"]) == 0, (
                 name,
                 capsys.readouterr().err,

@@ -10,7 +10,7 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.results_json import read_calibration, write_calibration
 from spacecal.models.kinematics import ur_model
-from spacecal.records import CalibrationResult, Provenance
+from spacecal.records import CalibrationResult, Provenance, RecordingSource
 from spacecal.records.calibration import CALIBRATION_READABLE_VERSIONS, CALIBRATION_SCHEMA_VERSION
 from spacecal.records.integrity import canonical_json, content_sha256
 
@@ -35,10 +35,9 @@ def a_calibration(**changes):
             "nested": {"deeper": {"value": float(rng.normal())}},
         },
         provenance=Provenance(
-            recording="/data/rec.csv",
+            source=RecordingSource.paired_csv("/data/rec.csv", "a" * 64),
             simulated=False,
             devices={"robot": {"model": "UR10", "url": "ur://10.0.0.2", "serial": "2019301234"}},
-            recording_sha256="a" * 64,
             tool_definition="/data/8700339.rom",
             tool_definition_sha256="b" * 64,
             # fixed, so two results made a second apart hash the same

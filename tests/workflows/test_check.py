@@ -10,7 +10,7 @@ from spacecal.estimators import calibrate
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.check_history import history_path, read_history
 from spacecal.io.results_json import read_calibration, write_calibration
-from spacecal.records import Provenance
+from spacecal.records import Provenance, RecordingSource
 
 
 @pytest.fixture
@@ -21,7 +21,9 @@ def calibration_file(tmp_path, white_simulation):
     result = calibrate(white_simulation.recording, "ml")
     result = result.replace(
         provenance=Provenance(
-            recording=str(recording), simulated=True, scenario=white_simulation.world.scenario.to_dict()
+            source=RecordingSource.paired_csv(str(recording)),
+            simulated=True,
+            scenario=white_simulation.world.scenario.to_dict(),
         )
     )
     return write_calibration(result, tmp_path / "cal.json")

@@ -15,7 +15,7 @@ from spacecal.experiments.simulation import simulate
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.recording_csv import write_recording
 from spacecal.io.results_json import write_calibration
-from spacecal.records import Provenance
+from spacecal.records import Provenance, RecordingSource
 from spacecal.sim.scenario import PRESETS
 
 CASES = ("paper-realistic", "paper-realistic-nominal", "pose-only")
@@ -40,7 +40,9 @@ def recordings(realistic_simulation, tmp_path_factory):
 def calibration_file(recordings, case, method):
     recording, path, scenario = recordings[case]
     result = calibrate(recording, method).replace(
-        provenance=Provenance(recording=str(path), simulated=True, scenario=scenario.to_dict())
+        provenance=Provenance(
+            source=RecordingSource.paired_csv(str(path)), simulated=True, scenario=scenario.to_dict()
+        )
     )
     return write_calibration(result, path.with_name(f"{case}-{method}.json"))
 

@@ -1,4 +1,5 @@
-"""Small helpers the app functions share: outputs that must not overwrite inputs or results,
+"""Small helpers the app functions share: outputs that must not overwrite inputs or results
+(what a recording file is, :func:`~spacecal.io.recording_files.is_recording` decides),
 provenance, and reading a calibration whose content hash is checked."""
 
 from __future__ import annotations
@@ -10,27 +11,9 @@ from typing import Any
 from spacecal.adapters import canonical_url
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.io.digest import file_sha256, spacecal_schema_of
+from spacecal.io.recordings import is_recording
 from spacecal.io.results_json import read_calibration
-from spacecal.records import CalibrationResult, Provenance, Recording
-
-
-def is_recording(path: str | Path) -> bool:
-    """True for an existing recording: a CSV whose header has ``time_s`` (paired or raw
-    stream), a recording's ``.meta.json`` or an acquisition's ``.progress.json``."""
-    path = Path(path)
-    if not path.is_file():
-        return False
-    if path.name.endswith((".meta.json", ".progress.json")):
-        return True
-    if path.suffix.lower() != ".csv":
-        return False
-    try:
-        with open(path, "rb") as handle:
-            first = handle.readline(4096)
-    except OSError:
-        return False
-    return b"time_s" in first
-
+from spacecal.records import CalibrationResult, Provenance, Recording, RecordingSource
 
 #: What an existing spacecal file is, by its ``schema``, for the line that refuses to replace it.
 RESULT_KINDS = {
@@ -197,11 +180,16 @@ DEVICE_KEYS = ("model", "url", "name", "serial", "firmware", "rate_hz")
 
 
 def provenance_of(
-    recording: Recording, recording_path: str | Path | None, tracker_stream: str | Path | None = None
+    recording: Recording,
+    source: RecordingSource | None,
+    recording_path: str | Path | None = None,
+    tracker_kind: str | None = None,
 ) -> Provenance:
-    """Where a recording came from, as far as its metadata says, and the identities of the
-    files it came from: the sha256 of the recording (and of the raw tracker stream) and of the
-    marker's tool definition the metadata names (``marker.tool_definition``), hashed now."""
+    """Where a recording came from: its ``source`` (its files and their sha256, how it was
+    paired: :func:`~spacecal.io.recording_source.open_path`), what its metadata says (simulated,
+    the scenario, the devices), the marker's tool definition it names
+    (``marker.tool_definition``, relative to ``recording_path``) with its sha256 taken now, and
+    the ``tracker_kind`` it was calibrated as."""
     metadata: dict[str, Any] = recording.metadata or {}
     scenario = metadata.get("scenario")
     simulated: bool | None = metadata.get("simulated")
@@ -224,13 +212,11 @@ def provenance_of(
         # a relative path is the recording's neighbour (acquire writes an absolute one)
         tool_definition = str(Path(recording_path).resolve().parent / tool_definition)
     return Provenance(
-        recording=None if recording_path is None else str(Path(recording_path).resolve()),
-        tracker_stream=None if tracker_stream is None else str(Path(tracker_stream).resolve()),
+        source=source,
         simulated=simulated if isinstance(simulated, bool) else None,
         scenario=scenario if isinstance(scenario, dict) else None,
         devices=devices,
-        recording_sha256=None if recording_path is None else file_sha256(recording_path),
-        tracker_stream_sha256=None if tracker_stream is None else file_sha256(tracker_stream),
+        tracker_kind=tracker_kind,
         tool_definition=None if tool_definition is None else str(Path(tool_definition).resolve()),
         tool_definition_sha256=(
             file_sha256(tool_definition)

@@ -39,8 +39,7 @@ from spacecal.core.ports import (
     Robot,
     Tracker,
 )
-from spacecal.io.raw_streams import raw_stream_paths
-from spacecal.io.recording_csv import last_time_s
+from spacecal.io.recordings import last_time_s, raw_stream_paths
 from spacecal.planning.motion import MotionLimits
 from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.planning.paper_sweeps import PaperSweepSettings

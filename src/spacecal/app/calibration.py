@@ -29,13 +29,9 @@ from spacecal.estimators.observations import (
     marker_geometry_of,
     sphere_noise_from_marker_rms,
 )
-from spacecal.estimators.time_offset import check_overlap, estimate_time_offset, pair_streams
-from spacecal.io.csv_core import metadata_path
 from spacecal.io.digest import file_sha256
 from spacecal.io.pose_files import read_matrix_folder
-from spacecal.io.raw_streams import read_raw_recording
-from spacecal.io.recording_csv import read_recording
-from spacecal.io.recording_source import open_calibrated_recording
+from spacecal.io.recordings import metadata_path, open_calibrated_recording, open_path
 from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.records import CalibrationResult, NeedleTip, PivotResult, Recording
 from spacecal.registration.pivot import pivot_calibration
@@ -172,33 +168,24 @@ def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     tip = read_needle_tip(settings.tip) if settings.tip else None
     targets = check_points(settings.targets_in_base, "--target")
-    note = None
-    if settings.tracker_stream:
-        raw = read_raw_recording(settings.recording, settings.tracker_stream)
-        if settings.time_offset_ms is None:
-            try:
-                found = estimate_time_offset(raw)
-            except DegenerateDataError as exc:
-                raise DegenerateDataError(
-                    f"{exc}; pass --time-offset-ms (robot clock minus tracker clock, ms)"
-                ) from None
-            offset_s = found.offset_s
-            note = (
-                f"clock offset estimated: robot clock {offset_s * 1000:.2f} ms ahead of the tracker's "
-                f"({found.describe()})"
+    offset_s = None
+    if settings.time_offset_ms is not None:
+        if not math.isfinite(settings.time_offset_ms):
+            raise InvalidInputError(
+                "--time-offset-ms takes a finite number of milliseconds (robot clock minus "
+                "tracker clock), or 'estimate'"
             )
-        else:
-            if not math.isfinite(settings.time_offset_ms):
-                raise InvalidInputError(
-                    "--time-offset-ms takes a finite number of milliseconds (robot clock minus "
-                    "tracker clock), or 'estimate'"
-                )
-            offset_s = settings.time_offset_ms / 1000.0
-            check_overlap(raw, offset_s, "--time-offset-ms")
-            note = f"clock offset given: {offset_s * 1000:.2f} ms"
-        recording = pair_streams(raw, offset_s)
-    else:
-        recording = read_recording(settings.recording)
+        offset_s = settings.time_offset_ms / 1000.0
+    try:
+        opened = open_path(
+            settings.recording, settings.tracker_stream or None, offset_s, offset_option="--time-offset-ms"
+        )
+    except DegenerateDataError as exc:  # only raw streams' pairing is degenerate
+        raise DegenerateDataError(
+            f"{exc}; pass --time-offset-ms (robot clock minus tracker clock, ms)"
+        ) from None
+    note = opened.pairing_note
+    recording = opened.recording
     recording = as_tracker_kind(recording, settings.tracker_kind)
     doubtful = int(recording.doubtful.sum())
     doubtful_note = None
@@ -224,7 +211,7 @@ def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
     # before any estimate; the rest is judged by its expected error, however large its residuals
     check_consistent(recording, str(settings.recording))
     result = estimate(recording, settings.method, **options)
-    provenance = provenance_of(recording, settings.recording, settings.tracker_stream)
+    provenance = provenance_of(recording, opened.source, settings.recording, settings.tracker_kind)
     notes = []
     if provenance.tool_definition is not None and provenance.tool_definition_sha256 is None:
         notes.append(
@@ -232,9 +219,6 @@ def _calibrate(settings: CalibrateSettings) -> CommandResult[CalibrationResult]:
             "the calibration records its path but not its sha256"
         )
     result = result.replace(provenance=provenance)
-    result.diagnostics["tracker_kind"] = settings.tracker_kind
-    if settings.tracker_stream:
-        result.diagnostics["time_offset_s"] = recording.metadata["paired_with_offset_s"]
     path = write_calibration(result, settings.output)
     return calibrate_result(result, path, tuple(n for n in (note, doubtful_note) if n), tuple(notes))
 
@@ -312,12 +296,17 @@ def calibrate_result(
 
 @dataclass(frozen=True)
 class BoundSettings:
-    """``spacecal bound``: the Cramér–Rao lower bound on TRE for a recording."""
+    """``spacecal bound``: the Cramér–Rao lower bound on TRE for a recording.
+
+    ``accept_edited``: use the calibration's own recording although it changed since the
+    calibration was made from it (an edited calibration is refused all the same).
+    """
 
     recording: str
     calibration: str
     sigma_mm: float | None = None
     targets_in_base: tuple[Point, ...] = ()
+    accept_edited: bool = False
 
 
 def recorded_noise(recording: Recording, calibration: CalibrationResult) -> tuple[float, str]:
@@ -419,7 +408,7 @@ def bound(settings: BoundSettings) -> CommandResult[BoundResult]:
     """
     check_positive(settings.sigma_mm, "--sigma-mm", "millimetres", 1e-4, 10.0)
     calibration, notes = open_calibration(settings.calibration, "bound")
-    opened = open_calibrated_recording(calibration, settings.recording)
+    opened = open_calibrated_recording(calibration, settings.recording, settings.accept_edited)
     if opened is None:
         raise InvalidInputError(f"{settings.recording}: no such recording")
     recording = opened.recording
@@ -500,7 +489,7 @@ def pivot(settings: PivotSettings) -> CommandResult[PivotResult]:
                 raise InvalidInputError(f"{subset}: not UTF-8 text (one pose file name per line)") from None
         poses = read_matrix_folder(source, names)
     else:
-        poses = read_recording(source).tracker_from_marker_stack
+        poses = open_path(source).recording.tracker_from_marker_stack
     result = pivot_calibration(poses, settings.method)
     path = write_json(result.to_dict(), settings.output) if settings.output else None
     return pivot_result(result, paths(path))

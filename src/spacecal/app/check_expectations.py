@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from spacecal.core.errors import DegenerateDataError, SpacecalError
-from spacecal.io.recording_source import open_calibrated_recording
+from spacecal.io.recordings import open_calibrated_recording
 from spacecal.planning.motion import MotionPlan
 from spacecal.records import CalibrationResult
 from spacecal.workflows.check import (

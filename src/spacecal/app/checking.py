@@ -29,7 +29,7 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.experiments.simulation import simulation_settings
 from spacecal.io.check_history import append_history, history_path
-from spacecal.io.recording_source import open_calibrated_recording
+from spacecal.io.recordings import open_calibrated_recording
 from spacecal.planning.check_poses import check_plan
 from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.records import CheckResult

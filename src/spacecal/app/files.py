@@ -20,7 +20,6 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import quoted, sanitize_for_terminal
 from spacecal.io.atomic import atomic_path
 from spacecal.io.check_history import history_path, read_history
-from spacecal.io.csv_core import metadata_path
 from spacecal.io.plus_config import (
     read_plus_landmarks,
     read_plus_transform,
@@ -28,8 +27,7 @@ from spacecal.io.plus_config import (
 )
 from spacecal.io.plus_import import recording_from_plus_sequence
 from spacecal.io.plus_sequence import read_plus_sequence
-from spacecal.io.recording_csv import write_recording
-from spacecal.io.recording_source import open_calibrated_recording
+from spacecal.io.recordings import metadata_path, open_calibrated_recording, write_recording
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.records import CalibrationResult, LandmarkRegistrationResult, Recording, VerificationResult

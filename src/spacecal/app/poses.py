@@ -10,7 +10,7 @@ from pathlib import Path
 from spacecal.app._common import guard_outputs
 from spacecal.app.result import CommandResult, note_lines
 from spacecal.core.errors import InvalidInputError
-from spacecal.io.raw_streams import stream_paths, write_raw_recording
+from spacecal.io.recordings import stream_paths, write_raw_recording
 from spacecal.io.tum import MM_PER_UNIT, raw_recording_from_tum, read_tum
 from spacecal.records import RawRecording
 
@@ -27,7 +27,8 @@ class ImportPosesSettings:
         TUM file of the tracker's poses: ``tracker_from_marker``, or with ``eye_in_hand`` the
         camera's trajectory in the target's frame, ``target_from_camera``.
     output : str
-        Stem of ``STEM.robot.csv``, ``STEM.tracker.csv`` and ``STEM.meta.json``.
+        Stem of the robot stream, the tracker stream and their metadata file
+        (:func:`~spacecal.io.recording_files.stream_paths` names them).
     units : {"m", "mm"}
         Length unit of both files (TUM files are in metres).
     eye_in_hand : bool

@@ -14,11 +14,9 @@ from spacecal.app.result import CommandResult
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.io.atomic import write_text_atomic
-from spacecal.io.csv_core import metadata_path
 from spacecal.io.easy_handeye import easy_handeye2_calibration_text, read_easy_handeye_samples
 from spacecal.io.names import check_calibration_name, check_ros_frame_name
-from spacecal.io.raw_streams import stream_paths, write_raw_recording
-from spacecal.io.recording_csv import write_recording
+from spacecal.io.recordings import metadata_path, stream_paths, write_raw_recording, write_recording
 from spacecal.io.ros_bag import BagContents, list_bag_contents, read_ros_bag
 from spacecal.io.ros_exports import (
     calibration_static_transform,

@@ -22,9 +22,16 @@ from spacecal.experiments.simulation import simulate as simulate_run
 from spacecal.experiments.simulation import simulate_raw
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.io.atomic import atomic_path
-from spacecal.io.csv_core import metadata_path
-from spacecal.io.raw_streams import stream_paths, write_raw_recording
-from spacecal.io.recording_csv import write_recording
+from spacecal.io.recordings import (
+    metadata_path,
+    open_path,
+    paired_files,
+    recording_in,
+    refuse_changed,
+    stream_paths,
+    write_raw_recording,
+    write_recording,
+)
 from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.planning.motion import MotionPlan, motion_plan_from_record
 from spacecal.planning.motion_gate import MotionGateReport
@@ -222,6 +229,9 @@ class VerifySettings:
         Needle poses (the paper: 15).
     output, figure : str or None
         Verification JSON and Fig. 7-style PNG to write.
+    accept_edited : bool
+        Verify although the calibration's recording changed since it was made from it (an
+        edited calibration is refused all the same).
     """
 
     calibration: str
@@ -230,14 +240,15 @@ class VerifySettings:
     output: str | None = None
     figure: str | None = None
     force: bool = False
+    accept_edited: bool = False
 
 
 def scenario_of_calibration(calibration: CalibrationResult) -> tuple[Scenario | None, str]:
     """The simulated scenario a calibration's data came from, and where that was found."""
     if calibration.provenance.scenario is not None:
         return scenario_from_dict(calibration.provenance.scenario), "the calibration's provenance"
-    recording = calibration.provenance.recording
-    meta = metadata_path(recording) if recording else None
+    source = calibration.provenance.source
+    meta = None if source is None else metadata_path(source.recording)
     if meta is not None and meta.is_file():
         data = read_json_object(meta, "recording metadata")
         if isinstance(data.get("scenario"), dict):
@@ -262,6 +273,9 @@ def verify(settings: VerifySettings) -> CommandResult[VerificationResult]:
         any_file=True,
     )
     calibration, notes = open_calibration(settings.calibration, "verify")
+    if calibration.provenance.source is not None:
+        # a calibration whose recording changed is not the one verified (files gone: nothing to compare)
+        refuse_changed(calibration.provenance.source, settings.accept_edited)
     if settings.scenario is not None:
         scenario = load_scenario(settings.scenario)
         source = "given"
@@ -327,8 +341,7 @@ def demo(settings: DemoSettings) -> CommandResult[DemoResult]:
         The simulation, calibrations and verification; with ``out``, the files written there.
     """
     names = (
-        "recording.csv",
-        "recording.meta.json",
+        *(path.name for path in paired_files(recording_in("."))),
         "calibration.json",
         "verification.json",
         "verification_errors.png",
@@ -341,11 +354,11 @@ def demo(settings: DemoSettings) -> CommandResult[DemoResult]:
     paths: list[Path] = []
     if settings.out:
         out = Path(settings.out)
-        recording_path = write_recording(result.simulation.recording, out / "recording.csv")
+        recording_path = write_recording(result.simulation.recording, recording_in(out))
         calibration = result.calibration.replace(
             provenance=dataclasses.replace(
                 result.calibration.provenance,
-                recording=str(recording_path.resolve()),
+                source=open_path(recording_path).source,
                 simulated=True,
                 scenario=result.simulation.world.scenario.to_dict(),
             )

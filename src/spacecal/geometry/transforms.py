@@ -276,7 +276,8 @@ def quaternion_wxyz_to_matrix(quaternion_wxyz: ArrayLike) -> FloatArray:
     ----------
     quaternion_wxyz : array_like, shape (4,) or (N, 4)
         Need not be exactly unit; scipy normalises. Callers that must reject
-        non-unit input check it first (see :mod:`spacecal.io.recording_csv`).
+        non-unit input check it first (as the recording readers in :mod:`spacecal.io`
+        do: :mod:`spacecal.io.csv_core`).
     """
     q = np.asarray(quaternion_wxyz, dtype=float)
     return as_float_array(Rotation.from_quat(np.roll(q, -1, axis=-1)).as_matrix())

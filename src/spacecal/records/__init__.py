@@ -20,6 +20,12 @@ from spacecal.records.recording import (
     RawRecording,
     Recording,
 )
+from spacecal.records.recording_source import (
+    RECORDING_KINDS,
+    RecordingSource,
+    SourceFile,
+    StreamPairing,
+)
 
 __all__ = [
     "CALIBRATION_SCHEMA_VERSION",
@@ -31,6 +37,10 @@ __all__ = [
     "Provenance",
     "RawRecording",
     "Recording",
+    "RECORDING_KINDS",
+    "RecordingSource",
+    "SourceFile",
+    "StreamPairing",
     "robot_model_from_dict",
     "robot_model_to_dict",
 ]

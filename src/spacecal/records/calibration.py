@@ -13,6 +13,13 @@ Schema history of the calibration file (``schema: spacecal.calibration``):
   with its error covariance and the pivot file it came from. Only a calibration with a tip is
   written as version 4, so a reader that knows no tip refuses it instead of aiming the TCP.
 
+Within versions 3 and 4, ``provenance.source`` (a :class:`~spacecal.records.RecordingSource`:
+the recording's files with their sha256, and the clock offset raw streams were paired at) and
+``provenance.tracker_kind`` came later; a file without them is read from the loose
+``provenance`` fields, ``diagnostics["time_offset_s"]`` and ``diagnostics["tracker_kind"]``
+that files held before. Readers of earlier versions ignore the two keys and still find the
+loose fields, which are written too.
+
 Versions 1 and 2 are still read; they carry no hash, so they cannot be verified
 (:attr:`CalibrationResult.integrity` says so).
 """
@@ -42,6 +49,7 @@ from spacecal.records.fields import (
 )
 from spacecal.records.integrity import INTEGRITY_KEY, Integrity, integrity_entry, is_sha256
 from spacecal.records.integrity import content_sha256 as hash_of_content
+from spacecal.records.recording_source import RecordingSource
 from spacecal.records.results import PivotResult
 from spacecal.records.verdict import Verdict
 
@@ -110,10 +118,11 @@ class Provenance:
 
     Attributes
     ----------
-    recording : str or None
-        Absolute path of the recording calibrated (or the robot stream of a raw recording).
-    tracker_stream : str or None
-        Absolute path of the raw tracker stream, when the recording was two raw streams.
+    source : RecordingSource or None
+        The recording calibrated: its files (absolute paths) and their sha256 taken when
+        calibrating, and how raw streams were paired (the clock offset and where it came from).
+        ``recording``, ``tracker_stream``, ``recording_sha256`` and ``tracker_stream_sha256``
+        read it.
     simulated : bool or None
         True for data from spacecal's simulator, False for real devices, None when unknown
         (e.g. an imported file).
@@ -123,54 +132,86 @@ class Provenance:
         Device identities where known: ``robot`` (``model``, ``url``, ``serial``) and
         ``tracker`` (``url``, ``name``, ``model``, ``serial``), as the recording's metadata
         states them.
-    recording_sha256, tracker_stream_sha256 : str or None
-        sha256 of the recording file (the robot stream of a raw recording) and of the raw
-        tracker stream, taken when calibrating.
     tool_definition : str or None
         Absolute path of the marker's tool definition (NDI ``.rom``) the recording names.
     tool_definition_sha256 : str or None
         Its sha256 when calibrating (None when the recording names none, or it was not there).
+    tracker_kind : str or None
+        What the tracker was taken to measure (``calibrate --tracker-kind``: ``auto``,
+        ``spheres`` or ``pose``); None when not recorded.
     created_utc : str
         ISO time the result was made.
     software : str
         ``spacecal <version>``.
     """
 
-    recording: str | None = None
-    tracker_stream: str | None = None
+    source: RecordingSource | None = None
     simulated: bool | None = None
     scenario: dict[str, Any] | None = None
     devices: dict[str, Any] = field(default_factory=dict)
-    recording_sha256: str | None = None
-    tracker_stream_sha256: str | None = None
     tool_definition: str | None = None
     tool_definition_sha256: str | None = None
+    tracker_kind: str | None = None
     created_utc: str = field(
         default_factory=lambda: datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     )
     software: str = field(default_factory=lambda: f"spacecal {_version()}")
 
+    @property
+    def recording(self) -> str | None:
+        """Absolute path of the recording calibrated (the robot stream of raw streams)."""
+        return None if self.source is None else self.source.recording
+
+    @property
+    def tracker_stream(self) -> str | None:
+        """Absolute path of the raw tracker stream, when the recording was two raw streams."""
+        return None if self.source is None else self.source.tracker_stream
+
+    @property
+    def recording_sha256(self) -> str | None:
+        return None if self.source is None else self.source.recording_sha256
+
+    @property
+    def tracker_stream_sha256(self) -> str | None:
+        return None if self.source is None else self.source.tracker_stream_sha256
+
     def to_dict(self) -> dict[str, Any]:
-        return plain(dataclasses.asdict(self))
+        """The provenance object of the file; the loose ``recording``, ``tracker_stream`` and
+        their ``*_sha256`` are written beside ``source`` for readers of earlier versions."""
+        return plain(
+            {
+                "recording": self.recording,
+                "tracker_stream": self.tracker_stream,
+                "simulated": self.simulated,
+                "scenario": self.scenario,
+                "devices": self.devices,
+                "recording_sha256": self.recording_sha256,
+                "tracker_stream_sha256": self.tracker_stream_sha256,
+                "tool_definition": self.tool_definition,
+                "tool_definition_sha256": self.tool_definition_sha256,
+                "created_utc": self.created_utc,
+                "software": self.software,
+                "source": None if self.source is None else self.source.to_dict(),
+                "tracker_kind": self.tracker_kind,
+            }
+        )
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], what: str) -> Provenance:
-        recording = data.get("recording")
-        tracker_stream = data.get("tracker_stream")
+    def from_dict(
+        cls, data: Mapping[str, Any], what: str, diagnostics: Mapping[str, Any] | None = None
+    ) -> Provenance:
+        """Read a provenance object; one without ``source`` (files of earlier versions) has its
+        source built from the loose fields and ``diagnostics["time_offset_s"]``, and its tracker
+        kind from ``diagnostics["tracker_kind"]``."""
+        diagnostics = diagnostics or {}
         simulated = data.get("simulated")
         tool_definition = data.get("tool_definition")
-        for key, value in (
-            ("recording", recording),
-            ("tracker_stream", tracker_stream),
-            ("tool_definition", tool_definition),
-        ):
+        for key in ("recording", "tracker_stream", "tool_definition"):
+            value = data.get(key)
             if value is not None and not isinstance(value, str):
                 raise InvalidInputError(f"{what}: provenance {key!r} must be a path string")
-        digests = {
-            key: data.get(key)
-            for key in ("recording_sha256", "tracker_stream_sha256", "tool_definition_sha256")
-        }
-        for key, value in digests.items():
+        for key in ("recording_sha256", "tracker_stream_sha256", "tool_definition_sha256"):
+            value = data.get(key)
             if value is not None and not is_sha256(value):
                 raise InvalidInputError(
                     f"{what}: provenance {key!r} must be a sha256 (64 hex digits) or null"
@@ -180,14 +221,22 @@ class Provenance:
         scenario = data.get("scenario")
         if scenario is not None and not isinstance(scenario, Mapping):
             raise InvalidInputError(f"{what}: provenance 'scenario' must be an object")
+        source: RecordingSource | None = None
+        if data.get("source") is not None:
+            source = RecordingSource.from_dict(data["source"], f"{what}: provenance source")
+        else:
+            source = RecordingSource.from_old_provenance(data, diagnostics, what)
+        kind = data["tracker_kind"] if "tracker_kind" in data else diagnostics.get("tracker_kind")
+        if kind is not None and not isinstance(kind, str):
+            raise InvalidInputError(f"{what}: provenance 'tracker_kind' must be a string or null")
         return cls(
-            recording=recording,
-            tracker_stream=tracker_stream,
+            source=source,
             simulated=simulated,
             scenario=None if scenario is None else dict(scenario),
             devices=get_mapping(data, "devices", what),
             tool_definition=tool_definition,
-            **digests,
+            tool_definition_sha256=data.get("tool_definition_sha256"),
+            tracker_kind=kind,
             created_utc=get_str(data, "created_utc", what, default=""),
             software=get_str(data, "software", what, default=""),
         )
@@ -473,14 +522,16 @@ class CalibrationResult:
         if version == 1:
             # v1: the robot model in diagnostics, the recording path in "source"
             model_data = diagnostics.get("kinematic_model")
+            recording = _optional_path(get_mapping(data, "source", what).get("recording"), what)
             provenance = Provenance(
-                recording=_optional_path(get_mapping(data, "source", what).get("recording"), what),
+                source=None if recording is None else RecordingSource.paired_csv(recording),
+                tracker_kind=_optional_kind(diagnostics.get("tracker_kind")),
                 created_utc=str(data.get("created_utc", "")),
                 software=f"spacecal {data.get('spacecal_version', '')}".strip(),
             )
         else:
             model_data = data.get("robot_model")
-            provenance = Provenance.from_dict(get_mapping(data, "provenance", what), what)
+            provenance = Provenance.from_dict(get_mapping(data, "provenance", what), what, diagnostics)
         robot_model = None
         if model_data is not None:
             if not isinstance(model_data, Mapping):
@@ -515,3 +566,7 @@ def _optional_path(value: Any, what: str) -> str | None:
     if not isinstance(value, str):
         raise InvalidInputError(f"{what}: source 'recording' must be a path string")
     return value
+
+
+def _optional_kind(value: Any) -> str | None:
+    return value if isinstance(value, str) else None

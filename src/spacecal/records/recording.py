@@ -1,7 +1,7 @@
 """Recordings: paired samples, and the two raw streams they are derived from.
 
 They hold numbers and names only, checked for consistent shapes on construction; reading
-and writing them is :mod:`spacecal.io` (``recording_csv``, ``raw_streams``).
+and writing them is :mod:`spacecal.io` (:mod:`spacecal.io.recordings`).
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from typing import Any
 from spacecal import app
 from spacecal.app.devices import SIMULATED
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
+from spacecal.io.recordings import recording_in
 from spacecal.records import CalibrationResult
 
 #: The finding levels in an operator's words.
@@ -93,7 +94,7 @@ class Workspace:
 
     @property
     def recording_path(self) -> Path:
-        return self.folder / "recording.csv"
+        return recording_in(self.folder)
 
     @property
     def calibration_path(self) -> Path:

@@ -47,6 +47,11 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.io.csv_core import JOINT_COLUMNS, MARKER_COLUMNS, TCP_COLUMNS
+from spacecal.io.recordings import metadata_path, stream_paths
+
+#: The base recording's metadata file and the raw streams' files, named as spacecal names them.
+REC_META = metadata_path("rec.csv").name
+RAW_ROBOT, RAW_TRACKER, RAW_META = (path.name for path in stream_paths("raw"))
 
 CLASSES = ("encoding", "types", "numbers", "consistency", "overwrite", "arguments", "valid")
 OUTCOMES = (
@@ -143,8 +148,7 @@ def build_base(folder: Path) -> Path:
     from spacecal.geometry.transforms import transform_to_position_quaternion
     from spacecal.io.easy_handeye import easy_handeye2_samples_text
     from spacecal.io.plus_config import plus_coordinate_definition
-    from spacecal.io.raw_streams import write_raw_recording
-    from spacecal.io.recording_csv import read_recording
+    from spacecal.io.recordings import open_path, write_raw_recording
     from spacecal.records import RawRecording
 
     folder.mkdir(parents=True, exist_ok=True)
@@ -154,7 +158,7 @@ def build_base(folder: Path) -> Path:
     app.calibrate(app.CalibrateSettings(str(folder / "rec.csv"), str(folder / "cal.json"), "ml"))
     app.verify(app.VerifySettings(str(folder / "cal.json"), points=3, output=str(folder / "ver.json")))
     (folder / "scen.json").write_text(json.dumps(QUICK_SCENARIO, indent=2) + "\n")
-    recording = read_recording(folder / "rec.csv")
+    recording = open_path(folder / "rec.csv").recording
     seen = recording.visible
     write_raw_recording(
         RawRecording.from_paired(recording),
@@ -670,7 +674,7 @@ def _mutate_file(pick, folder: Path, name: str, klass: str) -> tuple[str, str]:
         return f"{name}: {label}", expect
     if name.endswith(".json"):
         data = json.loads(_text(path))
-        keys = JSON_KEYS.get(name) or JSON_KEYS["rec.meta.json"]
+        keys = JSON_KEYS.get(name) or JSON_KEYS[REC_META]
         label, text, expect = json_mutation(
             pick, data, klass if klass in ("types", "numbers") else "types", keys
         )
@@ -700,7 +704,7 @@ def _mutate_file(pick, folder: Path, name: str, klass: str) -> tuple[str, str]:
 
 JSON_KEYS: dict[str, dict[str, list]] = {
     "cal.json": CAL_KEYS,
-    "rec.meta.json": {
+    REC_META: {
         "robot": ["UR10", [1], 3],
         "robot.model": [3, ["UR10"], "UR99"],
         "robot.flange_from_tcp": ["x", [[1, 2]], [[2, 0, 0, 0]] * 4],
@@ -782,24 +786,24 @@ OUTPUT_NAMES = {
 COMMANDS: dict[str, dict] = {
     "calibrate": {
         "argv": ["calibrate", "rec.csv", "--method", "ml", "-o", "out.json"],
-        "files": ["rec.csv", "rec.meta.json"],
+        "files": ["rec.csv", REC_META],
         "options": {"--sigma-mm": "float", "--target": "point", "--method": "method"},
-        "inputs": ["rec.csv", "rec.meta.json", "raw.robot.csv", "raw.meta.json"],
+        "inputs": ["rec.csv", REC_META, RAW_ROBOT, RAW_META],
     },
     "calibrate-raw": {
         "argv": [
             "calibrate",
-            "raw.robot.csv",
+            RAW_ROBOT,
             "--tracker-stream",
-            "raw.tracker.csv",
+            RAW_TRACKER,
             "--method",
             "paper",
             "-o",
             "out.json",
         ],
-        "files": ["raw.robot.csv", "raw.tracker.csv", "raw.meta.json"],
+        "files": [RAW_ROBOT, RAW_TRACKER, RAW_META],
         "options": {"--time-offset-ms": "offset"},
-        "inputs": ["raw.robot.csv", "raw.tracker.csv", "raw.meta.json"],
+        "inputs": [RAW_ROBOT, RAW_TRACKER, RAW_META],
     },
     "bound": {
         "argv": ["bound", "rec.csv", "--calibration", "cal.json", "--sigma-mm", "0.1"],
@@ -817,13 +821,13 @@ COMMANDS: dict[str, dict] = {
         "argv": ["pivot", "rec.csv", "--method", "sphere", "-o", "out.json"],
         "files": ["rec.csv"],
         "options": {},
-        "inputs": ["rec.csv", "rec.meta.json"],
+        "inputs": ["rec.csv", REC_META],
     },
     "verify": {
         "argv": ["verify", "cal.json", "--points", "3", "-o", "out.json"],
         "files": ["cal.json"],
         "options": {"--points": "int"},
-        "inputs": ["cal.json", "rec.csv", "rec.meta.json"],
+        "inputs": ["cal.json", "rec.csv", REC_META],
     },
     "check": {
         "argv": ["check", "cal.json", "--recording", "rec.csv"],
@@ -845,7 +849,7 @@ COMMANDS: dict[str, dict] = {
         ],
         "files": ["cal.json", "rec.csv", "ver.json", "cal.checks.jsonl"],
         "options": {},
-        "inputs": ["cal.json", "rec.csv", "ver.json", "rec.meta.json"],
+        "inputs": ["cal.json", "rec.csv", "ver.json", REC_META],
         "slow": True,
     },
     "export": {
@@ -896,7 +900,7 @@ COMMANDS: dict[str, dict] = {
         "argv": ["simulate", "--scenario", "scen.json", "-o", "out.csv"],
         "files": ["scen.json"],
         "options": {"--seed": "int", "--clock-offset-ms": "float"},
-        "inputs": ["scen.json", "rec.csv", "rec.meta.json"],
+        "inputs": ["scen.json", "rec.csv", REC_META],
         "slow": True,
     },
     "acquire": {
@@ -912,7 +916,7 @@ COMMANDS: dict[str, dict] = {
             "--workspace-box": "box",
             "--tool-offset-mm": "point",
         },
-        "inputs": ["scen.json", "rec.csv", "rec.meta.json"],
+        "inputs": ["scen.json", "rec.csv", REC_META],
         "slow": True,
     },
     "phantom": {
@@ -977,7 +981,7 @@ def build_case(pick, folder: Path, command: str, klass: str, fast: bool) -> Case
         file_klass = "types"
     label, expect = _mutate_file(pick, folder, file_name, file_klass)
     if file_name == "cal.checks.jsonl" or (
-        file_name == "rec.meta.json" and expect == "refuse" and klass != "encoding"
+        file_name == REC_META and expect == "refuse" and klass != "encoding"
     ):
         expect = "any"  # advisory history; metadata the estimators do not need
     if command in ("pivot", "pivot-csv") and klass != "encoding":

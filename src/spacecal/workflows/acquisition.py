@@ -26,12 +26,10 @@ import numpy as np
 from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
 from spacecal.core.interrupts import raise_if_stop_requested
 from spacecal.core.ports import FRAME_OK, SAFETY_NORMAL, Robot, RobotState, StreamingRobot, Tracker
-from spacecal.estimators.time_offset import Pairing, pair_at_estimated_offset
 from spacecal.io.acquisition_progress import progress_path, read_progress, write_progress
-from spacecal.io.raw_streams import RawStreamWriter, raw_stem, raw_stream_paths, read_raw_recording
-from spacecal.io.recording_csv import write_recording
+from spacecal.io.recordings import RawStreamWriter, open_path, raw_stem, raw_stream_paths, write_recording
 from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove
-from spacecal.records import AcquisitionProgress
+from spacecal.records import AcquisitionProgress, StreamPairing
 from spacecal.workflows.stations import average_stations
 
 #: A robot state older than this, while moving, counts as stale (UR streams at 125–500 Hz).
@@ -123,7 +121,7 @@ class AcquisitionResult:
     stopped_because: str | None = None
     progress: list = field(default_factory=list)
     raw_paths: tuple[Path, Path] | None = None
-    pairing: Pairing | None = None
+    pairing: StreamPairing | None = None
     #: Why no paired recording could be derived from the raw streams (None when it was).
     unpaired_because: str | None = None
 
@@ -420,11 +418,10 @@ def acquire(
         :class:`SampleGrid`); others are transit.
     robot, tracker : Robot, Tracker
     recording_path : str or Path
-        The paired recording CSV, ``STEM.csv``; the raw streams ``STEM.robot.csv`` and
-        ``STEM.tracker.csv``, the metadata ``STEM.meta.json`` and the progress file go next
-        to it.
+        The paired recording CSV, ``STEM.csv``; the raw streams, their metadata file and the
+        progress file go next to it (named by :mod:`spacecal.io.recording_files`).
     metadata : dict
-        Written to ``STEM.meta.json``.
+        Written to the recording's metadata file.
     settings : AcquisitionSettings, optional
     resume : bool
         Continue a stopped run of the same plan: append to the streams and start from the
@@ -526,8 +523,8 @@ def _derive_recording(result: AcquisitionResult, metadata: dict) -> None:
     assert result.raw_paths is not None
     sampling = metadata.get("sampling") or {}
     try:
-        raw = read_raw_recording(*result.raw_paths)
-        recording, result.pairing = pair_at_estimated_offset(raw)
+        opened = open_path(*result.raw_paths, fall_back_to_link=True)
+        recording, result.pairing = opened.recording, opened.source.pairing
         if sampling.get("mode") == "stop-and-go":
             recording = average_stations(recording, float(sampling["frame_period_s"]))
         write_recording(recording, result.recording_path)
