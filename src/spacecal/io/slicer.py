@@ -102,7 +102,9 @@ def _versor_rotation(vector: FloatArray, where: str) -> FloatArray:
     """ITK ``Versor``: the unit quaternion whose vector part is ``vector`` (w >= 0)."""
     norm_sq = float(vector @ vector)
     if norm_sq > 1.0 + 1e-9:
-        raise InvalidInputError(f"{where}: a versor's vector part must have length at most 1, got {norm_sq**0.5:.6g}")
+        raise InvalidInputError(
+            f"{where}: a versor's vector part must have length at most 1, got {norm_sq**0.5:.6g}"
+        )
     x, y, z = vector
     w = np.sqrt(max(0.0, 1.0 - norm_sq))
     return np.array(
@@ -251,7 +253,9 @@ def read_slicer_transform(path: str | Path) -> np.ndarray:
     itk = _read_hdf5_itk(path) if path.suffix.lower() in (".h5", ".hdf5") else _read_text_itk(path)
     if abs(np.linalg.det(itk[:3, :3])) < 1e-12:
         raise InvalidInputError(f"{path}: the transform is singular (it flattens space), not a pose")
-    return invert_transform(RAS_FROM_LPS @ itk @ RAS_FROM_LPS)
+    # the full inverse: an affine file may be scaled or sheared (a rigid-only inverse would
+    # silently turn a scale s into 1/s)
+    return np.linalg.inv(RAS_FROM_LPS @ itk @ RAS_FROM_LPS)
 
 
 def read_slicer_rigid_transform(path: str | Path) -> np.ndarray:

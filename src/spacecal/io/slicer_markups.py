@@ -189,13 +189,17 @@ def _chosen(markups: Sequence[Markup], name: str | None, kinds: tuple[str, ...],
     usable = [m for m in markups if m.kind in kinds and (name is None or m.name == name)]
     if name is not None and not usable:
         names = ", ".join(quoted(m.name) for m in markups)
-        raise InvalidInputError(f"{path}: no {' or '.join(kinds)} markup named {quoted(name)} (found {names})")
+        raise InvalidInputError(
+            f"{path}: no {' or '.join(kinds)} markup named {quoted(name)} (found {names})"
+        )
     if not usable:
         found = ", ".join(sorted({m.kind for m in markups}))
         raise InvalidInputError(f"{path}: no {' or '.join(kinds)} markup (found {found})")
     if len(usable) > 1:
         names = ", ".join(quoted(m.name) for m in usable)
-        raise InvalidInputError(f"{path}: {len(usable)} markups could be the plan ({names}); name one with --markup")
+        raise InvalidInputError(
+            f"{path}: {len(usable)} markups could be the plan ({names}); name one with --markup"
+        )
     return usable[0]
 
 
@@ -260,7 +264,9 @@ def plan_from_markups(
             raise InvalidInputError(f"{where}: the entry and the target are the same control point")
     for role, index in (("entry", entry), ("target", target)):
         if not markup.defined(index):
-            raise InvalidInputError(f"{where}: the {role} ({quoted(markup.labels[index])}) has no defined position")
+            raise InvalidInputError(
+                f"{where}: the {role} ({quoted(markup.labels[index])}) has no defined position"
+            )
     return NeedlePlan(
         entry_in_image=markup.points_in_image_lps[entry],
         target_in_image=markup.points_in_image_lps[target],
