@@ -10,7 +10,8 @@ from spacecal.io.touched_points import read_touched_points
 def test_a_touched_points_file_reads(tmp_path):
     path = tmp_path / "t.csv"
     path.write_text(
-        "# touched with the stylus\nlabel,x_in_tracker_mm,y_in_tracker_mm,z_in_tracker_mm\nF-1,1,2,-1500\nF-2,3,4,-1490.5\n"
+        "# touched with the stylus\nlabel,x_in_tracker_mm,y_in_tracker_mm,z_in_tracker_mm\n"
+        "F-1,1,2,-1500\nF-2,3,4,-1490.5\n"
     )
     frame, points = read_touched_points(path)
     assert frame == "tracker" and list(points) == ["F-1", "F-2"]

@@ -66,7 +66,7 @@ from spacecal.app.simulation import (
     simulate,
     verify,
 )
-from spacecal.app.slicer_plan import REGISTRATION_ROLES, PlanFromSlicerSettings, plan_from_slicer
+from spacecal.app.slicer_plan import PlanFromSlicerSettings, plan_from_slicer
 from spacecal.estimators import ESTIMATORS
 from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
@@ -103,7 +103,6 @@ __all__ = [
     "DEFAULT_SCENARIO",
     "ESTIMATOR_NAMES",
     "LIVE_VIEW_PORT",
-    "REGISTRATION_ROLES",
     "TRACKER_KINDS",
     "AcquireOutput",
     "AcquireSettings",

@@ -10,13 +10,14 @@ length, and the predicted TRE at the target for a pointer-made registration.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from spacecal.app._common import open_calibration, refuse_overwriting_inputs
 from spacecal.app.result import CommandResult, note_lines, paths
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.strict_numbers import decimal
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.slicer_markups import fiducials_from_markups, plan_from_markups
@@ -27,8 +28,6 @@ from spacecal.records.needle_plan import NEEDLE_PLAN_SCHEMA, ImageRegistration, 
 from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM, register_image_fiducials
 from spacecal.workflows.plan_frames import LocatedPlan, locate_plan
 
-#: The roles ``--registration-maps`` takes.
-REGISTRATION_ROLES = tuple(ROLES)
 #: Longest name from a file shown on a line.
 _NAME_CHARS = 80
 
@@ -85,6 +84,50 @@ class PlanFromSlicerSettings:
     accept_high_fre: bool = False
     output: str | None = None
     force: bool = False
+
+    #: The command line's flag (space-separated forms) and argparse options of each field.
+    FLAGS: ClassVar[dict[str, tuple[str, dict[str, Any]]]] = {
+        "plan": (
+            "plan",
+            dict(help="Slicer markups file (.mrk.json: a Line, or points labelled entry and target)"),
+        ),
+        "registration": (
+            "--registration",
+            dict(help="Slicer transform file (.tfm, .txt, .h5) of the registration"),
+        ),
+        "registration_maps": (
+            "--registration-maps",
+            dict(
+                choices=tuple(ROLES),
+                help="which way it maps (default: from its name: TrackerToRAS, ImageToTracker)",
+            ),
+        ),
+        "fiducials": ("--fiducials", dict(help="instead of --registration: the image fiducials (.mrk.json)")),
+        "touched": (
+            "--touched",
+            dict(help="with --fiducials: CSV label,x_in_tracker_mm,y_in_tracker_mm,z_in_tracker_mm"),
+        ),
+        "calibration": ("--calibration", dict(help="calibration JSON: also show the plan in the robot base")),
+        "entry_label": ("--entry-label", dict(help="label of the entry point (default: entry)")),
+        "target_label": ("--target-label", dict(help="label of the target point (default: target)")),
+        "markup": ("--markup", dict(help="name of the markup holding the plan, when the file has several")),
+        "coordinate_system": (
+            "--coordinate-system",
+            dict(choices=("LPS", "RAS"), help="for a markups file that does not state its own"),
+        ),
+        "max_fre_mm": (
+            "--max-fre-mm",
+            dict(
+                type=decimal,
+                help=f"largest RMS FRE of a pointer registration, mm (default {DEFAULT_MAX_FRE_MM:g})",
+            ),
+        ),
+        "accept_high_fre": (
+            "--accept-high-fre",
+            dict(action="store_true", help="use a pointer registration above it"),
+        ),
+        "output": ("-o --output", dict(help="plan JSON to write (the plan in every frame)")),
+    }
 
     def __post_init__(self) -> None:
         by_file = self.registration is not None
@@ -253,4 +296,4 @@ def plan_from_slicer(settings: PlanFromSlicerSettings) -> CommandResult[LocatedP
     return CommandResult(located, files, notes=tuple(notes), lines=tuple(lines))
 
 
-__all__ = ["REGISTRATION_ROLES", "PlanFromSlicerSettings", "located_dict", "plan_from_slicer", "plan_lines"]
+__all__ = ["PlanFromSlicerSettings", "located_dict", "plan_from_slicer", "plan_lines"]

@@ -74,10 +74,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         # every option's default is its settings field's: set before the options are added
         classes = settings_classes(name)
         p.set_defaults(run=commands_impl[name], **defaults_of(*classes))
+        flags = {**SHARED_FLAGS, **{k: v for c in classes for k, v in getattr(c, "FLAGS", {}).items()}}
         for field in dict.fromkeys(f.name for c in classes for f in dataclasses.fields(c)):
-            if field in SHARED_FLAGS:  # flags several commands share, for the fields they share
-                flag, options = SHARED_FLAGS[field]
-                p.add_argument(flag, **options)
+            if field in flags:  # flags several commands share, and those a command's settings declare
+                flag, options = flags[field]
+                p.add_argument(*flag.split(), **options)
         return p
 
     p = command("simulate", "simulate a calibration run on the simulated system -> recording CSV")
@@ -346,43 +347,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")
 
-    p = command(
-        "plan-from-slicer",
-        "check a needle plan drawn in 3D Slicer: entry and target in the image, tracker and robot frames",
-    )
-    p.add_argument(
-        "plan", help="Slicer markups file (.mrk.json: a Line, or points labelled entry and target)"
-    )
-    p.add_argument("--registration", help="Slicer transform file (.tfm, .txt, .h5) of the image registration")
-    p.add_argument(
-        "--registration-maps",
-        choices=app.REGISTRATION_ROLES,
-        help="which way the transform maps (default: from its name, e.g. TrackerToRAS, ImageToTracker)",
-    )
-    p.add_argument(
-        "--fiducials", help="instead of --registration: the image fiducials (.mrk.json point list)"
-    )
-    p.add_argument(
-        "--touched", help="with --fiducials: CSV label,x_in_tracker_mm,y_in_tracker_mm,z_in_tracker_mm"
-    )
-    p.add_argument("--calibration", help="calibration JSON: also show the plan in the robot base")
-    p.add_argument("--entry-label", help="label of the entry point (default: entry)")
-    p.add_argument("--target-label", help="label of the target point (default: target)")
-    p.add_argument("--markup", help="name of the markup holding the plan, when the file has several")
-    p.add_argument(
-        "--coordinate-system", choices=["LPS", "RAS"], help="for a markups file that does not state its own"
-    )
-    p.add_argument(
-        "--max-fre-mm",
-        type=decimal,
-        help="largest RMS FRE of a pointer registration, mm "
-        f"(default {app.PlanFromSlicerSettings.max_fre_mm:g})",
-    )
-    p.add_argument(
-        "--accept-high-fre", action="store_true", help="use a pointer registration above --max-fre-mm"
-    )
-    p.add_argument("-o", "--output", help="plan JSON to write (the plan in every frame)")
-
+    command("plan-from-slicer", "check a 3D Slicer needle plan in the image, tracker and robot frames")
     p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
     add_devices(p, simulated_by_default=False)
 

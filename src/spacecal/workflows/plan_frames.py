@@ -35,8 +35,8 @@ class LocatedPlan:
 
     Attributes
     ----------
-    plan : NeedlePlan
-    registration : ImageRegistration
+    plan : spacecal.records.needle_plan.NeedlePlan
+    registration : spacecal.records.needle_plan.ImageRegistration
     entry_in_tracker, target_in_tracker : numpy.ndarray, shape (3,)
         In the registration's tracker frame (``registration.tracker_frame``), mm.
     entry_in_base, target_in_base : numpy.ndarray, shape (3,) or None
@@ -88,8 +88,8 @@ def locate_plan(
 
     Parameters
     ----------
-    plan : NeedlePlan
-    registration : ImageRegistration
+    plan : spacecal.records.needle_plan.NeedlePlan
+    registration : spacecal.records.needle_plan.ImageRegistration
     tracker_from_base : array_like, shape (4, 4), optional
         The robot calibration, mm.
 
