@@ -66,6 +66,7 @@ from spacecal.app.simulation import (
     simulate,
     verify,
 )
+from spacecal.app.slicer_plan import PlanFromSlicerSettings, plan_from_slicer
 from spacecal.estimators import ESTIMATORS
 from spacecal.estimators.diagnostics import ErrorThresholds
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
@@ -93,6 +94,7 @@ COMMANDS: dict[str, Callable[..., CommandResult[Any]]] = {
     "phantom": phantom,
     "report": report,
     "plan": plan,
+    "plan-from-slicer": plan_from_slicer,
     "scenario": scenario,
 }
 
@@ -124,6 +126,7 @@ __all__ = [
     "RosExportSettings",
     "PhantomCommandSettings",
     "PivotSettings",
+    "PlanFromSlicerSettings",
     "PlanSettings",
     "RegisterLandmarksSettings",
     "ReportSettings",
@@ -152,6 +155,7 @@ __all__ = [
     "phantom",
     "pivot",
     "plan",
+    "plan_from_slicer",
     "register_landmarks",
     "report",
     "scenario",

@@ -74,10 +74,11 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         # every option's default is its settings field's: set before the options are added
         classes = settings_classes(name)
         p.set_defaults(run=commands_impl[name], **defaults_of(*classes))
+        flags = {**SHARED_FLAGS, **{k: v for c in classes for k, v in getattr(c, "FLAGS", {}).items()}}
         for field in dict.fromkeys(f.name for c in classes for f in dataclasses.fields(c)):
-            if field in SHARED_FLAGS:  # flags several commands share, for the fields they share
-                flag, options = SHARED_FLAGS[field]
-                p.add_argument(flag, **options)
+            if field in flags:  # flags several commands share, and those a command's settings declare
+                flag, options = flags[field]
+                p.add_argument(*flag.split(), **options)
         return p
 
     p = command("simulate", "simulate a calibration run on the simulated system -> recording CSV")
@@ -346,6 +347,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")
 
+    command("plan-from-slicer", "check a 3D Slicer needle plan in the image, tracker and robot frames")
     p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
     add_devices(p, simulated_by_default=False)
 

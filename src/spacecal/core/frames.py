@@ -15,6 +15,9 @@ FRAMES: dict[str, str] = {
     "marker": "the passive 4-sphere marker fixed to the tool (paper: B, 'digital reference frame')",
     "needle": "the needle tip frame, z along the needle; coincides with tcp in the paper's setup",
     "image": "CT image space",
+    "image_lps": "CT image space in the image's LPS patient coordinates (DICOM, ITK, Slicer's files): "
+    "x to the patient's left, y posterior, z superior; a needle plan is held in it",
+    "image_ras": "CT image space in RAS coordinates (3D Slicer's world): image_lps with x and y negated",
     "reference": "a marker fixed to the patient or phantom",
     "camera": "a camera on the robot's tool (eye-in-hand); it plays the marker's role",
     "target": "a calibration target fixed in the robot's world, seen by an eye-in-hand camera; "
