@@ -426,8 +426,7 @@ SHARED_FLAGS: dict[str, tuple[str, dict[str, Any]]] = {
         "--accept-edited",
         dict(
             action="store_true",
-            help="use a calibration edited since it was written (its content hash differs), or a "
-            "recording changed since its calibration was made from it",
+            help="use a calibration edited since it was written, or a recording changed since calibrating",
         ),
     ),
     "record": (
