@@ -14,7 +14,6 @@ import signal
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -82,22 +81,22 @@ def _interrupt_then_resume(folder: Path, signum: int, delay_s: float) -> str | N
     return None
 
 
-def test_interrupted_acquisitions_resume_into_recordings_that_calibrate(tmp_path):
+def _interruption_points() -> list[tuple[int, float]]:
+    """The seeded signals and their times after the start, one in each slice of 1-7 s."""
     rng = random.Random(SEED)
     slice_s = 6.0 / POINTS
-    points = [
+    return [
         (signal.SIGINT if k % 2 == 0 else signal.SIGTERM, 1.0 + slice_s * (k + rng.random()))
         for k in range(POINTS)
     ]
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        problems = list(
-            pool.map(
-                lambda item: _interrupt_then_resume(tmp_path / f"run{item[0]}", *item[1]),
-                enumerate(points),
-            )
-        )
-    failures = [p for p in problems if p]
-    assert not failures, "\n\n".join(failures)
+
+
+@pytest.mark.parametrize("point", range(POINTS))
+def test_interrupted_acquisitions_resume_into_recordings_that_calibrate(tmp_path, point):
+    """One case per point, so the test workers share them (each is a whole acquisition)."""
+    signum, delay_s = _interruption_points()[point]
+    problem = _interrupt_then_resume(tmp_path / "run", signum, delay_s)
+    assert problem is None, problem
 
 
 def _stop_samples() -> list[int]:
