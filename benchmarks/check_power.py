@@ -47,7 +47,7 @@ import numpy as np
 
 from spacecal.core.errors import SpacecalError
 from spacecal.estimators import ESTIMATORS, calibrate
-from spacecal.estimators.diagnostics import residual_table, sample_residuals
+from spacecal.estimators.methods.samples import residual_table, sample_residuals
 from spacecal.experiments.simulation import execute_plan, simulation_settings
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.planning.check_poses import check_plan

@@ -153,7 +153,7 @@ def test_bound_takes_the_noise_from_the_recording_when_not_given(recording_file,
 
 def test_bound_without_fit_rms_takes_the_noise_its_calibration_shows(white_simulation, tmp_path, capsys):
     # a pose-only recording (a bag, PLUS, a camera): no tracker fit RMS to take the noise from
-    from spacecal.estimators.likelihood import tre_lower_bound
+    from spacecal.estimators.methods.likelihood import tre_lower_bound
     from spacecal.io.results_json import write_calibration
 
     poses = dataclasses.replace(

@@ -9,18 +9,18 @@ from scipy.stats import chi2
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.diagnostics import ErrorThresholds, grade, verdict
-from spacecal.estimators.expected_error import (
+from spacecal.estimators.methods.held_out import held_out_blocks
+from spacecal.estimators.assessment.expected_error import (
     MEAN_OVER_RMS_3D,
     OVERLAPPING_PAIRS_VARIANCE,
-    held_out_blocks,
     mean_gaussian_length,
     noise_level_relative_error,
     probability_within,
     rigid_part,
     white_noise_power,
 )
-from spacecal.estimators.likelihood import fit_ml
+from spacecal.estimators.assessment.grading import ErrorThresholds, grade, verdict
+from spacecal.estimators.methods.likelihood import fit_ml
 from spacecal.estimators.registry import ESTIMATORS
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation

@@ -5,8 +5,8 @@ import pytest
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.ml import jacobian, predict_spheres
-from spacecal.estimators.observations import build_observations, sphere_noise_from_marker_rms
+from spacecal.estimators.methods.ml import jacobian, predict_spheres
+from spacecal.estimators.methods.observations import build_observations, sphere_noise_from_marker_rms
 from spacecal.experiments.monte_carlo import cramer_rao_tre_mm, run_monte_carlo, true_sphere_sigma_mm
 from spacecal.experiments.truth import calibration_error
 from spacecal.models.kinematics import apply_pose_step

@@ -5,7 +5,7 @@ import pytest
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnknownMethodError
 from spacecal.estimators import calibrate
-from spacecal.estimators.paper import PaperThresholds
+from spacecal.estimators.methods.paper import PaperThresholds
 from spacecal.experiments.simulation import execute_plan
 from spacecal.experiments.truth import calibration_error
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spacecal.estimators.expected_error import (
+from spacecal.estimators.assessment.expected_error import (
     DETECTION_STANDARD_ERRORS,
     MINIMUM_WHITENING_DOF,
     rigid_coordinates,

@@ -349,7 +349,7 @@ def test_a_calibration_from_raw_streams_has_its_misfits_expected(tmp_path, capsy
 def test_a_kinematic_calibration_s_misfits_are_at_its_identified_poses_and_older_files_still_read(
     white_simulation,
 ):
-    from spacecal.estimators.diagnostics import residual_table, sample_residuals
+    from spacecal.estimators.methods.samples import residual_table, sample_residuals
     from spacecal.workflows.check import misfit_field, robot_pose
 
     recording = white_simulation.recording

@@ -22,9 +22,9 @@ from spacecal.app.result import CommandResult, Quality, note_lines, paths
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators import calibrate as estimate
-from spacecal.estimators.diagnostics import ErrorThresholds
-from spacecal.estimators.likelihood import residual_noise_level, tre_lower_bound
-from spacecal.estimators.observations import (
+from spacecal.estimators.assessment.grading import ErrorThresholds
+from spacecal.estimators.methods.likelihood import residual_noise_level, tre_lower_bound
+from spacecal.estimators.methods.observations import (
     build_observations,
     marker_geometry_of,
     sphere_noise_from_marker_rms,
@@ -392,7 +392,7 @@ class BoundResult:
 
     @classmethod
     def from_summary(cls, summary: dict[str, Any], sigma_mm: float, sigma_source: str) -> BoundResult:
-        """From :func:`~spacecal.estimators.likelihood.tre_summary`'s dict."""
+        """From :func:`~spacecal.estimators.methods.likelihood.tre_summary`'s dict."""
         return cls(
             site_mm=float(summary["site"]),
             site_in_base_mm=_point(summary["site_in_base_mm"]),

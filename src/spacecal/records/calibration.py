@@ -313,14 +313,14 @@ class CalibrationResult:
         Pose of the marker on the tool, mm.
     sample_counts : dict
         ``{"total", "used", "rejected", "per_segment": {...}}`` (see
-        :func:`spacecal.estimators.diagnostics.sample_counts`).
+        :func:`spacecal.estimators.methods.samples.sample_counts`).
     diagnostics : dict
         Method-specific quality figures (see each estimator).
     provenance : Provenance
         Where the data came from.
     covariance : dict, optional
         ``{"parameters": [12 names], "matrix": 12x12}``: covariance of the perturbation
-        parameters of both transforms (see :mod:`spacecal.estimators.ml`), mm and rad.
+        parameters of both transforms (see :mod:`spacecal.estimators.methods.ml`), mm and rad.
     predicted_tre_mm : dict, optional
         Predicted RMS target registration error at the surgical site, over a cube around
         it, and at user targets.

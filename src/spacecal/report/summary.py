@@ -12,7 +12,7 @@ grades nothing again. Evidence the verdict could not see raises a red flag of it
 in the headline:
 
 * the calibration does not explain the recording at hand: its residuals are far above those of
-  the recording's own closed-form fit (:func:`spacecal.estimators.conventions.calibration_mismatch`;
+  the recording's own closed-form fit (:func:`spacecal.estimators.methods.conventions.calibration_mismatch`;
   no fixed limit, since a distant camera leaves several mm);
 * a verification's mean position error exceeds the paper's bound;
 * the last check failed.
@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.estimators.conventions import calibration_mismatch
-from spacecal.estimators.diagnostics import sample_residuals
+from spacecal.estimators.methods.conventions import calibration_mismatch
+from spacecal.estimators.methods.samples import sample_residuals
 from spacecal.estimators.registry import ESTIMATORS
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.records import CalibrationResult, CheckResult, Recording, VerificationResult

@@ -56,7 +56,7 @@ def check_thresholds(calibration: CalibrationResult, frames_averaged: int = 1) -
     for calibrations whose recording cannot predict the misfit at the check poses.
 
     A check pose's misfit is the calibration's error there (its expected error,
-    :mod:`spacecal.estimators.expected_error`) plus what its model leaves unexplained in one
+    :mod:`spacecal.estimators.assessment.expected_error`) plus what its model leaves unexplained in one
     frame (its residual RMS), shrunk by the frames averaged at the pose. The marker's rotation
     residual reaches the TCP over the marker-to-TCP lever arm, so a frame's TCP misfit is the
     root sum of squares of the position residual and that lever times the rotation residual.

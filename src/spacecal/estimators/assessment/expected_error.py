@@ -1,6 +1,6 @@
 """The error to expect at a target near the site, from held-out data and the robot's geometry.
 
-The predicted TRE of :mod:`spacecal.estimators.ml` propagates the tracker's white noise
+The predicted TRE of :mod:`spacecal.estimators.methods.ml` propagates the tracker's white noise
 only. What a user sees when the robot is sent to a target also contains whatever the model
 does not describe: the robot's kinematic error, the tracker's volume error, a clock offset,
 a loose marker. Three facts set the expected error, each measured the same way on every path
@@ -34,7 +34,7 @@ joint angles or the tracker's fit RMS:
    per pose), the tracker's fit RMS stands in. Without it (a camera's static views) the noise
    is what the residuals leave once the arm's DH errors are fitted as well
    (:func:`white_noise_beyond_kinematics`), with its covariance's shape
-   (:mod:`spacecal.estimators.residual_noise`; no standard errors are taken off there,
+   (:mod:`spacecal.estimators.assessment.residual_noise`; no standard errors are taken off there,
    :data:`DETECTION_STANDARD_ERRORS_BEYOND_DH`), and a systematic error the DH errors cannot
    describe then counts as noise; the basis says so. Only where no arm's geometry is
    available does all of the misfit count as systematic.
@@ -78,15 +78,20 @@ from scipy.special import chdtri, gammaln, ndtri
 from scipy.stats import norm, qmc
 
 from spacecal.core.errors import DegenerateDataError, UnreachableError
-from spacecal.estimators.ml import (
+from spacecal.estimators.assessment.residual_noise import (
+    RANK_RCOND,
+    frame_noise_covariance,
+    held_out_noise_power,
+)
+from spacecal.estimators.methods.held_out import held_out_blocks
+from spacecal.estimators.methods.ml import (
     jacobian,
     levenberg_marquardt,
     point_covariances,
     predict_spheres,
     predicted_tre_mm,
 )
-from spacecal.estimators.observations import Observations
-from spacecal.estimators.residual_noise import RANK_RCOND, frame_noise_covariance, held_out_noise_power
+from spacecal.estimators.methods.observations import Observations
 from spacecal.geometry.arrays import ArrayLike, FloatArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
@@ -95,30 +100,18 @@ from spacecal.models.kinematics import (
     UR_TABLES,
     RobotModel,
     dh_point_jacobian,
-    fit_reported_kinematics,
     forward_kinematics,
     inverse_kinematics,
     inverse_kinematics_gauss_newton,
     pose_point_jacobian,
     ur_model,
 )
-from spacecal.records import NeedleTip, Recording, robot_model_from_dict
-
-#: Contiguous blocks a recording without segment labels is split into.
-TIME_BLOCKS = 6
-
-#: Below this many used frames each frame is its own held-out block (leave-one-out): six time
-#: blocks would hold too few frames each, and leaving one frame out disturbs the refit least.
-#: A count is no verdict: a small set of well-spread poses is judged by its held-out misfit
-#: and its information like any other.
-LEAVE_ONE_OUT_BELOW = 30
+from spacecal.records import NeedleTip
 
 #: The fewest frames a held-out refit is done on: two motions determine AX = YB, and the
 #: refit needs a margin over that to be more than an interpolation.
 MINIMUM_TRAINING_FRAMES = 6
 
-#: Segments with fewer frames than this get no block of their own.
-MINIMUM_BLOCK_FRAMES = 5
 
 #: Frames near the site stand for the targets: TCP within this distance of the site (mm) ...
 SITE_RADIUS_MM = 100.0
@@ -133,7 +126,7 @@ def unit_dh_sd(joints: int) -> FloatArray:
 
 
 #: Unit scale of the DH errors whose shape sets the unseen tip error: 1 mm for lengths and
-#: 0.002 rad for angles (the ratio of the spreads :mod:`spacecal.estimators.kinematic` assumes),
+#: 0.002 rad for angles (the ratio of the spreads :mod:`spacecal.estimators.methods.kinematic` assumes),
 #: for a six-joint arm.
 UNIT_DH_SD = unit_dh_sd(N_JOINTS)
 
@@ -275,81 +268,12 @@ def probability_within(covariance: ArrayLike, radius: float) -> float:
 Refit = Callable[[Observations, FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
 
 
-def nominal_robot_model(recording: Recording) -> RobotModel | None:
-    """The robot model the recording's poses come from, or None: the controller's own model
-    where the metadata carries it (``robot.kinematic_model``, e.g. a factory-calibrated arm),
-    else the nominal model named there (with its TCP)."""
-    robot = recording.metadata.get("robot", {})
-    recorded = recorded_robot_model(recording)
-    if recorded is not None:
-        return recorded
-    name = robot.get("model") if isinstance(robot, dict) else None
-    if not isinstance(name, str) or name not in UR_TABLES:
-        return None
-    return ur_model(name, np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
-
-
-#: Pairs of joints and reported poses used to identify a controller's model (evenly spread).
-IDENTIFY_PAIRS = 80
-
-
-def recorded_robot_model(recording: Recording) -> RobotModel | None:
-    """The kinematic model the robot itself computed its poses with: from the metadata
-    (``robot.kinematic_model``), or, where the acquisition could not read it from the
-    controller (``robot.identify_kinematics_from_poses``), identified from the recording's
-    pairs of joints and reported TCP poses. None when neither applies."""
-    robot = recording.metadata.get("robot", {})
-    if not isinstance(robot, dict):
-        return None
-    name = robot.get("model")
-    base = ur_model(name) if isinstance(name, str) and name in UR_TABLES else None
-    data = robot.get("kinematic_model")
-    if isinstance(data, dict):
-        return robot_model_from_dict(data, "recording metadata robot.kinematic_model", base)
-    if robot.get("identify_kinematics_from_poses") is True and base is not None:
-        rows = np.flatnonzero(np.all(np.isfinite(recording.joints_rad), axis=1))
-        if len(rows) < 6:
-            return None
-        rows = rows[np.unique(np.linspace(0, len(rows) - 1, IDENTIFY_PAIRS).astype(int))]
-        start = base.with_tcp(np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
-        model, _ = fit_reported_kinematics(
-            start, recording.joints_rad[rows], recording.base_from_tcp_stack[rows]
-        )
-        return model
-    return None
-
-
 def ml_refit(
     obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     """Levenberg–Marquardt on ``obs`` from a warm start (the full-data solution)."""
     fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, max_iterations=10, tolerance=1e-6)
     return as_float_array(fit.tracker_from_base), as_float_array(fit.tcp_from_marker)
-
-
-def held_out_blocks(segments: np.ndarray, minimum_frames: int = MINIMUM_BLOCK_FRAMES) -> list[IntArray]:
-    """Index blocks (into the used frames) to leave out one at a time.
-
-    Parameters
-    ----------
-    segments : numpy.ndarray of str, shape (N,)
-        Segment label of each used frame.
-
-    Returns
-    -------
-    list of numpy.ndarray of int
-        The recording's segments when at least three have ``minimum_frames`` frames each,
-        else :data:`TIME_BLOCKS` contiguous blocks, or one block per frame (leave-one-out)
-        when there are fewer than :data:`LEAVE_ONE_OUT_BELOW` frames.
-    """
-    labels = list(dict.fromkeys(np.asarray(segments).tolist()))
-    blocks = [np.flatnonzero(segments == label) for label in labels]
-    blocks = [b for b in blocks if len(b) >= minimum_frames]
-    if len(blocks) >= 3:
-        return blocks
-    if len(segments) < LEAVE_ONE_OUT_BELOW:
-        return [np.array([i]) for i in range(len(segments))]
-    return [b for b in np.array_split(np.arange(len(segments)), TIME_BLOCKS) if len(b) > 0]
 
 
 def near_site(base_from_tcp_stack: FloatArray, radius_mm: float, tilt_deg: float) -> np.ndarray:
@@ -396,7 +320,7 @@ def held_out_misfit(
         per-axis noise variance; ``blocks``, ``blocks_refitted``, ``block_indices``;
         ``jacobian`` (N, 3K, 12) and ``block_normal_inverses`` (per block, ``(J_train^T
         J_train)^-1`` or None where it was not refitted), from which
-        :func:`spacecal.estimators.residual_noise.held_out_noise_power` gives the prediction
+        :func:`spacecal.estimators.assessment.residual_noise.held_out_noise_power` gives the prediction
         variance of noise of any shape.
 
     Raises
@@ -635,7 +559,7 @@ def unseen_kinematic_error(
 def noise_level_relative_error(sphere_count: int, frames: int) -> float:
     """Relative standard error of sigma^2 estimated from ``frames`` tracker RMS values.
 
-    :func:`spacecal.estimators.observations.sphere_noise_from_marker_rms` takes sigma^2 from the
+    :func:`spacecal.estimators.methods.observations.sphere_noise_from_marker_rms` takes sigma^2 from the
     median of rms^2, a chi-square(3K - 6) variable up to scale; a sample median's variance is
     ``1 / (4 N f(m)^2)`` with f the density at the median m, so the relative error is
     ``1 / (2 f(m) m sqrt(N))`` (0.76 / sqrt(N) for four spheres). Dimensionless.
@@ -766,7 +690,7 @@ def white_noise_beyond_kinematics(
     parameters span a known subspace of the stacked sphere residuals; white noise spreads over
     all of it, a DH error lies in it. What both fits leave is noise, and its covariance per
     frame is what the residuals' second moments show once the share the fits absorbed is put
-    back (:func:`spacecal.estimators.residual_noise.frame_noise_covariance`): a camera's pose
+    back (:func:`spacecal.estimators.assessment.residual_noise.frame_noise_covariance`): a camera's pose
     noise, nearly all along three of a frame's coordinates, loses more of itself to the fitted
     parameters than isotropic noise would. A systematic error the DH errors cannot describe (a
     tracker's volume error) counts as noise here: the basis says so.

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.diagnostics import sample_counts
+from spacecal.estimators.methods.samples import sample_counts
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IndexArray
 from spacecal.geometry.fitting import LineFit, fit_line, fit_sphere
 from spacecal.geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
