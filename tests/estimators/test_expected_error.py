@@ -9,22 +9,21 @@ from scipy.stats import chi2
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.methods.held_out import held_out_blocks
-from spacecal.estimators.assessment.expected_error import (
-    MEAN_OVER_RMS_3D,
+from spacecal.estimators.assessment.gaussian import MEAN_OVER_RMS_3D, mean_gaussian_length, probability_within
+from spacecal.estimators.assessment.grading import grade, verdict
+from spacecal.estimators.assessment.rigid_motion import rigid_part
+from spacecal.estimators.assessment.white_noise import (
     OVERLAPPING_PAIRS_VARIANCE,
-    mean_gaussian_length,
     noise_level_relative_error,
-    probability_within,
-    rigid_part,
     white_noise_power,
 )
-from spacecal.estimators.assessment.grading import ErrorThresholds, grade, verdict
+from spacecal.estimators.methods.held_out import held_out_blocks
 from spacecal.estimators.methods.likelihood import fit_ml
 from spacecal.estimators.registry import ESTIMATORS
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.models.kinematics import UR_TABLES
+from spacecal.records.assessment import ErrorThresholds
 from spacecal.records.verdict import Verdict
 from spacecal.sim.scenario import PRESETS, load_scenario
 

@@ -146,9 +146,9 @@ def test_the_noise_beyond_the_dh_errors_is_the_camera_noise_kinhec_injected(arm)
     """One frame per pose and no fit RMS: the noise spacecal takes from what the residuals leave
     beyond the pose and the arm's DH errors, against the camera noise KinHEC injected (its
     measured minus its noise-free target poses, at the marker's spheres)."""
-    from spacecal.estimators.assessment.expected_error import white_noise_beyond_kinematics
-    from spacecal.estimators.methods.recorded_model import nominal_robot_model
+    from spacecal.estimators.assessment.white_noise import white_noise_beyond_kinematics
     from spacecal.estimators.methods.observations import build_observations
+    from spacecal.estimators.methods.recorded_model import nominal_robot_model
     from spacecal.models.kinematics import forward_kinematics
 
     ratios, relative_errors = [], []
@@ -185,9 +185,9 @@ def test_twenty_views_of_a_noisy_camera_measure_their_noise_beyond_the_dh_errors
     14 to 19 effective residual degrees of freedom beyond the pose and the DH errors: enough to
     measure the noise within its own relative error, and the expected error takes it from there
     rather than counting all of the misfit as systematic."""
-    from spacecal.estimators.assessment.expected_error import white_noise_beyond_kinematics
-    from spacecal.estimators.methods.recorded_model import nominal_robot_model
+    from spacecal.estimators.assessment.white_noise import white_noise_beyond_kinematics
     from spacecal.estimators.methods.observations import build_observations
+    from spacecal.estimators.methods.recorded_model import nominal_robot_model
 
     sequence = _tier_sequence("small", sequence_id)
     recording = conversion.to_recording(sequence)

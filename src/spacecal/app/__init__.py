@@ -67,7 +67,7 @@ from spacecal.app.simulation import (
     verify,
 )
 from spacecal.estimators import ESTIMATORS
-from spacecal.estimators.assessment.grading import ErrorThresholds
+from spacecal.records.assessment import ErrorThresholds
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
 
 #: The estimators ``calibrate`` takes by name (``CalibrateSettings.method``).

@@ -22,7 +22,6 @@ from spacecal.app.result import CommandResult, Quality, note_lines, paths
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators import calibrate as estimate
-from spacecal.estimators.assessment.grading import ErrorThresholds
 from spacecal.estimators.methods.likelihood import residual_noise_level, tre_lower_bound
 from spacecal.estimators.methods.observations import (
     build_observations,
@@ -38,6 +37,7 @@ from spacecal.io.recording_csv import read_recording
 from spacecal.io.recording_source import open_calibrated_recording
 from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.records import CalibrationResult, NeedleTip, PivotResult, Recording
+from spacecal.records.assessment import ErrorThresholds
 from spacecal.registration.pivot import pivot_calibration
 
 Point = tuple[float, float, float]
@@ -268,13 +268,15 @@ def calibrate_result(
             f"sphere: radius {d['sphere']['radius_mm']:.2f} mm, fit RMS {d['sphere']['rms_mm']:.3f} mm; "
             f"line straightness RMS: {straight}"
         )
-    if "residual_position_rms_mm" in d:
+    assessment = result.assessment
+    residuals = None if assessment is None else assessment.residuals
+    if residuals is not None and residuals.position_rms_mm is not None:
         # a kinematic calibration places the TCP with the kinematics it identified, as the
         # report does; the line says which, so the two are read as the same quantity
         tcp = "identified robot kinematics" if result.robot_model is not None else "recorded TCP poses"
         lines.append(
-            f"marker residuals (RMS, {tcp}): position {d['residual_position_rms_mm']:.3f} mm, "
-            f"rotation {d['residual_rotation_rms_deg']:.3f} deg"
+            f"marker residuals (RMS, {tcp}): position {residuals.position_rms_mm:.3f} mm, "
+            f"rotation {residuals.rotation_rms_deg:.3f} deg"
         )
     if result.predicted_tre_mm:
         tre = result.predicted_tre_mm
@@ -293,10 +295,11 @@ def calibrate_result(
             + ", ".join(f"{v:.2f}" for v in tip[:3, 3])
             + " mm in the TCP frame"
         )
-    if "position_mm" in d.get("expected_error", {}):
-        e = d["expected_error"]
+    expected = result.expected_error
+    if expected is not None and expected.position_mm is not None:
         lines.append(
-            f"expected error at a target near the site: {e['position_mm']:.2f} mm, {e['posture_deg']:.2f} deg"
+            f"expected error at a target near the site: {expected.position_mm:.2f} mm, "
+            f"{expected.posture_deg:.2f} deg"
         )
     quality = None
     judged = result.verdict

@@ -18,8 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from spacecal.core.errors import InvalidInputError, UnknownMethodError
-from spacecal.estimators.assessment.grading import ErrorThresholds
-from spacecal.estimators.assessment.report import regrade, report_uncertainty
+from spacecal.estimators.assessment.report import report_uncertainty
 from spacecal.estimators.assessment.without_likelihood import with_bootstrap_uncertainty
 from spacecal.estimators.methods.closed_form import (
     HandEyeSolver,
@@ -34,6 +33,7 @@ from spacecal.estimators.methods.paper import calibrate_paper
 from spacecal.estimators.methods.robot_world import solve_dornaika, solve_li, solve_shah
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_points, check_transform
 from spacecal.records import CalibrationResult, NeedleTip, Recording
+from spacecal.records.assessment import ErrorThresholds
 
 
 class Family(enum.Enum):
@@ -287,7 +287,7 @@ def calibrate(
         The method's own options (:attr:`EstimatorSpec.options`), ``targets_in_base`` and
         ``needle_tip`` (a :class:`~spacecal.records.NeedleTip`: the expected error is stated at
         the tip IK aims; any method) and ``error_thresholds``, an
-        :class:`~spacecal.estimators.assessment.grading.ErrorThresholds` the verdict is graded against.
+        :class:`~spacecal.records.assessment.ErrorThresholds` the verdict is graded against.
 
     Raises
     ------
@@ -318,14 +318,16 @@ def calibrate(
         )
     if spec.likelihood:
         # a likelihood method ends in its solution and covariance; the assessment states the rest
-        result = report_uncertainty(spec.solve(recording, targets_in_base=targets, needle_tip=tip, **options))
+        result = report_uncertainty(
+            spec.solve(recording, targets_in_base=targets, needle_tip=tip, **options), thresholds
+        )
     else:
         result = spec.solve(recording, **options)
         if uncertainty:
-            result = with_bootstrap_uncertainty(result, recording, spec.solve, targets, tip)
+            result = with_bootstrap_uncertainty(result, recording, spec.solve, targets, tip, thresholds)
     if tip is not None and result.needle_tip is None:
         result = result.replace(needle_tip=tip)  # no expected error was asked for
-    return result if thresholds is None else regrade(result, recording, thresholds)
+    return result
 
 
 def check_recording_poses(recording: Recording) -> None:

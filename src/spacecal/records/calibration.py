@@ -30,6 +30,7 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.frames import transform_name
 from spacecal.models.kinematics import MAX_JOINTS, RobotModel
+from spacecal.records.assessment import ASSESSMENT_KEYS, Assessment, ExpectedError
 from spacecal.records.fields import (
     as_array,
     as_covariance,
@@ -315,7 +316,8 @@ class CalibrationResult:
         ``{"total", "used", "rejected", "per_segment": {...}}`` (see
         :func:`spacecal.estimators.methods.samples.sample_counts`).
     diagnostics : dict
-        Method-specific quality figures (see each estimator).
+        Method-specific quality figures (see each estimator); the assessment is not among
+        them (:attr:`assessment`).
     provenance : Provenance
         Where the data came from.
     covariance : dict, optional
@@ -335,6 +337,10 @@ class CalibrationResult:
     needle_tip : NeedleTip or None
         The needle tip a pivot calibration measured; IK aims it (:attr:`tcp_from_needle`)
         instead of the controller's TCP.
+    assessment : Assessment or None
+        The expected error, residuals, thresholds and verdict
+        (:mod:`spacecal.estimators.assessment` builds it); None for a method run without its
+        uncertainty.
     """
 
     method: str
@@ -349,6 +355,7 @@ class CalibrationResult:
     schema_version: int = CALIBRATION_SCHEMA_VERSION
     integrity: Integrity | None = field(default=None, compare=False)
     needle_tip: NeedleTip | None = None
+    assessment: Assessment | None = None
 
     def __post_init__(self) -> None:
         what = f"calibration ({self.method})"
@@ -367,12 +374,25 @@ class CalibrationResult:
                 )
         if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, dict):
             raise InvalidInputError(f"{what}: sample_counts and diagnostics must be objects")
+        misplaced = sorted(set(self.diagnostics) & set(ASSESSMENT_KEYS))
+        if misplaced:
+            # one place for the assessment: a second copy among the diagnostics could disagree
+            raise InvalidInputError(
+                f"{what}: {', '.join(misplaced)} belong to the assessment, not diagnostics"
+            )
+        if self.assessment is not None and not isinstance(self.assessment, Assessment):
+            raise InvalidInputError(f"{what}: assessment must be an Assessment")
 
     @property
     def verdict(self) -> Verdict | None:
         """The verdict on this calibration (grade, expected error, reasons), None when the
         method gave none; older files' sentences are read too."""
-        return Verdict.from_value(self.diagnostics.get("verdict"), f"calibration ({self.method})")
+        return None if self.assessment is None else self.assessment.verdict
+
+    @property
+    def expected_error(self) -> ExpectedError | None:
+        """The error to expect at a target near the site, None when none was stated."""
+        return None if self.assessment is None else self.assessment.expected_error
 
     @property
     def tcp_from_needle(self) -> np.ndarray | None:
@@ -433,7 +453,10 @@ class CalibrationResult:
                 TRACKER_FROM_BASE: self.tracker_from_base,
                 TCP_FROM_MARKER: self.tcp_from_marker,
                 "sample_counts": self.sample_counts,
-                "diagnostics": self.diagnostics,
+                "diagnostics": {
+                    **self.diagnostics,
+                    **({} if self.assessment is None else self.assessment.to_diagnostics()),
+                },
                 "provenance": self.provenance.to_dict(),
                 "covariance": self.covariance,
                 "predicted_tre_mm": self.predicted_tre_mm,
@@ -450,7 +473,8 @@ class CalibrationResult:
         version = check_schema(data, CALIBRATION_SCHEMA, CALIBRATION_READABLE_VERSIONS, what)
         if "schema_version" not in data:
             raise InvalidInputError(f"{what}: missing 'schema_version' (not a spacecal calibration file?)")
-        diagnostics = get_mapping(data, "diagnostics", what)
+        # the assessment rides in the file's diagnostics object, as every version wrote it
+        assessment, stored = Assessment.from_diagnostics(get_mapping(data, "diagnostics", what), what)
         covariance = data.get("covariance")
         if covariance is not None and not isinstance(covariance, Mapping):
             raise InvalidInputError(f"{what}: 'covariance' must be an object")
@@ -472,7 +496,7 @@ class CalibrationResult:
             )
         if version == 1:
             # v1: the robot model in diagnostics, the recording path in "source"
-            model_data = diagnostics.get("kinematic_model")
+            model_data = stored.get("kinematic_model")
             provenance = Provenance(
                 recording=_optional_path(get_mapping(data, "source", what).get("recording"), what),
                 created_utc=str(data.get("created_utc", "")),
@@ -498,7 +522,7 @@ class CalibrationResult:
             tracker_from_base=as_transform(data[TRACKER_FROM_BASE], TRACKER_FROM_BASE, what),
             tcp_from_marker=as_transform(data[TCP_FROM_MARKER], TCP_FROM_MARKER, what),
             sample_counts=get_mapping(data, "sample_counts", what),
-            diagnostics=diagnostics,
+            diagnostics=stored,
             provenance=provenance,
             covariance=None if covariance is None else dict(covariance),
             predicted_tre_mm=predicted,
@@ -506,6 +530,7 @@ class CalibrationResult:
             schema_version=version,
             integrity=Integrity.of(data, required=version >= FIRST_HASHED_VERSION),
             needle_tip=needle_tip,
+            assessment=assessment,
         )
 
 

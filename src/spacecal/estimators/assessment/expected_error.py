@@ -67,956 +67,705 @@ moment, how far its solution puts the tip from ML's at those frames.
 
 from __future__ import annotations
 
-import functools
-from collections.abc import Callable, Sequence
-from dataclasses import replace
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.integrate import quad
-from scipy.special import chdtri, gammaln, ndtri
-from scipy.stats import norm, qmc
 
-from spacecal.core.errors import DegenerateDataError, UnreachableError
+from spacecal.core.errors import DegenerateDataError
+from spacecal.estimators.assessment.dh_span import (
+    DETECTION_STANDARD_ERRORS,
+    DETECTION_STANDARD_ERRORS_BEYOND_DH,
+    arm_and_other_parts,
+    systematic_share_in_dh_span,
+)
+from spacecal.estimators.assessment.gaussian import MEAN_OVER_RMS_3D, mean_gaussian_length
+from spacecal.estimators.assessment.held_out_misfit import (
+    SITE_RADIUS_MM,
+    SITE_TILT_DEG,
+    Refit,
+    held_out_misfit,
+    ml_refit,
+    near_site,
+)
 from spacecal.estimators.assessment.residual_noise import (
-    RANK_RCOND,
-    frame_noise_covariance,
     held_out_noise_power,
+)
+from spacecal.estimators.assessment.unseen_kinematics import (
+    GEOMETRY_FRAMES,
+    geometry_rows,
+    solved_joints,
+    stand_in_arms,
+    unseen_kinematic_error,
+)
+from spacecal.estimators.assessment.white_noise import (
+    OVERLAPPING_PAIRS_VARIANCE,
+    noise_level_relative_error,
+    white_noise_beyond_kinematics,
+    white_noise_power,
 )
 from spacecal.estimators.methods.held_out import held_out_blocks
 from spacecal.estimators.methods.ml import (
-    jacobian,
-    levenberg_marquardt,
     point_covariances,
-    predict_spheres,
     predicted_tre_mm,
 )
 from spacecal.estimators.methods.observations import Observations
-from spacecal.geometry.arrays import ArrayLike, FloatArray, IntArray, as_float_array
-from spacecal.geometry.rotations import mean_rotation, rotation_angle
-from spacecal.geometry.transforms import invert_transform, make_transform
+from spacecal.geometry.arrays import BoolArray, FloatArray, as_float_array
+from spacecal.geometry.rotations import rotation_angle
 from spacecal.models.kinematics import (
-    N_JOINTS,
-    UR_TABLES,
     RobotModel,
-    dh_point_jacobian,
-    forward_kinematics,
-    inverse_kinematics,
-    inverse_kinematics_gauss_newton,
-    pose_point_jacobian,
-    ur_model,
 )
 from spacecal.records import NeedleTip
 
-#: The fewest frames a held-out refit is done on: two motions determine AX = YB, and the
-#: refit needs a margin over that to be more than an interpolation.
-MINIMUM_TRAINING_FRAMES = 6
 
+@dataclass(frozen=True)
+class NoisePart:
+    """The noise-only error at the site: the white tracker noise propagated to the tip.
 
-#: Frames near the site stand for the targets: TCP within this distance of the site (mm) ...
-SITE_RADIUS_MM = 100.0
-#: ... and within this rotation of the mean orientation of the frames there (deg).
-SITE_TILT_DEG = 30.0
-
-
-def unit_dh_sd(joints: int) -> FloatArray:
-    """The unit scale of the DH errors of an arm of ``joints`` joints, (4 J,): a, d, alpha,
-    theta offset (:data:`UNIT_DH_SD`'s values per joint)."""
-    return np.repeat([1.0, 1.0, 0.002, 0.002], joints)
-
-
-#: Unit scale of the DH errors whose shape sets the unseen tip error: 1 mm for lengths and
-#: 0.002 rad for angles (the ratio of the spreads :mod:`spacecal.estimators.methods.kinematic` assumes),
-#: for a six-joint arm.
-UNIT_DH_SD = unit_dh_sd(N_JOINTS)
-
-
-#: Frames (evenly spread) on which the kinematic geometry is evaluated: its ratios need no more,
-#: and the DH-span test of the misfit's shape runs on them (with recorded or solved joints).
-GEOMETRY_FRAMES = 120
-
-#: A UR arm's usual working posture (deg; shoulder lifted, elbow up, wrist down): joint
-#: angles solved for a recording that has none take the branch nearest it.
-WORKING_POSTURE_DEG = (0.0, -90.0, 90.0, -90.0, -90.0, 0.0)
-
-#: Lever (mm) of the points beside the tip whose displacements give the tip frame's rotation.
-ROTATION_LEVER_MM = 100.0
-
-#: Mean over RMS of the length of an isotropic 3-D Gaussian vector, sqrt(8 / (3 pi)).
-MEAN_OVER_RMS_3D = float(np.sqrt(8.0 / (3.0 * np.pi)))
-
-#: Standard errors of the noise's held-out misfit (its chi-square scatter and the error of the
-#: noise level) taken off the misfit before the rest is called systematic.
-DETECTION_STANDARD_ERRORS = 2.0
-
-#: ... and none where the noise is what the residuals leave beyond the DH errors (a camera's
-#: static views): there the noise is several times the misfit an arm's 1 mm DH errors leave,
-#: two standard errors hide that misfit whole, and the tip error it scales to is four times
-#: it. The held-out excess itself is the unbiased estimate (its positive part, the one a
-#: statement can take, errs upward where there is none). Measured on KinHEC's 24
-#: robot-error sequences (30 camera views each): a 15-point verification's error over the
-#: stated one, median (max), 1.43 (4.4) with two standard errors taken off and 0.86 (2.6)
-#: without (docs, "One frame per pose and no fit RMS").
-DETECTION_STANDARD_ERRORS_BEYOND_DH = 0.0
-
-#: Pairs of consecutive frames whose marker moved more than this many times the pairs' median
-#: displacement do not measure the white noise (a jump between stations or sweeps).
-NUGGET_DISPLACEMENT_FACTOR = 2.0
-
-#: ... nor do pairs whose marker moved more than this (mm) however the others moved: on the
-#: paper's sweeps the residuals' variogram is flat to about 30 mm, and beyond it two frames
-#: no longer share their systematic error (at static stations whose repeated frames are
-#: identical, the only pairs left are the jumps between stations, 100 mm and more).
-NUGGET_MAX_DISPLACEMENT_MM = 20.0
-
-#: Fewer pairs of nearby frames than this cannot measure the white noise.
-MINIMUM_NUGGET_PAIRS = 10
-#: The fewest residual degrees of freedom the noise is taken from once the DH errors are
-#: fitted too (:func:`white_noise_beyond_kinematics`): the estimate's relative error is then
-#: at most sqrt(2 / 12) = 0.41. Below it every misfit counts as systematic, which is far worse
-#: than a noisy noise level: a camera's 20 static views (14 to 19 effective degrees of freedom,
-#: its noise mostly along the line of sight) were stated 11.5 and 16.7 mm for errors of 0.82 and
-#: 0.46 mm on KinHEC's noise track, and 2.5 and 2.7 mm with the noise taken from them.
-MINIMUM_RESIDUAL_DOF = 12
-
-#: The fewest degrees of freedom a 6 x 6 noise covariance whitens the DH-span test with
-#: (:func:`whitened_dh_span_test`): the inflation ``n / (n - 7)`` is then at most 2.
-MINIMUM_WHITENING_DOF = 14.0
-
-#: Overlapping pairs (i, i + 1), (i + 1, i + 2) share a frame: under Gaussian noise their
-#: half squared differences correlate by 1/4, so the variance of their mean is at most 1.5
-#: times that of as many independent pairs.
-OVERLAPPING_PAIRS_VARIANCE = 1.5
-
-
-def mean_gaussian_length(covariance: ArrayLike) -> float:
-    """Mean length E|x| of a zero-mean Gaussian vector x ~ N(0, covariance), same unit as x.
-
-    Parameters
+    Attributes
     ----------
-    covariance : array_like, shape (3, 3)
-        Covariance of x (e.g. mm^2 for a tip position error).
-
-    Returns
-    -------
-    float
-        E|x|: ``sqrt(8 / (3 pi))`` times the RMS for an isotropic covariance, ``sqrt(2 / pi)``
-        times it for an error along one direction. With eigenvalues l_i and
-        ``sqrt(q) = (4 pi)^(-1/2) int_0^inf (1 - exp(-t q)) t^(-3/2) dt``,
-        ``E|x| = (4 pi)^(-1/2) int_0^inf (1 - prod_i (1 + 2 t l_i)^(-1/2)) t^(-3/2) dt``,
-        integrated numerically (substituting t = u^2).
-    """
-    eigenvalues = np.clip(np.linalg.eigvalsh(np.asarray(covariance, dtype=float)), 0.0, None)
-    scale = float(eigenvalues.sum())
-    if scale <= 0.0:
-        return 0.0
-    relative = eigenvalues / scale
-
-    def integrand(u: float) -> float:
-        # t = u^2: dt t^(-3/2) = 2 du / u^2
-        return float(2.0 * (1.0 - np.prod(1.0 + 2.0 * u * u * relative) ** -0.5) / (u * u))
-
-    value, _ = quad(integrand, 0.0, np.inf, limit=200)
-    return float(np.sqrt(scale) * value / np.sqrt(4.0 * np.pi))
-
-
-#: Points (log2 of their count) of the scrambled Sobol sequence :func:`probability_within`
-#: averages over: 65536 standard normal vectors, whose share within a radius is known to about
-#: 1e-4 (quasi-Monte Carlo), the same on every call (a fixed scramble).
-GAUSSIAN_POINTS_LOG2 = 16
-
-
-@functools.cache
-def _standard_normal_points() -> FloatArray:
-    """Standard normal 3-vectors (2^16, 3) from a scrambled Sobol sequence (fixed seed)."""
-    uniform = qmc.Sobol(d=3, scramble=True, seed=20_260_101).random_base2(GAUSSIAN_POINTS_LOG2)
-    return as_float_array(ndtri(np.clip(uniform, 1e-12, 1.0 - 1e-12)))
-
-
-def probability_within(covariance: ArrayLike, radius: float) -> float:
-    """Chance that a zero-mean Gaussian vector x ~ N(0, covariance) is no longer than ``radius``.
-
-    The chance an error stated by its covariance stays within an application's limit (or, as
-    the benchmarks use it, how often an honest statement should still see a small error). A
-    stated mean length alone does not set it: an error along one direction (a camera's depth)
-    is small far more often than an isotropic one of the same mean length.
-
-    Parameters
-    ----------
-    covariance : array_like, shape (3, 3)
-        Covariance of x (e.g. mm^2; ``position_covariance_mm2`` of :func:`expected_error`).
-    radius : float
-        Same unit as x.
-
-    Returns
-    -------
-    float
-        ``P(|x| <= radius)``: the share of :data:`GAUSSIAN_POINTS_LOG2` quasi-random standard
-        normal vectors z with ``sum_i l_i z_i^2 <= radius^2`` (l_i the eigenvalues), to about
-        1e-4. (Inverting the characteristic function, Imhof 1961, needs an oscillatory
-        integral whose quadrature fails at either end of the radius's range.)
-    """
-    eigenvalues = np.clip(np.linalg.eigvalsh(np.asarray(covariance, dtype=float)), 0.0, None)
-    if radius <= 0.0:
-        return 0.0
-    squared_lengths = (_standard_normal_points() ** 2) @ eigenvalues
-    return float(np.mean(squared_lengths <= radius * radius))
-
-
-#: A refit: (training observations, start tracker_from_base, start tcp_from_marker)
-#: -> (tracker_from_base, tcp_from_marker).
-Refit = Callable[[Observations, FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
-
-
-def ml_refit(
-    obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """Levenberg–Marquardt on ``obs`` from a warm start (the full-data solution)."""
-    fit = levenberg_marquardt(obs, tracker_from_base, tcp_from_marker, max_iterations=10, tolerance=1e-6)
-    return as_float_array(fit.tracker_from_base), as_float_array(fit.tcp_from_marker)
-
-
-def near_site(base_from_tcp_stack: FloatArray, radius_mm: float, tilt_deg: float) -> np.ndarray:
-    """Frames (N,) whose TCP lies within ``radius_mm`` of the site and ``tilt_deg`` of its orientation.
-
-    The site is the centroid of the TCP positions; its orientation the mean orientation of the
-    frames within ``radius_mm`` of it. All frames when fewer than three qualify.
-    """
-    positions = base_from_tcp_stack[:, :3, 3]
-    close = np.linalg.norm(positions - positions.mean(axis=0), axis=1) <= radius_mm
-    if close.sum() < 3:
-        return np.ones(len(positions), dtype=bool)
-    reference = mean_rotation(base_from_tcp_stack[close, :3, :3])
-    tilt = np.degrees(rotation_angle(base_from_tcp_stack[:, :3, :3] @ reference.T))
-    selected = close & (tilt <= tilt_deg)
-    return selected if selected.sum() >= 3 else np.ones(len(positions), dtype=bool)
-
-
-def held_out_misfit(
-    obs: Observations,
-    segments: np.ndarray,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-    refit: Refit = ml_refit,
-) -> dict[str, Any]:
-    """Squared sphere errors of held-out frames predicted by refits that left their block out.
-
-    Parameters
-    ----------
-    obs : Observations
-        The used frames (``base_from_tcp_stack`` is what the robot model says).
-    segments : numpy.ndarray of str, shape (N,)
-    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
-        The full-data solution, the warm start of every refit.
-    refit : callable
-        How a block's refit is done (default :func:`ml_refit`).
-
-    Returns
-    -------
-    dict
-        ``frame_sse_mm2`` (N,): sum over the spheres of the squared held-out error (NaN for
-        frames of blocks that could not be refitted); ``frame_prediction_leverage`` (N,):
-        ``tr(J_i (J_train^T J_train)^-1 J_i^T)``, the refit's own prediction variance per unit
-        per-axis noise variance; ``blocks``, ``blocks_refitted``, ``block_indices``;
-        ``jacobian`` (N, 3K, 12) and ``block_normal_inverses`` (per block, ``(J_train^T
-        J_train)^-1`` or None where it was not refitted), from which
-        :func:`spacecal.estimators.assessment.residual_noise.held_out_noise_power` gives the prediction
-        variance of noise of any shape.
-
-    Raises
-    ------
-    DegenerateDataError
-        When fewer than two blocks could be refitted.
-    """
-    n = len(obs.rows)
-    frame_sse = np.full(n, np.nan)
-    leverage = np.full(n, np.nan)
-    blocks = held_out_blocks(segments)
-    inverses: list[FloatArray | None] = [None] * len(blocks)
-    refitted = 0
-    # the refit's own noise makes held-out predictions worse than the noise alone: by
-    # sigma^2 tr(J_i (J_train^T J_train)^-1 J_i^T) for frame i (its leverage times sigma^2)
-    whole = jacobian(obs, tracker_from_base, tcp_from_marker).reshape(n, -1, 12)
-    for number, block in enumerate(blocks):
-        keep = np.ones(n, dtype=bool)
-        keep[block] = False
-        if keep.sum() < MINIMUM_TRAINING_FRAMES:
-            continue
-        training = replace(
-            obs,
-            rows=obs.rows[keep],
-            base_from_tcp_stack=obs.base_from_tcp_stack[keep],
-            spheres_in_tracker=obs.spheres_in_tracker[keep],
-        )
-        try:
-            fitted = refit(training, tracker_from_base, tcp_from_marker)
-        except (DegenerateDataError, np.linalg.LinAlgError):
-            continue
-        held_out = replace(
-            obs,
-            rows=obs.rows[block],
-            base_from_tcp_stack=obs.base_from_tcp_stack[block],
-            spheres_in_tracker=obs.spheres_in_tracker[block],
-        )
-        diff = predict_spheres(held_out, *fitted) - held_out.spheres_in_tracker
-        frame_sse[block] = np.sum(diff**2, axis=(1, 2))
-        train = whole[keep].reshape(-1, 12)
-        inverse = np.linalg.inv(train.T @ train)
-        inverses[number] = inverse
-        leverage[block] = np.einsum("nia,ab,nib->n", whole[block], inverse, whole[block])
-        refitted += 1
-    if refitted < 2:
-        raise DegenerateDataError("too few blocks of the recording could be refitted to cross-validate")
-    return {
-        "frame_sse_mm2": frame_sse,
-        "frame_prediction_leverage": leverage,
-        "blocks": len(blocks),
-        "blocks_refitted": refitted,
-        "block_indices": blocks,
-        "jacobian": whole,
-        "block_normal_inverses": inverses,
-    }
-
-
-def tip_points_in_marker(tcp_from_marker: FloatArray, tip_in_marker: FloatArray | None = None) -> FloatArray:
-    """The tip and three points ``ROTATION_LEVER_MM`` from it along the TCP axes, (4, 3) in the
-    marker frame, mm. The tip is the TCP origin, or ``tip_in_marker`` (3,) when measured."""
-    marker_from_tcp = invert_transform(tcp_from_marker)
-    tip = marker_from_tcp[:3, 3] if tip_in_marker is None else np.asarray(tip_in_marker, dtype=float)
-    return as_float_array(np.vstack([tip, tip + ROTATION_LEVER_MM * marker_from_tcp[:3, :3].T]))
-
-
-def _least_squares(design: FloatArray, target: FloatArray) -> FloatArray:
-    """Least-squares coefficients by the normal equations (well-posed, small column count)."""
-    normal = design.T @ design
-    ridge = 1e-12 * np.trace(normal) * np.eye(len(normal))
-    return as_float_array(np.linalg.solve(normal + ridge, design.T @ target))
-
-
-def geometry_rows(count: int, frames: int = GEOMETRY_FRAMES) -> IntArray:
-    """At most ``frames`` indices (evenly spread) of ``count`` frames, where the kinematic
-    geometry is evaluated."""
-    return np.unique(np.linspace(0, count - 1, min(frames, count)).round().astype(int))
-
-
-def solved_joints(model: RobotModel, base_from_tcp_stack: FloatArray, rows: IntArray) -> FloatArray | None:
-    """Joint angles (N, 6) reaching ``base_from_tcp_stack[rows]`` by ``model`` (NaN at the other
-    frames), on one branch: the first frame's nearest :data:`WORKING_POSTURE_DEG`, then every
-    frame by Gauss–Newton from it (the closed form nearest it where that does not converge on
-    the branch). None when ``model`` cannot reach them all, or is not a six-joint UR arm (a
-    redundant arm's joint angles are not set by its poses)."""
-    if model.n_joints != N_JOINTS:
-        return None
-    targets = base_from_tcp_stack[rows]
-    # a geometry needs joint angles to a micrometre, not to the solver's default nanometre
-    tolerance_mm = 1e-3
-    try:
-        start = inverse_kinematics(model, targets[0], np.radians(WORKING_POSTURE_DEG), tol_mm=tolerance_mm)
-        solved, _ = inverse_kinematics_gauss_newton(
-            model,
-            targets,
-            np.tile(start, (len(rows), 1)),
-            max_iterations=20,
-            position_tol_mm=tolerance_mm,
-            rotation_tol_rad=tolerance_mm * 1e-3,
-        )
-        reached = forward_kinematics(model, solved)
-        missed = (
-            ~np.all(np.isfinite(solved), axis=1)
-            | (np.linalg.norm(reached[:, :3, 3] - targets[:, :3, 3], axis=1) > tolerance_mm)
-            | (
-                rotation_angle(reached[:, :3, :3] @ np.swapaxes(targets[:, :3, :3], 1, 2))
-                > tolerance_mm * 1e-3
-            )
-            | (np.max(np.abs(solved - start), axis=1) > np.pi / 2)
-        )
-        if missed.any():
-            solved[missed] = inverse_kinematics(model, targets[missed], start, tol_mm=tolerance_mm)
-    except UnreachableError:
-        return None
-    joints = np.full((len(base_from_tcp_stack), 6), np.nan)
-    joints[rows] = solved
-    return joints
-
-
-def stand_in_arms(robot_model: RobotModel | None, tcp_from_marker: FloatArray) -> list[RobotModel]:
-    """The arms whose geometry stands in for a recording's missing joint angles.
-
-    The recording's own model where it names one; otherwise every UR arm of
-    :data:`~spacecal.models.kinematics.UR_TABLES`, with its flange at the marker (the tool
-    offset is unknown too: the TCP is placed where the calibration puts it from the marker,
-    with the TCP's orientation).
-    """
-    if robot_model is not None:
-        return [robot_model]
-    flange_from_tcp = make_transform(np.eye(3), -np.asarray(tcp_from_marker, dtype=float)[:3, 3])
-    return [ur_model(name, flange_from_tcp) for name in UR_TABLES]
-
-
-def unseen_kinematic_error(
-    model: RobotModel,
-    joints_rad: FloatArray,
-    obs: Observations,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-    site: np.ndarray,
-    blocks: Sequence[IntArray],
-    absorbed_dh: Sequence[int] = (),
-    frames: int = GEOMETRY_FRAMES,
-    tip_in_marker: FloatArray | None = None,
-) -> dict[str, Any]:
-    """How unit-scale DH errors show in held-out sphere errors and at the tip (see the module).
-
-    The same blocks are held out as in :func:`held_out_misfit`, so the held-out misfit and its
-    unit-scale counterpart are alike; at most ``frames`` frames, evenly spread, are used.
-
-    Parameters
-    ----------
-    model : RobotModel
-        The model the poses were computed with.
-    joints_rad : numpy.ndarray, shape (N, J)
-    obs : Observations
-    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
     site : numpy.ndarray of bool, shape (N,)
-        Frames that stand for targets.
-    blocks : sequence of numpy.ndarray of int
-        The held-out blocks (indices into the N frames).
-    absorbed_dh : sequence of int
-        DH corrections the estimator fitted (they absorb what they can, like the pose).
-    tip_in_marker : numpy.ndarray, shape (3,), optional
-        A tip measured in the marker frame (a pivot). IK then aims it through the fitted
-        ``tcp_from_marker``, so what that transform absorbs moves the aimed tip too: only what
-        the marker's own chain cannot describe is left. Without it the tip is the controller's
-        TCP, which the fitted ``tcp_from_marker`` does not move.
-
-    Returns
-    -------
-    dict
-        ``sphere_power_mm2`` (held-out, per frame, summed over spheres), ``tip_position_ms_mm2``
-        and ``tip_rotation_ms_rad2`` (mean squares at the site frames) and
-        ``tip_position_covariance_mm2`` (3, 3), the tip's error covariance in the tracker frame
-        averaged over the site frames, for unit-scale errors.
+        The used frames near the site (:func:`near_site`), which stand for the targets.
+    marker_in_base : numpy.ndarray, shape (S, 4, 4)
+        The marker's pose at each site frame (base frame, mm).
+    tip_in_base : numpy.ndarray, shape (S, 3)
+        The tip at each site frame (base frame, mm): the TCP, or the measured needle tip.
+    tre_ms_mm2 : float
+        Mean square of the predicted TRE over those tips, mm^2.
+    covariance_mm2 : numpy.ndarray, shape (3, 3)
+        The noise-only error's covariance at the tip, averaged over the site frames (tracker
+        frame, mm^2).
+    rotation_ms_rad2 : float
+        Trace of the rotation block of ``tracker_from_base``'s covariance, rad^2.
     """
-    n = len(joints_rad)
-    picked = geometry_rows(n, frames)
-    site_picked = picked[site[picked]]
-    spheres = obs.spheres_in_marker
-    k = len(spheres)
-    points = np.vstack([spheres, tip_points_in_marker(tcp_from_marker, tip_in_marker)])
-    dh = dh_point_jacobian(model, joints_rad[picked], tracker_from_base, tcp_from_marker, points)
-    pose = pose_point_jacobian(obs.base_from_tcp_stack[picked], tracker_from_base, tcp_from_marker, points)
-    dh = dh * unit_dh_sd(model.n_joints)
-    dh_count = dh.shape[-1]
-    absorbed_dh = list(absorbed_dh)
-    sphere_dh = dh[:, :k].reshape(len(picked), k * 3, dh_count)
-    absorbing = np.concatenate(
-        [pose[:, :k].reshape(len(picked), k * 3, 12), sphere_dh[..., absorbed_dh]], axis=-1
-    )
-    # held-out: each block's frames predicted by the absorption fitted on the other blocks
-    block_of = np.full(n, -1)
-    for b, block in enumerate(blocks):
-        block_of[block] = b
-    held_out_power = []
-    for b in range(len(blocks)):
-        out = block_of[picked] == b
-        if out.sum() == 0 or (~out).sum() < 3:
-            continue
-        coefficients = _least_squares(
-            absorbing[~out].reshape(-1, absorbing.shape[-1]), sphere_dh[~out].reshape(-1, dh_count)
-        )
-        unseen = sphere_dh[out] - absorbing[out] @ coefficients
-        held_out_power.append(np.sum(unseen**2, axis=(1, 2)))
-    sphere_power = float(np.mean(np.concatenate(held_out_power))) if held_out_power else 0.0
-    # at the tip, the fitted tracker_from_base (and identified DH) move it; tcp_from_marker does
-    # too when the tip was measured in the marker frame, not when it is the controller's TCP
-    coefficients = _least_squares(absorbing.reshape(-1, absorbing.shape[-1]), sphere_dh.reshape(-1, dh_count))
-    at_site = site[picked]
-    tip_dh = dh[at_site, k:]
-    moved_by = 6 if tip_in_marker is None else 12
-    tip = tip_dh - np.einsum("npia,ab->npib", pose[at_site, k:, :, :moved_by], coefficients[:moved_by])
-    if absorbed_dh:
-        tip -= np.einsum("npia,ab->npib", tip_dh[..., absorbed_dh], coefficients[12:])
-    position_ms = float(np.mean(np.sum(tip[:, 0] ** 2, axis=(1, 2)))) if len(site_picked) else 0.0
-    # independent unit DH errors: the tip's covariance is the mean of J J^T over the site frames
-    position_covariance = (
-        np.mean(tip[:, 0] @ np.swapaxes(tip[:, 0], 1, 2), axis=0) if len(site_picked) else np.zeros((3, 3))
-    )
-    relative = tip[:, 1:] - tip[:, :1]
-    # three orthogonal lever arms u_j of length L: sum_j |w x u_j|^2 = 2 |w|^2 L^2
-    rotation_ms = (
-        float(np.mean(np.sum(relative**2, axis=(1, 2, 3)))) / (2.0 * ROTATION_LEVER_MM**2)
-        if len(site_picked)
-        else 0.0
-    )
-    return {
-        "sphere_power_mm2": sphere_power,
-        "tip_position_ms_mm2": position_ms,
-        "tip_position_covariance_mm2": position_covariance,
-        "tip_rotation_ms_rad2": rotation_ms,
-    }
+
+    site: BoolArray
+    marker_in_base: FloatArray
+    tip_in_base: FloatArray
+    tre_ms_mm2: float
+    covariance_mm2: FloatArray
+    rotation_ms_rad2: float
 
 
-def noise_level_relative_error(sphere_count: int, frames: int) -> float:
-    """Relative standard error of sigma^2 estimated from ``frames`` tracker RMS values.
+def noise_part(
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    covariance: FloatArray,
+    tip_in_marker: FloatArray | None,
+) -> NoisePart:
+    """The noise-only TRE at the site frames (the module's ``C_TRE``).
 
-    :func:`spacecal.estimators.methods.observations.sphere_noise_from_marker_rms` takes sigma^2 from the
-    median of rms^2, a chi-square(3K - 6) variable up to scale; a sample median's variance is
-    ``1 / (4 N f(m)^2)`` with f the density at the median m, so the relative error is
-    ``1 / (2 f(m) m sqrt(N))`` (0.76 / sqrt(N) for four spheres). Dimensionless.
+    Parameters
+    ----------
+    obs : Observations
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The solution (mm).
+    covariance : numpy.ndarray, shape (12, 12)
+        Its covariance in the pose perturbation parameters (mm, rad).
+    tip_in_marker : numpy.ndarray, shape (3,), or None
+        A measured needle tip in the marker frame (mm); None for the TCP.
     """
-    dof = max(3 * sphere_count - 6, 1)
-    median = float(chdtri(dof, 0.5))
-    # the chi-square density at its median (scipy.special: the command line need not load
-    # scipy.stats, a third of a second per process)
-    half = 0.5 * dof
-    density = np.exp((half - 1.0) * np.log(median) - 0.5 * median - half * np.log(2.0) - gammaln(half))
-    return float(1.0 / (2.0 * density * median * np.sqrt(max(frames, 1))))
+    site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
+    # the marker's pose at each site frame (base frame): where a measured tip is, and how the
+    # pivot's error, fixed in the marker frame, turns
+    marker_in_base = obs.base_from_tcp_stack[site] @ tcp_from_marker
+    if tip_in_marker is None:
+        tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
+    else:
+        tip_in_base = marker_in_base[:, :3, :3] @ tip_in_marker + marker_in_base[:, :3, 3]
+    tre_ms = float(np.mean(predicted_tre_mm(tracker_from_base, covariance, tip_in_base) ** 2))
+    noise_covariance = np.mean(
+        point_covariances(tracker_from_base, np.asarray(covariance)[:6, :6], tip_in_base), axis=0
+    )
+    rotation_noise_ms = float(np.trace(np.asarray(covariance)[3:6, 3:6]))
+    return NoisePart(site, marker_in_base, tip_in_base, tre_ms, noise_covariance, rotation_noise_ms)
 
 
-def white_noise_power(
+@dataclass(frozen=True)
+class MethodDeviation:
+    """How far a method other than ML puts the tip from ML's, and ML's solution itself.
+
+    Attributes
+    ----------
+    ml_tracker_from_base, ml_tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The ML solution the held-out refits start from (the method's own for ML).
+    position_ms_mm2 : float
+        Mean square of the tip's distance from ML's over the site frames, mm^2.
+    covariance_mm2 : numpy.ndarray, shape (3, 3)
+        Its second moment over the site frames, added like a covariance (mm^2).
+    rotation_ms_rad2 : float
+        Square of the rotation between the two ``tracker_from_base``, rad^2.
+    """
+
+    ml_tracker_from_base: FloatArray
+    ml_tcp_from_marker: FloatArray
+    position_ms_mm2: float = 0.0
+    covariance_mm2: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
+    rotation_ms_rad2: float = 0.0
+
+
+def method_deviation(
+    obs: Observations,
+    tracker_from_base: FloatArray,
+    tcp_from_marker: FloatArray,
+    site: BoolArray,
+    likelihood_based: bool,
+    refit: Refit,
+) -> MethodDeviation:
+    """The ML solution and a non-ML method's distance from it at the site frames (zero for ML).
+
+    Parameters
+    ----------
+    obs : Observations
+    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
+        The method's solution (mm).
+    site : numpy.ndarray of bool, shape (N,)
+        The site frames (:attr:`NoisePart.site`).
+    likelihood_based : bool
+        The solution is the ML fit of ``obs``: it is its own ML solution.
+    refit : callable
+        How ML is refitted from the method's solution.
+    """
+    if likelihood_based:
+        return MethodDeviation(tracker_from_base, tcp_from_marker)
+    ml_tracker_from_base, ml_tcp_from_marker = refit(obs, tracker_from_base, tcp_from_marker)
+    method_tip = tracker_from_base @ obs.base_from_tcp_stack[site]
+    ml_tip = ml_tracker_from_base @ obs.base_from_tcp_stack[site]
+    deviation = method_tip[:, :3, 3] - ml_tip[:, :3, 3]
+    return MethodDeviation(
+        ml_tracker_from_base,
+        ml_tcp_from_marker,
+        float(np.mean(np.sum(deviation**2, axis=1))),
+        # its second moment over the site frames, added like a covariance
+        deviation.T @ deviation / len(deviation),
+        float(rotation_angle(tracker_from_base[:3, :3] @ ml_tracker_from_base[:3, :3].T) ** 2),
+    )
+
+
+@dataclass(frozen=True)
+class HeldOutPart:
+    """The held-out misfit of the ML solution (the module's fact 1, before the noise is taken off).
+
+    Attributes
+    ----------
+    misfit : dict
+        :func:`held_out_misfit`'s result (per-frame sphere SSE and leverage, the blocks, the
+        Jacobian and the blocks' normal inverses); NaN per frame where the refits were skipped.
+    computed : bool
+        Some frame was scored.
+    mean_square_mm2 : float
+        Mean held-out sphere SSE per frame, mm^2 (0 when nothing was scored).
+    scored : int
+        Frames scored.
+    mean_leverage : float
+        Mean prediction leverage of the refits over the scored frames.
+    """
+
+    misfit: dict[str, Any]
+    computed: bool
+    mean_square_mm2: float
+    scored: int
+    mean_leverage: float
+
+
+def held_out_part(
     obs: Observations,
     segments: np.ndarray,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-) -> dict[str, Any]:
-    """The white part of the residuals, from pairs of consecutive frames (a variogram's nugget).
-
-    A systematic error (the arm's kinematics, the tracker's volume error, a clock offset) is a
-    smooth function of where the arm is: two consecutive frames of one segment, whose marker
-    moved a few mm, carry nearly the same systematic residual, and half the squared difference
-    of their residuals is the white noise's power alone (the variogram
-    ``gamma(h) = E|r_i - r_j|^2 / 2`` at small separation h: its nugget). No noise model is
-    assumed: anisotropic, pose-only or raw-sphere noise and the robot's own jitter all enter it
-    as they enter the residuals. Pairs whose marker moved more than
-    :data:`NUGGET_DISPLACEMENT_FACTOR` times the pairs' median, or more than
-    :data:`NUGGET_MAX_DISPLACEMENT_MM`, are left out (a jump between stations or sweeps), as
-    are pairs of identical observations (a repeated, stale frame).
+    deviation: MethodDeviation,
+    refit: Refit,
+    scale_given: bool,
+) -> HeldOutPart:
+    """The held-out misfit of the ML solution, block by block (:func:`held_out_misfit`).
 
     Parameters
     ----------
     obs : Observations
-        The used frames in time order.
     segments : numpy.ndarray of str, shape (N,)
-    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
-        The full-data solution.
-
-    Returns
-    -------
-    dict
-        ``power_mm2``: the white noise's power per frame (sum over the spheres of the squared
-        noise, mm^2); ``variance_mm4``: the variance of one frame's noise power (for standard
-        errors); ``pairs``; ``displacement_mm``: the median RMS displacement of the spheres
-        between the frames of a pair; ``rigid_covariance_mm2`` (6, 6): the noise's covariance
-        in the rigid motion of a frame's spheres (:func:`rigid_coordinates`, mm and rad), from
-        the same pairs: a camera's depth noise is many times its lateral noise;
-        ``rigid_covariance_dof``: the independent steps it rests on (the pairs, fewer where they
-        overlap, :data:`OVERLAPPING_PAIRS_VARIANCE`).
-
-    Raises
-    ------
-    DegenerateDataError
-        With fewer than :data:`MINIMUM_NUGGET_PAIRS` pairs of nearby frames.
+        Segment label of each used frame (the held-out blocks).
+    deviation : MethodDeviation
+        Holds the ML solution the refits start from.
+    refit : callable
+        How a held-out block's refit is done.
+    scale_given : bool
+        The arm's DH error scale is given (kinematic identification) and an arm's geometry is
+        known: the refits would only be reported, not used, so they are not done.
     """
-    predicted = predict_spheres(obs, tracker_from_base, tcp_from_marker)
-    residuals = predicted - obs.spheres_in_tracker
-    segments = np.asarray(segments)
-    pairs = segments[1:] == segments[:-1]
-    pairs &= np.any(obs.spheres_in_tracker[1:] != obs.spheres_in_tracker[:-1], axis=(1, 2))
-    first = np.flatnonzero(pairs)
-    displacement = np.sqrt(np.mean(np.sum((predicted[first + 1] - predicted[first]) ** 2, axis=2), axis=1))
-    if len(first):
-        near = (displacement <= NUGGET_DISPLACEMENT_FACTOR * np.median(displacement)) & (
-            displacement <= NUGGET_MAX_DISPLACEMENT_MM
-        )
-        first, displacement = first[near], displacement[near]
-    if len(first) < MINIMUM_NUGGET_PAIRS:
-        raise DegenerateDataError(
-            f"only {len(first)} pairs of consecutive frames to measure the tracker's noise from "
-            f"(at least {MINIMUM_NUGGET_PAIRS})"
-        )
-    half_squares = 0.5 * np.sum((residuals[first + 1] - residuals[first]) ** 2, axis=(1, 2))
-    motion = rigid_coordinates(residuals, predicted)[..., 0]
-    steps = motion[first + 1] - motion[first]
-    return {
-        "rigid_covariance_mm2": 0.5 * steps.T @ steps / len(first),
-        # overlapping pairs share frames: fewer independent steps than pairs
-        "rigid_covariance_dof": len(first)
-        / (OVERLAPPING_PAIRS_VARIANCE if np.any(np.diff(first) == 1) else 1.0),
-        "power_mm2": float(np.mean(half_squares)),
-        "variance_mm4": float(np.var(half_squares)),
-        "pairs": len(first),
-        "displacement_mm": float(np.median(displacement)),
-    }
-
-
-def residuals_and_shapes(
-    model: RobotModel,
-    joints_rad: FloatArray,
-    obs: Observations,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-    frames: int = GEOMETRY_FRAMES,
-) -> tuple[IntArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The fit's sphere residuals and the shapes the pose and the arm's DH errors give them.
-
-    At most ``frames`` frames with known joint angles, evenly spread: ``rows`` (M,), the
-    predicted spheres (M, K, 3) and residuals (M, K, 3), mm, in the tracker frame; the pose's
-    Jacobian (M, K, 3, 12) and the unit-scale DH errors' (M, K, 3, 4 J, :func:`unit_dh_sd`).
-    """
-    usable = np.flatnonzero(np.all(np.isfinite(joints_rad), axis=1))
-    rows = usable[geometry_rows(len(usable), frames)] if len(usable) else usable
-    points = obs.spheres_in_marker
-    seen = predict_spheres(obs, tracker_from_base, tcp_from_marker)[rows]
-    residual = seen - obs.spheres_in_tracker[rows]
-    pose = pose_point_jacobian(obs.base_from_tcp_stack[rows], tracker_from_base, tcp_from_marker, points)
-    dh = dh_point_jacobian(model, joints_rad[rows], tracker_from_base, tcp_from_marker, points)
-    dh = dh * unit_dh_sd(model.n_joints)
-    return rows, seen, residual, pose, dh
-
-
-def white_noise_beyond_kinematics(
-    model: RobotModel,
-    joints_rad: FloatArray,
-    obs: Observations,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-    frames: int = GEOMETRY_FRAMES,
-) -> dict[str, Any]:
-    """The white noise as what the residuals leave once the arm's DH errors are fitted as well.
-
-    For a recording of one frame per pose whose tracker gives no fit RMS (a camera's static
-    views), no nearby pairs measure the noise. The residuals at the fitted solution are then
-    split by their shape: the arm's DH errors (unit scale :data:`UNIT_DH_SD`) and the pose
-    parameters span a known subspace of the stacked sphere residuals; white noise spreads over
-    all of it, a DH error lies in it. What both fits leave is noise, and its covariance per
-    frame is what the residuals' second moments show once the share the fits absorbed is put
-    back (:func:`spacecal.estimators.assessment.residual_noise.frame_noise_covariance`): a camera's pose
-    noise, nearly all along three of a frame's coordinates, loses more of itself to the fitted
-    parameters than isotropic noise would. A systematic error the DH errors cannot describe (a
-    tracker's volume error) counts as noise here: the basis says so.
-
-    Parameters
-    ----------
-    model : RobotModel
-        The arm whose DH geometry shapes the systematic error.
-    joints_rad : numpy.ndarray, shape (N, J)
-        Its joint angles at the used frames (NaN where unknown: those frames are left out).
-    obs : Observations
-    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
-        The fitted solution.
-    frames : int
-        At most this many frames, evenly spread, are used.
-
-    Returns
-    -------
-    dict
-        ``power_mm2``: the white noise's power per frame (sum over the spheres, mm^2);
-        ``covariance_mm2`` (3K, 3K): its covariance over a frame's stacked sphere
-        coordinates (tracker frame); ``relative_error``: the relative standard error of that
-        power (chi-square scatter of the residual sum of squares' effective degrees of
-        freedom); ``dof``: those degrees of freedom.
-
-    Raises
-    ------
-    DegenerateDataError
-        When fewer than :data:`MINIMUM_RESIDUAL_DOF` residual degrees of freedom remain.
-    """
-    _, _, residual, pose, dh = residuals_and_shapes(
-        model, joints_rad, obs, tracker_from_base, tcp_from_marker, frames
-    )
-    count, spheres = residual.shape[:2]
-    design = np.concatenate([pose, dh], axis=-1).reshape(count, 3 * spheres, 12 + dh.shape[-1])
-    noise = frame_noise_covariance(design, residual.reshape(count, 3 * spheres))
-    if noise["dof"] < MINIMUM_RESIDUAL_DOF:
-        raise DegenerateDataError(
-            f"only {noise['dof']:.0f} residual degrees of freedom beyond the pose and the DH errors "
-            f"(at least {MINIMUM_RESIDUAL_DOF})"
-        )
-    return {
-        "power_mm2": noise["power_mm2"],
-        "covariance_mm2": noise["covariance_mm2"],
-        "relative_error": float(np.sqrt(2.0 / noise["dof"])),
-        "dof": noise["dof"],
-    }
-
-
-def rigid_coordinates(displacements: FloatArray, points: FloatArray) -> FloatArray:
-    """Each frame's point displacements as the small rigid motion that explains them best.
-
-    Parameters
-    ----------
-    displacements : numpy.ndarray, shape (N, K, 3) or (N, K, 3, M), mm
-        Per frame, the displacement of each of K points (M sets of them, e.g. Jacobian columns).
-    points : numpy.ndarray, shape (N, K, 3), mm
-        Where the points are.
-
-    Returns
-    -------
-    numpy.ndarray, shape (N, 6, M) (M = 1 for one set), mm and rad
-        The least-squares translation of the points' centroid and rotation about it (tracker
-        frame), ``(v, w)``.
-    """
-    centred = points - points.mean(axis=1, keepdims=True)
-    n, k, _ = points.shape
-    basis = np.zeros((n, k, 3, 6))
-    basis[..., :3] = np.eye(3)
-    # the rotation w moves a point p by w x p = -[p]x w
-    x, y, z = centred[..., 0], centred[..., 1], centred[..., 2]
-    basis[..., 0, 4], basis[..., 0, 5] = z, -y
-    basis[..., 1, 3], basis[..., 1, 5] = -z, x
-    basis[..., 2, 3], basis[..., 2, 4] = y, -x
-    design = basis.reshape(n, 3 * k, 6)
-    return as_float_array(np.linalg.pinv(design) @ displacements.reshape(n, 3 * k, -1))
-
-
-def rigid_part(displacements: FloatArray, points: FloatArray) -> FloatArray:
-    """Each frame's point displacements projected on the rigid motions of its points.
-
-    Parameters
-    ----------
-    displacements, points : numpy.ndarray, shape (N, K, 3), mm
-        Per frame, the displacement of each of K points and where the point is.
-
-    Returns
-    -------
-    numpy.ndarray, shape (N, K, 3), mm
-        The displacements a small rigid motion (translation and rotation) of each frame's
-        points explains best, by least squares.
-    """
-    motion = rigid_coordinates(displacements, points)[..., 0]
-    rotation = motion[:, 3:]
-    centred = points - points.mean(axis=1, keepdims=True)
-    return motion[:, None, :3] + np.cross(rotation[:, None, :], centred)
-
-
-def systematic_share_in_dh_span(
-    model: RobotModel,
-    joints_rad: FloatArray,
-    obs: Observations,
-    tracker_from_base: FloatArray,
-    tcp_from_marker: FloatArray,
-    white_power_mm2: float,
-    frames: int = GEOMETRY_FRAMES,
-    rigid_noise_covariance: FloatArray | None = None,
-    rigid_noise_dof: float | None = None,
-) -> dict[str, Any]:
-    """How much of the systematic misfit has the shape of the arm's DH errors.
-
-    Each frame's residual is reduced to the rigid motion of its spheres (:func:`rigid_part`),
-    and the stacked result is split by its shape (as in :func:`white_noise_beyond_kinematics`):
-    the part a least-squares fit of unit DH errors (:data:`UNIT_DH_SD`) explains beyond the
-    pose, and the rest. White noise of known power has its expected share in each (its power
-    per frame over the frame's degrees of freedom, per dimension of the subspace); what is
-    left over in the DH span is the arm's error, what is left beyond it is a systematic error
-    the arm's geometry cannot describe (a tracker's smooth bias field, a marker's geometry
-    error). Only the first is scaled to the tip by the arm's geometry; scaling
-    all of it overstated the error about 1.6 times where a tracker's bias dominated. A bias
-    that happens to lie in the DH span counts as the arm's: the split errs towards the larger
-    error.
-
-    Parameters
-    ----------
-    model : RobotModel
-    joints_rad : numpy.ndarray, shape (N, J)
-        Joint angles at the used frames (NaN where unknown: those frames are left out).
-    obs : Observations
-    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
-        The fitted solution.
-    white_power_mm2 : float
-        The white noise's power per frame (sum over the spheres, mm^2).
-    frames : int
-        At most this many frames, evenly spread, are used.
-    rigid_noise_covariance : numpy.ndarray, shape (6, 6), optional
-        The white noise's covariance in a frame's rigid motion (``rigid_covariance_mm2`` of
-        :func:`white_noise_power`). The DH-span test is then made on the residuals' rigid
-        motions whitened by it: a noise that is large along one direction (a camera's depth)
-        no longer hides an arm error that moves the marker across it. Measured on the
-        simulated camera-grade pose tracker (depth noise three times the lateral), the test's
-        statistic over its standard error rose from 2.0-18 (median 9.4) to 5.4-58 (median 27)
-        over 20 seeds; on white noise both stay near 0 (-1.5 to 2.7).
-    rigid_noise_dof : float, optional
-        The degrees of freedom ``rigid_noise_covariance`` was estimated with.
-
-    Returns
-    -------
-    dict
-        ``dh_share`` in [0, 1] (1 when no systematic misfit is left in-sample), and the
-        in-sample systematic powers per frame ``dh_power_mm2`` and ``other_power_mm2``;
-        ``dh_detected_power_mm2``, the DH part less :data:`DETECTION_STANDARD_ERRORS` standard
-        errors of the noise's share in it (a chi-square test on the DH span's few dimensions,
-        far more sensitive to an arm's error than the held-out misfit of every coordinate), and
-        ``unit_dh_power_mm2``, what unit-scale DH errors leave beyond the pose in-sample (both
-        per frame).
-    """
-    if not np.all(np.isfinite(joints_rad), axis=1).any():
-        return {
-            "dh_share": 1.0,
-            "dh_power_mm2": 0.0,
-            "other_power_mm2": 0.0,
-            "dh_detected_power_mm2": 0.0,
-            "unit_dh_power_mm2": 0.0,
+    if scale_given:
+        block_list = held_out_blocks(segments)
+        misfit: dict[str, Any] = {
+            "frame_sse_mm2": np.full(len(obs.rows), np.nan),
+            "frame_prediction_leverage": np.full(len(obs.rows), np.nan),
+            "blocks": len(block_list),
+            "blocks_refitted": 0,
+            "block_indices": block_list,
+            "jacobian": np.zeros((len(obs.rows), 3 * len(obs.spheres_in_marker), 12)),
+            "block_normal_inverses": [None] * len(block_list),
         }
-    rows, seen, residual, pose, dh = residuals_and_shapes(
-        model, joints_rad, obs, tracker_from_base, tcp_from_marker, frames
+    else:
+        misfit = held_out_misfit(
+            obs, segments, deviation.ml_tracker_from_base, deviation.ml_tcp_from_marker, refit
+        )
+    sse = misfit["frame_sse_mm2"]
+    computed = bool(np.isfinite(sse).any())
+    return HeldOutPart(
+        misfit,
+        computed,
+        float(np.nanmean(sse)) if computed else 0.0,
+        int(np.isfinite(sse).sum()),
+        float(np.nanmean(misfit["frame_prediction_leverage"])) if computed else 0.0,
     )
-    # Pose and DH errors move the marker rigidly: only each frame's rigid motion is compared,
-    # the same whether the tracker sent spheres or a fitted pose (whose noise lives there only).
-    stacked = rigid_part(residual, seen).reshape(-1)
-    pose_design = pose.reshape(-1, 12)
-    design = np.concatenate([pose, dh], axis=-1).reshape(-1, 12 + dh.shape[-1])
-    # directions the data barely determine (DH columns nearly redundant with the pose, singular
-    # values ~1e-12 of the largest) are cut: they would turn rounding into a different split
-    beyond_pose, _, pose_rank, _ = np.linalg.lstsq(pose_design, stacked, rcond=RANK_RCOND)
-    beyond_all, _, rank, _ = np.linalg.lstsq(design, stacked, rcond=RANK_RCOND)
-    rss_pose = float(np.sum((stacked - pose_design @ beyond_pose) ** 2))
-    rss_all = float(np.sum((stacked - design @ beyond_all) ** 2))
-    # white noise per dimension of a frame's rigid motion (its power over its dof)
-    per_dimension = white_power_mm2 / obs.dof_per_frame
-    dh_dimensions = int(rank) - int(pose_rank)
-    dh_excess = rss_pose - rss_all - per_dimension * dh_dimensions
-    dh_power = max(dh_excess, 0.0) / len(rows)
-    other_power = max(rss_all - per_dimension * (6 * len(rows) - int(rank)), 0.0) / len(rows)
-    total = dh_power + other_power
-    noise_standard_error = per_dimension * np.sqrt(2.0 * max(dh_dimensions, 1))
-    if rigid_noise_covariance is not None:
-        detected, unit_power = whitened_dh_span_test(
-            residual, seen, pose, dh, rigid_noise_covariance, rigid_noise_dof
+
+
+@dataclass(frozen=True)
+class ArmGeometry:
+    """The arm whose kinematic geometry scales the misfit to the tip (the module's fact 3).
+
+    Attributes
+    ----------
+    arm : RobotModel
+        The recording's model, or a stand-in UR arm.
+    unit : dict
+        :func:`unseen_kinematic_error` at unit DH error scale: ``sphere_power_mm2``,
+        ``tip_position_ms_mm2``, ``tip_position_covariance_mm2`` (3 x 3, tracker frame),
+        ``tip_rotation_ms_rad2``.
+    joints_rad : numpy.ndarray, shape (N, J) or (G, J)
+        The joint angles it was evaluated at (recorded, or solved from the TCP poses).
+    scaled_by : str
+        The basis's words for it.
+    """
+
+    arm: RobotModel
+    unit: dict[str, Any]
+    joints_rad: FloatArray
+    scaled_by: str
+
+
+def arm_geometry(
+    obs: Observations,
+    deviation: MethodDeviation,
+    site: BoolArray,
+    held_out: HeldOutPart,
+    robot_model: RobotModel | None,
+    joints_rad: FloatArray | None,
+    absorbed_dh: Sequence[int],
+    tip_in_marker: FloatArray | None,
+) -> ArmGeometry | None:
+    """The unseen-kinematics geometry: what DH errors of unit scale do to the spheres and the tip.
+
+    With recorded joint angles and a model, that model at those angles; without them, joint
+    angles solved from the reported TCP poses, by the recording's model or, without one, by the
+    UR arm whose geometry hides the most of a given misfit (:func:`stand_in_arms`). None when no
+    arm reaches the poses.
+
+    Parameters
+    ----------
+    obs : Observations
+    deviation : MethodDeviation
+        Holds the ML solution.
+    site : numpy.ndarray of bool, shape (N,)
+    held_out : HeldOutPart
+        Its blocks are the geometry's too.
+    robot_model : RobotModel or None
+    joints_rad : numpy.ndarray, shape (N, J), or None
+    absorbed_dh : sequence of int
+        DH corrections the estimator identified (absorbed, so not unseen).
+    tip_in_marker : numpy.ndarray, shape (3,), or None
+    """
+    blocks = held_out.misfit["block_indices"]
+    ml_tracker_from_base, ml_tcp_from_marker = deviation.ml_tracker_from_base, deviation.ml_tcp_from_marker
+    if has_arm_model(robot_model, joints_rad) and robot_model is not None and joints_rad is not None:
+        unit = unseen_kinematic_error(
+            robot_model,
+            joints_rad,
+            obs,
+            ml_tracker_from_base,
+            ml_tcp_from_marker,
+            site,
+            blocks,
+            absorbed_dh,
+            tip_in_marker=tip_in_marker,
+        )
+        return ArmGeometry(robot_model, unit, joints_rad, "the robot's kinematic geometry")
+    # no joint angles: solve them from the reported TCP poses, by the recording's robot model
+    # or, without one, by the UR arm whose geometry hides the most of a given misfit, as many
+    # frames as with recorded joint angles: the DH-span test needs them (on 40, a camera-grade
+    # tracker's arm error went unseen on the bag and TUM paths, up to 10.6 times the statement)
+    rows = geometry_rows(len(obs.rows), GEOMETRY_FRAMES)
+    best: tuple[RobotModel, dict[str, Any], FloatArray] | None = None
+    for arm in stand_in_arms(robot_model, ml_tcp_from_marker):
+        joints = solved_joints(arm, obs.base_from_tcp_stack, rows)
+        if joints is None:
+            continue
+        unit = unseen_kinematic_error(
+            arm,
+            joints,
+            obs,
+            ml_tracker_from_base,
+            ml_tcp_from_marker,
+            site,
+            blocks,
+            tip_in_marker=tip_in_marker,
+        )
+        if unit["sphere_power_mm2"] > 0 and (
+            best is None
+            or unit["tip_position_ms_mm2"] / unit["sphere_power_mm2"]
+            > best[1]["tip_position_ms_mm2"] / best[1]["sphere_power_mm2"]
+        ):
+            best = (arm, unit, joints)
+    if best is None:
+        return None
+    if robot_model is not None:
+        scaled_by = (
+            f"the {robot_model.name}'s kinematic geometry at joint angles solved from the reported "
+            "TCP poses (the recording has none)"
         )
     else:
-        detected = max(dh_excess - DETECTION_STANDARD_ERRORS * noise_standard_error, 0.0)
-        unit_power = _power_beyond_pose(pose_design, dh.reshape(-1, dh.shape[-1]))
-    return {
-        "dh_share": dh_power / total if total > 0 else 1.0,
-        "dh_power_mm2": dh_power,
-        "other_power_mm2": other_power,
-        "dh_detected_power_mm2": detected / len(rows),
-        "unit_dh_power_mm2": unit_power / len(rows),
-    }
-
-
-def whitened_dh_span_test(
-    residual: FloatArray,
-    seen: FloatArray,
-    pose: FloatArray,
-    dh: FloatArray,
-    covariance: FloatArray,
-    covariance_dof: float | None = None,
-) -> tuple[float, float]:
-    """The DH-span chi-square test of :func:`systematic_share_in_dh_span` on rigid motions
-    whitened by the noise's covariance.
-
-    Parameters
-    ----------
-    residual, seen : numpy.ndarray, shape (M, K, 3), mm
-        The fit's sphere residuals and the predicted spheres (tracker frame).
-    pose, dh : numpy.ndarray, shape (M, K, 3, 12) and (M, K, 3, D)
-        The pose's Jacobian and the unit-scale DH errors' (:func:`residuals_and_shapes`).
-    covariance : numpy.ndarray, shape (6, 6)
-        The white noise's covariance in a frame's rigid motion (:func:`rigid_coordinates`).
-    covariance_dof : float, optional
-        The degrees of freedom ``covariance`` was estimated with (pairs of frames), None for a
-        known one. Whitening by an estimate inflates the whitened noise: by ``n / (n - 7)`` on
-        average for a 6 x 6 covariance from n degrees of freedom (the mean of an inverse
-        Wishart matrix), 2.75 times from the 11 pairs of a 10 Hz camera's sweep, where taking
-        it as one unit flagged an arm error on KinHEC's noise-only temporal sequences. With
-        fewer than :data:`MINIMUM_WHITENING_DOF` nothing is detected.
-
-    Returns
-    -------
-    detected : float
-        What the DH columns explain beyond the pose, less the whitened noise's share (one unit
-        per dimension of the DH span) and :data:`DETECTION_STANDARD_ERRORS` of its chi-square
-        scatter; zero when not above it.
-    unit_power : float
-        What unit-scale DH errors leave beyond the pose, in the same whitened units, so that
-        ``detected / unit_power`` is the arm's error scale squared.
-    """
-    try:
-        whitening = np.linalg.inv(np.linalg.cholesky(covariance))
-    except np.linalg.LinAlgError:
-        return 0.0, 0.0
-    motion = rigid_coordinates(residual, seen)[..., 0] @ whitening.T
-    columns = np.einsum(
-        "ij,njc->nic", whitening, rigid_coordinates(np.concatenate([pose, dh], axis=-1), seen)
-    )
-    stacked = motion.reshape(-1)
-    design = columns.reshape(-1, columns.shape[-1])
-    pose_design, dh_design = design[:, :12], design[:, 12:]
-    beyond_pose, _, pose_rank, _ = np.linalg.lstsq(pose_design, stacked, rcond=RANK_RCOND)
-    beyond_all, _, rank, _ = np.linalg.lstsq(design, stacked, rcond=RANK_RCOND)
-    rss_pose = float(np.sum((stacked - pose_design @ beyond_pose) ** 2))
-    rss_all = float(np.sum((stacked - design @ beyond_all) ** 2))
-    unit_power = _power_beyond_pose(pose_design, dh_design)
-    # whitened noise: one unit per dimension (times the inflation of an estimated covariance),
-    # chi-square with the DH span's dimensions
-    dimensions = max(int(rank) - int(pose_rank), 1)
-    inflation, estimate_margin = 1.0, 0.0
-    if covariance_dof is not None:
-        if covariance_dof < MINIMUM_WHITENING_DOF:
-            return 0.0, unit_power
-        inflation = covariance_dof / (covariance_dof - 7.0)
-        # One estimate whitens every frame, so its error does not average out over them: along
-        # any direction the whitened power is n / chi^2(n - 5) times the truth (an inverse
-        # Wishart's diagonal), a skewed factor; its upper quantile at the chi-square margin's
-        # level is taken on the whole sum.
-        level = float(norm.sf(DETECTION_STANDARD_ERRORS))
-        estimate_margin = dimensions * (
-            covariance_dof / chdtri(covariance_dof - 5.0, 1.0 - level) - inflation
+        scaled_by = (
+            f"the kinematic geometry of a {best[0].name} with its flange at the marker, the UR arm "
+            "that hides the most of it (the recording has no joint angles or robot model)"
         )
-    excess = rss_pose - rss_all - dimensions * inflation
-    margin = np.hypot(DETECTION_STANDARD_ERRORS * inflation * np.sqrt(2.0 * dimensions), estimate_margin)
-    detected = max(excess - margin, 0.0)
-    return detected, unit_power
+    return ArmGeometry(*best, scaled_by)
 
 
-def _power_beyond_pose(pose_design: FloatArray, dh_design: FloatArray) -> float:
-    """What unit-scale DH errors (the columns of ``dh_design``) leave beyond the pose's columns,
-    summed over every column and row."""
-    fitted = pose_design @ np.linalg.lstsq(pose_design, dh_design, rcond=RANK_RCOND)[0]
-    return float(np.sum((dh_design - fitted) ** 2))
+def has_arm_model(robot_model: RobotModel | None, joints_rad: FloatArray | None) -> bool:
+    """A model and finite joint angles for every used frame: the arm's geometry is known."""
+    return robot_model is not None and joints_rad is not None and bool(np.all(np.isfinite(joints_rad)))
 
 
-def arm_and_other_parts(
-    systematic_mm2: float, unit_sphere_power_mm2: float, split: dict[str, Any] | None, spheres: int
-) -> tuple[float, float, float, bool]:
-    """How a systematic held-out misfit divides between the arm's DH errors and the rest.
+@dataclass(frozen=True)
+class WhiteNoisePart:
+    """The white noise the held-out misfit is compared with (the module's fact 2).
+
+    Attributes
+    ----------
+    white : dict or None
+        :func:`white_noise_power` from consecutive frames, None where too few pairs exist.
+    power_mm2 : float
+        The white noise's power per frame (all spheres), mm^2.
+    standard_error_mm2 : float
+        Standard error of the noise's misfit: the held-out mean's own scatter and that of the
+        noise level it is compared with, mm^2.
+    beyond : str
+        The basis's words for what the systematic misfit is beyond.
+    shaped_ms_mm2 : float or None
+        The noise's held-out power where it has the shape the DH fit leaves
+        (:func:`white_noise_beyond_kinematics`), else None.
+    detection_standard_errors : float
+        Standard errors of the noise's misfit taken off before a misfit counts as systematic.
+    """
+
+    white: dict[str, Any] | None
+    power_mm2: float
+    standard_error_mm2: float
+    beyond: str
+    shaped_ms_mm2: float | None = None
+    detection_standard_errors: float = DETECTION_STANDARD_ERRORS
+
+
+def white_noise_part(
+    obs: Observations,
+    segments: np.ndarray,
+    deviation: MethodDeviation,
+    held_out: HeldOutPart,
+    geometry: ArmGeometry | None,
+) -> WhiteNoisePart:
+    """The white noise: from the residuals of consecutive frames where there are enough (the
+    same on every path, and every white source is in it as it is in the misfit); else from the
+    tracker's fit RMS; else what the residuals leave beyond the arm's DH errors; else unknown,
+    and then all the misfit counts as systematic.
 
     Parameters
     ----------
-    systematic_mm2 : float
-        The held-out misfit beyond the noise's, per frame over all its spheres, mm^2.
-    unit_sphere_power_mm2 : float
-        The misfit a DH error scale of 1 mm leaves per frame (:func:`unseen_kinematic_error`).
-    split : dict or None
-        :func:`systematic_share_in_dh_span`'s split of the residuals, where the noise was
-        measured apart from the misfit; None where the noise is what DH errors leave (all the
-        misfit is then the arm's).
-    spheres : int
-        Spheres of the marker.
-
-    Returns
-    -------
-    arm_scale_sq : float
-        The arm's DH error scale, squared (mm^2).
-    other_ms : float
-        The mean square at the tip of the error beyond the arm's (a tracker's bias field), mm^2:
-        as large as at one sphere of the marker, which is a point of the same chain.
-    dh_share : float
-        The share of the misfit in the DH span.
-    detected_in_dh_span : bool
-        True where the held-out misfit is within the noise's scatter yet the arm's errors show
-        in the DH span's few dimensions in-sample (a noisy tracker): the scale is then theirs.
+    obs : Observations
+    segments : numpy.ndarray of str, shape (N,)
+    deviation : MethodDeviation
+        Holds the ML solution whose residuals are read.
+    held_out : HeldOutPart
+        The frames scored set the held-out mean's scatter.
+    geometry : ArmGeometry or None
+        For the noise beyond the DH errors.
     """
-    scale_sq = systematic_mm2 / unit_sphere_power_mm2 if unit_sphere_power_mm2 > 0 else 0.0
-    if split is None:
-        return scale_sq, 0.0, 1.0, False
-    if systematic_mm2 > 0:
-        share = float(split["dh_share"])
-        return share * scale_sq, (1.0 - share) * systematic_mm2 / spheres, share, False
-    if split["unit_dh_power_mm2"] > 0:
-        arm_scale_sq = float(split["dh_detected_power_mm2"] / split["unit_dh_power_mm2"])
-        return arm_scale_sq, 0.0, 1.0, arm_scale_sq > 0
-    return 0.0, 0.0, 1.0, False
+    ml_tracker_from_base, ml_tcp_from_marker = deviation.ml_tracker_from_base, deviation.ml_tcp_from_marker
+    scored = held_out.scored
+    try:
+        white: dict[str, Any] | None = white_noise_power(
+            obs, segments, ml_tracker_from_base, ml_tcp_from_marker
+        )
+    except DegenerateDataError:
+        white = None
+    if white is not None:
+        standard_error = float(
+            np.sqrt(
+                white["variance_mm4"] * (1.0 / max(scored, 1) + OVERLAPPING_PAIRS_VARIANCE / white["pairs"])
+            )
+        )
+        return WhiteNoisePart(
+            white,
+            float(white["power_mm2"]),
+            standard_error,
+            "beyond the white noise of consecutive frames",
+        )
+    if obs.sigma_known:
+        # chi-square scatter of the held-out mean (2 dof sigma^4 per frame), and the error of
+        # the noise level, a median of the tracker's RMS values
+        white_power = obs.dof_per_frame * obs.sigma_mm**2
+        standard_error = float(
+            np.hypot(
+                obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1)),
+                white_power * noise_level_relative_error(len(obs.spheres_in_marker), len(obs.rows)),
+            )
+        )
+        return WhiteNoisePart(
+            None,
+            white_power,
+            standard_error,
+            "beyond the tracker's noise from its fit RMS (too few nearby frames to measure the white noise)",
+        )
+    beyond_dh = None
+    if geometry is not None:
+        try:
+            beyond_dh = white_noise_beyond_kinematics(
+                geometry.arm, geometry.joints_rad, obs, ml_tracker_from_base, ml_tcp_from_marker
+            )
+        except DegenerateDataError:
+            beyond_dh = None
+    if beyond_dh is None:
+        return WhiteNoisePart(
+            None,
+            0.0,
+            0.0,
+            "(all of it: neither nearby frames nor a tracker fit RMS measure the white noise)",
+        )
+    white_power = float(beyond_dh["power_mm2"])
+    shape = np.asarray(beyond_dh["covariance_mm2"])
+    # noise of this shape, not isotropic: the refits' prediction error and the held-out mean's
+    # chi-square scatter (2 tr(Sigma^2) per frame) both follow it
+    shaped = held_out_noise_power(held_out.misfit, shape) if held_out.computed else white_power
+    scatter = (
+        float(np.sqrt(2.0 * np.sum(shape * shape) / max(scored, 1))) / white_power if white_power > 0 else 0.0
+    )
+    return WhiteNoisePart(
+        None,
+        white_power,
+        white_power * float(np.hypot(scatter, beyond_dh["relative_error"])),
+        "beyond the white noise the residuals leave once the arm's DH errors are fitted too "
+        "(one frame per pose and no tracker fit RMS; a systematic error DH errors cannot "
+        "describe counts as noise there)",
+        shaped,
+        DETECTION_STANDARD_ERRORS_BEYOND_DH,
+    )
+
+
+@dataclass(frozen=True)
+class SystematicMisfit:
+    """The held-out misfit beyond the noise: the systematic error's power ``S`` per frame.
+
+    Attributes
+    ----------
+    noise_ms_mm2 : float
+        What the white noise explains of the held-out misfit (its power plus the refits' own
+        prediction variance), mm^2.
+    power_mm2 : float
+        ``S``: the misfit less the noise and its detection margin, at least 0, mm^2.
+    range_mm2 : list of float
+        ``S`` with the margin one standard error larger and smaller (``[low, high]``).
+    """
+
+    noise_ms_mm2: float
+    power_mm2: float
+    range_mm2: list[float]
+
+
+def systematic_misfit(obs: Observations, held_out: HeldOutPart, noise: WhiteNoisePart) -> SystematicMisfit:
+    """The systematic misfit: the held-out misfit less the noise's and ``detection`` standard
+    errors of it (frames of one recording cannot tell a smaller systematic misfit from a
+    misjudged noise level), and one standard error either side (how far the statement's own
+    estimate of it can be off on this many frames; its positive part errs upward where there
+    is none).
+
+    Parameters
+    ----------
+    obs : Observations
+    held_out : HeldOutPart
+    noise : WhiteNoisePart
+    """
+    noise_ms = (
+        noise.shaped_ms_mm2
+        if noise.shaped_ms_mm2 is not None
+        else noise.power_mm2 * (1.0 + held_out.mean_leverage / obs.dof_per_frame)
+    )
+    held_out_ms, computed = held_out.mean_square_mm2, held_out.computed
+    margin, standard_error = noise.detection_standard_errors, noise.standard_error_mm2
+    systematic = max(held_out_ms - noise_ms - margin * standard_error, 0.0) if computed else 0.0
+    systematic_range = [
+        max(held_out_ms - noise_ms - (margin + step) * standard_error, 0.0) if computed else 0.0
+        for step in (1.0, -1.0)
+    ]
+    return SystematicMisfit(noise_ms, systematic, systematic_range)
+
+
+@dataclass(frozen=True)
+class UnseenPart:
+    """The tip's error the marker cannot see, scaled from the systematic misfit.
+
+    Attributes
+    ----------
+    position_ms_mm2 : float
+        Its mean square at the tip, mm^2.
+    covariance_mm2 : numpy.ndarray, shape (3, 3)
+        Its covariance (tracker frame, mm^2).
+    rotation_ms_rad2 : float
+        The tip frame's rotation mean square, rad^2.
+    covariance_range_mm2 : list of numpy.ndarray or None
+        Its covariance at the two ends of :attr:`SystematicMisfit.range_mm2`; None where the
+        arm's error scale was given.
+    components : dict
+        What the expected error's ``components`` record of it (``dh_error_scale_mm``,
+        ``systematic_dh_share``, ``unseen_tip_rms_mm``, ``kinematic_geometry``).
+    detected_in_dh_span : bool
+        The arm's error scale comes from the DH span alone (the misfit is within the noise's
+        scatter).
+    basis : str
+        The basis's sentence up to here.
+    """
+
+    position_ms_mm2: float
+    covariance_mm2: FloatArray
+    rotation_ms_rad2: float
+    covariance_range_mm2: list[FloatArray] | None
+    components: dict[str, Any]
+    detected_in_dh_span: bool
+    basis: str
+
+
+def unseen_part(
+    obs: Observations,
+    deviation: MethodDeviation,
+    noise: WhiteNoisePart,
+    systematic: SystematicMisfit,
+    geometry: ArmGeometry | None,
+    blocks: str,
+    dh_error_scale_mm: float | None,
+    tip_in_marker: FloatArray | None,
+) -> UnseenPart:
+    """The unseen tip error: ``l^2 C1`` with ``l^2 = S / s1`` split into the arm's part (in the
+    DH span, shaped by the arm's geometry) and the rest (isotropic); without an arm, the
+    held-out power of a frame stands for the tip's mean square.
+
+    Parameters
+    ----------
+    obs : Observations
+    deviation : MethodDeviation
+        Holds the ML solution.
+    noise : WhiteNoisePart
+    systematic : SystematicMisfit
+    geometry : ArmGeometry or None
+    blocks : str
+        The basis's words for the held-out blocks.
+    dh_error_scale_mm : float or None
+        The arm's DH error scale when given (kinematic identification).
+    tip_in_marker : numpy.ndarray, shape (3,), or None
+    """
+    white = noise.white
+    if geometry is None:
+        # no arm reaches the poses: the held-out power of a frame (over all its spheres) stands
+        # for the tip's mean square, as a UR arm's geometry makes it on the paper's sweeps; a
+        # measured tip is a point of the marker's chain, off by what one sphere is
+        per_tip = 1.0 if tip_in_marker is None else 1.0 / len(obs.spheres_in_marker)
+        unseen_ms = systematic.power_mm2 * per_tip
+        return UnseenPart(
+            unseen_ms,
+            # the misfit says nothing of its direction at the tip: isotropic
+            np.eye(3) * unseen_ms / 3.0,
+            0.0,
+            [np.eye(3) * value * per_tip / 3.0 for value in systematic.range_mm2],
+            {"kinematic_geometry": None},
+            False,
+            f"{blocks}: systematic misfit per frame {noise.beyond}, plus the noise-only TRE; "
+            "no joint angles and no UR arm reaches these poses, so the errors the marker cannot see are "
+            "taken as large as the misfit it sees",
+        )
+    arm, unit = geometry.arm, geometry.unit
+    spheres_in_marker = len(obs.spheres_in_marker)
+
+    def unseen_tip_covariance(arm_scale_sq: float, other_ms: float) -> FloatArray:
+        """The tip's error the marker cannot see (tracker frame, mm^2): the arm's, shaped by its
+        geometry, and the rest, isotropic."""
+        return as_float_array(
+            arm_scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
+        )
+
+    detected_in_dh_span = False
+    unseen_range: list[FloatArray] | None = None
+    if dh_error_scale_mm is not None:
+        scale_sq = dh_error_scale_mm**2
+        # kinematic identification: its corrections took the arm's part
+        arm_scale_sq, other_ms, dh_share = scale_sq, 0.0, 1.0
+    else:
+        scale_sq = systematic.power_mm2 / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
+        split = None
+        # the noise measured apart from the misfit (pairs, fit RMS): split the misfit by its
+        # shape; the noise taken as what DH errors leave has counted the rest as noise already
+        if white is not None or obs.sigma_known:
+            split = systematic_share_in_dh_span(
+                arm,
+                geometry.joints_rad,
+                obs,
+                deviation.ml_tracker_from_base,
+                deviation.ml_tcp_from_marker,
+                noise.power_mm2,
+                rigid_noise_covariance=None if white is None else white["rigid_covariance_mm2"],
+                rigid_noise_dof=None if white is None else white["rigid_covariance_dof"],
+            )
+        arm_scale_sq, other_ms, dh_share, detected_in_dh_span = arm_and_other_parts(
+            systematic.power_mm2, unit["sphere_power_mm2"], split, spheres_in_marker
+        )
+        unseen_range = [
+            unseen_tip_covariance(
+                *arm_and_other_parts(value, unit["sphere_power_mm2"], split, spheres_in_marker)[:2]
+            )
+            for value in systematic.range_mm2
+        ]
+    unseen_ms = arm_scale_sq * unit["tip_position_ms_mm2"] + other_ms
+    basis = (
+        f"{blocks}: systematic misfit {noise.beyond}, scaled to the tip by {geometry.scaled_by} "
+        "(errors the marker cannot see), plus the noise-only TRE"
+    )
+    if detected_in_dh_span:
+        basis += (
+            "; the held-out misfit is within the noise's scatter, so the arm's error scale comes "
+            "from the part of the residuals with the DH errors' shape"
+        )
+    return UnseenPart(
+        unseen_ms,
+        unseen_tip_covariance(arm_scale_sq, other_ms),
+        arm_scale_sq * unit["tip_rotation_ms_rad2"],
+        unseen_range,
+        {
+            # the whole misfit's scale: what kinematic identification takes as its DH prior
+            "dh_error_scale_mm": float(np.sqrt(scale_sq)),
+            "systematic_dh_share": float(dh_share),
+            "unseen_tip_rms_mm": float(np.sqrt(unseen_ms)),
+            "kinematic_geometry": arm.name,
+        },
+        detected_in_dh_span,
+        basis,
+    )
+
+
+def needle_tip_covariance(
+    tracker_from_base: FloatArray, noise: NoisePart, needle_tip: NeedleTip | None
+) -> FloatArray:
+    """The pivot's error of a measured tip turned into the tracker frame at each site frame and
+    averaged, (3, 3) mm^2; zero without a measured tip."""
+    if needle_tip is None:
+        return np.zeros((3, 3))
+    rotations = tracker_from_base[:3, :3] @ noise.marker_in_base[:, :3, :3]
+    return as_float_array(
+        np.mean(rotations @ needle_tip.covariance_mm2 @ np.swapaxes(rotations, 1, 2), axis=0)
+    )
 
 
 def expected_error(
@@ -1034,6 +783,12 @@ def expected_error(
     needle_tip: NeedleTip | None = None,
 ) -> dict[str, Any]:
     """The expected position (mm) and posture (deg) error at a target near the site.
+
+    The combination of the parts: the noise-only TRE (:func:`noise_part`), a non-ML method's
+    distance from ML (:func:`method_deviation`), the held-out misfit (:func:`held_out_part`)
+    less the white noise (:func:`white_noise_part`, :func:`systematic_misfit`), scaled to the
+    tip by the arm's geometry (:func:`arm_geometry`, :func:`unseen_part`), and a measured tip's
+    own error (:func:`needle_tip_covariance`).
 
     Parameters
     ----------
@@ -1075,191 +830,84 @@ def expected_error(
         how far the statement itself can be off on this many frames (None where the arm's
         error scale was given).
     """
-    site = near_site(obs.base_from_tcp_stack, SITE_RADIUS_MM, SITE_TILT_DEG)
     tip_in_marker = None if needle_tip is None else needle_tip.tip_in_marker
-    # the marker's pose at each site frame (base frame): where a measured tip is, and how the
-    # pivot's error, fixed in the marker frame, turns
-    marker_in_base = obs.base_from_tcp_stack[site] @ tcp_from_marker
-    if tip_in_marker is None:
-        tip_in_base = obs.base_from_tcp_stack[site, :3, 3]
-    else:
-        tip_in_base = marker_in_base[:, :3, :3] @ tip_in_marker + marker_in_base[:, :3, 3]
-    tre_ms = float(np.mean(predicted_tre_mm(tracker_from_base, covariance, tip_in_base) ** 2))
-    # the noise-only error's covariance (tracker frame, mm^2), averaged over the site frames
-    noise_covariance = np.mean(
-        point_covariances(tracker_from_base, np.asarray(covariance)[:6, :6], tip_in_base), axis=0
+    noise_only = noise_part(obs, tracker_from_base, tcp_from_marker, covariance, tip_in_marker)
+    deviation = method_deviation(
+        obs, tracker_from_base, tcp_from_marker, noise_only.site, likelihood_based, refit
     )
-    rotation_noise_ms = float(np.trace(np.asarray(covariance)[3:6, 3:6]))
-    ml_tracker_from_base, ml_tcp_from_marker = tracker_from_base, tcp_from_marker
-    deviation_ms = rotation_deviation_ms = 0.0
-    deviation_covariance = np.zeros((3, 3))
-    if not likelihood_based:
-        ml_tracker_from_base, ml_tcp_from_marker = refit(obs, tracker_from_base, tcp_from_marker)
-        method_tip = tracker_from_base @ obs.base_from_tcp_stack[site]
-        ml_tip = ml_tracker_from_base @ obs.base_from_tcp_stack[site]
-        deviation = method_tip[:, :3, 3] - ml_tip[:, :3, 3]
-        deviation_ms = float(np.mean(np.sum(deviation**2, axis=1)))
-        # its second moment over the site frames, added like a covariance
-        deviation_covariance = deviation.T @ deviation / len(deviation)
-        rotation_deviation_ms = float(
-            rotation_angle(tracker_from_base[:3, :3] @ ml_tracker_from_base[:3, :3].T) ** 2
-        )
-    has_model = robot_model is not None and joints_rad is not None and bool(np.all(np.isfinite(joints_rad)))
-    if dh_error_scale_mm is not None and has_model:
-        # the scale is given: the held-out refits would only be reported, not used
-        block_list = held_out_blocks(segments)
-        misfit: dict[str, Any] = {
-            "frame_sse_mm2": np.full(len(obs.rows), np.nan),
-            "frame_prediction_leverage": np.full(len(obs.rows), np.nan),
-            "blocks": len(block_list),
-            "blocks_refitted": 0,
-            "block_indices": block_list,
-            "jacobian": np.zeros((len(obs.rows), 3 * len(obs.spheres_in_marker), 12)),
-            "block_normal_inverses": [None] * len(block_list),
-        }
-    else:
-        misfit = held_out_misfit(obs, segments, ml_tracker_from_base, ml_tcp_from_marker, refit)
-    sse = misfit["frame_sse_mm2"]
-    computed = bool(np.isfinite(sse).any())
-    held_out_ms = float(np.nanmean(sse)) if computed else 0.0
-    scored = int(np.isfinite(sse).sum())
-    mean_leverage = float(np.nanmean(misfit["frame_prediction_leverage"])) if computed else 0.0
-    geometry: tuple[RobotModel, dict[str, Any], FloatArray] | None = None
-    if has_model and robot_model is not None and joints_rad is not None:
-        geometry = (
-            robot_model,
-            unseen_kinematic_error(
-                robot_model,
-                joints_rad,
-                obs,
-                ml_tracker_from_base,
-                ml_tcp_from_marker,
-                site,
-                misfit["block_indices"],
-                absorbed_dh,
-                tip_in_marker=tip_in_marker,
-            ),
-            joints_rad,
-        )
-        scaled_by = "the robot's kinematic geometry"
-    else:
-        # no joint angles: solve them from the reported TCP poses, by the recording's robot
-        # model or, without one, by the UR arm whose geometry hides the most of a given misfit
-        # as many frames as with recorded joint angles: the DH-span test below needs them (on
-        # 40, a camera-grade tracker's arm error went unseen on the bag and TUM paths, up to
-        # 10.6 times the statement)
-        rows = geometry_rows(len(obs.rows), GEOMETRY_FRAMES)
-        for arm in stand_in_arms(robot_model, ml_tcp_from_marker):
-            joints = solved_joints(arm, obs.base_from_tcp_stack, rows)
-            if joints is None:
-                continue
-            unit = unseen_kinematic_error(
-                arm,
-                joints,
-                obs,
-                ml_tracker_from_base,
-                ml_tcp_from_marker,
-                site,
-                misfit["block_indices"],
-                tip_in_marker=tip_in_marker,
-            )
-            if unit["sphere_power_mm2"] > 0 and (
-                geometry is None
-                or unit["tip_position_ms_mm2"] / unit["sphere_power_mm2"]
-                > geometry[1]["tip_position_ms_mm2"] / geometry[1]["sphere_power_mm2"]
-            ):
-                geometry = (arm, unit, joints)
-        if geometry is not None and robot_model is not None:
-            scaled_by = (
-                f"the {robot_model.name}'s kinematic geometry at joint angles solved from the reported "
-                "TCP poses (the recording has none)"
-            )
-        elif geometry is not None:
-            scaled_by = (
-                f"the kinematic geometry of a {geometry[0].name} with its flange at the marker, the UR arm "
-                "that hides the most of it (the recording has no joint angles or robot model)"
-            )
-    # The white noise, from the residuals of consecutive frames where there are enough (the same
-    # on every path, and every white source is in it as it is in the misfit); else from the
-    # tracker's fit RMS; else unknown, and then all the misfit counts as systematic.
-    # Beyond it, the misfit less DETECTION_STANDARD_ERRORS standard errors of the noise's is
-    # systematic: frames of one recording cannot tell a smaller systematic misfit from a
-    # misjudged noise level. The standard error has two parts, the held-out mean's own scatter
-    # and that of the noise level it is compared with.
-    shaped_noise_ms: float | None = None
-    detection_standard_errors = DETECTION_STANDARD_ERRORS
-    try:
-        white: dict[str, Any] | None = white_noise_power(
-            obs, segments, ml_tracker_from_base, ml_tcp_from_marker
-        )
-    except DegenerateDataError:
-        white = None
-    if white is not None:
-        white_power = float(white["power_mm2"])
-        noise_standard_error = float(
-            np.sqrt(
-                white["variance_mm4"] * (1.0 / max(scored, 1) + OVERLAPPING_PAIRS_VARIANCE / white["pairs"])
-            )
-        )
-        beyond = "beyond the white noise of consecutive frames"
-    elif obs.sigma_known:
-        # chi-square scatter of the held-out mean (2 dof sigma^4 per frame), and the error of
-        # the noise level, a median of the tracker's RMS values
-        white_power = obs.dof_per_frame * obs.sigma_mm**2
-        noise_standard_error = float(
-            np.hypot(
-                obs.sigma_mm**2 * np.sqrt(2.0 * obs.dof_per_frame / max(scored, 1)),
-                white_power * noise_level_relative_error(len(obs.spheres_in_marker), len(obs.rows)),
-            )
-        )
-        beyond = (
-            "beyond the tracker's noise from its fit RMS (too few nearby frames to measure the white noise)"
-        )
-    else:
-        beyond_dh = None
-        if geometry is not None:
-            try:
-                beyond_dh = white_noise_beyond_kinematics(
-                    geometry[0], geometry[2], obs, ml_tracker_from_base, ml_tcp_from_marker
-                )
-            except DegenerateDataError:
-                beyond_dh = None
-        if beyond_dh is not None:
-            white_power = float(beyond_dh["power_mm2"])
-            shape = np.asarray(beyond_dh["covariance_mm2"])
-            # noise of this shape, not isotropic: the refits' prediction error and the
-            # held-out mean's chi-square scatter (2 tr(Sigma^2) per frame) both follow it
-            shaped_noise_ms = held_out_noise_power(misfit, shape) if computed else white_power
-            scatter = (
-                float(np.sqrt(2.0 * np.sum(shape * shape) / max(scored, 1))) / white_power
-                if white_power > 0
-                else 0.0
-            )
-            noise_standard_error = white_power * float(np.hypot(scatter, beyond_dh["relative_error"]))
-            detection_standard_errors = DETECTION_STANDARD_ERRORS_BEYOND_DH
-            beyond = (
-                "beyond the white noise the residuals leave once the arm's DH errors are fitted too "
-                "(one frame per pose and no tracker fit RMS; a systematic error DH errors cannot "
-                "describe counts as noise there)"
-            )
-        else:
-            white_power = noise_standard_error = 0.0
-            beyond = "(all of it: neither nearby frames nor a tracker fit RMS measure the white noise)"
-    noise_ms = (
-        shaped_noise_ms
-        if shaped_noise_ms is not None
-        else white_power * (1.0 + mean_leverage / obs.dof_per_frame)
+    scale_given = dh_error_scale_mm is not None and has_arm_model(robot_model, joints_rad)
+    held_out = held_out_part(obs, segments, deviation, refit, scale_given)
+    geometry = arm_geometry(
+        obs, deviation, noise_only.site, held_out, robot_model, joints_rad, absorbed_dh, tip_in_marker
     )
-    systematic = (
-        max(held_out_ms - noise_ms - detection_standard_errors * noise_standard_error, 0.0)
-        if computed
-        else 0.0
+    noise = white_noise_part(obs, segments, deviation, held_out, geometry)
+    systematic = systematic_misfit(obs, held_out, noise)
+    misfit = held_out.misfit
+    refits = "ML refits" if not likelihood_based or absorbed_dh else "refits"
+    blocks = f"{misfit['blocks_refitted']} held-out blocks ({refits})"
+    if scale_given:
+        blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
+    unseen = unseen_part(
+        obs,
+        deviation,
+        noise,
+        systematic,
+        geometry,
+        blocks,
+        dh_error_scale_mm,
+        tip_in_marker,
     )
+    return combined(
+        obs,
+        noise_only,
+        deviation,
+        held_out,
+        noise,
+        systematic,
+        unseen,
+        likelihood_based,
+        needle_tip,
+        needle_tip_covariance(tracker_from_base, noise_only, needle_tip),
+    )
+
+
+def combined(
+    obs: Observations,
+    noise_only: NoisePart,
+    deviation: MethodDeviation,
+    held_out: HeldOutPart,
+    noise: WhiteNoisePart,
+    systematic: SystematicMisfit,
+    unseen: UnseenPart,
+    likelihood_based: bool,
+    needle_tip: NeedleTip | None,
+    tip_covariance: FloatArray,
+) -> dict[str, Any]:
+    """The expected error from its parts: the mean length of a Gaussian tip error with the sum
+    of their covariances (:func:`mean_gaussian_length`), its range, the posture error from the
+    rotation parts (factor :data:`MEAN_OVER_RMS_3D`), and the components and basis recorded.
+
+    Parameters
+    ----------
+    obs : Observations
+    noise_only, deviation, held_out, noise, systematic, unseen
+        The parts (see :func:`expected_error`).
+    likelihood_based : bool
+    needle_tip : NeedleTip or None
+    tip_covariance : numpy.ndarray, shape (3, 3)
+        The measured tip's own error (:func:`needle_tip_covariance`), mm^2.
+
+    Returns
+    -------
+    dict
+        As :func:`expected_error` returns it.
+    """
     spheres = len(obs.spheres_in_marker)
+    white, computed, misfit = noise.white, held_out.computed, held_out.misfit
     components: dict[str, Any] = {
-        "noise_tre_rms_mm": float(np.sqrt(tre_ms)),
-        "held_out_sphere_rms_mm": float(np.sqrt(held_out_ms / spheres)) if computed else None,
-        "noise_sphere_rms_mm": float(np.sqrt(noise_ms / spheres)) if computed else None,
+        "noise_tre_rms_mm": float(np.sqrt(noise_only.tre_ms_mm2)),
+        "held_out_sphere_rms_mm": float(np.sqrt(held_out.mean_square_mm2 / spheres)) if computed else None,
+        "noise_sphere_rms_mm": float(np.sqrt(systematic.noise_ms_mm2 / spheres)) if computed else None,
         "white_noise_sphere_rms_mm": None if white is None else float(np.sqrt(white["power_mm2"] / spheres)),
         "tracker_noise_sphere_rms_mm": (
             float(np.sqrt(obs.dof_per_frame * obs.sigma_mm**2 / spheres)) if obs.sigma_known else None
@@ -1268,121 +916,40 @@ def expected_error(
         "noise_pair_displacement_mm": None if white is None else white["displacement_mm"],
         "blocks": misfit["blocks"],
         "blocks_refitted": misfit["blocks_refitted"],
-        "site_frames": int(site.sum()),
-        "method_vs_ml_tip_rms_mm": float(np.sqrt(deviation_ms)),
+        "site_frames": int(noise_only.site.sum()),
+        "method_vs_ml_tip_rms_mm": float(np.sqrt(deviation.position_ms_mm2)),
+        **unseen.components,
     }
-    refits = "ML refits" if not likelihood_based or absorbed_dh else "refits"
-    blocks = f"{misfit['blocks_refitted']} held-out blocks ({refits})"
-    if dh_error_scale_mm is not None and has_model:
-        blocks = f"DH error scale {dh_error_scale_mm:.2f} mm from the ML start's held-out blocks"
-    detected_in_dh_span = False
-    # the systematic misfit one standard error lower and higher: how far the statement's own
-    # estimate of it can be off on this many frames (its positive part errs upward where
-    # there is none)
-    systematic_range = [
-        max(held_out_ms - noise_ms - (detection_standard_errors + step) * noise_standard_error, 0.0)
-        if computed
-        else 0.0
-        for step in (1.0, -1.0)
-    ]
-    unseen_range: list[FloatArray] | None = None
-    if geometry is not None:
-        arm, unit, _ = geometry
-        spheres_in_marker = len(obs.spheres_in_marker)
-
-        def unseen_tip_covariance(arm_scale_sq: float, other_ms: float) -> FloatArray:
-            """The tip's error the marker cannot see (tracker frame, mm^2): the arm's, shaped
-            by its geometry, and the rest, isotropic."""
-            return arm_scale_sq * np.asarray(unit["tip_position_covariance_mm2"]) + np.eye(3) * other_ms / 3.0
-
-        if dh_error_scale_mm is not None:
-            scale_sq = dh_error_scale_mm**2
-            # kinematic identification: its corrections took the arm's part
-            arm_scale_sq, other_ms, dh_share = scale_sq, 0.0, 1.0
-        else:
-            scale_sq = systematic / unit["sphere_power_mm2"] if unit["sphere_power_mm2"] > 0 else 0.0
-            split = None
-            # the noise measured apart from the misfit (pairs, fit RMS): split the misfit by its
-            # shape; the noise taken as what DH errors leave has counted the rest as noise already
-            if white is not None or obs.sigma_known:
-                split = systematic_share_in_dh_span(
-                    arm,
-                    geometry[2],
-                    obs,
-                    ml_tracker_from_base,
-                    ml_tcp_from_marker,
-                    white_power,
-                    rigid_noise_covariance=None if white is None else white["rigid_covariance_mm2"],
-                    rigid_noise_dof=None if white is None else white["rigid_covariance_dof"],
-                )
-            arm_scale_sq, other_ms, dh_share, detected_in_dh_span = arm_and_other_parts(
-                systematic, unit["sphere_power_mm2"], split, spheres_in_marker
-            )
-            unseen_range = [
-                unseen_tip_covariance(
-                    *arm_and_other_parts(value, unit["sphere_power_mm2"], split, spheres_in_marker)[:2]
-                )
-                for value in systematic_range
-            ]
-        unseen_ms = arm_scale_sq * unit["tip_position_ms_mm2"] + other_ms
-        unseen_covariance = unseen_tip_covariance(arm_scale_sq, other_ms)
-        unseen_rotation_ms = arm_scale_sq * unit["tip_rotation_ms_rad2"]
-        # the whole misfit's scale: what kinematic identification takes as its DH prior
-        components["dh_error_scale_mm"] = float(np.sqrt(scale_sq))
-        components["systematic_dh_share"] = float(dh_share)
-        components["unseen_tip_rms_mm"] = float(np.sqrt(unseen_ms))
-        components["kinematic_geometry"] = arm.name
-        basis = (
-            f"{blocks}: systematic misfit {beyond}, scaled to the tip by {scaled_by} "
-            "(errors the marker cannot see), plus the noise-only TRE"
-        )
-        if detected_in_dh_span:
-            basis += (
-                "; the held-out misfit is within the noise's scatter, so the arm's error scale comes "
-                "from the part of the residuals with the DH errors' shape"
-            )
-    else:
-        # no arm reaches the poses: the held-out power of a frame (over all its spheres) stands
-        # for the tip's mean square, as a UR arm's geometry makes it on the paper's sweeps; a
-        # measured tip is a point of the marker's chain, off by what one sphere is
-        per_tip = 1.0 if tip_in_marker is None else 1.0 / len(obs.spheres_in_marker)
-        unseen_ms = systematic * per_tip
-        # the misfit says nothing of its direction at the tip: isotropic
-        unseen_covariance = np.eye(3) * unseen_ms / 3.0
-        unseen_range = [np.eye(3) * value * per_tip / 3.0 for value in systematic_range]
-        unseen_rotation_ms = 0.0
-        components["kinematic_geometry"] = None
-        basis = (
-            f"{blocks}: systematic misfit per frame {beyond}, plus the noise-only TRE; "
-            "no joint angles and no UR arm reaches these poses, so the errors the marker cannot see are "
-            "taken as large as the misfit it sees"
-        )
+    basis = unseen.basis
     if not likelihood_based:
         basis += "; plus this method's distance from the ML solution"
-    components["systematic_detected"] = bool(systematic > 0.0 or detected_in_dh_span)
-    components["detected_in_dh_span_only"] = detected_in_dh_span
-    tip_covariance = np.zeros((3, 3))
+    components["systematic_detected"] = bool(systematic.power_mm2 > 0.0 or unseen.detected_in_dh_span)
+    components["detected_in_dh_span_only"] = unseen.detected_in_dh_span
     if needle_tip is not None:
-        # the pivot's error turned into the tracker frame at each site frame
-        rotations = tracker_from_base[:3, :3] @ marker_in_base[:, :3, :3]
-        tip_covariance = np.mean(rotations @ needle_tip.covariance_mm2 @ np.swapaxes(rotations, 1, 2), axis=0)
         components["needle_tip_sd_mm"] = needle_tip.sd_mm
         basis += (
             f"; the needle tip measured by a pivot ({needle_tip.frames} frames), its error "
             f"{needle_tip.sd_mm:.3f} mm per axis added"
         )
-    position_covariance = noise_covariance + unseen_covariance + deviation_covariance + tip_covariance
-    components["position_rms_mm"] = float(
-        np.sqrt(tre_ms + unseen_ms + deviation_ms + np.trace(tip_covariance))
+    position_covariance = (
+        noise_only.covariance_mm2 + unseen.covariance_mm2 + deviation.covariance_mm2 + tip_covariance
     )
-    posture_rms = np.sqrt(rotation_noise_ms + unseen_rotation_ms + rotation_deviation_ms)
+    components["position_rms_mm"] = float(
+        np.sqrt(
+            noise_only.tre_ms_mm2
+            + unseen.position_ms_mm2
+            + deviation.position_ms_mm2
+            + np.trace(tip_covariance)
+        )
+    )
+    posture_rms = np.sqrt(noise_only.rotation_ms_rad2 + unseen.rotation_ms_rad2 + deviation.rotation_ms_rad2)
     position_mm = mean_gaussian_length(position_covariance)
     position_range = None
-    if unseen_range is not None:
+    if unseen.covariance_range_mm2 is not None:
         # the statement lies within (an arm scale found in the DH span alone, where the misfit
         # is within the noise's scatter, need not grow with the misfit)
-        known = noise_covariance + deviation_covariance + tip_covariance
-        ends = [mean_gaussian_length(known + unseen) for unseen in unseen_range] + [position_mm]
+        known = noise_only.covariance_mm2 + deviation.covariance_mm2 + tip_covariance
+        ends = [mean_gaussian_length(known + part) for part in unseen.covariance_range_mm2] + [position_mm]
         position_range = [min(ends), max(ends)]
     return {
         "position_mm": position_mm,

@@ -2,50 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from spacecal.core.errors import InvalidInputError
-from spacecal.estimators.assessment.expected_error import probability_within
+from spacecal.estimators.assessment.gaussian import probability_within
+from spacecal.records.assessment import ErrorThresholds
 from spacecal.records.verdict import Verdict
 
 #: A posteriori variance factor above which residuals are called systematic: white noise
 #: gives 1 (measured 0.98–1.02 on the white-noise scenario).
 SYSTEMATIC_VARIANCE_FACTOR = 1.5
-
-
-@dataclass(frozen=True)
-class ErrorThresholds:
-    """Upper limits (mm) of the expected position error at a target for each grade.
-
-    Above ``poor_mm`` a calibration is ``unusable``.
-    """
-
-    good_mm: float = 0.5
-    acceptable_mm: float = 1.0
-    poor_mm: float = 2.0
-
-    def __post_init__(self) -> None:
-        values = (self.good_mm, self.acceptable_mm, self.poor_mm)
-        if not all(np.isfinite(v) and v > 0 for v in values) or not (
-            self.good_mm <= self.acceptable_mm <= self.poor_mm
-        ):
-            raise InvalidInputError(
-                f"error thresholds must be positive and increasing (good <= acceptable <= poor), got {values}"
-            )
-
-    @classmethod
-    def parse(cls, text: str) -> ErrorThresholds:
-        """From ``"good,acceptable,poor"`` in mm, e.g. ``"0.5,1,2"``."""
-        try:
-            values = [float(v) for v in text.split(",")]
-        except ValueError:
-            values = []
-        if len(values) != 3:
-            raise InvalidInputError(f"thresholds take good,acceptable,poor in mm, got {text!r}")
-        return cls(*values)
 
 
 def grade(position_mm: float, thresholds: ErrorThresholds) -> str:

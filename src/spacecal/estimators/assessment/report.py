@@ -8,14 +8,13 @@ method directly, the others through a bootstrap or the ML information at their s
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.estimators.assessment.expected_error import expected_error
-from spacecal.estimators.assessment.grading import ErrorThresholds, verdict
+from spacecal.estimators.assessment.grading import verdict
 from spacecal.estimators.methods.likelihood import MAX_OUTLIER_FRACTION, tre_summary
 from spacecal.estimators.methods.ml import PARAMETER_NAMES
 from spacecal.estimators.methods.recorded_model import nominal_robot_model
@@ -27,19 +26,25 @@ from spacecal.estimators.methods.samples import (
     site_in_base,
 )
 from spacecal.estimators.methods.solution import Solution
-from spacecal.records import CalibrationResult, NeedleTip, Recording
+from spacecal.records import CalibrationResult, NeedleTip
+from spacecal.records.assessment import Assessment, ErrorThresholds, ExpectedError, ResidualRow, Residuals
 
 
-def report_uncertainty(solution: Solution) -> CalibrationResult:
-    """A calibration result with covariance, predicted TRE, expected error, residuals, spread
-    and verdict, from an estimate and its covariance."""
+def report_uncertainty(solution: Solution, thresholds: ErrorThresholds | None = None) -> CalibrationResult:
+    """A calibration result with covariance, predicted TRE, spread and its :class:`Assessment`
+    (expected error, residuals, verdict), from an estimate and its covariance.
+
+    Parameters
+    ----------
+    solution : Solution
+    thresholds : ErrorThresholds, optional
+        What the verdict grades against (``--thresholds-mm``); the defaults when omitted.
+    """
     s = solution
     recording, obs, outlier_rows = s.recording, s.obs, s.outlier_rows
     site = site_in_base(recording, obs.rows)
     tre = tre_summary(s.tracker_from_base, s.covariance, site, s.targets_in_base)
-    residuals = sample_residuals(recording, s.tracker_from_base, s.tcp_from_marker, rms_rows=obs.rows)
     spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
-    outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
     expected = expected_error_of(s, s.likelihood_based, s.needle_tip)
     if len(outlier_rows) > MAX_OUTLIER_FRACTION * len(obs.rows) and "refusal" not in expected:
         expected = {
@@ -59,18 +64,7 @@ def report_uncertainty(solution: Solution) -> CalibrationResult:
             else "marker poses (model spheres placed by the measured pose)",
         },
         "variance_factor": variance_factor,
-        "residual_position_rms_mm": residuals["position_rms_mm"],
-        "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": spread,
-        "expected_error": expected,
-        "verdict": verdict(
-            None if "refusal" in expected else expected,
-            spread,
-            outlier_fraction,
-            variance_factor,
-            refusal=expected.get("refusal"),
-        ).to_dict(),
-        "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
         **s.diagnostics,
     }
     counts = sample_counts(recording, obs.rows, extra_rejections={"outlier": len(outlier_rows)})
@@ -88,6 +82,54 @@ def report_uncertainty(solution: Solution) -> CalibrationResult:
         predicted_tre_mm=tre,
         robot_model=s.identified_model,
         needle_tip=s.needle_tip,
+        assessment=assess(s, expected, spread, variance_factor, thresholds),
+    )
+
+
+def assess(
+    solution: Solution,
+    expected: dict[str, Any],
+    spread: dict[str, Any],
+    variance_factor: float | None,
+    thresholds: ErrorThresholds | None = None,
+) -> Assessment:
+    """The one :class:`Assessment` of a solution: its expected error, its marker residuals on
+    the recording, and the verdict graded against ``thresholds``.
+
+    Parameters
+    ----------
+    solution : Solution
+    expected : dict
+        Its expected error (:func:`expected_error_of`), with ``refusal`` when refused.
+    spread : dict
+        The motion's spread (:func:`~spacecal.estimators.methods.samples.motion_spread`).
+    variance_factor : float or None
+        The a posteriori variance factor where the tracker's noise is known, else None.
+    thresholds : ErrorThresholds, optional
+        The grades' limits (mm); the defaults when omitted.
+    """
+    s = solution
+    recording, outlier_rows = s.recording, s.outlier_rows
+    thresholds = thresholds or ErrorThresholds()
+    residuals = sample_residuals(recording, s.tracker_from_base, s.tcp_from_marker, rms_rows=s.obs.rows)
+    rows = residual_table(recording, residuals, outlier_rows)
+    judged = verdict(
+        None if "refusal" in expected else expected,
+        spread,
+        len(outlier_rows) / max(int(recording.visible.sum()), 1),
+        variance_factor,
+        thresholds,
+        refusal=expected.get("refusal"),
+    )
+    return Assessment(
+        expected_error=ExpectedError.from_dict(expected),
+        residuals=Residuals(
+            residuals["position_rms_mm"],
+            residuals["rotation_rms_deg"],
+            tuple(ResidualRow.from_dict(row) for row in rows),
+        ),
+        verdict=judged,
+        thresholds=thresholds,
     )
 
 
@@ -118,25 +160,3 @@ def expected_error_of(
         )
     except (DegenerateDataError, np.linalg.LinAlgError) as exc:
         return {"refusal": f"the expected error cannot be cross-validated ({exc})", "basis": "not estimated"}
-
-
-def regrade(
-    result: CalibrationResult, recording: Recording, thresholds: ErrorThresholds
-) -> CalibrationResult:
-    """The result with its verdict graded against other thresholds (its numbers unchanged)."""
-    d = result.diagnostics
-    expected = d.get("expected_error")
-    if expected is None or "motion_spread" not in d:
-        return result
-    outliers = len(d.get("outliers", []))
-    judged = verdict(
-        None if "refusal" in expected else expected,
-        d["motion_spread"],
-        outliers / max(int(recording.visible.sum()), 1),
-        d.get("variance_factor"),
-        thresholds,
-        refusal=expected.get("refusal"),
-    )
-    return result.replace(
-        diagnostics={**d, "verdict": judged.to_dict(), "thresholds_mm": dataclasses.asdict(thresholds)}
-    )

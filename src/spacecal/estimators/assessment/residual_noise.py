@@ -104,7 +104,7 @@ def held_out_noise_power(misfit: dict[str, Any], covariance: FloatArray) -> floa
     Parameters
     ----------
     misfit : dict
-        :func:`spacecal.estimators.assessment.expected_error.held_out_misfit`'s result: its
+        :func:`spacecal.estimators.assessment.held_out_misfit.held_out_misfit`'s result: its
         ``frame_sse_mm2``, ``block_indices``, ``jacobian`` (N, D, 12) and
         ``block_normal_inverses`` (one (12, 12) ``A^-1`` per block, None where not refitted).
     covariance : numpy.ndarray, shape (D, D)

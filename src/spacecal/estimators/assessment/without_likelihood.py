@@ -20,6 +20,7 @@ from spacecal.estimators.methods.observations import Observations, build_observa
 from spacecal.estimators.methods.solution import Solution
 from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.records import CalibrationResult, NeedleTip, Recording
+from spacecal.records.assessment import ErrorThresholds
 
 
 def _reported_at_result(
@@ -31,6 +32,7 @@ def _reported_at_result(
     covariance_note: str,
     targets_in_base: ArrayLike | None = None,
     needle_tip: NeedleTip | None = None,
+    thresholds: ErrorThresholds | None = None,
 ) -> CalibrationResult:
     """The uncertainty report of ``result``'s own transforms with a covariance found for them
     outside its estimator (ML information, or a bootstrap): one place for both. The result is
@@ -48,17 +50,22 @@ def _reported_at_result(
             covariance_note=covariance_note,
             targets_in_base=targets_in_base,
             needle_tip=needle_tip,
-        )
+        ),
+        thresholds,
     )
 
 
 def with_expected_error(
-    result: CalibrationResult, recording: Recording, needle_tip: NeedleTip | None = None
+    result: CalibrationResult,
+    recording: Recording,
+    needle_tip: NeedleTip | None = None,
+    thresholds: ErrorThresholds | None = None,
 ) -> CalibrationResult:
     """Expected error and verdict for a result without a covariance of its own.
 
     The noise-only part comes from the ML information at the result's solution, so every
-    method gets a verdict however it was called.
+    method gets a verdict however it was called. ``thresholds`` are the verdict's
+    (:class:`~spacecal.records.assessment.ErrorThresholds`; the defaults when omitted).
     """
     obs = build_observations(recording)
     try:
@@ -76,11 +83,13 @@ def with_expected_error(
         variance_factor,
         "ML information at this solution (no bootstrap); mm, rad",
         needle_tip=needle_tip,
+        thresholds=thresholds,
     )
-    keep = ("expected_error", "verdict", "motion_spread", "variance_factor")
+    keep = ("motion_spread", "variance_factor")
     return result.replace(
         diagnostics={**result.diagnostics, **{k: reported.diagnostics[k] for k in keep}},
         needle_tip=needle_tip,
+        assessment=reported.assessment,
     )
 
 
@@ -90,9 +99,11 @@ def with_bootstrap_uncertainty(
     solver: Callable[..., CalibrationResult],
     targets_in_base: ArrayLike | None = None,
     needle_tip: NeedleTip | None = None,
+    thresholds: ErrorThresholds | None = None,
 ) -> CalibrationResult:
-    """Add covariance (bootstrap over frames), predicted TRE, residuals and a verdict to a
-    result from an estimator without a likelihood; its transforms are unchanged."""
+    """Add covariance (bootstrap over frames), predicted TRE and the assessment (residuals,
+    expected error, a verdict graded against ``thresholds``) to a result from an estimator
+    without a likelihood; its transforms are unchanged."""
 
     def solve(resampled: Recording) -> tuple[FloatArray, FloatArray]:
         again = solver(resampled)
@@ -106,7 +117,7 @@ def with_bootstrap_uncertainty(
                 "uncertainty": "bootstrap failed: too few resamples could be solved",
             }
         )
-        return with_expected_error(failed, recording, needle_tip)
+        return with_expected_error(failed, recording, needle_tip, thresholds)
     obs = build_observations(recording)
     variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
     reported = _reported_at_result(
@@ -118,10 +129,12 @@ def with_bootstrap_uncertainty(
         f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
         targets_in_base,
         needle_tip,
+        thresholds,
     )
     return result.replace(
         covariance=reported.covariance,
         predicted_tre_mm=reported.predicted_tre_mm,
         needle_tip=needle_tip,
         diagnostics={**reported.diagnostics, **result.diagnostics},
+        assessment=reported.assessment,
     )

@@ -11,7 +11,6 @@ from spacecal.estimators.methods.hand_eye import motion_pairs, relative_motions
 from spacecal.estimators.methods.samples import (
     motion_spread,
     sample_counts,
-    sample_residuals,
     tracker_from_base_from_samples,
 )
 from spacecal.geometry.arrays import FloatArray, IntArray
@@ -44,11 +43,9 @@ def closed_form_result(
     used_rows: IntArray,
     extra: dict[str, Any] | None = None,
 ) -> CalibrationResult:
-    """Package a closed-form estimate with the shared diagnostics."""
-    residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker)
+    """Package a closed-form estimate with the motion's spread (its residuals are the
+    assessment's, :mod:`spacecal.estimators.assessment`)."""
     diagnostics = {
-        "residual_position_rms_mm": residuals["position_rms_mm"],
-        "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": motion_spread(recording.base_from_tcp_stack[used_rows]),
         **(extra or {}),
     }

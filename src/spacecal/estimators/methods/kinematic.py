@@ -153,7 +153,7 @@ DH_COLUMN_SCALE = dh_column_scale(6)
 #: the elbow's (whose torque changes less over the stations) about a third of it.
 COMPLIANCE_PRIOR_SD_RAD_PER_NM = 5e-5
 #: Prior s.d. of the angle corrections per mm of the length corrections' (the ratio of the
-#: unit DH errors of :data:`spacecal.estimators.assessment.expected_error.UNIT_DH_SD`).
+#: unit DH errors of :data:`spacecal.estimators.assessment.unseen_kinematics.UNIT_DH_SD`).
 ANGLE_PER_LENGTH_RAD_PER_MM = 0.002
 
 #: Least held-out misfit beyond the tracker's noise, in standard errors of the noise's, that
