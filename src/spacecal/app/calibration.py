@@ -260,12 +260,13 @@ def calibrate_result(
     counts, d = result.sample_counts, result.diagnostics
     lines = [*clock_notes, *note_lines(notes)]
     lines.append(f"wrote {path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
-    if d.get("sphere"):
+    fits = result.sweep_fits
+    if fits is not None and fits.sphere is not None:
         straight = ", ".join(
-            f"{sanitize_for_terminal(k, 60)} {v['straightness_rms_mm']:.3f} mm" for k, v in d["lines"].items()
+            f"{sanitize_for_terminal(k, 60)} {v.straightness_rms_mm:.3f} mm" for k, v in fits.lines.items()
         )  # segment labels come from the recording file
         lines.append(
-            f"sphere: radius {d['sphere']['radius_mm']:.2f} mm, fit RMS {d['sphere']['rms_mm']:.3f} mm; "
+            f"sphere: radius {fits.sphere.radius_mm:.2f} mm, fit RMS {fits.sphere.rms_mm:.3f} mm; "
             f"line straightness RMS: {straight}"
         )
     assessment = result.assessment
@@ -333,8 +334,7 @@ def recorded_noise(recording: Recording, calibration: CalibrationResult) -> tupl
     if np.isfinite(rms).sum() >= 3:
         sigma = sphere_noise_from_marker_rms(rms, len(marker_geometry_of(recording)))
         return float(sigma), "from the tracker's fit RMS in the recording"
-    noise = calibration.diagnostics.get("noise")
-    stored = noise.get("sigma_per_axis_mm") if isinstance(noise, dict) else None
+    stored = None if calibration.noise is None else calibration.noise.sigma_per_axis_mm
     if isinstance(stored, (int, float)) and not isinstance(stored, bool) and 0.0 < stored < math.inf:
         return float(stored), "the noise the calibration was computed with"
     obs = build_observations(recording)

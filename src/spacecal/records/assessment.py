@@ -141,6 +141,12 @@ class ExpectedError:
             object.__setattr__(self, "position_covariance_mm2", covariance)
         object.__setattr__(self, "components", read_only(self.components))
 
+    def __eq__(self, other: object) -> bool:
+        # by content: the arrays compare element by element
+        return type(other) is type(self) and self.to_dict() == other.to_dict()
+
+    __hash__ = None  # type: ignore[assignment]
+
     @property
     def stated(self) -> bool:
         """A number is stated (not refused)."""

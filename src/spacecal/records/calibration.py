@@ -41,6 +41,7 @@ from spacecal.records.fields import (
     get_str,
     plain,
 )
+from spacecal.records.fit_evidence import FIT_EVIDENCE_KEYS, NoiseSummary, SweepFits
 from spacecal.records.integrity import INTEGRITY_KEY, Integrity, integrity_entry, is_sha256
 from spacecal.records.integrity import content_sha256 as hash_of_content
 from spacecal.records.results import PivotResult
@@ -341,6 +342,10 @@ class CalibrationResult:
         The expected error, residuals, thresholds and verdict
         (:mod:`spacecal.estimators.assessment` builds it); None for a method run without its
         uncertainty.
+    sweep_fits : SweepFits or None
+        The paper method's sphere and line fits (``paper``), None for the others.
+    noise : NoiseSummary or None
+        The tracker noise a likelihood fit was weighted with.
     """
 
     method: str
@@ -356,6 +361,8 @@ class CalibrationResult:
     integrity: Integrity | None = field(default=None, compare=False)
     needle_tip: NeedleTip | None = None
     assessment: Assessment | None = None
+    sweep_fits: SweepFits | None = None
+    noise: NoiseSummary | None = None
 
     def __post_init__(self) -> None:
         what = f"calibration ({self.method})"
@@ -374,11 +381,11 @@ class CalibrationResult:
                 )
         if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, dict):
             raise InvalidInputError(f"{what}: sample_counts and diagnostics must be objects")
-        misplaced = sorted(set(self.diagnostics) & set(ASSESSMENT_KEYS))
+        misplaced = sorted(set(self.diagnostics) & {*ASSESSMENT_KEYS, *FIT_EVIDENCE_KEYS})
         if misplaced:
-            # one place for the assessment: a second copy among the diagnostics could disagree
+            # one place for each typed field: a second copy among the diagnostics could disagree
             raise InvalidInputError(
-                f"{what}: {', '.join(misplaced)} belong to the assessment, not diagnostics"
+                f"{what}: {', '.join(misplaced)} are typed fields of the calibration, not diagnostics"
             )
         if self.assessment is not None and not isinstance(self.assessment, Assessment):
             raise InvalidInputError(f"{what}: assessment must be an Assessment")
@@ -456,6 +463,8 @@ class CalibrationResult:
                 "diagnostics": {
                     **self.diagnostics,
                     **({} if self.assessment is None else self.assessment.to_diagnostics()),
+                    **({} if self.sweep_fits is None else self.sweep_fits.to_diagnostics()),
+                    **({} if self.noise is None else {"noise": self.noise.to_dict()}),
                 },
                 "provenance": self.provenance.to_dict(),
                 "covariance": self.covariance,
@@ -475,6 +484,11 @@ class CalibrationResult:
             raise InvalidInputError(f"{what}: missing 'schema_version' (not a spacecal calibration file?)")
         # the assessment rides in the file's diagnostics object, as every version wrote it
         assessment, stored = Assessment.from_diagnostics(get_mapping(data, "diagnostics", what), what)
+        sweep_fits = SweepFits.from_diagnostics(stored, what)
+        noise = (
+            None if stored.get("noise") is None else NoiseSummary.from_dict(stored["noise"], f"{what}: noise")
+        )
+        stored = {k: v for k, v in stored.items() if k not in FIT_EVIDENCE_KEYS}
         covariance = data.get("covariance")
         if covariance is not None and not isinstance(covariance, Mapping):
             raise InvalidInputError(f"{what}: 'covariance' must be an object")
@@ -531,6 +545,8 @@ class CalibrationResult:
             integrity=Integrity.of(data, required=version >= FIRST_HASHED_VERSION),
             needle_tip=needle_tip,
             assessment=assessment,
+            sweep_fits=sweep_fits,
+            noise=noise,
         )
 
 

@@ -28,6 +28,7 @@ from spacecal.estimators.methods.samples import (
 from spacecal.estimators.methods.solution import Solution
 from spacecal.records import CalibrationResult, NeedleTip
 from spacecal.records.assessment import Assessment, ErrorThresholds, ExpectedError, ResidualRow, Residuals
+from spacecal.records.fit_evidence import NoiseSummary
 
 
 def report_uncertainty(solution: Solution, thresholds: ErrorThresholds | None = None) -> CalibrationResult:
@@ -53,16 +54,16 @@ def report_uncertainty(solution: Solution, thresholds: ErrorThresholds | None = 
             "does not describe one rigid set-up (units, a moved marker or tracker?)",
         }
     variance_factor = s.variance_factor if obs.sigma_known else None
+    noise = NoiseSummary(
+        obs.sigma_mm if obs.sigma_known else None,
+        "given or the tracker's RMS"
+        if obs.sigma_known
+        else "unknown (the recording has no marker_rms_mm): covariance scaled by the residuals",
+        "raw spheres"
+        if obs.dof_per_frame > 6
+        else "marker poses (model spheres placed by the measured pose)",
+    )
     diagnostics = {
-        "noise": {
-            "sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
-            "source": "given or the tracker's RMS"
-            if obs.sigma_known
-            else "unknown (the recording has no marker_rms_mm): covariance scaled by the residuals",
-            "observations": "raw spheres"
-            if obs.dof_per_frame > 6
-            else "marker poses (model spheres placed by the measured pose)",
-        },
         "variance_factor": variance_factor,
         "motion_spread": spread,
         **s.diagnostics,
@@ -83,6 +84,7 @@ def report_uncertainty(solution: Solution, thresholds: ErrorThresholds | None = 
         robot_model=s.identified_model,
         needle_tip=s.needle_tip,
         assessment=assess(s, expected, spread, variance_factor, thresholds),
+        noise=noise,
     )
 
 

@@ -137,4 +137,5 @@ def with_bootstrap_uncertainty(
         needle_tip=needle_tip,
         diagnostics={**reported.diagnostics, **result.diagnostics},
         assessment=reported.assessment,
+        noise=reported.noise,
     )
