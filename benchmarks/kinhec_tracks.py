@@ -166,13 +166,10 @@ GRADES = ("good", "acceptable", "poor", "unusable")
 def _verdict(result) -> tuple[str | None, str | None, float | None]:
     """Grade, sentence and graded expected error of a result, whether its verdict is a record
     or (older results) a sentence whose first word is the grade."""
-    raw = result.diagnostics.get("verdict")
-    if isinstance(raw, dict):
-        grade, text = raw.get("grade"), raw.get("text")
-        return grade, text, _finite(raw.get("expected_error_mm"))
-    text = str(raw or "")
-    word = text.split(":", 1)[0].strip()
-    return (word if word in GRADES else None), text or None, None
+    judged = result.verdict  # an older result's sentence is read into the record too
+    if judged is None:
+        return None, None, None
+    return judged.grade, judged.text, _finite(judged.expected_error_mm)
 
 
 def _finite(value) -> float | None:

@@ -41,9 +41,9 @@ def test_identification_beats_calibration_alone_on_varied_poses(realistic_statio
     from spacecal.report.summary import residuals_of
 
     recomputed = residuals_of(identified, simulation.recording)
-    stated = identified.diagnostics["residual_position_rms_mm"]
+    stated = identified.assessment.residuals.position_rms_mm
     assert abs(recomputed.position_rms_mm - stated) < 1e-6 * max(stated, 1.0)
-    assert abs(recomputed.rotation_rms_deg - identified.diagnostics["residual_rotation_rms_deg"]) < 1e-6
+    assert abs(recomputed.rotation_rms_deg - identified.assessment.residuals.rotation_rms_deg) < 1e-6
 
 
 def test_identification_recovers_length_errors_without_tracker_error():

@@ -207,7 +207,7 @@ def test_twenty_views_of_a_noisy_camera_measure_their_noise_beyond_the_dh_errors
     ratio = measured["power_mm2"] / float(np.mean(np.sum(injected**2, axis=(1, 2))))
     assert measured["dof"] < 20
     assert abs(ratio - 1.0) < 3.0 * measured["relative_error"]
-    assert "beyond the white noise the residuals leave" in result.diagnostics["expected_error"]["basis"]
+    assert "beyond the white noise the residuals leave" in result.expected_error.to_dict()["basis"]
 
 
 @pytest.mark.parametrize(
