@@ -1,7 +1,7 @@
 """Expected error vs measured verification error, spoilt recordings, and the cost of the slower paths.
 
 (a) For each scenario and seed: calibrate the paper's sweep by ML, read the expected error at
-a target near the site that the result states (``diagnostics["expected_error"]``), and run
+a target near the site that the result states (``expected_error``), and run
 the paper's 15-point verification (§5.2) in the same world. The table gives, over seeds, the
 mean measured and expected position errors, the median ratio expected / measured, the share
 of seeds within +-30 % and the number below half. Beside it, the oracle: the largest share
@@ -79,7 +79,7 @@ def run_case(case: tuple[str, int, str]) -> tuple[str, float, float, float, floa
         recording = simulate(scenario).recording
     result = calibrate(recording, method)
     measured = verify_in_simulation(result, scenario).statistics()
-    expected = result.diagnostics["expected_error"]
+    expected = result.expected_error.to_dict()
     return (
         name,
         float(measured["position_mm"]["mean"]),

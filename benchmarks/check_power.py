@@ -47,7 +47,7 @@ import numpy as np
 
 from spacecal.core.errors import SpacecalError
 from spacecal.estimators import ESTIMATORS, calibrate
-from spacecal.estimators.diagnostics import residual_table, sample_residuals
+from spacecal.estimators.methods.samples import residual_table, sample_residuals
 from spacecal.experiments.simulation import execute_plan, simulation_settings
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.planning.check_poses import check_plan
@@ -56,6 +56,7 @@ from spacecal.sim.devices import SimClock, SimulatedRobot, SimulatedTracker
 from spacecal.sim.motion import plan_for_world
 from spacecal.sim.scenario import PRESETS
 from spacecal.sim.world import build_world
+from spacecal.testing.calibrations import with_stored
 from spacecal.workflows.check import (
     HeldPose,
     check_thresholds,
@@ -81,12 +82,11 @@ POSES = 3
 
 def with_residuals(result, recording):
     """The per-sample residuals the bootstrap path stores, for a result made without it."""
-    if "per_sample_residuals" in result.diagnostics:
+    stored = None if result.assessment is None else result.assessment.residuals
+    if stored is not None and stored.per_sample is not None:
         return result
     residuals = sample_residuals(recording, result.tracker_from_base, result.tcp_from_marker)
-    return result.replace(
-        diagnostics={**result.diagnostics, "per_sample_residuals": residual_table(recording, residuals)}
-    )
+    return with_stored(result, per_sample_residuals=residual_table(recording, residuals))
 
 
 def changed(held: list[HeldPose], seed: int, setup: str) -> list[HeldPose]:

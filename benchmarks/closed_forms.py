@@ -30,7 +30,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from spacecal.estimators.hand_eye import motion_pairs, relative_motions
+from spacecal.estimators.methods.hand_eye import motion_pairs, relative_motions
 from spacecal.estimators.registry import ESTIMATORS, Family, estimators_of
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform

@@ -25,7 +25,7 @@ paths, and the calibration of each is verified in the same simulated world:
 Measured: the mean position error at the needle tip over the paper's 15-point verification
 around the site (§5.2, :func:`spacecal.experiments.verification.verify_in_simulation`, as
 :mod:`benchmarks.accuracy` and :mod:`spacecal.experiments.prediction_oracle` measure it).
-Stated: ``diagnostics["expected_error"]["position_mm"]``. The table gives, per scenario and
+Stated: ``expected_error.position_mm``. The table gives, per scenario and
 path, the median and the largest measured / stated over the seeds and their number (a refused
 expected error is counted apart).
 
@@ -180,7 +180,7 @@ def scored(result: CalibrationResult, scenario: Scenario) -> tuple[float, float]
     """(measured mean position error at the 15 targets, stated expected error), mm; the stated
     one NaN where the expected error was refused."""
     measured = verify_in_simulation(result, scenario).statistics()["position_mm"]["mean"]
-    return float(measured), float(result.diagnostics["expected_error"].get("position_mm", np.nan))
+    return float(measured), float(result.expected_error.to_dict().get("position_mm", np.nan))
 
 
 def acquisition(label: str, seed: int, cache: str | None) -> tuple[Scenario, RawRecording, Recording]:

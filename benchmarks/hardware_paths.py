@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.estimators.methods.likelihood import tre_lower_bound
 from spacecal.io.ndi_rom import rom_bytes
 from spacecal.io.recording_csv import read_recording
 from spacecal.io.results_json import read_calibration

@@ -33,10 +33,11 @@ from kinhec.io import load_manifest, load_sequence
 from kinhec.plans import load_tier
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.expected_error import mean_gaussian_length, nominal_robot_model
-from spacecal.estimators.kinematic import DH_FIELDS
-from spacecal.estimators.ml import point_covariances
-from spacecal.estimators.observations import build_observations
+from spacecal.estimators.assessment.gaussian import mean_gaussian_length
+from spacecal.estimators.methods.kinematic import DH_FIELDS
+from spacecal.estimators.methods.ml import point_covariances
+from spacecal.estimators.methods.observations import build_observations
+from spacecal.estimators.methods.recorded_model import nominal_robot_model
 from spacecal.geometry.rotations import skew
 from spacecal.models.kinematics import dh_point_jacobian, pose_point_jacobian
 

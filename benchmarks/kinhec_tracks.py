@@ -16,7 +16,7 @@ geodesic) and translation (mm) of ``X = tcp_from_marker`` and ``Y = base_from_tr
 (``inv(tracker_from_base)``). The site error is the calibration's own error at the targets
 spacecal's expected error speaks of: the mean distance between where the estimated and the
 true ``tracker_from_base`` put the TCP at the frames near the site
-(:func:`spacecal.estimators.expected_error.near_site`); the verification error adds the robot's
+(:func:`spacecal.estimators.assessment.held_out_misfit.near_site`); the verification error adds the robot's
 own error there (reported against true TCP), as a verification on the robot would see it.
 
 Frames: eye-to-hand the camera is spacecal's tracker and KinHEC's marker its marker;
@@ -71,15 +71,11 @@ from kinhec.metrics import calibration_errors  # noqa: E402
 from spacecal import app  # noqa: E402
 from spacecal.core.errors import SpacecalError  # noqa: E402
 from spacecal.estimators import ESTIMATORS, Need  # noqa: E402
-from spacecal.estimators.diagnostics import ErrorThresholds  # noqa: E402
-from spacecal.estimators.expected_error import (  # noqa: E402
-    SITE_RADIUS_MM,
-    SITE_TILT_DEG,
-    near_site,
-    probability_within,
-)
+from spacecal.estimators.assessment.gaussian import probability_within  # noqa: E402
+from spacecal.estimators.assessment.held_out_misfit import SITE_RADIUS_MM, SITE_TILT_DEG, near_site  # noqa: E402
 from spacecal.io.raw_streams import write_raw_recording  # noqa: E402
 from spacecal.io.recording_csv import write_recording  # noqa: E402
+from spacecal.records.assessment import ErrorThresholds  # noqa: E402
 
 
 def _load_conversion():
@@ -170,13 +166,10 @@ GRADES = ("good", "acceptable", "poor", "unusable")
 def _verdict(result) -> tuple[str | None, str | None, float | None]:
     """Grade, sentence and graded expected error of a result, whether its verdict is a record
     or (older results) a sentence whose first word is the grade."""
-    raw = result.diagnostics.get("verdict")
-    if isinstance(raw, dict):
-        grade, text = raw.get("grade"), raw.get("text")
-        return grade, text, _finite(raw.get("expected_error_mm"))
-    text = str(raw or "")
-    word = text.split(":", 1)[0].strip()
-    return (word if word in GRADES else None), text or None, None
+    judged = result.verdict  # an older result's sentence is read into the record too
+    if judged is None:
+        return None, None, None
+    return judged.grade, judged.text, _finite(judged.expected_error_mm)
 
 
 def _finite(value) -> float | None:

@@ -38,11 +38,11 @@ import time
 import numpy as np
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.diagnostics import site_in_base
-from spacecal.estimators.likelihood import tre_summary
-from spacecal.estimators.ml import covariance_from_information
-from spacecal.estimators.noise_model import NoiseProblem, normal_equations
-from spacecal.estimators.observations import build_observations
+from spacecal.estimators.methods.likelihood import tre_summary
+from spacecal.estimators.methods.ml import covariance_from_information
+from spacecal.estimators.methods.noise_model import NoiseProblem, normal_equations
+from spacecal.estimators.methods.observations import build_observations
+from spacecal.estimators.methods.samples import site_in_base
 from spacecal.estimators.registry import Family, estimators_of
 from spacecal.experiments.monte_carlo import cramer_rao_tre_mm
 from spacecal.experiments.simulation import Simulation, simulate

@@ -14,7 +14,7 @@ Per scenario and seed (each seed a different arm, tracker bias and layout) the r
 calibrated with ``ml`` and with ``kinematic`` (identification under a prior whose scale the
 held-out misfit sets), and each calibration is verified by the paper's 15-point experiment
 (§5.2) in the same simulated world: IK uses the identified model when there is one, else the
-controller's. Stated: ``diagnostics["expected_error"]["position_mm"]``.
+controller's. Stated: ``expected_error.position_mm``.
 
 The lever ``+ tip``: ``calibrate(..., needle_tip=...)`` (``spacecal calibrate --tip
 pivot.json``) with the needle tip a simulated pivot measured in the marker frame
@@ -79,7 +79,7 @@ def run(preset: str, seed: int) -> list[dict]:
             started = time.process_time()
             calibration = calibrate(recording, method, needle_tip=tip)
             calibrated_s = time.process_time() - started
-            expected = calibration.diagnostics.get("expected_error") or {}
+            expected = {} if calibration.expected_error is None else calibration.expected_error.to_dict()
             stated = expected.get("position_mm")
             verified = verify_in_simulation(calibration, scenario)  # aims the tip when it has one
             rows.append(

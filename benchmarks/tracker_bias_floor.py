@@ -276,7 +276,7 @@ def run_tips(preset: str, seed: int) -> dict:
         "kinematic + true tip": aimed(dataclasses.replace(pivot, tip_in_marker=true_tip)),
         "kinematic + tip to 0.05 mm": measured_error,
         "tip to 0.05 mm: measured / stated": measured_error
-        / with_measured.diagnostics["expected_error"]["position_mm"],
+        / with_measured.expected_error.to_dict()["position_mm"],
         "kinematic + mean tip": aimed(mean_tip),
         "pivot tip off": float(np.linalg.norm(pivot.tip_in_marker - true_tip)),
         "kinematic tip off": float(np.linalg.norm(own_tip - true_tip)),

@@ -16,7 +16,7 @@ pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 pytest.importorskip("pyigtl")
 
-from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.estimators.methods.likelihood import tre_lower_bound
 from spacecal.geometry.metrics import cube_grid, target_registration_errors
 from spacecal.io.acquisition_progress import progress_path
 from spacecal.io.raw_streams import read_raw_recording

@@ -18,7 +18,7 @@ import pytest
 pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
-from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.estimators.methods.likelihood import tre_lower_bound
 from spacecal.geometry.metrics import cube_grid, target_registration_errors
 from spacecal.io.check_history import read_history
 from spacecal.io.recording_csv import read_recording

@@ -12,8 +12,8 @@ import pytest
 pytest.importorskip("rtde_control")
 pytest.importorskip("ndicapy")
 
-from spacecal.estimators.kinematic import robot_model_of
-from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.estimators.methods.kinematic import robot_model_of
+from spacecal.estimators.methods.likelihood import tre_lower_bound
 from spacecal.geometry.metrics import cube_grid, target_registration_errors
 from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
 from spacecal.io.raw_streams import read_raw_recording, stream_paths

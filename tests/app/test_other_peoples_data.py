@@ -107,8 +107,8 @@ def test_robust_without_fit_rms_takes_no_tracker_noise_level_it_was_not_given(wh
     recording = _pose_only_views(white_simulation, 30, 0.5, seed=4)
     ml, robust = calibrate(recording, "ml"), calibrate(recording, "robust")
     assert robust.diagnostics["outliers"] == []
-    ml_error = ml.diagnostics["expected_error"]
-    robust_error = robust.diagnostics["expected_error"]
+    ml_error = ml.expected_error.to_dict()
+    robust_error = robust.expected_error.to_dict()
     assert robust_error["components"]["tracker_noise_sphere_rms_mm"] is None
     assert "fit RMS" not in robust_error["basis"].split("(")[0]
     # no frame left out: the same frames, the same statement up to the two fits' difference
@@ -156,7 +156,7 @@ def test_bound_takes_the_noise_from_the_recording_when_not_given(recording_file,
 
 def test_bound_without_fit_rms_takes_the_noise_its_calibration_shows(white_simulation, tmp_path, capsys):
     # a pose-only recording (a bag, PLUS, a camera): no tracker fit RMS to take the noise from
-    from spacecal.estimators.likelihood import tre_lower_bound
+    from spacecal.estimators.methods.likelihood import tre_lower_bound
     from spacecal.io.results_json import write_calibration
 
     poses = dataclasses.replace(

@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.hand_eye import motion_pairs, relative_motions
+from spacecal.estimators.methods.hand_eye import motion_pairs, relative_motions
 from spacecal.estimators.registry import Family, estimators_of
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spacecal.estimators.hand_eye import (
+from spacecal.estimators.methods.hand_eye import (
     _daniilidis_dual_quaternion,
     _daniilidis_grams,
     _dual_given_rotation,
@@ -26,8 +26,8 @@ from spacecal.estimators.hand_eye import (
     motion_pairs,
     relative_motions,
 )
+from spacecal.estimators.methods.robot_world import characteristic_length_mm
 from spacecal.estimators.registry import Family, estimators_of
-from spacecal.estimators.robot_world import characteristic_length_mm
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_quaternion_wxyz
 
 from .test_hand_eye import errors, predicted_standard_errors

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.conventions import (
+from spacecal.estimators.methods.conventions import (
     ALTERNATIVES,
     SWAPPED,
     calibration_mismatch,

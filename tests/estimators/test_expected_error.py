@@ -9,22 +9,21 @@ from scipy.stats import chi2
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.diagnostics import ErrorThresholds, grade, verdict
-from spacecal.estimators.expected_error import (
-    MEAN_OVER_RMS_3D,
+from spacecal.estimators.assessment.gaussian import MEAN_OVER_RMS_3D, mean_gaussian_length, probability_within
+from spacecal.estimators.assessment.grading import grade, verdict
+from spacecal.estimators.assessment.rigid_motion import rigid_part
+from spacecal.estimators.assessment.white_noise import (
     OVERLAPPING_PAIRS_VARIANCE,
-    held_out_blocks,
-    mean_gaussian_length,
     noise_level_relative_error,
-    probability_within,
-    rigid_part,
     white_noise_power,
 )
-from spacecal.estimators.likelihood import fit_ml
+from spacecal.estimators.methods.held_out import held_out_blocks
+from spacecal.estimators.methods.likelihood import fit_ml
 from spacecal.estimators.registry import ESTIMATORS
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.models.kinematics import UR_TABLES
+from spacecal.records.assessment import ErrorThresholds
 from spacecal.records.verdict import Verdict
 from spacecal.sim.scenario import PRESETS, load_scenario
 
@@ -35,7 +34,7 @@ def test_white_noise_expects_about_the_noise_only_error(white_simulation):
     # no systematic error: the held-out misfit is the noise's, and the expected error is the
     # mean length of the noise-only TRE
     result = calibrate(white_simulation.recording, "ml")
-    expected = result.diagnostics["expected_error"]
+    expected = result.expected_error.to_dict()
     components = expected["components"]
     assert components["dh_error_scale_mm"] < 0.03
     assert expected["position_mm"] == pytest.approx(
@@ -49,7 +48,7 @@ def test_realistic_expected_error_holds_the_unseen_kinematic_error(realistic_sim
     # the verification error here is dominated by DH errors that move the tip but not the
     # marker; the expected error must not be the (10x smaller) noise-only TRE
     result = calibrate(realistic_simulation.recording, "ml")
-    expected = result.diagnostics["expected_error"]["position_mm"]
+    expected = result.expected_error.to_dict()["position_mm"]
     measured = verify_in_simulation(result, PRESETS["paper-realistic"]).statistics()["position_mm"]["mean"]
     assert expected > 5 * result.predicted_tre_mm["site"]
     assert 0.5 * measured <= expected <= 3.0 * measured
@@ -64,8 +63,8 @@ def test_an_arm_error_is_scaled_to_the_tip_and_a_tracker_bias_is_not():
         calibration_residual_length_sd_mm=0.0,
         calibration_residual_angle_sd_deg=0.0,
     )
-    arm = calibrate(simulate(arm_only).recording, "ml").diagnostics["expected_error"]["components"]
-    bias = calibrate(simulate(bias_only).recording, "ml").diagnostics["expected_error"]["components"]
+    arm = calibrate(simulate(arm_only).recording, "ml").expected_error.to_dict()["components"]
+    bias = calibrate(simulate(bias_only).recording, "ml").expected_error.to_dict()["components"]
     assert arm["systematic_detected"] and bias["systematic_detected"]
     assert arm["systematic_dh_share"] > 0.95
     assert bias["systematic_dh_share"] < arm["systematic_dh_share"] - 0.2
@@ -86,14 +85,14 @@ def test_the_rigid_part_keeps_rigid_motions_and_drops_deformations():
 def test_every_method_gets_a_graded_verdict(white_simulation, method):
     result = calibrate(white_simulation.recording, method)
     assert result.verdict.grade in GRADES
-    assert result.diagnostics["expected_error"]["position_mm"] > 0
+    assert result.expected_error.to_dict()["position_mm"] > 0
 
 
 def test_thresholds_grade_and_are_checked(white_simulation):
     thresholds = ErrorThresholds(0.001, 0.002, 0.003)
     result = calibrate(white_simulation.recording, "ml", error_thresholds=thresholds)
     assert result.verdict.grade == "unusable"
-    assert result.diagnostics["thresholds_mm"] == dataclasses.asdict(thresholds)
+    assert result.assessment.thresholds == thresholds
     assert [grade(x, ErrorThresholds()) for x in (0.4, 0.9, 1.9, 2.1, np.nan)] == [
         "good",
         "acceptable",
@@ -166,7 +165,7 @@ def test_the_statement_s_own_range_holds_it_and_narrows_with_more_poses():
         widths = []
         for stations in (15, 60):
             scenario = dataclasses.replace(load_scenario("static-15-poses"), seed=seed, stations=stations)
-            expected = calibrate(simulate(scenario).recording, "ml").diagnostics["expected_error"]
+            expected = calibrate(simulate(scenario).recording, "ml").expected_error.to_dict()
             low, high = expected["position_range_mm"]
             assert low <= expected["position_mm"] <= high
             widths.append((high - low) / expected["position_mm"])
@@ -219,7 +218,7 @@ def test_probability_within_matches_closed_forms_and_sampling():
 
 
 def test_the_stated_error_comes_with_its_covariance(realistic_simulation):
-    expected = calibrate(realistic_simulation.recording, "ml").diagnostics["expected_error"]
+    expected = calibrate(realistic_simulation.recording, "ml").expected_error.to_dict()
     covariance = np.asarray(expected["position_covariance_mm2"])
     assert covariance.shape == (3, 3) and np.allclose(covariance, covariance.T)
     assert expected["position_mm"] == pytest.approx(mean_gaussian_length(covariance), rel=1e-12)
@@ -236,7 +235,7 @@ def stated_and_measured(recording, scenario, method="ml"):
     """(the calibration's expected error, the mean error of its 15-point verification), mm."""
     result = calibrate(recording, method)
     measured = verify_in_simulation(result, scenario).statistics()["position_mm"]["mean"]
-    return result.diagnostics["expected_error"], measured
+    return result.expected_error.to_dict(), measured
 
 
 def without_joints(recording):
@@ -293,12 +292,12 @@ def test_kinematic_on_a_pose_only_realistic_recording_states_the_true_error_s_or
 
 def test_the_expected_error_is_the_same_with_or_without_the_rms_or_the_joints(realistic_simulation):
     recording = realistic_simulation.recording
-    paired = calibrate(recording, "ml").diagnostics["expected_error"]
+    paired = calibrate(recording, "ml").expected_error.to_dict()
     for stripped in (recording.as_pose_only(), without_joints(recording)):
-        expected = calibrate(stripped, "ml").diagnostics["expected_error"]
+        expected = calibrate(stripped, "ml").expected_error.to_dict()
         assert expected["position_mm"] == pytest.approx(paired["position_mm"], rel=1e-3)
         assert expected["posture_deg"] == pytest.approx(paired["posture_deg"], rel=1e-3)
-    expected = calibrate(without_joints(recording), "ml").diagnostics["expected_error"]
+    expected = calibrate(without_joints(recording), "ml").expected_error.to_dict()
     assert "joint angles solved from the reported TCP poses" in expected["basis"]
 
 
@@ -308,8 +307,8 @@ def test_without_joints_or_robot_model_a_ur_arm_stands_in_and_the_error_is_not_s
     bare = dataclasses.replace(
         without_joints(recording.as_pose_only()), metadata={"units": recording.metadata["units"]}
     )
-    paired = calibrate(recording, "ml").diagnostics["expected_error"]
-    expected = calibrate(bare, "ml").diagnostics["expected_error"]
+    paired = calibrate(recording, "ml").expected_error.to_dict()
+    expected = calibrate(bare, "ml").expected_error.to_dict()
     assert expected["components"]["kinematic_geometry"] in UR_TABLES
     assert "no joint angles or robot model" in expected["basis"]
     # the arm that hides the most of the misfit: within 5 % of the true arm's geometry, or above
@@ -321,8 +320,8 @@ def test_without_nearby_frames_the_noise_is_the_tracker_s_rms_else_all_misfit_co
     # every frame its own segment: no pair of consecutive frames measures the white noise
     recording = realistic_simulation.recording
     lonely = dataclasses.replace(recording, segment=np.array([f"pose {k}" for k in range(len(recording))]))
-    paired = calibrate(recording, "ml").diagnostics["expected_error"]
-    from_rms = calibrate(lonely, "ml").diagnostics["expected_error"]
+    paired = calibrate(recording, "ml").expected_error.to_dict()
+    from_rms = calibrate(lonely, "ml").expected_error.to_dict()
     assert "from its fit RMS" in from_rms["basis"] and from_rms["components"]["noise_pairs"] == 0
     assert from_rms["position_mm"] == pytest.approx(paired["position_mm"], rel=0.15)
     # neither: the noise is what the residuals leave once the DH errors are fitted as well (a
@@ -330,7 +329,7 @@ def test_without_nearby_frames_the_noise_is_the_tracker_s_rms_else_all_misfit_co
     # error is below the nugget's, and stays within the bound every path keeps: the measured
     # error is at most twice the stated one
     posed = calibrate(lonely.as_pose_only(), "ml")
-    unknown = posed.diagnostics["expected_error"]
+    unknown = posed.expected_error.to_dict()
     assert "once the arm's DH errors are fitted too" in unknown["basis"]
     assert unknown["position_mm"] <= paired["position_mm"]
     measured = verify_in_simulation(posed, PRESETS["paper-realistic"]).statistics()["position_mm"]["mean"]

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.hand_eye import (
+from spacecal.estimators.methods.hand_eye import (
     ALL_PAIRS_FRAMES,
     MAX_MOTION_PAIRS,
     MIN_MOTION_ANGLE_RAD,

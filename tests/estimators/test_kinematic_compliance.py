@@ -6,7 +6,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from spacecal.estimators.kinematic import COMPLIANCE_NAMES, identify_kinematics, joint_compliance_of
+from spacecal.estimators.assessment.report import report_uncertainty
+from spacecal.estimators.methods.kinematic import COMPLIANCE_NAMES, identify_kinematics, joint_compliance_of
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.models.compliance import (
@@ -41,6 +42,11 @@ RIGID_WHITE = dataclasses.replace(
 )
 
 
+def identified(recording, **options):
+    """The identification's solution, assessed as the registry assesses it."""
+    return report_uncertainty(identify_kinematics(recording, **options))
+
+
 def mean_error_mm(calibration, scenario):
     return float(np.mean(verify_in_simulation(calibration, scenario).position_error_mm))
 
@@ -49,8 +55,8 @@ def mean_error_mm(calibration, scenario):
 def noise_free_compliant():
     recording = simulate(NOISE_FREE_COMPLIANT).recording
     return (
-        identify_kinematics(recording, joint_compliance=True),
-        identify_kinematics(recording, joint_compliance=False),
+        identified(recording, joint_compliance=True),
+        identified(recording, joint_compliance=False),
     )
 
 
@@ -84,8 +90,8 @@ def test_the_identified_compliance_is_applied_when_reaching_targets(noise_free_c
 def test_compliance_is_about_zero_on_a_rigid_arm_and_costs_no_accuracy():
     recording = simulate(RIGID_WHITE).recording
     # a fixed prior frees the corrections on this arm whatever the held-out misfit shows
-    with_compliance = identify_kinematics(recording, joint_compliance=True, prior_from_data=False)
-    without = identify_kinematics(recording, joint_compliance=False, prior_from_data=False)
+    with_compliance = identified(recording, joint_compliance=True, prior_from_data=False)
+    without = identified(recording, joint_compliance=False, prior_from_data=False)
     report = with_compliance.diagnostics["kinematic_identification"]["joint_compliance"]
     compliance = joint_compliance_of(with_compliance)
     assert compliance is not None

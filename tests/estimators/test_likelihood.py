@@ -5,8 +5,8 @@ import pytest
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.ml import jacobian, predict_spheres
-from spacecal.estimators.observations import build_observations, sphere_noise_from_marker_rms
+from spacecal.estimators.methods.ml import jacobian, predict_spheres
+from spacecal.estimators.methods.observations import build_observations, sphere_noise_from_marker_rms
 from spacecal.experiments.monte_carlo import cramer_rao_tre_mm, run_monte_carlo, true_sphere_sigma_mm
 from spacecal.experiments.truth import calibration_error
 from spacecal.models.kinematics import apply_pose_step
@@ -55,8 +55,8 @@ def test_result_carries_covariance_prediction_and_diagnostics(white_simulation):
     assert result.predicted_tre_mm["site"] > 0 and len(result.predicted_tre_mm["targets"]) == 1
     diagnostics = result.diagnostics
     assert diagnostics["variance_factor"] == pytest.approx(1.0, abs=0.15)
-    assert len(diagnostics["per_sample_residuals"]) == int(white_simulation.recording.visible.sum())
-    assert diagnostics["verdict"]["grade"] == "good"
+    assert len(result.assessment.residuals.per_sample) == int(white_simulation.recording.visible.sum())
+    assert result.verdict.grade == "good"
 
 
 def test_verdict_warns_when_systematic_errors_dominate(realistic_simulation):
@@ -67,7 +67,7 @@ def test_verdict_warns_when_systematic_errors_dominate(realistic_simulation):
     verdict = result.verdict
     assert verdict.grade in ("good", "acceptable", "poor", "unusable")
     assert "systematic error" in verdict.text
-    assert result.diagnostics["expected_error"]["position_mm"] > 5 * result.predicted_tre_mm["site"]
+    assert result.expected_error.to_dict()["position_mm"] > 5 * result.predicted_tre_mm["site"]
 
 
 def test_robust_flags_the_injected_outliers_and_keeps_clean_accuracy(
@@ -110,4 +110,4 @@ def test_methods_without_likelihood_get_bootstrap_uncertainty(method, white_simu
     error = calibration_error(result, white_simulation.world)["tre_rms_mm"]
     # one realisation: the true error lies within a few predicted standard errors
     assert error < 4 * result.predicted_tre_mm["cube_rms"]
-    assert "verdict" in result.diagnostics
+    assert result.verdict is not None

@@ -6,7 +6,11 @@ import numpy as np
 import pytest
 
 from spacecal.estimators import calibrate
-from spacecal.estimators.kinematic import IDENTIFY_MIN_SIGNIFICANCE, SELECTION_MIN_GAIN, select_corrections
+from spacecal.estimators.methods.kinematic import (
+    IDENTIFY_MIN_SIGNIFICANCE,
+    SELECTION_MIN_GAIN,
+    select_corrections,
+)
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.sim.scenario import PRESETS

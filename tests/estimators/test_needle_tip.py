@@ -54,7 +54,7 @@ def test_an_exact_tip_removes_what_the_marker_cannot_see(nominal):
     scenario, world, recording = nominal
     exact = NeedleTip(invert_transform(world.tcp_from_marker)[:3, 3], np.zeros((3, 3)), "exact", 0.0, 1)
     without, with_tip = calibrate(recording, "ml"), calibrate(recording, "ml", needle_tip=exact)
-    unseen = [r.diagnostics["expected_error"]["components"]["unseen_tip_rms_mm"] for r in (without, with_tip)]
+    unseen = [r.expected_error.to_dict()["components"]["unseen_tip_rms_mm"] for r in (without, with_tip)]
     assert unseen[1] < 0.5 * unseen[0]
     measured = [np.mean(verify_in_simulation(r, scenario).position_error_mm) for r in (without, with_tip)]
     assert measured[1] < measured[0]
@@ -65,7 +65,7 @@ def test_the_stated_error_holds_at_a_pivot_measured_tip(nominal, method):
     scenario, world, recording = nominal
     pivot = simulate_pivot(world)
     result = calibrate(recording, method, needle_tip=NeedleTip.from_pivot(pivot))
-    stated = result.diagnostics["expected_error"]["position_mm"]
+    stated = result.expected_error.to_dict()["position_mm"]
     measured = float(np.mean(verify_in_simulation(result, scenario).position_error_mm))
     assert MOST_OVERSTATED <= measured / stated <= MOST_UNDERSTATED, (measured, stated)
-    assert "needle tip measured by a pivot" in result.diagnostics["expected_error"]["basis"]
+    assert "needle tip measured by a pivot" in result.expected_error.to_dict()["basis"]

@@ -8,8 +8,8 @@ import pytest
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.estimators import calibrate
-from spacecal.estimators.likelihood import fit_ml
-from spacecal.estimators.noise_model import NoiseProblem
+from spacecal.estimators.methods.likelihood import fit_ml
+from spacecal.estimators.methods.noise_model import NoiseProblem
 from spacecal.experiments.monte_carlo import cramer_rao_tre_mm, true_sphere_sigma_mm
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.truth import calibration_error

@@ -5,7 +5,7 @@ import pytest
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnknownMethodError
 from spacecal.estimators import calibrate
-from spacecal.estimators.paper import PaperThresholds
+from spacecal.estimators.methods.paper import PaperThresholds
 from spacecal.experiments.simulation import execute_plan
 from spacecal.experiments.truth import calibration_error
 from spacecal.planning.paper_sweeps import PaperSweepSettings, plan_paper_sweeps
@@ -20,8 +20,8 @@ def test_noise_free_recording_is_recovered_exactly(noise_free_simulation):
     world = noise_free_simulation.world
     assert np.allclose(result.tracker_from_base, world.tracker_from_base, atol=1e-9)
     assert np.allclose(result.tcp_from_marker, world.tcp_from_marker, atol=1e-9)
-    assert result.diagnostics["sphere"]["rms_mm"] < 1e-9
-    assert abs(result.diagnostics["sphere"]["radius_minus_marker_offset_mm"]) < 1e-9
+    assert result.sweep_fits.sphere.rms_mm < 1e-9
+    assert abs(result.sweep_fits.sphere.radius_minus_marker_offset_mm) < 1e-9
 
 
 def expected_white_noise_tre(recording, sigma_sphere_rms):
@@ -46,21 +46,21 @@ def test_white_noise_error_is_within_the_injected_noise(white_simulation):
     bound = expected_white_noise_tre(white_simulation.recording, 0.25)
     assert error["tre_rms_mm"] < bound
     assert error["tre_rms_mm"] < 0.1  # the issue's acceptance figure
-    assert result.diagnostics["sphere"]["rms_mm"] < 0.25
+    assert result.sweep_fits.sphere.rms_mm < 0.25
 
 
 def test_diagnostics_report_what_the_issue_asks_for(realistic_simulation):
     result = calibrate(realistic_simulation.recording, "paper")
     d = result.diagnostics
-    assert d["sphere"]["radius_mm"] == pytest.approx(
+    assert result.sweep_fits.sphere.radius_mm == pytest.approx(
         np.linalg.norm(realistic_simulation.world.tcp_from_marker[:3, 3]), abs=0.5
     )
     assert set(d["rotation_span_deg"]) == {"rot_x", "rot_y", "rot_z"}
     for label, (lo, hi) in realistic_simulation.plan.extents.items():
         if label.startswith("rot"):
             assert d["rotation_span_deg"][label] == pytest.approx(hi - lo, abs=1.0)
-    for line in d["lines"].values():
-        assert 0 < line["straightness_rms_mm"] < 0.5
+    for line in result.sweep_fits.lines.values():
+        assert 0 < line.straightness_rms_mm < 0.5
     for pair in d["axis_angles_before_orthonormalising"].values():
         assert pair["commanded_deg"] == pytest.approx(90.0, abs=1e-6)
         assert abs(pair["fitted_deg"] - 90.0) < 0.5

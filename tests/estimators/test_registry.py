@@ -80,7 +80,7 @@ def test_the_likelihood_flag_is_what_the_result_reports(white_simulation, name):
     assert result.method == name
     note = result.covariance["note"]
     assert ("bootstrap" in note) == spec.bootstrap, note
-    basis = result.diagnostics["expected_error"]["basis"]
+    basis = result.expected_error.to_dict()["basis"]
     # a method that is not the ML fit is cross-validated by ML refits and its distance from ML
     assert ("distance from the ML solution" in basis) == (spec.held_out_refit == "ML"), basis
 

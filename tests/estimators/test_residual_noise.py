@@ -1,5 +1,5 @@
 """The white noise's covariance from a fit's residuals, whatever its shape
-(:mod:`spacecal.estimators.residual_noise`), on linear models whose truth is known."""
+(:mod:`spacecal.estimators.assessment.residual_noise`), on linear models whose truth is known."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.residual_noise import frame_noise_covariance, held_out_noise_power
+from spacecal.estimators.assessment.residual_noise import frame_noise_covariance, held_out_noise_power
 
 SPHERES = 4
 WIDTH = 3 * SPHERES

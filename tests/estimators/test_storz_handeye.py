@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from spacecal.estimators import ESTIMATORS, Family, calibrate
-from spacecal.estimators.diagnostics import tracker_from_base_from_samples
-from spacecal.estimators.hand_eye import motion_pairs, relative_motions, solve_daniilidis, solve_park
+from spacecal.estimators.methods.hand_eye import motion_pairs, relative_motions, solve_daniilidis, solve_park
+from spacecal.estimators.methods.samples import tracker_from_base_from_samples
 from spacecal.estimators.registry import estimators_of
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform

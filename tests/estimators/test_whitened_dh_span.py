@@ -6,13 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from spacecal.estimators.expected_error import (
-    DETECTION_STANDARD_ERRORS,
-    MINIMUM_WHITENING_DOF,
-    rigid_coordinates,
-    unit_dh_sd,
-    whitened_dh_span_test,
-)
+from spacecal.estimators.assessment.dh_span import DETECTION_STANDARD_ERRORS, whitened_dh_span_test
+from spacecal.estimators.assessment.rigid_motion import rigid_coordinates
+from spacecal.estimators.assessment.unseen_kinematics import unit_dh_sd
+from spacecal.estimators.assessment.white_noise import MINIMUM_WHITENING_DOF
 from spacecal.geometry.transforms import axis_angle_transform
 from spacecal.models.kinematics import dh_point_jacobian, forward_kinematics, pose_point_jacobian, ur_model
 

@@ -120,7 +120,7 @@ def test_the_metadata_model_gives_the_flange_poses_kinhec_reported(arm):
     """The model in ``robot.kinematic_model``, at the joint values written, puts the flange where
     KinHEC's own forward kinematics put it (its noise-free columns: true joint angles and flange
     poses), whatever DH convention or joint sense KinHEC describes the arm in."""
-    from spacecal.estimators.expected_error import nominal_robot_model
+    from spacecal.estimators.methods.recorded_model import nominal_robot_model
     from spacecal.models.kinematics import forward_kinematics
 
     recording = conversion.to_recording(_tier_sequence("small", ARM_SEQUENCES[arm]), noise_free=True)
@@ -146,8 +146,9 @@ def test_the_noise_beyond_the_dh_errors_is_the_camera_noise_kinhec_injected(arm)
     """One frame per pose and no fit RMS: the noise spacecal takes from what the residuals leave
     beyond the pose and the arm's DH errors, against the camera noise KinHEC injected (its
     measured minus its noise-free target poses, at the marker's spheres)."""
-    from spacecal.estimators.expected_error import nominal_robot_model, white_noise_beyond_kinematics
-    from spacecal.estimators.observations import build_observations
+    from spacecal.estimators.assessment.white_noise import white_noise_beyond_kinematics
+    from spacecal.estimators.methods.observations import build_observations
+    from spacecal.estimators.methods.recorded_model import nominal_robot_model
     from spacecal.models.kinematics import forward_kinematics
 
     ratios, relative_errors = [], []
@@ -184,8 +185,9 @@ def test_twenty_views_of_a_noisy_camera_measure_their_noise_beyond_the_dh_errors
     14 to 19 effective residual degrees of freedom beyond the pose and the DH errors: enough to
     measure the noise within its own relative error, and the expected error takes it from there
     rather than counting all of the misfit as systematic."""
-    from spacecal.estimators.expected_error import nominal_robot_model, white_noise_beyond_kinematics
-    from spacecal.estimators.observations import build_observations
+    from spacecal.estimators.assessment.white_noise import white_noise_beyond_kinematics
+    from spacecal.estimators.methods.observations import build_observations
+    from spacecal.estimators.methods.recorded_model import nominal_robot_model
 
     sequence = _tier_sequence("small", sequence_id)
     recording = conversion.to_recording(sequence)
@@ -205,7 +207,7 @@ def test_twenty_views_of_a_noisy_camera_measure_their_noise_beyond_the_dh_errors
     ratio = measured["power_mm2"] / float(np.mean(np.sum(injected**2, axis=(1, 2))))
     assert measured["dof"] < 20
     assert abs(ratio - 1.0) < 3.0 * measured["relative_error"]
-    assert "beyond the white noise the residuals leave" in result.diagnostics["expected_error"]["basis"]
+    assert "beyond the white noise the residuals leave" in result.expected_error.to_dict()["basis"]
 
 
 @pytest.mark.parametrize(
@@ -221,7 +223,7 @@ def test_the_bound_s_camera_noise_is_the_noise_kinhec_injected(sequence_id):
     import kinhec
     from kinhec.plans import load_tier
 
-    from spacecal.estimators.observations import build_observations
+    from spacecal.estimators.methods.observations import build_observations
 
     tier = load_tier(str(Path(kinhec.__file__).parent / "configs" / "small.yaml"))
     sequence = _tier_sequence("small", sequence_id)
@@ -249,7 +251,7 @@ def test_kinematic_with_the_arm_s_stated_dh_uncertainty_beats_ml_on_uncalibrated
     an iiwa 7, 30 views of a camera without fit RMS each): identification with that prior lands
     closer to the truth than ml does. The data are weighed against the prior by the noise the
     residuals show; weighed by a 1 mm placeholder instead, one UR5e landed 8.0 mm off (ml: 4.4)."""
-    from spacecal.estimators.kinematic import calibrate_kinematic
+    from spacecal.estimators.methods.kinematic import calibrate_kinematic
 
     truth_of = _benchmark("kinhec_tracks").Truth
 

@@ -204,7 +204,7 @@ def test_a_seven_joint_recording_round_trips(tmp_path):
     again = read_recording(path)
     assert np.array_equal(again.joints_rad, original.joints_rad)
     assert np.allclose(again.base_from_tcp_stack, original.base_from_tcp_stack, atol=1e-12)
-    from spacecal.estimators.expected_error import nominal_robot_model
+    from spacecal.estimators.methods.recorded_model import nominal_robot_model
 
     assert nominal_robot_model(again).n_joints == 7
 

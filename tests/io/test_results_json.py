@@ -22,7 +22,7 @@ def test_calibration_round_trip(tmp_path, white_simulation):
     } <= set(data)
     again = read_calibration(path)
     assert np.array_equal(again.tracker_from_base, result.tracker_from_base)
-    assert again.method == "paper" and again.diagnostics["sphere"]["radius_mm"] > 0
+    assert again.method == "paper" and again.sweep_fits.sphere.radius_mm > 0
 
 
 @pytest.mark.parametrize(

@@ -11,6 +11,7 @@ from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.results_json import read_calibration, write_calibration
 from spacecal.models.kinematics import ur_model
 from spacecal.records import CalibrationResult, Provenance, RecordingSource
+from spacecal.records.assessment import Assessment, ExpectedError
 from spacecal.records.calibration import CALIBRATION_READABLE_VERSIONS, CALIBRATION_SCHEMA_VERSION
 from spacecal.records.integrity import canonical_json, content_sha256
 
@@ -28,8 +29,8 @@ def a_calibration(**changes):
         tracker_from_base=tracker_from_base,
         tcp_from_marker=make_transform(np.eye(3), [60.0, 0.0, -150.0]),
         sample_counts={"total": 10, "used": 9, "rejected": 1, "per_segment": {"rot_x": 9}},
+        assessment=Assessment(expected_error=ExpectedError(0.44, 0.08)),
         diagnostics={
-            "expected_error": {"position_mm": 0.44, "posture_deg": 0.08},
             "awkward": AWKWARD_FLOATS,
             "rows": np.arange(5),
             "nested": {"deeper": {"value": float(rng.normal())}},

@@ -13,6 +13,7 @@ from spacecal.report.html import (
     _verification_figure,
 )
 from spacecal.report.summary import assess, provenance_facts, residuals_of
+from spacecal.testing.calibrations import with_stored
 
 
 def test_tick_formats_follow_the_scale():
@@ -36,11 +37,11 @@ def test_the_verdict_word_sets_the_colour(white_simulation):
         ),
         ("unusable: an older file's sentence", "Do not use: unusable"),
     ):
-        flagged = calibration.replace(diagnostics={**calibration.diagnostics, "verdict": verdict})
+        flagged = with_stored(calibration, verdict=verdict)
         found = assess(flagged, residuals)
         assert (found.level, found.headline) == ("alarm", headline)
         assert found.headline == flagged.verdict.headline  # the verdict's words, not the report's
-    silent = calibration.replace(diagnostics={}, predicted_tre_mm=None, covariance=None)
+    silent = calibration.replace(diagnostics={}, predicted_tre_mm=None, covariance=None, assessment=None)
     assert assess(silent).level == "unknown"
 
 
@@ -58,7 +59,7 @@ def test_an_expected_error_entry_is_shown_and_not_judged_again(white_simulation)
     thresholds in force when the calibration was made (no limit of the report's own)."""
     calibration = calibrate(white_simulation.recording, "ml")
     expected = {"position_mm": 1.6, "posture_deg": 0.4, "basis": "tip 150 mm from the flange"}
-    found = assess(calibration.replace(diagnostics={**calibration.diagnostics, "expected_error": expected}))
+    found = assess(with_stored(calibration, expected_error=expected))
     assert ("expected error at the target", "1.60 mm, 0.40 deg (tip 150 mm from the flange)") in found.numbers
     assert (found.level, found.headline) == ("ok", calibration.verdict.headline) == ("ok", "Good")
 

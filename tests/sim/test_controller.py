@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.estimators.expected_error import recorded_robot_model
+from spacecal.estimators.methods.recorded_model import recorded_robot_model
 from spacecal.experiments.simulation import simulate
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.sim.devices import SimulatedRobot

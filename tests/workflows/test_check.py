@@ -11,6 +11,7 @@ from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.check_history import history_path, read_history
 from spacecal.io.results_json import read_calibration, write_calibration
 from spacecal.records import Provenance, RecordingSource
+from spacecal.testing.calibrations import with_stored
 
 
 @pytest.fixture
@@ -134,7 +135,7 @@ def test_thresholds_follow_the_calibration_and_the_frames_averaged(white_simulat
     one_frame, _, _ = check_thresholds(calibration, 1)
     ten_frames, _, basis = check_thresholds(calibration, 10)
     assert one_frame > ten_frames >= CHECK_FLOOR_MM and "10 frame(s)" in basis
-    bare = calibration.replace(diagnostics={})
+    bare = calibration.replace(diagnostics={}, assessment=None)
     assert check_thresholds(bare, 10)[0] == FALLBACK_THRESHOLD_MM
 
 
@@ -308,7 +309,7 @@ def test_only_the_recording_a_calibration_was_made_from_gives_its_misfits(white_
     field = misfit_field(calibration, recording)
     assert len(field) == int(recording.visible.sum())
     with pytest.raises(DegenerateDataError, match="no per-sample residuals"):
-        misfit_field(calibration.replace(diagnostics={}), recording)
+        misfit_field(calibration.replace(diagnostics={}, assessment=None), recording)
     # the same recording acquired again after the tracker was pushed
     moved = make_transform(np.eye(3), [0.5, 0.0, 0.0]) @ recording.tracker_from_marker_stack
     again = dataclasses.replace(recording, tracker_from_marker_stack=moved)
@@ -351,7 +352,7 @@ def test_a_calibration_from_raw_streams_has_its_misfits_expected(tmp_path, capsy
 def test_a_kinematic_calibration_s_misfits_are_at_its_identified_poses_and_older_files_still_read(
     white_simulation,
 ):
-    from spacecal.estimators.diagnostics import residual_table, sample_residuals
+    from spacecal.estimators.methods.samples import residual_table, sample_residuals
     from spacecal.workflows.check import misfit_field, robot_pose
 
     recording = white_simulation.recording
@@ -363,7 +364,5 @@ def test_a_kinematic_calibration_s_misfits_are_at_its_identified_poses_and_older
     np.testing.assert_allclose(field.base_from_tcp_stack[0], identified)
     # files written before kinematic stated its residuals at the identified poses
     older = sample_residuals(recording, calibration.tracker_from_base, calibration.tcp_from_marker)
-    older_file = calibration.replace(
-        diagnostics={**calibration.diagnostics, "per_sample_residuals": residual_table(recording, older)}
-    )
+    older_file = with_stored(calibration, per_sample_residuals=residual_table(recording, older))
     assert len(misfit_field(older_file, recording)) == len(field)

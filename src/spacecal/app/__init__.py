@@ -68,7 +68,7 @@ from spacecal.app.simulation import (
 )
 from spacecal.app.slicer_plan import PlanFromSlicerSettings, plan_from_slicer
 from spacecal.estimators import ESTIMATORS
-from spacecal.estimators.diagnostics import ErrorThresholds
+from spacecal.records.assessment import ErrorThresholds
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
 
 #: The estimators ``calibrate`` takes by name (``CalibrateSettings.method``).

@@ -231,9 +231,9 @@ def check_consistent(recording: Recording, what: str) -> None:
     (quaternion order, inverted or conjugated poses, metres, swapped columns), naming it.
 
     No fixed residual limit: a distant camera leaves several mm and is sound
-    (:mod:`spacecal.estimators.conventions`).
+    (:mod:`spacecal.estimators.methods.conventions`).
     """
-    from spacecal.estimators.conventions import find_better_convention
+    from spacecal.estimators.methods.conventions import find_better_convention
 
     finding = find_better_convention(recording)
     if finding is not None:
@@ -243,7 +243,7 @@ def check_consistent(recording: Recording, what: str) -> None:
 def check_belongs(recording: Recording, tracker_from_base, tcp_from_marker, what: str) -> None:
     """Refuse a calibration that does not belong to ``recording`` (it explains it far worse than
     the recording's own closed-form fit), after :func:`check_consistent`."""
-    from spacecal.estimators.conventions import calibration_mismatch
+    from spacecal.estimators.methods.conventions import calibration_mismatch
 
     check_consistent(recording, what)
     reason = calibration_mismatch(recording, tracker_from_base, tcp_from_marker)

@@ -22,9 +22,8 @@ from spacecal.app.result import CommandResult, Quality, note_lines, paths
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.estimators import calibrate as estimate
-from spacecal.estimators.diagnostics import ErrorThresholds
-from spacecal.estimators.likelihood import residual_noise_level, tre_lower_bound
-from spacecal.estimators.observations import (
+from spacecal.estimators.methods.likelihood import residual_noise_level, tre_lower_bound
+from spacecal.estimators.methods.observations import (
     build_observations,
     marker_geometry_of,
     sphere_noise_from_marker_rms,
@@ -34,6 +33,7 @@ from spacecal.io.pose_files import read_matrix_folder
 from spacecal.io.recordings import metadata_path, open_calibrated_recording, open_path
 from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.records import CalibrationResult, NeedleTip, PivotResult, Recording
+from spacecal.records.assessment import ErrorThresholds
 from spacecal.registration.pivot import pivot_calibration
 
 Point = tuple[float, float, float]
@@ -244,21 +244,24 @@ def calibrate_result(
     counts, d = result.sample_counts, result.diagnostics
     lines = [*clock_notes, *note_lines(notes)]
     lines.append(f"wrote {path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
-    if d.get("sphere"):
+    fits = result.sweep_fits
+    if fits is not None and fits.sphere is not None:
         straight = ", ".join(
-            f"{sanitize_for_terminal(k, 60)} {v['straightness_rms_mm']:.3f} mm" for k, v in d["lines"].items()
+            f"{sanitize_for_terminal(k, 60)} {v.straightness_rms_mm:.3f} mm" for k, v in fits.lines.items()
         )  # segment labels come from the recording file
         lines.append(
-            f"sphere: radius {d['sphere']['radius_mm']:.2f} mm, fit RMS {d['sphere']['rms_mm']:.3f} mm; "
+            f"sphere: radius {fits.sphere.radius_mm:.2f} mm, fit RMS {fits.sphere.rms_mm:.3f} mm; "
             f"line straightness RMS: {straight}"
         )
-    if "residual_position_rms_mm" in d:
+    assessment = result.assessment
+    residuals = None if assessment is None else assessment.residuals
+    if residuals is not None and residuals.position_rms_mm is not None:
         # a kinematic calibration places the TCP with the kinematics it identified, as the
         # report does; the line says which, so the two are read as the same quantity
         tcp = "identified robot kinematics" if result.robot_model is not None else "recorded TCP poses"
         lines.append(
-            f"marker residuals (RMS, {tcp}): position {d['residual_position_rms_mm']:.3f} mm, "
-            f"rotation {d['residual_rotation_rms_deg']:.3f} deg"
+            f"marker residuals (RMS, {tcp}): position {residuals.position_rms_mm:.3f} mm, "
+            f"rotation {residuals.rotation_rms_deg:.3f} deg"
         )
     if result.predicted_tre_mm:
         tre = result.predicted_tre_mm
@@ -277,10 +280,11 @@ def calibrate_result(
             + ", ".join(f"{v:.2f}" for v in tip[:3, 3])
             + " mm in the TCP frame"
         )
-    if "position_mm" in d.get("expected_error", {}):
-        e = d["expected_error"]
+    expected = result.expected_error
+    if expected is not None and expected.position_mm is not None:
         lines.append(
-            f"expected error at a target near the site: {e['position_mm']:.2f} mm, {e['posture_deg']:.2f} deg"
+            f"expected error at a target near the site: {expected.position_mm:.2f} mm, "
+            f"{expected.posture_deg:.2f} deg"
         )
     quality = None
     judged = result.verdict
@@ -319,8 +323,7 @@ def recorded_noise(recording: Recording, calibration: CalibrationResult) -> tupl
     if np.isfinite(rms).sum() >= 3:
         sigma = sphere_noise_from_marker_rms(rms, len(marker_geometry_of(recording)))
         return float(sigma), "from the tracker's fit RMS in the recording"
-    noise = calibration.diagnostics.get("noise")
-    stored = noise.get("sigma_per_axis_mm") if isinstance(noise, dict) else None
+    stored = None if calibration.noise is None else calibration.noise.sigma_per_axis_mm
     if isinstance(stored, (int, float)) and not isinstance(stored, bool) and 0.0 < stored < math.inf:
         return float(stored), "the noise the calibration was computed with"
     obs = build_observations(recording)
@@ -381,7 +384,7 @@ class BoundResult:
 
     @classmethod
     def from_summary(cls, summary: dict[str, Any], sigma_mm: float, sigma_source: str) -> BoundResult:
-        """From :func:`~spacecal.estimators.likelihood.tre_summary`'s dict."""
+        """From :func:`~spacecal.estimators.methods.likelihood.tre_summary`'s dict."""
         return cls(
             site_mm=float(summary["site"]),
             site_in_base_mm=_point(summary["site_in_base_mm"]),

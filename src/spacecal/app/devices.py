@@ -283,7 +283,7 @@ def marker_in_use(rom: Sequence[str]) -> dict[str, Any]:
     given (the first ``--rom``), or, for a tracker that sends poses only (OpenIGTLink), a
     statement that the geometry is not known (the likelihood then places a stand-in layout by
     the measured pose to weight position against rotation, and learns the noise from the
-    residuals; see :func:`spacecal.estimators.observations.marker_geometry_of`)."""
+    residuals; see :func:`spacecal.estimators.methods.observations.marker_geometry_of`)."""
     if not rom:
         return {"name": "unknown (the tracker sends poses only)", "geometry_known": False}
     marker = read_rom_marker(rom[0])

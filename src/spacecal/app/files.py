@@ -298,7 +298,7 @@ def export(settings: ExportSettings) -> CommandResult[CalibrationResult]:
         )
     guard_outputs([settings.slicer, settings.plus], [settings.calibration], settings.force)
     calibration, notes = open_calibration(settings.calibration, "export", settings.accept_edited)
-    error = calibration.diagnostics.get("expected_error", {}).get("position_mm")
+    error = None if calibration.expected_error is None else calibration.expected_error.position_mm
     done = [f"note: {note}" for note in notes]
     files = []
     if settings.slicer:

@@ -1,5 +1,9 @@
 """The registry of calibration methods: one :class:`EstimatorSpec` per method, in :data:`ESTIMATORS`.
 
+It composes the two halves of :mod:`spacecal.estimators`: :func:`calibrate` runs a method
+(:mod:`~spacecal.estimators.methods`) and then assesses its solution
+(:mod:`~spacecal.estimators.assessment`); it alone imports both.
+
 Everything the package knows about a method is in its entry: its family, whether its solution
 is a likelihood fit (else it gets a bootstrap, and its held-out refits are ML), what it needs
 from a recording, the keyword options it takes, a line describing it and where it comes from.
@@ -13,34 +17,23 @@ import enum
 from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
-from spacecal.core.errors import InvalidInputError, SpacecalError, UnknownMethodError
-from spacecal.estimators.closed_form import (
+from spacecal.core.errors import InvalidInputError, UnknownMethodError
+from spacecal.estimators.assessment.report import report_uncertainty
+from spacecal.estimators.assessment.without_likelihood import with_bootstrap_uncertainty
+from spacecal.estimators.methods.closed_form import (
     HandEyeSolver,
     RobotWorldSolver,
     hand_eye_method,
     robot_world_method,
 )
-from spacecal.estimators.diagnostics import ErrorThresholds, verdict
-from spacecal.estimators.hand_eye import solve_daniilidis, solve_park, solve_tsai
-from spacecal.estimators.kinematic import calibrate_kinematic
-from spacecal.estimators.likelihood import (
-    Solution,
-    UncertaintySettings,
-    calibrate_ml,
-    calibrate_robust,
-    report_uncertainty,
-    variance_factor_of,
-)
-from spacecal.estimators.ml import covariance_from_information, information_matrix
-from spacecal.estimators.observations import Observations, build_observations
-from spacecal.estimators.paper import calibrate_paper
-from spacecal.estimators.robot_world import solve_dornaika, solve_li, solve_shah
-from spacecal.estimators.uncertainty import RESAMPLES, bootstrap_covariance
-from spacecal.geometry.arrays import ArrayLike, FloatArray
+from spacecal.estimators.methods.hand_eye import solve_daniilidis, solve_park, solve_tsai
+from spacecal.estimators.methods.kinematic import calibrate_kinematic
+from spacecal.estimators.methods.likelihood import calibrate_ml, calibrate_robust
+from spacecal.estimators.methods.paper import calibrate_paper
+from spacecal.estimators.methods.robot_world import solve_dornaika, solve_li, solve_shah
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_points, check_transform
 from spacecal.records import CalibrationResult, NeedleTip, Recording
+from spacecal.records.assessment import ErrorThresholds
 
 
 class Family(enum.Enum):
@@ -72,8 +65,11 @@ class EstimatorSpec:
         The name ``calibrate`` and ``--method`` take, and results carry.
     family : Family
     solve : callable
-        ``solve(recording, **options) -> CalibrationResult``; for a likelihood method also
-        ``targets_in_base`` and ``needle_tip`` (the registry handles both for the others).
+        ``solve(recording, **options)``: a likelihood method takes ``targets_in_base`` and
+        ``needle_tip`` too and returns its :class:`~spacecal.estimators.methods.solution.Solution`
+        (the registry assesses it); the others return an unassessed
+        :class:`~spacecal.records.CalibrationResult` (the registry bootstraps it and handles
+        both options).
     summary : str
         One line on what it does, for reports and listings.
     reference : str
@@ -96,7 +92,7 @@ class EstimatorSpec:
 
     name: str
     family: Family
-    solve: Callable[..., CalibrationResult]
+    solve: Callable[..., Any]
     summary: str
     reference: str
     likelihood: bool
@@ -291,7 +287,7 @@ def calibrate(
         The method's own options (:attr:`EstimatorSpec.options`), ``targets_in_base`` and
         ``needle_tip`` (a :class:`~spacecal.records.NeedleTip`: the expected error is stated at
         the tip IK aims; any method) and ``error_thresholds``, an
-        :class:`~spacecal.estimators.diagnostics.ErrorThresholds` the verdict is graded against.
+        :class:`~spacecal.records.assessment.ErrorThresholds` the verdict is graded against.
 
     Raises
     ------
@@ -321,96 +317,17 @@ def calibrate(
             + (f" (methods that do: {', '.join(takers)})" if takers else "")
         )
     if spec.likelihood:
-        result = spec.solve(recording, targets_in_base=targets, needle_tip=tip, **options)
+        # a likelihood method ends in its solution and covariance; the assessment states the rest
+        result = report_uncertainty(
+            spec.solve(recording, targets_in_base=targets, needle_tip=tip, **options), thresholds
+        )
     else:
         result = spec.solve(recording, **options)
         if uncertainty:
-            result = with_bootstrap_uncertainty(result, recording, spec.solve, targets, tip)
+            result = with_bootstrap_uncertainty(result, recording, spec.solve, targets, tip, thresholds)
     if tip is not None and result.needle_tip is None:
         result = result.replace(needle_tip=tip)  # no expected error was asked for
-    return result if thresholds is None else regrade(result, recording, thresholds)
-
-
-def regrade(
-    result: CalibrationResult, recording: Recording, thresholds: ErrorThresholds
-) -> CalibrationResult:
-    """The result with its verdict graded against other thresholds (its numbers unchanged)."""
-    d = result.diagnostics
-    expected = d.get("expected_error")
-    if expected is None or "motion_spread" not in d:
-        return result
-    outliers = len(d.get("outliers", []))
-    judged = verdict(
-        None if "refusal" in expected else expected,
-        d["motion_spread"],
-        outliers / max(int(recording.visible.sum()), 1),
-        d.get("variance_factor"),
-        thresholds,
-        refusal=expected.get("refusal"),
-    )
-    return result.replace(
-        diagnostics={**d, "verdict": judged.to_dict(), "thresholds_mm": dataclasses.asdict(thresholds)}
-    )
-
-
-def _reported_at_result(
-    result: CalibrationResult,
-    recording: Recording,
-    obs: Observations,
-    covariance: FloatArray,
-    variance_factor: float,
-    covariance_note: str,
-    targets_in_base: ArrayLike | None = None,
-    needle_tip: NeedleTip | None = None,
-) -> CalibrationResult:
-    """The uncertainty report of ``result``'s own transforms with a covariance found for them
-    outside its estimator (ML information, or a bootstrap): one place for both."""
-    return report_uncertainty(
-        Solution(
-            result.method,
-            recording,
-            obs,
-            result.tracker_from_base,
-            result.tcp_from_marker,
-            covariance,
-            variance_factor,
-        ),
-        UncertaintySettings(
-            estimator(result.method).likelihood, covariance_note, targets_in_base, needle_tip
-        ),
-    )
-
-
-def with_expected_error(
-    result: CalibrationResult, recording: Recording, needle_tip: NeedleTip | None = None
-) -> CalibrationResult:
-    """Expected error and verdict for a result without a covariance of its own.
-
-    The noise-only part comes from the ML information at the result's solution, so every
-    method gets a verdict however it was called.
-    """
-    obs = build_observations(recording)
-    try:
-        information = information_matrix(obs, result.tracker_from_base, result.tcp_from_marker)
-        variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
-        scale = max(variance_factor, 1.0) if obs.sigma_known else variance_factor
-        covariance = covariance_from_information(information) * scale
-    except (SpacecalError, np.linalg.LinAlgError):
-        return result
-    reported = _reported_at_result(
-        result,
-        recording,
-        obs,
-        covariance,
-        variance_factor,
-        "ML information at this solution (no bootstrap); mm, rad",
-        needle_tip=needle_tip,
-    )
-    keep = ("expected_error", "verdict", "motion_spread", "variance_factor")
-    return result.replace(
-        diagnostics={**result.diagnostics, **{k: reported.diagnostics[k] for k in keep}},
-        needle_tip=needle_tip,
-    )
+    return result
 
 
 def check_recording_poses(recording: Recording) -> None:
@@ -435,42 +352,4 @@ def check_recording_poses(recording: Recording) -> None:
         stack=True,
         allow_missing=True,
         atol=MEASURED_TRANSFORM_ATOL,
-    )
-
-
-def with_bootstrap_uncertainty(
-    result: CalibrationResult,
-    recording: Recording,
-    solver: Callable[..., CalibrationResult],
-    targets_in_base: ArrayLike | None = None,
-    needle_tip: NeedleTip | None = None,
-) -> CalibrationResult:
-    """Add covariance (bootstrap over frames), predicted TRE, residuals and a verdict to a
-    result from an estimator without a likelihood; its transforms are unchanged."""
-
-    def solve(resampled: Recording) -> tuple[FloatArray, FloatArray]:
-        again = solver(resampled)
-        return again.tracker_from_base, again.tcp_from_marker
-
-    covariance = bootstrap_covariance(recording, solve, result.tracker_from_base, result.tcp_from_marker)
-    if covariance is None:
-        result.diagnostics["uncertainty"] = "bootstrap failed: too few resamples could be solved"
-        return with_expected_error(result, recording, needle_tip)
-    obs = build_observations(recording)
-    variance_factor = variance_factor_of(obs, result.tracker_from_base, result.tcp_from_marker)
-    reported = _reported_at_result(
-        result,
-        recording,
-        obs,
-        covariance,
-        variance_factor,
-        f"bootstrap over frames ({RESAMPLES} resamples) in the ML perturbation parameters; mm, rad",
-        targets_in_base,
-        needle_tip,
-    )
-    return result.replace(
-        covariance=reported.covariance,
-        predicted_tre_mm=reported.predicted_tre_mm,
-        needle_tip=needle_tip,
-        diagnostics={**reported.diagnostics, **result.diagnostics},
     )

@@ -16,19 +16,18 @@ the robot clock minus the tracker clock.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.likelihood import calibrate_ml, fit_ml, variance_factor_of
-from spacecal.estimators.ml import levenberg_marquardt
-from spacecal.estimators.observations import build_observations
+from spacecal.estimators.methods.likelihood import fit_ml, variance_factor_of
+from spacecal.estimators.methods.ml import levenberg_marquardt
+from spacecal.estimators.methods.observations import build_observations
 from spacecal.geometry.arrays import BoolArray, FloatArray, IntArray, as_float_array
 from spacecal.geometry.transforms import MEASURED_TRANSFORM_ATOL, check_transform, interpolate_transforms
-from spacecal.records import CalibrationResult, RawRecording, Recording
+from spacecal.records import RawRecording, Recording
 
 #: A frame is paired only between robot states at most this many median robot periods, or
 #: ``LARGEST_GAP_S``, apart, whichever is longer: a state stream read by polling may miss a few
@@ -172,14 +171,14 @@ def _shifted(raw: RawRecording, offset_s: float) -> RawRecording:
 
 @dataclass
 class OffsetEstimate:
-    """The estimated offset (robot clock minus tracker clock), the coarse scans, and the fit.
+    """The estimated offset (robot clock minus tracker clock) and the coarse scans that found it.
 
     ``scan_speed_mismatch`` is the mean squared difference (rad^2/s^2) of the robot's and the
     tracker's angular speeds at each ``scan_offsets_s`` (+-``search_s`` around ``centre_s``),
     whose best is ``coarse_offset_s``. ``whole_overlap`` is the search over every offset at
     which the streams overlap, which set ``centre_s`` (0 when it found the offset within
-    +-``search_s`` of 0, or was not run). :attr:`calibration` is computed on first use (a
-    caller that pairs the streams and calibrates by another method need not pay for it).
+    +-``search_s`` of 0, or was not run). The streams paired at :attr:`offset_s`
+    (:func:`pair_streams`) are calibrated like any recording (:func:`spacecal.estimators.calibrate`).
     """
 
     offset_s: float
@@ -197,20 +196,6 @@ class OffsetEstimate:
         if self.whole_overlap is None:
             return f"angular speeds matched within +-{self.search_s * 1000:.0f} ms, {fine}"
         return f"{self.whole_overlap.describe()}; {fine}"
-
-    @functools.cached_property
-    def calibration(self) -> CalibrationResult:
-        """The ML calibration of the streams paired at the estimated offset."""
-        calibration = calibrate_ml(pair_streams(self.raw, self.offset_s))
-        calibration.diagnostics["time_offset"] = {
-            "offset_s": self.offset_s,
-            "coarse_offset_s": self.coarse_offset_s,
-            "search_s": self.search_s,
-            "centre_s": self.centre_s,
-            "whole_overlap": None if self.whole_overlap is None else self.whole_overlap.to_dict(),
-            "definition": "robot clock minus tracker clock",
-        }
-        return calibration
 
 
 def angular_speeds(

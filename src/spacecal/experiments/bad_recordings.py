@@ -202,7 +202,8 @@ def judge(recording: Recording, method: str, scenario: Scenario) -> dict:
     except SpacecalError as exc:
         return {"outcome": "refused", "message": str(exc), "honest": True}
     grade = result.verdict.grade if result.verdict is not None else "none"
-    expected = result.diagnostics.get("expected_error", {}).get("position_mm", float("nan"))
+    stated = result.expected_error
+    expected = float("nan") if stated is None or stated.position_mm is None else stated.position_mm
     try:
         true = float(verify_in_simulation(result, scenario).statistics()["position_mm"]["mean"])
     except UnreachableError:  # the calibration sends the robot out of its workspace

@@ -118,4 +118,5 @@ def run_demo(scenario: Scenario | None = None) -> DemoResult:
 
 def _expected_mm(calibration: CalibrationResult) -> float:
     """The expected position error at a target a result states (NaN when it has none), mm."""
-    return float(calibration.diagnostics.get("expected_error", {}).get("position_mm", float("nan")))
+    expected = calibration.expected_error
+    return float("nan") if expected is None or expected.position_mm is None else expected.position_mm

@@ -9,7 +9,7 @@ import numpy as np
 
 from spacecal.core.errors import SpacecalError
 from spacecal.estimators import calibrate
-from spacecal.estimators.likelihood import tre_lower_bound
+from spacecal.estimators.methods.likelihood import tre_lower_bound
 from spacecal.experiments.simulation import Simulation
 from spacecal.experiments.truth import calibration_error
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from spacecal.core.errors import UnreachableError
 from spacecal.estimators import calibrate
-from spacecal.estimators.kinematic import joint_compliance_of
+from spacecal.estimators.methods.kinematic import joint_compliance_of
 from spacecal.experiments.simulation import simulate
 from spacecal.geometry.transforms import apply_transform, invert_transform, make_transform
 from spacecal.models.compliance import encoder_joints_for

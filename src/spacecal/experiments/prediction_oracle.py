@@ -93,7 +93,7 @@ def noise_draws(
     -------
     numpy.ndarray, shape (draws, 2)
         Per draw: the measured verification mean position error and the expected error the
-        calibration states (``diagnostics["expected_error"]["position_mm"]``), mm.
+        calibration states (``expected_error.position_mm``), mm.
     """
     simulation = simulate(scenario) if simulation is None else simulation
     rows = []
@@ -101,5 +101,6 @@ def noise_draws(
         recording, _ = simulation.remeasure(trial)
         result = calibrate(recording, method)
         measured = verify_in_simulation(result, scenario).statistics()["position_mm"]["mean"]
-        rows.append((float(measured), float(result.diagnostics["expected_error"]["position_mm"])))
+        stated = None if result.expected_error is None else result.expected_error.position_mm
+        rows.append((float(measured), float("nan") if stated is None else stated))
     return as_float_array(np.array(rows, dtype=float).reshape(-1, 2))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from spacecal.core.ports import Robot, RobotState
-from spacecal.estimators.kinematic import joint_compliance_of
+from spacecal.estimators.methods.kinematic import joint_compliance_of
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.compliance import JointCompliance, encoder_joints_for
 from spacecal.models.kinematics import RobotModel, forward_kinematics

@@ -37,7 +37,9 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.frames import transform_name
 from spacecal.models.kinematics import MAX_JOINTS, RobotModel
+from spacecal.records.assessment import ASSESSMENT_KEYS, Assessment, ExpectedError
 from spacecal.records.fields import (
+    ReadOnlyMapping,
     as_array,
     as_covariance,
     as_transform,
@@ -47,6 +49,7 @@ from spacecal.records.fields import (
     get_str,
     plain,
 )
+from spacecal.records.fit_evidence import FIT_EVIDENCE_KEYS, NoiseSummary, SweepFits
 from spacecal.records.integrity import INTEGRITY_KEY, Integrity, integrity_entry, is_sha256
 from spacecal.records.integrity import content_sha256 as hash_of_content
 from spacecal.records.recording_source import RecordingSource
@@ -198,12 +201,12 @@ class Provenance:
 
     @classmethod
     def from_dict(
-        cls, data: Mapping[str, Any], what: str, diagnostics: Mapping[str, Any] | None = None
+        cls, data: Mapping[str, Any], what: str, older_keys: Mapping[str, Any] | None = None
     ) -> Provenance:
         """Read a provenance object; one without ``source`` (files of earlier versions) has its
-        source built from the loose fields and ``diagnostics["time_offset_s"]``, and its tracker
-        kind from ``diagnostics["tracker_kind"]``."""
-        diagnostics = diagnostics or {}
+        source built from the loose fields and the clock offset in ``older_keys`` (the file's
+        diagnostics object, ``time_offset_s``), and its tracker kind from there too."""
+        older_keys = older_keys or {}
         simulated = data.get("simulated")
         tool_definition = data.get("tool_definition")
         for key in ("recording", "tracker_stream", "tool_definition"):
@@ -225,8 +228,8 @@ class Provenance:
         if data.get("source") is not None:
             source = RecordingSource.from_dict(data["source"], f"{what}: provenance source")
         else:
-            source = RecordingSource.from_old_provenance(data, diagnostics, what)
-        kind = data["tracker_kind"] if "tracker_kind" in data else diagnostics.get("tracker_kind")
+            source = RecordingSource.from_old_provenance(data, older_keys, what)
+        kind = data["tracker_kind"] if "tracker_kind" in data else older_keys.get("tracker_kind")
         if kind is not None and not isinstance(kind, str):
             raise InvalidInputError(f"{what}: provenance 'tracker_kind' must be a string or null")
         return cls(
@@ -362,14 +365,15 @@ class CalibrationResult:
         Pose of the marker on the tool, mm.
     sample_counts : dict
         ``{"total", "used", "rejected", "per_segment": {...}}`` (see
-        :func:`spacecal.estimators.diagnostics.sample_counts`).
+        :func:`spacecal.estimators.methods.samples.sample_counts`).
     diagnostics : dict
-        Method-specific quality figures (see each estimator).
+        Method-specific quality figures (see each estimator); the assessment is not among
+        them (:attr:`assessment`).
     provenance : Provenance
         Where the data came from.
     covariance : dict, optional
         ``{"parameters": [12 names], "matrix": 12x12}``: covariance of the perturbation
-        parameters of both transforms (see :mod:`spacecal.estimators.ml`), mm and rad.
+        parameters of both transforms (see :mod:`spacecal.estimators.methods.ml`), mm and rad.
     predicted_tre_mm : dict, optional
         Predicted RMS target registration error at the surgical site, over a cube around
         it, and at user targets.
@@ -384,6 +388,14 @@ class CalibrationResult:
     needle_tip : NeedleTip or None
         The needle tip a pivot calibration measured; IK aims it (:attr:`tcp_from_needle`)
         instead of the controller's TCP.
+    assessment : Assessment or None
+        The expected error, residuals, thresholds and verdict
+        (:mod:`spacecal.estimators.assessment` builds it); None for a method run without its
+        uncertainty.
+    sweep_fits : SweepFits or None
+        The paper method's sphere and line fits (``paper``), None for the others.
+    noise : NoiseSummary or None
+        The tracker noise a likelihood fit was weighted with.
     """
 
     method: str
@@ -398,6 +410,9 @@ class CalibrationResult:
     schema_version: int = CALIBRATION_SCHEMA_VERSION
     integrity: Integrity | None = field(default=None, compare=False)
     needle_tip: NeedleTip | None = None
+    assessment: Assessment | None = None
+    sweep_fits: SweepFits | None = None
+    noise: NoiseSummary | None = None
 
     def __post_init__(self) -> None:
         what = f"calibration ({self.method})"
@@ -414,14 +429,29 @@ class CalibrationResult:
                     f"{what}: {name} translation {np.max(np.abs(translation)):.3g} mm is not a distance "
                     f"in the room (at most {MAX_TRANSLATION_MM:g} mm)"
                 )
-        if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, dict):
+        if not isinstance(self.sample_counts, dict) or not isinstance(self.diagnostics, Mapping):
             raise InvalidInputError(f"{what}: sample_counts and diagnostics must be objects")
+        # built once: what a method found is not changed afterwards (its keys; see ReadOnlyMapping)
+        object.__setattr__(self, "diagnostics", ReadOnlyMapping(self.diagnostics))
+        misplaced = sorted(set(self.diagnostics) & {*ASSESSMENT_KEYS, *FIT_EVIDENCE_KEYS})
+        if misplaced:
+            # one place for each typed field: a second copy among the diagnostics could disagree
+            raise InvalidInputError(
+                f"{what}: {', '.join(misplaced)} are typed fields of the calibration, not diagnostics"
+            )
+        if self.assessment is not None and not isinstance(self.assessment, Assessment):
+            raise InvalidInputError(f"{what}: assessment must be an Assessment")
 
     @property
     def verdict(self) -> Verdict | None:
         """The verdict on this calibration (grade, expected error, reasons), None when the
         method gave none; older files' sentences are read too."""
-        return Verdict.from_value(self.diagnostics.get("verdict"), f"calibration ({self.method})")
+        return None if self.assessment is None else self.assessment.verdict
+
+    @property
+    def expected_error(self) -> ExpectedError | None:
+        """The error to expect at a target near the site, None when none was stated."""
+        return None if self.assessment is None else self.assessment.expected_error
 
     @property
     def tcp_from_needle(self) -> np.ndarray | None:
@@ -482,7 +512,12 @@ class CalibrationResult:
                 TRACKER_FROM_BASE: self.tracker_from_base,
                 TCP_FROM_MARKER: self.tcp_from_marker,
                 "sample_counts": self.sample_counts,
-                "diagnostics": self.diagnostics,
+                "diagnostics": {
+                    **self.diagnostics,
+                    **({} if self.assessment is None else self.assessment.to_diagnostics()),
+                    **({} if self.sweep_fits is None else self.sweep_fits.to_diagnostics()),
+                    **({} if self.noise is None else {"noise": self.noise.to_dict()}),
+                },
                 "provenance": self.provenance.to_dict(),
                 "covariance": self.covariance,
                 "predicted_tre_mm": self.predicted_tre_mm,
@@ -499,7 +534,13 @@ class CalibrationResult:
         version = check_schema(data, CALIBRATION_SCHEMA, CALIBRATION_READABLE_VERSIONS, what)
         if "schema_version" not in data:
             raise InvalidInputError(f"{what}: missing 'schema_version' (not a spacecal calibration file?)")
-        diagnostics = get_mapping(data, "diagnostics", what)
+        # the assessment rides in the file's diagnostics object, as every version wrote it
+        assessment, stored = Assessment.from_diagnostics(get_mapping(data, "diagnostics", what), what)
+        sweep_fits = SweepFits.from_diagnostics(stored, what)
+        noise = (
+            None if stored.get("noise") is None else NoiseSummary.from_dict(stored["noise"], f"{what}: noise")
+        )
+        stored = {k: v for k, v in stored.items() if k not in FIT_EVIDENCE_KEYS}
         covariance = data.get("covariance")
         if covariance is not None and not isinstance(covariance, Mapping):
             raise InvalidInputError(f"{what}: 'covariance' must be an object")
@@ -521,17 +562,18 @@ class CalibrationResult:
             )
         if version == 1:
             # v1: the robot model in diagnostics, the recording path in "source"
-            model_data = diagnostics.get("kinematic_model")
+            model_data = stored.get("kinematic_model")
             recording = _optional_path(get_mapping(data, "source", what).get("recording"), what)
             provenance = Provenance(
                 source=None if recording is None else RecordingSource.paired_csv(recording),
-                tracker_kind=_optional_kind(diagnostics.get("tracker_kind")),
+                tracker_kind=_optional_kind(stored.get("tracker_kind")),
                 created_utc=str(data.get("created_utc", "")),
                 software=f"spacecal {data.get('spacecal_version', '')}".strip(),
             )
         else:
             model_data = data.get("robot_model")
-            provenance = Provenance.from_dict(get_mapping(data, "provenance", what), what, diagnostics)
+            # older files kept the clock offset and the tracker kind among their diagnostics
+            provenance = Provenance.from_dict(get_mapping(data, "provenance", what), what, stored)
         robot_model = None
         if model_data is not None:
             if not isinstance(model_data, Mapping):
@@ -549,7 +591,7 @@ class CalibrationResult:
             tracker_from_base=as_transform(data[TRACKER_FROM_BASE], TRACKER_FROM_BASE, what),
             tcp_from_marker=as_transform(data[TCP_FROM_MARKER], TCP_FROM_MARKER, what),
             sample_counts=get_mapping(data, "sample_counts", what),
-            diagnostics=diagnostics,
+            diagnostics=stored,
             provenance=provenance,
             covariance=None if covariance is None else dict(covariance),
             predicted_tre_mm=predicted,
@@ -557,6 +599,9 @@ class CalibrationResult:
             schema_version=version,
             integrity=Integrity.of(data, required=version >= FIRST_HASHED_VERSION),
             needle_tip=needle_tip,
+            assessment=assessment,
+            sweep_fits=sweep_fits,
+            noise=noise,
         )
 
 

@@ -8,7 +8,7 @@ message naming the record, the field, what it got and what it expects.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -130,6 +130,38 @@ def check_schema(data: Mapping[str, Any], schema: str, versions: tuple[int, ...]
             f"(this spacecal reads {', '.join(map(str, versions))})"
         )
     return int(version)
+
+
+class ReadOnlyMapping(Mapping[str, Any]):
+    """A mapping nothing can change after it is built (a record's content stays as built).
+
+    Unlike :class:`types.MappingProxyType` it pickles and deep-copies: a calibration travels
+    to and from the station's motion processes.
+    """
+
+    __slots__ = ("_items",)
+    _items: dict[str, Any]
+
+    def __init__(self, items: Mapping[str, Any] | None = None):
+        object.__setattr__(self, "_items", dict(items or {}))
+
+    def __getitem__(self, key: str) -> Any:
+        return self._items[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{type(self).__name__} cannot be changed")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (type(self), (self._items,))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self._items!r})"
 
 
 def plain(value: Any) -> Any:

@@ -279,12 +279,12 @@ class RecordingSource:
 
     @classmethod
     def from_old_provenance(
-        cls, provenance: Mapping[str, Any], diagnostics: Mapping[str, Any], what: str
+        cls, provenance: Mapping[str, Any], older_keys: Mapping[str, Any], what: str
     ) -> RecordingSource | None:
         """The source a calibration file of an older version describes in loose fields:
         ``provenance.recording`` / ``recording_sha256`` / ``tracker_stream`` /
-        ``tracker_stream_sha256`` and the offset in ``diagnostics["time_offset_s"]``; None when
-        it names no recording."""
+        ``tracker_stream_sha256`` and the offset ``time_offset_s`` in ``older_keys`` (that
+        file's diagnostics object); None when it names no recording."""
         recording = _optional_str(provenance, "recording", f"{what}: provenance")
         if not recording:
             return None
@@ -295,7 +295,7 @@ class RecordingSource:
         files.append(
             SourceFile(TRACKER_STREAM, stream, _old_digest(provenance, "tracker_stream_sha256", what))
         )
-        offset = diagnostics.get("time_offset_s")
+        offset = older_keys.get("time_offset_s")
         offset = float(offset) if isinstance(offset, (int, float)) and not isinstance(offset, bool) else None
         if offset is not None and not math.isfinite(offset):
             offset = None

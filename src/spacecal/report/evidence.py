@@ -34,8 +34,7 @@ def sweeps(recording: Recording, calibration: CalibrationResult) -> list[Sweep]:
     """The visible marker positions per segment and, for translation sweeps, the fitted line
     (the method's own direction when it stored one, else the principal direction)."""
     found = []
-    lines = calibration.diagnostics.get("lines")
-    lines = lines if isinstance(lines, dict) else {}
+    lines = {} if calibration.sweep_fits is None else calibration.sweep_fits.lines
     for label in dict.fromkeys(recording.segment.tolist()):
         rows = (recording.segment == label) & recording.visible
         points = recording.tracker_from_marker_stack[rows, :3, 3]
@@ -43,9 +42,12 @@ def sweeps(recording: Recording, calibration: CalibrationResult) -> list[Sweep]:
             continue
         line = None
         if str(label).startswith("lin_") and len(points) > 1:
-            stored = lines.get(label, {}) if isinstance(lines.get(label), dict) else {}
+            fitted = lines.get(str(label))
             direction = np.asarray(
-                stored.get("direction_in_tracker", np.linalg.svd(points - points.mean(0))[2][0]), dtype=float
+                np.linalg.svd(points - points.mean(0))[2][0]
+                if fitted is None
+                else fitted.direction_in_tracker,
+                dtype=float,
             )
             along = (points - points.mean(0)) @ direction
             line = points.mean(0) + np.outer([along.min(), along.max()], direction)
@@ -55,10 +57,10 @@ def sweeps(recording: Recording, calibration: CalibrationResult) -> list[Sweep]:
 
 def fitted_sphere(calibration: CalibrationResult) -> tuple[np.ndarray, float] | None:
     """Centre (3,) in the tracker frame and radius, mm, of the paper method's sphere fit."""
-    sphere = calibration.diagnostics.get("sphere")
-    if not isinstance(sphere, dict) or "centre_in_tracker_mm" not in sphere:
+    sphere = None if calibration.sweep_fits is None else calibration.sweep_fits.sphere
+    if sphere is None:
         return None
-    return np.asarray(sphere["centre_in_tracker_mm"], dtype=float), float(sphere["radius_mm"])
+    return np.asarray(sphere.centre_in_tracker_mm, dtype=float), sphere.radius_mm
 
 
 @dataclass

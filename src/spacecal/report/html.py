@@ -449,11 +449,12 @@ _CAPTIONS = {
 
 def _raw_numbers(report: Report) -> dict[str, Any]:
     calibration = report.calibration.to_dict()
-    diagnostics = dict(calibration.get("diagnostics") or {})
-    per_sample = diagnostics.pop("per_sample_residuals", None)
+    # the file's diagnostics object as written, its per-sample rows counted rather than listed
+    stored = dict(calibration.get("diagnostics") or {})
+    per_sample = stored.pop("per_sample_residuals", None)
     if per_sample is not None:
-        diagnostics["per_sample_residuals"] = f"{len(per_sample)} rows (in the calibration file)"
-    calibration["diagnostics"] = diagnostics
+        stored["per_sample_residuals"] = f"{len(per_sample)} rows (in the calibration file)"
+    calibration["diagnostics"] = stored
     raw: dict[str, Any] = {"calibration": calibration}
     if report.verification is not None:
         raw["verification"] = {

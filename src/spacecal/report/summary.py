@@ -12,7 +12,7 @@ grades nothing again. Evidence the verdict could not see raises a red flag of it
 in the headline:
 
 * the calibration does not explain the recording at hand: its residuals are far above those of
-  the recording's own closed-form fit (:func:`spacecal.estimators.conventions.calibration_mismatch`;
+  the recording's own closed-form fit (:func:`spacecal.estimators.methods.conventions.calibration_mismatch`;
   no fixed limit, since a distant camera leaves several mm);
 * a verification's mean position error exceeds the paper's bound;
 * the last check failed.
@@ -26,11 +26,12 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.estimators.conventions import calibration_mismatch
-from spacecal.estimators.diagnostics import sample_residuals
+from spacecal.estimators.methods.conventions import calibration_mismatch
+from spacecal.estimators.methods.samples import sample_residuals
 from spacecal.estimators.registry import ESTIMATORS
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.records import CalibrationResult, CheckResult, Recording, VerificationResult
+from spacecal.records.assessment import ExpectedError
 from spacecal.records.paper_reference import PAPER_VERIFICATION
 
 
@@ -88,18 +89,16 @@ def residuals_of(calibration: CalibrationResult, recording: Recording | None) ->
             "recomputed from the recording",
             calibration_mismatch(recording, calibration.tracker_from_base, calibration.tcp_from_marker),
         )
-    stored = calibration.diagnostics.get("per_sample_residuals")
-    if isinstance(stored, list) and stored and all(isinstance(row, dict) for row in stored):
-        try:
-            return Residuals(
-                np.array([float(row["time_s"]) for row in stored]),
-                np.array([str(row.get("segment", "")) for row in stored]),
-                np.array([float(row["position_mm"]) for row in stored]),
-                np.array([float(row["rotation_deg"]) for row in stored]),
-                "as stored with the calibration",
-            )
-        except (KeyError, TypeError, ValueError):
-            return None
+    kept = None if calibration.assessment is None else calibration.assessment.residuals
+    stored = None if kept is None else kept.per_sample
+    if stored:
+        return Residuals(
+            np.array([row.time_s for row in stored]),
+            np.array([row.segment for row in stored]),
+            np.array([row.position_mm for row in stored]),
+            np.array([row.rotation_deg for row in stored]),
+            "as stored with the calibration",
+        )
     return None
 
 
@@ -141,11 +140,11 @@ def _number(value: Any) -> float | None:
     return float(value)
 
 
-def expected_error(calibration: CalibrationResult) -> dict[str, Any] | None:
-    """``diagnostics["expected_error"]`` (``position_mm``, ``posture_deg``, ``basis``) when a
-    calibration carries one and it holds a position figure; None otherwise."""
-    entry = calibration.diagnostics.get("expected_error")
-    if not isinstance(entry, dict) or _number(entry.get("position_mm")) is None:
+def expected_error(calibration: CalibrationResult) -> ExpectedError | None:
+    """The calibration's expected error (``position_mm``, ``posture_deg``, ``basis``) when it
+    carries one and it holds a position figure; None otherwise."""
+    entry = calibration.expected_error
+    if entry is None or entry.position_mm is None:
         return None
     return entry
 
@@ -166,11 +165,11 @@ def assess(
     expected = expected_error(calibration)
     tre = calibration.predicted_tre_mm or {}
     site, cube = _number(tre.get("site")), _number(tre.get("cube_rms"))
-    if expected is not None:
-        position = float(expected["position_mm"])
-        posture = _number(expected.get("posture_deg"))
+    if expected is not None and expected.position_mm is not None:
+        position = expected.position_mm
+        posture = expected.posture_deg
         text = f"{position:.2f} mm" + (f", {posture:.2f} deg" if posture is not None else "")
-        basis = expected.get("basis")
+        basis = expected.basis
         numbers.append(("expected error at the target", text + (f" ({basis})" if basis else "")))
     if site is not None:
         numbers.append(("predicted error at the site (RMS)", f"{site:.3f} mm"))
@@ -199,7 +198,8 @@ def assess(
                 )
             )
     else:
-        stored = _number(calibration.diagnostics.get("residual_position_rms_mm"))
+        kept = None if calibration.assessment is None else calibration.assessment.residuals
+        stored = None if kept is None else kept.position_rms_mm
         if stored is not None:
             numbers.append(("marker residuals (RMS, as stored)", f"{stored:.3f} mm"))
 

@@ -61,7 +61,7 @@ def recording_metadata(world: World) -> dict:
 
     As the UR adapter records a controller that publishes its factory calibration, a
     calibrated simulated controller's model rides in ``robot.kinematic_model`` (what
-    :func:`spacecal.estimators.expected_error.recorded_robot_model` reads); a nominal one is
+    :func:`spacecal.estimators.methods.recorded_model.recorded_robot_model` reads); a nominal one is
     named only (``robot.model``)."""
     s = world.scenario
     calibrated = s.controller_kinematics == "calibrated"

@@ -56,7 +56,7 @@ def check_thresholds(calibration: CalibrationResult, frames_averaged: int = 1) -
     for calibrations whose recording cannot predict the misfit at the check poses.
 
     A check pose's misfit is the calibration's error there (its expected error,
-    :mod:`spacecal.estimators.expected_error`) plus what its model leaves unexplained in one
+    :mod:`spacecal.estimators.assessment.expected_error`) plus what its model leaves unexplained in one
     frame (its residual RMS), shrunk by the frames averaged at the pose. The marker's rotation
     residual reaches the TCP over the marker-to-TCP lever arm, so a frame's TCP misfit is the
     root sum of squares of the position residual and that lever times the rotation residual.
@@ -75,12 +75,14 @@ def check_thresholds(calibration: CalibrationResult, frames_averaged: int = 1) -
     basis : str
         Where they came from, for the output.
     """
-    expected = calibration.diagnostics.get("expected_error") or {}
+    assessment = calibration.assessment
+    expected = None if assessment is None else assessment.expected_error
+    residuals = None if assessment is None else assessment.residuals
     raw_numbers = [
-        expected.get("position_mm"),
-        expected.get("posture_deg"),
-        calibration.diagnostics.get("residual_position_rms_mm"),
-        calibration.diagnostics.get("residual_rotation_rms_deg"),
+        None if expected is None else expected.position_mm,
+        None if expected is None else expected.posture_deg,
+        None if residuals is None else residuals.position_rms_mm,
+        None if residuals is None else residuals.rotation_rms_deg,
     ]
     if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in raw_numbers):
         return FALLBACK_THRESHOLD_MM, FALLBACK_THRESHOLD_DEG, "fixed (the calibration has no expected error)"
@@ -229,7 +231,7 @@ def pose_misfits(
 def misfit_field(calibration: CalibrationResult, recording: Recording, source: str = "") -> MisfitField:
     """The misfits a calibration leaves at the frames of its own recording.
 
-    The calibration's stored per-sample residuals (``diagnostics["per_sample_residuals"]``: the
+    The calibration's stored per-sample residuals (``assessment.residuals.per_sample``: the
     rows it used, their marker position and rotation residuals) name the frames and vouch for
     them: the recording must give the same residuals again, so a recording re-acquired under the
     same name or a calibration edited since cannot pass for the set-up that was calibrated. Rows
@@ -241,16 +243,15 @@ def misfit_field(calibration: CalibrationResult, recording: Recording, source: s
         When the calibration has no per-sample residuals (files from before they were stored,
         imported calibrations) or the recording does not reproduce them.
     """
-    rows_data = calibration.diagnostics.get("per_sample_residuals")
-    if not isinstance(rows_data, list) or not rows_data:
+    residuals = None if calibration.assessment is None else calibration.assessment.residuals
+    rows_data = None if residuals is None else residuals.per_sample
+    if not rows_data:
         raise DegenerateDataError("the calibration carries no per-sample residuals")
-    try:
-        rows = np.array([int(r["row"]) for r in rows_data])
-        stored_mm = np.array([float(r["position_mm"]) for r in rows_data])
-        stored_deg = np.array([float(r["rotation_deg"]) for r in rows_data])
-        outlier = np.array([bool(r.get("outlier", False)) for r in rows_data])
-    except (TypeError, KeyError, ValueError):
-        raise DegenerateDataError("the calibration's per-sample residuals are not readable") from None
+    # read and checked when the calibration was read (records.assessment.ResidualRow)
+    rows = np.array([r.row for r in rows_data])
+    stored_mm = np.array([r.position_mm for r in rows_data])
+    stored_deg = np.array([r.rotation_deg for r in rows_data])
+    outlier = np.array([r.outlier for r in rows_data])
     if np.any(rows < 0) or np.any(rows >= len(recording)) or not np.all(recording.has_pose[rows]):
         raise DegenerateDataError("its recording does not hold the frames the calibration used")
     base_from_tcp = np.array(

@@ -7,23 +7,23 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.estimators.diagnostics import (
+from spacecal.estimators.methods.hand_eye import motion_pairs, relative_motions
+from spacecal.estimators.methods.samples import (
     motion_spread,
     sample_counts,
-    sample_residuals,
     tracker_from_base_from_samples,
 )
-from spacecal.estimators.hand_eye import motion_pairs, relative_motions
 from spacecal.geometry.arrays import FloatArray, IntArray
 from spacecal.geometry.transforms import invert_transform
 from spacecal.records import CalibrationResult, Recording
 
 #: A closed form for A_i X = Y B_i: ``(base_from_tcp_stack, tracker_from_marker_stack) -> (X, Y)``
-#: with X = ``tcp_from_marker`` and Y = ``base_from_tracker`` (:mod:`spacecal.estimators.robot_world`).
+#: with X = ``tcp_from_marker`` and Y = ``base_from_tracker``
+#: (:mod:`spacecal.estimators.methods.robot_world`).
 RobotWorldSolver = Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
 
 #: A closed form for A_k X = X B_k: ``(tcp_motion_stack, marker_motion_stack) -> X``
-#: (:mod:`spacecal.estimators.hand_eye`).
+#: (:mod:`spacecal.estimators.methods.hand_eye`).
 HandEyeSolver = Callable[[FloatArray, FloatArray], FloatArray]
 
 #: Hand-eye methods use the motions between every pair of up to this many visible frames; with
@@ -43,11 +43,9 @@ def closed_form_result(
     used_rows: IntArray,
     extra: dict[str, Any] | None = None,
 ) -> CalibrationResult:
-    """Package a closed-form estimate with the shared diagnostics."""
-    residuals = sample_residuals(recording, tracker_from_base, tcp_from_marker)
+    """Package a closed-form estimate with the motion's spread (its residuals are the
+    assessment's, :mod:`spacecal.estimators.assessment`)."""
     diagnostics = {
-        "residual_position_rms_mm": residuals["position_rms_mm"],
-        "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
         "motion_spread": motion_spread(recording.base_from_tcp_stack[used_rows]),
         **(extra or {}),
     }

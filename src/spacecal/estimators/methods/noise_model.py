@@ -42,8 +42,8 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.ml import jacobian, predict_spheres
-from spacecal.estimators.observations import Observations
+from spacecal.estimators.methods.ml import jacobian, predict_spheres
+from spacecal.estimators.methods.observations import Observations
 from spacecal.geometry.arrays import FloatArray, as_float_array
 from spacecal.geometry.rotations import skew
 from spacecal.geometry.transforms import matrix_to_rotvec

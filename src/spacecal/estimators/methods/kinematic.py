@@ -16,7 +16,7 @@ base, the last joint's move the tool); others are weakly determined by a given m
    *unidentifiable* and stay at zero.
 2. How much to correct is set by the data (``prior_from_data``, on by default), an empirical
    Bayes choice of the prior. The ML fit on the controller's model is cross-validated as for
-   the expected error (:mod:`spacecal.estimators.expected_error`: its sweeps, else six time
+   the expected error (:mod:`spacecal.estimators.assessment.expected_error`: its sweeps, else six time
    blocks, left out one at a time); the held-out misfit beyond the tracker's noise, divided
    by what DH errors of unit scale would show there, is the scale ``l`` (mm) of the arm's DH
    errors. The prior s.d. of the corrections is ``l`` for lengths and ``0.002 l`` rad for
@@ -81,18 +81,21 @@ import numpy as np
 from scipy.linalg import qr
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.expected_error import expected_error, held_out_blocks, recorded_robot_model
-from spacecal.estimators.likelihood import (
-    Solution,
-    UncertaintySettings,
+
+# the one method that reads the assessment: its data-driven prior is the DH error scale the
+# expected error's held-out misfit shows (pyproject.toml's import contracts name this import)
+from spacecal.estimators.assessment.expected_error import expected_error
+from spacecal.estimators.methods.held_out import held_out_blocks
+from spacecal.estimators.methods.likelihood import (
     calibrate_ml,
     fit_ml,
-    report_uncertainty,
     residual_noise_level,
     variance_factor_of,
 )
-from spacecal.estimators.ml import covariance_from_information, information_matrix
-from spacecal.estimators.observations import Observations
+from spacecal.estimators.methods.ml import covariance_from_information, information_matrix
+from spacecal.estimators.methods.observations import Observations
+from spacecal.estimators.methods.recorded_model import recorded_robot_model
+from spacecal.estimators.methods.solution import Solution
 from spacecal.geometry.arrays import FloatArray, IntArray
 from spacecal.models.compliance import COMPLIANT_JOINTS, JointCompliance, compliant_forward_kinematics
 from spacecal.models.gravity import LinkDynamics, gravity_joint_torques, link_dynamics_of
@@ -150,7 +153,7 @@ DH_COLUMN_SCALE = dh_column_scale(6)
 #: the elbow's (whose torque changes less over the stations) about a third of it.
 COMPLIANCE_PRIOR_SD_RAD_PER_NM = 5e-5
 #: Prior s.d. of the angle corrections per mm of the length corrections' (the ratio of the
-#: unit DH errors of :data:`spacecal.estimators.expected_error.UNIT_DH_SD`).
+#: unit DH errors of :data:`spacecal.estimators.assessment.unseen_kinematics.UNIT_DH_SD`).
 ANGLE_PER_LENGTH_RAD_PER_MM = 0.002
 
 #: Least held-out misfit beyond the tracker's noise, in standard errors of the noise's, that
@@ -395,7 +398,7 @@ def dh_error_scale_of(
     Returns
     -------
     scale_mm : float or None
-        ``dh_error_scale_mm`` of :func:`~spacecal.estimators.expected_error.expected_error`:
+        ``dh_error_scale_mm`` of :func:`~spacecal.estimators.assessment.expected_error.expected_error`:
         the held-out misfit beyond the tracker's noise over what unit-scale DH errors show.
     significance : float or None
         That misfit beyond the noise's, in standard errors of the noise's (chi-square with
@@ -452,7 +455,7 @@ def calibrate_kinematic(
     model_selection: bool = False,
     prior_from_data: bool = True,
     needle_tip: NeedleTip | None = None,
-) -> CalibrationResult:
+) -> Solution:
     """Identify DH corrections jointly with ``tracker_from_base`` and ``tcp_from_marker``
     (registry method ``kinematic``): :func:`identify_kinematics` with a rigid arm. Its
     signature is the registry's declared options (a test holds them equal), which leave the
@@ -498,7 +501,7 @@ def identify_kinematics(
     needle_tip: NeedleTip | None = None,
     joint_compliance: bool = False,
     payload_kg: float = 0.0,
-) -> CalibrationResult:
+) -> Solution:
     """Identify DH corrections, and optionally the joints' compliance, jointly with
     ``tracker_from_base`` and ``tcp_from_marker`` (see the module).
 
@@ -613,10 +616,11 @@ def identify_kinematics(
             "model_selection": None,
             "joint_compliance": None,
         }
-        return ml.replace(
+        return replace(
+            ml,
             method="kinematic",
             diagnostics={**ml.diagnostics, "kinematic_identification": report},
-            robot_model=model,
+            identified_model=model,
         )
     if not obs.sigma_known:
         # no tracker fit RMS: the data are weighed against the prior by the noise level the ML
@@ -726,7 +730,8 @@ def identify_kinematics(
         recording,
         base_from_tcp_stack=compliant_forward_kinematics(corrected, compliance, recording.joints_rad),
     )
-    solution = Solution(
+    # the joint ML fit of obs_model: its held-out refits are its own
+    return Solution(
         "kinematic",
         as_identified if bool(np.all(np.isfinite(recording.joints_rad))) else recording,
         obs_model,
@@ -738,8 +743,9 @@ def identify_kinematics(
         robot_model=corrected,
         absorbed_dh=[int(i) for i in selected if i < n_dh],
         dh_error_scale_mm=dh_scale,
+        likelihood_based=True,
+        covariance_note="pose block of the joint (pose + DH) covariance; mm, rad",
+        targets_in_base=targets_in_base,
+        needle_tip=needle_tip,
+        identified_model=corrected,
     )
-    # the joint ML fit of obs_model: its held-out refits are its own
-    note = "pose block of the joint (pose + DH) covariance; mm, rad"
-    result = report_uncertainty(solution, UncertaintySettings(True, note, targets_in_base, needle_tip))
-    return result.replace(robot_model=corrected)

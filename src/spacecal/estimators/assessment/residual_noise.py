@@ -16,7 +16,7 @@ independent frames ``e_i ~ N(0, Sigma)``,
     E[sum_i r_i r_i^T] = sum_{i,j} P_ij Sigma P_ij^T,
 
 linear in ``Sigma`` (the unbiased quadratic estimate of the variance components, MINQUE; Rao
-1971; :mod:`spacecal.estimators.noise_model` estimates a few such components iteratively for
+1971; :mod:`spacecal.estimators.methods.noise_model` estimates a few such components iteratively for
 the ML fit). With ``Sigma = sigma^2 I`` it reduces to ``RSS / (m - rank)``. A systematic error
 the design cannot describe still counts as noise, as it does in that count.
 """
@@ -104,7 +104,7 @@ def held_out_noise_power(misfit: dict[str, Any], covariance: FloatArray) -> floa
     Parameters
     ----------
     misfit : dict
-        :func:`spacecal.estimators.expected_error.held_out_misfit`'s result: its
+        :func:`spacecal.estimators.assessment.held_out_misfit.held_out_misfit`'s result: its
         ``frame_sse_mm2``, ``block_indices``, ``jacobian`` (N, D, 12) and
         ``block_normal_inverses`` (one (12, 12) ``A^-1`` per block, None where not refitted).
     covariance : numpy.ndarray, shape (D, D)

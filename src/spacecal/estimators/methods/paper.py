@@ -25,12 +25,18 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.diagnostics import sample_counts
+from spacecal.estimators.methods.samples import sample_counts
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IndexArray
 from spacecal.geometry.fitting import LineFit, fit_line, fit_sphere
 from spacecal.geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
-from spacecal.records import ROTATION_SEGMENTS, TRANSLATION_SEGMENTS, CalibrationResult, Recording
+from spacecal.records import (
+    ROTATION_SEGMENTS,
+    TRANSLATION_SEGMENTS,
+    CalibrationResult,
+    Recording,
+    fit_evidence,
+)
 
 
 @dataclass(frozen=True)
@@ -263,10 +269,16 @@ def calibrate_paper(recording: Recording, thresholds: PaperThresholds | None = N
         extra_rejections={"other_segment": int((~in_sweeps).sum())},
         per_segment=ROTATION_SEGMENTS + TRANSLATION_SEGMENTS,
     )
+    # the sphere and the lines are the typed evidence others read (the report draws them)
+    fits = fit_evidence.SweepFits(
+        fit_evidence.SphereFit.from_dict(diagnostics.pop("sphere")),
+        {label: fit_evidence.LineFit.from_dict(line) for label, line in diagnostics.pop("lines").items()},
+    )
     return CalibrationResult(
         method="paper",
         tracker_from_base=tracker_from_base,
         tcp_from_marker=tcp_from_marker,
         sample_counts=counts,
         diagnostics=diagnostics,
+        sweep_fits=fits,
     )

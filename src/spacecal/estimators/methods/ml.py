@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.observations import Observations
+from spacecal.estimators.methods.observations import Observations
 from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
 from spacecal.geometry.rotations import skew
 from spacecal.models.kinematics import (

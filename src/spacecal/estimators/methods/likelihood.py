@@ -3,24 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from scipy.special import chdtri
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
-from spacecal.estimators.diagnostics import (
-    motion_spread,
-    residual_table,
-    sample_counts,
-    sample_residuals,
-    site_in_base,
-    verdict,
-)
-from spacecal.estimators.expected_error import expected_error, nominal_robot_model
-from spacecal.estimators.ml import (
-    PARAMETER_NAMES,
+from spacecal.estimators.methods.ml import (
     Fit,
     cauchy_weights,
     covariance_from_information,
@@ -29,14 +18,15 @@ from spacecal.estimators.ml import (
     levenberg_marquardt,
     predicted_tre_mm,
 )
-from spacecal.estimators.noise_model import NoiseModel, fit_with_noise_model
-from spacecal.estimators.observations import Observations, build_observations
-from spacecal.estimators.robot_world import solve_shah
+from spacecal.estimators.methods.noise_model import NoiseModel, fit_with_noise_model
+from spacecal.estimators.methods.observations import Observations, build_observations
+from spacecal.estimators.methods.robot_world import solve_shah
+from spacecal.estimators.methods.samples import site_in_base
+from spacecal.estimators.methods.solution import PERTURBATION_NOTE, Solution
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IntArray
 from spacecal.geometry.metrics import cube_grid
 from spacecal.geometry.transforms import invert_transform
-from spacecal.models.kinematics import RobotModel
-from spacecal.records import CalibrationResult, NeedleTip, Recording
+from spacecal.records import NeedleTip, Recording
 
 #: Frames beyond this quantile of the inlier error distribution are outliers.
 OUTLIER_QUANTILE = 0.999
@@ -110,83 +100,6 @@ def residual_noise_level(
     return float(obs.sigma_mm * np.sqrt(variance_factor_of(obs, tracker_from_base, tcp_from_marker)))
 
 
-@dataclass(frozen=True)
-class Solution:
-    """An estimate with its covariance, before :func:`report_uncertainty` adds what follows
-    from them.
-
-    Attributes
-    ----------
-    method : str
-        The registry name the result carries.
-    recording : Recording
-    obs : Observations
-        The frames the estimate used, with the poses its robot model gives.
-    tracker_from_base, tcp_from_marker : numpy.ndarray, shape (4, 4)
-        The estimate (mm).
-    covariance : numpy.ndarray, shape (12, 12)
-        In the ML perturbation parameters (mm, rad).
-    variance_factor : float
-        A posteriori variance factor at the estimate (:func:`variance_factor_of`).
-    diagnostics : dict
-        The estimator's own diagnostics, kept as they are.
-    outlier_rows : sequence of int
-        Recording rows the estimator rejected as outliers.
-    robot_model : RobotModel or None
-        The model ``obs`` poses come from (default: the nominal model named in the recording's
-        metadata, if any).
-    absorbed_dh : sequence of int
-        The DH corrections identified with ``robot_model``.
-    dh_error_scale_mm : float or None
-        The robot's DH error scale when known (see
-        :func:`spacecal.estimators.expected_error.expected_error`).
-    """
-
-    method: str
-    recording: Recording
-    obs: Observations
-    tracker_from_base: FloatArray
-    tcp_from_marker: FloatArray
-    covariance: FloatArray
-    variance_factor: float
-    diagnostics: dict[str, Any] = field(default_factory=dict)
-    outlier_rows: IntArray | Sequence[int] = ()
-    robot_model: RobotModel | None = None
-    absorbed_dh: Sequence[int] = ()
-    dh_error_scale_mm: float | None = None
-
-
-@dataclass(frozen=True)
-class UncertaintySettings:
-    """How :func:`report_uncertainty` reads a :class:`Solution`.
-
-    Attributes
-    ----------
-    likelihood_based : bool
-        The solution is the ML fit of its observations (its held-out refits are its own);
-        False for the others (the paper's method, the closed forms), whose held-out refits are
-        ML and whose distance from the ML solution is added to the expected error.
-    covariance_note : str
-        What the covariance is, stored beside it.
-    targets_in_base : array_like, shape (M, 3), optional
-        Points (mm, base frame) at which to predict the TRE, besides the site.
-    needle_tip : NeedleTip, optional
-        A tip measured by a pivot, which IK aims (the expected error is at it).
-    """
-
-    likelihood_based: bool
-    covariance_note: str = ""
-    targets_in_base: ArrayLike | None = None
-    needle_tip: NeedleTip | None = None
-
-
-#: What the covariance of a likelihood fit (:func:`_package`) is.
-PERTURBATION_NOTE = (
-    "perturbations: tracker_from_base = [exp(w) R | t + v] in the tracker frame; "
-    "tcp_from_marker = [R exp(w) | t + v] with w in the marker frame; mm, rad"
-)
-
-
 def _package(
     method: str,
     recording: Recording,
@@ -198,7 +111,7 @@ def _package(
     outlier_rows: IntArray | Sequence[int] = (),
     noise_information: FloatArray | None = None,
     needle_tip: NeedleTip | None = None,
-) -> CalibrationResult:
+) -> Solution:
     variance_factor = variance_factor_of(obs, tracker_from_base, tcp_from_marker)
     if noise_information is not None:
         # the estimated variance components already carry the residuals' scale
@@ -217,7 +130,8 @@ def _package(
         },
         **extra,
     }
-    solution = Solution(
+    # this is the ML fit of obs: its held-out refits are its own
+    return Solution(
         method,
         recording,
         obs,
@@ -227,100 +141,11 @@ def _package(
         variance_factor,
         extra,
         outlier_rows,
+        likelihood_based=True,
+        covariance_note=PERTURBATION_NOTE,
+        targets_in_base=targets_in_base,
+        needle_tip=needle_tip,
     )
-    # this is the ML fit of obs: its held-out refits are its own
-    return report_uncertainty(
-        solution, UncertaintySettings(True, PERTURBATION_NOTE, targets_in_base, needle_tip)
-    )
-
-
-def report_uncertainty(solution: Solution, settings: UncertaintySettings) -> CalibrationResult:
-    """A calibration result with covariance, predicted TRE, expected error, residuals, spread
-    and verdict, from an estimate and its covariance."""
-    s = solution
-    recording, obs, outlier_rows = s.recording, s.obs, s.outlier_rows
-    site = site_in_base(recording, obs.rows)
-    tre = tre_summary(s.tracker_from_base, s.covariance, site, settings.targets_in_base)
-    residuals = sample_residuals(recording, s.tracker_from_base, s.tcp_from_marker, rms_rows=obs.rows)
-    spread = motion_spread(recording.base_from_tcp_stack[obs.rows])
-    outlier_fraction = len(outlier_rows) / max(int(recording.visible.sum()), 1)
-    expected = expected_error_of(s, settings.likelihood_based, settings.needle_tip)
-    if len(outlier_rows) > MAX_OUTLIER_FRACTION * len(obs.rows) and "refusal" not in expected:
-        expected = {
-            **expected,
-            "refusal": f"{len(outlier_rows)} frames disagree with the {len(obs.rows)} kept: the recording "
-            "does not describe one rigid set-up (units, a moved marker or tracker?)",
-        }
-    variance_factor = s.variance_factor if obs.sigma_known else None
-    diagnostics = {
-        "noise": {
-            "sigma_per_axis_mm": obs.sigma_mm if obs.sigma_known else None,
-            "source": "given or the tracker's RMS"
-            if obs.sigma_known
-            else "unknown (the recording has no marker_rms_mm): covariance scaled by the residuals",
-            "observations": "raw spheres"
-            if obs.dof_per_frame > 6
-            else "marker poses (model spheres placed by the measured pose)",
-        },
-        "variance_factor": variance_factor,
-        "residual_position_rms_mm": residuals["position_rms_mm"],
-        "residual_rotation_rms_deg": residuals["rotation_rms_deg"],
-        "motion_spread": spread,
-        "expected_error": expected,
-        "verdict": verdict(
-            None if "refusal" in expected else expected,
-            spread,
-            outlier_fraction,
-            variance_factor,
-            refusal=expected.get("refusal"),
-        ).to_dict(),
-        "per_sample_residuals": residual_table(recording, residuals, outlier_rows),
-        **s.diagnostics,
-    }
-    counts = sample_counts(recording, obs.rows, extra_rejections={"outlier": len(outlier_rows)})
-    return CalibrationResult(
-        s.method,
-        s.tracker_from_base,
-        s.tcp_from_marker,
-        counts,
-        diagnostics,
-        covariance={
-            "parameters": PARAMETER_NAMES,
-            "matrix": s.covariance.tolist(),
-            "note": settings.covariance_note,
-        },
-        predicted_tre_mm=tre,
-        needle_tip=settings.needle_tip,
-    )
-
-
-def expected_error_of(
-    solution: Solution, likelihood_based: bool, needle_tip: NeedleTip | None = None
-) -> dict[str, Any]:
-    """``diagnostics["expected_error"]`` (see :mod:`spacecal.estimators.expected_error`).
-
-    Holds ``refusal`` (and no numbers) when the data cannot support a calibration: held-out
-    blocks that cannot be refitted (too few frames to leave any out). The frame count alone
-    is never a refusal: ten well-spread poses are judged by what they say.
-    """
-    s = solution
-    model = s.robot_model if s.robot_model is not None else nominal_robot_model(s.recording)
-    try:
-        return expected_error(
-            s.obs,
-            s.recording.segment[s.obs.rows],
-            s.tracker_from_base,
-            s.tcp_from_marker,
-            s.covariance,
-            robot_model=model,
-            joints_rad=None if model is None else s.recording.joints_rad[s.obs.rows],
-            absorbed_dh=s.absorbed_dh,
-            likelihood_based=likelihood_based,
-            dh_error_scale_mm=s.dh_error_scale_mm,
-            needle_tip=needle_tip,
-        )
-    except (DegenerateDataError, np.linalg.LinAlgError) as exc:
-        return {"refusal": f"the expected error cannot be cross-validated ({exc})", "basis": "not estimated"}
 
 
 #: Choices of ``calibrate(recording, "ml", noise_model=...)``.
@@ -334,14 +159,14 @@ def calibrate_ml(
     noise_model: str = "estimated",
     fitted: tuple[Observations, Fit] | None = None,
     needle_tip: NeedleTip | None = None,
-) -> CalibrationResult:
+) -> Solution:
     """Maximum-likelihood ``tracker_from_base`` and ``tcp_from_marker`` from every visible frame.
 
     Starts from Shah's closed form, then Levenberg–Marquardt on sphere residuals (see
-    :mod:`spacecal.estimators.ml`). Sweeps and static poses count alike. With the default
+    :mod:`spacecal.estimators.methods.ml`). Sweeps and static poses count alike. With the default
     ``noise_model="estimated"`` the fit is then re-weighted by variance components learnt
     from its residuals (lateral and depth tracker noise, and for pose-only data an orientation
-    noise; :mod:`spacecal.estimators.noise_model`), and the covariance and predicted TRE use
+    noise; :mod:`spacecal.estimators.methods.noise_model`), and the covariance and predicted TRE use
     them.
 
     Parameters
@@ -399,7 +224,7 @@ def reweighted_by_noise_model(
     recording: Recording, obs: Observations, tracker_from_base: FloatArray, tcp_from_marker: FloatArray
 ) -> NoiseModel:
     """The fit re-weighted by the tracker noise's variance components learnt from its residuals
-    (:mod:`spacecal.estimators.noise_model`), from a plain LM solution of ``obs``.
+    (:mod:`spacecal.estimators.methods.noise_model`), from a plain LM solution of ``obs``.
 
     Raises
     ------
@@ -500,7 +325,7 @@ def calibrate_robust(
     targets_in_base: ArrayLike | None = None,
     seed: int = 0,
     needle_tip: NeedleTip | None = None,
-) -> CalibrationResult:
+) -> Solution:
     """Maximum likelihood that survives bad frames (mis-detected spheres, stale frames, reflections).
 
     1. RANSAC-style start: Shah's closed form on random 6-frame subsets (:func:`ransac_start`:

@@ -74,7 +74,7 @@ def marker_geometry_of(recording: Recording) -> FloatArray:
     The stand-in is used for trackers that send poses only (no geometry is known): placed by
     each measured pose it weights position against rotation as a tracked marker of that size
     would, and the noise model learns the actual weights from the residuals
-    (:mod:`spacecal.estimators.noise_model`).
+    (:mod:`spacecal.estimators.methods.noise_model`).
     """
     marker = recording.metadata.get("marker", {})
     if "spheres_in_marker_mm" in marker:

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import DegenerateDataError
 from spacecal.core.units import METRES_BELOW_MM, MILLIMETRES_TWICE_ABOVE_MM
-from spacecal.estimators.robot_world import solve_shah
+from spacecal.estimators.methods.robot_world import solve_shah
 from spacecal.geometry.arrays import FloatArray, as_float_array
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform

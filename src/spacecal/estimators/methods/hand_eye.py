@@ -40,7 +40,7 @@ from collections.abc import Callable
 import numpy as np
 
 from spacecal.core.errors import DegenerateDataError
-from spacecal.estimators.robot_world import characteristic_length_mm
+from spacecal.estimators.methods.robot_world import characteristic_length_mm
 from spacecal.geometry.arrays import ArrayLike, FloatArray, IntArray, as_float_array
 from spacecal.geometry.rotations import quaternion_product_matrices, skew
 from spacecal.geometry.transforms import (
