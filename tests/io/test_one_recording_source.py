@@ -166,7 +166,7 @@ def test_a_missing_tracker_stream_is_refused_in_one_line(calibrated, capsys):
 def old_calibration_dict(recording: str, stream: str | None, offset_s: float | None) -> dict:
     """A calibration file as earlier versions wrote it: loose provenance fields, the offset
     and the tracker kind in the diagnostics."""
-    new = CalibrationResult("paper", np.eye(4), np.eye(4), {"total": 1}, {"verdict": None}).to_dict()
+    new = CalibrationResult("paper", np.eye(4), np.eye(4), {"total": 1}, {}).to_dict()
     new.pop("integrity")
     provenance = {
         "recording": recording,
