@@ -241,7 +241,7 @@ def calibrate_result(
 ) -> CommandResult[CalibrationResult]:
     """The result of ``calibrate`` from the calibration written to ``path``, the notes on its
     clocks and doubtful frames (printed as they are) and other notes."""
-    counts, d = result.sample_counts, result.diagnostics
+    counts = result.sample_counts
     lines = [*clock_notes, *note_lines(notes)]
     lines.append(f"wrote {path} (method {result.method}; {counts['used']} of {counts['total']} samples used)")
     fits = result.sweep_fits
@@ -270,8 +270,8 @@ def calibrate_result(
             f"{tre['cube_side_mm']:.0f} mm cube around it"
         )
         lines += [f"  at {t['target_in_base_mm']}: {t['tre_mm']:.3f} mm" for t in tre.get("targets", [])]
-    if "outliers" in d:
-        lines.append(f"outliers: {len(d['outliers'])} frames flagged (listed in the result file)")
+    if counts.get("rejected_outlier"):
+        lines.append(f"outliers: {counts['rejected_outlier']} frames flagged (listed in the result file)")
     tip = result.tcp_from_needle
     if result.needle_tip is not None and tip is not None:
         lines.append(
