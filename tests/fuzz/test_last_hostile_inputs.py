@@ -341,6 +341,10 @@ def test_a_tf_loop_is_refused_naming_its_frames(tmp_path, name):
 IDLE_CONNECTIONS = 300
 
 
+#: How long the handlers of pushed-out connections get to end (a fraction of the read timeout).
+SETTLE_S = 0.5
+
+
 def test_the_live_view_answers_beside_300_idle_connections_and_closes_them(monkeypatch):
     from spacecal.report import live
 
@@ -360,8 +364,14 @@ def test_the_live_view_answers_beside_300_idle_connections_and_closes_them(monke
         with urllib.request.urlopen(view.url + "data", timeout=5) as reply:
             assert json.loads(reply.read())["status"] == "waiting for the first frame"
         assert time.monotonic() - started < 3.0
-        # no more handler threads than connections served at once, whatever was opened
-        assert threading.active_count() - before <= live.MAX_CONNECTIONS + 2  # + its server threads
+        # no more handler threads than connections served at once, whatever was opened (plus its
+        # serving thread); the handler of a connection pushed out ends a moment after its socket
+        # was shut down, so the count may run over for that moment: well under the read timeout,
+        # after which an unbounded view would still hold a thread for each of the 300
+        bound, settle_until = live.MAX_CONNECTIONS + 1, time.monotonic() + SETTLE_S
+        while threading.active_count() - before > bound and time.monotonic() < settle_until:
+            time.sleep(0.02)
+        assert threading.active_count() - before <= bound
         time.sleep(live.READ_TIMEOUT_S + 2.0)
         assert closed_by_the_server(idle) == len(idle)
     finally:
