@@ -388,7 +388,7 @@ class CalibrationResult:
     needle_tip : NeedleTip or None
         The needle tip a pivot calibration measured; IK aims it (:attr:`tcp_from_needle`)
         instead of the controller's TCP.
-    assessment : Assessment or None
+    assessment : ~spacecal.records.assessment.Assessment or None
         The expected error, residuals, thresholds and verdict
         (:mod:`spacecal.estimators.assessment` builds it); None for a method run without its
         uncertainty.

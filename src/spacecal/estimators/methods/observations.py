@@ -93,7 +93,8 @@ def build_observations(
     Parameters
     ----------
     recording : Recording
-    mask : array_like of bool, shape (len(recording),), optional
+    mask : array_like of bool, shape (N,), optional
+        The frames to consider, N being the recording's frame count (all when omitted).
     sigma_mm : float, optional
         Per-axis sphere noise; estimated from ``marker_rms_mm`` if omitted (floored at
         ``minimum_sigma_mm`` so noise-free data stays well-posed).
