@@ -13,7 +13,6 @@ raw streams are paired again at the offset the calibration paired them at, so ``
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -49,6 +48,7 @@ from spacecal.records.recording_source import (
     RecordingSource,
     SourceFile,
     StreamPairing,
+    finite_or_none,
 )
 
 #: What lets a changed recording through on the command line.
@@ -164,10 +164,7 @@ def _recorded_pairing(metadata: dict[str, Any]) -> StreamPairing | None:
     stations = int(stations) if isinstance(stations, int) and not isinstance(stations, bool) else None
     if not isinstance(pairing, dict):
         return None if stations is None else StreamPairing(None, "not recorded", stations_averaged=stations)
-    offset = pairing.get("offset_s")
-    offset = float(offset) if isinstance(offset, (int, float)) and not isinstance(offset, bool) else None
-    if offset is not None and not math.isfinite(offset):
-        offset = None
+    offset = finite_or_none(pairing.get("offset_s"))
     origin = OFFSET_ESTIMATED if pairing.get("estimated") is True else OFFSET_ARRIVAL_LINK
     return StreamPairing(offset, origin, LARGEST_GAP_PERIODS, LARGEST_GAP_S, stations)
 

@@ -61,6 +61,14 @@ def _optional_number(data: Mapping[str, Any], key: str, what: str) -> float | No
     return float(value)
 
 
+def finite_or_none(value: Any) -> float | None:
+    """``value`` as a finite number, or None for anything else: a clock offset an older file or
+    a recording's metadata states, which is estimated again when it is unusable."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None
+    return float(value)
+
+
 def _optional_str(data: Mapping[str, Any], key: str, what: str) -> str | None:
     value = data.get(key)
     if value is not None and not isinstance(value, str):
@@ -295,10 +303,7 @@ class RecordingSource:
         files.append(
             SourceFile(TRACKER_STREAM, stream, _old_digest(provenance, "tracker_stream_sha256", what))
         )
-        offset = older_keys.get("time_offset_s")
-        offset = float(offset) if isinstance(offset, (int, float)) and not isinstance(offset, bool) else None
-        if offset is not None and not math.isfinite(offset):
-            offset = None
+        offset = finite_or_none(older_keys.get("time_offset_s"))
         return cls(RAW_STREAMS, tuple(files), StreamPairing(offset, OFFSET_NOT_RECORDED))
 
 
