@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -111,22 +110,12 @@ def held_out_misfit(
         keep[block] = False
         if keep.sum() < MINIMUM_TRAINING_FRAMES:
             continue
-        training = replace(
-            obs,
-            rows=obs.rows[keep],
-            base_from_tcp_stack=obs.base_from_tcp_stack[keep],
-            spheres_in_tracker=obs.spheres_in_tracker[keep],
-        )
+        training = obs.of_frames(keep)
         try:
             fitted = refit(training, tracker_from_base, tcp_from_marker)
         except (DegenerateDataError, np.linalg.LinAlgError):
             continue
-        held_out = replace(
-            obs,
-            rows=obs.rows[block],
-            base_from_tcp_stack=obs.base_from_tcp_stack[block],
-            spheres_in_tracker=obs.spheres_in_tracker[block],
-        )
+        held_out = obs.of_frames(block)
         diff = predict_spheres(held_out, *fitted) - held_out.spheres_in_tracker
         frame_sse[block] = np.sum(diff**2, axis=(1, 2))
         train = whole[keep].reshape(-1, 12)

@@ -11,7 +11,7 @@ estimates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.special import chdtri
@@ -50,6 +50,16 @@ class Observations:
     dof_per_frame: int
     sigma_mm: float
     sigma_known: bool = True
+
+    def of_frames(self, frames: np.ndarray) -> Observations:
+        """The observations of some of these frames (a mask of shape (N,) or indices into
+        them), with the same marker and noise: a held-out block, or the rest."""
+        return replace(
+            self,
+            rows=self.rows[frames],
+            base_from_tcp_stack=self.base_from_tcp_stack[frames],
+            spheres_in_tracker=self.spheres_in_tracker[frames],
+        )
 
 
 def sphere_noise_from_marker_rms(marker_rms_mm: ArrayLike, sphere_count: int) -> float:
