@@ -533,7 +533,7 @@ def test_a_hostile_plan_is_refused_in_the_dry_run(plan_files, world, case, tmp_p
 
 def test_a_refused_plan_never_moves_the_simulated_robot(plan_files, tmp_path, monkeypatch):
     """Not a dry run: the plan reaches the devices, and the gate stops it before a command."""
-    import spacecal.app.acquisition as acquisition
+    import spacecal.app.motion_session as acquisition
 
     robots = []
     original = acquisition.simulated_devices

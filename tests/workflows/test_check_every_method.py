@@ -52,7 +52,7 @@ def set_up(monkeypatch, move_mm=0.0, turn_deg=0.0, seed=5):
     """The simulated devices of the check, with the tracker moved along its x axis by ``move_mm``
     or the marker turned on the tool by ``turn_deg`` about its x axis (as the protocol fakes do),
     and noise drawn afresh (not the draws the recording began with)."""
-    from spacecal.app import acquisition
+    from spacecal.app import motion_session as acquisition
 
     opened = acquisition.simulated_devices
 

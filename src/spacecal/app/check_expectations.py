@@ -3,8 +3,6 @@ recording, carried to the check poses, and the basis of the check's thresholds."
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from spacecal.core.errors import DegenerateDataError, SpacecalError
 from spacecal.io.recordings import open_calibrated_recording
 from spacecal.planning.motion import MotionPlan
@@ -17,9 +15,6 @@ from spacecal.workflows.check import (
     misfit_field,
     tolerance_factor,
 )
-
-if TYPE_CHECKING:
-    from spacecal.app.checking import CheckSettings
 
 
 def calibration_misfits(calibration: CalibrationResult) -> tuple[MisfitField | None, str]:
@@ -43,13 +38,14 @@ def expected_at_check_poses(
     field: MisfitField | None,
     unpredicted: str,
     plan: MotionPlan,
-    settings: CheckSettings,
+    thresholds_given: tuple[float | None, float | None],
+    frames_per_pose: int,
     robot_model: str,
     fallback_basis: str,
 ) -> tuple[list[ExpectedMisfit] | None, str]:
     """The misfit expected at each check pose and the thresholds' basis; None and the basis of
     :func:`~spacecal.workflows.check.check_thresholds` (saying why) when it cannot be predicted."""
-    given = [settings.threshold_mm is not None, settings.threshold_deg is not None]
+    given = [value is not None for value in thresholds_given]
     expected = None
     if field is not None:
         try:
@@ -67,7 +63,7 @@ def expected_at_check_poses(
     basis = (
         f"departures from the misfit the calibration left at each pose (from {frames} frames of its "
         f"recording) within {tolerance_factor(len(expected)):.2f} s.d. of the repeatability there (the "
-        f"recorded scatter, the tracker's over {settings.frames_per_pose} frames, the {robot_model}'s "
+        f"recorded scatter, the tracker's over {frames_per_pose} frames, the {robot_model}'s "
         f"ISO 9283 repeatability): a sound set-up fails at most {FALSE_ALARM_RATE:.0%} of checks"
     )
     return expected, basis + ("; partly given on the command line" if any(given) else "")

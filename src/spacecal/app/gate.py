@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from spacecal.app.motion_settings import COMMANDED_BY
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import RobotState
 from spacecal.geometry.transforms import matrix_to_rotvec
@@ -37,10 +38,7 @@ from spacecal.sim.world import World
 from spacecal.workflows.acquisition import plan_fingerprint
 
 if TYPE_CHECKING:
-    from spacecal.app.acquisition import AcquireSettings
-
-#: Where the commanded limits of ``acquire`` and ``check`` come from (named in a refusal).
-COMMANDED_BY = "--speed-mm-s, --accel-mm-s2, --angular-speed-deg-s"
+    from spacecal.app.acquire_settings import AcquireSettings
 
 #: Margin (mm) added around a stroke the command itself asks for (``--translation-mm``, a
 #: scenario's sweeps or station cube) when that reaches beyond the default box.

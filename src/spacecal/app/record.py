@@ -4,17 +4,24 @@ and the station call these after ``calibrate`` and ``check``, so both fill the s
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from spacecal.app.result import CommandResult
 from spacecal.core.errors import RecordError
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.io.results_json import read_calibration
-from spacecal.records import CalibrationResult
+from spacecal.records import CalibrationResult, CheckResult
 
 if TYPE_CHECKING:
-    from spacecal.app.checking import CheckOutput
     from spacecal.ledger import Ledger
+
+
+class CheckMade(Protocol):
+    """What ``check`` gives (its :class:`~spacecal.app.check_settings.CheckOutput`): the check,
+    None after a dry run."""
+
+    @property
+    def result(self) -> CheckResult | None: ...
 
 
 def open_record(url: str) -> Ledger:
@@ -66,7 +73,7 @@ def record_calibration(
 
 
 def record_check(
-    ledger: Ledger, calibration_path: str | Path, output: CommandResult[CheckOutput], source: str
+    ledger: Ledger, calibration_path: str | Path, output: CommandResult[CheckMade], source: str
 ) -> int | None:
     """Record the check ``check`` made of the calibration at ``calibration_path`` (recorded
     too, if it was not yet); None after a dry run (nothing was checked).

@@ -17,7 +17,8 @@ from typing import Generic, TypeVar
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.records import Provenance
 
-R = TypeVar("R")
+#: Covariant: a result is only read, so a command result of a subtype serves where a supertype is asked.
+R = TypeVar("R", covariant=True)
 
 #: Longest note line shown (text from files and devices is cut there).
 NOTE_CHARS = 2000

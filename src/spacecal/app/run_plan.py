@@ -27,15 +27,12 @@ from spacecal.records import PlanRecord
 from spacecal.workflows.acquisition import plan_fingerprint
 
 if TYPE_CHECKING:
-    from spacecal.app.acquisition import AcquireSettings
+    from spacecal.app.acquire_settings import AcquireSettings
 
 
 def motion_limits(settings: AcquireSettings) -> MotionLimits:
-    return MotionLimits(
-        linear_speed_mm_s=settings.speed_mm_s,
-        linear_accel_mm_s2=settings.accel_mm_s2,
-        angular_speed_rad_s=np.radians(settings.angular_speed_deg_s),
-    )
+    """The commanded TCP limits of an acquisition's every move."""
+    return settings.motion().limits()
 
 
 def hardware_plan(settings: AcquireSettings, robot: Robot, model: RobotModel) -> MotionPlan:

@@ -38,11 +38,8 @@ from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.records import CalibrationResult, PhantomResult, PlanRecord, VerificationResult
 from spacecal.report.figures import plot_phantom_errors, plot_verification_errors
 from spacecal.sim.motion import motion_limits, plan_for_world
-from spacecal.sim.scenario import Scenario, load_scenario, scenario_from_dict
+from spacecal.sim.scenario import DEFAULT_SCENARIO, Scenario, load_scenario, scenario_from_dict
 from spacecal.sim.world import World, build_world
-
-#: The scenario every simulated command uses unless told otherwise.
-DEFAULT_SCENARIO = "paper-realistic"
 
 
 @dataclass(frozen=True)

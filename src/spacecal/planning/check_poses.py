@@ -6,7 +6,8 @@ import numpy as np
 
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.kinematics import RobotModel, forward_kinematics, inverse_kinematics
-from spacecal.planning.motion import MotionLimits, MotionPlan, TimedMove, time_move
+from spacecal.planning.held_poses import SETTLE_S, hold_plan
+from spacecal.planning.motion import MotionLimits, MotionPlan
 
 #: Label of the hold at check pose k (1-based): the frames recorded there are averaged.
 CHECK_LABEL = "check-{}"
@@ -32,7 +33,7 @@ def check_plan(
     limits: MotionLimits,
     frame_period_s: float,
     frames_per_pose: int = 10,
-    settle_s: float = 0.3,
+    settle_s: float = SETTLE_S,
 ) -> MotionPlan:
     """The check as a plan: from home, a transit to each check pose, a hold there while
     ``frames_per_pose`` frames are taken (after ``settle_s``), and back home.
@@ -59,19 +60,15 @@ def check_plan(
     MotionPlan
         Holds are labelled ``check-1``, ``check-2``...; transits are not recorded.
     """
-    home_joints = np.asarray(home_joints_rad, dtype=float)
-    home = forward_kinematics(model, home_joints)
-    moves: list[TimedMove] = []
-    q, pose = home_joints, home
-    for k, joints in enumerate(check_joints(model, home_joints, count)):
-        target = forward_kinematics(model, joints)
-        if not np.allclose(target, pose, atol=1e-9):
-            move, q = time_move(model, "transit", pose, target, q, limits, 0.0)
-            moves.append(move)
-        hold = settle_s + frames_per_pose * frame_period_s
-        moves.append(TimedMove(CHECK_LABEL.format(k + 1), target, target, hold, 0.0, frame_period_s))
-        pose = target
-    if not np.allclose(pose, home, atol=1e-9):
-        move, _ = time_move(model, "transit", pose, home, q, limits, 0.0)
-        moves.append(move)
-    return MotionPlan(home_joints, home, moves, {"check_poses": count}, [])
+    joints = check_joints(model, np.asarray(home_joints_rad, dtype=float), count)
+    return hold_plan(
+        model,
+        home_joints_rad,
+        np.array([forward_kinematics(model, q) for q in joints]),
+        [CHECK_LABEL.format(k + 1) for k in range(len(joints))],
+        limits,
+        frame_period_s,
+        frames_per_pose,
+        settle_s,
+        summary={"check_poses": count},
+    )

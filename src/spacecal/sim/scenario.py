@@ -153,6 +153,9 @@ class Scenario:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
 
 
+#: The scenario every simulated command uses unless told otherwise.
+DEFAULT_SCENARIO = "paper-realistic"
+
 PRESETS: dict[str, Scenario] = {
     "paper-realistic": Scenario(),
     "paper-outliers": Scenario(name="paper-outliers", outlier_fraction=0.10),

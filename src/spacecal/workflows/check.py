@@ -20,28 +20,21 @@ A calibration without usable residuals falls back to :func:`check_thresholds`.
 from __future__ import annotations
 
 import math
-from collections import defaultdict
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
-from spacecal.core.errors import DegenerateDataError, DeviceError, InvalidInputError, SpacecalError
-from spacecal.core.ports import Robot, RobotState, Tracker
+from spacecal.core.errors import DegenerateDataError, InvalidInputError
+from spacecal.core.ports import Robot, Tracker
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD, UR_REPEATABILITY_MM
 from spacecal.planning.motion import MotionPlan
 from spacecal.records import CalibrationResult, CheckResult, Recording
-from spacecal.workflows.acquisition import (
-    AcquisitionResult,
-    AcquisitionSettings,
-    RunFault,
-    SampleCallback,
-    run_plan,
-)
+from spacecal.workflows.acquisition import AcquisitionSettings, SampleCallback
+from spacecal.workflows.held_poses import HeldPose, hold_poses
 
 #: A check fails beyond this many standard deviations of what a sound calibration leaves.
 CHECK_SIGMAS = 3.0
@@ -477,80 +470,6 @@ def robot_repeatability_sd_mm(robot_model: str) -> float:
     return repeatability * REPEATABILITY_TO_AXIS_SD
 
 
-class _CheckSink:
-    """Keeps the frames and robot states of each check pose's hold."""
-
-    def __init__(self) -> None:
-        self.frames: dict[str, list[np.ndarray]] = defaultdict(list)
-        self.states: dict[str, list[RobotState]] = defaultdict(list)
-
-    def append(self, time_s, segment, joints_rad, base_from_tcp, tracker_from_marker=None, *_, **__) -> None:
-        if tracker_from_marker is not None:
-            self.frames[segment].append(np.asarray(tracker_from_marker, dtype=float))
-
-    def add_robot_states(self, states: list[RobotState], segment: str) -> None:
-        self.states[segment].extend(states)
-
-
-@dataclass(frozen=True)
-class HeldPose:
-    """What a check pose's hold gave: the frames the tracker saw and where the robot rested.
-
-    Attributes
-    ----------
-    label : str
-    tracker_from_marker_stack : numpy.ndarray, shape (F, 4, 4)
-        The frames the marker was seen in, mm.
-    at_rest : RobotState
-        The robot's last state of the hold.
-    """
-
-    label: str
-    tracker_from_marker_stack: np.ndarray
-    at_rest: RobotState
-
-
-def hold_check_poses(
-    robot: Robot,
-    tracker: Tracker,
-    plan: MotionPlan,
-    settings: AcquisitionSettings,
-    frames_per_pose: int = 10,
-    on_sample: SampleCallback | None = None,
-) -> list[HeldPose]:
-    """Run the check plan (:func:`spacecal.planning.check_poses.check_plan`) and keep the frames
-    held at each pose; ``on_sample(samples, visible, move_index, label)`` follows it as it
-    follows an acquisition (:func:`~spacecal.workflows.acquisition.run_plan`).
-
-    The plan runs through the acquisition loop: a safety stop, a lost tracker or a move past
-    its deadline stops the robot and raises :class:`~spacecal.core.errors.DeviceError`.
-
-    Raises
-    ------
-    DegenerateDataError
-        When the marker was seen in fewer than half the frames at a check pose.
-    DeviceError
-        On a device fault (the robot was stopped).
-    """
-    sink = _CheckSink()
-    progress = AcquisitionResult(Path("check"), 0, 0, 0, len(plan.moves))
-    try:
-        run_plan(plan, robot, tracker, sink, settings, progress, on_sample=on_sample)
-    except (RunFault, SpacecalError, KeyboardInterrupt) as exc:
-        robot.stop()
-        reason = "interrupted by the user (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else str(exc)
-        raise DeviceError(f"check stopped: {reason}; the robot was stopped and nothing was logged") from None
-    held = []
-    for label in dict.fromkeys(move.label for move in plan.moves if move.sample_period_s > 0):
-        seen, states = sink.frames.get(label, []), sink.states.get(label, [])
-        if len(seen) < max(3, frames_per_pose // 2) or not states:
-            raise DegenerateDataError(
-                f"check {label}: the marker was seen in {len(seen)} frames; make sure the tracker sees it"
-            )
-        held.append(HeldPose(label, np.array(seen), states[-1]))
-    return held
-
-
 def judge_check(
     calibration: CalibrationResult,
     held: list[HeldPose],
@@ -570,7 +489,7 @@ def judge_check(
     ----------
     calibration : CalibrationResult
     held : list of HeldPose
-        One per check pose (:func:`hold_check_poses`).
+        One per check pose (:func:`~spacecal.workflows.held_poses.hold_poses`).
     threshold_mm, threshold_deg : float or None
         The largest departure that passes at every pose. None (with ``expected``): each pose's
         tolerance.
@@ -651,7 +570,8 @@ def check_with_robot(
     on_sample: SampleCallback | None = None,
 ) -> CheckResult:
     """Run the check plan, average the frames held at each pose, and compare with the
-    calibration's prediction: :func:`hold_check_poses` (which calls ``on_sample``), then
+    calibration's prediction: :func:`~spacecal.workflows.held_poses.hold_poses` (which calls
+    ``on_sample``), then
     :func:`judge_check`.
 
     Raises
@@ -666,7 +586,7 @@ def check_with_robot(
         raise InvalidInputError(f"{len(expected)} expected misfits for {len(holds)} check poses")
     if expected is None and (threshold_mm is None or threshold_deg is None):
         raise InvalidInputError("a check without expected misfits needs both thresholds")
-    held = hold_check_poses(robot, tracker, plan, settings, frames_per_pose, on_sample)
+    held = hold_poses(robot, tracker, plan, settings, frames_per_pose, on_sample)
     return judge_check(calibration, held, threshold_mm, threshold_deg, expected, robot_sd_mm, basis)
 
 
