@@ -59,14 +59,13 @@ from spacecal.app.simulation import (
     PhantomCommandSettings,
     SimulateOutput,
     SimulateSettings,
-    VerifySettings,
     demo,
     phantom,
     scenario,
     simulate,
-    verify,
 )
 from spacecal.app.slicer_plan import PlanFromSlicerSettings, plan_from_slicer
+from spacecal.app.verification import VerifySettings, verify
 from spacecal.estimators import ESTIMATORS
 from spacecal.records.assessment import ErrorThresholds
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT

@@ -11,9 +11,10 @@ from typing import Any
 from spacecal.adapters import canonical_url
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.io.digest import file_sha256, spacecal_schema_of
-from spacecal.io.recordings import is_recording
-from spacecal.io.results_json import read_calibration
+from spacecal.io.recordings import is_recording, metadata_path
+from spacecal.io.results_json import read_calibration, read_json_object
 from spacecal.records import CalibrationResult, Provenance, Recording, RecordingSource
+from spacecal.sim.scenario import Scenario, scenario_from_dict
 
 #: What an existing spacecal file is, by its ``schema``, for the line that refuses to replace it.
 RESULT_KINDS = {
@@ -249,3 +250,16 @@ def check_belongs(recording: Recording, tracker_from_base, tcp_from_marker, what
     reason = calibration_mismatch(recording, tracker_from_base, tcp_from_marker)
     if reason is not None:
         raise DegenerateDataError(f"{what}: {reason}")
+
+
+def scenario_of_calibration(calibration: CalibrationResult) -> tuple[Scenario | None, str]:
+    """The simulated scenario a calibration's data came from, and where that was found."""
+    if calibration.provenance.scenario is not None:
+        return scenario_from_dict(calibration.provenance.scenario), "the calibration's provenance"
+    source = calibration.provenance.source
+    meta = None if source is None else metadata_path(source.recording)
+    if meta is not None and meta.is_file():
+        data = read_json_object(meta, "recording metadata")
+        if isinstance(data.get("scenario"), dict):
+            return scenario_from_dict(data["scenario"]), f"the recording metadata {meta}"
+    return None, ""

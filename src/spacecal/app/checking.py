@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from spacecal.app._common import open_calibration
+from spacecal.app._common import open_calibration, scenario_of_calibration
 from spacecal.app.check_expectations import calibration_misfits, expected_at_check_poses
 from spacecal.app.check_settings import CheckOutput, CheckSettings
 from spacecal.app.gate import plan_workspace
@@ -71,8 +71,6 @@ def _check(
     on_sample: SampleCallback | None = None,
     on_plan: Callable[[int], None] | None = None,
 ) -> CommandResult[CheckOutput]:
-    from spacecal.app.simulation import scenario_of_calibration
-
     calibration, notes = open_calibration(settings.calibration, "check", settings.accept_edited)
     averaged = 1 if settings.recording else settings.frames_per_pose
     derived_mm, derived_deg, basis = check_thresholds(calibration, averaged)

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from spacecal.app._common import guard_outputs, open_calibration
+from spacecal.app._common import guard_outputs
 from spacecal.app.gate import default_box_half_mm, gate_plan, plan_workspace, world_visibility
 from spacecal.app.result import CommandResult, note_lines
 from spacecal.core.errors import InvalidInputError
@@ -20,14 +20,12 @@ from spacecal.experiments.demo import DemoResult, run_demo
 from spacecal.experiments.phantom import PhantomSettings, phantom_table, run_phantom_experiment
 from spacecal.experiments.simulation import simulate as simulate_run
 from spacecal.experiments.simulation import simulate_raw
-from spacecal.experiments.verification import verify_in_simulation
 from spacecal.io.atomic import atomic_path
 from spacecal.io.recordings import (
     metadata_path,
     open_path,
     paired_files,
     recording_in,
-    refuse_changed,
     stream_paths,
     write_raw_recording,
     write_recording,
@@ -35,10 +33,10 @@ from spacecal.io.recordings import (
 from spacecal.io.results_json import read_json_object, write_calibration, write_json
 from spacecal.planning.motion import MotionPlan, motion_plan_from_record
 from spacecal.planning.motion_gate import MotionGateReport
-from spacecal.records import CalibrationResult, PhantomResult, PlanRecord, VerificationResult
+from spacecal.records import PhantomResult, PlanRecord
 from spacecal.report.figures import plot_phantom_errors, plot_verification_errors
 from spacecal.sim.motion import motion_limits, plan_for_world
-from spacecal.sim.scenario import DEFAULT_SCENARIO, Scenario, load_scenario, scenario_from_dict
+from spacecal.sim.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from spacecal.sim.world import World, build_world
 
 
@@ -210,114 +208,6 @@ def simulate_result(
             *note_lines(notes),
         ]
     return CommandResult(out, files, notes, tuple(lines))
-
-
-@dataclass(frozen=True)
-class VerifySettings:
-    """``spacecal verify``: the paper's verification experiment (§5.2) in simulation.
-
-    Attributes
-    ----------
-    calibration : str
-        Calibration JSON.
-    scenario : str or None
-        The simulated world to verify in; default: the one the calibration's data came from.
-    points : int
-        Needle poses (the paper: 15).
-    output, figure : str or None
-        Verification JSON and Fig. 7-style PNG to write.
-    accept_edited : bool
-        Verify although the calibration's recording changed since it was made from it (an
-        edited calibration is refused all the same).
-    """
-
-    calibration: str
-    scenario: str | None = None
-    points: int = 15
-    output: str | None = None
-    figure: str | None = None
-    force: bool = False
-    accept_edited: bool = False
-
-
-def scenario_of_calibration(calibration: CalibrationResult) -> tuple[Scenario | None, str]:
-    """The simulated scenario a calibration's data came from, and where that was found."""
-    if calibration.provenance.scenario is not None:
-        return scenario_from_dict(calibration.provenance.scenario), "the calibration's provenance"
-    source = calibration.provenance.source
-    meta = None if source is None else metadata_path(source.recording)
-    if meta is not None and meta.is_file():
-        data = read_json_object(meta, "recording metadata")
-        if isinstance(data.get("scenario"), dict):
-            return scenario_from_dict(data["scenario"]), f"the recording metadata {meta}"
-    return None, ""
-
-
-def verify(settings: VerifySettings) -> CommandResult[VerificationResult]:
-    """Run the verification experiment for a calibration in its simulated world.
-
-    Returns
-    -------
-    CommandResult of VerificationResult
-        The errors at the needle poses; the verification JSON and figure written, if asked.
-    """
-    if not 1 <= settings.points <= 1000:
-        raise InvalidInputError(f"--points must be 1..1000, got {settings.points}")
-    guard_outputs(
-        [settings.output, settings.figure],
-        [settings.calibration, settings.scenario],
-        settings.force,
-        any_file=True,
-    )
-    calibration, notes = open_calibration(settings.calibration, "verify")
-    if calibration.provenance.source is not None:
-        # a calibration whose recording changed is not the one verified (files gone: nothing to compare)
-        refuse_changed(calibration.provenance.source, settings.accept_edited)
-    if settings.scenario is not None:
-        scenario = load_scenario(settings.scenario)
-        source = "given"
-        if calibration.provenance.simulated is False:
-            notes.append(
-                "this calibration came from real devices: it is scored against the simulated world "
-                f"{scenario.name!r}, which is unrelated to the real set-up"
-            )
-    else:
-        found, source = scenario_of_calibration(calibration)
-        if found is None:
-            raise InvalidInputError(
-                "no simulated world for this calibration (real or imported data?): verify runs only in "
-                "simulation; pass --scenario to score it against a simulated world anyway"
-            )
-        scenario = found
-    result = verify_in_simulation(calibration, scenario, settings.points)
-    result = dataclasses.replace(result, simulated=True, scenario=scenario.name)
-    paths = []
-    if settings.output:
-        paths.append(write_json(result.to_dict(), settings.output))
-    if settings.figure:
-        with atomic_path(settings.figure) as temporary:
-            plot_verification_errors(result.position_error_mm, result.posture_error_deg, temporary)
-        paths.append(Path(settings.figure))
-    return verify_result(result, source, tuple(paths), tuple(notes))
-
-
-def verify_result(
-    result: VerificationResult, world_source: str, files: tuple[Path, ...] = (), notes: tuple[str, ...] = ()
-) -> CommandResult[VerificationResult]:
-    """The result of ``verify`` from its verification and where its simulated world came from."""
-    s = result.statistics()
-    pos, ang = s["position_mm"], s["posture_deg"]
-    lines = [
-        *(f"wrote {path}" for path in files),
-        *note_lines(notes),
-        f"verification in simulation on {len(result.position_error_mm)} needle poses "
-        f"(scenario {result.scenario}, from {world_source}):",
-        f"  position error min / mean / max / RMS: {pos['min']:.3f} / {pos['mean']:.3f} / "
-        f"{pos['max']:.3f} / {pos['rms']:.3f} mm   (paper: min 0.87, mean < 1.05 mm)",
-        f"  posture error  min / mean / max / RMS: {ang['min']:.3f} / {ang['mean']:.3f} / "
-        f"{ang['max']:.3f} / {ang['rms']:.3f} deg  (paper: min 0.83, mean about 1.1 deg)",
-    ]
-    return CommandResult(result, files, notes, tuple(lines))
 
 
 @dataclass(frozen=True)

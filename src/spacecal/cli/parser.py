@@ -152,7 +152,8 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         help="point in the base frame (mm); repeatable",
     )
 
-    p = command("verify", "the paper's verification experiment, in simulation")
+    p = command("verify", "the paper's verification experiment: on the robot (--robot), or in simulation")
+    add_devices(p, simulated_by_default=False)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--scenario", help="simulated world (default: the one the calibration's data came from)")
     p.add_argument("--points", type=integer, help="number of needle poses")

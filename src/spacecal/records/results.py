@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.geometry.metrics import summary_statistics
 from spacecal.records.fields import (
     as_array,
@@ -22,6 +23,9 @@ from spacecal.records.fields import (
     get_str,
     plain,
 )
+
+#: What measured a verification in the simulator: its laser tracker, which sees the true pose.
+SIMULATED_LASER_TRACKER = "the simulator's laser tracker (the true reached pose)"
 
 
 def _list_of_objects(data: Mapping[str, Any], key: str, what: str) -> list[Mapping[str, Any]]:
@@ -54,6 +58,18 @@ class VerificationResult:
         True when the poses were reached and measured in spacecal's simulator.
     scenario : str
         The simulated scenario's name (simulated results only).
+    measured_by : str
+        What measured the reached poses, as every figure of it names its source: the
+        simulator's laser tracker (the truth), ``calibrated marker`` (the marker that was
+        calibrated measures its own pose: not independent of the calibration's marker_from_tcp),
+        ``reference tool NAME`` (a tracked tool on the needle guide with its own definition), or
+        an external measurement file.
+    devices : dict of str to str
+        The devices the poses were reached and measured on, as they named themselves.
+
+    Schema history (``schema: spacecal.verification``): 1 had no ``simulated``; 2 added it; 3
+    added ``measured_by`` and ``devices``. Every version is read (1 and 2 were measured in
+    the simulator by its laser tracker).
     """
 
     desired_tracker_from_needle: np.ndarray
@@ -63,9 +79,11 @@ class VerificationResult:
     posture_error_deg: np.ndarray
     simulated: bool = True
     scenario: str = ""
+    measured_by: str = SIMULATED_LASER_TRACKER
+    devices: Mapping[str, str] = field(default_factory=dict)
 
     SCHEMA = "spacecal.verification"
-    SCHEMA_VERSION = 2
+    SCHEMA_VERSION = 3
 
     def __post_init__(self) -> None:
         what = "verification"
@@ -99,6 +117,8 @@ class VerificationResult:
                 "units": {"length": "mm", "angle": "deg"},
                 "simulated": self.simulated,
                 "scenario": self.scenario,
+                "measured_by": self.measured_by,
+                "devices": dict(self.devices),
                 "statistics": self.statistics(),
                 "points": [
                     {
@@ -123,7 +143,7 @@ class VerificationResult:
     def from_dict(cls, data: Mapping[str, Any], what: str = "verification") -> VerificationResult:
         """Read a verification file, version 1 (no ``simulated`` field: it was always
         simulated) or 2."""
-        check_schema(data, cls.SCHEMA, (1, 2), what)
+        check_schema(data, cls.SCHEMA, (1, 2, 3), what)
         points = _list_of_objects(data, "points", what)
         if not points:
             raise InvalidInputError(f"{what}: 'points' is empty")
@@ -154,7 +174,21 @@ class VerificationResult:
             posture_error_deg=_column(points, "posture_error_deg", what),
             simulated=simulated,
             scenario=get_str(data, "scenario", what, default=""),
+            measured_by=get_str(data, "measured_by", what, default=SIMULATED_LASER_TRACKER),
+            devices=_string_map(data.get("devices"), "devices", what),
         )
+
+
+def _string_map(value: Any, name: str, what: str) -> dict[str, str]:
+    """A mapping of short printable texts (device names) from a file; absent: empty."""
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping) or not all(
+        isinstance(k, str) and isinstance(v, str) and len(k) <= 100 and len(v) <= 500
+        for k, v in value.items()
+    ):
+        raise InvalidInputError(f"{what}: '{name}' must map names to texts")
+    return {k: sanitize_for_terminal(v, 500) for k, v in value.items()}
 
 
 @dataclass(frozen=True)
