@@ -132,6 +132,7 @@ class VerifySettings:
             "--targets",
             dict(metavar="POSES.json", help="needle poses in the tracker frame to reach"),
         ),
+        "points": ("--points", dict(type=integer, help="number of needle poses")),
         "seed": ("--seed", dict(type=integer, help="seeds the default needle poses")),
         "reference_tool": (
             "--reference-tool",

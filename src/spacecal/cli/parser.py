@@ -156,7 +156,6 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     add_devices(p, simulated_by_default=False)
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--scenario", help="simulated world (default: the one the calibration's data came from)")
-    p.add_argument("--points", type=integer, help="number of needle poses")
     p.add_argument("-o", "--output", help="verification JSON to write")
     p.add_argument("--figure", help="PNG of the error curves (paper Fig. 7)")
 
