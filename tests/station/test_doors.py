@@ -237,9 +237,28 @@ def test_a_token_in_the_address_is_swapped_for_a_cookie_and_the_address_cleaned(
         assert (
             "HttpOnly" in cookie and "SameSite=Strict" in cookie and "spacecal_station_token_8770=" in cookie
         )
+        # the cookie goes to every port of this host: it holds a session key, not the token
+        assert token not in cookie
+        session = web.cookies["spacecal_station_token_8770"]
+        assert len(session) >= 32
         assert handed.headers["cache-control"] == "no-store"
         assert web.get("/trends").status_code == 200
         assert add_robot(web, OWN_PAGE).status_code == 303
+        # the token itself, or a made-up key, in the cookie opens nothing
+        for value in (token, session[:-1] + ("A" if session[-1] != "A" else "B")):
+            web.cookies.clear()
+            web.cookies.set("spacecal_station_token_8770", value)
+            assert web.get("/trends").status_code == 401
+        web.cookies.clear()
+        web.cookies.set("spacecal_station_token_8770", session)
+        assert web.get("/trends").status_code == 200
+        # a session lives as long as the station's process: a new one refuses its cookie
+        restarted, again = client(tmp_path / "again", token=token)
+        try:
+            again.cookies.set("spacecal_station_token_8770", session)
+            assert again.get("/trends").status_code == 401
+        finally:
+            restarted.ledger.close()
         # a wrong token in the address sets nothing
         web.cookies.clear()
         assert web.get("/?token=wrong-token-wrong-token").status_code == 401
