@@ -6,7 +6,10 @@ same site: the token's cookie goes there too), try what was once seen to work.
 * create, plan and dry-run a calibration with forms, from the page and from a sandboxed frame
   (``Origin: null``), and with ``fetch``;
 * open the live view's websocket of a run the operator started, to watch it and keep it going
-  once the operator's page is closed.
+  once the operator's page is closed;
+* send the operator's browser to the confirmation page by a link, and post start requests;
+* read the cookie the operator's browser sends to a web server on another port of the
+  station's host (cookies are not bound to a port): it must not hold the token.
 
 Nothing may be created, planned, confirmed or started, and the run must stop when the
 operator's page closes. Each attack runs with the station on loopback without a token and with
@@ -71,9 +74,12 @@ class Attacker:
     def __init__(self, host: str):
         page = self
         self.html = "<p>nothing</p>"
+        #: The ``Cookie`` header of every request it was sent ("" for none).
+        self.cookies: list[str] = []
 
         class Handler(http.server.BaseHTTPRequestHandler):
             def do_GET(self) -> None:
+                page.cookies.append(self.headers.get("Cookie") or "")
                 body = page.html.encode()
                 self.send_response(200)
                 self.send_header("Content-Type", "text/html; charset=utf-8")
@@ -140,6 +146,8 @@ def forms_page(station_url: str) -> str:
         ("/workspaces", {"robot": "1", "tracker": "1"}),
         ("/workspaces/1/step/plan", {}),
         ("/workspaces/1/step/dry-run", {}),
+        ("/workspaces/1/motion/acquire", {"ticket": "made-up"}),
+        ("/workspaces/1/motion/check", {"ticket": "made-up"}),
     ]
     forms = []
     for k, (path, fields) in enumerate(posts):
@@ -183,12 +191,54 @@ def test_forms_and_fetches_of_another_origin_change_nothing(station, attacker, b
     attacker.html = forms_page(station.url)
     page = browser.new_page()
     page.goto(attacker.url)
-    wait_js(page, "window.posted === 5", timeout=60_000)
+    wait_js(page, "window.posted === 7", timeout=60_000)
     time.sleep(3.0)  # the sandboxed frame's and the fetches' requests have been answered
     assert len(station.station.ledger.robots()) == robots
     assert len(station.station.ledger.trackers()) == trackers
     assert list(station.station.workspaces) == [1]
     assert work.plan_path.read_bytes() == plan_before and work.dry_run_basis == basis_before
+    assert station.station.runs.get(1) is None and station.station.runs.active() is None
+    operator.close()
+
+
+def test_a_link_to_the_confirmation_from_another_origin_is_refused(station, attacker, browser):
+    operator = operator_prepares(browser, station)
+    tickets_before = len(station.station.tickets)
+    attacker.html = f'<a id="go" href="{station.url}/workspaces/1/confirm/acquire">your results</a>'
+    page = browser.new_page()
+    page.goto(attacker.url)
+    page.click("#go")
+    page.wait_for_load_state()
+    assert "Move the robot?" not in page.content() and "<h1>Forbidden</h1>" in page.content()
+    assert len(station.station.tickets) == tickets_before
+    assert station.station.runs.active() is None
+    operator.close()
+
+
+def test_another_port_of_the_host_never_receives_the_token(station, browser):
+    """Cookies are not bound to a port: once signed in, the browser sends the station's cookie
+    to every web server of 127.0.0.1 whose page it opens, also when a page of another address
+    sends it there. The cookie must hold no token (a session key of this station's process)."""
+    operator = operator_prepares(browser, station)
+    other_port, lure = Attacker("127.0.0.1"), Attacker("127.0.0.2")
+    try:
+        other_port.html = "<script>fetch('/again');</script>"
+        lure.html = f"<script>location = '{other_port.url}';</script>"
+        for start in (other_port.url, lure.url):  # typed by the operator; a link elsewhere
+            page = browser.new_page()
+            page.goto(start)
+            page.wait_for_load_state()
+            page.wait_for_timeout(1000)
+            page.close()
+        sent = [c for c in other_port.cookies if "spacecal_station_token" in c]
+        if station.token is None:
+            assert sent == []  # no token, no cookie
+        else:
+            assert sent, "the browser sent no cookie: the test did not do what it says"
+            assert all(station.token not in c for c in sent)
+    finally:
+        other_port.close()
+        lure.close()
     operator.close()
 
 

@@ -23,6 +23,9 @@ from tests.idle_connections import closed_by_the_server
 from tests.station.conftest import free_port, need
 
 STATION = "http://127.0.0.1:8770"
+#: The live view's socket of run 1, named in full: the test client's websockets otherwise go to
+#: host "testserver", which the loopback door refuses (421) before the origin is looked at.
+LIVE_VIEW = "ws://127.0.0.1:8770/runs/1/ws"
 #: What a browser sends with a form of the station's own page.
 OWN_PAGE = {"Origin": STATION, "Sec-Fetch-Site": "same-origin", "Sec-Fetch-Mode": "navigate"}
 
@@ -126,9 +129,9 @@ def test_no_page_of_another_origin_confirms_starts_or_watches_a_motion(station_c
     assert started.status_code == 303
     run = station.runs.get(1)
     with pytest.raises(websockets.WebSocketDisconnect) as refused:
-        with web.websocket_connect("/runs/1/ws", headers=headers) as socket_:
+        with web.websocket_connect(LIVE_VIEW, headers=headers) as socket_:
             socket_.receive_text()
-    assert refused.value.code == 1008
+    assert refused.value.code == 1008 and "refused" in refused.value.reason  # by its origin
     assert run.watchers == 0 and run.first_frame_at is None
     run.request_stop("the test ended")
     run.thread.join(timeout=120)
@@ -138,11 +141,11 @@ def test_no_page_of_another_origin_confirms_starts_or_watches_a_motion(station_c
 def test_a_websocket_must_name_the_stations_origin(station_client):
     websockets = need("starlette.websockets")
     station, web = station_client
-    for headers in ({}, {"Origin": "null"}):
+    for headers in ({}, {"Origin": "null"}, {"Origin": "http://127.0.0.1:8000"}):
         with pytest.raises(websockets.WebSocketDisconnect) as refused:
-            with web.websocket_connect("/runs/1/ws", headers=headers) as socket_:
+            with web.websocket_connect(LIVE_VIEW, headers=headers) as socket_:
                 socket_.receive_text()
-        assert refused.value.code == 1008
+        assert refused.value.code == 1008 and "refused" in refused.value.reason, headers
 
 
 def test_a_link_from_another_site_opens_only_pages_that_start_nothing(station_client):
@@ -237,9 +240,28 @@ def test_a_token_in_the_address_is_swapped_for_a_cookie_and_the_address_cleaned(
         assert (
             "HttpOnly" in cookie and "SameSite=Strict" in cookie and "spacecal_station_token_8770=" in cookie
         )
+        # the cookie goes to every port of this host: it holds a session key, not the token
+        assert token not in cookie
+        session = web.cookies["spacecal_station_token_8770"]
+        assert len(session) >= 32
         assert handed.headers["cache-control"] == "no-store"
         assert web.get("/trends").status_code == 200
         assert add_robot(web, OWN_PAGE).status_code == 303
+        # the token itself, or a made-up key, in the cookie opens nothing
+        for value in (token, session[:-1] + ("A" if session[-1] != "A" else "B")):
+            web.cookies.clear()
+            web.cookies.set("spacecal_station_token_8770", value)
+            assert web.get("/trends").status_code == 401
+        web.cookies.clear()
+        web.cookies.set("spacecal_station_token_8770", session)
+        assert web.get("/trends").status_code == 200
+        # a session lives as long as the station's process: a new one refuses its cookie
+        restarted, again = client(tmp_path / "again", token=token)
+        try:
+            again.cookies.set("spacecal_station_token_8770", session)
+            assert again.get("/trends").status_code == 401
+        finally:
+            restarted.ledger.close()
         # a wrong token in the address sets nothing
         web.cookies.clear()
         assert web.get("/?token=wrong-token-wrong-token").status_code == 401
@@ -498,3 +520,39 @@ def test_a_device_form_with_a_bad_value_adds_nothing_and_says_why(station_client
     assert error is not None and "\n" not in error.group(1) and len(error.group(1)) < 500
     assert "could not convert" not in error.group(1)  # words for a person, not Python's
     assert station.ledger.robots() == [] and station.ledger.trackers() == []
+
+
+#: A stopped run's process ends within this on a busy machine (it starts a Python interpreter), s.
+LIVE_VIEW_CLOSED_WITHIN_S = 120.0
+
+
+def test_the_live_view_is_closed_once_its_run_ended(station_client):
+    """A socket of the station's own page is closed (1000) once the run ended and its last state
+    was sent; one opened to an ended run gets that state and is closed too: no live socket
+    outlives its run."""
+    import json
+
+    websockets = need("starlette.websockets")
+    station, web = station_client
+    new_calibration(web)
+    web.post("/workspaces/1/step/dry-run", headers=OWN_PAGE)
+    page = web.get("/workspaces/1/confirm/acquire", headers={"Sec-Fetch-Site": "same-origin"}).text
+    ticket = re.search(r'name="ticket" value="([^"]+)"', page).group(1)
+    web.post("/workspaces/1/motion/acquire", data={"ticket": ticket}, headers=OWN_PAGE)
+    run = station.runs.get(1)
+    states: list[str] = []
+    deadline = time.monotonic() + LIVE_VIEW_CLOSED_WITHIN_S
+    with pytest.raises(websockets.WebSocketDisconnect) as closed:
+        with web.websocket_connect(LIVE_VIEW, headers=OWN_PAGE) as live:
+            states.append(json.loads(live.receive_text())["run_state"])
+            run.request_stop("the test ended")
+            while time.monotonic() < deadline:
+                states.append(json.loads(live.receive_text())["run_state"])
+            pytest.fail(f"the socket was open {LIVE_VIEW_CLOSED_WITHIN_S:.0f} s after the STOP: {states[-1]}")
+    assert closed.value.code == 1000 and not run.active and states[-1] == run.state == "stopped"
+    assert run.watchers == 0
+    with pytest.raises(websockets.WebSocketDisconnect) as closed:
+        with web.websocket_connect(LIVE_VIEW, headers=OWN_PAGE) as late:
+            assert json.loads(late.receive_text())["run_state"] == "stopped"
+            late.receive_text()
+    assert closed.value.code == 1000

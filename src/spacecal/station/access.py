@@ -7,9 +7,12 @@ at the station's own page. Three doors, checked on every request and websocket:
   token. On loopback a request under another host name (a site that rebinds its name to
   127.0.0.1) is refused (421).
 * **The token** (:class:`AccessMiddleware`), when one is set (off loopback always; on a shared
-  loopback PC by choice): every request carries it, in the cookie the sign-in page or the
-  printed address set, or the ``X-Station-Token`` header. A token in the address is swapped
-  for the cookie at once and the address bar is cleaned (:func:`token_handover_page`).
+  loopback PC by choice): every request carries it in the ``X-Station-Token`` header, or the
+  cookie of a session the sign-in page or the printed address opened. A token in the address
+  is swapped for that cookie at once and the address bar is cleaned
+  (:func:`token_handover_page`). The cookie holds a random session key, never the token:
+  cookies are not bound to a port, so a browser sends it to every web server of the station's
+  host whose page it opens, and the token must not go with it.
 * **The page's origin** (:func:`foreign_request`): a form, a request that changes anything,
   and every websocket must come from a page of the station's own origin (scheme, host and
   port). ``Origin: null`` (a sandboxed frame, a ``data:`` page) is foreign; so is another port
@@ -39,9 +42,13 @@ from urllib.parse import parse_qs, urlencode, urlsplit
 
 from spacecal.core.errors import InvalidInputError
 
-#: The cookie a browser keeps the token in, with the station's port in its name: cookies are
-#: not bound to a port, so two stations on one computer would otherwise overwrite each other's.
+#: The cookie a browser keeps its session key in, with the station's port in its name: cookies
+#: are not bound to a port, so two stations on one computer would otherwise overwrite each
+#: other's.
 TOKEN_COOKIE = "spacecal_station_token"
+#: Sessions a station keeps open (one per sign-in; the oldest is closed beyond this): a person
+#: signs in once per browser.
+MAX_SESSIONS = 64
 #: The environment variable a token may be given in (never only on the command line, where
 #: every user of the computer reads it in the process list).
 TOKEN_ENVIRONMENT = "SPACECAL_STATION_TOKEN"
@@ -260,8 +267,9 @@ class AccessMiddleware:
     ----------
     app : ASGI application
     token : str or None
-        Required on every request (the cookie, or header ``X-Station-Token``; ``?token=`` is
-        swapped for the cookie) when given.
+        Required on every request when given: in header ``X-Station-Token``, or as the cookie
+        of a session opened by signing in with it (``?token=`` is swapped for that cookie).
+        Sessions live as long as the station's process: after a restart, sign in again.
     loopback_only : bool
         Also refuse a ``Host`` header that does not name loopback.
     refuse : callable
@@ -274,6 +282,8 @@ class AccessMiddleware:
         self.token = token
         self.loopback_only = loopback_only
         self.refuse = refuse
+        #: The session keys the station handed out, oldest first (a dict keeps their order).
+        self.sessions: dict[str, None] = {}
 
     async def __call__(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         if scope["type"] not in ("http", "websocket"):
@@ -318,22 +328,30 @@ class AccessMiddleware:
         return f"{TOKEN_COOKIE}_{server[1]}"
 
     def _cookie(self, scope: dict[str, Any]) -> tuple[bytes, bytes]:
-        """The token's cookie: not readable by scripts, never sent on another site's request."""
+        """A new session's cookie: a random key, not the token (the browser sends the cookie to
+        every port of this host); not readable by scripts, never sent on another site's
+        request."""
         assert self.token is not None
-        value = f"{self._cookie_name(scope)}={self.token}; Path=/; HttpOnly; SameSite=Strict"
+        key = secrets.token_urlsafe(32)
+        self.sessions[key] = None
+        while len(self.sessions) > MAX_SESSIONS:
+            del self.sessions[next(iter(self.sessions))]
+        value = f"{self._cookie_name(scope)}={key}; Path=/; HttpOnly; SameSite=Strict"
         return b"set-cookie", value.encode()
 
     def _has_token(self, scope: dict[str, Any], headers: dict[str, str]) -> bool:
         assert self.token is not None
         given = parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [""])[0]
         given = given or headers.get("x-station-token", "")
-        if not given:
-            name = self._cookie_name(scope)
-            for part in headers.get("cookie", "").split(";"):
-                key, _, value = part.strip().partition("=")
-                if key == name:
-                    given = value
-        return hmac.compare_digest(given.encode("utf-8", "replace"), self.token.encode())
+        if given:
+            return hmac.compare_digest(given.encode("utf-8", "replace"), self.token.encode())
+        name = self._cookie_name(scope)
+        for part in headers.get("cookie", "").split(";"):
+            key, _, value = part.strip().partition("=")
+            if key == name:
+                offered = value.encode("utf-8", "replace")
+                return any(hmac.compare_digest(offered, k.encode()) for k in self.sessions)
+        return False
 
     async def _sign_in(self, scope: dict[str, Any], receive: Any, send: Any) -> None:
         """POST /sign-in (the sign-in page's form, same-origin like every form): the cookie and
