@@ -4,7 +4,7 @@ send what no Slicer should (raw bytes laid out from the protocol document).
 
 The expected plan points are the sent RAS numbers with x and y negated by hand (LPS =
 diag(-1, -1, 1) RAS); the expected NeedleToRAS is diag(-1, -1, 1, 1) @ inv(tracker_from_image_lps)
-@ tracker_from_needle. The peers hold float32: 1e-3 mm is 15 float32 steps at 1500 mm.
+@ tracker_from_needle. The peers hold float32: 1e-3 mm is 8 float32 steps at 1500 mm.
 """
 
 import signal

@@ -133,7 +133,7 @@ class SlicerPlan:
 
     Attributes
     ----------
-    plan : NeedlePlan
+    plan : spacecal.records.needle_plan.NeedlePlan
         Entry and target in ``image_lps``, mm.
     revision : int
         Advances with every accepted plan message (1 for the first complete plan).
