@@ -5,11 +5,7 @@ Outside CI the tests skip when the library or a C++ compiler is missing; in CI (
 that is a failure, so the reference check can never be skipped silently there.
 """
 
-import os
-import shutil
-import socket
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,51 +13,20 @@ import pytest
 from spacecal.adapters.igtl import IGTLTracker, publish_transform
 from spacecal.core.ports import FRAME_MISSING, FRAME_OK
 
+from .igtl_reference_programs import build_reference_programs, free_port
+
 #: Real client libraries against the protocol fakes, on real time: run apart (-m realtime).
 pytestmark = pytest.mark.realtime
-
-SOURCES = Path(__file__).resolve().parents[1] / "igtl_reference"
-INCLUDE = Path(os.environ.get("OPENIGTLINK_INCLUDE", "/usr/include/openigtlink"))
 
 #: The pose the reference sender sends: 30 deg about z, then (12.5, -40, -1450) mm.
 c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
 MARKER = np.array([[c, -s, 0, 12.5], [s, c, 0, -40.0], [0, 0, 1, -1450.0], [0, 0, 0, 1]])
 
 
-def unavailable(reason: str):
-    if os.environ.get("CI") == "true":
-        pytest.fail(f"OpenIGTLink reference programs cannot be built in CI: {reason}")
-    pytest.skip(reason)
-
-
 @pytest.fixture(scope="session")
 def reference_programs(tmp_path_factory):
     """The reference sender and receiver, compiled once per session into a temporary folder."""
-    compiler = shutil.which("g++") or shutil.which("c++")
-    if compiler is None:
-        unavailable("no C++ compiler")
-    if not (INCLUDE / "igtlTransformMessage.h").is_file():
-        unavailable(f"the OpenIGTLink headers are not in {INCLUDE} (apt-get install libopenigtlink-dev)")
-    out = tmp_path_factory.mktemp("igtl_reference")
-    programs = {}
-    for name in ("sender", "receiver"):
-        binary = out / f"igtl_reference_{name}"
-        build = subprocess.run(
-            [compiler, "-O1", "-std=c++14", f"-I{INCLUDE}", str(SOURCES / f"{name}.cxx"), "-o", str(binary)]
-            + ["-lOpenIGTLink"],
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
-        assert build.returncode == 0, build.stderr[-2000:]  # the library is here: a build error is a bug
-        programs[name] = binary
-    return programs
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return probe.getsockname()[1]
+    return build_reference_programs(tmp_path_factory.mktemp("igtl_reference"), ("sender", "receiver"))
 
 
 def start(program, *arguments):
