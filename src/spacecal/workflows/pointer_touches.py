@@ -7,11 +7,13 @@ tip's positions over those frames are averaged::
 
     tip_in_tracker = (tracker_from_pointer @ pointer_from_tip)[:3, 3]
 
-A window of frames is accepted only when the pointer is seen in every one of them, its tip
-did not move (the means of the window's first and second halves are within
-:attr:`TouchSettings.max_motion_mm`), its positions scatter no more than
-:attr:`TouchSettings.max_scatter_mm` RMS about their mean, and it is not where an earlier
-fiducial was touched (the operator has not moved on yet). Frames are read until one is
+A window of frames is accepted only when the pointer is seen in every one of them, its tip's
+positions scatter from frame to frame no more than :attr:`TouchSettings.max_scatter_mm` (the
+RMS 3-D difference of successive positions over sqrt 2: the noise of one position, which a
+slow drift hardly enters), its tip did not move (the means of the window's first and second
+quarters are within :attr:`TouchSettings.max_motion_mm`), and it is not where an earlier
+fiducial was touched (the operator has not moved on yet). Scatter is judged first: noisy
+positions also move the quarters' means apart. Frames are read until one is
 accepted or :attr:`TouchSettings.wait_s` has passed, then the touch is refused with one line
 saying why the last window failed. Every frame is waited for at most
 :attr:`TouchSettings.frame_timeout_s` (a tracker that stops answering is the tracker's
@@ -62,12 +64,13 @@ class TouchSettings:
     frames : int
         Frames in a row the pointer must be seen and still (at 20 Hz, 20 frames are 1 s).
     max_motion_mm : float
-        Largest distance between the mean tip positions of the window's first and second
-        halves: a tip that travels more is moving, not held.
+        Largest distance between the mean tip positions of the window's quarters: a tip that
+        travels more is moving, not held.
     max_scatter_mm : float
-        Largest RMS 3-D distance of the window's tip positions from their mean. A held pointer
-        scatters by the tracker's noise at the tip (a few tenths of a mm); more is a trembling
-        hand or a pointer seen badly.
+        Largest frame-to-frame scatter of the tip (RMS 3-D difference of successive positions
+        over sqrt 2). A held pointer scatters by the tracker's noise at the tip (0.3 to 0.5 mm
+        with a 0.25 mm sphere noise and a tip 190 mm from the spheres' centre); more is a
+        trembling hand or a pointer seen badly.
     min_separation_mm : float
         A touch closer than this to an earlier fiducial's is the pointer still there.
     wait_s : float
@@ -79,7 +82,7 @@ class TouchSettings:
 
     frames: int = 20
     max_motion_mm: float = 1.0
-    max_scatter_mm: float = 0.5
+    max_scatter_mm: float = 1.0
     min_separation_mm: float = 5.0
     wait_s: float = 30.0
     frame_timeout_s: float = 1.0
@@ -107,9 +110,9 @@ class PointerTouch:
     tip_in_tracker : numpy.ndarray, shape (3,)
         The mean tip position over the accepted frames, tracker frame, mm.
     scatter_rms_mm : float
-        RMS 3-D distance of those frames' tip positions from their mean.
+        The frames' frame-to-frame scatter of the tip (:attr:`TouchSettings.max_scatter_mm`).
     motion_mm : float
-        Distance between the mean tip positions of the window's halves.
+        Largest distance between the mean tip positions of the window's quarters.
     frames : int
         Frames averaged.
     time_s : tuple of float
@@ -124,25 +127,35 @@ class PointerTouch:
     time_s: tuple[float, float]
 
 
+def _scatter_mm(tips: np.ndarray) -> float:
+    """The frame-to-frame scatter (mm) of positions (N, 3): RMS 3-D successive difference / sqrt 2."""
+    return float(np.sqrt(np.mean(np.sum(np.diff(tips, axis=0) ** 2, axis=1)) / 2.0))
+
+
+def _motion_mm(tips: np.ndarray) -> float:
+    """How far (mm) the mean of positions (N, 3) moved: the largest distance between the means
+    of the window's quarters (halves would miss a sway of the window's own period)."""
+    blocks = np.array([block.mean(axis=0) for block in np.array_split(tips, min(4, len(tips)))])
+    return float(np.max(np.linalg.norm(blocks[:, None] - blocks[None], axis=2)))
+
+
 def _window_problem(
     label: str, tips: np.ndarray, settings: TouchSettings, earlier: dict[str, PointerTouch]
 ) -> tuple[str, str] | None:
     """Why a full window of tip positions (N, 3) is not a touch, as (reason, one line), or None."""
-    half = len(tips) // 2
-    motion = float(np.linalg.norm(tips[:half].mean(axis=0) - tips[half:].mean(axis=0)))
+    scatter, motion = _scatter_mm(tips), _motion_mm(tips)
+    if scatter > settings.max_scatter_mm:
+        return SCATTERED, (
+            f"the pointer's tip positions on {quoted(label)} scatter {scatter:.2f} mm RMS from frame to "
+            f"frame over {len(tips)} frames (at most {settings.max_scatter_mm:g} mm): steady the hand, or "
+            "bring the pointer nearer the middle of the tracker's view"
+        )
     if motion > settings.max_motion_mm:
         return MOVING, (
             f"the pointer did not hold still on {quoted(label)}: its tip moved {motion:.1f} mm within "
             f"{len(tips)} frames (at most {settings.max_motion_mm:g} mm); hold it still on the fiducial"
         )
     mean = tips.mean(axis=0)
-    scatter = float(np.sqrt(np.mean(np.sum((tips - mean) ** 2, axis=1))))
-    if scatter > settings.max_scatter_mm:
-        return SCATTERED, (
-            f"the pointer's tip positions on {quoted(label)} scatter {scatter:.2f} mm RMS over {len(tips)} "
-            f"frames (at most {settings.max_scatter_mm:g} mm): steady the hand, or bring the pointer "
-            "nearer the middle of the tracker's view"
-        )
     for other, touch in earlier.items():
         distance = float(np.linalg.norm(mean - touch.tip_in_tracker))
         if distance < settings.min_separation_mm:
@@ -198,6 +211,8 @@ def collect_touch(
     first_time_s: float | None = None
     problem: tuple[str, str] = (NOT_SEEN, f"the pointer {quoted(tool)} was not seen")
     unseen_since: float | None = None
+    unseen_frames = 0
+    window_judged = False  # a full window was judged: its problem outweighs a dropout or two
     while True:
         frame = tracker.next_frame(settings.frame_timeout_s)
         first_time_s = frame.time_s if first_time_s is None else first_time_s
@@ -205,30 +220,30 @@ def collect_touch(
         if pose is None:
             window.clear()
             unseen_since = frame.time_s if unseen_since is None else unseen_since
+            unseen_frames += 1
             status = frame.tool_statuses.get(tool, "missing").replace("_", " ")
-            problem = (
-                NOT_SEEN,
-                f"the pointer {quoted(tool)} was not seen ({status}) for the last "
-                f"{frame.time_s - unseen_since:.1f} s: bring it into the tracker's view on {quoted(label)}",
-            )
+            if not window_judged or unseen_frames >= settings.frames:
+                problem = (
+                    NOT_SEEN,
+                    f"the pointer {quoted(tool)} was not seen ({status}) for the last "
+                    f"{frame.time_s - unseen_since:.1f} s: bring it into the tracker's view on {quoted(label)}",
+                )
         else:
-            unseen_since = None
+            unseen_since, unseen_frames = None, 0
             window.append((frame.time_s, pose[:3, :3] @ tip_in_pointer + pose[:3, 3]))
             if len(window) == settings.frames:
                 tips = np.array([tip for _, tip in window])
                 found = _window_problem(label, tips, settings, earlier)
                 if found is None:
-                    mean = tips.mean(axis=0)
-                    half = len(tips) // 2
                     return PointerTouch(
                         label=label,
-                        tip_in_tracker=mean,
-                        scatter_rms_mm=float(np.sqrt(np.mean(np.sum((tips - mean) ** 2, axis=1)))),
-                        motion_mm=float(np.linalg.norm(tips[:half].mean(axis=0) - tips[half:].mean(axis=0))),
+                        tip_in_tracker=tips.mean(axis=0),
+                        scatter_rms_mm=_scatter_mm(tips),
+                        motion_mm=_motion_mm(tips),
                         frames=len(tips),
                         time_s=(window[0][0], window[-1][0]),
                     )
-                problem = found
+                problem, window_judged = found, True
         elapsed_s = max(time.monotonic() - started, frame.time_s - first_time_s)
         if elapsed_s > settings.wait_s:
             reason, line = problem
