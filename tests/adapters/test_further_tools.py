@@ -83,7 +83,11 @@ def test_ndi_names_further_roms_by_their_files(world, rom_file, tool_roms):
     world.control("pointer touch 1")
     url = f"ndi://{world.info['host']}:{world.info['ndi_port']}"
     tracker = open_device(
-        url, "tracker", DeviceOptions(rom=(str(rom_file), str(tool_roms["pointer"])), tools=(("guide", str(tool_roms["reference"])),))
+        url,
+        "tracker",
+        DeviceOptions(
+            rom=(str(rom_file), str(tool_roms["pointer"])), tools=(("guide", str(tool_roms["reference"])),)
+        ),
     )
     try:
         frame = tracker.next_frame(1.0)
@@ -158,7 +162,8 @@ def test_touches_through_ndi_register_the_phantom_within_the_predicted_tre(world
     tre = predicted_tre(registration.pointer.fiducials_in_image, targets, registration.pointer.fle_rms_mm)
     true_tracker_from_image = np.array(phantom["tracker_from_image_lps"])
     error = np.linalg.norm(
-        apply_transform(registration.tracker_from_image, targets) - apply_transform(true_tracker_from_image, targets),
+        apply_transform(registration.tracker_from_image, targets)
+        - apply_transform(true_tracker_from_image, targets),
         axis=1,
     )
     # Fitzpatrick's TRE covers the random part of the touches' error; the pointer's tip

@@ -28,7 +28,9 @@ def quiet_world(**changes):
 def tip_noise_rms_mm(world, geometry, point_in_tool):
     """The RMS 3-D error a rigid fit of the tool's spheres leaves at a point of the tool, from the
     scenario's white sphere noise (Fitzpatrick, West, Maurer 1998: FLE = the sphere noise)."""
-    return float(predicted_tre(geometry.spheres_in_marker, [point_in_tool], world.scenario.white_noise_rms_mm)[0])
+    return float(
+        predicted_tre(geometry.spheres_in_marker, [point_in_tool], world.scenario.white_noise_rms_mm)[0]
+    )
 
 
 def test_the_pointer_on_fiducial_k_gives_its_true_position_within_the_noise():

@@ -46,7 +46,9 @@ def test_touches_register_to_the_true_image_within_the_predicted_tre(tmp_path):
 
     touches = collect_touches(tracker, POINTER, world.pointer_from_tip, phantom.labels, touch, QUICK)
     assert prompted == list(phantom.labels) == list(touches)
-    assert all(t.frames == QUICK.frames and t.scatter_rms_mm <= QUICK.max_scatter_mm for t in touches.values())
+    assert all(
+        t.frames == QUICK.frames and t.scatter_rms_mm <= QUICK.max_scatter_mm for t in touches.values()
+    )
     path = write_touched_points(tmp_path / "touched.csv", touched_points(touches), comments=["simulated"])
     frame, points = read_touched_points(path)
     assert frame == "tracker" and list(points) == list(phantom.labels)
@@ -64,11 +66,16 @@ def test_touches_register_to_the_true_image_within_the_predicted_tre(tmp_path):
     assert np.all(error < 3 * tre + tip_error), (error, tre, tip_error)
     # with the true tip, the random part alone
     world.put_pointer_away()
-    true_touches = collect_touches(tracker, POINTER, world.pointer_from_tip_true, phantom.labels, touch, QUICK)
-    exact = register_image_fiducials(phantom.fiducials_in_image, touched_points(true_touches), image_frame="image_lps")
+    true_touches = collect_touches(
+        tracker, POINTER, world.pointer_from_tip_true, phantom.labels, touch, QUICK
+    )
+    exact = register_image_fiducials(
+        phantom.fiducials_in_image, touched_points(true_touches), image_frame="image_lps"
+    )
     tre = predicted_tre(exact.pointer.fiducials_in_image, targets, exact.pointer.fle_rms_mm)
     error = np.linalg.norm(
-        apply_transform(exact.tracker_from_image, targets) - apply_transform(phantom.tracker_from_image, targets),
+        apply_transform(exact.tracker_from_image, targets)
+        - apply_transform(phantom.tracker_from_image, targets),
         axis=1,
     )
     assert np.all(error < 3 * tre), (error, tre)
@@ -77,7 +84,9 @@ def test_touches_register_to_the_true_image_within_the_predicted_tre(tmp_path):
 def test_a_pointer_not_seen_is_refused():
     world, tracker = simulated()
     world.put_pointer_away()
-    with pytest.raises(TouchRejectedError, match="^no touch of 'F-1' within 3 s: the pointer 'pointer' was not seen") as caught:
+    with pytest.raises(
+        TouchRejectedError, match="^no touch of 'F-1' within 3 s: the pointer 'pointer' was not seen"
+    ) as caught:
         collect_touch(tracker, POINTER, world.pointer_from_tip, "F-1", QUICK)
     assert caught.value.reason == NOT_SEEN and "\n" not in str(caught.value)
     assert isinstance(caught.value, DeviceError)
@@ -103,7 +112,9 @@ def test_scattered_frames_are_refused():
 def test_a_pointer_still_on_the_last_fiducial_is_refused_and_the_touches_before_kept():
     world, tracker = simulated()
     with pytest.raises(TouchRejectedError, match="still where 'F-1' was touched") as caught:
-        collect_touches(tracker, POINTER, world.pointer_from_tip, ["F-1", "F-2"], lambda _: world.place_pointer(1), QUICK)
+        collect_touches(
+            tracker, POINTER, world.pointer_from_tip, ["F-1", "F-2"], lambda _: world.place_pointer(1), QUICK
+        )
     assert caught.value.reason == NOT_MOVED_ON and list(caught.value.touches) == ["F-1"]
 
 

@@ -54,10 +54,10 @@ from __future__ import annotations
 
 import collections
 import socket
-from collections.abc import Mapping
 import struct
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -344,7 +344,9 @@ class IGTLTracker:
         self.tools = dict(tools or {})
         for name, device in self.tools.items():
             if not str(name).strip() or not str(device).strip():
-                raise InvalidInputError(f"a tracked tool needs a name and a device name, got {name!r}: {device!r}")
+                raise InvalidInputError(
+                    f"a tracked tool needs a name and a device name, got {name!r}: {device!r}"
+                )
             if device == device_name:
                 raise InvalidInputError(f"tool {name!r} is the marker's device {device!r}")
         if len(set(self.tools.values())) < len(self.tools):
@@ -582,7 +584,9 @@ class IGTLTracker:
         frame = self._marker_frame(0.0, matrix, metadata)
         return frame.tracker_from_marker, frame.status
 
-    def _with_tools(self, frame: TrackerFrame, tools: dict[str, tuple[np.ndarray | None, str]]) -> TrackerFrame:
+    def _with_tools(
+        self, frame: TrackerFrame, tools: dict[str, tuple[np.ndarray | None, str]]
+    ) -> TrackerFrame:
         """``frame`` carrying every configured tool (those that did not come: missing)."""
         if not self.tools:
             return frame

@@ -668,7 +668,9 @@ class NDITracker:
             tool_status = frame_status(tool_transform, tool_port, system_status)
             tool_pose = _pose_of(tool_transform)
             poses[name] = tool_pose
-            statuses[name] = tool_status if tool_pose is not None or isinstance(tool_transform, str) else FRAME_MISSING
+            statuses[name] = (
+                tool_status if tool_pose is not None or isinstance(tool_transform, str) else FRAME_MISSING
+            )
         pose = _pose_of(transform)
         if pose is None:  # "MISSING" or "DISABLED", or no usable rotation: no pose
             return TrackerFrame(

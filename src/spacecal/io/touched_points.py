@@ -119,12 +119,18 @@ def write_touched_points(
     for label, point in points.items():
         text = str(label).strip()
         if not text or text.startswith("#") or any(c in text for c in "\r\n"):
-            raise InvalidInputError(f"a touched point's label must be one line not starting with '#', got {quoted(str(label))}")
+            raise InvalidInputError(
+                f"a touched point's label must be one line not starting with '#', got {quoted(str(label))}"
+            )
         position = np.asarray(point, dtype=float)
         if position.shape != (3,) or not np.all(np.isfinite(position)):
             raise InvalidInputError(f"touched point {quoted(text)} is not 3 finite numbers (mm)")
         rows.append([text, *(f"{value:.4f}" for value in position)])
-    if frame == "tracker" and float(np.median([np.linalg.norm(np.asarray(p, float)) for p in points.values()])) < METRES_BELOW_MM:
+    if (
+        frame == "tracker"
+        and float(np.median([np.linalg.norm(np.asarray(p, float)) for p in points.values()]))
+        < METRES_BELOW_MM
+    ):
         raise InvalidInputError(f"the points are within {METRES_BELOW_MM:g} mm of the tracker: metres?")
     out = io.StringIO()
     for comment in comments:

@@ -125,7 +125,8 @@ class PhantomTruth:
         label = labels[which - 1] if isinstance(which, int) and 1 <= which <= len(labels) else which
         if label not in self.fiducials_in_image:
             raise InvalidInputError(
-                f"the phantom has no fiducial {which!r} (its fiducials: 1..{len(labels)}, {', '.join(labels)})"
+                f"the phantom has no fiducial {which!r} "
+                f"(its fiducials: 1..{len(labels)}, {', '.join(labels)})"
             )
         return str(label), self.fiducials_in_image[str(label)]
 
@@ -206,7 +207,11 @@ def pointer_pose_at(
         )
         shaft = tracker_from_pointer[:3, :3] @ -np.asarray(pointer_from_tip)[:3, 3]
         if (
-            bool(tracker.visible(tracker_from_pointer[None], pointer.spheres_in_marker, pointer.face_normal_in_marker)[0])
+            bool(
+                tracker.visible(
+                    tracker_from_pointer[None], pointer.spheres_in_marker, pointer.face_normal_in_marker
+                )[0]
+            )
             and not np.any(np.sum((spheres_in_image / radii) ** 2, axis=1) < 1.0)
             and shaft @ outward_in_tracker > 0.3 * np.linalg.norm(shaft)
         ):

@@ -378,7 +378,9 @@ class World:
                 continue
             fiducials[f"F-{len(fiducials) + 1}"] = point
         if len(fiducials) < self.PHANTOM_FIDUCIALS:
-            raise UnreachableError("the simulated phantom has too few fiducials the pointer can touch in view")
+            raise UnreachableError(
+                "the simulated phantom has too few fiducials the pointer can touch in view"
+            )
         visibility = VisibilityModel(self.tracker, self.marker, self.tracker_from_base, self.tcp_from_marker)
         reference = self.tools[REFERENCE]
         paths: list[PlannedPath] = []
@@ -401,7 +403,9 @@ class World:
                 )
             except UnreachableError:
                 continue
-            tracker_from_reference = self.tracker_from_base @ plan.base_from_needle_target @ self.tcp_from_reference
+            tracker_from_reference = (
+                self.tracker_from_base @ plan.base_from_needle_target @ self.tcp_from_reference
+            )
             if not self.tracker.visible(
                 tracker_from_reference[None], reference.spheres_in_marker, reference.face_normal_in_marker
             )[0]:
@@ -549,9 +553,7 @@ class World:
         lead = len(history) - n
         shown[stale] = history[np.maximum(stale + lead - rng.integers(2, 9, len(stale)), 0)]
         reflections = outliers[kinds == 2]
-        offsets = _random_directions(rng, len(reflections)) * rng.uniform(
-            5.0, 30.0, (len(reflections), 1)
-        )
+        offsets = _random_directions(rng, len(reflections)) * rng.uniform(5.0, 30.0, (len(reflections), 1))
         tilts = _random_directions(rng, len(reflections)) * np.radians(
             rng.uniform(1.0, 5.0, (len(reflections), 1))
         )
@@ -559,9 +561,9 @@ class World:
         spheres = self.measure_spheres(shown, true_spheres, rng)
         misdetected = outliers[kinds == 0]
         which = rng.integers(0, len(marker.spheres_in_marker), len(misdetected))
-        spheres[misdetected, which] += _random_directions(
-            rng, len(misdetected)
-        ) * rng.uniform(3.0, 10.0, (len(misdetected), 1))
+        spheres[misdetected, which] += _random_directions(rng, len(misdetected)) * rng.uniform(
+            3.0, 10.0, (len(misdetected), 1)
+        )
         kind[misdetected], kind[stale], kind[reflections] = "sphere", "stale", "reflection"
         measured, rms = fit_rigid(points_in_source=marker.spheres_in_marker, points_in_target=spheres)
         seen = self.tracker.visible(truth, marker.spheres_in_marker, marker.face_normal_in_marker)

@@ -226,7 +226,8 @@ def collect_touch(
                 problem = (
                     NOT_SEEN,
                     f"the pointer {quoted(tool)} was not seen ({status}) for the last "
-                    f"{frame.time_s - unseen_since:.1f} s: bring it into the tracker's view on {quoted(label)}",
+                    f"{frame.time_s - unseen_since:.1f} s: bring it into the tracker's view "
+                    f"on {quoted(label)}",
                 )
         else:
             unseen_since, unseen_frames = None, 0
@@ -247,7 +248,9 @@ def collect_touch(
         elapsed_s = max(time.monotonic() - started, frame.time_s - first_time_s)
         if elapsed_s > settings.wait_s:
             reason, line = problem
-            raise TouchRejectedError(f"no touch of {quoted(label)} within {settings.wait_s:g} s: {line}", reason)
+            raise TouchRejectedError(
+                f"no touch of {quoted(label)} within {settings.wait_s:g} s: {line}", reason
+            )
 
 
 def collect_touches(

@@ -270,7 +270,10 @@ def ndi_frame_source(fake: FakeWorld, rate_hz: float, stop: threading.Event):
             time.sleep(max(0.0, next_capture - fake.clock.now_s))
             stamp, pose, rms, _, tools = fake.frame(at_s=next_capture)
             number = NDI_FRAMES_AT_START + int(round(stamp * rate_hz))
-            further = {name: (tool, 0.0 if np.isnan(tool_rms) else tool_rms) for name, (tool, tool_rms) in tools.items()}
+            further = {
+                name: (tool, 0.0 if np.isnan(tool_rms) else tool_rms)
+                for name, (tool, tool_rms) in tools.items()
+            }
             latest["frame"] = (number, pose, (0.0 if np.isnan(rms) else rms), further)
 
     threading.Thread(target=capture, name="ndi-capture", daemon=True).start()
