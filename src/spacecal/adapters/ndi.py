@@ -813,14 +813,22 @@ def _pose_of(transform) -> np.ndarray | None:
 
 
 def further_tool_names(rom_files: Sequence, names: Sequence[str] | None = None) -> tuple[str, ...]:
-    """The names of the tools after the marker: ``names`` (one per ROM) or each ROM file's stem.
+    """The names of the tools after the marker: ``names`` (one per ROM) or each ROM file's stem
+    (``pointer.rom`` twice: ``pointer``, ``pointer-2``).
 
     Raises
     ------
     InvalidInputError
         Not one name per ROM, an empty name, or one name twice.
     """
-    chosen = tuple(Path(rom).stem for rom in rom_files) if names is None else tuple(names)
+    if names is None:
+        # the same definition loaded twice (a second tool of one kind) gets a numbered name
+        stems = [Path(rom).stem for rom in rom_files]
+        names = [
+            stem if stems[:k].count(stem) == 0 else f"{stem}-{stems[:k].count(stem) + 1}"
+            for k, stem in enumerate(stems)
+        ]
+    chosen = tuple(names)
     if len(chosen) != len(rom_files):
         raise InvalidInputError(
             f"{len(chosen)} tool name(s) for {len(rom_files)} tool definition(s) after the marker's"
