@@ -39,3 +39,32 @@ def test_bad_touched_points_are_refused_in_one_line(tmp_path, text, match):
     with pytest.raises(InvalidInputError, match=match) as caught:
         read_touched_points(path)
     assert "\n" not in str(caught.value)
+
+
+def test_written_touches_read_back(tmp_path):
+    from spacecal.io.touched_points import write_touched_points
+
+    points = {"F-1": np.array([12.5, -40.25, -1510.0]), "F,2": np.array([1.0, 2.0, -1400.0])}
+    path = write_touched_points(tmp_path / "t.csv", points, comments=["from a pointer\nsecond line"])
+    frame, read = read_touched_points(path)
+    assert frame == "tracker" and list(read) == list(points)
+    assert all(np.allclose(read[k], points[k], atol=1e-4) for k in points)
+
+
+@pytest.mark.parametrize(
+    "points, match",
+    [
+        ({}, "no touched points"),
+        ({"#F-1": [1.0, 2.0, -1000.0]}, "label"),
+        ({"": [1.0, 2.0, -1000.0]}, "label"),
+        ({"F-1": [1.0, float("nan"), -1000.0]}, "finite"),
+        ({"F-1": [1.0, 2.0]}, "finite"),
+        ({"F-1": [0.01, 0.02, -1.0]}, "metres"),
+    ],
+)
+def test_bad_touches_are_not_written(tmp_path, points, match):
+    from spacecal.io.touched_points import write_touched_points
+
+    with pytest.raises(InvalidInputError, match=match):
+        write_touched_points(tmp_path / "t.csv", points)
+    assert not (tmp_path / "t.csv").exists()

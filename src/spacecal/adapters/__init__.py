@@ -91,6 +91,11 @@ class DeviceOptions:
         Open the robot's control interface too (False: read-only, nothing uploaded).
     limits : MotionLimits or None
         The motion limits rotation-led moves are commanded with.
+    tools : tuple of (str, str)
+        Further tools the tracker reports in :attr:`~spacecal.core.ports.TrackerFrame.tools`,
+        as (the name they are reported by, what the tracker knows them by): for NDI the tool
+        definition (ROM) file, loaded after the marker's; for OpenIGTLink the device name
+        (PLUS naming, ``PointerToTracker``).
     """
 
     rom: tuple[str, ...] = ()
@@ -98,6 +103,7 @@ class DeviceOptions:
     robot_model: str | None = None
     control: bool = False
     limits: MotionLimits | None = field(default=None)
+    tools: tuple[tuple[str, str], ...] = ()
 
 
 def schemes_of(role: str) -> tuple[str, ...]:

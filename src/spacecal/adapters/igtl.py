@@ -57,6 +57,7 @@ import socket
 import struct
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -320,6 +321,14 @@ class IGTLTracker:
         device name, or a tool name inside TDATA/QTDATA.
     connect_timeout_s : float
         How long to wait for the marker's first message before giving up.
+    tools : mapping of str to str, optional
+        Further tools to report in :attr:`TrackerFrame.tools`: the name each is reported by ->
+        its device name in the stream (PLUS naming, ``PointerToTracker`` maps pointer
+        coordinates into the tracker: ``tracker_from_pointer``), a TRANSFORM or POSITION
+        device or a TDATA/QTDATA element. A tool comes in the marker's frame when its message
+        carries the frame's timestamp; a frame that has the marker is handed on once every
+        tool of it has come, or when the next frame starts (PLUS sends nothing for a tool not
+        seen): one frame later then.
     """
 
     def __init__(
@@ -328,8 +337,24 @@ class IGTLTracker:
         port: int = IGTL_DEFAULT_PORT,
         device_name: str = "MarkerToTracker",
         connect_timeout_s: float = CONNECT_DEADLINE_S,
+        tools: Mapping[str, str] | None = None,
     ):
         self.device_name = device_name
+        #: The further tools: name -> device name.
+        self.tools = dict(tools or {})
+        for name, device in self.tools.items():
+            if not str(name).strip() or not str(device).strip():
+                raise InvalidInputError(
+                    f"a tracked tool needs a name and a device name, got {name!r}: {device!r}"
+                )
+            if device == device_name:
+                raise InvalidInputError(f"tool {name!r} is the marker's device {device!r}")
+        if len(set(self.tools.values())) < len(self.tools):
+            raise InvalidInputError("two tools are given the same OpenIGTLink device name")
+        # the newest frame's tools that came (name -> (pose or None, status)), and its marker
+        # frame while it waits for them
+        self._group_tools: dict[str, tuple[np.ndarray | None, str]] = {}
+        self._group_marker: TrackerFrame | None = None
         self.url = f"igtl://{host}:{port}"
         self._condition = threading.Condition()
         self._frames: collections.deque = collections.deque(maxlen=64)
@@ -537,13 +562,57 @@ class IGTLTracker:
             self.header_versions.add(message.version)
             stamp = message.timestamp_s
             self._frame_stamp(stamp, now)
+            if stamp == self._group_stamp and not self._group_closed:
+                for name, device in self.tools.items():
+                    if device in poses:
+                        self._group_tools[name] = self._tool_pose(poses[device], message.metadata)
             if self.device_name in poses and stamp == self._group_stamp:
                 self._group_has_marker = True
                 frame = self._marker_frame(stamp, poses[self.device_name], message.metadata)
                 self.marker_frames += 1
                 self.refused_poses += frame.refused_pose
-                self._push(frame)
+                if self.tools:
+                    self._group_marker = frame  # handed on with its tools
+                else:
+                    self._push(frame)
+            if self._group_marker is not None and len(self._group_tools) == len(self.tools):
+                self._close_group()
             self._condition.notify_all()
+
+    def _tool_pose(self, matrix: np.ndarray, metadata: dict) -> tuple[np.ndarray | None, str]:
+        """A further tool's (pose or None, status) by the marker's rules (placeholders are none)."""
+        frame = self._marker_frame(0.0, matrix, metadata)
+        return frame.tracker_from_marker, frame.status
+
+    def _with_tools(
+        self, frame: TrackerFrame, tools: dict[str, tuple[np.ndarray | None, str]]
+    ) -> TrackerFrame:
+        """``frame`` carrying every configured tool (those that did not come: missing)."""
+        if not self.tools:
+            return frame
+        came = {name: tools.get(name, (None, FRAME_MISSING)) for name in self.tools}
+        return TrackerFrame(
+            frame.time_s,
+            frame.frame_number,
+            frame.status,
+            frame.tracker_from_marker,
+            frame.rms_mm,
+            tools={name: pose for name, (pose, _) in came.items()},
+            tool_statuses={name: status for name, (_, status) in came.items()},
+        )
+
+    def _close_group(self) -> None:
+        """Hand on the newest frame (the lock held), once: its marker frame, or a frame without
+        the marker, with the tools that came in it."""
+        if self._group_closed:
+            return
+        frame = self._group_marker
+        if frame is None and not self._group_has_marker:
+            frame = TrackerFrame(self._group_stamp or 0.0, 0, FRAME_MISSING, None)
+        if frame is not None:
+            self._push(self._with_tools(frame, self._group_tools))
+        self._group_closed = True
+        self._group_marker = None
 
     def _frame_stamp(self, stamp: float, now: float) -> None:
         """A message of the tracker frame stamped ``stamp`` came at ``now`` (the lock held): a
@@ -553,10 +622,11 @@ class IGTLTracker:
         if stamp == self._group_stamp:
             return
         if self._group_stamp is not None and stamp > self._group_stamp:
-            if not self._group_has_marker and not self._group_closed:
-                self._push(TrackerFrame(self._group_stamp, 0, FRAME_MISSING, None))
+            if (not self._group_has_marker or self._group_marker is not None) and not self._group_closed:
+                self._close_group()
         if self._group_stamp is None or stamp > self._group_stamp:
             self._group_stamp, self._group_has_marker, self._group_closed = stamp, False, False
+            self._group_tools, self._group_marker = {}, None
             self._group_at = now
             self._silent_frames = 0
             self._last_new_stamp_at = now
@@ -590,14 +660,14 @@ class IGTLTracker:
         if period is None:
             return False
         pushed = False
-        if not self._group_has_marker and not self._group_closed:
-            self._push(TrackerFrame(self._group_stamp, 0, FRAME_MISSING, None))
-            self._group_closed = pushed = True
+        if (not self._group_has_marker or self._group_marker is not None) and not self._group_closed:
+            self._close_group()
+            pushed = True
         late = frame_late_s(period)
         while self._group_at + (self._silent_frames + 1) * period + late <= answered_at:
             self._silent_frames += 1
             stamp = self._group_stamp + self._silent_frames * period
-            self._push(TrackerFrame(stamp, 0, FRAME_MISSING, None))
+            self._push(self._with_tools(TrackerFrame(stamp, 0, FRAME_MISSING, None), {}))
             pushed = True
         return pushed
 
@@ -648,7 +718,14 @@ class IGTLTracker:
         self._last_returned_stamp = frame.time_s
         self._frame_number += 1
         return TrackerFrame(
-            frame.time_s, self._frame_number, frame.status, frame.tracker_from_marker, frame.rms_mm
+            frame.time_s,
+            self._frame_number,
+            frame.status,
+            frame.tracker_from_marker,
+            frame.rms_mm,
+            tools=frame.tools,
+            tool_statuses=frame.tool_statuses,
+            refused_tools=frame.refused_tools,
         )
 
     def _gone_for(self, now: float, timeout_s: float) -> bool:
@@ -822,5 +899,6 @@ def _read_past_until(connection: socket.socket, url: str, name: str, until: floa
 
 
 def open_device(address: DeviceAddress, options: DeviceOptions) -> IGTLTracker:
-    """The ``igtl://`` row of the URL table (:data:`spacecal.adapters.DEVICE_SCHEMES`)."""
-    return IGTLTracker(address.host, address.port or IGTL_DEFAULT_PORT)
+    """The ``igtl://`` row of the URL table (:data:`spacecal.adapters.DEVICE_SCHEMES`);
+    ``options.tools`` are (name, device name) pairs."""
+    return IGTLTracker(address.host, address.port or IGTL_DEFAULT_PORT, tools=dict(options.tools))

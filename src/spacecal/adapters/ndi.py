@@ -47,7 +47,7 @@ import socket
 import stat
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -352,20 +352,34 @@ class NDITracker:
     port : int, optional
         TCP port; None means serial.
     rom_files : list of str
-        Tool definition files; the first is the calibration marker.
+        Tool definition files; the first is the calibration marker, each further one a tool
+        reported in :attr:`TrackerFrame.tools` under its name.
     rate_hz : float
         Camera frame rate, to turn frame numbers into seconds (Vicra 20, Spectra/Vega 60).
     reply : str
         ``"bx"`` (binary, default) or ``"tx"`` (ASCII).
+    tool_names : sequence of str, optional
+        The names of the further tools, one per ROM after the first (default: each ROM file's
+        name without its suffix, ``pointer.rom`` is ``pointer``).
     """
 
-    def __init__(self, address: str, port: int | None, rom_files, rate_hz: float = 20.0, reply: str = "bx"):
+    def __init__(
+        self,
+        address: str,
+        port: int | None,
+        rom_files,
+        rate_hz: float = 20.0,
+        reply: str = "bx",
+        tool_names: Sequence[str] | None = None,
+    ):
         self._ndi = require("ndicapy", "ndi")
         if not rom_files:
             raise InvalidInputError("an NDI tracker needs the marker's ROM file (--rom)")
         for rom in rom_files:
             if not Path(rom).is_file():
                 raise InvalidInputError(f"ROM file {rom} not found")
+        #: The further tools' names, in the order of their ROMs (after the marker's).
+        self.tool_names = further_tool_names(list(rom_files)[1:], tool_names)
         self.rate_hz = rate_hz
         self.reply = reply
         self.serial = port is None
@@ -386,6 +400,7 @@ class NDITracker:
             self.close()
             raise
         self._marker = bytes([self.handles[0]])
+        self._tool_handles = {name: bytes([h]) for name, h in zip(self.tool_names, self.handles[1:])}
         self._last_frame_number = -1
         self._bx_answered = False
         self._last_frame_at = time.monotonic()
@@ -573,9 +588,27 @@ class NDITracker:
 
     def _poll(self, handle: bytes | None = None):
         """Request one frame; (frame number, transform or 'MISSING'/'DISABLED', port status,
-        system status) of ``handle`` (default the marker)."""
-        ndi = self._ndi
+        system status) of ``handle`` (default the marker), and fifth the further tools' {name:
+        (transform or 'MISSING'/'DISABLED', port status)} of the same reply."""
         handle = self._marker if handle is None else handle
+        getters = self._request_frame()
+        frame_getter, transform_getter, port_getter, system_getter = getters
+        tools = {
+            name: (transform_getter(self._device, tool), port_getter(self._device, tool))
+            for name, tool in self._tool_handles.items()
+        }
+        return (
+            frame_getter(self._device, handle),
+            transform_getter(self._device, handle),
+            port_getter(self._device, handle),
+            system_getter(self._device),
+            tools,
+        )
+
+    def _request_frame(self):
+        """Ask for one frame (BX, else TX); the ndicapy getters of its reply: frame number,
+        transform, port status (each of a handle) and system status."""
+        ndi = self._ndi
         if self.reply == "bx" and not self._bx_answered:
             # Firmware without BX answers "ERROR01" in ASCII, which ndicapi checks as a binary
             # reply: a bad CRC every time. Before BX has worked once, any failure means TX.
@@ -594,27 +627,17 @@ class NDITracker:
             if error != ndi.NDI_OKAY:
                 raise DeviceError(f"NDI tracker error while sending BX: {ndi.ndiErrorString(error)}")
         if self.reply == "bx":
-            return (
-                ndi.ndiGetBXFrame(self._device, handle),
-                ndi.ndiGetBXTransform(self._device, handle),
-                ndi.ndiGetBXPortStatus(self._device, handle),
-                ndi.ndiGetBXSystemStatus(self._device),
-            )
+            return ndi.ndiGetBXFrame, ndi.ndiGetBXTransform, ndi.ndiGetBXPortStatus, ndi.ndiGetBXSystemStatus
         _, error = self._request(f"TX:{REPLY_OPTION}")
         if error != ndi.NDI_OKAY:
             raise DeviceError(f"NDI tracker error while sending TX: {ndi.ndiErrorString(error)}")
-        return (
-            ndi.ndiGetTXFrame(self._device, handle),
-            ndi.ndiGetTXTransform(self._device, handle),
-            ndi.ndiGetTXPortStatus(self._device, handle),
-            ndi.ndiGetTXSystemStatus(self._device),
-        )
+        return ndi.ndiGetTXFrame, ndi.ndiGetTXTransform, ndi.ndiGetTXPortStatus, ndi.ndiGetTXSystemStatus
 
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         deadline = time.monotonic() + timeout_s
         while True:
             try:
-                frame_number, transform, port_status, system_status = self._poll()
+                frame_number, transform, port_status, system_status, tools = self._poll()
             except DeviceError:
                 raise
             except OSError as exc:
@@ -630,22 +653,38 @@ class NDITracker:
             time.sleep(0.25 / self.rate_hz)
         self._last_frame_number = frame_number
         self._last_frame_at = time.monotonic()
-        return self._frame(frame_number, transform, port_status, system_status)
+        return self._frame(frame_number, transform, port_status, system_status, tools)
 
-    def _frame(self, frame_number: int, transform, port_status: int, system_status: int) -> TrackerFrame:
+    def _frame(
+        self, frame_number: int, transform, port_status: int, system_status: int, tools: dict | None = None
+    ) -> TrackerFrame:
         #: The raw status words of the newest frame, for diagnostics.
         self.last_port_status, self.last_system_status = int(port_status), int(system_status)
         status = frame_status(transform, port_status, system_status)
         time_s = frame_number / self.rate_hz
-        if isinstance(transform, str):  # "MISSING" or "DISABLED": no pose
-            return TrackerFrame(time_s, int(frame_number), status, None)
-        q0, qx, qy, qz, tx, ty, tz, rms = transform
-        norm = float(np.linalg.norm([q0, qx, qy, qz]))
-        if not np.isfinite(norm) or norm < 0.5:  # no usable rotation: never a pose
-            return TrackerFrame(time_s, int(frame_number), FRAME_MISSING, None)
-        pose = transform_from_position_quaternion([tx, ty, tz], np.array([q0, qx, qy, qz]) / norm)
+        poses: dict[str, np.ndarray | None] = {}
+        statuses: dict[str, str] = {}
+        for name, (tool_transform, tool_port) in (tools or {}).items():
+            tool_status = frame_status(tool_transform, tool_port, system_status)
+            tool_pose = _pose_of(tool_transform)
+            poses[name] = tool_pose
+            statuses[name] = (
+                tool_status if tool_pose is not None or isinstance(tool_transform, str) else FRAME_MISSING
+            )
+        pose = _pose_of(transform)
+        if pose is None:  # "MISSING" or "DISABLED", or no usable rotation: no pose
+            return TrackerFrame(
+                time_s,
+                int(frame_number),
+                status if isinstance(transform, str) else FRAME_MISSING,
+                None,
+                tools=poses,
+                tool_statuses=statuses,
+            )
         # the pose is kept whatever the status: a doubtful frame is recorded as such
-        return TrackerFrame(time_s, int(frame_number), status, pose, float(rms))
+        return TrackerFrame(
+            time_s, int(frame_number), status, pose, float(transform[7]), tools=poses, tool_statuses=statuses
+        )
 
     def identity(self) -> DeviceIdentity:
         """The tracker's model, serial number and firmware, from its ``VER 4`` text; None for
@@ -682,12 +721,12 @@ class NDITracker:
         first = last = None
         frames = []
         while time.monotonic() - start < duration_s:
-            frame_number, transform, port_status, system_status = self._poll()
+            frame_number, transform, port_status, system_status, tools = self._poll()
             if first is None:
                 first = (frame_number, time.monotonic())
             if last is None or frame_number != last[0]:
                 last = (frame_number, time.monotonic())
-                frames.append(self._frame(frame_number, transform, port_status, system_status))
+                frames.append(self._frame(frame_number, transform, port_status, system_status, tools))
             time.sleep(0.2 / self.rate_hz)
         findings.append(
             DeviceFinding(
@@ -761,14 +800,60 @@ class NDITracker:
             self._release()
 
 
+def _pose_of(transform) -> np.ndarray | None:
+    """The pose (4, 4), mm, of an ndicapy transform (q0 qx qy qz tx ty tz rms); None for
+    ``MISSING``/``DISABLED`` or a quaternion that is no rotation."""
+    if isinstance(transform, str):
+        return None
+    q0, qx, qy, qz, tx, ty, tz, _ = transform
+    norm = float(np.linalg.norm([q0, qx, qy, qz]))
+    if not np.isfinite(norm) or norm < 0.5:  # no usable rotation: never a pose
+        return None
+    return transform_from_position_quaternion([tx, ty, tz], np.array([q0, qx, qy, qz]) / norm)
+
+
+def further_tool_names(rom_files: Sequence, names: Sequence[str] | None = None) -> tuple[str, ...]:
+    """The names of the tools after the marker: ``names`` (one per ROM) or each ROM file's stem
+    (``pointer.rom`` twice: ``pointer``, ``pointer-2``).
+
+    Raises
+    ------
+    InvalidInputError
+        Not one name per ROM, an empty name, or one name twice.
+    """
+    if names is None:
+        # the same definition loaded twice (a second tool of one kind) gets a numbered name
+        stems = [Path(rom).stem for rom in rom_files]
+        names = [
+            stem if stems[:k].count(stem) == 0 else f"{stem}-{stems[:k].count(stem) + 1}"
+            for k, stem in enumerate(stems)
+        ]
+    chosen = tuple(names)
+    if len(chosen) != len(rom_files):
+        raise InvalidInputError(
+            f"{len(chosen)} tool name(s) for {len(rom_files)} tool definition(s) after the marker's"
+        )
+    for name in chosen:
+        if not isinstance(name, str) or not name.strip():
+            raise InvalidInputError(f"a tracked tool needs a name, got {name!r}")
+    repeated = sorted({name for name in chosen if chosen.count(name) > 1})
+    if repeated:
+        raise InvalidInputError(f"two tools are named {repeated[0]!r}: give each tool its own name")
+    return chosen
+
+
 def open_device(address: DeviceAddress, options: DeviceOptions) -> NDITracker:
     """The ``ndi://`` row of the URL table (:data:`spacecal.adapters.DEVICE_SCHEMES`): a serial
-    port (``ndi:///dev/ttyUSB0``) or a TCP host (a Vega)."""
+    port (``ndi:///dev/ttyUSB0``) or a TCP host (a Vega). ROMs after the marker's are tools
+    named by their files' stems; ``options.tools`` adds (name, ROM file) pairs after those."""
     if not options.rom:
         raise InvalidInputError("an NDI tracker needs the marker's tool definition: --rom FILE")
+    further = list(options.rom[1:]) + [rom for _, rom in options.tools]
+    names = [Path(rom).stem for rom in options.rom[1:]] + [name for name, _ in options.tools]
     return NDITracker(
         address.host,
         None if address.serial else address.port,
-        list(options.rom),
+        [options.rom[0], *further],
         rate_hz=options.tracker_rate_hz,
+        tool_names=names,
     )

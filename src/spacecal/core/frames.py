@@ -18,7 +18,11 @@ FRAMES: dict[str, str] = {
     "image_lps": "CT image space in the image's LPS patient coordinates (DICOM, ITK, Slicer's files): "
     "x to the patient's left, y posterior, z superior; a needle plan is held in it",
     "image_ras": "CT image space in RAS coordinates (3D Slicer's world): image_lps with x and y negated",
-    "reference": "a marker fixed to the patient or phantom",
+    "reference": "a reference marker that is not the calibrated one, with its own tool definition: "
+    "fixed to the patient or phantom, or rigidly on the needle guide (the simulated world's), where "
+    "it measures the reached needle independently of the calibration",
+    "pointer": "a hand-held tracked pointer's marker frame",
+    "tip": "a pointer's (or needle's) pivot-calibrated tip; pointer_from_tip places it",
     "camera": "a camera on the robot's tool (eye-in-hand); it plays the marker's role",
     "target": "a calibration target fixed in the robot's world, seen by an eye-in-hand camera; "
     "it plays the tracker's role",

@@ -8,7 +8,8 @@ Units at this boundary are spacecal's: mm, rad, seconds.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -194,6 +195,17 @@ class TrackerFrame:
         The tracker's RMS fit error, NaN when not ``ok``.
     spheres_in_tracker : numpy.ndarray, shape (K, 3), or None
         Raw sphere centres where the device reports them, mm.
+    tools : mapping of str to numpy.ndarray (4, 4) or None
+        Further tools the tracker follows in the same frame, by the name the user gave them
+        (an NDI tool definition's, an OpenIGTLink device's): ``tracker_from_<tool>``, mm, or
+        None when the tool was not plainly seen (missing, or any status but ``ok``). Empty
+        when the tracker follows the marker only. A pose that is not one
+        (:func:`plausible_tracked_pose`) is None here and its name is in ``refused_tools``.
+    tool_statuses : mapping of str to str
+        The status (one of :data:`FRAME_STATUSES`) of each tool of ``tools``: why a tool has
+        no pose. Filled in from the poses (``ok`` or ``missing``) where the device gives none.
+    refused_tools : tuple of str
+        The tools whose pose the device sent was not one (set here, never by the device).
     """
 
     time_s: float
@@ -204,8 +216,12 @@ class TrackerFrame:
     spheres_in_tracker: np.ndarray | None = None
     #: True when the device sent a pose that is not one (set here, never by the device).
     refused_pose: bool = False
+    tools: Mapping[str, np.ndarray | None] = field(default_factory=dict)
+    tool_statuses: Mapping[str, str] = field(default_factory=dict)
+    refused_tools: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        self._check_tools()
         # the device boundary: a pose that is not a rigid transform within the tracker's reach
         # (NaN, 1e30 mm, a scaled matrix) is kept as an invalid frame without a pose, a gap in
         # the run, never a sample
@@ -221,6 +237,50 @@ class TrackerFrame:
             object.__setattr__(self, "spheres_in_tracker", None)
         if not (np.isnan(self.rms_mm) or 0.0 <= self.rms_mm <= MAX_FIT_RMS_MM):
             object.__setattr__(self, "rms_mm", float("nan"))
+
+    def _check_tools(self) -> None:
+        """The further tools at the device boundary, as the marker's pose: a pose that is not
+        a rigid transform within a tracker's reach is no pose (None, status ``invalid``), a
+        doubtful one (any status but ``ok``) is not a plainly seen tool; copied (poses read-only)."""
+        poses: dict[str, np.ndarray | None] = {}
+        statuses: dict[str, str] = {}
+        refused = list(self.refused_tools)
+        for name, pose in dict(self.tools).items():
+            if not isinstance(name, str) or not name.strip():
+                raise DeviceError(f"a tracked tool needs a name, got {name!r}")
+            status = str(dict(self.tool_statuses).get(name, FRAME_OK if pose is not None else FRAME_MISSING))
+            if status not in FRAME_STATUSES:
+                raise DeviceError(f"tool {name!r}: unknown frame status {status!r}")
+            if pose is not None and not plausible_tracked_pose(pose):
+                pose, status = None, FRAME_INVALID
+                if name not in refused:
+                    refused.append(name)
+            elif pose is not None:
+                pose = np.array(pose, dtype=float)
+                pose.flags.writeable = False
+            if status != FRAME_OK:
+                pose = None
+            elif pose is None:
+                status = FRAME_MISSING
+            poses[name], statuses[name] = pose, status
+        object.__setattr__(self, "tools", poses)
+        object.__setattr__(self, "tool_statuses", statuses)
+        object.__setattr__(self, "refused_tools", tuple(refused))
+
+    def tool(self, name: str) -> np.ndarray | None:
+        """``tracker_from_<name>`` (4, 4), mm, or None when the tool was not plainly seen.
+
+        Raises
+        ------
+        InvalidInputError
+            The tracker does not follow a tool of that name (one line naming the ones it does).
+        """
+        if name not in self.tools:
+            from spacecal.core.errors import InvalidInputError
+
+            known = ", ".join(sorted(self.tools)) or "none but the marker"
+            raise InvalidInputError(f"the tracker follows no tool {name!r} (its tools: {known})")
+        return self.tools[name]
 
 
 #: Joint angles beyond this (rad) are not a UR's (its joints turn +-2 pi; a margin for wrap).
@@ -338,7 +398,8 @@ class Closable(Protocol):
 
 @runtime_checkable
 class Tracker(Protocol):
-    """An optical tracker following one marker."""
+    """An optical tracker following the calibrated marker (and any further tools it was
+    given, in :attr:`TrackerFrame.tools`)."""
 
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         """Block until a frame newer than the last one returned, at most ``timeout_s``.

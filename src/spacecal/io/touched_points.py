@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import quoted
 from spacecal.core.units import METRES_BELOW_MM
+from spacecal.io.atomic import write_text_atomic
 from spacecal.io.csv_core import parse_number
 from spacecal.io.text import read_text_file
 
@@ -82,3 +84,59 @@ def read_touched_points(path: str | Path) -> tuple[str, dict[str, np.ndarray]]:
             f"{path}: the points are within {METRES_BELOW_MM:g} mm of the origin: metres?"
         )
     return frames[0], points
+
+
+def write_touched_points(
+    path: str | Path,
+    points: Mapping[str, np.ndarray],
+    frame: str = "tracker",
+    comments: Sequence[str] = (),
+) -> Path:
+    """Write touched points (label -> position (3,), mm, in ``frame``) in the layout
+    :func:`read_touched_points` reads, atomically; returns the path.
+
+    Parameters
+    ----------
+    path : str or Path
+    points : mapping of str to array_like, shape (3,)
+        In the order touched.
+    frame : str
+        One of :data:`TOUCHED_FRAMES`.
+    comments : sequence of str
+        Lines written first, each as a ``#`` comment (where the points came from).
+
+    Raises
+    ------
+    InvalidInputError
+        Another frame, no points, a label that is empty, starts with ``#`` or spans lines, a
+        position that is not 3 finite numbers, or tracker points that look like metres.
+    """
+    if frame not in TOUCHED_FRAMES:
+        raise InvalidInputError(f"touched points are in {' or '.join(TOUCHED_FRAMES)}, not {quoted(frame)}")
+    if not points:
+        raise InvalidInputError("no touched points to write")
+    rows = []
+    for label, point in points.items():
+        text = str(label).strip()
+        if not text or text.startswith("#") or any(c in text for c in "\r\n"):
+            raise InvalidInputError(
+                f"a touched point's label must be one line not starting with '#', got {quoted(str(label))}"
+            )
+        position = np.asarray(point, dtype=float)
+        if position.shape != (3,) or not np.all(np.isfinite(position)):
+            raise InvalidInputError(f"touched point {quoted(text)} is not 3 finite numbers (mm)")
+        rows.append([text, *(f"{value:.4f}" for value in position)])
+    if (
+        frame == "tracker"
+        and float(np.median([np.linalg.norm(np.asarray(p, float)) for p in points.values()]))
+        < METRES_BELOW_MM
+    ):
+        raise InvalidInputError(f"the points are within {METRES_BELOW_MM:g} mm of the tracker: metres?")
+    out = io.StringIO()
+    for comment in comments:
+        for line in str(comment).splitlines() or [""]:
+            out.write(f"# {line}\n")
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(touched_columns(frame))
+    writer.writerows(rows)
+    return write_text_atomic(out.getvalue(), path)

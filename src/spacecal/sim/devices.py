@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 from collections import deque
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -326,18 +327,35 @@ class SimulatedTracker:
     ----------
     unplug_after_frames : int, optional
         Fault injection: after this many frames the tracker stops answering.
+    tools : sequence of str
+        The world's further tools this tracker follows as well (``pointer``, ``reference``:
+        :attr:`World.tools`), reported in :attr:`TrackerFrame.tools` under those names, each
+        measured with the tracker's noise model; none by default (the marker only).
 
     Attributes
     ----------
     truth : dict
         Frame time (s) -> ``(true tracker_from_marker (4, 4), outlier kind)`` of every frame
         delivered: the ground truth experiments score against.
+    tool_truth : dict
+        Frame time (s) -> {tool name: its true pose (4, 4), or None while not in the world's
+        view (a pointer put away)} of every frame delivered with tools.
     """
 
     #: True poses kept for stale-frame outliers (the scenario's stale frames are 2-8 old).
     HISTORY_FRAMES = 8
 
-    def __init__(self, world: World, robot: SimulatedRobot, unplug_after_frames: int | None = None):
+    def __init__(
+        self,
+        world: World,
+        robot: SimulatedRobot,
+        unplug_after_frames: int | None = None,
+        tools: Sequence[str] = (),
+    ):
+        for name in tools:
+            world.tool_geometry(name)  # an unknown tool is one line now, not at the first frame
+        self.tools = tuple(tools)
+        self.tool_truth: dict[float, dict[str, np.ndarray | None]] = {}
         self.world = world
         self.robot = robot
         self.clock = robot.clock
@@ -373,7 +391,25 @@ class SimulatedTracker:
             tracker_from_marker=pose if seen else None,
             rms_mm=float(tracked.rms_mm[0]),
             spheres_in_tracker=tracked.spheres_in_tracker[0] if seen else None,
+            tools=self._tool_poses(base_from_tcp, time_s),
         )
+
+    def _tool_poses(self, base_from_tcp: np.ndarray, time_s: float) -> dict[str, np.ndarray | None]:
+        """The further tools as the tracker sees them in this frame (their noise from the
+        world's tool stream, so that the marker's frames are those it had without them)."""
+        poses: dict[str, np.ndarray | None] = {}
+        truths: dict[str, np.ndarray | None] = {}
+        for name in self.tools:
+            truth = self.world.true_tool_pose(name, base_from_tcp, time_s)
+            truths[name] = truth
+            if truth is None:
+                poses[name] = None
+                continue
+            pose = self.world.track_tool(name, truth[None]).tracker_from_marker[0]
+            poses[name] = pose if bool(np.all(np.isfinite(pose))) else None
+        if self.tools:
+            self.tool_truth[time_s] = truths
+        return poses
 
 
 class SimulatedLaserTracker:

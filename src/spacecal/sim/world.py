@@ -7,10 +7,12 @@ from a separate stream.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from spacecal.core.errors import InvalidInputError, UnreachableError
 from spacecal.geometry.fitting import fit_rigid
 from spacecal.geometry.transforms import (
     invert_transform,
@@ -23,7 +25,11 @@ from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
 from spacecal.models.tracker import TrackerModel
+from spacecal.planning.needle import plan_needle
+from spacecal.planning.visibility import VisibilityModel
+from spacecal.sim import tools as sim_tools
 from spacecal.sim.scenario import Scenario
+from spacecal.sim.tools import POINTER, REFERENCE, PhantomTruth, PlannedPath
 
 
 def look_at_tracker_from_base(camera_in_base, target_in_base) -> np.ndarray:
@@ -218,6 +224,29 @@ class World:
     true_spheres_in_marker : numpy.ndarray, shape (K, 3), or None
         Where the marker's spheres really are in its frame, mm, when they differ from the
         definition the tracker fits (``marker_geometry_error_sd_mm``); None when they do not.
+    tools : dict of str to MarkerGeometry
+        The further tools the tracker can follow, by name: ``pointer`` (a hand-held tracked
+        pointer) and ``reference`` (a marker rigidly on the needle guide, its own tool
+        definition); see :mod:`spacecal.sim.tools`.
+    pointer_from_tip_true, pointer_from_tip : numpy.ndarray, shape (4, 4)
+        Where the pointer's tip really is, and where its pivot calibration puts it (the truth
+        off by :data:`~spacecal.sim.tools.POINTER_TIP_ERROR_MM` RMS): the one a user knows.
+    tcp_from_reference : numpy.ndarray, shape (4, 4)
+        The guide's reference marker on the TCP (truth), mm.
+    reference_from_needle : numpy.ndarray, shape (4, 4)
+        The needle in the reference marker's frame as the guide's own definition gives it (its
+        tool file), independent of the calibrated marker; the needle is the TCP here.
+    tool_noise_rng : numpy.random.Generator
+        The further tools' measurement noise, a stream apart from :attr:`noise_rng`.
+    pointer_hand_rng : numpy.random.Generator
+        Draws how the pointer is held at each touch.
+    tracker_from_pointer_held : numpy.ndarray, shape (4, 4), or None
+        Where the pointer is held now (truth), None while it is put away.
+    pointer_fiducial : str or None
+        The fiducial the pointer touches now.
+    pointer_sway_mm : float
+        The hand's sway while it holds the pointer: the pointer moves (sinusoidally, at
+        :data:`POINTER_SWAY_HZ`, this amplitude along the tracker's x) instead of holding still.
     """
 
     scenario: Scenario
@@ -234,6 +263,28 @@ class World:
     noise_rng: np.random.Generator
     bias_field: TrackerBiasField | None = None
     true_spheres_in_marker: np.ndarray | None = None
+    tools: dict[str, MarkerGeometry] = field(default_factory=dict)
+    pointer_from_tip_true: np.ndarray = field(default_factory=lambda: np.eye(4))
+    pointer_from_tip: np.ndarray = field(default_factory=lambda: np.eye(4))
+    tcp_from_reference: np.ndarray = field(default_factory=lambda: np.eye(4))
+    reference_from_needle: np.ndarray = field(default_factory=lambda: np.eye(4))
+    tool_noise_rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    pointer_hand_rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    tracker_from_pointer_held: np.ndarray | None = None
+    pointer_fiducial: str | None = None
+    pointer_sway_mm: float = 0.0
+
+    #: The frequency (Hz) of a swaying hand (:attr:`pointer_sway_mm`).
+    POINTER_SWAY_HZ = 1.0
+    #: Fiducials on the phantom, and needle paths planned in it.
+    PHANTOM_FIDUCIALS, PHANTOM_PATHS = 6, 3
+    #: The head's semi-axes (mm) and the paths' depths below their entries (mm), as the
+    #: phantom experiment's (:mod:`spacecal.experiments.phantom`).
+    HEAD_RADII_MM, PATH_DEPTH_MM = (75.0, 90.0, 65.0), (40.0, 70.0)
+    #: Least distance (mm) between two fiducials.
+    FIDUCIAL_SPACING_MM = 30.0
+    #: Draws of a fiducial or a path before the phantom counts as not buildable.
+    PHANTOM_ATTEMPTS = 200
 
     # -- the robot ---------------------------------------------------------------------
     def repeatability_offsets(self, count: int) -> np.ndarray:
@@ -285,15 +336,145 @@ class World:
             poses[:, :3, 3] += self.repeatability_offsets(len(poses))
         return poses
 
-    # -- the tracker -------------------------------------------------------------------
-    def measure_spheres(self, tracker_from_marker_true) -> np.ndarray:
-        """Noisy sphere centres (N, K, 3) in the tracker frame for true marker poses (N, 4, 4)."""
-        t = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
-        true_spheres = (
-            self.marker.spheres_in_marker
-            if self.true_spheres_in_marker is None
-            else self.true_spheres_in_marker
+    # -- the phantom and the further tools -----------------------------------------------
+    @functools.cached_property
+    def phantom(self) -> PhantomTruth:
+        """The head phantom in the tracker's view below the site (built on first use, from a
+        stream of its own): as the phantom experiment places it, the image axes along the
+        base's, fiducials on the upper half of the head that the pointer can touch in view,
+        and :data:`PHANTOM_PATHS` needle paths the robot reaches (the controller's model,
+        from home) with the marker and the guide's reference in view at the target.
+
+        Raises
+        ------
+        UnreachableError
+            The layout leaves no touchable fiducials or reachable paths.
+        """
+        rng = np.random.default_rng([self.scenario.seed, sim_tools.PHANTOM_STREAM])
+        radii = np.asarray(self.HEAD_RADII_MM)
+        home = forward_kinematics(self.nominal_model, self.home_joints_rad)
+        head_centre_in_base = self.site_in_base + home[:3, :3] @ np.array([0.0, 0.0, 120.0])
+        tracker_from_image = self.tracker_from_base @ make_transform(np.eye(3), head_centre_in_base)
+        fiducials: dict[str, np.ndarray] = {}
+        for _ in range(self.PHANTOM_ATTEMPTS):
+            if len(fiducials) == self.PHANTOM_FIDUCIALS:
+                break
+            direction = rng.normal(size=3)
+            direction[2] = abs(direction[2])  # the upper half (image z is base z: up)
+            point = sim_tools.surface_point(radii, direction)
+            if any(np.linalg.norm(point - other) < self.FIDUCIAL_SPACING_MM for other in fiducials.values()):
+                continue  # spread out, as fiducials are placed for a registration
+            try:  # a fiducial the pointer cannot touch in view is not one a user would mark
+                sim_tools.pointer_pose_at(
+                    point,
+                    radii,
+                    tracker_from_image,
+                    self.pointer_from_tip_true,
+                    self.tools[POINTER],
+                    self.tracker,
+                    np.random.default_rng([self.scenario.seed, sim_tools.PHANTOM_STREAM, len(fiducials)]),
+                )
+            except UnreachableError:
+                continue
+            fiducials[f"F-{len(fiducials) + 1}"] = point
+        if len(fiducials) < self.PHANTOM_FIDUCIALS:
+            raise UnreachableError(
+                "the simulated phantom has too few fiducials the pointer can touch in view"
+            )
+        visibility = VisibilityModel(self.tracker, self.marker, self.tracker_from_base, self.tcp_from_marker)
+        reference = self.tools[REFERENCE]
+        paths: list[PlannedPath] = []
+        for _ in range(self.PHANTOM_ATTEMPTS):
+            if len(paths) == self.PHANTOM_PATHS:
+                break
+            top = rng.normal(size=3)
+            top[2] = abs(top[2]) + 1.5  # entries on the upper surface, for a downward needle
+            entry = sim_tools.surface_point(radii, top)
+            target = entry * (1.0 - rng.uniform(*self.PATH_DEPTH_MM) / np.linalg.norm(entry))
+            try:
+                plan = plan_needle(
+                    entry,
+                    target,
+                    tracker_from_image,
+                    self.tracker_from_base,
+                    self.controller_model,
+                    self.home_joints_rad,
+                    visibility=visibility,
+                )
+            except UnreachableError:
+                continue
+            tracker_from_reference = (
+                self.tracker_from_base @ plan.base_from_needle_target @ self.tcp_from_reference
+            )
+            if not self.tracker.visible(
+                tracker_from_reference[None], reference.spheres_in_marker, reference.face_normal_in_marker
+            )[0]:
+                continue
+            paths.append(PlannedPath(f"T-{len(paths) + 1}", entry, target))
+        if len(paths) < self.PHANTOM_PATHS:
+            raise UnreachableError("the simulated phantom has too few needle paths the robot reaches")
+        return PhantomTruth(radii, fiducials, tracker_from_image, tuple(paths))
+
+    def place_pointer(self, which: int | str) -> np.ndarray:
+        """Hold the pointer with its true tip on fiducial ``which`` (its label, or its number
+        from 1), at a random but plausible pose facing the tracker (a fresh draw each time),
+        until it is placed again or put away; returns the true ``tracker_from_pointer`` (4, 4).
+
+        Raises
+        ------
+        InvalidInputError
+            No such fiducial.
+        """
+        phantom = self.phantom
+        label, point = phantom.fiducial(which)
+        self.tracker_from_pointer_held = sim_tools.pointer_pose_at(
+            point,
+            phantom.head_radii_mm,
+            phantom.tracker_from_image,
+            self.pointer_from_tip_true,
+            self.tools[POINTER],
+            self.tracker,
+            self.pointer_hand_rng,
         )
+        self.pointer_fiducial = label
+        return self.tracker_from_pointer_held
+
+    def put_pointer_away(self) -> None:
+        """Put the pointer down out of the tracker's view: it is not seen."""
+        self.tracker_from_pointer_held = None
+        self.pointer_fiducial = None
+
+    def true_tool_pose(self, name: str, base_from_tcp_true, time_s: float) -> np.ndarray | None:
+        """The true ``tracker_from_<name>`` (4, 4) of a further tool at ``time_s`` (s) with the
+        TCP really at ``base_from_tcp_true`` (4, 4); None for a pointer put away."""
+        self.tool_geometry(name)
+        if name == REFERENCE:
+            return self.tracker_from_base @ np.asarray(base_from_tcp_true) @ self.tcp_from_reference
+        held = self.tracker_from_pointer_held
+        if held is None:
+            return None
+        if self.pointer_sway_mm == 0:
+            return held
+        sway = self.pointer_sway_mm * np.sin(2 * np.pi * self.POINTER_SWAY_HZ * time_s)
+        return make_transform(np.eye(3), [sway, 0.0, 0.0]) @ held
+
+    # -- the tracker -------------------------------------------------------------------
+    def measure_spheres(
+        self, tracker_from_marker_true, true_spheres=None, rng: np.random.Generator | None = None
+    ) -> np.ndarray:
+        """Noisy sphere centres (N, K, 3) in the tracker frame for true marker poses (N, 4, 4).
+
+        ``true_spheres`` (K, 3), mm, and ``rng`` measure another tool the same way (default:
+        the marker's true spheres and :attr:`noise_rng`): the error field, the bias field and
+        the white noise with its depth anisotropy are the tracker's, whatever it looks at."""
+        t = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
+        if true_spheres is None:
+            true_spheres = (
+                self.marker.spheres_in_marker
+                if self.true_spheres_in_marker is None
+                else self.true_spheres_in_marker
+            )
+        rng = self.noise_rng if rng is None else rng
         spheres = transform_points_by_stack(t, true_spheres)
         spheres = spheres + self.error_field(spheres)
         if self.bias_field is not None:
@@ -301,7 +482,7 @@ class World:
         s = self.scenario
         if s.white_noise_rms_mm > 0:
             lateral_sd = s.white_noise_rms_mm / np.sqrt(2.0 + s.depth_anisotropy**2)
-            noise = self.noise_rng.normal(scale=lateral_sd, size=spheres.shape)
+            noise = rng.normal(scale=lateral_sd, size=spheres.shape)
             if s.depth_anisotropy != 1.0:
                 sight = spheres / np.linalg.norm(spheres, axis=-1, keepdims=True)
                 along = np.sum(noise * sight, axis=-1, keepdims=True)
@@ -320,36 +501,73 @@ class World:
         :class:`~spacecal.sim.scenario.Scenario`); frames where the marker is not visible,
         or that drop out, are NaN.
         """
+        return self.track_geometry(tracker_from_marker_true, earlier_true)
+
+    def track_tool(self, name: str, tracker_from_tool_true, earlier_true=None) -> TrackedFrames:
+        """What the tracker reports for true poses (N, 4, 4) of a further tool of the world
+        (:attr:`tools`: ``pointer``, ``reference``): the marker's measurement model (error
+        field, bias, white noise, outliers, visibility, dropout) on the tool's geometry, with
+        noise drawn from :attr:`tool_noise_rng` so that the marker's frames stay as they were.
+
+        Raises
+        ------
+        InvalidInputError
+            The world has no tool of that name.
+        """
+        tool = self.tool_geometry(name)
+        return self.track_geometry(
+            tracker_from_tool_true, earlier_true, tool, tool.spheres_in_marker, self.tool_noise_rng
+        )
+
+    def tool_geometry(self, name: str) -> MarkerGeometry:
+        """The geometry of the world's further tool ``name`` (one line for an unknown one)."""
+        if name not in self.tools:
+            raise InvalidInputError(
+                f"the simulated world has no tool {name!r} (its tools: {', '.join(self.tools) or 'none'})"
+            )
+        return self.tools[name]
+
+    def track_geometry(
+        self,
+        tracker_from_marker_true,
+        earlier_true=None,
+        geometry: MarkerGeometry | None = None,
+        true_spheres=None,
+        rng: np.random.Generator | None = None,
+    ) -> TrackedFrames:
+        """:meth:`track_marker` for any tool: ``geometry`` is what the tracker fits (default
+        the marker's), ``true_spheres`` (K, 3) where the spheres really are (default the
+        marker's), ``rng`` the noise stream (default :attr:`noise_rng`)."""
+        marker = self.marker if geometry is None else geometry
+        rng = self.noise_rng if rng is None else rng
         truth = np.asarray(tracker_from_marker_true).reshape(-1, 4, 4)
         n = len(truth)
         shown = truth.copy()
         kind = np.full(n, "", dtype=object)
-        outliers = np.flatnonzero(self.noise_rng.random(n) < self.scenario.outlier_fraction)
-        kinds = self.noise_rng.integers(0, 3, len(outliers))
+        outliers = np.flatnonzero(rng.random(n) < self.scenario.outlier_fraction)
+        kinds = rng.integers(0, 3, len(outliers))
         stale = outliers[kinds == 1]
         history = (
             truth if earlier_true is None else np.concatenate([np.reshape(earlier_true, (-1, 4, 4)), truth])
         )
         lead = len(history) - n
-        shown[stale] = history[np.maximum(stale + lead - self.noise_rng.integers(2, 9, len(stale)), 0)]
+        shown[stale] = history[np.maximum(stale + lead - rng.integers(2, 9, len(stale)), 0)]
         reflections = outliers[kinds == 2]
-        offsets = _random_directions(self.noise_rng, len(reflections)) * self.noise_rng.uniform(
-            5.0, 30.0, (len(reflections), 1)
-        )
-        tilts = _random_directions(self.noise_rng, len(reflections)) * np.radians(
-            self.noise_rng.uniform(1.0, 5.0, (len(reflections), 1))
+        offsets = _random_directions(rng, len(reflections)) * rng.uniform(5.0, 30.0, (len(reflections), 1))
+        tilts = _random_directions(rng, len(reflections)) * np.radians(
+            rng.uniform(1.0, 5.0, (len(reflections), 1))
         )
         shown[reflections] = make_transform(rotvec_to_matrix(tilts), offsets) @ shown[reflections]
-        spheres = self.measure_spheres(shown)
+        spheres = self.measure_spheres(shown, true_spheres, rng)
         misdetected = outliers[kinds == 0]
-        which = self.noise_rng.integers(0, len(self.marker.spheres_in_marker), len(misdetected))
-        spheres[misdetected, which] += _random_directions(
-            self.noise_rng, len(misdetected)
-        ) * self.noise_rng.uniform(3.0, 10.0, (len(misdetected), 1))
+        which = rng.integers(0, len(marker.spheres_in_marker), len(misdetected))
+        spheres[misdetected, which] += _random_directions(rng, len(misdetected)) * rng.uniform(
+            3.0, 10.0, (len(misdetected), 1)
+        )
         kind[misdetected], kind[stale], kind[reflections] = "sphere", "stale", "reflection"
-        measured, rms = fit_rigid(points_in_source=self.marker.spheres_in_marker, points_in_target=spheres)
-        seen = self.tracker.visible(truth, self.marker.spheres_in_marker, self.marker.face_normal_in_marker)
-        seen &= self.noise_rng.random(n) >= self.scenario.dropout_probability
+        measured, rms = fit_rigid(points_in_source=marker.spheres_in_marker, points_in_target=spheres)
+        seen = self.tracker.visible(truth, marker.spheres_in_marker, marker.face_normal_in_marker)
+        seen &= rng.random(n) >= self.scenario.dropout_probability
         measured[~seen] = np.nan
         rms = np.where(seen & self.scenario.tracker_reports_rms, rms, np.nan)
         kind[~seen] = ""
@@ -458,6 +676,19 @@ def build_world(scenario: Scenario) -> World:
         true_spheres = marker.spheres_in_marker + np.random.default_rng([scenario.seed, 6]).normal(
             scale=scenario.marker_geometry_error_sd_mm, size=marker.spheres_in_marker.shape
         )
+    # the further tools, from streams of their own (see spacecal.sim.tools)
+    tools_rng = np.random.default_rng([scenario.seed, sim_tools.TOOLS_STREAM])
+    pointer_from_tip_true = make_transform(np.eye(3), sim_tools.POINTER_TIP_IN_POINTER)
+    pointer_from_tip = make_transform(
+        np.eye(3),
+        pointer_from_tip_true[:3, 3]
+        + tools_rng.normal(scale=sim_tools.POINTER_TIP_ERROR_MM / np.sqrt(3.0), size=3),
+    )
+    reference_in_base = home[:3, :3] @ np.asarray(sim_tools.REFERENCE_OFFSET_IN_TCP) + site
+    base_from_reference = sim_tools.face_towards(
+        camera_in_base - reference_in_base, [0.0, 0.0, 1.0], reference_in_base
+    )
+    tcp_from_reference = invert_transform(home) @ base_from_reference
     return World(
         scenario,
         nominal,
@@ -473,4 +704,12 @@ def build_world(scenario: Scenario) -> World:
         noise_rng,
         bias,
         true_spheres,
+        tools={POINTER: sim_tools.pointer_geometry(), REFERENCE: sim_tools.reference_geometry()},
+        pointer_from_tip_true=pointer_from_tip_true,
+        pointer_from_tip=pointer_from_tip,
+        tcp_from_reference=tcp_from_reference,
+        # the guide's definition: exact (the needle is the TCP); the marker is not involved
+        reference_from_needle=invert_transform(tcp_from_reference),
+        tool_noise_rng=np.random.default_rng([scenario.seed, sim_tools.TOOL_NOISE_STREAM]),
+        pointer_hand_rng=np.random.default_rng([scenario.seed, sim_tools.POINTER_HAND_STREAM]),
     )

@@ -48,8 +48,16 @@ Control (the world's ``igtl ...`` command): ``form transform|position|position24
 tdata|qtdata``, ``header 1|2|3``, ``send_invalid on|off``, ``placeholder identity|zero|nan``,
 ``mute on|off`` (a hung sender: the connection kept, nothing sent, nothing answered),
 ``hang_up`` (close every connection), ``reference on|off`` (``ReferenceToTracker`` among the
-transforms sent, or only the marker's), ``stats`` (JSON: GET_STATUS received, keep-alives
-sent). Messages clients send (TRANSFORM) are kept for ``received NAME``.
+transforms sent, or only the marker's), ``pointer on|off`` (``PointerToTracker`` likewise),
+``stats`` (JSON: GET_STATUS received, keep-alives sent). Messages clients send (TRANSFORM) are
+kept for ``received NAME``.
+
+Further tools: PLUS names a tool's transform ``<Tool>To<Reference>`` (its ``Transform``
+elements, ``From="Pointer" To="Tracker"``): the world's tracked pointer is ``PointerToTracker``
+and the reference on the needle guide ``ReferenceToTracker``, each sent in the same frame (the
+same timestamp) as the marker's transform and by the same rules when not seen (nothing from
+PLUS by default, a placeholder from an old sender), one message per transform, or elements of
+one TDATA/QTDATA.
 """
 
 from __future__ import annotations
@@ -162,9 +170,8 @@ def qtdata_content(tools: list[tuple[str, np.ndarray]]) -> bytes:
 
 
 PLACEHOLDERS = {"identity": np.eye(4), "zero": np.zeros((4, 4)), "nan": np.full((4, 4), np.nan)}
-REFERENCE_TO_TRACKER = np.array(
-    [[0.0, -1.0, 0.0, 120.0], [1.0, 0.0, 0.0, -40.0], [0.0, 0.0, 1.0, -1400.0], [0.0, 0.0, 0.0, 1.0]]
-)
+#: The world's further tools and their PLUS transform names, in the order a frame sends them.
+TOOL_DEVICE_NAMES = {"pointer": "PointerToTracker", "reference": "ReferenceToTracker"}
 
 
 class FakeIGTLSender:
@@ -182,6 +189,7 @@ class FakeIGTLSender:
         self.placeholder = "identity"
         self.muted = False
         self.reference = True
+        self.pointer = True
         self.received: dict[str, list] = {}
         #: PLUS answers GET_STATUS and sends keep-alives; of the others it is not known.
         self.answers_status = sender == "plus"
@@ -207,7 +215,7 @@ class FakeIGTLSender:
                 self.form = value
             elif name == "header" and value in ("1", "2", "3"):
                 self.header = int(value)
-            elif name in ("send_invalid", "mute", "reference"):
+            elif name in ("send_invalid", "mute", "reference", "pointer"):
                 setattr(self, {"mute": "muted"}.get(name, name), value != "off")
             elif name == "placeholder" and value in PLACEHOLDERS:
                 self.placeholder = value
@@ -223,17 +231,21 @@ class FakeIGTLSender:
                 return f"ERROR unknown igtl switch {' '.join(words)}"
         return "OK"
 
-    def frame_messages(self, stamp: float, pose) -> list[bytes]:
-        """What this sender sends for one tracker frame."""
-        marker_ok = pose is not None
+    def frame_messages(self, stamp: float, pose, further: dict | None = None) -> list[bytes]:
+        """What this sender sends for one tracker frame: the marker's ``pose`` (or None) and
+        the ``further`` tools' ({world tool name: pose or None}) that are switched on."""
+        sent = [(self.marker_name, pose)]
+        switched_on = {"pointer": self.pointer, "reference": self.reference}
+        for name, device in TOOL_DEVICE_NAMES.items():
+            if switched_on[name] and further is not None and name in further:
+                sent.append((device, further[name]))
         tools: list[tuple[str, np.ndarray, bool]] = []
-        if marker_ok:
-            tools.append((self.marker_name, pose, True))
-        elif self.sender == "old" or (self.sender == "plus" and self.send_invalid):
-            placeholder = PLACEHOLDERS["identity" if self.sender == "plus" else self.placeholder]
-            tools.append((self.marker_name, placeholder, False))
-        if self.reference:
-            tools.append(("ReferenceToTracker", REFERENCE_TO_TRACKER, True))
+        for device, matrix in sent:
+            if matrix is not None:
+                tools.append((device, matrix, True))
+            elif self.sender == "old" or (self.sender == "plus" and self.send_invalid):
+                placeholder = PLACEHOLDERS["identity" if self.sender == "plus" else self.placeholder]
+                tools.append((device, placeholder, False))
         version = self.header
         if self.form in ("tdata", "qtdata"):
             if not tools and self.sender != "plus":
@@ -261,7 +273,7 @@ class FakeIGTLSender:
         while not stop.is_set():
             next_time += period
             time.sleep(max(next_time - time.monotonic(), 0.0))
-            frame = None if self.world.unplugged else self.world.marker_frame()
+            frame = None if self.world.unplugged else self.world.frame()
             # PLUS keeps a tracker frame only when it is newer than the last (a stale tracker
             # repeats its last one); the other senders send what the tracker gives them
             new = frame is not None and (frame[0] != last_stamp or self.sender != "plus")
@@ -270,11 +282,12 @@ class FakeIGTLSender:
                     continue
                 if new:
                     assert frame is not None
-                    stamp, pose, _, _ = frame
+                    stamp, pose, _, _, tools = frame
                     last_stamp = stamp
                     quiet_since = time.monotonic()
+                    further = {name: tool for name, (tool, _) in tools.items()}
                     # the sender's clock, not the robot's
-                    data = b"".join(self.frame_messages(stamp + self.world.igtl_epoch_s, pose))
+                    data = b"".join(self.frame_messages(stamp + self.world.igtl_epoch_s, pose, further))
                 elif self.sender == "plus" and time.monotonic() - quiet_since > KEEP_ALIVE_INTERVAL_S:
                     quiet_since = time.monotonic()
                     self.keep_alives += 1

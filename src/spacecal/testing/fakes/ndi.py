@@ -134,11 +134,48 @@ def split_command(raw: bytes) -> str:
     return text
 
 
-class FakeNDI:
-    """Command handling of one tracker; ``frame_source()`` gives (frame_number, pose or None, rms)."""
+#: Where a passive tool definition holds its sphere count and positions (the 752-byte SROM
+#: image NDI's tools write: the count at byte 28, then 20 x 3 little-endian float32 from 72).
+ROM_COUNT_OFFSET, ROM_POSITIONS_OFFSET, ROM_MAX_SPHERES = 28, 72, 20
+#: Sphere distances (mm) within which a tool definition is a tool of the world.
+ROM_MATCH_MM = 0.5
 
-    def __init__(self, frame_source, log=None, generation: str = "vicra", faults: NDIFaults | None = None):
+
+def rom_spheres(rom: bytes) -> np.ndarray | None:
+    """The sphere positions (K, 3), mm, of a passive tool definition image; None if it holds none."""
+    if len(rom) < ROM_POSITIONS_OFFSET + 12 * ROM_MAX_SPHERES or not rom.startswith(b"NDI"):
+        return None
+    count = rom[ROM_COUNT_OFFSET]
+    if not 3 <= count <= ROM_MAX_SPHERES:
+        return None
+    return np.array(struct.unpack_from(f"<{3 * count}f", rom, ROM_POSITIONS_OFFSET)).reshape(-1, 3)
+
+
+def _distances(spheres: np.ndarray) -> np.ndarray:
+    return np.sort(np.linalg.norm(spheres[:, None] - spheres[None], axis=2)[np.triu_indices(len(spheres), 1)])
+
+
+class FakeNDI:
+    """Command handling of one tracker.
+
+    ``frame_source()`` gives (frame_number, marker pose or None, rms), or with a fourth item the
+    world's further tools: {name: (pose or None, rms)}. ``geometries`` ({name: spheres (K, 3),
+    mm}, the marker's named ``marker``) are the tools in the world: a port handle follows the
+    tool whose sphere distances its tool definition holds, as a tracker identifies a passive
+    tool by its geometry, and sees nothing for a definition of no tool there. Without them the
+    first enabled handle follows the marker and any other sees nothing.
+    """
+
+    def __init__(
+        self,
+        frame_source,
+        log=None,
+        generation: str = "vicra",
+        faults: NDIFaults | None = None,
+        geometries: dict[str, np.ndarray] | None = None,
+    ):
         self.frame_source = frame_source
+        self.geometries = geometries
         self.handles: dict[int, dict] = {}
         self.next_handle = 0x0A
         self.tracking = False
@@ -233,6 +270,7 @@ class FakeNDI:
         if handle not in self.handles:
             return ascii_reply("ERROR0A")
         self.handles[handle]["rom"] += bytes.fromhex(args[6:])
+        self.handles[handle].pop("tool", None)  # identified again from the whole definition
         return ascii_reply("OKAY")
 
     def cmd_PINIT(self, args):
@@ -258,19 +296,41 @@ class FakeNDI:
         return ascii_reply("OKAY")
 
     # -- tracking replies --------------------------------------------------------------
+    def _tool_of(self, handle: int, first: bool) -> str | None:
+        """The world's tool a port handle follows (by its definition's geometry), or None."""
+        if self.geometries is None:
+            return "marker" if first else None
+        state = self.handles[handle]
+        if "tool" not in state:
+            spheres = rom_spheres(state["rom"])
+            state["tool"] = None
+            for name, geometry in self.geometries.items():
+                if (
+                    spheres is not None
+                    and len(spheres) == len(geometry)
+                    and np.allclose(_distances(spheres), _distances(np.asarray(geometry)), atol=ROM_MATCH_MM)
+                ):
+                    state["tool"] = name
+                    break
+        return state["tool"]
+
     def _tools(self):
-        """(handle, pose or None, rms, frame) for every enabled handle: the first is the marker on
-        the robot; any others are static reference markers somewhere in the volume."""
-        frame, pose, rms = self.frame_source()
+        """(handle, pose or None, rms, frame) for every enabled handle, in handle order: each
+        the pose of the tool its definition describes (None: no such tool in view)."""
+        source = self.frame_source()
+        frame, pose, rms = source[:3]
+        further = source[3] if len(source) > 3 else {}
         enabled = sorted(h for h, s in self.handles.items() if s["enabled"])
         tools = []
         for i, handle in enumerate(enabled):
-            if i == 0:
+            name = self._tool_of(handle, first=i == 0)
+            if name == "marker":
                 tools.append((handle, pose, rms, frame))
+            elif name in further:
+                tool_pose, tool_rms = further[name]
+                tools.append((handle, tool_pose, tool_rms, frame))
             else:
-                reference = np.eye(4)
-                reference[:3, 3] = [100.0 * i, 0.0, -1000.0]
-                tools.append((handle, reference, 0.1, frame))
+                tools.append((handle, None, 0.0, frame))
         return tools
 
     def _states(self, option: int):

@@ -8,7 +8,13 @@ the real wire protocols on loopback, so the real client libraries talk to them u
 Prints ``READY {json}`` (ports, pty path) on stdout when every server listens. A line
 protocol on the control port injects faults and reads the truth::
 
-    truth                      -> JSON of tracker_from_base, tcp_from_marker, home joints
+    truth                      -> JSON of tracker_from_base, tcp_from_marker, home joints, and
+                                  the further tools' definitions (pointer_from_tip, ...)
+    phantom                    -> JSON of the phantom's truth: fiducials in image_lps and in the
+                                  tracker, tracker_from_image_lps, planned paths
+    pointer touch K            -> the pointer is held with its tip on fiducial K (1.. or F-K)
+    pointer away               -> the pointer is put down out of view
+    pointer sway MM            -> the hand holding the pointer sways by MM (0: holds still)
     occlude on|off             -> the marker is hidden from the tracker
     unplug                     -> the tracker stops answering / streaming
     stale                      -> the tracker keeps repeating its last frame
@@ -92,19 +98,36 @@ class FakeWorld:
     def marker_frame(self, at_s: float | None = None):
         """(time_s, tracker_from_marker or None, rms_mm, spheres or None) at ``at_s`` (a recent
         instant; None: now), as the tracker sees it."""
+        return self.frame(at_s)[:4]
+
+    def frame(self, at_s: float | None = None):
+        """:meth:`marker_frame` and, fifth, the further tools of the world in the same frame:
+        {name: (tracker_from_<name> or None, rms_mm)} (``pointer``, ``reference``), each
+        measured with the tracker's noise model."""
         with self.lock:
             if self.stale and self._last_frame is not None:
                 return self._last_frame
             now = self.clock.now_s if at_s is None else at_s
-            truth = self.world.tracker_from_base @ self._true_base_from_tcp(now) @ self.world.tcp_from_marker
+            base_from_tcp = self._true_base_from_tcp(now)
+            truth = self.world.tracker_from_base @ base_from_tcp @ self.world.tcp_from_marker
             tracked = self.world.track_marker(truth[None])
             pose = tracked.tracker_from_marker[0]
             seen = bool(np.all(np.isfinite(pose))) and not self.occluded
+            tools = {}
+            for name in self.world.tools:
+                tool_truth = self.world.true_tool_pose(name, base_from_tcp, now)
+                tool_pose, tool_rms = None, float("nan")
+                if tool_truth is not None:
+                    measured = self.world.track_tool(name, tool_truth[None])
+                    if bool(np.all(np.isfinite(measured.tracker_from_marker[0]))):
+                        tool_pose, tool_rms = measured.tracker_from_marker[0], float(measured.rms_mm[0])
+                tools[name] = (tool_pose, tool_rms)
             frame = (
                 now,
                 pose if seen else None,
                 float(tracked.rms_mm[0]) if seen else float("nan"),
                 tracked.spheres_in_tracker[0] if seen else None,
+                tools,
             )
             self._last_frame = frame
             return frame
@@ -120,6 +143,12 @@ class FakeWorld:
             "tcp_from_marker": self.world.tcp_from_marker.tolist(),
             "home_joints_rad": self.world.home_joints_rad.tolist(),
             "scenario": self.world.scenario.to_dict(),
+            # the further tools: the pointer's calibrated tip (what a user knows) and its truth,
+            # the guide's reference on the TCP and its own definition of the needle
+            "pointer_from_tip": self.world.pointer_from_tip.tolist(),
+            "pointer_from_tip_true": self.world.pointer_from_tip_true.tolist(),
+            "tcp_from_reference": self.world.tcp_from_reference.tolist(),
+            "reference_from_needle": self.world.reference_from_needle.tolist(),
         }
 
 
@@ -156,6 +185,10 @@ def serve_control(fake: FakeWorld, server, stop: threading.Event) -> None:
                         change_the_set_up(fake, command, float(words[1]))
                     elif command == "ur":
                         reply = fake.controller.control(words[1:])
+                    elif command == "phantom":
+                        reply = json.dumps(fake.world.phantom.to_dict())
+                    elif command == "pointer":
+                        reply = pointer_control(fake, words[1:])
                     elif command == "received":
                         matrix = getattr(fake, "received", {}).get(words[1])
                         reply = "NONE" if matrix is None else json.dumps(matrix)
@@ -179,6 +212,25 @@ def change_the_set_up(fake: FakeWorld, change: str, amount: float) -> None:
         )
     else:
         world.tracker_from_base = make_transform(np.eye(3), [amount, 0.0, 0.0]) @ world.tracker_from_base
+
+
+def pointer_control(fake: FakeWorld, words: list[str]) -> str:
+    """``touch K`` (the tip on fiducial K: its number from 1 or its label), ``away``, ``sway MM``."""
+    world = fake.world
+    try:
+        if words[:1] == ["touch"] and len(words) == 2:
+            which: int | str = int(words[1]) if words[1].isdigit() else words[1]
+            world.place_pointer(which)
+            return "OK " + str(world.pointer_fiducial)
+        if words == ["away"]:
+            world.put_pointer_away()
+            return "OK"
+        if words[:1] == ["sway"] and len(words) == 2:
+            world.pointer_sway_mm = abs(float(words[1]))
+            return "OK"
+    except (ValueError, OSError) as exc:  # InvalidInputError, UnreachableError
+        return f"ERROR {exc}"
+    return "ERROR pointer touch K | pointer away | pointer sway MM"
 
 
 # -- tracker fault switches (NDI generations and faults, OpenIGTLink senders) ----------------
@@ -216,9 +268,13 @@ def ndi_frame_source(fake: FakeWorld, rate_hz: float, stop: threading.Event):
         while not stop.is_set():
             next_capture = (np.floor(fake.clock.now_s * rate_hz) + 1) / rate_hz
             time.sleep(max(0.0, next_capture - fake.clock.now_s))
-            stamp, pose, rms, _ = fake.marker_frame(at_s=next_capture)
+            stamp, pose, rms, _, tools = fake.frame(at_s=next_capture)
             number = NDI_FRAMES_AT_START + int(round(stamp * rate_hz))
-            latest["frame"] = (number, pose, (0.0 if np.isnan(rms) else rms))
+            further = {
+                name: (tool, 0.0 if np.isnan(tool_rms) else tool_rms)
+                for name, (tool, tool_rms) in tools.items()
+            }
+            latest["frame"] = (number, pose, (0.0 if np.isnan(rms) else rms), further)
 
     threading.Thread(target=capture, name="ndi-capture", daemon=True).start()
 
@@ -281,8 +337,11 @@ def main() -> None:
     log = sys.stderr if args.ndi_log else None
     fake.ndi_faults = ndi.NDIFaults()
     frames = ndi_frame_source(fake, rate, stop)
-    ndi_tcp = ndi.FakeNDI(frames, log, args.ndi_generation, fake.ndi_faults)
-    ndi_serial = ndi.FakeNDI(frames, log, args.ndi_generation, fake.ndi_faults)
+    # the tracker tells the tools apart by their geometry, as a real one does
+    geometries = {"marker": fake.world.marker.spheres_in_marker}
+    geometries |= {name: tool.spheres_in_marker for name, tool in fake.world.tools.items()}
+    ndi_tcp = ndi.FakeNDI(frames, log, args.ndi_generation, fake.ndi_faults, geometries)
+    ndi_serial = ndi.FakeNDI(frames, log, args.ndi_generation, fake.ndi_faults, geometries)
     fake.ndi_devices = (ndi_tcp, ndi_serial)  # "ur stats" says whether any is still tracking
     ndi_server = listen(args.host, 0)
     ndi_port = ndi_server.getsockname()[1]
