@@ -332,6 +332,12 @@ def verify_on_devices(
             measured_by=MEASURED_BY_MARKER if reference is None else f"reference tool {reference[0]}",
             devices=session.identity(),
         )
+    files = write_verification(result, settings)
+    return robot_verify_result(RobotVerifyOutput(result, gate, len(desired)), files, tuple(notes))
+
+
+def write_verification(result: VerificationResult, settings: VerifySettings) -> tuple[Path, ...]:
+    """Write the verification JSON (``-o``) and its Fig. 7 (``--figure``), each atomically."""
     files = []
     if settings.output:
         files.append(write_json(result.to_dict(), settings.output))
@@ -339,7 +345,7 @@ def verify_on_devices(
         with atomic_path(settings.figure) as temporary:
             plot_verification_errors(result.position_error_mm, result.posture_error_deg, temporary)
         files.append(Path(settings.figure))
-    return robot_verify_result(RobotVerifyOutput(result, gate, len(desired)), tuple(files), tuple(notes))
+    return tuple(files)
 
 
 def _motion(settings: VerifySettings, calibration: CalibrationResult) -> MotionSettings:
@@ -437,14 +443,7 @@ def verify_in_simulated_world(settings: VerifySettings) -> CommandResult[Verific
         scenario = found
     result = verify_in_simulation(calibration, scenario, settings.points)
     result = dataclasses.replace(result, simulated=True, scenario=scenario.name)
-    paths = []
-    if settings.output:
-        paths.append(write_json(result.to_dict(), settings.output))
-    if settings.figure:
-        with atomic_path(settings.figure) as temporary:
-            plot_verification_errors(result.position_error_mm, result.posture_error_deg, temporary)
-        paths.append(Path(settings.figure))
-    return verify_result(result, source, tuple(paths), tuple(notes))
+    return verify_result(result, source, write_verification(result, settings), tuple(notes))
 
 
 def verify_result(
