@@ -39,8 +39,12 @@ from spacecal.core.errors import DegenerateDataError, InvalidInputError, Unreach
 from spacecal.core.strict_numbers import integer
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.geometry.metrics import position_error, posture_error_rad
-from spacecal.geometry.rotations import mean_rotation
-from spacecal.geometry.transforms import axis_angle_transform, invert_transform, make_transform
+from spacecal.geometry.transforms import (
+    axis_angle_transform,
+    invert_transform,
+    make_transform,
+    mean_transform,
+)
 from spacecal.io.atomic import atomic_path
 from spacecal.io.recordings import refuse_changed
 from spacecal.io.results_json import read_json_object, write_json
@@ -227,11 +231,6 @@ def commanded_tcp_poses(
     return np.array(commanded), np.array(joints)
 
 
-def averaged(frames: np.ndarray) -> np.ndarray:
-    """The mean pose (4, 4) of a stack of poses (F, 4, 4): mean position, chordal-mean rotation."""
-    return make_transform(mean_rotation(frames[:, :3, :3]), frames[:, :3, 3].mean(axis=0))
-
-
 def reached_needle_poses(
     held: list[HeldPose],
     calibration: CalibrationResult,
@@ -242,7 +241,7 @@ def reached_needle_poses(
     reached = []
     for pose in held:
         if reference is None:
-            marker = averaged(pose.tracker_from_marker_stack)
+            marker = mean_transform(pose.tracker_from_marker_stack)
             reached.append(marker @ invert_transform(calibration.tcp_from_marker) @ tcp_from_needle)
             continue
         name, reference_from_needle = reference
@@ -252,7 +251,7 @@ def reached_needle_poses(
                 f"verification {pose.label}: the reference tool {name!r} was seen in "
                 f"{0 if seen is None else len(seen)} frames; make sure the tracker sees it"
             )
-        reached.append(averaged(seen) @ reference_from_needle)
+        reached.append(mean_transform(seen) @ reference_from_needle)
     return np.array(reached)
 
 

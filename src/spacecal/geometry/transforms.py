@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.arrays import ArrayLike, FloatArray, as_float_array
+from spacecal.geometry.rotations import mean_rotation
 
 #: Default tolerance of :func:`check_transform`: largest ``|R^T R - I|`` and ``|det R - 1|``.
 RIGID_ATOL = 1e-6
@@ -379,3 +380,10 @@ def orthonormalize_transforms(stack: ArrayLike, what: str = "a transform") -> Fl
     finite = np.all(np.isfinite(stack.reshape(len(stack), -1)), axis=1)
     out[finite] = make_transform(nearest_rotation(stack[finite, :3, :3]), stack[finite, :3, 3])
     return out
+
+
+def mean_transform(poses: ArrayLike) -> FloatArray:
+    """The mean (4, 4) of rigid transforms (K, 4, 4): the mean translation (mm) and the chordal
+    mean rotation (:func:`~spacecal.geometry.rotations.mean_rotation`)."""
+    stack = as_float_array(poses)
+    return make_transform(mean_rotation(stack[:, :3, :3]), stack[:, :3, 3].mean(axis=0))

@@ -27,8 +27,8 @@ import numpy as np
 
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.core.ports import Robot, Tracker
-from spacecal.geometry.rotations import mean_rotation, rotation_angle
-from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
+from spacecal.geometry.rotations import rotation_angle
+from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec, mean_transform
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD, UR_REPEATABILITY_MM
 from spacecal.planning.motion import MotionPlan
@@ -510,7 +510,7 @@ def judge_check(
     misfits_mm, misfits_deg, tolerances_mm, tolerances_deg = [], [], [], []
     for k, pose in enumerate(held):
         frames = pose.tracker_from_marker_stack
-        measured = make_transform(mean_rotation(frames[:, :3, :3]), frames[:, :3, 3].mean(axis=0))
+        measured = mean_transform(frames)
         base_from_tcp = robot_pose(calibration, pose.at_rest.base_from_tcp, pose.at_rest.joints_rad)
         misfit_mm, misfit_deg = pose_misfits(calibration, base_from_tcp, measured)
         misfits_mm.append(misfit_mm[0])

@@ -4,18 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacecal.geometry.rotations import mean_rotation
-from spacecal.geometry.transforms import make_transform
+from spacecal.geometry.transforms import mean_transform
 from spacecal.planning.stop_and_go import TRANSIT
 from spacecal.records import Recording
 
 #: A gap longer than this many frame periods between two samples starts a new station.
 STATION_GAP_PERIODS = 2.5
-
-
-def _mean_pose(poses: np.ndarray) -> np.ndarray:
-    """Mean of rigid transforms (K, 4, 4): mean translation, chordal mean rotation."""
-    return make_transform(mean_rotation(poses[:, :3, :3]), poses[:, :3, 3].mean(axis=0))
 
 
 def average_stations(recording: Recording, frame_period_s: float) -> Recording:
@@ -59,7 +53,7 @@ def average_stations(recording: Recording, frame_period_s: float) -> Recording:
         members = np.arange(start, end)
         used = members[seen[members]] if seen[members].any() else members[:1]
         marker = (
-            _mean_pose(recording.tracker_from_marker_stack[used])
+            mean_transform(recording.tracker_from_marker_stack[used])
             if seen[members].any()
             else np.full((4, 4), np.nan)
         )
@@ -76,7 +70,7 @@ def average_stations(recording: Recording, frame_period_s: float) -> Recording:
                 recording.time_s[start],
                 recording.segment[start],
                 recording.joints_rad[used].mean(axis=0),
-                _mean_pose(recording.base_from_tcp_stack[used]),
+                mean_transform(recording.base_from_tcp_stack[used]),
                 marker,
                 float(np.nanmean(recording.marker_rms_mm[used])) if seen[members].any() else np.nan,
                 spheres,

@@ -29,7 +29,7 @@ from spacecal.estimators.methods.samples import sample_counts
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray, IndexArray
 from spacecal.geometry.fitting import LineFit, fit_line, fit_sphere
 from spacecal.geometry.rotations import mean_rotation, nearest_rotation, rotation_angle, wahba_rotation
-from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
+from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec, mean_transform
 from spacecal.records import (
     ROTATION_SEGMENTS,
     TRANSLATION_SEGMENTS,
@@ -209,7 +209,7 @@ def estimate_tcp_from_marker(
         @ base_from_tracker
         @ recording.tracker_from_marker_stack[rows]
     )
-    return make_transform(mean_rotation(each[:, :3, :3]), each[:, :3, 3].mean(axis=0))
+    return mean_transform(each)
 
 
 def calibrate_paper(recording: Recording, thresholds: PaperThresholds | None = None) -> CalibrationResult:

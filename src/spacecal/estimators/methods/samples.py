@@ -13,7 +13,7 @@ import numpy as np
 
 from spacecal.geometry.arrays import ArrayLike, FloatArray, IndexArray, IntArray, as_float_array
 from spacecal.geometry.rotations import mean_rotation, rotation_angle
-from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
+from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec, mean_transform
 from spacecal.records import Recording
 
 
@@ -146,4 +146,4 @@ def tracker_from_base_from_samples(
         @ invert_transform(tcp_from_marker)
         @ invert_transform(recording.base_from_tcp_stack[rows])
     )
-    return make_transform(mean_rotation(each[:, :3, :3]), each[:, :3, 3].mean(axis=0))
+    return mean_transform(each)
