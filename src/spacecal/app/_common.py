@@ -14,7 +14,7 @@ from spacecal.io.digest import file_sha256, spacecal_schema_of
 from spacecal.io.recordings import is_recording, metadata_path
 from spacecal.io.results_json import read_calibration, read_json_object
 from spacecal.records import CalibrationResult, Provenance, Recording, RecordingSource
-from spacecal.sim.scenario import Scenario, scenario_from_dict
+from spacecal.sim.scenario import Scenario, load_scenario, scenario_from_dict
 
 #: What an existing spacecal file is, by its ``schema``, for the line that refuses to replace it.
 RESULT_KINDS = {
@@ -263,3 +263,18 @@ def scenario_of_calibration(calibration: CalibrationResult) -> tuple[Scenario | 
         if isinstance(data.get("scenario"), dict):
             return scenario_from_dict(data["scenario"]), f"the recording metadata {meta}"
     return None, ""
+
+
+def simulated_scenario(calibration: CalibrationResult, scenario: str | None) -> Scenario:
+    """The world simulated devices run in for a calibration: ``scenario`` (a preset or file)
+    when given, else the one its data came from (:func:`scenario_of_calibration`).
+
+    Raises
+    ------
+    InvalidInputError
+        None given and none found with the calibration.
+    """
+    found = load_scenario(scenario) if scenario is not None else scenario_of_calibration(calibration)[0]
+    if found is None:
+        raise InvalidInputError("no scenario given and none found with the calibration; pass --scenario")
+    return found

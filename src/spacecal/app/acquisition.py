@@ -209,7 +209,6 @@ def _acquire(
         if settings.dry_run:
             output.dry_run = True
             return output, notes
-        session.require_confirmation(output.approach)
         metadata = (
             recording_metadata(world)
             if world is not None

@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from spacecal.app._common import open_calibration, scenario_of_calibration
+from spacecal.app._common import open_calibration, simulated_scenario
 from spacecal.app.check_expectations import calibration_misfits, expected_at_check_poses
 from spacecal.app.check_settings import CheckOutput, CheckSettings
 from spacecal.app.gate import plan_workspace
@@ -24,7 +24,7 @@ from spacecal.io.check_history import append_history
 from spacecal.io.recordings import open_calibrated_recording
 from spacecal.planning.check_poses import check_plan
 from spacecal.records import CheckResult
-from spacecal.sim.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
+from spacecal.sim.scenario import DEFAULT_SCENARIO
 from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.check import (
     check_thresholds,
@@ -97,19 +97,13 @@ def _check(
         )
         history = append_history(settings.calibration, result, calibration.content_sha256)
         return check_result(CheckOutput(result, basis), history, notes)
-    scenario: Scenario | None = None
-    if settings.devices.simulated:
-        scenario = (
-            load_scenario(settings.scenario)
-            if settings.scenario is not None
-            else scenario_of_calibration(calibration)[0]
-        )
-        if scenario is None:
-            raise InvalidInputError("no scenario given and none found with the calibration; pass --scenario")
+    scenario = (
+        simulated_scenario(calibration, settings.scenario) if settings.devices.simulated else DEFAULT_SCENARIO
+    )
     # the check's motion: the acquisition's defaults (speeds), on the check's devices
     motion = MotionSettings(
         devices=settings.devices,
-        scenario=scenario if scenario is not None else DEFAULT_SCENARIO,
+        scenario=scenario,
         dry_run=settings.dry_run,
         confirm_robot_motion=settings.confirm_robot_motion,
         workspace_box=settings.workspace_box,

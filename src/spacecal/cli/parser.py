@@ -287,11 +287,6 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="recording CSV to write")
 
     p = command("check", "confirm before surgery that a calibration still holds")
-    p.add_argument(
-        "--accept-other-devices",
-        action="store_true",
-        help="check on other real devices than the calibration records (URLs, robot model)",
-    )
     p.add_argument("calibration", help="calibration JSON")
     p.add_argument("--recording", help="a recording to check against (instead of moving the robot)")
     add_devices(p)
@@ -435,6 +430,10 @@ SHARED_FLAGS: dict[str, tuple[str, dict[str, Any]]] = {
             metavar="PATH_OR_URL",
             help="also write the result to this record (SQLite file or database URL; spacecal[station])",
         ),
+    ),
+    "accept_other_devices": (
+        "--accept-other-devices",
+        dict(action="store_true", help="use other real devices than the calibration records (URLs, model)"),
     ),
     "confirm_robot_motion": (
         "--confirm-robot-motion",
