@@ -3,7 +3,7 @@
 Needle poses X_d = [P_d, phi_d] given in the tracker frame (the paper's 15 around the site, or
 from a file) are mapped through the calibration into the robot base, reached by inverse
 kinematics (on the kinematic model the calibration identified, where it has one), held while
-the tracker measures them, and compared with what was reached: the position error |P_d - P_r|
+the tracker measures them, and compared with what was reached: the position error ``|P_d - P_r|``
 and the posture error, the angle of R_d R_r^-1.
 
 What measures the reached pose is said with every figure:

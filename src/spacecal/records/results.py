@@ -47,6 +47,10 @@ def _finite(values: Any, name: str, what: str) -> np.ndarray:
 class VerificationResult:
     """Outcome of a verification experiment (paper §5.2).
 
+    Schema history (schema ``spacecal.verification``): 1 had no ``simulated``; 2 added it; 3
+    added ``measured_by`` and ``devices``. Every version is read (1 and 2 were measured in
+    the simulator by its laser tracker).
+
     Attributes
     ----------
     desired_tracker_from_needle, reached_tracker_from_needle : numpy.ndarray, shape (N, 4, 4)
@@ -60,16 +64,12 @@ class VerificationResult:
         The simulated scenario's name (simulated results only).
     measured_by : str
         What measured the reached poses, as every figure of it names its source: the
-        simulator's laser tracker (the truth), ``calibrated marker`` (the marker that was
+        simulator's laser tracker (the truth), "calibrated marker" (the marker that was
         calibrated measures its own pose: not independent of the calibration's marker_from_tcp),
-        ``reference tool NAME`` (a tracked tool on the needle guide with its own definition), or
+        "reference tool NAME" (a tracked tool on the needle guide with its own definition), or
         an external measurement file.
     devices : dict of str to str
         The devices the poses were reached and measured on, as they named themselves.
-
-    Schema history (``schema: spacecal.verification``): 1 had no ``simulated``; 2 added it; 3
-    added ``measured_by`` and ``devices``. Every version is read (1 and 2 were measured in
-    the simulator by its laser tracker).
     """
 
     desired_tracker_from_needle: np.ndarray
