@@ -41,7 +41,7 @@ from spacecal.app.motion_settings import MotionSettings, WorkspaceBox
 from spacecal.app.result import CommandResult, note_lines
 from spacecal.app.slicer_plan import PlanFromSlicerSettings, read_plan, read_registration
 from spacecal.app.verification import MEASURED_BY_MARKER, commanded_tcp_poses
-from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
+from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError, UnreachableError
 from spacecal.core.strict_numbers import decimal, integer
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.geometry.transforms import apply_transform, invert_transform, mean_transform
@@ -247,6 +247,15 @@ class GuideSettings:
         return STAGE_CHOICES[self.stage]
 
 
+class GuidanceInterrupted(DeviceError):
+    """A guidance stopped before its last stage ended (a fault, a stop, Ctrl-C); ``result`` is
+    what was measured before, ``interrupted`` set (also written to the guidance JSON, if asked)."""
+
+    def __init__(self, result: GuidanceResult, message: str):
+        super().__init__(message)
+        self.result = result
+
+
 @dataclass(frozen=True)
 class GuideOutput:
     """The guidance (None after a dry run), what the motion gate checked, and the stage asked."""
@@ -390,10 +399,11 @@ def _guide(
             f"{prediction.target_mm:.2f} mm; nothing moved",
         )
         return CommandResult(GuideOutput(None, gate, settings.stage), (), tuple(notes), lines)
+    session.require_confirmation()
     if "insert" in stages and not session.simulated and not settings.confirm_insertion:
         raise InvalidInputError(
-            "inserting along the needle on a real robot needs --confirm-insertion (and "
-            "--confirm-robot-motion); nothing moved"
+            "inserting the needle along its axis on a real robot needs --confirm-insertion as well "
+            "(check the path is clear); nothing moved"
         )
     session.begin_motion()
     observer = None if link is None else _streamer(link, needle_from_marker)
@@ -443,11 +453,16 @@ def _guide(
     files = (write_json(result.to_dict(), settings.output),) if settings.output else ()
     if interruption:
         kept = ", ".join(m.stage for m in measured) or "nothing"
-        where_written = f"; wrote {files[0]} with what was measured ({kept})" if files else ""
-        raise DeviceError(
+        where_written = (
+            f"; wrote {files[0]} with what was measured ({kept})"
+            if files
+            else f"; measured: {kept} (not written: no -o)"
+        )
+        raise GuidanceInterrupted(
+            result,
             f"guidance interrupted at stage {stages[len(measured)]}: "
             f"{sanitize_for_terminal(interruption, 200)}; "
-            f"the robot was stopped and will not move again by itself{where_written}"
+            f"the robot was stopped and will not move again by itself{where_written}",
         )
     return guide_result(GuideOutput(result, gate, settings.stage), tuple(files), tuple(notes))
 
@@ -497,19 +512,22 @@ def _predict(
         repeatability = session.world.scenario.repeatability_mm
     else:
         repeatability = ROBOT_REPEATABILITY_MM
-    needle = plan_needle(
-        located.entry_in_tracker,
-        located.target_in_tracker,
-        np.eye(4),  # the points are given in the tracker frame already
-        calibration.tracker_from_base,
-        session.ik_model(calibration),
-        session.robot.state().joints_rad,
-        standoff_mm=standoff_mm,
-        tcp_from_needle=tcp_from_needle,
-        registration_tre_mm=tre,
-        calibration_tre_mm=(float(stated), float(stated)),
-        robot_position_sd_mm=repeatability * REPEATABILITY_TO_AXIS_SD,
-    )
+    try:
+        needle = plan_needle(
+            located.entry_in_tracker,
+            located.target_in_tracker,
+            np.eye(4),  # the points are given in the tracker frame already
+            calibration.tracker_from_base,
+            session.ik_model(calibration),
+            session.robot.state().joints_rad,
+            standoff_mm=standoff_mm,
+            tcp_from_needle=tcp_from_needle,
+            registration_tre_mm=tre,
+            calibration_tre_mm=(float(stated), float(stated)),
+            robot_position_sd_mm=repeatability * REPEATABILITY_TO_AXIS_SD,
+        )
+    except UnreachableError as exc:
+        raise UnreachableError(f"{exc}; nothing moved") from None
     p = needle.predicted_error
     prediction = _Prediction(p["entry_mm"], p["target_mm"], p["direction_deg"], p["contributions"])
     return prediction, notes
@@ -593,4 +611,4 @@ def guide_result(
     return CommandResult(out, files, notes, tuple(lines))
 
 
-__all__ = ["GuideOutput", "GuideSettings", "guide", "guide_result"]
+__all__ = ["GuidanceInterrupted", "GuideOutput", "GuideSettings", "guide", "guide_result"]
