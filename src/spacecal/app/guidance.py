@@ -326,12 +326,13 @@ def guide(settings: GuideSettings, on_sample: SampleCallback | None = None) -> C
         session = stack.enter_context(motion_session(_motion(settings, calibration)))
         notes += session.calibration_notes(calibration, settings.accept_other_devices)
         link = None if settings.slicer_live is None else stack.enter_context(_served(settings.slicer_live))
-        plan = file_plan
+        plan, revision = file_plan, 0
         if link is not None:
             link.set_registration(registration)
-            plan = link.wait_for_plan(settings.slicer_timeout_s).plan
+            received = link.wait_for_plan(settings.slicer_timeout_s)
+            plan, revision = received.plan, received.revision
         assert plan is not None  # the file's or Slicer's
-        return _guide(settings, session, calibration, plan, registration, link, notes, on_sample)
+        return _guide(settings, session, calibration, plan, registration, (link, revision), notes, on_sample)
     raise AssertionError("unreachable")  # pragma: no cover (the with block returns or raises)
 
 
@@ -350,10 +351,11 @@ def _guide(
     calibration: CalibrationResult,
     plan: NeedlePlan,
     registration: ImageRegistration,
-    link: SlicerLink | None,
+    slicer: tuple[SlicerLink | None, int],
     notes: list[str],
     on_sample: SampleCallback | None,
 ) -> CommandResult[GuideOutput]:
+    link, revision = slicer
     located = locate_plan(plan, registration, calibration.tracker_from_base)
     axis = NeedleAxis(located.entry_in_tracker, located.target_in_tracker)
     tcp_from_needle = calibration.tcp_from_needle if calibration.tcp_from_needle is not None else np.eye(4)
@@ -451,6 +453,8 @@ def _guide(
         interruption=interruption,
     )
     files = (write_json(result.to_dict(), settings.output),) if settings.output else ()
+    if link is not None:
+        notes += _link_notes(link, revision)
     if interruption:
         kept = ", ".join(m.stage for m in measured) or "nothing"
         where_written = (
@@ -465,6 +469,21 @@ def _guide(
             f"the robot was stopped and will not move again by itself{where_written}",
         )
     return guide_result(GuideOutput(result, gate, settings.stage), tuple(files), tuple(notes))
+
+
+def _link_notes(link: SlicerLink, revision: int) -> list[str]:
+    """What the link to Slicer did: the needle frames sent and dropped, and whether Slicer's
+    plan changed after the guidance took it (the guidance keeps the plan it started with)."""
+    status = link.status()
+    sent, dropped = status.frames_sent, status.frames_dropped
+    notes = [f"Slicer: {sent} needle frames sent, {dropped} dropped ({status.url})"]
+    try:
+        newest = link.latest_plan()
+    except InvalidInputError as exc:
+        newest, notes = None, [*notes, f"Slicer's newest plan message was refused: {exc}"]
+    if newest is not None and newest.revision > revision:
+        notes.append("Slicer's plan changed during the guidance: the guidance ran the plan it started with")
+    return notes
 
 
 def _motion(settings: GuideSettings, calibration: CalibrationResult) -> MotionSettings:
