@@ -476,7 +476,11 @@ class NatNetTracker:
         try:
             data.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             data.bind(("", port))
-            membership = socket.inet_aton(group) + socket.inet_aton("0.0.0.0")
+            # joined on the interface that faces the server (the default one may not)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+                probe.connect(self.server)
+                interface = probe.getsockname()[0]
+            membership = socket.inet_aton(group) + socket.inet_aton(interface)
             data.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
             data.setblocking(False)
         except OSError as exc:
@@ -560,9 +564,10 @@ class NatNetTracker:
 
     def _body_id(self, name: str) -> int:
         if name not in self.bodies:
-            known = ", ".join(repr(one_line_ascii(n)) for n in sorted(self.bodies)) or "none"
+            # the names are Motive's (untrusted) and the user's: escaped, one line
+            known = ", ".join(f"'{one_line_ascii(n)}'" for n in sorted(self.bodies)) or "none"
             raise InvalidInputError(
-                f"{self.url}: no rigid body named {one_line_ascii(name)!r} in Motive's data "
+                f"{self.url}: no rigid body named '{one_line_ascii(name)}' in Motive's data "
                 f"descriptions (its rigid bodies: {known}): check the name, and that the rigid body "
                 "is streamed"
             )

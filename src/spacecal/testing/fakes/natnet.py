@@ -266,7 +266,8 @@ class FakeMotive:
         next_at = time.monotonic()
         while not self._stop.is_set():
             next_at += period
-            time.sleep(max(0.0, next_at - time.monotonic()))
+            if self._stop.wait(max(0.0, next_at - time.monotonic())):
+                return
             with self._lock:
                 if self.mute:
                     continue
