@@ -99,6 +99,9 @@ def test_the_tracking_valid_flag_a_missing_body_and_zeros_are_frames_without_the
 
 def test_the_server_says_what_it_is(motive):
     reader = tracker(motive)
+    # the SDK 4.1 connect: 270 bytes, "Ping", the version asked for at bytes 265-268, a NUL
+    payload = motive.connect_payloads[0]
+    assert len(payload) == 271 and payload[:4] == b"Ping" and tuple(payload[265:269]) == (4, 1, 0, 0)
     try:
         assert reader.identity() == DeviceIdentity("Motive", None, "3.1.0.0 (NatNet 4.1.0.0)")
         assert device_identity(reader) == {"model": "Motive", "firmware": "3.1.0.0 (NatNet 4.1.0.0)"}

@@ -36,6 +36,7 @@ whose tracking-valid flag is off, a body missing from a frame, and a pose that i
 
 from __future__ import annotations
 
+import collections
 import select
 import socket
 import struct
@@ -323,6 +324,20 @@ def packet(message: int, payload: bytes = b"") -> bytes:
     return _HEADER.pack(message, len(payload)) + payload
 
 
+#: The NatNet version asked for on connecting (a server that streams an older one says so in
+#: NAT_SERVERINFO, and frames are read in the version it says).
+REQUESTED_VERSION = (4, 1, 0, 0)
+
+
+def connect_payload() -> bytes:
+    """NAT_CONNECT's payload as the SDK's ``NatNetClient.py`` (4.1) sends it: 270 bytes,
+    ``Ping`` first, the requested NatNet version at bytes 265-268, then a NUL."""
+    payload = bytearray(270)
+    payload[:4] = b"Ping"
+    payload[265:269] = bytes(REQUESTED_VERSION)
+    return bytes(payload) + b"\0"
+
+
 def pose_of(body: BodyPose) -> np.ndarray | None:
     """``tracker_from_body`` (4, 4), mm, or None for a placeholder (zero quaternion, all zeros,
     not finite)."""
@@ -445,7 +460,8 @@ class NatNetTracker:
         self.refused_poses = 0
         self.marker_frames = 0
         self.frames_seen = 0
-        self.stamps: list[float] = []
+        #: Timestamps of every frame parsed (returned or passed over for a newer one), s.
+        self.stamps: collections.deque[float] = collections.deque(maxlen=4096)
         self._last_stamp = -np.inf
         self._last_keep_alive = 0.0
         self._command = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -525,7 +541,7 @@ class NatNetTracker:
                     continue
                 if message == wanted:
                     return content
-                if message not in (NAT_FRAMEOFDATA, NAT_MESSAGESTRING, NAT_RESPONSE):
+                if message not in (NAT_FRAMEOFDATA, NAT_MESSAGESTRING, NAT_RESPONSE, NAT_SERVERINFO):
                     others += 1
 
     def _receive(self, sock: socket.socket, until: float) -> list[bytes]:
@@ -549,7 +565,7 @@ class NatNetTracker:
                 datagrams.append(data)
 
     def _server_info(self, deadline: float, timeout_s: float) -> ServerInfo:
-        content = self._answer(NAT_CONNECT, b"Ping\0", NAT_SERVERINFO, deadline, timeout_s)
+        content = self._answer(NAT_CONNECT, connect_payload(), NAT_SERVERINFO, deadline, timeout_s)
         try:
             return parse_server_info(content)
         except MalformedPacket as exc:
@@ -619,12 +635,12 @@ class NatNetTracker:
                 )
             for frame in self._frames(min(deadline, now + KEEP_ALIVE_S)):
                 self.frames_seen += 1
+                self.stamps.append(frame.timestamp_s)
                 if frame.timestamp_s > self._last_stamp and (
                     newest is None or frame.timestamp_s > newest.timestamp_s
                 ):
                     newest = frame
         self._last_stamp = newest.timestamp_s
-        self.stamps = (self.stamps + [newest.timestamp_s])[-64:]
         return self._tracker_frame(newest)
 
     def _pose(self, frame: NatNetFrame, name: str) -> tuple[np.ndarray | None, str, float]:
@@ -681,6 +697,7 @@ class NatNetTracker:
             ),
         ]
         end = time.monotonic() + duration_s
+        self.stamps.clear()
         frames, seen = [], 0
         while (remaining := end - time.monotonic()) > 0:
             try:
@@ -689,8 +706,10 @@ class NatNetTracker:
                 break
             frames.append(frame.time_s)
             seen += frame.status == FRAME_OK
-        if len(frames) >= 2 and frames[-1] > frames[0]:
-            rate = (len(frames) - 1) / (frames[-1] - frames[0])
+        stamps = sorted(set(self.stamps))
+        if len(stamps) >= 2:
+            # every frame that came, also those passed over for a newer one
+            rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
             findings.append(DeviceFinding(FINDING_OK, "frame rate", f"{rate:.1f} Hz (Motive's timestamps)"))
         else:
             findings.append(

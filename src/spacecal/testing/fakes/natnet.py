@@ -9,9 +9,11 @@ NaturalPoint ships it with SDK 4.1 and as copied in e.g. lunarring/optitrack_pyt
 ``natnetpacket/NatNetClient.py``). Everything is little-endian.
 
 * A packet: u16 message id, u16 payload size, payload.
-* NAT_CONNECT (0) to the command port -> NAT_SERVERINFO (1): char[256] application name,
-  u8[4] application version, u8[4] NatNet version; then (3.0 on) the connection info:
-  u8 multicast, u32 multicast address (network order), u16 data port.
+* NAT_CONNECT (0) to the command port (SDK 4.1: a 270-byte payload, ``Ping`` first, the
+  NatNet version the client asks for at bytes 265-268, then a NUL; older clients send
+  ``Ping`` alone; the fake streams its own version whatever is asked) -> NAT_SERVERINFO (1):
+  char[256] application name, u8[4] application version, u8[4] NatNet version; then (3.0 on)
+  the connection info: u8 multicast, u32 multicast address (network order), u16 data port.
 * NAT_REQUEST_MODELDEF (4) -> NAT_MODELDEF (5): i32 description count; per description i32
   type, from 4.1 on an i32 byte count of what follows, then: marker set (0): name, i32 count,
   marker names; rigid body (1): name, i32 id, i32 parent id (-1: none), 3 float32 offset, i32
@@ -79,12 +81,15 @@ class FakeMotive:
     Parameters
     ----------
     poses : callable
-        ``poses(t_s)``: {rigid body name: tracker_from_body (4, 4) in mm, or None (not seen)}.
+        ``poses(t_s)``: {rigid body name: tracker_from_body (4, 4) in mm, or None (not seen)}, at
+        the frame's timestamp ``t_s`` (``clock()``).
     bodies : sequence of str
         The rigid bodies Motive has (their streaming ids 1, 2, ...), in that order.
     version : (int, int)
         The NatNet version streamed: (3, 0), (3, 1), (4, 0), (4, 1), ...
     rate_hz : float
+    clock : callable, optional
+        Motive's timestamp now, s (default: s since the fake started).
     host : str
         The address of both ports.
     multicast : str or None
@@ -102,6 +107,7 @@ class FakeMotive:
         data_port: int = 0,
         application: str = "Motive",
         application_version: tuple[int, int, int, int] = (3, 1, 0, 0),
+        clock: Callable[[], float] | None = None,
     ):
         self.poses, self.bodies, self.version, self.rate_hz = poses, list(bodies), tuple(version), rate_hz
         self.application, self.application_version = application, application_version
@@ -126,7 +132,10 @@ class FakeMotive:
         self.not_natnet = False
         self.sent_frames = 0
         self._last: dict[str, np.ndarray] = {}
-        self._started = time.monotonic()
+        started = time.monotonic()
+        #: Motive's timestamp: s since it started (here: since the fake did, unless given).
+        self.clock = clock or (lambda: time.monotonic() - started)
+        self.connect_payloads: list[bytes] = []
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._threads = [
@@ -187,6 +196,7 @@ class FakeMotive:
                 if self.not_natnet:
                     reply = b"HTTP/1.1 400 Bad Request\r\n\r\n"
                 elif message == CONNECT:
+                    self.connect_payloads.append(data[4:])
                     self.clients.add(client)
                     reply = self.server_info()
                 elif message == REQUEST_MODELDEF:
@@ -272,7 +282,7 @@ class FakeMotive:
                 if self.mute:
                     continue
                 number += 1
-                packet = self.frame(number, time.monotonic() - self._started)
+                packet = self.frame(number, self.clock())
                 targets = [(self.multicast, self.data_port)] if self.multicast else list(self.clients)
                 self.sent_frames += 1
             for target in targets:
