@@ -375,7 +375,8 @@ class NatNetOptions:
 
 def natnet_options(query: str, options: DeviceOptions) -> NatNetOptions:
     """The URL query (``body=Marker&tools=Pointer,Reference&multicast=GROUP&data_port=P``) with
-    ``options.tools`` (name, rigid body) added.
+    ``options.tools`` (name, rigid body) added. ``--rom`` is not a rigid body's name: it names
+    NDI tool definition files, which the recording reads as the marker's geometry.
 
     Raises
     ------
@@ -392,8 +393,6 @@ def natnet_options(query: str, options: DeviceOptions) -> NatNetOptions:
             f"natnet:// takes body=, tools=, multicast=, data_port=; not {one_line_ascii(unknown[0])}="
         )
     body = (fields.get("body") or [""])[-1].strip()
-    if not body and options.rom:
-        body = options.rom[0]
     if not body:
         raise InvalidInputError(
             "a NatNet tracker needs the marker's rigid-body name: natnet://HOST?body=NAME"
