@@ -279,11 +279,13 @@ class FakeMotive:
             if self._stop.wait(max(0.0, next_at - time.monotonic())):
                 return
             with self._lock:
-                if self.mute:
+                targets = [(self.multicast, self.data_port)] if self.multicast else list(self.clients)
+                # no frame is made for nobody: the world's noise streams, which the other fakes
+                # draw from too, are drawn only while a client reads
+                if self.mute or not targets:
                     continue
                 number += 1
                 packet = self.frame(number, self.clock())
-                targets = [(self.multicast, self.data_port)] if self.multicast else list(self.clients)
                 self.sent_frames += 1
             for target in targets:
                 try:
