@@ -175,6 +175,75 @@ def test_a_server_that_stops_sending_ends_the_wait_by_its_deadline(motive):
         reader.close()
 
 
+def test_timestamps_that_stop_advancing_end_the_wait_by_its_deadline():
+    fake = FakeMotive(truth, ("Marker", "Pointer"), clock=lambda: 5.0)  # Motive paused on one frame
+    try:
+        reader = tracker(fake)
+        try:
+            assert reader.next_frame(1.0).time_s == 5.0
+            started = time.monotonic()
+            with pytest.raises(
+                DeviceError, match="frames came for 0.5 s but their timestamps did not advance"
+            ):
+                reader.next_frame(0.5)
+            assert time.monotonic() - started < 0.5 + MARGIN_S
+        finally:
+            reader.close()
+    finally:
+        fake.close()
+
+
+def test_a_flood_of_datagrams_does_not_hold_a_call_past_its_deadline(motive):
+    import socket
+    import threading
+
+    reader = tracker(motive)
+    stop = threading.Event()
+    # the flood comes from the server's address, in the frames' place: not one is a frame
+    flood = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    flood.bind(("127.0.0.1", 0))
+    target = reader._command.getsockname()
+
+    def send() -> None:
+        while not stop.is_set():
+            flood.sendto(b"\x07\x00\xff\xff", ("127.0.0.1", target[1]))
+
+    motive.set(mute=True)
+    sender = threading.Thread(target=send, daemon=True)
+    sender.start()
+    try:
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="malformed NAT_FRAMEOFDATA"):
+            while True:  # frames packed before the switch may still come
+                reader.next_frame(0.5)
+        assert time.monotonic() - started < 2 * 0.5 + MARGIN_S
+    finally:
+        stop.set()
+        sender.join(timeout=2)
+        flood.close()
+        reader.close()
+
+
+def test_a_closed_tracker_is_one_line_not_a_hang(motive):
+    reader = tracker(motive)
+    reader.close()
+    with pytest.raises(DeviceError, match="was closed: no more frames"):
+        reader.next_frame(0.5)
+
+
+def test_doctor_on_the_command_line_checks_a_natnet_tracker(motive, capsys):
+    from spacecal.cli import main
+
+    code = main(["doctor", "--tracker", f"natnet://127.0.0.1:{motive.port}?body=Marker&tools=Pointer"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "tracker: server: ok: natnet://127.0.0.1:" in out and "NatNet 4.1.0.0" in out
+    assert "every check passed" in out
+    code = main(["doctor", "--tracker", f"natnet://127.0.0.1:{motive.port}?body=Needle"])
+    out = capsys.readouterr().out
+    assert code == 1 and "no rigid body named 'Needle'" in out
+
+
 def test_nothing_listening_ends_connecting_by_its_deadline():
     fake = FakeMotive(truth)
     port = fake.port

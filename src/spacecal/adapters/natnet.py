@@ -83,6 +83,8 @@ RESEND_S = 0.5
 KEEP_ALIVE_S = 1.0
 #: Largest UDP datagram read.
 RECEIVE_BYTES = 65536
+#: Datagrams taken in one read of the socket: a second of Motive at 240 Hz, and then some.
+MAX_DATAGRAMS_AT_ONCE = 512
 #: Longest rigid-body name kept, characters (Motive limits names to 256 bytes).
 MAX_NAME_BYTES = 256
 
@@ -545,23 +547,29 @@ class NatNetTracker:
 
     def _receive(self, sock: socket.socket, until: float) -> list[bytes]:
         """Datagrams from the server on ``sock``, waiting until ``until`` (monotonic) for the
-        first; others waiting are taken too."""
+        first; others waiting are taken too, at most :data:`MAX_DATAGRAMS_AT_ONCE` and never
+        past ``until`` (a flood cannot hold a call past its deadline)."""
         datagrams: list[bytes] = []
-        while True:
+        while len(datagrams) < MAX_DATAGRAMS_AT_ONCE:
             try:
                 data, sender = sock.recvfrom(RECEIVE_BYTES)
             except BlockingIOError:
-                if datagrams:
-                    return datagrams
                 remaining = until - time.monotonic()
-                if remaining <= 0:
+                if datagrams or remaining <= 0:
                     return datagrams
                 select.select([sock], [], [], remaining)
                 continue
-            except OSError:  # an ICMP error of an earlier send (nothing listens): keep waiting
+            except ConnectionRefusedError:  # an ICMP answer to an earlier send: nothing listens
+                if time.monotonic() >= until:
+                    return datagrams
                 continue
+            except OSError as exc:
+                raise DeviceError(f"{self.url}: the socket failed ({exc.strerror or exc})") from None
             if self.multicast is not None or sender[0] == self.server[0]:
                 datagrams.append(data)
+            if time.monotonic() >= until:
+                break
+        return datagrams
 
     def _server_info(self, deadline: float, timeout_s: float) -> ServerInfo:
         content = self._answer(NAT_CONNECT, connect_payload(), NAT_SERVERINFO, deadline, timeout_s)
@@ -613,10 +621,12 @@ class NatNetTracker:
         ------
         DeviceError
             No such frame within ``timeout_s`` (Motive stopped streaming, timestamps that do not
-            advance, or only malformed packets).
+            advance, or only malformed packets), or the socket failed (closed).
         """
+        if self._command.fileno() < 0:
+            raise DeviceError(f"{self.url} was closed: no more frames")
         deadline = time.monotonic() + timeout_s
-        malformed_before = self.malformed
+        malformed_before, seen_before = self.malformed, self.frames_seen
         newest: NatNetFrame | None = None
         while newest is None:
             now = time.monotonic()
@@ -627,6 +637,11 @@ class NatNetTracker:
                     raise DeviceError(
                         f"{self.url}: {bad} malformed NAT_FRAMEOFDATA packet(s) and no frame for "
                         f"{timeout_s:.1f} s (first: {self.first_malformed})"
+                    )
+                if self.frames_seen > seen_before:
+                    raise DeviceError(
+                        f"{self.url}: frames came for {timeout_s:.1f} s but their timestamps did not "
+                        "advance: Motive is paused, or was restarted (connect again)"
                     )
                 raise DeviceError(
                     f"no NatNet frame from {self.url} for {timeout_s:.1f} s: Motive stopped streaming "
