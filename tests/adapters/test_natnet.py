@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 
+from spacecal.adapters import natnet
 from spacecal.adapters.natnet import NAT_DISCONNECT, NAT_KEEPALIVE, NatNetTracker
 from spacecal.app.devices import device_identity, open_tracker, tracker_findings
 from spacecal.core.errors import DeviceError, InvalidInputError
@@ -73,6 +74,21 @@ def test_poses_read_equal_the_fakes_truth_in_mm(motive):
         np.testing.assert_allclose(frame.tracker_from_marker[:3, :3], expected[:3, :3], atol=ROTATION_TOL)
         np.testing.assert_allclose(frame.tool("pointer"), pointer_truth(frame.time_s), atol=POSITION_TOL_MM)
         assert frame.rms_mm == pytest.approx(0.2, abs=1e-4)  # the fake's 0.0002 m mean marker error
+
+
+def test_frames_come_in_order_and_a_reader_that_fell_behind_catches_up(motive):
+    reader = tracker(motive)
+    try:
+        numbers = [reader.next_frame(1.0).frame_number for _ in range(30)]
+        # a reader that keeps up gets every frame (loopback UDP loses none at 100 Hz)
+        assert np.all(np.diff(numbers) == 1), numbers
+        time.sleep(0.6)  # 60 frames wait
+        frame = reader.next_frame(1.0)
+        # passed over down to MAX_LAG_S behind the newest; the fake's clock is Motive's
+        assert motive.clock() - frame.time_s < natnet.MAX_LAG_S + 0.1
+        assert frame.frame_number > numbers[-1] + 30
+    finally:
+        reader.close()
 
 
 def test_the_tracking_valid_flag_a_missing_body_and_zeros_are_frames_without_the_marker(motive):

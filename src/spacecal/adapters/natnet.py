@@ -81,6 +81,9 @@ RESEND_S = 0.5
 #: Unicast keep-alive interval, s (the SDK's client sends one with every command-socket wake-up,
 #: Motive drops a unicast client after some seconds without).
 KEEP_ALIVE_S = 1.0
+#: Frames lagging the newest that came by more than this (Motive's timestamps, s) are passed
+#: over, never returned (as for OpenIGTLink): a reader that fell behind catches up.
+MAX_LAG_S = 0.25
 #: Largest UDP datagram read.
 RECEIVE_BYTES = 65536
 #: Datagrams taken in one read of the socket: a second of Motive at 240 Hz, and then some.
@@ -464,6 +467,7 @@ class NatNetTracker:
         #: Timestamps of every frame parsed (returned or passed over for a newer one), s.
         self.stamps: collections.deque[float] = collections.deque(maxlen=4096)
         self._last_stamp = -np.inf
+        self._pending: list[NatNetFrame] = []
         self._last_keep_alive = 0.0
         self._command = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._data: socket.socket | None = None
@@ -547,8 +551,8 @@ class NatNetTracker:
 
     def _receive(self, sock: socket.socket, until: float) -> list[bytes]:
         """Datagrams from the server on ``sock``, waiting until ``until`` (monotonic) for the
-        first; others waiting are taken too, at most :data:`MAX_DATAGRAMS_AT_ONCE` and never
-        past ``until`` (a flood cannot hold a call past its deadline)."""
+        first; others waiting are taken too, at most :data:`MAX_DATAGRAMS_AT_ONCE` (a flood
+        cannot hold a call past its deadline)."""
         datagrams: list[bytes] = []
         while len(datagrams) < MAX_DATAGRAMS_AT_ONCE:
             try:
@@ -567,8 +571,6 @@ class NatNetTracker:
                 raise DeviceError(f"{self.url}: the socket failed ({exc.strerror or exc})") from None
             if self.multicast is not None or sender[0] == self.server[0]:
                 datagrams.append(data)
-            if time.monotonic() >= until:
-                break
         return datagrams
 
     def _server_info(self, deadline: float, timeout_s: float) -> ServerInfo:
@@ -615,7 +617,8 @@ class NatNetTracker:
         return frames
 
     def next_frame(self, timeout_s: float) -> TrackerFrame:
-        """The newest frame whose timestamp is newer than the last one returned.
+        """The next frame newer than the last one returned, in timestamp order; frames lagging
+        the newest that came by more than :data:`MAX_LAG_S` are passed over.
 
         Raises
         ------
@@ -627,8 +630,17 @@ class NatNetTracker:
             raise DeviceError(f"{self.url} was closed: no more frames")
         deadline = time.monotonic() + timeout_s
         malformed_before, seen_before = self.malformed, self.frames_seen
-        newest: NatNetFrame | None = None
-        while newest is None:
+        self._take(self._frames(time.monotonic()))  # what is waiting, so that lag is known
+        while True:
+            pending = sorted(
+                (f for f in self._pending if f.timestamp_s > self._last_stamp), key=lambda f: f.timestamp_s
+            )
+            if pending:
+                newest = pending[-1].timestamp_s
+                pending = [f for f in pending if f.timestamp_s >= newest - MAX_LAG_S]
+                frame, self._pending = pending[0], pending[1:]
+                break
+            self._pending = []
             now = time.monotonic()
             self._keep_alive(now)
             if now >= deadline:
@@ -647,15 +659,14 @@ class NatNetTracker:
                     f"no NatNet frame from {self.url} for {timeout_s:.1f} s: Motive stopped streaming "
                     "or the network dropped"
                 )
-            for frame in self._frames(min(deadline, now + KEEP_ALIVE_S)):
-                self.frames_seen += 1
-                self.stamps.append(frame.timestamp_s)
-                if frame.timestamp_s > self._last_stamp and (
-                    newest is None or frame.timestamp_s > newest.timestamp_s
-                ):
-                    newest = frame
-        self._last_stamp = newest.timestamp_s
-        return self._tracker_frame(newest)
+            self._take(self._frames(min(deadline, now + KEEP_ALIVE_S)))
+        self._last_stamp = frame.timestamp_s
+        return self._tracker_frame(frame)
+
+    def _take(self, frames: list[NatNetFrame]) -> None:
+        self.frames_seen += len(frames)
+        self.stamps.extend(frame.timestamp_s for frame in frames)
+        self._pending.extend(frames)
 
     def _pose(self, frame: NatNetFrame, name: str) -> tuple[np.ndarray | None, str, float]:
         body = frame.bodies.get(self.ids[name])
