@@ -9,8 +9,9 @@ prints its warnings to standard output. A reader whose every read is bounded by 
 one socket read with the caller's deadline, is less code than wrapping it.
 
 The format (NaturalPoint's NatNet SDK: ``NatNetTypes.h``, ``PacketClient.cpp`` and its Python
-sample ``NatNetClient.py``; all little-endian): a packet is u16 message id, u16 payload size,
-payload. The client sends NAT_CONNECT (0) to Motive's command port (1510); Motive answers
+sample ``NatNetClient.py``, 4.1; all little-endian): a packet is u16 message id, u16 payload
+size, payload. The client sends NAT_CONNECT (0) to Motive's command port (1510; the SDK's
+payload: 270 bytes, ``Ping`` first, the NatNet version asked for at bytes 265-268); Motive answers
 NAT_SERVERINFO (1): char[256] application name, u8[4] its version, u8[4] the NatNet version it
 streams. NAT_REQUEST_MODELDEF (4) is answered by NAT_MODELDEF (5), the data descriptions: i32
 count, then per description i32 type (1: rigid body), from NatNet 4.1 on an i32 byte count, and
@@ -24,9 +25,14 @@ started), then (3.0 on) three u64 high-resolution stamps. In unicast Motive send
 the address the client's NAT_CONNECT came from, and drops a client that stops sending
 NAT_KEEPALIVE (10); in multicast to the group (239.255.42.99) on the data port (1511).
 
-Versions read: NatNet 3.0 to 4.x (Motive 2.x and 3.x). NatNet 2.x (marker positions inside each
-rigid body) is refused with one line. Sections before the rigid bodies are read past by their
-counts (before 4.1) or byte counts (4.1 on); every count is bounded by the bytes left.
+Versions read: NatNet 3.0 to 4.x (Motive 2.x and 3.x), in the version NAT_SERVERINFO names.
+NatNet 2.x (marker positions inside each rigid body) is refused with one line. The sections
+other than the rigid bodies are read past by their counts (before 4.1) or byte counts (4.1 on);
+every count is bounded by the bytes left; only what the timestamp needs of the suffix is read.
+
+Frames: in timestamp order, each newer than the last one returned; a reader that fell behind
+skips to :data:`MAX_LAG_S` behind the newest frame that came. A malformed datagram is dropped
+and counted; a frame timeout with malformed datagrams only is one line naming the first.
 
 Poses: ``tracker_from_marker`` is the rigid body's pose in Motive's frame (its ground plane
 calibration), position converted from m to mm, quaternion ``qx, qy, qz, qw`` (normalised). A body
