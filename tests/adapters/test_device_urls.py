@@ -68,6 +68,13 @@ def test_a_url_of_the_wrong_kind_is_one_clear_error(url, role, message):
     assert "\n" not in str(caught.value)
 
 
+def test_a_natnet_url_is_the_same_device_whatever_the_order_of_its_query():
+    assert canonical_url("natnet://Motive?tools=Pointer&body=Marker") == canonical_url(
+        "natnet://motive:1510?body=Marker&tools=Pointer"
+    )
+    assert canonical_url("natnet://motive?body=Marker") != canonical_url("natnet://motive?body=Other")
+
+
 def test_roles_partition_the_table():
     assert set(schemes_of(ROBOT)) | set(schemes_of(TRACKER)) == set(DEVICE_SCHEMES)
     assert not set(schemes_of(ROBOT)) & set(schemes_of(TRACKER))

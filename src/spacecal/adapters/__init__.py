@@ -81,11 +81,11 @@ class DeviceAddress:
     @property
     def url(self) -> str:
         """The URL in one canonical form (lower-case host, the default port written out, the
-        query as given)."""
+        query's fields in sorted order)."""
         if self.serial:
             return f"{self.scheme}://{self.host}"
         url = f"{self.scheme}://{self.host}" + (f":{self.port}" if self.port is not None else "")
-        return url + (f"?{self.query}" if self.query else "")
+        return url + (f"?{'&'.join(sorted(self.query.split('&')))}" if self.query else "")
 
 
 @dataclass(frozen=True)
