@@ -12,8 +12,9 @@ NaturalPoint ships it with SDK 4.1 and as copied in e.g. lunarring/optitrack_pyt
 * NAT_CONNECT (0) to the command port (SDK 4.1: a 270-byte payload, ``Ping`` first, the
   NatNet version the client asks for at bytes 265-268, then a NUL; older clients send
   ``Ping`` alone; the fake streams its own version whatever is asked) -> NAT_SERVERINFO (1):
-  char[256] application name, u8[4] application version, u8[4] NatNet version; then (3.0 on)
-  the connection info: u8 multicast, u32 multicast address (network order), u16 data port.
+  ``sSender_Server`` (``NatNetTypes.h``, packed, 279 bytes): char[256] application name,
+  u8[4] application version, u8[4] NatNet version, u64 high-resolution clock frequency, u16
+  data port, u8 multicast, u8[4] multicast group.
 * NAT_REQUEST_MODELDEF (4) -> NAT_MODELDEF (5): i32 description count; per description i32
   type, from 4.1 on an i32 byte count of what follows, then: marker set (0): name, i32 count,
   marker names; rigid body (1): name, i32 id, i32 parent id (-1: none), 3 float32 offset, i32
@@ -158,9 +159,9 @@ class FakeMotive:
     def server_info(self) -> bytes:
         payload = self.application.encode("utf-8")[:255].ljust(256, b"\0")
         payload += bytes(self.application_version) + bytes((*self.version, 0, 0))
-        if self.version >= (3, 0):
-            group = socket.inet_aton(self.multicast or "0.0.0.0")
-            payload += struct.pack("<B4sH", self.multicast is not None, group, self.data_port)
+        group = socket.inet_aton(self.multicast or "0.0.0.0")
+        payload += struct.pack("<QHB4s", 10_000_000, self.data_port, self.multicast is not None, group)
+        assert len(payload) == 279
         return natnet_packet(SERVERINFO, payload)
 
     def model_definitions(self) -> bytes:
