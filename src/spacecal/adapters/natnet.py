@@ -13,11 +13,12 @@ sample ``NatNetClient.py``, 4.1; all little-endian): a packet is u16 message id,
 size, payload. The client sends NAT_CONNECT (0) to Motive's command port (1510; the SDK's
 payload: 270 bytes, ``Ping`` first, the NatNet version asked for at bytes 265-268); Motive answers
 NAT_SERVERINFO (1): char[256] application name, u8[4] its version, u8[4] the NatNet version it
-streams (then its clock frequency and connection details, not read). NAT_REQUEST_MODELDEF (4) is answered by NAT_MODELDEF (5), the data descriptions: i32
-count, then per description i32 type (1: rigid body), from NatNet 4.1 on an i32 byte count, and
-for a rigid body its name (NUL-terminated), i32 id, i32 parent id, 3 float32 offset and (3.0 on)
-its markers. Frames are NAT_FRAMEOFDATA (7): i32 frame number, then sections, each an i32 count
-(from 4.1 on followed by an i32 byte count): marker sets, other markers, rigid bodies (i32 id,
+streams (then its clock frequency and connection details, not read). NAT_REQUEST_MODELDEF (4)
+is answered by NAT_MODELDEF (5), the data descriptions: i32 count, then per description i32
+type (1: rigid body), from NatNet 4.1 on an i32 byte count, and for a rigid body its name
+(NUL-terminated), i32 id, i32 parent id, 3 float32 offset and (3.0 on) its markers. Frames are
+NAT_FRAMEOFDATA (7): i32 frame number, then sections, each an i32 count (from 4.1 on followed
+by an i32 byte count): marker sets, other markers, rigid bodies (i32 id,
 3 float32 position in m, 4 float32 quaternion qx qy qz qw, float32 mean marker error in m, i16
 parameters whose bit 0 is "tracking valid"), skeletons, assets (4.1 on), labeled markers, force
 plates, devices, and a suffix: u32 timecode, u32 sub-timecode, float64 timestamp (s since Motive
