@@ -237,8 +237,9 @@ def _skip_rigid_body_description(reader: _Reader, version: tuple[int, ...]) -> t
 def parse_model_definitions(payload: bytes | memoryview, version: tuple[int, ...]) -> dict[str, int]:
     """The rigid bodies NAT_MODELDEF describes: {name: id}.
 
-    Before NatNet 4.1 a description has no byte count, so reading stops at the first type that
-    is neither a marker set, a rigid body nor a skeleton (Motive sends those first).
+    From NatNet 4.1 on each description has its byte count: of a rigid body only its name and
+    id are read. Before 4.1 a description has no byte count, so reading stops at the first type
+    that is neither a marker set, a rigid body nor a skeleton (Motive sends those first).
     """
     reader = _Reader(payload, "NAT_MODELDEF")
     bodies: dict[str, int] = {}
@@ -247,8 +248,10 @@ def parse_model_definitions(payload: bytes | memoryview, version: tuple[int, ...
         if _sized_from(version):
             block = reader.sized(f"description of type {kind}")
             if kind == DESCRIPTION_RIGID_BODY:
-                name, body_id = _skip_rigid_body_description(block, version)
-                bodies[name] = body_id
+                # name and id only: what follows grew with the versions (4.2 put an orientation
+                # offset before the markers), and the byte count says where it ends
+                name = block.string()
+                bodies[name] = block.i32()
             continue
         if kind == DESCRIPTION_MARKER_SET:
             reader.string()

@@ -17,9 +17,10 @@ NaturalPoint ships it with SDK 4.1 and as copied in e.g. lunarring/optitrack_pyt
   data port, u8 multicast, u8[4] multicast group.
 * NAT_REQUEST_MODELDEF (4) -> NAT_MODELDEF (5): i32 description count; per description i32
   type, from 4.1 on an i32 byte count of what follows, then: marker set (0): name, i32 count,
-  marker names; rigid body (1): name, i32 id, i32 parent id (-1: none), 3 float32 offset, i32
-  marker count, count x 3 float32 marker offsets, count x i32 active labels, (4.0 on) count
-  marker names.
+  marker names; rigid body (1): name, i32 id, i32 parent id (-1: none), 3 float32 offset,
+  (4.2 on) 4 float32 orientation offset qx qy qz qw (where the PyPI ``natnet`` package reads
+  it; the SDK 4.1 sample predates it), i32 marker count, count x 3 float32 marker offsets,
+  count x i32 active labels, (4.0 on) count marker names.
 * NAT_KEEPALIVE (10) keeps a unicast client; NAT_DISCONNECT (9) ends it; any other request is
   answered NAT_UNRECOGNIZED_REQUEST (100).
 * NAT_FRAMEOFDATA (7), to each unicast client's address (where its NAT_CONNECT came from), or
@@ -170,6 +171,8 @@ class FakeMotive:
         for number, name in enumerate(self.bodies, start=1):
             markers = np.array([[0.0, 0.0, 0.0], [0.05, 0.0, 0.0], [0.0, 0.07, 0.01]])
             body = _name(name) + struct.pack("<ii3f", number, -1, 0.0, 0.0, 0.0)
+            if self.version >= (4, 2):
+                body += struct.pack("<4f", 0.0, 0.0, 0.0, 1.0)  # the orientation offset
             body += struct.pack("<i", len(markers)) + markers.astype("<f4").tobytes()
             body += struct.pack(f"<{len(markers)}i", *range(len(markers)))
             if self.version >= (4, 0):
