@@ -37,6 +37,8 @@ def tracker_url(world, kind):
         return f"ndi://{world.info['host']}:{world.info['ndi_port']}"
     if kind == "ndi-serial":
         return f"ndi://{world.info['ndi_pty']}"
+    if kind == "natnet":
+        return f"natnet://{world.info['host']}:{world.info['natnet_port']}?body=Marker"
     return f"igtl://127.0.0.1:{world.info['igtl_port']}"
 
 
@@ -93,7 +95,7 @@ def paper_estimator_spread():
     return float(np.percentile(ratios, 99.5))
 
 
-@pytest.mark.parametrize("kind", ["ndi", "igtl"])
+@pytest.mark.parametrize("kind", ["ndi", "igtl", "natnet"])
 def test_acquire_and_calibrate_against_the_ground_truth(
     world, rom_file, tmp_path, kind, paper_estimator_spread
 ):
@@ -120,6 +122,11 @@ def test_acquire_and_calibrate_against_the_ground_truth(
     assert devices["robot"]["firmware"] == "PolyScope 3.15.7.106331" and "serial" not in devices["robot"]
     if kind.startswith("ndi"):
         assert devices["tracker"]["serial"] == "P6-00042", devices
+    if kind == "natnet":
+        # Motive's own name and versions, and the rigid body the marker was (the URL's query)
+        tracker = devices["tracker"]
+        assert (tracker["model"], tracker["firmware"]) == ("Motive", "3.1.0.0 (NatNet 4.1.0.0)"), devices
+        assert tracker["url"].endswith("?body=Marker") and "serial" not in tracker, devices
     pairing = json.loads(recording.with_name("rec.meta.json").read_text())["pairing"]
     assert pairing["estimated"], pairing
     estimate = np.array(json.loads(calibration.read_text())["tracker_from_base"])

@@ -10,6 +10,9 @@ extra it needs. A new device is one module here and one line in the table.
 * ``igtl://HOST:PORT`` — the ``MarkerToTracker`` pose (TRANSFORM, POSITION, TDATA or QTDATA)
   from PLUS Server, 3D Slicer or another OpenIGTLink sender, read by our own reader; sending a
   calibration uses pyigtl (extra ``igtl``).
+* ``natnet://HOST[:PORT]?body=NAME`` — OptiTrack Motive's rigid body NAME over NatNet 3.x/4.x
+  (command port 1510; ``tools=A,B`` further rigid bodies, ``multicast=GROUP`` for a multicast
+  stream), read by our own reader (no extra).
 """
 
 from __future__ import annotations
@@ -48,31 +51,41 @@ class DeviceScheme:
 
 #: An NDI Vega's Combined API port; the OpenIGTLink port (PLUS Server's and Slicer's default).
 NDI_TCP_DEFAULT_PORT, IGTL_DEFAULT_PORT = 8765, 18944
+#: Motive's NatNet command port.
+NATNET_DEFAULT_PORT = 1510
+
+#: The schemes whose URLs carry a query their adapter reads.
+QUERY_SCHEMES = ("natnet",)
 
 #: scheme -> its row: every device URL spacecal opens.
 DEVICE_SCHEMES: dict[str, DeviceScheme] = {
     "ur": DeviceScheme(ROBOT, "ur", "ur://HOST"),
     "ndi": DeviceScheme(TRACKER, "ndi", "ndi://SERIAL_PORT_OR_HOST[:PORT]", NDI_TCP_DEFAULT_PORT),
     "igtl": DeviceScheme(TRACKER, "igtl", "igtl://HOST[:PORT]", IGTL_DEFAULT_PORT),
+    "natnet": DeviceScheme(TRACKER, "natnet", "natnet://HOST[:PORT]?body=RIGID_BODY", NATNET_DEFAULT_PORT),
 }
 
 
 @dataclass(frozen=True)
 class DeviceAddress:
     """A parsed device URL: ``host`` is a host name, or a device path when ``serial``; ``port``
-    is the URL's, else the scheme's default (None: none)."""
+    is the URL's, else the scheme's default (None: none); ``query`` the URL's query, which
+    only the adapters that take one read (``natnet://HOST?body=Marker``)."""
 
     scheme: str
     host: str
     port: int | None
     serial: bool = False
+    query: str = ""
 
     @property
     def url(self) -> str:
-        """The URL in one canonical form (lower-case host, the default port written out)."""
+        """The URL in one canonical form (lower-case host, the default port written out, the
+        query's fields in sorted order)."""
         if self.serial:
             return f"{self.scheme}://{self.host}"
-        return f"{self.scheme}://{self.host}" + (f":{self.port}" if self.port is not None else "")
+        url = f"{self.scheme}://{self.host}" + (f":{self.port}" if self.port is not None else "")
+        return url + (f"?{'&'.join(sorted(self.query.split('&')))}" if self.query else "")
 
 
 @dataclass(frozen=True)
@@ -123,7 +136,8 @@ def device_address(url: str, role: str | None = None) -> DeviceAddress:
     serial = host.startswith("/")
     if port is None and not serial:
         port = DEVICE_SCHEMES[scheme].default_port
-    return DeviceAddress(scheme, host if serial else host.lower(), port, serial)
+    query = urlparse(url).query if scheme in QUERY_SCHEMES else ""
+    return DeviceAddress(scheme, host if serial else host.lower(), port, serial, query)
 
 
 def canonical_url(url: str) -> str:

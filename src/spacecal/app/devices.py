@@ -53,7 +53,8 @@ class DeviceSettings:
     ----------
     robot, tracker : str or None
         ``sim`` (the simulated system) or device URLs (``ur://HOST``; ``ndi://...``,
-        ``igtl://HOST:PORT``). None: not named (``doctor`` checks only what is named).
+        ``igtl://HOST:PORT``, ``natnet://HOST?body=RIGID_BODY``). None: not named (``doctor``
+        checks only what is named).
     rom : tuple of str
         NDI tool definitions: the marker first.
     tracker_rate_hz : float
@@ -119,7 +120,8 @@ MAX_DEVICE_URL_CHARS = 500
 def validate_device_url(kind: str, url: object) -> str:
     """``url`` if it names a ``kind`` device (``"robot"`` or ``"tracker"``) the way ``--robot``
     and ``--tracker`` take it: ``sim``, or a URL of the adapters' table (``ur://HOST``;
-    ``ndi://SERIAL_PORT_OR_HOST[:PORT]``, ``igtl://HOST[:PORT]``), parsed by the same parser
+    ``ndi://SERIAL_PORT_OR_HOST[:PORT]``, ``igtl://HOST[:PORT]``,
+    ``natnet://HOST[:PORT]?body=RIGID_BODY``), parsed by the same parser
     that opens the device (:func:`spacecal.adapters.device_address`). Nothing is opened.
 
     The URL is first held to :func:`spacecal.core.text.check_printable_token` (at most
@@ -152,8 +154,8 @@ TCP_MISMATCH_MM = 1.0
 
 
 def open_tracker(url: str, rom: Sequence[str], rate_hz: float) -> Tracker:
-    """Open the tracker a URL names (``ndi://...`` with the marker's ROM first, ``igtl://...``;
-    the URL table is :data:`spacecal.adapters.DEVICE_SCHEMES`)."""
+    """Open the tracker a URL names (``ndi://...`` with the marker's ROM first, ``igtl://...``,
+    ``natnet://HOST?body=RIGID_BODY``; the URL table is :data:`spacecal.adapters.DEVICE_SCHEMES`)."""
     from spacecal.adapters import TRACKER, DeviceOptions, open_device
 
     return open_device(url, TRACKER, DeviceOptions(rom=tuple(rom), tracker_rate_hz=rate_hz))

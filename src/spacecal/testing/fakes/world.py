@@ -5,7 +5,9 @@ the real wire protocols on loopback, so the real client libraries talk to them u
     python -m spacecal.testing.fakes.world --host 127.0.0.12 [--scenario paper-white] \
         [--igtl-port P] [--ndi-generation G] [--igtl-sender S] [--ur-generation G]
 
-Prints ``READY {json}`` (ports, pty path) on stdout when every server listens. A line
+Prints ``READY {json}`` (ports, pty path) on stdout when every server listens; the NatNet
+server (Motive, :mod:`spacecal.testing.fakes.natnet`) streams the marker and tools as rigid
+bodies ``Marker``, ``Pointer`` and ``Reference`` from ``natnet_port``. A line
 protocol on the control port injects faults and reads the truth::
 
     truth                      -> JSON of tracker_from_base, tcp_from_marker, home joints, and
@@ -49,7 +51,7 @@ from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.sim.devices import RealClock, SimulatedRobot
 from spacecal.sim.scenario import load_scenario
 from spacecal.sim.world import build_world
-from spacecal.testing.fakes import igtl, ndi, rtde
+from spacecal.testing.fakes import igtl, natnet, ndi, rtde
 from spacecal.testing.fakes.net import accept_connections, listen
 
 
@@ -139,6 +141,7 @@ class FakeWorld:
             # negated
             "ndi_clock_minus_robot_clock_s": NDI_FRAMES_AT_START / self.world.tracker.rate_hz,
             "igtl_clock_minus_robot_clock_s": self.igtl_epoch_s,
+            "natnet_clock_minus_robot_clock_s": NATNET_STARTED_BEFORE_S,
             "tracker_from_base": self.world.tracker_from_base.tolist(),
             "tcp_from_marker": self.world.tcp_from_marker.tolist(),
             "home_joints_rad": self.world.home_joints_rad.tolist(),
@@ -256,6 +259,36 @@ TRACKER_CONTROLS = {"ndi": ndi_control, "igtl": igtl_control}
 #: The NDI frame counter counts camera frames since the tracker was switched on: here about
 #: an hour before the robot controller's clock (the world's) started.
 NDI_FRAMES_AT_START = 3600 * 60
+#: Motive's timestamps count seconds since Motive started: here half an hour before the robot
+#: controller's clock.
+NATNET_STARTED_BEFORE_S = 1800.0
+#: Motive's rigid bodies: the world's marker and further tools, by Motive-style names.
+NATNET_BODIES = {"Marker": None, "Pointer": "pointer", "Reference": "reference"}
+
+
+def start_motive(fake: FakeWorld, host: str, rate_hz: float) -> natnet.FakeMotive:
+    """A NatNet server (Motive) streaming the world's marker and tools (:data:`NATNET_BODIES`),
+    each frame the tracker's view at the frame's own instant; ``unplug`` stops its stream."""
+
+    def poses(t_s: float) -> dict:
+        _, marker, _, _, tools = fake.frame(at_s=t_s - NATNET_STARTED_BEFORE_S)
+        found = {name: tools.get(tool, (None,))[0] for name, tool in NATNET_BODIES.items() if tool}
+        return {"Marker": marker, **found}
+
+    motive = natnet.FakeMotive(
+        poses,
+        tuple(NATNET_BODIES),
+        rate_hz=rate_hz,
+        host=host,
+        clock=lambda: fake.clock.now_s + NATNET_STARTED_BEFORE_S,
+    )
+
+    def mute_when_unplugged() -> None:
+        fake.unplug_event.wait()
+        motive.set(mute=True)
+
+    threading.Thread(target=mute_when_unplugged, name="natnet-unplug", daemon=True).start()
+    return motive
 
 
 def ndi_frame_source(fake: FakeWorld, rate_hz: float, stop: threading.Event):
@@ -357,6 +390,7 @@ def main() -> None:
     for thread in threads:
         thread.start()
     fake.controller = rtde.start_controller(fake, args.host, stop, sys.stderr if args.ur_log else None)
+    motive = start_motive(fake, args.host, rate)
     time.sleep(0.3)
     print(
         "READY "
@@ -367,6 +401,7 @@ def main() -> None:
                 "igtl_port": igtl_port,
                 "ndi_port": ndi_port,
                 "ndi_pty": pty_path,
+                "natnet_port": motive.port,
             }
         ),
         flush=True,
