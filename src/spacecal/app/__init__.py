@@ -65,7 +65,7 @@ from spacecal.app.simulation import (
     simulate,
 )
 from spacecal.app.slicer_plan import PlanFromSlicerSettings, plan_from_slicer
-from spacecal.app.verification import VerifySettings, verify
+from spacecal.app.verification import VerificationInterrupted, VerifySettings, verify
 from spacecal.estimators import ESTIMATORS
 from spacecal.records.assessment import ErrorThresholds
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
@@ -131,6 +131,7 @@ __all__ = [
     "ReportSettings",
     "SimulateOutput",
     "SimulateSettings",
+    "VerificationInterrupted",
     "VerifySettings",
     "acquire",
     "bound",
