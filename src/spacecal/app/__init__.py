@@ -65,6 +65,7 @@ from spacecal.app.simulation import (
     simulate,
 )
 from spacecal.app.slicer_plan import PlanFromSlicerSettings, plan_from_slicer
+from spacecal.app.touch import TouchCommandSettings, touch
 from spacecal.app.verification import VerificationInterrupted, VerifySettings, verify
 from spacecal.estimators import ESTIMATORS
 from spacecal.records.assessment import ErrorThresholds
@@ -94,6 +95,7 @@ COMMANDS: dict[str, Callable[..., CommandResult[Any]]] = {
     "report": report,
     "plan": plan,
     "plan-from-slicer": plan_from_slicer,
+    "touch": touch,
     "scenario": scenario,
 }
 
@@ -131,6 +133,7 @@ __all__ = [
     "ReportSettings",
     "SimulateOutput",
     "SimulateSettings",
+    "TouchCommandSettings",
     "VerificationInterrupted",
     "VerifySettings",
     "acquire",
@@ -160,5 +163,6 @@ __all__ = [
     "report",
     "scenario",
     "simulate",
+    "touch",
     "verify",
 ]

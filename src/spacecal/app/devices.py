@@ -80,6 +80,8 @@ class DeviceSettings:
 
     def __post_init__(self) -> None:
         check_tracker_rate_hz(self.tracker_rate_hz)
+        # the command line gives None for a field no option fills (its default is ())
+        object.__setattr__(self, "tools", tuple(self.tools or ()))
         if self.tool is not None:
             tool = np.asarray(self.tool, dtype=float)
             if (

@@ -10,7 +10,6 @@ import re
 from typing import Any, NoReturn
 
 from spacecal import __version__, app
-from spacecal.app import DEFAULT_SCENARIO, LIVE_VIEW_PORT
 from spacecal.core.strict_numbers import decimal, integer, parse_int
 
 #: Options whose values are coordinates, often negative (base-frame positions).
@@ -67,7 +66,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"spacecal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    scenario_help = f"scenario JSON file or preset (default {DEFAULT_SCENARIO})"
+    scenario_help = f"scenario JSON file or preset (default {app.DEFAULT_SCENARIO})"
 
     def command(name: str, help_text: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text)
@@ -186,10 +185,10 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "--live-view",
         nargs="?",
         type=port_number,
-        const=LIVE_VIEW_PORT,
+        const=app.LIVE_VIEW_PORT,
         metavar="PORT",
         help=f"show the marker, the sweeps and the samples in a web browser at http://127.0.0.1:PORT/ "
-        f"(default port {LIVE_VIEW_PORT}) while the motion runs",
+        f"(default port {app.LIVE_VIEW_PORT}) while the motion runs",
     )
 
     p = command(
@@ -343,11 +342,12 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")
 
     command("plan-from-slicer", "check a 3D Slicer needle plan in the image, tracker and robot frames")
+    command("touch", "touch the image fiducials with a tracked pointer: the touched points and registration")
     p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
     add_devices(p, simulated_by_default=False)
 
     p = command("scenario", "print a scenario preset as JSON, to edit")
-    p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
+    p.add_argument("preset", nargs="?", default=app.DEFAULT_SCENARIO)
     p = command("station", "the calibration station: the whole workflow in a web browser (spacecal[station])")
     p.add_argument("--host", default="127.0.0.1", help="interface (default 127.0.0.1; others need a token)")
     p.add_argument("--port", type=port_number, default=8770, help="TCP port (default 8770; 0: any free one)")
