@@ -398,7 +398,7 @@ def test_future_versions_of_result_files_are_refused_in_one_line(recording_file,
     assert run(capsys, "calibrate", str(recording_file), "-o", str(calibration))[0] == 0
     verification = tmp_path / "ver.json"
     verification.write_text(
-        json.dumps({"schema": "spacecal.verification", "schema_version": 4, "points": []})
+        json.dumps({"schema": "spacecal.verification", "schema_version": 5, "points": []})
     )
     code, _, err = run(
         capsys,
@@ -410,7 +410,7 @@ def test_future_versions_of_result_files_are_refused_in_one_line(recording_file,
         str(tmp_path / "r.html"),
     )
     assert code == 1 and err == (
-        f"spacecal: error: {verification}: schema_version 4 is newer than this spacecal reads (1, 2, 3): "
+        f"spacecal: error: {verification}: schema_version 5 is newer than this spacecal reads (1, 2, 3, 4): "
         "written by a newer spacecal, update it to read this file\n"
     )
     plan = tmp_path / "plan.json"

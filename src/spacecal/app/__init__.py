@@ -66,7 +66,8 @@ from spacecal.app.simulation import (
     simulate,
 )
 from spacecal.app.slicer_plan import PlanFromSlicerSettings, plan_from_slicer
-from spacecal.app.verification import VerifySettings, verify
+from spacecal.app.touch import TouchCommandSettings, touch
+from spacecal.app.verification import VerificationInterrupted, VerifySettings, verify
 from spacecal.estimators import ESTIMATORS
 from spacecal.records.assessment import ErrorThresholds
 from spacecal.report.live import DEFAULT_PORT as LIVE_VIEW_PORT
@@ -96,6 +97,7 @@ COMMANDS: dict[str, Callable[..., CommandResult[Any]]] = {
     "plan": plan,
     "plan-from-slicer": plan_from_slicer,
     "guide": guide,
+    "touch": touch,
     "scenario": scenario,
 }
 
@@ -135,6 +137,8 @@ __all__ = [
     "ReportSettings",
     "SimulateOutput",
     "SimulateSettings",
+    "TouchCommandSettings",
+    "VerificationInterrupted",
     "VerifySettings",
     "acquire",
     "bound",
@@ -164,5 +168,6 @@ __all__ = [
     "report",
     "scenario",
     "simulate",
+    "touch",
     "verify",
 ]

@@ -65,6 +65,10 @@ class DeviceSettings:
     tool : (x, y, z, rx, ry, rz) or None
         The TCP in the flange frame as the teach pendant shows it: mm and a rotation vector in
         rad. None (the default) takes the TCP set on the controller; a value must match it.
+    tools : tuple of (str, str)
+        Further tools the tracker is opened with, as :attr:`spacecal.adapters.DeviceOptions.tools`
+        takes them: (the name they are reported by, the NDI ROM file or OpenIGTLink device name).
+        Further ``rom`` files are tools too, named after their files.
     """
 
     robot: str | None = SIMULATED
@@ -73,9 +77,12 @@ class DeviceSettings:
     tracker_rate_hz: float = 20.0
     robot_model: str | None = None
     tool: tuple[float, float, float, float, float, float] | None = None
+    tools: tuple[tuple[str, str], ...] = ()
 
     def __post_init__(self) -> None:
         check_tracker_rate_hz(self.tracker_rate_hz)
+        # the command line gives None for a field no option fills (its default is ())
+        object.__setattr__(self, "tools", tuple(self.tools or ()))
         if self.tool is not None:
             tool = np.asarray(self.tool, dtype=float)
             if (
@@ -153,12 +160,17 @@ def validate_device_url(kind: str, url: object) -> str:
 TCP_MISMATCH_MM = 1.0
 
 
-def open_tracker(url: str, rom: Sequence[str], rate_hz: float) -> Tracker:
+def open_tracker(
+    url: str, rom: Sequence[str], rate_hz: float, tools: Sequence[tuple[str, str]] = ()
+) -> Tracker:
     """Open the tracker a URL names (``ndi://...`` with the marker's ROM first, ``igtl://...``,
-    ``natnet://HOST?body=RIGID_BODY``; the URL table is :data:`spacecal.adapters.DEVICE_SCHEMES`)."""
+    ``natnet://HOST?body=RIGID_BODY``; the URL table is :data:`spacecal.adapters.DEVICE_SCHEMES`),
+    following the further ``tools`` too (:attr:`DeviceSettings.tools`)."""
     from spacecal.adapters import TRACKER, DeviceOptions, open_device
 
-    return open_device(url, TRACKER, DeviceOptions(rom=tuple(rom), tracker_rate_hz=rate_hz))
+    return open_device(
+        url, TRACKER, DeviceOptions(rom=tuple(rom), tracker_rate_hz=rate_hz, tools=tuple(tools))
+    )
 
 
 def open_robot(url: str, robot_model: str | None, control: bool, limits: MotionLimits | None = None) -> Robot:
@@ -183,7 +195,7 @@ def open_hardware(devices: DeviceSettings, limits: MotionLimits | None = None) -
     # read-only until every check has passed and motion is confirmed (see acquire)
     robot = open_robot(devices.robot, devices.robot_model, False, limits)
     try:
-        tracker = open_tracker(devices.tracker, devices.rom, devices.tracker_rate_hz)
+        tracker = open_tracker(devices.tracker, devices.rom, devices.tracker_rate_hz, devices.tools)
     except BaseException:
         close_device(robot)
         raise

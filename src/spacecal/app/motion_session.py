@@ -61,6 +61,8 @@ from spacecal.workflows.held_poses import HeldPose, hold_poses
 
 #: What the gate says of visibility on real devices without a tracker pose.
 NO_TRACKER_POSE = "no tracker pose (pass --prior with an earlier calibration)"
+#: The further tools the simulated tracker follows (:attr:`spacecal.sim.world.World.tools`).
+SIMULATED_TOOLS = ("pointer", "reference")
 
 
 def simulated_devices(
@@ -68,11 +70,13 @@ def simulated_devices(
 ) -> tuple[World, SimulatedRobot, SimulatedTracker]:
     """The simulated robot and tracker of a scenario (a name, file or the scenario itself;
     simulated time from ``start_s``, ``speed`` times real time or, None, as fast as they
-    compute), and their world."""
+    compute), and their world. The tracker follows the world's further tools as well (the
+    pointer and the reference tool on the needle guide, :data:`SIMULATED_TOOLS`): their noise
+    is drawn from its own stream, so the marker's frames are those it had without them."""
     world = build_world(load_scenario(scenario) if isinstance(scenario, str) else scenario)
     clock = SimClock(start_s) if speed is None else RealClock(start_s, speed)
     robot = SimulatedRobot(world, clock, stream_states=True)
-    return world, robot, SimulatedTracker(world, robot)
+    return world, robot, SimulatedTracker(world, robot, tools=SIMULATED_TOOLS)
 
 
 @dataclass

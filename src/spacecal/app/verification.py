@@ -15,8 +15,15 @@ What measures the reached pose is said with every figure:
   own definition of where the needle is (``reference_from_needle``), independent of this
   calibration.
 
+The reference tool is a further tool the tracker follows: on the simulated devices the world's
+``reference`` tool; on an NDI tracker a further tool definition (``--rom``), named after its
+file; on OpenIGTLink the device of that name (:func:`reference_devices`).
+
 Every motion runs through the motion session (:mod:`spacecal.app.motion_session`): gated
-before anything moves, confirmed on real devices, stopped on a fault.
+before anything moves, confirmed on real devices, stopped on a fault. A verification stopped
+after some poses were held (Ctrl-C, a stop request, a device fault) keeps them: the poses
+measured so far are written to ``-o`` marked ``interrupted``, and the command ends with one line
+(:class:`VerificationInterrupted`, exit code 1); the robot was stopped and is not moved again.
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NoReturn
 
 import numpy as np
 
@@ -34,7 +41,7 @@ from spacecal.app.devices import DeviceSettings
 from spacecal.app.motion_session import MotionSession, motion_session
 from spacecal.app.motion_settings import MotionSettings, WorkspaceBox
 from spacecal.app.result import CommandResult, note_lines
-from spacecal.core.errors import DegenerateDataError, InvalidInputError, UnreachableError
+from spacecal.core.errors import DegenerateDataError, DeviceError, InvalidInputError, UnreachableError
 from spacecal.core.strict_numbers import integer
 from spacecal.experiments.verification import verify_in_simulation
 from spacecal.geometry.metrics import position_error, posture_error_rad
@@ -55,7 +62,7 @@ from spacecal.records.fields import as_transform
 from spacecal.report.figures import plot_verification_errors
 from spacecal.sim.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
 from spacecal.workflows.acquisition import SampleCallback
-from spacecal.workflows.held_poses import HeldPose
+from spacecal.workflows.held_poses import HeldPose, HoldsStopped
 
 #: What the calibrated marker's measurement is, in every figure that shows it.
 MEASURED_BY_MARKER = (
@@ -164,6 +171,19 @@ class VerifySettings:
             raise InvalidInputError(f"--frames-per-pose must be 3..1000, got {self.frames_per_pose}")
         if (self.reference_tool is None) != (self.reference_from_needle is None):
             raise InvalidInputError("--reference-tool and --reference-from-needle go together")
+
+
+class VerificationInterrupted(DeviceError):
+    """A verification on devices stopped after ``measured`` of ``planned`` poses; the robot was
+    stopped. ``result`` holds the poses measured (None when none was), already written to the
+    files in ``files``."""
+
+    def __init__(
+        self, message: str, result: VerificationResult | None, planned: int, files: tuple[Path, ...]
+    ) -> None:
+        super().__init__(message)
+        self.result, self.planned, self.files = result, planned, files
+        self.measured = 0 if result is None else len(result.position_error_mm)
 
 
 @dataclass(frozen=True)
@@ -313,21 +333,97 @@ def verify_on_devices(
         session.begin_motion()
         if on_plan is not None:
             on_plan(len(plan.moves))
-        held = session.hold(plan, settings.frames_per_pose, on_sample=on_sample, what="verification")
-        reached = reached_needle_poses(held, calibration, tcp_from_needle, reference)
-        result = VerificationResult(
-            desired_tracker_from_needle=desired,
-            reached_tracker_from_needle=reached,
-            joints_rad=np.array([pose.at_rest.joints_rad for pose in held]),
-            position_error_mm=position_error(desired, reached),
-            posture_error_deg=np.degrees(posture_error_rad(desired, reached)),
-            simulated=session.simulated,
-            scenario=session.world.scenario.name if session.world is not None else "",
-            measured_by=MEASURED_BY_MARKER if reference is None else f"reference tool {reference[0]}",
-            devices=session.identity(),
-        )
+        try:
+            held = session.hold(plan, settings.frames_per_pose, on_sample=on_sample, what="verification")
+        except HoldsStopped as stopped:
+            # the robot was stopped (hold_poses); what was measured is kept, and nothing moves again
+            keep_interrupted(
+                stopped, labels, desired, calibration, tcp_from_needle, reference, session, settings
+            )
+        result = verification_of(held, labels, desired, calibration, tcp_from_needle, reference, session)
     files = write_verification(result, settings)
     return robot_verify_result(RobotVerifyOutput(result, gate, len(desired)), files, tuple(notes))
+
+
+def verification_of(
+    held: list[HeldPose],
+    labels: list[str],
+    desired: np.ndarray,
+    calibration: CalibrationResult,
+    tcp_from_needle: np.ndarray,
+    reference: tuple[str, np.ndarray] | None,
+    session: MotionSession,
+    interrupted: str = "",
+) -> VerificationResult:
+    """The verification of the holds ``held`` (all, or those measured before a stop: then
+    ``interrupted`` says why), each compared with its desired pose (by its label)."""
+    index = [labels.index(pose.label) for pose in held]
+    wanted = desired[index]
+    reached = reached_needle_poses(held, calibration, tcp_from_needle, reference)
+    return VerificationResult(
+        desired_tracker_from_needle=wanted,
+        reached_tracker_from_needle=reached,
+        joints_rad=np.array([pose.at_rest.joints_rad for pose in held]),
+        position_error_mm=position_error(wanted, reached),
+        posture_error_deg=np.degrees(posture_error_rad(wanted, reached)),
+        simulated=session.simulated,
+        scenario=session.world.scenario.name if session.world is not None else "",
+        measured_by=MEASURED_BY_MARKER if reference is None else f"reference tool {reference[0]}",
+        devices=session.identity(),
+        interrupted=interrupted,
+        poses_planned=len(desired) if interrupted else None,
+    )
+
+
+def keep_interrupted(
+    stopped: HoldsStopped,
+    labels: list[str],
+    desired: np.ndarray,
+    calibration: CalibrationResult,
+    tcp_from_needle: np.ndarray,
+    reference: tuple[str, np.ndarray] | None,
+    session: MotionSession,
+    settings: VerifySettings,
+) -> NoReturn:
+    """Write the poses measured before the stop (``-o``, marked interrupted; the figure) and
+    end the command with one line.
+
+    Raises
+    ------
+    VerificationInterrupted
+        Always: "verification interrupted after K of N poses (why); ...".
+    """
+    result: VerificationResult | None = None
+    files: tuple[Path, ...] = ()
+    try:
+        if stopped.held:
+            result = verification_of(
+                stopped.held,
+                labels,
+                desired,
+                calibration,
+                tcp_from_needle,
+                reference,
+                session,
+                stopped.reason,
+            )
+            files = write_verification(result, settings)
+    except DegenerateDataError as exc:  # a hold without its reference tool: nothing to score
+        kept = f"nothing written ({exc})"
+    else:
+        kept = (
+            "; ".join(f"wrote {path}" for path in files)
+            if files
+            else ("nothing measured" if result is None else "no -o given: nothing written")
+        )
+    measured = 0 if result is None else len(result.position_error_mm)
+    raise VerificationInterrupted(
+        f"verification interrupted after {measured} of {len(desired)} poses ({stopped.reason}); "
+        f"the robot was stopped; {kept}",
+        result,
+        len(desired),
+        files,
+    ) from None
 
 
 def write_verification(result: VerificationResult, settings: VerifySettings) -> tuple[Path, ...]:
@@ -347,13 +443,38 @@ def _motion(settings: VerifySettings, calibration: CalibrationResult) -> MotionS
         simulated_scenario(calibration, settings.scenario) if settings.devices.simulated else DEFAULT_SCENARIO
     )
     return MotionSettings(
-        devices=settings.devices,
+        devices=reference_devices(settings.devices, settings.reference_tool),
         scenario=scenario,
         dry_run=settings.dry_run,
         confirm_robot_motion=settings.confirm_robot_motion,
         workspace_box=settings.workspace_box,
         simulated_speed=settings.simulated_speed,
     )
+
+
+def reference_devices(devices: DeviceSettings, name: str | None) -> DeviceSettings:
+    """The devices with the tracker following the reference tool ``name`` as well (None: as they
+    are). The simulated tracker follows the world's tools (``reference``) already; an NDI
+    tracker names its further tools after their ROM files, so one of ``--rom`` must be
+    ``NAME.rom``; an OpenIGTLink tracker is asked for the device ``NAME``.
+
+    Raises
+    ------
+    InvalidInputError
+        An NDI tracker without a further tool definition of that name.
+    """
+    if name is None or devices.simulated or devices.tracker is None:
+        return devices
+    if any(tool == name for tool, _ in devices.tools):
+        return devices
+    if devices.tracker.startswith("ndi://"):
+        if not any(Path(rom).stem == name for rom in devices.rom[1:]):
+            raise InvalidInputError(
+                f"--reference-tool {name}: no further tool definition {name}.rom among --rom (an NDI "
+                "tracker names its further tools after their ROM files; the marker's comes first)"
+            )
+        return devices
+    return dataclasses.replace(devices, tools=(*devices.tools, (name, name)))
 
 
 def robot_verify_result(

@@ -148,6 +148,7 @@ def _calling(name: str) -> Callable[[argparse.Namespace], app.CommandResult]:
 COMMANDS: dict[str, Callable[[argparse.Namespace], app.CommandResult | None]] = {
     **{name: _calling(name) for name in app.COMMANDS},
     "acquire": _acquire,
+    "touch": lambda a: app.touch(settings(app.TouchCommandSettings, a), on_line=print),
     "scenario": lambda a: app.scenario(a.preset),
     "station": _station,
 }

@@ -10,7 +10,6 @@ import re
 from typing import Any, NoReturn
 
 from spacecal import __version__, app
-from spacecal.app import DEFAULT_SCENARIO, LIVE_VIEW_PORT
 from spacecal.core.strict_numbers import decimal, integer, parse_int
 
 #: Options whose values are coordinates, often negative (base-frame positions).
@@ -67,7 +66,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"spacecal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    scenario_help = f"scenario JSON file or preset (default {DEFAULT_SCENARIO})"
+    scenario_help = f"scenario JSON file or preset (default {app.DEFAULT_SCENARIO})"
 
     def command(name: str, help_text: str) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text)
@@ -85,7 +84,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("--scenario", help=scenario_help)
     p.add_argument("--seed", type=integer, help="override the scenario's seed")
     p.add_argument(
-        "--raw", action="store_true", help="write the two raw streams (STEM.robot.csv, STEM.tracker.csv)"
+        "--raw", action="store_true", help="write the raw streams (STEM.robot.csv, STEM.tracker.csv)"
     )
     p.add_argument("--clock-offset-ms", type=decimal, help="with --raw: robot clock ahead of the tracker's")
     p.add_argument("--plan", help="a plan file (spacecal plan -o) to run instead of the paper's sweeps")
@@ -125,9 +124,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         help="spheres (optical tracker with fit RMS), pose (poses only: a camera, PLUS); default: "
         "auto, from what the recording holds",
     )
-    p.add_argument(
-        "--tip", metavar="PIVOT.json", help="the needle's pivot (spacecal pivot -o): IK aims that tip"
-    )
+    p.add_argument("--tip", metavar="PIVOT.json", help="the needle's pivot (spacecal pivot -o): IK aims it")
 
     p = command("pivot", "pivot calibration of a pointer or needle tip")
     p.add_argument("poses", help="folder of 4x4 .txt pose files, or a recording CSV")
@@ -186,10 +183,10 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
         "--live-view",
         nargs="?",
         type=port_number,
-        const=LIVE_VIEW_PORT,
+        const=app.LIVE_VIEW_PORT,
         metavar="PORT",
         help=f"show the marker, the sweeps and the samples in a web browser at http://127.0.0.1:PORT/ "
-        f"(default port {LIVE_VIEW_PORT}) while the motion runs",
+        f"(default port {app.LIVE_VIEW_PORT}) while the motion runs",
     )
 
     p = command(
@@ -344,11 +341,12 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
 
     command("plan-from-slicer", "check a 3D Slicer needle plan in the image, tracker and robot frames")
     add_devices(command("guide", "place the needle on a 3D Slicer plan with the robot (stages, errors)"))
+    command("touch", "touch the image fiducials with a tracked pointer: the touched points and registration")
     p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
     add_devices(p, simulated_by_default=False)
 
     p = command("scenario", "print a scenario preset as JSON, to edit")
-    p.add_argument("preset", nargs="?", default=DEFAULT_SCENARIO)
+    p.add_argument("preset", nargs="?", default=app.DEFAULT_SCENARIO)
     p = command("station", "the calibration station: the whole workflow in a web browser (spacecal[station])")
     p.add_argument("--host", default="127.0.0.1", help="interface (default 127.0.0.1; others need a token)")
     p.add_argument("--port", type=port_number, default=8770, help="TCP port (default 8770; 0: any free one)")
@@ -438,7 +436,7 @@ SHARED_FLAGS: dict[str, tuple[str, dict[str, Any]]] = {
     ),
     "confirm_robot_motion": (
         "--confirm-robot-motion",
-        dict(action="store_true", help="required to move a real robot"),
+        dict(action="store_true", help="needed to move a robot"),
     ),
     "workspace_box": (
         "--workspace-box",

@@ -48,8 +48,9 @@ class VerificationResult:
     """Outcome of a verification experiment (paper §5.2).
 
     Schema history (schema ``spacecal.verification``): 1 had no ``simulated``; 2 added it; 3
-    added ``measured_by`` and ``devices``. Every version is read (1 and 2 were measured in
-    the simulator by its laser tracker).
+    added ``measured_by`` and ``devices``; 4 added ``interrupted`` and ``poses_planned`` (a
+    verification stopped before its last pose keeps the poses it measured). Every version is
+    read (1 and 2 were measured in the simulator by its laser tracker; 1 to 3 were complete).
 
     Attributes
     ----------
@@ -70,6 +71,11 @@ class VerificationResult:
         an external measurement file.
     devices : dict of str to str
         The devices the poses were reached and measured on, as they named themselves.
+    interrupted : str
+        Why the verification stopped before its last pose (a device fault, Ctrl-C, a stop);
+        empty when every pose planned was measured.
+    poses_planned : int or None
+        The poses the verification planned (None: as many as were measured).
     """
 
     desired_tracker_from_needle: np.ndarray
@@ -81,9 +87,11 @@ class VerificationResult:
     scenario: str = ""
     measured_by: str = SIMULATED_LASER_TRACKER
     devices: Mapping[str, str] = field(default_factory=dict)
+    interrupted: str = ""
+    poses_planned: int | None = None
 
     SCHEMA = "spacecal.verification"
-    SCHEMA_VERSION = 3
+    SCHEMA_VERSION = 4
 
     def __post_init__(self) -> None:
         what = "verification"
@@ -110,6 +118,7 @@ class VerificationResult:
         }
 
     def to_dict(self) -> dict[str, Any]:
+        n_points = len(self.position_error_mm)
         return plain(
             {
                 "schema": self.SCHEMA,
@@ -119,6 +128,8 @@ class VerificationResult:
                 "scenario": self.scenario,
                 "measured_by": self.measured_by,
                 "devices": dict(self.devices),
+                "interrupted": self.interrupted or None,
+                "poses_planned": self.poses_planned if self.poses_planned is not None else n_points,
                 "statistics": self.statistics(),
                 "points": [
                     {
@@ -142,8 +153,8 @@ class VerificationResult:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], what: str = "verification") -> VerificationResult:
         """Read a verification file, version 1 (no ``simulated`` field: it was always
-        simulated) or 2."""
-        check_schema(data, cls.SCHEMA, (1, 2, 3), what)
+        simulated) to 4 (before 4, every pose planned was measured)."""
+        check_schema(data, cls.SCHEMA, (1, 2, 3, 4), what)
         points = _list_of_objects(data, "points", what)
         if not points:
             raise InvalidInputError(f"{what}: 'points' is empty")
@@ -156,6 +167,14 @@ class VerificationResult:
         simulated = data.get("simulated", True)
         if not isinstance(simulated, bool):
             raise InvalidInputError(f"{what}: 'simulated' must be true or false")
+        interrupted = data.get("interrupted")
+        if interrupted is not None and not (isinstance(interrupted, str) and len(interrupted) <= 1000):
+            raise InvalidInputError(f"{what}: 'interrupted' must be null or a short text")
+        planned = data.get("poses_planned", len(points))
+        if isinstance(planned, bool) or not isinstance(planned, int) or not len(points) <= planned <= 100_000:
+            raise InvalidInputError(
+                f"{what}: 'poses_planned' must be a whole number no smaller than the {len(points)} points"
+            )
         return cls(
             desired_tracker_from_needle=np.array(
                 [
@@ -176,6 +195,8 @@ class VerificationResult:
             scenario=get_str(data, "scenario", what, default=""),
             measured_by=get_str(data, "measured_by", what, default=SIMULATED_LASER_TRACKER),
             devices=_string_map(data.get("devices"), "devices", what),
+            interrupted=interrupted or "",
+            poses_planned=None if planned == len(points) and not interrupted else planned,
         )
 
 
