@@ -12,7 +12,8 @@ kept, and the run says where it stopped.
 The protocol on the child's pipes (trusted: the station starts this child itself):
 
 - stdin: one pickled ``(motion, settings)``, ``motion`` being ``"acquire"`` (settings
-  :class:`spacecal.app.AcquireSettings`) or ``"check"`` (:class:`spacecal.app.CheckSettings`).
+  :class:`spacecal.app.AcquireSettings`), ``"check"`` (:class:`spacecal.app.CheckSettings`) or
+  ``"verify"`` (:class:`spacecal.app.VerifySettings`, reached on the devices).
 - stdout: pickled messages ``(kind, payload)``, flushed one by one: ``("started", None)``
   once SIGINT takes the command line's stop path, ``("plan", moves)``,
   ``("sample", (samples, visible, move_index, label))``, ``("frame", (time_s, segment,
@@ -74,6 +75,10 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
                 )
             elif motion == "check":
                 out = app.check(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
+            elif motion == "verify":
+                from spacecal.app.verification import verify_on_devices
+
+                out = verify_on_devices(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
             else:
                 raise ValueError(f"no motion {motion!r}")
         send("done", out)

@@ -33,6 +33,7 @@ from spacecal import app
 from spacecal.core.text import exception_line
 from spacecal.report.live import LiveView
 from spacecal.station.motion_process import LAST_MESSAGES
+from spacecal.station.verify_step import verification_line
 
 #: How long a confirmation stays valid, s.
 TICKET_LIFETIME_S = 300.0
@@ -53,7 +54,9 @@ STATION_RESUME_WORDS = "acquiring again starts over and keeps these files (in ea
 #: Why a run stops when no page watches it any more.
 PAGE_LOST = "the station's page was closed or lost its connection"
 #: What each motion is called on its page.
-MOTION_WORDS = {"acquire": "acquisition", "check": "check"}
+MOTION_WORDS = {"acquire": "acquisition", "check": "check", "verify": "verification"}
+#: What each motion's run page is headed with.
+MOTION_TITLES = {"acquire": "Acquiring", "check": "Checking", "verify": "Verifying"}
 
 
 @dataclass(frozen=True)
@@ -168,6 +171,11 @@ class Run:
         """What the motion is called on its page."""
         return MOTION_WORDS.get(self.motion, self.motion)
 
+    @property
+    def title(self) -> str:
+        """The heading of its page."""
+        return MOTION_TITLES.get(self.motion, self.motion)
+
     def page_connected(self) -> None:
         """A page watches the run (its live view connected): the motion may start."""
         self.watchers += 1
@@ -244,8 +252,8 @@ class Run:
         if kind == "started":
             self.started = True
             self.message = f"connecting to {self.robot} and the tracker"
-            if self.motion == "check":
-                self.state = "running"  # a check shows no frames: it runs from here
+            if self.motion != "acquire":
+                self.state = "running"  # only an acquisition shows frames: the others run from here
         elif kind == "plan":
             self.moves_total = int(payload)
             self.message = ""
@@ -305,6 +313,8 @@ class Run:
 
 def _finished(motion: str, output: Any) -> str:
     """How a motion that ran to its end ended, in the command line's words."""
+    if motion == "verify":
+        return verification_line(output)
     if motion == "check":
         result = output.result
         if result is None:

@@ -35,6 +35,7 @@ from spacecal.station.error_pages import EXCEPTION_HANDLERS, error_page, refuse
 from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
+from spacecal.station.verify_step import PAPER_POSITION_MM, PAPER_POSTURE_DEG, poses_from_form
 from spacecal.station.workspace import EXPORTS, Workspace, new_folder
 
 HERE = Path(__file__).resolve().parent
@@ -232,17 +233,28 @@ async def workspace_page(request: Request) -> Response:
     history = []
     if work.calibration_record_id is not None:
         history = station.ledger.checks(work.calibration_record_id)
+    verify_run = station.runs.get(work.verify_run_id) if work.verify_run_id is not None else None
     return _page(
-        request, "workspace.html", work=work, findings=findings, run=run, exports=EXPORTS, history=history
+        request,
+        "workspace.html",
+        work=work,
+        findings=findings,
+        run=run,
+        verify_run=verify_run,
+        exports=EXPORTS,
+        history=history,
+        paper_position=PAPER_POSITION_MM,
+        paper_posture=PAPER_POSTURE_DEG,
     )
 
 
 #: The steps a calibration's page posts (none of them moves the robot).
-STEPS = ("doctor", "plan", "dry-run", "calibrate", "report")
+STEPS = ("doctor", "plan", "dry-run", "calibrate", "report", "verify-dry-run")
 
 
 async def step(request: Request) -> Response:
-    """POST /workspaces/N/step/<step>: doctor, plan, dry-run, calibrate, report (no motion)."""
+    """POST /workspaces/N/step/<step>: doctor, plan, dry-run, calibrate, report, verify-dry-run
+    (no motion)."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     if request.path_params["step"] not in STEPS:
@@ -250,15 +262,18 @@ async def step(request: Request) -> Response:
     form = await request.form()
     try:
         method = form_text(form, "method", "ml")
+        poses = poses_from_form(form_text(form, "poses"))
     except InvalidInputError as exc:
         return back(request, "workspace", exception_line(exc), workspace_id=work.id)
-    return await asyncio.to_thread(_step, request, station, work, method)
+    return await asyncio.to_thread(_step, request, station, work, method, poses)
 
 
-def _step(request: Request, station: Station, work: Workspace, method: str) -> Response:
+def _step(request: Request, station: Station, work: Workspace, method: str, poses: int) -> Response:
     name = request.path_params["step"]
     try:
-        if name == "doctor":
+        if name == "verify-dry-run":
+            work.verify_dry_run(poses)
+        elif name == "doctor":
             work.doctor()
         elif name == "plan":
             work.plan()
@@ -326,7 +341,13 @@ def workspace_file(request: Request) -> Response:
 
 # -- motions: confirmation, acquisition, check ----------------------------------------------
 
-MOTIONS = ("acquire", "check")
+MOTIONS = ("acquire", "check", "verify")
+#: What a confirmation of each motion needs first.
+NEEDED_FIRST = {
+    "acquire": "run the dry run first: it must pass",
+    "check": "calibrate first",
+    "verify": "calibrate, then run the verification's dry run: it must pass",
+}
 
 
 def confirm_page(request: Request) -> Response:
@@ -339,8 +360,7 @@ def confirm_page(request: Request) -> Response:
         return error_page(404, f"there is no motion {motion[:40]!r}")
     basis = work.motion_basis(motion)
     if basis is None:
-        needed = "run the dry run first: it must pass" if motion == "acquire" else "calibrate first"
-        return back(request, "workspace", needed, workspace_id=work.id)
+        return back(request, "workspace", NEEDED_FIRST[motion], workspace_id=work.id)
     ticket = station.tickets.issue(work.id, work.robot["name"], motion, basis)
     return _page(
         request, "confirm.html", work=work, motion=motion, words=work.motion_words(motion), ticket=ticket
@@ -348,10 +368,12 @@ def confirm_page(request: Request) -> Response:
 
 
 async def start_motion(request: Request) -> Response:
-    """POST /workspaces/N/motion/<acquire|check> with the confirmation's ticket."""
+    """POST /workspaces/N/motion/<acquire|check|verify> with the confirmation's ticket."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     motion = request.path_params["motion"]
+    if motion not in MOTIONS:
+        return error_page(404, f"there is no motion {motion[:40]!r}")
     form = await request.form()
     ticket = station.tickets.redeem(
         str(form.get("ticket", ""))[:100], work.id, motion, work.motion_basis(motion)
@@ -370,6 +392,16 @@ async def start_motion(request: Request) -> Response:
                 work.set_aside_earlier_recording()
             run = station.runs.start(work.id, work.robot["name"], work.acquire_settings(dry_run=False))
             work.run_id = run.id
+        elif motion == "verify":
+            confirmed = ticket.basis.rsplit(" ", 1)[1]  # the calibration's sha256 it was bound to
+            run = station.runs.start(
+                work.id,
+                work.robot["name"],
+                work.verify_settings(),
+                "verify",
+                functools.partial(_verified, work, confirmed),
+            )
+            work.verify_run_id = run.id
         else:
             run = station.runs.start(
                 work.id,
@@ -388,6 +420,12 @@ def _checked(station: Station, work: Workspace, run: Any) -> None:
     could not hold is not listed as done)."""
     spacecal_app.record_check(station.ledger, work.calibration_path, run.output, "station")
     work.checks.append(run.output.record)
+
+
+def _verified(work: Workspace, confirmed_sha256: str, run: Any) -> None:
+    """A verification that ran to its end: shown as its JSON file says, if the calibration is
+    still the one confirmed."""
+    work.verification.finished(confirmed_sha256)
 
 
 def _run(request: Request | WebSocket) -> Any:

@@ -13,9 +13,11 @@ from typing import Any
 
 from spacecal import app
 from spacecal.app.devices import SIMULATED
+from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.io.recordings import recording_in
 from spacecal.records import CalibrationResult
+from spacecal.station.verify_step import VerifyStep
 
 #: The finding levels in an operator's words.
 #: Simulated devices move in real time at the station: training shows the motion as long as the
@@ -66,12 +68,17 @@ class Workspace:
     motion_time_s: float = 0.0
     acquired: bool = False
     run_id: int | None = None
+    verify_run_id: int | None = None
     calibration: app.CommandResult[CalibrationResult] | None = None
     calibration_record_id: int | None = None
     checks: list[app.CheckOutput] = field(default_factory=list)
     report: Path | None = None
     exported: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
+    verification: VerifyStep = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.verification = VerifyStep(self.calibration_path)
 
     @property
     def simulated(self) -> bool:
@@ -190,7 +197,10 @@ class Workspace:
     def motion_basis(self, motion: str) -> str | None:
         """What a confirmation of ``motion`` confirms, while it still holds: the dry run that
         passed of the plan now on disk (``acquire``), or the calibration file now on disk
-        (``check``); None when there is nothing to confirm."""
+        (``check``), or the verification's dry run of the calibration now on disk (``verify``);
+        None when there is nothing to confirm."""
+        if motion == "verify":
+            return self.verification.motion_basis() if self.calibration is not None else None
         if motion == "acquire":
             basis = self.dry_run_basis
             if basis is None or not basis.endswith(f"plan {self.plan_sha256()}"):
@@ -202,6 +212,8 @@ class Workspace:
 
     def motion_words(self, motion: str) -> str:
         """The motion a confirmation names."""
+        if motion == "verify":
+            return self.verification.words()
         if motion == "acquire":
             return (
                 f"the calibration motion: {self.moves} moves, about {self.motion_time_s:.0f} s "
@@ -230,6 +242,16 @@ class Workspace:
             confirm_robot_motion=True,
             simulated_speed=SIMULATED_SPEED,
         )
+
+    def verify_dry_run(self, poses: int) -> None:
+        """The verification's dry run (nothing moves): the needle poses through the gate."""
+        if self.calibration is None:
+            raise InvalidInputError("calibrate first: the verification reaches poses through the calibration")
+        self.verification.dry_run(self.devices, poses)
+
+    def verify_settings(self) -> app.VerifySettings:
+        """The verification's settings: its motion was confirmed on the confirmation page."""
+        return self.verification.settings(self.devices, dry_run=False, simulated_speed=SIMULATED_SPEED)
 
     def make_report(self) -> Path:
         out = app.report(
