@@ -49,6 +49,56 @@ def _channel() -> IO[bytes]:
     return channel
 
 
+#: How long a guidance in one session waits at the standoff for the insertion's confirmation
+#: (a confirmation's lifetime), s; then it ends there without inserting.
+PROCEED_WITHIN_S = 300.0
+
+
+def wait_for_proceed(channel: IO[bytes], within_s: float = PROCEED_WITHIN_S) -> str:
+    """The second confirmation the station sends down standard input (``("proceed", word)``).
+
+    Raises
+    ------
+    InvalidInputError
+        None came within ``within_s``, or the station closed the pipe without one.
+    KeyboardInterrupt
+        STOP (SIGINT) meanwhile.
+    """
+    import select
+
+    from spacecal.core.errors import InvalidInputError
+
+    ready, _, _ = select.select([channel], [], [], within_s)
+    if not ready:
+        raise InvalidInputError(
+            f"the insertion was not confirmed within {within_s:.0f} s: the robot stays at the standoff"
+        )
+    try:
+        kind, word = pickle.load(channel)
+    except (EOFError, pickle.UnpicklingError, ValueError):
+        raise InvalidInputError("the insertion was not confirmed: the robot stays at the standoff") from None
+    if kind != "proceed":
+        raise InvalidInputError("the insertion was not confirmed: the robot stays at the standoff")
+    return str(word)
+
+
+def guide(settings: Any, on_sample: Any, send: Any) -> Any:
+    """A guidance stage (``settings.stage`` ``standoff`` or ``insert``), or both in one session
+    (``all``, simulated devices): it reports each stage, and between the two waits for the
+    insertion's confirmation from the station (:func:`wait_for_proceed`)."""
+    from spacecal.station.guide_step import guidance_module
+
+    guidance = guidance_module()
+
+    def before_insert() -> str:
+        send("await", "insert")
+        return wait_for_proceed(sys.stdin.buffer)
+
+    if settings.stage == "all":
+        return guidance.guide(settings, on_sample=on_sample, before_insert=before_insert)
+    return guidance.guide(settings, on_sample=on_sample)
+
+
 def run_motion(motion: str, settings: Any, send: Any) -> None:
     """Run ``motion`` with ``settings`` and report through ``send(kind, payload)``.
 
@@ -79,6 +129,8 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
                 from spacecal.app.verification import verify_on_devices
 
                 out = verify_on_devices(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
+            elif motion in ("standoff", "insert"):
+                out = guide(settings, on_sample, send)
             else:
                 raise ValueError(f"no motion {motion!r}")
         send("done", out)

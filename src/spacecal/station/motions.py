@@ -32,6 +32,7 @@ from typing import Any
 from spacecal import app
 from spacecal.core.text import exception_line
 from spacecal.report.live import LiveView
+from spacecal.station.guide_step import guidance_line
 from spacecal.station.motion_process import LAST_MESSAGES
 from spacecal.station.verify_step import verification_line
 
@@ -54,9 +55,29 @@ STATION_RESUME_WORDS = "acquiring again starts over and keeps these files (in ea
 #: Why a run stops when no page watches it any more.
 PAGE_LOST = "the station's page was closed or lost its connection"
 #: What each motion is called on its page.
-MOTION_WORDS = {"acquire": "acquisition", "check": "check", "verify": "verification"}
+MOTION_WORDS = {
+    "acquire": "acquisition",
+    "check": "check",
+    "verify": "verification",
+    "standoff": "guidance",
+    "insert": "guidance",
+}
 #: What each motion's run page is headed with.
-MOTION_TITLES = {"acquire": "Acquiring", "check": "Checking", "verify": "Verifying"}
+MOTION_TITLES = {
+    "acquire": "Acquiring",
+    "check": "Checking",
+    "verify": "Verifying",
+    "standoff": "Guiding the needle to its standoff",
+    "insert": "Inserting along the plan",
+}
+#: What a run's page says while it waits for a second confirmation.
+AWAIT_WORDS = {
+    "insert": "at the standoff: the robot holds still; confirm the insertion (a second confirmation) or STOP"
+}
+#: Motions whose process waits, between two stages, for a second confirmation the station
+#: sends down its standard input (a guidance on simulated devices: standoff, then insertion,
+#: in one session, since a new process would start a fresh simulated world at home).
+CONTINUED = ("standoff",)
 
 
 @dataclass(frozen=True)
@@ -160,6 +181,10 @@ class Run:
     started: bool = False
     thread: threading.Thread | None = None
     _process: subprocess.Popen[bytes] | None = None
+    #: What the run waits for, between its stages (``"insert"``), or None.
+    awaiting: str | None = None
+    #: Its stages so far, as its process reported them (``(stage, payload)``).
+    stages: list[tuple[str, Any]] = field(default_factory=list)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     @property
@@ -170,6 +195,29 @@ class Run:
     def words(self) -> str:
         """What the motion is called on its page."""
         return MOTION_WORDS.get(self.motion, self.motion)
+
+    @property
+    def waits_for_confirmation(self) -> bool:
+        """Its process waits for a second confirmation between its stages."""
+        settings = self.settings
+        return self.motion in CONTINUED and getattr(settings, "stage", "") == "all"
+
+    def proceed(self, word: str) -> bool:
+        """Send the waiting process the second confirmation (``word``, e.g. the insertion);
+        whether it was waiting for one (it is sent once)."""
+        with self._lock:
+            process, awaiting = self._process, self.awaiting
+            if awaiting is None or process is None or process.stdin is None or self.stop_requested_at:
+                return False
+            self.awaiting = None
+            try:
+                pickle.dump(("proceed", word), process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                process.stdin.flush()
+                process.stdin.close()
+            except OSError:  # it has just ended
+                return False
+        self.message = f"confirmed: {word}"
+        return True
 
     @property
     def title(self) -> str:
@@ -228,8 +276,10 @@ class Run:
             )
             self._process = process
         assert process.stdin is not None and process.stdout is not None
-        with process.stdin:
-            pickle.dump((self.motion, self.settings), process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        pickle.dump((self.motion, self.settings), process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        process.stdin.flush()
+        if not self.waits_for_confirmation:
+            process.stdin.close()
         last: tuple[str, Any] | None = None
         with process.stdout:
             while True:
@@ -259,6 +309,11 @@ class Run:
             self.message = ""
         elif kind == "sample":
             self.samples, self.visible, self.move_index, _ = payload
+        elif kind == "stage":
+            self.stages.append(payload)
+        elif kind == "await":
+            self.awaiting = str(payload)
+            self.message = AWAIT_WORDS.get(self.awaiting, f"waiting for the confirmation of {self.awaiting}")
         elif kind == "frame":
             self.state = "running"
             self.last_frame_at = time.monotonic()
@@ -268,6 +323,7 @@ class Run:
             self.view.observe(*payload)
 
     def _ended(self, last: tuple[str, Any] | None) -> None:
+        self.awaiting = None
         stopped = self.stop_requested_at is not None
         if last is None and stopped and not self.started:
             self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"
@@ -307,6 +363,7 @@ class Run:
             moves_total=self.moves_total,
             move=self.move_index + 1 if self.samples else 0,
             stop_reason=self.stop_reason,
+            awaiting=self.awaiting,
         )
         return data
 
@@ -315,6 +372,8 @@ def _finished(motion: str, output: Any) -> str:
     """How a motion that ran to its end ended, in the command line's words."""
     if motion == "verify":
         return verification_line(output)
+    if motion in ("standoff", "insert"):
+        return guidance_line(output)
     if motion == "check":
         result = output.result
         if result is None:
@@ -345,6 +404,10 @@ class Runs:
 
     def active(self) -> Run | None:
         return next((run for run in self._runs.values() if run.active), None)
+
+    def latest(self) -> Run | None:
+        """The run started last (the robot stands where it left it)."""
+        return self._runs[max(self._runs)] if self._runs else None
 
     def start(
         self,
