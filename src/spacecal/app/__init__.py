@@ -40,6 +40,7 @@ from spacecal.app.files import (
     register_landmarks,
     report,
 )
+from spacecal.app.guidance import GuideOutput, GuideSettings, guide
 from spacecal.app.planner import PlanSettings, plan
 from spacecal.app.poses import ImportPosesSettings, import_poses
 from spacecal.app.record import open_record, record_calibration, record_check
@@ -94,6 +95,7 @@ COMMANDS: dict[str, Callable[..., CommandResult[Any]]] = {
     "report": report,
     "plan": plan,
     "plan-from-slicer": plan_from_slicer,
+    "guide": guide,
     "scenario": scenario,
 }
 
@@ -117,6 +119,8 @@ __all__ = [
     "DoctorSettings",
     "ErrorThresholds",
     "ExportSettings",
+    "GuideOutput",
+    "GuideSettings",
     "ImportBagSettings",
     "ImportEasyHandeyeSettings",
     "ImportPlusSettings",
@@ -144,6 +148,7 @@ __all__ = [
     "export",
     "export_calibration",
     "export_ros",
+    "guide",
     "import_bag",
     "import_easy_handeye",
     "import_plus",

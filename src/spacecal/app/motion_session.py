@@ -282,6 +282,28 @@ class MotionSession:
         if not self.started:
             raise InvalidInputError("the motion was not confirmed (begin_motion) before it ran")
 
+    def hold_observed(
+        self,
+        plan: MotionPlan,
+        frames_per_pose: int,
+        observer: FrameObserver,
+        on_sample: SampleCallback | None = None,
+        what: str = "guidance",
+    ) -> list[HeldPose]:
+        """:meth:`hold`, with ``observer`` called at every tracker frame, moving and holding
+        (guidance streams the needle's pose to 3D Slicer from it)."""
+        self._require_started()
+        return hold_poses(
+            self.robot,
+            self.tracker,
+            plan,
+            self.run_settings(),
+            frames_per_pose,
+            on_sample,
+            what=what,
+            observer=observer,
+        )
+
 
 @contextlib.contextmanager
 def motion_session(settings: MotionSettings) -> Iterator[MotionSession]:

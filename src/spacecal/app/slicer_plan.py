@@ -145,33 +145,75 @@ class PlanFromSlicerSettings:
             )
 
 
-def _read_plan(settings: PlanFromSlicerSettings) -> NeedlePlan:
-    if not settings.plan.lower().endswith(".mrk.json") and settings.plan.lower().endswith(".json"):
-        data = read_json_object(settings.plan, "needle plan")
+def read_plan(
+    path: str,
+    entry_label: str | None = None,
+    target_label: str | None = None,
+    markup: str | None = None,
+    coordinate_system: str | None = None,
+) -> NeedlePlan:
+    """The plan of a Slicer markups file, or of a plan JSON ``plan-from-slicer`` wrote (the
+    arguments are :class:`PlanFromSlicerSettings`' fields of the same names)."""
+    if not path.lower().endswith(".mrk.json") and path.lower().endswith(".json"):
+        data = read_json_object(path, "needle plan")
         if data.get("schema") == NEEDLE_PLAN_SCHEMA:
-            return NeedlePlan.from_dict(data, f"{settings.plan}")
+            return NeedlePlan.from_dict(data, f"{path}")
     return plan_from_markups(
+        path,
+        entry_label=entry_label,
+        target_label=target_label,
+        markup_name=markup,
+        coordinate_system=coordinate_system,
+    )
+
+
+def read_registration(
+    registration: str | None,
+    registration_maps: str | None = None,
+    fiducials: str | None = None,
+    touched: str | None = None,
+    coordinate_system: str | None = None,
+    max_fre_mm: float = DEFAULT_MAX_FRE_MM,
+    accept_high_fre: bool = False,
+) -> ImageRegistration:
+    """The image registration: a Slicer transform file, or one made from image fiducials and
+    the pointer's touches of them (refused above ``max_fre_mm`` unless ``accept_high_fre``); the
+    arguments are :class:`PlanFromSlicerSettings`' fields of the same names."""
+    if registration is not None:
+        return read_slicer_registration(registration, registration_maps)
+    if fiducials is None or touched is None:
+        raise InvalidInputError("a pointer registration needs both --fiducials and --touched")
+    points = fiducials_from_markups(fiducials, coordinate_system=coordinate_system)
+    frame, touches = read_touched_points(touched)
+    return register_image_fiducials(
+        points,
+        touches,
+        image_frame="image_lps",
+        tracker_frame=frame,
+        max_fre_mm=max_fre_mm,
+        accept_high_fre=accept_high_fre,
+    )
+
+
+def _read_plan(settings: PlanFromSlicerSettings) -> NeedlePlan:
+    return read_plan(
         settings.plan,
-        entry_label=settings.entry_label,
-        target_label=settings.target_label,
-        markup_name=settings.markup,
-        coordinate_system=settings.coordinate_system,
+        settings.entry_label,
+        settings.target_label,
+        settings.markup,
+        settings.coordinate_system,
     )
 
 
 def _registration(settings: PlanFromSlicerSettings) -> ImageRegistration:
-    if settings.registration is not None:
-        return read_slicer_registration(settings.registration, settings.registration_maps)
-    assert settings.fiducials is not None and settings.touched is not None  # __post_init__
-    fiducials = fiducials_from_markups(settings.fiducials, coordinate_system=settings.coordinate_system)
-    frame, touched = read_touched_points(settings.touched)
-    return register_image_fiducials(
-        fiducials,
-        touched,
-        image_frame="image_lps",
-        tracker_frame=frame,
-        max_fre_mm=settings.max_fre_mm,
-        accept_high_fre=settings.accept_high_fre,
+    return read_registration(
+        settings.registration,
+        settings.registration_maps,
+        settings.fiducials,
+        settings.touched,
+        settings.coordinate_system,
+        settings.max_fre_mm,
+        settings.accept_high_fre,
     )
 
 
@@ -296,4 +338,11 @@ def plan_from_slicer(settings: PlanFromSlicerSettings) -> CommandResult[LocatedP
     return CommandResult(located, files, notes=tuple(notes), lines=tuple(lines))
 
 
-__all__ = ["PlanFromSlicerSettings", "located_dict", "plan_from_slicer", "plan_lines"]
+__all__ = [
+    "PlanFromSlicerSettings",
+    "located_dict",
+    "plan_from_slicer",
+    "plan_lines",
+    "read_plan",
+    "read_registration",
+]

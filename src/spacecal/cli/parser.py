@@ -343,6 +343,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="plan JSON to write (run it with acquire/simulate --plan)")
 
     command("plan-from-slicer", "check a 3D Slicer needle plan in the image, tracker and robot frames")
+    add_devices(command("guide", "place the needle on a 3D Slicer plan with the robot (stages, errors)"))
     p = command("doctor", "check a robot and a tracker read-only before a run (nothing moves)")
     add_devices(p, simulated_by_default=False)
 

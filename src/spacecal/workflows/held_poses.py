@@ -22,6 +22,7 @@ from spacecal.planning.motion import MotionPlan
 from spacecal.workflows.acquisition import (
     AcquisitionResult,
     AcquisitionSettings,
+    FrameObserver,
     RunFault,
     SampleCallback,
     run_plan,
@@ -72,6 +73,7 @@ def hold_poses(
     frames_per_pose: int = 10,
     on_sample: SampleCallback | None = None,
     what: str = "check",
+    observer: FrameObserver | None = None,
 ) -> list[HeldPose]:
     """Run a plan of holds and keep the frames held at each; ``on_sample(samples, visible,
     move_index, label)`` follows it as it follows an acquisition.
@@ -87,6 +89,8 @@ def hold_poses(
     on_sample : callable, optional
     what : str
         The run's name in its messages (``check``, ``verification``, ``guidance``).
+    observer : FrameObserver, optional
+        Called with every tracker frame, moving and holding (a live view).
 
     Raises
     ------
@@ -98,7 +102,7 @@ def hold_poses(
     sink = _HoldSink()
     progress = AcquisitionResult(Path(what), 0, 0, 0, len(plan.moves))
     try:
-        run_plan(plan, robot, tracker, sink, settings, progress, on_sample=on_sample)
+        run_plan(plan, robot, tracker, sink, settings, progress, on_sample=on_sample, observer=observer)
     except (RunFault, SpacecalError, KeyboardInterrupt) as exc:
         robot.stop()
         reason = "interrupted by the user (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else str(exc)

@@ -1,0 +1,100 @@
+"""Files as 3D Slicer writes them for a simulated world's phantom: the needle plan (a markups
+Line or point list, in LPS or RAS) and the image registration (an ITK ``.tfm``), and the
+pointer's touches of the phantom's fiducials; the guide tests on the simulated devices and on
+the protocol fakes share them.
+
+Conventions (the sources the project's readers follow, :mod:`spacecal.io.slicer_markups` and
+:mod:`spacecal.io.slicer`): a markups file states ``coordinateSystem`` ``LPS`` or ``RAS`` and
+``coordinateUnits`` ``mm`` (markups schema v1.0.3); ``RAS = diag(-1, -1, 1) LPS``; a Slicer
+transform node ``TrackerToRAS`` saved as ``.tfm`` holds ITK's from-parent (resampling)
+transform in LPS, and its to-parent matrix is ``image_ras_from_tracker``.
+"""
+
+import json
+
+import numpy as np
+
+from spacecal.geometry.transforms import invert_transform
+from spacecal.io.slicer import write_slicer_transform
+from spacecal.io.touched_points import write_touched_points
+from spacecal.sim.devices import SimulatedRobot, SimulatedTracker
+from spacecal.sim.tools import POINTER
+from spacecal.workflows.pointer_touches import TouchSettings, collect_touches, touched_points
+
+SCHEMA = (
+    "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/Markups/Resources/Schema/"
+    "markups-schema-v1.0.3.json#"
+)
+LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+def _control_point(index, label, position):
+    return {
+        "id": str(index + 1),
+        "label": label,
+        "description": "",
+        "associatedNodeID": "vtkMRMLScalarVolumeNode1",
+        "position": [float(v) for v in position],
+        "orientation": [-1.0, -0.0, -0.0, -0.0, -1.0, -0.0, 0.0, 0.0, 1.0],
+        "selected": True,
+        "locked": False,
+        "visibility": True,
+        "positionStatus": "defined",
+    }
+
+
+def write_markups(path, points, kind="Line", system="LPS", units="mm", drop_system=False):
+    """A markups file of ``points`` ({label: position in image_lps, mm}) as Slicer saves it: a
+    ``Line`` (labels L-1, L-2: entry, then target) or a point list (``Fiducial``, labelled), its
+    positions in ``system``."""
+    flip = np.array([-1.0, -1.0, 1.0]) if system == "RAS" else np.ones(3)
+    items = list(points.items())
+    labels = [f"L-{k + 1}" for k in range(len(items))] if kind == "Line" else [k for k, _ in items]
+    markup = {
+        "type": kind,
+        "coordinateSystem": system,
+        "coordinateUnits": units,
+        "locked": False,
+        "fixedNumberOfControlPoints": False,
+        "labelFormat": "%N-%d",
+        "lastUsedControlPointNumber": len(items),
+        "controlPoints": [
+            _control_point(k, label, flip * np.asarray(p))
+            for k, (label, (_, p)) in enumerate(zip(labels, items))
+        ],
+    }
+    if drop_system:
+        del markup["coordinateSystem"]
+    path.write_text(json.dumps({"@schema": SCHEMA, "markups": [markup]}, indent=4))
+    return path
+
+
+def write_plan(path, world, which=0, kind="Line", system="LPS"):
+    """Phantom path ``which`` as a Slicer plan file; returns (path, the path)."""
+    planned = world.phantom.paths[which]
+    points = {"entry": planned.entry_in_image, "target": planned.target_in_image}
+    return write_markups(path, points, kind, system), planned
+
+
+def write_registration(path, tracker_from_image_lps):
+    """The registration as Slicer saves the transform node TrackerToRAS (.tfm)."""
+    return write_slicer_transform(LPS @ invert_transform(tracker_from_image_lps), path)
+
+
+def write_pointer_registration(folder, world, robot=None):
+    """The phantom's fiducials (a point list, LPS) and the simulated pointer's touches of them
+    (:func:`collect_touches`, the tip as the pointer's calibration has it)."""
+    phantom = world.phantom
+    fiducials = write_markups(folder / "fiducials.mrk.json", phantom.fiducials_in_image, kind="Fiducial")
+    tracker = SimulatedTracker(world, robot or SimulatedRobot(world), tools=(POINTER,))
+    touches = collect_touches(
+        tracker,
+        POINTER,
+        world.pointer_from_tip,
+        phantom.labels,
+        world.place_pointer,
+        TouchSettings(wait_s=3.0),
+    )
+    world.put_pointer_away()
+    touched = write_touched_points(folder / "touched.csv", touched_points(touches), comments=["simulated"])
+    return fiducials, touched
