@@ -45,6 +45,13 @@ INSERTIONS = {"advance": "advance to the target", "hold": "hold the guide at the
 LOCATED_NAME = "guide-plan-located.json"
 
 
+def stage_output(standoff_output: str | None, stage: str) -> str | None:
+    """The guidance JSON of ``stage`` beside the standoff's (``guidance-standoff.json``)."""
+    if standoff_output is None:
+        return None
+    return str(Path(standoff_output).with_name(f"guidance-{stage}.json"))
+
+
 def sha256_of(path: Path) -> str:
     try:
         return hashlib.sha256(path.read_bytes()).hexdigest()
@@ -155,7 +162,7 @@ class GuideStep:
             self.forget_motions()
         self.registration_maps = maps or None
 
-    def registration_inputs(self) -> dict[str, str | None]:
+    def registration_inputs(self) -> dict[str, Any]:
         """The registration's arguments of ``plan-from-slicer`` and ``guide``: the ``.tfm`` with
         its role, else the fiducials and the touched points."""
         if self.has("registration"):
@@ -194,17 +201,16 @@ class GuideStep:
                 calibration=str(self.calibration_path),
                 output=str(self.folder / LOCATED_NAME),
                 force=True,
-                **self.registration_inputs(),  # type: ignore[arg-type]
+                **self.registration_inputs(),
             )
         )
         self.located = out.record
         # the lines name the station's own file names, not the operator's
         self.located_lines = list(out.lines)
 
-    def settings(self, devices: app.DeviceSettings, stage: str, **more: Any) -> Any:
+    def settings(self, devices: app.DeviceSettings, stage: str, **more: Any) -> app.GuideSettings:
         """The guidance's settings for ``stage``; its motion confirmed on the station's page."""
-        guidance = guidance_module()
-        return guidance.GuideSettings(
+        return app.GuideSettings(
             plan=str(self.path("plan")),
             calibration=str(self.calibration_path),
             devices=devices,
@@ -222,9 +228,9 @@ class GuideStep:
         before = self.inputs_sha256()
         if self.located is None:
             self.locate()
-        out = guidance_module().guide(self.settings(devices, "standoff", dry_run=True))
+        out = app.guide(self.settings(devices, "standoff", dry_run=True))
         gate = out.record.gate
-        self.dry_run_lines = [*(([gate.summary(), *gate.lines()]) if gate is not None else []), *out.lines]
+        self.dry_run_lines = [*(gate.lines() if gate is not None else []), *out.lines]
         if (gate is None or gate.passed) and self.inputs_sha256() == before:
             self.basis = f"standoff-dry-run {secrets.token_hex(8)} inputs {before}"
 
@@ -255,18 +261,6 @@ class GuideStep:
         """The standoff run ``run_id`` finished at the standoff: the insertion may be confirmed."""
         self.standoff_run = run_id
         self.standoff_basis = f"standoff-run {run_id} {secrets.token_hex(8)} inputs {self.inputs_sha256()}"
-
-
-def guidance_module() -> Any:
-    """:mod:`spacecal.app.guidance` (imported when a guidance is asked for)."""
-    import importlib
-
-    try:
-        return importlib.import_module("spacecal.app.guidance")
-    except ImportError:
-        raise InvalidInputError(
-            "guidance is not available in this spacecal (spacecal.app.guidance)"
-        ) from None
 
 
 def last_stage(output: Any) -> Any:

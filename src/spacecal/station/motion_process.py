@@ -82,21 +82,39 @@ def wait_for_proceed(channel: IO[bytes], within_s: float = PROCEED_WITHIN_S) -> 
     return str(word)
 
 
-def guide(settings: Any, on_sample: Any, send: Any) -> Any:
-    """A guidance stage (``settings.stage`` ``standoff`` or ``insert``), or both in one session
-    (``all``, simulated devices): it reports each stage, and between the two waits for the
-    insertion's confirmation from the station (:func:`wait_for_proceed`)."""
-    from spacecal.station.guide_step import guidance_module
+def one_session(motion: str, settings: Any) -> bool:
+    """Whether a guidance's standoff is followed, in its own session, by the insertion the
+    station confirms later: on simulated devices, where a new session would start a fresh
+    simulated world with the robot at home rather than where the standoff left it."""
+    return motion == "standoff" and bool(settings.devices.simulated)
 
-    guidance = guidance_module()
 
-    def before_insert() -> str:
+def guide(motion: str, settings: Any, on_sample: Any, send: Any) -> Any:
+    """A guidance stage (``standoff`` or ``insert``); on simulated devices (:func:`one_session`)
+    the standoff's session then waits for the insertion's confirmation
+    (:func:`wait_for_proceed`) and runs it."""
+    import dataclasses
+
+    from spacecal import app
+    from spacecal.station.guide_step import stage_output
+
+    if not one_session(motion, settings):
+        return app.guide(settings, on_sample=on_sample)
+
+    def then(standoff: Any) -> Any:
+        send("stage", ("standoff", standoff.record))
         send("await", "insert")
-        return wait_for_proceed(sys.stdin.buffer)
+        insertion = wait_for_proceed(sys.stdin.buffer)
+        send("stage", ("insert", None))
+        return dataclasses.replace(
+            settings,
+            stage="insert",
+            insertion=insertion,
+            confirm_insertion=True,
+            output=stage_output(settings.output, "insert"),
+        )
 
-    if settings.stage == "all":
-        return guidance.guide(settings, on_sample=on_sample, before_insert=before_insert)
-    return guidance.guide(settings, on_sample=on_sample)
+    return app.guide(settings, on_sample=on_sample, then=then)
 
 
 def run_motion(motion: str, settings: Any, send: Any) -> None:
@@ -130,7 +148,7 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
 
                 out = verify_on_devices(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
             elif motion in ("standoff", "insert"):
-                out = guide(settings, on_sample, send)
+                out = guide(motion, settings, on_sample, send)
             else:
                 raise ValueError(f"no motion {motion!r}")
         send("done", out)

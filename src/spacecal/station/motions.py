@@ -33,7 +33,7 @@ from spacecal import app
 from spacecal.core.text import exception_line
 from spacecal.report.live import LiveView
 from spacecal.station.guide_step import guidance_line
-from spacecal.station.motion_process import LAST_MESSAGES
+from spacecal.station.motion_process import LAST_MESSAGES, one_session
 from spacecal.station.verify_step import verification_line
 
 #: How long a confirmation stays valid, s.
@@ -74,10 +74,6 @@ MOTION_TITLES = {
 AWAIT_WORDS = {
     "insert": "at the standoff: the robot holds still; confirm the insertion (a second confirmation) or STOP"
 }
-#: Motions whose process waits, between two stages, for a second confirmation the station
-#: sends down its standard input (a guidance on simulated devices: standoff, then insertion,
-#: in one session, since a new process would start a fresh simulated world at home).
-CONTINUED = ("standoff",)
 
 
 @dataclass(frozen=True)
@@ -199,8 +195,7 @@ class Run:
     @property
     def waits_for_confirmation(self) -> bool:
         """Its process waits for a second confirmation between its stages."""
-        settings = self.settings
-        return self.motion in CONTINUED and getattr(settings, "stage", "") == "all"
+        return one_session(self.motion, self.settings)
 
     def proceed(self, word: str) -> bool:
         """Send the waiting process the second confirmation (``word``, e.g. the insertion);

@@ -451,15 +451,14 @@ async def start_motion(request: Request) -> Response:
         elif motion == "standoff":
             # on the simulated devices a new process starts a fresh world at home: the standoff
             # and the insertion run in one session, the insertion's confirmation sent to it
-            stage = "all" if work.simulated else "standoff"
             run = station.runs.start(
                 work.id,
                 work.robot["name"],
-                work.guide_settings(stage),
+                work.guide_settings("standoff"),
                 "standoff",
                 functools.partial(_guided, work),
             )
-            work.guide.live_run = run.id if stage == "all" else None
+            work.guide.live_run = run.id if run.waits_for_confirmation else None
             work.guide_run_id = run.id
         elif motion == "insert":
             assert insertion is not None
@@ -510,11 +509,12 @@ def _guided(work: Workspace, run: Any) -> None:
     """A guidance motion that ran to its end: kept for the page; a standoff on the devices that
     finished there (not stopped) lets the insertion be confirmed."""
     output = run.output.record
+    # a standoff and its insertion in one session: the standoff's own result came first
+    work.guide.results += [stage for name, stage in run.stages if stage is not None]
     work.guide.results.append(output)
     result = output.result
-    if run.motion == "standoff" and not run.waits_for_confirmation and result is not None:
-        if not result.interrupted:
-            work.guide.standoff_reached(run.id)
+    if output.stage == "standoff" and result is not None and not result.interrupted:
+        work.guide.standoff_reached(run.id)
 
 
 async def guide_upload(request: Request) -> Response:
