@@ -17,6 +17,7 @@ Every confirmation is bound to the files it names (their sha256) and the calibra
 from __future__ import annotations
 
 import hashlib
+import math
 import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,9 @@ from typing import Any
 
 from spacecal import app
 from spacecal.core.errors import InvalidInputError
+from spacecal.io.results_json import read_json_object
 from spacecal.io.slicer_registration import ROLES, role_from_name
+from spacecal.records.guidance import GuidanceResult
 
 #: The paper's guidance errors (§5.3): at the entry and the target, mm, and in direction, deg.
 PAPER_ENTRY_MM = 0.87
@@ -50,6 +53,30 @@ def stage_output(standoff_output: str | None, stage: str) -> str | None:
     if standoff_output is None:
         return None
     return str(Path(standoff_output).with_name(f"guidance-{stage}.json"))
+
+
+def standoff_from_form(text: str) -> float:
+    """The standoff from the form, mm before the entry (empty: 20 mm, the command line's).
+
+    Raises
+    ------
+    InvalidInputError
+        Not a number in the range the guidance takes.
+    """
+    from spacecal.app.guidance import STANDOFF_RANGE_MM
+
+    if not text:
+        return 20.0
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    low, high = STANDOFF_RANGE_MM
+    if not low <= value <= high:
+        raise InvalidInputError(
+            f"the standoff must be {low:g}..{high:g} mm before the entry, not {text[:20]!r}"
+        )
+    return value
 
 
 def sha256_of(path: Path) -> str:
@@ -107,8 +134,8 @@ class GuideStep:
         What the standoff's confirmation confirms: its dry run that passed, of these files.
     standoff_run : int or None
         The run that brought the robot to the standoff, once it finished there.
-    results : list
-        The guidance outputs that ran to their end (standoff, then insertion).
+    results : list of (str, GuidanceResult)
+        The guidance JSON files written by the stages that ran to their end, read back.
     """
 
     folder: Path
@@ -216,7 +243,7 @@ class GuideStep:
             devices=devices,
             stage=stage,
             standoff_mm=self.standoff_mm,
-            output=str(self.folder / f"guidance-{stage}.json"),
+            output=stage_output(str(self.folder / "guidance-standoff.json"), stage),
             force=True,
             **self.registration_inputs(),
             **more,
@@ -256,6 +283,14 @@ class GuideStep:
         if self.standoff_basis is None or not self.standoff_basis.endswith(f"inputs {inputs}"):
             return None
         return f"{self.standoff_basis} insertion {insertion}"
+
+    def read_result(self, stage: str) -> Any:
+        """The guidance JSON a ``stage`` wrote, read back: what the page shows is the file's.
+        Kept as ``(file name, GuidanceResult)``."""
+        name = f"guidance-{stage}.json"
+        result = GuidanceResult.from_dict(read_json_object(self.folder / name, "guidance"), what=name)
+        self.results.append((name, result))
+        return result
 
     def standoff_reached(self, run_id: int) -> None:
         """The standoff run ``run_id`` finished at the standoff: the insertion may be confirmed."""

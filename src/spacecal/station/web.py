@@ -38,7 +38,7 @@ from spacecal.station.guide_step import (
     PAPER_ENTRY_MM,
     PAPER_TARGET_MM,
     UPLOADS,
-    last_stage,
+    standoff_from_form,
 )
 from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
@@ -254,7 +254,7 @@ async def workspace_page(request: Request) -> Response:
         standoff_ok=motion_basis(station, work, "standoff") is not None,
         insert_ok={k: motion_basis(station, work, "insert", k) is not None for k in INSERTIONS},
         insertions=INSERTIONS,
-        guide_results=[(output, last_stage(output)) for output in work.guide.results],
+        guide_results=work.guide.results,
         paper_guidance=(PAPER_ENTRY_MM, PAPER_TARGET_MM, PAPER_DIRECTION_DEG),
         exports=EXPORTS,
         history=history,
@@ -278,17 +278,21 @@ async def step(request: Request) -> Response:
     try:
         method = form_text(form, "method", "ml")
         poses = poses_from_form(form_text(form, "poses"))
+        standoff_mm = standoff_from_form(form_text(form, "standoff_mm"))
     except InvalidInputError as exc:
         return back(request, "workspace", exception_line(exc), workspace_id=work.id)
-    return await asyncio.to_thread(_step, request, station, work, method, poses)
+    return await asyncio.to_thread(_step, request, station, work, method, poses, standoff_mm)
 
 
-def _step(request: Request, station: Station, work: Workspace, method: str, poses: int) -> Response:
+def _step(
+    request: Request, station: Station, work: Workspace, method: str, poses: int, standoff_mm: float
+) -> Response:
     name = request.path_params["step"]
     try:
         if name == "verify-dry-run":
             work.verify_dry_run(poses)
         elif name == "guide-dry-run":
+            work.guide.standoff_mm = standoff_mm
             work.guide_dry_run()
         elif name == "doctor":
             work.doctor()
@@ -506,12 +510,12 @@ def _verified(work: Workspace, confirmed_sha256: str, run: Any) -> None:
 
 
 def _guided(work: Workspace, run: Any) -> None:
-    """A guidance motion that ran to its end: kept for the page; a standoff on the devices that
-    finished there (not stopped) lets the insertion be confirmed."""
+    """A guidance motion that ran to its end: shown as its JSON files say (a standoff and its
+    insertion in one session wrote one each); a standoff on the devices that finished there
+    (not stopped) lets the insertion be confirmed."""
     output = run.output.record
-    # a standoff and its insertion in one session: the standoff's own result came first
-    work.guide.results += [stage for name, stage in run.stages if stage is not None]
-    work.guide.results.append(output)
+    for stage in [*(name for name, _ in run.stages if name == "standoff"), output.stage]:
+        work.guide.read_result(stage)
     result = output.result
     if output.stage == "standoff" and result is not None and not result.interrupted:
         work.guide.standoff_reached(run.id)
