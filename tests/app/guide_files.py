@@ -98,3 +98,14 @@ def write_pointer_registration(folder, world, robot=None):
     world.put_pointer_away()
     touched = write_touched_points(folder / "touched.csv", touched_points(touches), comments=["simulated"])
     return fiducials, touched
+
+
+def make_calibration(folder):
+    """A calibration of the default simulated world (simulate, then the ML fit), as a user makes one."""
+    from spacecal import app
+
+    recording = folder / "rec.csv"
+    app.simulate(app.SimulateSettings(output=str(recording)))
+    path = folder / "cal.json"
+    app.calibrate(app.CalibrateSettings(str(recording), output=str(path), method="ml"))
+    return path
