@@ -100,7 +100,10 @@ def test_each_guidance_stage_starts_only_from_its_own_confirmation(simulated_wor
     run.request_stop("the test ended")
     run.thread.join(timeout=60)
     assert run.state == "stopped" and run.awaiting is None
-    # stopped at the standoff: the robot moves again only after a new confirmation
-    late = ticket_of(web.get("/workspaces/1/confirm/standoff").text)
+    # stopped at the standoff: no insertion; the robot moves again only after a new dry run
+    # (the last was planned from where the robot stood then) and a new confirmation
     assert 'name="ticket"' not in web.get("/workspaces/1/confirm/insert?insertion=advance").text
-    assert station.runs.get(2) is None and late
+    assert 'name="ticket"' not in web.get("/workspaces/1/confirm/standoff").text
+    web.post("/workspaces/1/step/guide-dry-run")
+    assert 'name="ticket"' in web.get("/workspaces/1/confirm/standoff").text
+    assert station.runs.get(2) is None

@@ -150,6 +150,7 @@ class GuideStep:
     standoff_run: int | None = None
     standoff_basis: str | None = None
     live_run: int | None = None
+    live_basis: str | None = None
     results: list[Any] = field(default_factory=list)
 
     def path(self, kind: str) -> Path:
@@ -160,7 +161,8 @@ class GuideStep:
 
     def forget_motions(self) -> None:
         """New inputs: no confirmation issued before holds, and the standoff is not this plan's."""
-        self.basis, self.standoff_run, self.standoff_basis, self.live_run = None, None, None, None
+        self.basis, self.standoff_run, self.standoff_basis = None, None, None
+        self.live_run, self.live_basis = None, None
         self.dry_run_lines = []
 
     def store(self, kind: str, name: str, data: bytes) -> None:
@@ -276,8 +278,8 @@ class GuideStep:
             return self.basis
         if insertion not in INSERTIONS:
             return None
-        if awaiting_run is not None and awaiting_run == self.live_run and self.basis is not None:
-            return f"standoff-live-run {awaiting_run} {self.basis} insertion {insertion}"
+        if awaiting_run is not None and awaiting_run == self.live_run and self.live_basis is not None:
+            return f"standoff-live-run {awaiting_run} {self.live_basis} insertion {insertion}"
         if self.standoff_run is None or last_run != self.standoff_run:
             return None
         if self.standoff_basis is None or not self.standoff_basis.endswith(f"inputs {inputs}"):

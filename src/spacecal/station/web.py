@@ -462,7 +462,11 @@ async def start_motion(request: Request) -> Response:
                 "standoff",
                 functools.partial(_guided, work),
             )
-            work.guide.live_run = run.id if run.waits_for_confirmation else None
+            if run.waits_for_confirmation:
+                work.guide.live_run = run.id
+                work.guide.live_basis = f"{work.guide.basis} inputs {work.guide.inputs_sha256()}"
+            # its dry run was planned from where the robot stood: once it moves, that is past
+            work.guide.basis = None
             work.guide_run_id = run.id
         elif motion == "insert":
             assert insertion is not None
