@@ -18,6 +18,7 @@ import pytest
 
 from spacecal import app
 from spacecal.app._common import simulated_scenario
+from spacecal.app.guidance import GuidanceInterrupted
 from spacecal.cli.main import main
 from spacecal.geometry.transforms import apply_transform
 from spacecal.io.results_json import read_calibration
@@ -276,13 +277,31 @@ def test_an_interrupted_insertion_keeps_the_standoff_measurement(
         if label == "insert":
             raise KeyboardInterrupt
 
-    with pytest.raises(Exception, match="interrupted at stage insert") as raised:
+    with pytest.raises(GuidanceInterrupted, match="interrupted at stage insert") as raised:
         app.guide(
             settings(plan, calibration, registration=str(registration), output=str(out)), on_sample=interrupt
         )
     assert "wrote" in str(raised.value) and "will not move again" in str(raised.value)
     kept = GuidanceResult.from_dict(json.loads(out.read_text()))
+    assert raised.value.result.to_dict() == kept.to_dict()  # the caller has it too
     assert kept.interrupted and [s.stage for s in kept.stages] == ["standoff"]
     assert json.loads(out.read_text())["stages_reached"] == ["standoff"]
     ((_, robot),) = robots
     assert robot.commands[-1] == "stop"  # stopped, and nothing commanded after
+
+
+def test_no_plan_from_slicer_is_one_line_and_the_link_is_closed(calibration, registration, robots, capsys):
+    import threading
+
+    argv = ["guide", str(calibration), "--registration", str(registration), "--slicer-live", "0"]
+    code = main([*argv, "--slicer-timeout-s", "0.3"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "Slicer never connected" in err[0], err
+    assert not any(t.name == "spacecal-slicer-link" and t.is_alive() for t in threading.enumerate())
+    assert all(robot.commands == [] for _, robot in robots)
+
+
+def test_plan_and_slicer_live_are_one_of_the_two(calibration, registration, capsys):
+    code = main(["guide", str(calibration), "--registration", str(registration)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "--slicer-live" in err[0], err

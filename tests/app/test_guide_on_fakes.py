@@ -102,6 +102,7 @@ def test_guidance_on_the_fake_robot_and_tracker(world, rom_file, tmp_path):  # n
 
     # refusals: one line each, nothing commanded (the counters are the fake controller's)
     one_line_nothing_moved(world, guide, "--confirm-robot-motion")
+    one_line_nothing_moved(world, [*guide, "--confirm-insertion"], "--confirm-robot-motion")
     one_line_nothing_moved(world, [*guide, "--confirm-robot-motion"], "--confirm-insertion")
     one_line_nothing_moved(
         world, [*guide, "--stage", "insert", "--confirm-robot-motion", "--confirm-insertion"], "standoff"

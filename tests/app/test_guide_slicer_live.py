@@ -78,6 +78,7 @@ def test_the_needle_streams_to_the_slicer_stand_in_while_moving_and_holding(tmp_
     finally:
         guide.kill()
     assert guide.returncode == 0, stderr
+    assert "needle frames sent" in stdout and "plan changed" not in stdout, stdout
     assert peer.returncode == 0 and "SENT" in peer.stdout and "CRCFAIL 0" in peer.stdout, peer.stdout[-500:]
     result = json.loads(out.read_text())
     # the plan guided is the one sent (float32 on the wire; image_lps is RAS with x, y negated)

@@ -42,7 +42,7 @@ from spacecal.app.motion_settings import MotionSettings, WorkspaceBox
 from spacecal.app.result import CommandResult, note_lines
 from spacecal.app.slicer_plan import PlanFromSlicerSettings, read_plan, read_registration
 from spacecal.app.verification import MEASURED_BY_MARKER, commanded_tcp_poses
-from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError
+from spacecal.core.errors import DeviceError, InvalidInputError, SpacecalError, UnreachableError
 from spacecal.core.strict_numbers import decimal, integer
 from spacecal.core.text import sanitize_for_terminal
 from spacecal.geometry.transforms import apply_transform, invert_transform, mean_transform
@@ -248,6 +248,15 @@ class GuideSettings:
         return STAGE_CHOICES[self.stage]
 
 
+class GuidanceInterrupted(DeviceError):
+    """A guidance stopped before its last stage ended (a fault, a stop, Ctrl-C); ``result`` is
+    what was measured before, ``interrupted`` set (also written to the guidance JSON, if asked)."""
+
+    def __init__(self, result: GuidanceResult, message: str):
+        super().__init__(message)
+        self.result = result
+
+
 @dataclass(frozen=True)
 class GuideOutput:
     """The guidance (None after a dry run), what the motion gate checked, and the stage asked."""
@@ -334,12 +343,13 @@ def guide(
         session = stack.enter_context(motion_session(_motion(settings, calibration)))
         notes += session.calibration_notes(calibration, settings.accept_other_devices)
         link = None if settings.slicer_live is None else stack.enter_context(_served(settings.slicer_live))
-        plan = file_plan
+        plan, revision = file_plan, 0
         if link is not None:
             link.set_registration(registration)
-            plan = link.wait_for_plan(settings.slicer_timeout_s).plan
+            received = link.wait_for_plan(settings.slicer_timeout_s)
+            plan, revision = received.plan, received.revision
         assert plan is not None  # the file's or Slicer's
-        first = _guide(settings, session, calibration, plan, registration, link, notes, on_sample)
+        first = _guide(settings, session, calibration, plan, registration, (link, revision), notes, on_sample)
         if then is None or settings.dry_run:
             return first
         if settings.stage != "standoff":
@@ -358,7 +368,7 @@ def guide(
                 f"calibration and devices (it differs in {', '.join(changed) or 'its stage'}); "
                 "the robot stays at the standoff"
             )
-        return _guide(following, session, calibration, plan, registration, link, notes, on_sample)
+        return _guide(following, session, calibration, plan, registration, (link, revision), notes, on_sample)
     raise AssertionError("unreachable")  # pragma: no cover (the with block returns or raises)
 
 
@@ -377,10 +387,11 @@ def _guide(
     calibration: CalibrationResult,
     plan: NeedlePlan,
     registration: ImageRegistration,
-    link: SlicerLink | None,
+    slicer: tuple[SlicerLink | None, int],
     notes: list[str],
     on_sample: SampleCallback | None,
 ) -> CommandResult[GuideOutput]:
+    link, revision = slicer
     located = locate_plan(plan, registration, calibration.tracker_from_base)
     axis = NeedleAxis(located.entry_in_tracker, located.target_in_tracker)
     tcp_from_needle = calibration.tcp_from_needle if calibration.tcp_from_needle is not None else np.eye(4)
@@ -426,10 +437,11 @@ def _guide(
             f"{prediction.target_mm:.2f} mm; nothing moved",
         )
         return CommandResult(GuideOutput(None, gate, settings.stage), (), tuple(notes), lines)
+    session.require_confirmation()
     if "insert" in stages and not session.simulated and not settings.confirm_insertion:
         raise InvalidInputError(
-            "inserting along the needle on a real robot needs --confirm-insertion (and "
-            "--confirm-robot-motion); nothing moved"
+            "inserting the needle along its axis on a real robot needs --confirm-insertion as well "
+            "(check the path is clear); nothing moved"
         )
     session.begin_motion()
     observer = None if link is None else _streamer(link, needle_from_marker)
@@ -477,15 +489,37 @@ def _guide(
         interruption=interruption,
     )
     files = (write_json(result.to_dict(), settings.output),) if settings.output else ()
+    if link is not None:
+        notes += _link_notes(link, revision)
     if interruption:
         kept = ", ".join(m.stage for m in measured) or "nothing"
-        where_written = f"; wrote {files[0]} with what was measured ({kept})" if files else ""
-        raise DeviceError(
+        where_written = (
+            f"; wrote {files[0]} with what was measured ({kept})"
+            if files
+            else f"; measured: {kept} (not written: no -o)"
+        )
+        raise GuidanceInterrupted(
+            result,
             f"guidance interrupted at stage {stages[len(measured)]}: "
             f"{sanitize_for_terminal(interruption, 200)}; "
-            f"the robot was stopped and will not move again by itself{where_written}"
+            f"the robot was stopped and will not move again by itself{where_written}",
         )
     return guide_result(GuideOutput(result, gate, settings.stage), tuple(files), tuple(notes))
+
+
+def _link_notes(link: SlicerLink, revision: int) -> list[str]:
+    """What the link to Slicer did: the needle frames sent and dropped, and whether Slicer's
+    plan changed after the guidance took it (the guidance keeps the plan it started with)."""
+    status = link.status()
+    sent, dropped = status.frames_sent, status.frames_dropped
+    notes = [f"Slicer: {sent} needle frames sent, {dropped} dropped ({status.url})"]
+    try:
+        newest = link.latest_plan()
+    except InvalidInputError as exc:
+        newest, notes = None, [*notes, f"Slicer's newest plan message was refused: {exc}"]
+    if newest is not None and newest.revision > revision:
+        notes.append("Slicer's plan changed during the guidance: the guidance ran the plan it started with")
+    return notes
 
 
 def _motion(settings: GuideSettings, calibration: CalibrationResult) -> MotionSettings:
@@ -533,19 +567,22 @@ def _predict(
         repeatability = session.world.scenario.repeatability_mm
     else:
         repeatability = ROBOT_REPEATABILITY_MM
-    needle = plan_needle(
-        located.entry_in_tracker,
-        located.target_in_tracker,
-        np.eye(4),  # the points are given in the tracker frame already
-        calibration.tracker_from_base,
-        session.ik_model(calibration),
-        session.robot.state().joints_rad,
-        standoff_mm=standoff_mm,
-        tcp_from_needle=tcp_from_needle,
-        registration_tre_mm=tre,
-        calibration_tre_mm=(float(stated), float(stated)),
-        robot_position_sd_mm=repeatability * REPEATABILITY_TO_AXIS_SD,
-    )
+    try:
+        needle = plan_needle(
+            located.entry_in_tracker,
+            located.target_in_tracker,
+            np.eye(4),  # the points are given in the tracker frame already
+            calibration.tracker_from_base,
+            session.ik_model(calibration),
+            session.robot.state().joints_rad,
+            standoff_mm=standoff_mm,
+            tcp_from_needle=tcp_from_needle,
+            registration_tre_mm=tre,
+            calibration_tre_mm=(float(stated), float(stated)),
+            robot_position_sd_mm=repeatability * REPEATABILITY_TO_AXIS_SD,
+        )
+    except UnreachableError as exc:
+        raise UnreachableError(f"{exc}; nothing moved") from None
     p = needle.predicted_error
     prediction = _Prediction(p["entry_mm"], p["target_mm"], p["direction_deg"], p["contributions"])
     return prediction, notes
@@ -629,4 +666,4 @@ def guide_result(
     return CommandResult(out, files, notes, tuple(lines))
 
 
-__all__ = ["GuideOutput", "GuideSettings", "guide", "guide_result"]
+__all__ = ["GuidanceInterrupted", "GuideOutput", "GuideSettings", "guide", "guide_result"]

@@ -46,6 +46,7 @@ __all__ = [
 ]
 
 from spacecal.records.acquisition import AcquisitionProgress
+from spacecal.records.guidance import GuidanceResult, StageMeasurement
 from spacecal.records.plan import PlanRecord
 from spacecal.records.results import (
     CheckResult,
@@ -59,10 +60,12 @@ from spacecal.records.verdict import GRADES, Verdict
 __all__ += [
     "AcquisitionProgress",
     "CheckResult",
+    "GuidanceResult",
     "LandmarkRegistrationResult",
     "PhantomResult",
     "PivotResult",
     "PlanRecord",
+    "StageMeasurement",
     "VerificationResult",
     "GRADES",
     "Verdict",
