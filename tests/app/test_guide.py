@@ -22,6 +22,7 @@ from spacecal.app.guidance import GuidanceInterrupted
 from spacecal.cli.main import main
 from spacecal.geometry.transforms import apply_transform
 from spacecal.io.results_json import read_calibration
+from spacecal.planning.held_poses import SETTLE_S
 from spacecal.records.guidance import GuidanceResult
 from spacecal.sim.world import build_world
 from tests.app.guide_files import write_markups, write_plan, write_pointer_registration, write_registration
@@ -305,3 +306,44 @@ def test_plan_and_slicer_live_are_one_of_the_two(calibration, registration, caps
     code = main(["guide", str(calibration), "--registration", str(registration)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and "--slicer-live" in err[0], err
+
+
+def test_a_protective_stop_mid_insertion_keeps_the_standoff_and_moves_nothing_more(
+    calibration, world, registration, robots, tmp_path, capsys
+):
+    plan, _ = write_plan(tmp_path / "plan.mrk.json", world)
+    out = tmp_path / "guide.json"
+
+    def stop_soon(samples, visible, move_index, label):
+        # at the standoff hold's first sample: the stop lands 0.2 s after the hold ends (its
+        # settle and its frames), on the move along the axis
+        ((_, robot),) = robots
+        if label == "standoff" and robot.protective_stop_at_s is None:
+            hold_s = SETTLE_S + 10 / robot.world.scenario.tracker_rate_hz
+            robot.protective_stop_at_s = robot.clock.now_s + hold_s + 0.2
+
+    with pytest.raises(GuidanceInterrupted, match="interrupted at stage insert") as raised:
+        app.guide(
+            settings(plan, calibration, registration=str(registration), output=str(out)), on_sample=stop_soon
+        )
+    assert "protective" in str(raised.value).lower()
+    kept = json.loads(out.read_text())
+    assert kept["interrupted"] and kept["stages_reached"] == ["standoff"]
+    ((truth, robot),) = robots
+    standoff = np.array(kept["stages"][0]["measured_tracker_from_needle"])
+    stopped_at = (
+        truth.tracker_from_base
+        @ truth.true_base_from_tcp(robot.state().joints_rad, jitter=False).reshape(4, 4)
+    )[:3, 3]
+    # stopped on the way: off the standoff, short of the target
+    assert (
+        0.5
+        < np.linalg.norm(stopped_at - standoff[:3, 3])
+        < kept["standoff_mm"]
+        + np.linalg.norm(
+            np.array(kept["plan"]["target_in_tracker_mm"]) - np.array(kept["plan"]["entry_in_tracker_mm"])
+        )
+        - 0.5
+    )
+    commands = list(robot.commands)
+    assert commands[-1] == "stop"

@@ -463,7 +463,8 @@ def _guide(
                 if isinstance(exc, KeyboardInterrupt)
                 else str(exc).removesuffix(HOLD_STOPPED)
             )
-            session.robot.stop()
+            with contextlib.suppress(SpacecalError):  # the hold stopped it; again, whatever ended it
+                session.robot.stop()
             break
         measured.append(_measurement(stage, planned[k], held[0], needle_from_marker, axis, settings))
     result = GuidanceResult(
