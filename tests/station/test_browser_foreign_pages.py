@@ -148,6 +148,11 @@ def forms_page(station_url: str) -> str:
         ("/workspaces/1/step/dry-run", {}),
         ("/workspaces/1/motion/acquire", {"ticket": "made-up"}),
         ("/workspaces/1/motion/check", {"ticket": "made-up"}),
+        ("/workspaces/1/step/verify-dry-run", {"poses": "3"}),
+        ("/workspaces/1/motion/verify", {"ticket": "made-up"}),
+        ("/workspaces/1/step/guide-dry-run", {}),
+        ("/workspaces/1/motion/standoff", {"ticket": "made-up"}),
+        ("/workspaces/1/motion/insert", {"ticket": "made-up", "insertion": "advance"}),
     ]
     forms = []
     for k, (path, fields) in enumerate(posts):
@@ -191,13 +196,108 @@ def test_forms_and_fetches_of_another_origin_change_nothing(station, attacker, b
     attacker.html = forms_page(station.url)
     page = browser.new_page()
     page.goto(attacker.url)
-    wait_js(page, "window.posted === 7", timeout=60_000)
+    wait_js(page, "window.posted === 12", timeout=60_000)
     time.sleep(3.0)  # the sandboxed frame's and the fetches' requests have been answered
     assert len(station.station.ledger.robots()) == robots
     assert len(station.station.ledger.trackers()) == trackers
     assert list(station.station.workspaces) == [1]
     assert work.plan_path.read_bytes() == plan_before and work.dry_run_basis == basis_before
+    assert work.verification.dry_run_lines == [] and work.guide.dry_run_lines == []
     assert station.station.runs.get(1) is None and station.station.runs.active() is None
+    operator.close()
+
+
+#: The confirmations of the verification and of the guidance's two stages.
+NEEDLE_CONFIRMATIONS = ("verify", "standoff", "insert?insertion=advance")
+
+
+def operator_prepares_needle_motions(context, station: Station, tmp_path) -> Any:
+    """As :func:`operator_prepares`, then calibrated (its recording acquired at once), the
+    verification dry-run and a Slicer plan uploaded and dry-run: the verification's and the
+    standoff's confirmations are the operator's to open."""
+    from spacecal import app as spacecal_app
+    from tests.station.test_browser_guide import phantom_files
+
+    page = operator_prepares(context, station)
+    work = station.station.workspaces[1]
+    spacecal_app.acquire(
+        spacecal_app.AcquireSettings(
+            str(work.recording_path), devices=work.devices, confirm_robot_motion=True, plan=None
+        )
+    )
+    page.click("#calibrate")
+    page.fill("#verify-poses", "3")
+    page.click("#verify-dry-run")
+    plan, registration = phantom_files(tmp_path, work)
+    page.set_input_files("#guide-upload input[name=plan]", str(plan))
+    page.set_input_files("#guide-upload input[name=registration]", str(registration))
+    page.click("#guide-upload-button")
+    page.click("#guide-dry-run")
+    page.wait_for_selector("#standoff")
+    assert page.query_selector("#verify") is not None
+    return page
+
+
+def test_no_page_of_another_origin_starts_a_verification_or_a_guidance(station, attacker, browser, tmp_path):
+    """Links to the new confirmations, the confirmations framed and clicked over a decoy, a
+    plan uploaded and the start requests posted: nothing confirmed, uploaded or started."""
+    operator = operator_prepares_needle_motions(browser, station, tmp_path)
+    work = station.station.workspaces[1]
+    guide_files = {p.name: p.read_bytes() for p in work.folder.glob("guide-*")}
+    verify_basis, standoff_basis = work.verification.basis, work.guide.basis
+    tickets_before = len(station.station.tickets)
+    links = "".join(
+        f'<a id="go{k}" href="{station.url}/workspaces/1/confirm/{c}">results {k}</a>'
+        for k, c in enumerate(NEEDLE_CONFIRMATIONS)
+    )
+    upload = (
+        f'<form id="up" method="post" enctype="multipart/form-data" target="sink" '
+        f'action="{station.url}/workspaces/1/guide/upload"><input name="registration_maps" '
+        'value="tracker-to-image"></form><iframe name="sink"></iframe>'
+    )
+    frames = "".join(
+        f'<iframe src="{station.url}/workspaces/1/confirm/{c}" style="position:absolute; top:0; '
+        f'left:{k * 400}px; width:400px; height:800px; opacity:0.01; z-index:2; border:0"></iframe>'
+        for k, c in enumerate(NEEDLE_CONFIRMATIONS)
+    )
+    attacker.html = links + upload + "<script>document.getElementById('up').submit();</script>"
+    page = browser.new_page()
+    page.goto(attacker.url)
+    page.wait_for_timeout(1000)
+    for k in range(len(NEEDLE_CONFIRMATIONS)):
+        page.goto(attacker.url)
+        page.click(f"#go{k}")
+        page.wait_for_load_state()
+        assert "Move the robot?" not in page.content() and "<h1>Forbidden</h1>" in page.content()
+    attacker.html = frames
+    page.goto(attacker.url)
+    page.wait_for_timeout(2000)
+    for frame in [f for f in page.frames if f != page.main_frame]:
+        try:
+            shown = frame.content()
+        except Exception:  # a frame the browser blocked may have no readable document
+            shown = ""
+        assert "Move the robot?" not in shown and 'name="ticket"' not in shown
+    for x in range(40, 1200, 80):
+        for y in range(20, 800, 40):
+            page.mouse.click(x, y)
+    page.wait_for_timeout(1000)
+    attacker.html = forms_page(station.url)
+    page.goto(attacker.url)
+    wait_js(page, "window.posted === 12", timeout=60_000)
+    time.sleep(3.0)  # the sandboxed frame's and the fetches' requests have been answered
+    assert len(station.station.tickets) == tickets_before
+    assert station.station.runs.get(1) is None and station.station.runs.active() is None
+    assert {p.name: p.read_bytes() for p in work.folder.glob("guide-*")} == guide_files
+    assert work.guide.registration_maps is None
+    assert work.verification.basis == verify_basis and work.guide.basis == standoff_basis
+    assert not list(work.folder.glob("verification-*")) and not list(work.folder.glob("guidance-*"))
+    # the same confirmations at the station's own page are what move it
+    operator.click("#verify")
+    assert "Move the robot?" in operator.content()
+    operator.go_back()
+    operator.click("#standoff")
+    assert "Move the robot?" in operator.content()
     operator.close()
 
 

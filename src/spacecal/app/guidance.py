@@ -25,6 +25,7 @@ and never moves the robot again.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -273,8 +274,24 @@ class _Prediction:
     contributions: dict[str, Any]
 
 
-def guide(settings: GuideSettings, on_sample: SampleCallback | None = None) -> CommandResult[GuideOutput]:
+#: What a guidance's next stage, in the same session, may differ in from its first.
+SAME_SESSION_FIELDS = ("stage", "insertion", "confirm_insertion", "output")
+#: Asked, in the session, once a standoff finished there: the insertion's settings (the
+#: standoff's with :data:`SAME_SESSION_FIELDS` changed), or None to end at the standoff.
+ThenInsert = Callable[[CommandResult["GuideOutput"]], "GuideSettings | None"]
+
+
+def guide(
+    settings: GuideSettings, on_sample: SampleCallback | None = None, then: ThenInsert | None = None
+) -> CommandResult[GuideOutput]:
     """Place the needle on the plan in stages and measure it (module docstring).
+
+    With ``then`` (a standoff, ``stage="standoff"``), the insertion runs in the same session
+    once the standoff finished there: ``then`` is called with the standoff's result and may
+    wait (for an operator's second confirmation) while the robot holds still at the standoff;
+    the insertion it returns (``stage="insert"``) then checks, as always, that the robot
+    stands at the standoff. On simulated devices this is how an insertion follows its
+    standoff: a new session starts a fresh simulated world with the robot at home.
 
     Returns
     -------
@@ -332,7 +349,26 @@ def guide(settings: GuideSettings, on_sample: SampleCallback | None = None) -> C
             received = link.wait_for_plan(settings.slicer_timeout_s)
             plan, revision = received.plan, received.revision
         assert plan is not None  # the file's or Slicer's
-        return _guide(settings, session, calibration, plan, registration, (link, revision), notes, on_sample)
+        first = _guide(settings, session, calibration, plan, registration, (link, revision), notes, on_sample)
+        if then is None or settings.dry_run:
+            return first
+        if settings.stage != "standoff":
+            raise InvalidInputError("only a standoff is followed by an insertion in its session")
+        following = then(first)
+        if following is None:
+            return first
+        changed = [
+            f.name
+            for f in dataclasses.fields(GuideSettings)
+            if f.name not in SAME_SESSION_FIELDS and getattr(following, f.name) != getattr(settings, f.name)
+        ]
+        if following.stage != "insert" or changed:
+            raise InvalidInputError(
+                "the insertion in the standoff's session must be of the same plan, registration, "
+                f"calibration and devices (it differs in {', '.join(changed) or 'its stage'}); "
+                "the robot stays at the standoff"
+            )
+        return _guide(following, session, calibration, plan, registration, (link, revision), notes, on_sample)
     raise AssertionError("unreachable")  # pragma: no cover (the with block returns or raises)
 
 

@@ -12,7 +12,8 @@ kept, and the run says where it stopped.
 The protocol on the child's pipes (trusted: the station starts this child itself):
 
 - stdin: one pickled ``(motion, settings)``, ``motion`` being ``"acquire"`` (settings
-  :class:`spacecal.app.AcquireSettings`) or ``"check"`` (:class:`spacecal.app.CheckSettings`).
+  :class:`spacecal.app.AcquireSettings`), ``"check"`` (:class:`spacecal.app.CheckSettings`) or
+  ``"verify"`` (:class:`spacecal.app.VerifySettings`, reached on the devices).
 - stdout: pickled messages ``(kind, payload)``, flushed one by one: ``("started", None)``
   once SIGINT takes the command line's stop path, ``("plan", moves)``,
   ``("sample", (samples, visible, move_index, label))``, ``("frame", (time_s, segment,
@@ -48,6 +49,74 @@ def _channel() -> IO[bytes]:
     return channel
 
 
+#: How long a guidance in one session waits at the standoff for the insertion's confirmation
+#: (a confirmation's lifetime), s; then it ends there without inserting.
+PROCEED_WITHIN_S = 300.0
+
+
+def wait_for_proceed(channel: IO[bytes], within_s: float = PROCEED_WITHIN_S) -> str:
+    """The second confirmation the station sends down standard input (``("proceed", word)``).
+
+    Raises
+    ------
+    InvalidInputError
+        None came within ``within_s``, or the station closed the pipe without one.
+    KeyboardInterrupt
+        STOP (SIGINT) meanwhile.
+    """
+    import select
+
+    from spacecal.core.errors import InvalidInputError
+
+    ready, _, _ = select.select([channel], [], [], within_s)
+    if not ready:
+        raise InvalidInputError(
+            f"the insertion was not confirmed within {within_s:.0f} s: the robot stays at the standoff"
+        )
+    try:
+        kind, word = pickle.load(channel)
+    except (EOFError, pickle.UnpicklingError, ValueError):
+        raise InvalidInputError("the insertion was not confirmed: the robot stays at the standoff") from None
+    if kind != "proceed":
+        raise InvalidInputError("the insertion was not confirmed: the robot stays at the standoff")
+    return str(word)
+
+
+def one_session(motion: str, settings: Any) -> bool:
+    """Whether a guidance's standoff is followed, in its own session, by the insertion the
+    station confirms later: on simulated devices, where a new session would start a fresh
+    simulated world with the robot at home rather than where the standoff left it."""
+    return motion == "standoff" and bool(settings.devices.simulated)
+
+
+def guide(motion: str, settings: Any, on_sample: Any, send: Any) -> Any:
+    """A guidance stage (``standoff`` or ``insert``); on simulated devices (:func:`one_session`)
+    the standoff's session then waits for the insertion's confirmation
+    (:func:`wait_for_proceed`) and runs it."""
+    import dataclasses
+
+    from spacecal import app
+    from spacecal.station.guide_step import stage_output
+
+    if not one_session(motion, settings):
+        return app.guide(settings, on_sample=on_sample)
+
+    def then(standoff: Any) -> Any:
+        send("stage", ("standoff", standoff.record))
+        send("await", "insert")
+        insertion = wait_for_proceed(sys.stdin.buffer)
+        send("stage", ("insert", None))
+        return dataclasses.replace(
+            settings,
+            stage="insert",
+            insertion=insertion,
+            confirm_insertion=True,
+            output=stage_output(settings.output, "insert"),
+        )
+
+    return app.guide(settings, on_sample=on_sample, then=then)
+
+
 def run_motion(motion: str, settings: Any, send: Any) -> None:
     """Run ``motion`` with ``settings`` and report through ``send(kind, payload)``.
 
@@ -74,6 +143,12 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
                 )
             elif motion == "check":
                 out = app.check(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
+            elif motion == "verify":
+                from spacecal.app.verification import verify_on_devices
+
+                out = verify_on_devices(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
+            elif motion in ("standoff", "insert"):
+                out = guide(motion, settings, on_sample, send)
             else:
                 raise ValueError(f"no motion {motion!r}")
         send("done", out)

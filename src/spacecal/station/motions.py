@@ -32,7 +32,9 @@ from typing import Any
 from spacecal import app
 from spacecal.core.text import exception_line
 from spacecal.report.live import LiveView
-from spacecal.station.motion_process import LAST_MESSAGES
+from spacecal.station.guide_step import guidance_line
+from spacecal.station.motion_process import LAST_MESSAGES, one_session
+from spacecal.station.verify_step import verification_line
 
 #: How long a confirmation stays valid, s.
 TICKET_LIFETIME_S = 300.0
@@ -53,7 +55,25 @@ STATION_RESUME_WORDS = "acquiring again starts over and keeps these files (in ea
 #: Why a run stops when no page watches it any more.
 PAGE_LOST = "the station's page was closed or lost its connection"
 #: What each motion is called on its page.
-MOTION_WORDS = {"acquire": "acquisition", "check": "check"}
+MOTION_WORDS = {
+    "acquire": "acquisition",
+    "check": "check",
+    "verify": "verification",
+    "standoff": "guidance",
+    "insert": "guidance",
+}
+#: What each motion's run page is headed with.
+MOTION_TITLES = {
+    "acquire": "Acquiring",
+    "check": "Checking",
+    "verify": "Verifying",
+    "standoff": "Guiding the needle to its standoff",
+    "insert": "Inserting along the plan",
+}
+#: What a run's page says while it waits for a second confirmation.
+AWAIT_WORDS = {
+    "insert": "at the standoff: the robot holds still; confirm the insertion (a second confirmation) or STOP"
+}
 
 
 @dataclass(frozen=True)
@@ -157,6 +177,10 @@ class Run:
     started: bool = False
     thread: threading.Thread | None = None
     _process: subprocess.Popen[bytes] | None = None
+    #: What the run waits for, between its stages (``"insert"``), or None.
+    awaiting: str | None = None
+    #: Its stages so far, as its process reported them (``(stage, payload)``).
+    stages: list[tuple[str, Any]] = field(default_factory=list)
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     @property
@@ -167,6 +191,33 @@ class Run:
     def words(self) -> str:
         """What the motion is called on its page."""
         return MOTION_WORDS.get(self.motion, self.motion)
+
+    @property
+    def waits_for_confirmation(self) -> bool:
+        """Its process waits for a second confirmation between its stages."""
+        return one_session(self.motion, self.settings)
+
+    def proceed(self, word: str) -> bool:
+        """Send the waiting process the second confirmation (``word``, e.g. the insertion);
+        whether it was waiting for one (it is sent once)."""
+        with self._lock:
+            process, awaiting = self._process, self.awaiting
+            if awaiting is None or process is None or process.stdin is None or self.stop_requested_at:
+                return False
+            self.awaiting = None
+            try:
+                pickle.dump(("proceed", word), process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                process.stdin.flush()
+                process.stdin.close()
+            except OSError:  # it has just ended
+                return False
+        self.message = f"confirmed: {word}"
+        return True
+
+    @property
+    def title(self) -> str:
+        """The heading of its page."""
+        return MOTION_TITLES.get(self.motion, self.motion)
 
     def page_connected(self) -> None:
         """A page watches the run (its live view connected): the motion may start."""
@@ -220,8 +271,10 @@ class Run:
             )
             self._process = process
         assert process.stdin is not None and process.stdout is not None
-        with process.stdin:
-            pickle.dump((self.motion, self.settings), process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        pickle.dump((self.motion, self.settings), process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        process.stdin.flush()
+        if not self.waits_for_confirmation:
+            process.stdin.close()
         last: tuple[str, Any] | None = None
         with process.stdout:
             while True:
@@ -244,13 +297,18 @@ class Run:
         if kind == "started":
             self.started = True
             self.message = f"connecting to {self.robot} and the tracker"
-            if self.motion == "check":
-                self.state = "running"  # a check shows no frames: it runs from here
+            if self.motion != "acquire":
+                self.state = "running"  # only an acquisition shows frames: the others run from here
         elif kind == "plan":
             self.moves_total = int(payload)
             self.message = ""
         elif kind == "sample":
             self.samples, self.visible, self.move_index, _ = payload
+        elif kind == "stage":
+            self.stages.append(payload)
+        elif kind == "await":
+            self.awaiting = str(payload)
+            self.message = AWAIT_WORDS.get(self.awaiting, f"waiting for the confirmation of {self.awaiting}")
         elif kind == "frame":
             self.state = "running"
             self.last_frame_at = time.monotonic()
@@ -260,6 +318,7 @@ class Run:
             self.view.observe(*payload)
 
     def _ended(self, last: tuple[str, Any] | None) -> None:
+        self.awaiting = None
         stopped = self.stop_requested_at is not None
         if last is None and stopped and not self.started:
             self.state, self.message = "stopped", f"stopped before the robot moved: {self.stop_reason}"
@@ -299,12 +358,17 @@ class Run:
             moves_total=self.moves_total,
             move=self.move_index + 1 if self.samples else 0,
             stop_reason=self.stop_reason,
+            awaiting=self.awaiting,
         )
         return data
 
 
 def _finished(motion: str, output: Any) -> str:
     """How a motion that ran to its end ended, in the command line's words."""
+    if motion == "verify":
+        return verification_line(output)
+    if motion in ("standoff", "insert"):
+        return guidance_line(output)
     if motion == "check":
         result = output.result
         if result is None:
@@ -335,6 +399,10 @@ class Runs:
 
     def active(self) -> Run | None:
         return next((run for run in self._runs.values() if run.active), None)
+
+    def latest(self) -> Run | None:
+        """The run started last (the robot stands where it left it)."""
+        return self._runs[max(self._runs)] if self._runs else None
 
     def start(
         self,

@@ -32,9 +32,18 @@ from spacecal.core.text import exception_line
 from spacecal.ledger import Ledger
 from spacecal.station.access import FILE_POLICY, AccessMiddleware, foreign_request, is_loopback
 from spacecal.station.error_pages import EXCEPTION_HANDLERS, error_page, refuse
+from spacecal.station.guide_step import (
+    INSERTIONS,
+    PAPER_DIRECTION_DEG,
+    PAPER_ENTRY_MM,
+    PAPER_TARGET_MM,
+    UPLOADS,
+    standoff_from_form,
+)
 from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
+from spacecal.station.verify_step import PAPER_POSITION_MM, PAPER_POSTURE_DEG, poses_from_form
 from spacecal.station.workspace import EXPORTS, Workspace, new_folder
 
 HERE = Path(__file__).resolve().parent
@@ -232,17 +241,35 @@ async def workspace_page(request: Request) -> Response:
     history = []
     if work.calibration_record_id is not None:
         history = station.ledger.checks(work.calibration_record_id)
+    verify_run = station.runs.get(work.verify_run_id) if work.verify_run_id is not None else None
+    guide_run = station.runs.get(work.guide_run_id) if work.guide_run_id is not None else None
     return _page(
-        request, "workspace.html", work=work, findings=findings, run=run, exports=EXPORTS, history=history
+        request,
+        "workspace.html",
+        work=work,
+        findings=findings,
+        run=run,
+        verify_run=verify_run,
+        guide_run=guide_run,
+        standoff_ok=motion_basis(station, work, "standoff") is not None,
+        insert_ok={k: motion_basis(station, work, "insert", k) is not None for k in INSERTIONS},
+        insertions=INSERTIONS,
+        guide_results=work.guide.results,
+        paper_guidance=(PAPER_ENTRY_MM, PAPER_TARGET_MM, PAPER_DIRECTION_DEG),
+        exports=EXPORTS,
+        history=history,
+        paper_position=PAPER_POSITION_MM,
+        paper_posture=PAPER_POSTURE_DEG,
     )
 
 
 #: The steps a calibration's page posts (none of them moves the robot).
-STEPS = ("doctor", "plan", "dry-run", "calibrate", "report")
+STEPS = ("doctor", "plan", "dry-run", "calibrate", "report", "verify-dry-run", "guide-dry-run")
 
 
 async def step(request: Request) -> Response:
-    """POST /workspaces/N/step/<step>: doctor, plan, dry-run, calibrate, report (no motion)."""
+    """POST /workspaces/N/step/<step>: doctor, plan, dry-run, calibrate, report, verify-dry-run
+    (no motion)."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     if request.path_params["step"] not in STEPS:
@@ -250,15 +277,24 @@ async def step(request: Request) -> Response:
     form = await request.form()
     try:
         method = form_text(form, "method", "ml")
+        poses = poses_from_form(form_text(form, "poses"))
+        standoff_mm = standoff_from_form(form_text(form, "standoff_mm"))
     except InvalidInputError as exc:
         return back(request, "workspace", exception_line(exc), workspace_id=work.id)
-    return await asyncio.to_thread(_step, request, station, work, method)
+    return await asyncio.to_thread(_step, request, station, work, method, poses, standoff_mm)
 
 
-def _step(request: Request, station: Station, work: Workspace, method: str) -> Response:
+def _step(
+    request: Request, station: Station, work: Workspace, method: str, poses: int, standoff_mm: float
+) -> Response:
     name = request.path_params["step"]
     try:
-        if name == "doctor":
+        if name == "verify-dry-run":
+            work.verify_dry_run(poses)
+        elif name == "guide-dry-run":
+            work.guide.standoff_mm = standoff_mm
+            work.guide_dry_run()
+        elif name == "doctor":
             work.doctor()
         elif name == "plan":
             work.plan()
@@ -326,7 +362,34 @@ def workspace_file(request: Request) -> Response:
 
 # -- motions: confirmation, acquisition, check ----------------------------------------------
 
-MOTIONS = ("acquire", "check")
+MOTIONS = ("acquire", "check", "verify", "standoff", "insert")
+#: What a confirmation of each motion needs first.
+NEEDED_FIRST = {
+    "acquire": "run the dry run first: it must pass",
+    "check": "calibrate first",
+    "verify": "calibrate, then run the verification's dry run: it must pass",
+    "standoff": "upload the plan and its registration, then run the guidance's dry run: it must pass",
+    "insert": "the insertion is confirmed only while the robot stands at the plan's standoff, "
+    "brought there by the guidance's first motion, with no motion since",
+}
+
+
+def motion_basis(station: Station, work: Workspace, motion: str, insertion: str | None = None) -> str | None:
+    """What a confirmation of ``motion`` of ``work`` confirms now (None: nothing to confirm)."""
+    if motion not in ("standoff", "insert"):
+        return work.motion_basis(motion)
+    if work.calibration is None:
+        return None
+    latest = station.runs.latest()
+    awaiting = (
+        latest.id
+        if latest is not None
+        and latest.workspace == work.id
+        and latest.active
+        and latest.awaiting == "insert"
+        else None
+    )
+    return work.guide.motion_basis(motion, insertion, latest.id if latest is not None else None, awaiting)
 
 
 def confirm_page(request: Request) -> Response:
@@ -337,24 +400,33 @@ def confirm_page(request: Request) -> Response:
     motion = request.path_params["motion"]
     if motion not in MOTIONS:
         return error_page(404, f"there is no motion {motion[:40]!r}")
-    basis = work.motion_basis(motion)
+    insertion = request.query_params.get("insertion") if motion == "insert" else None
+    basis = motion_basis(station, work, motion, insertion)
     if basis is None:
-        needed = "run the dry run first: it must pass" if motion == "acquire" else "calibrate first"
-        return back(request, "workspace", needed, workspace_id=work.id)
+        return back(request, "workspace", NEEDED_FIRST[motion], workspace_id=work.id)
     ticket = station.tickets.issue(work.id, work.robot["name"], motion, basis)
     return _page(
-        request, "confirm.html", work=work, motion=motion, words=work.motion_words(motion), ticket=ticket
+        request,
+        "confirm.html",
+        work=work,
+        motion=motion,
+        words=work.motion_words(motion, insertion),
+        ticket=ticket,
+        insertion=insertion,
     )
 
 
 async def start_motion(request: Request) -> Response:
-    """POST /workspaces/N/motion/<acquire|check> with the confirmation's ticket."""
+    """POST /workspaces/N/motion/<acquire|check|verify> with the confirmation's ticket."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     motion = request.path_params["motion"]
+    if motion not in MOTIONS:
+        return error_page(404, f"there is no motion {motion[:40]!r}")
     form = await request.form()
+    insertion = str(form.get("insertion", ""))[:20] if motion == "insert" else None
     ticket = station.tickets.redeem(
-        str(form.get("ticket", ""))[:100], work.id, motion, work.motion_basis(motion)
+        str(form.get("ticket", ""))[:100], work.id, motion, motion_basis(station, work, motion, insertion)
     )
     if ticket is None:
         return back(
@@ -370,6 +442,51 @@ async def start_motion(request: Request) -> Response:
                 work.set_aside_earlier_recording()
             run = station.runs.start(work.id, work.robot["name"], work.acquire_settings(dry_run=False))
             work.run_id = run.id
+        elif motion == "verify":
+            confirmed = ticket.basis.rsplit(" ", 1)[1]  # the calibration's sha256 it was bound to
+            run = station.runs.start(
+                work.id,
+                work.robot["name"],
+                work.verify_settings(),
+                "verify",
+                functools.partial(_verified, work, confirmed),
+            )
+            work.verify_run_id = run.id
+        elif motion == "standoff":
+            # on the simulated devices a new process starts a fresh world at home: the standoff
+            # and the insertion run in one session, the insertion's confirmation sent to it
+            run = station.runs.start(
+                work.id,
+                work.robot["name"],
+                work.guide_settings("standoff"),
+                "standoff",
+                functools.partial(_guided, work),
+            )
+            if run.waits_for_confirmation:
+                work.guide.live_run = run.id
+                work.guide.live_basis = f"{work.guide.basis} inputs {work.guide.inputs_sha256()}"
+            # its dry run was planned from where the robot stood: once it moves, that is past
+            work.guide.basis = None
+            work.guide_run_id = run.id
+        elif motion == "insert":
+            assert insertion is not None
+            live = station.runs.get(work.guide.live_run) if work.guide.live_run is not None else None
+            if live is not None and live.awaiting == "insert":
+                if not live.proceed(insertion):
+                    return back(
+                        request, "workspace", "the guidance had ended: nothing moved", workspace_id=work.id
+                    )
+                run = live
+            else:
+                run = station.runs.start(
+                    work.id,
+                    work.robot["name"],
+                    work.guide_settings("insert", insertion),
+                    "insert",
+                    functools.partial(_guided, work),
+                )
+                work.guide.standoff_run = None  # the robot leaves the standoff
+                work.guide_run_id = run.id
         else:
             run = station.runs.start(
                 work.id,
@@ -390,6 +507,48 @@ def _checked(station: Station, work: Workspace, run: Any) -> None:
     work.checks.append(run.output.record)
 
 
+def _verified(work: Workspace, confirmed_sha256: str, run: Any) -> None:
+    """A verification that ran to its end: shown as its JSON file says, if the calibration is
+    still the one confirmed."""
+    work.verification.finished(confirmed_sha256)
+
+
+def _guided(work: Workspace, run: Any) -> None:
+    """A guidance motion that ran to its end: shown as its JSON files say (a standoff and its
+    insertion in one session wrote one each); a standoff on the devices that finished there
+    (not stopped) lets the insertion be confirmed."""
+    output = run.output.record
+    for stage in [*(name for name, _ in run.stages if name == "standoff"), output.stage]:
+        work.guide.read_result(stage)
+    result = output.result
+    if output.stage == "standoff" and result is not None and not result.interrupted:
+        work.guide.standoff_reached(run.id)
+
+
+async def guide_upload(request: Request) -> Response:
+    """POST /workspaces/N/guide/upload (multipart): the plan and the registration files, kept
+    under the station's names (the names given are only shown, as text), then where the plan
+    lands. The request's size is bounded by the doors (64 kB)."""
+    station = _station(request)
+    work = station.workspace(int(request.path_params["workspace_id"]))
+    try:
+        async with request.form(max_files=len(UPLOADS), max_fields=10) as form:
+            work.guide.set_maps(form_text(form, "registration_maps"))
+            for kind in UPLOADS:
+                upload = form.get(kind)
+                if upload is None or isinstance(upload, str):
+                    continue
+                name = str(upload.filename or "")
+                data = await upload.read()
+                if not name and not data:
+                    continue  # the field left empty
+                work.guide.store(kind, name, data)
+        await asyncio.to_thread(work.guide.locate)
+    except (SpacecalError, OSError) as exc:
+        return back(request, "workspace", exception_line(exc), workspace_id=work.id)
+    return back(request, "workspace", workspace_id=work.id)
+
+
 def _run(request: Request | WebSocket) -> Any:
     run = _station(request).runs.get(int(request.path_params["run_id"]))
     if run is None:
@@ -399,7 +558,9 @@ def _run(request: Request | WebSocket) -> Any:
 
 def run_page(request: Request) -> Response:
     run = _run(request)
-    return _page(request, "run.html", run=run, work=_station(request).workspace(run.workspace))
+    return _page(
+        request, "run.html", run=run, work=_station(request).workspace(run.workspace), insertions=INSERTIONS
+    )
 
 
 async def stop_run(request: Request) -> Response:
@@ -501,6 +662,9 @@ def create_app(station: Station, token: str | None = None, host: str = "127.0.0.
         Route("/workspaces/{workspace_id:id}", workspace_page, name="workspace"),
         Route("/workspaces/{workspace_id:id}/step/{step}", step, methods=["POST"]),
         Route("/workspaces/{workspace_id:id}/export", export, methods=["POST"]),
+        Route(
+            "/workspaces/{workspace_id:id}/guide/upload", guide_upload, methods=["POST"], name="guide_upload"
+        ),
         Route("/workspaces/{workspace_id:id}/files/{name}", workspace_file, name="file"),
         Route("/workspaces/{workspace_id:id}/confirm/{motion}", confirm_page, name="confirm"),
         Route("/workspaces/{workspace_id:id}/motion/{motion}", start_motion, methods=["POST"], name="motion"),

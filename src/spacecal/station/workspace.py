@@ -13,9 +13,12 @@ from typing import Any
 
 from spacecal import app
 from spacecal.app.devices import SIMULATED
+from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.io.recordings import recording_in
 from spacecal.records import CalibrationResult
+from spacecal.station.guide_step import INSERTIONS, GuideStep
+from spacecal.station.verify_step import VerifyStep
 
 #: The finding levels in an operator's words.
 #: Simulated devices move in real time at the station: training shows the motion as long as the
@@ -66,12 +69,20 @@ class Workspace:
     motion_time_s: float = 0.0
     acquired: bool = False
     run_id: int | None = None
+    verify_run_id: int | None = None
+    guide_run_id: int | None = None
     calibration: app.CommandResult[CalibrationResult] | None = None
     calibration_record_id: int | None = None
     checks: list[app.CheckOutput] = field(default_factory=list)
     report: Path | None = None
     exported: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
+    verification: VerifyStep = field(init=False)
+    guide: GuideStep = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.verification = VerifyStep(self.calibration_path)
+        self.guide = GuideStep(self.folder, self.calibration_path)
 
     @property
     def simulated(self) -> bool:
@@ -190,7 +201,10 @@ class Workspace:
     def motion_basis(self, motion: str) -> str | None:
         """What a confirmation of ``motion`` confirms, while it still holds: the dry run that
         passed of the plan now on disk (``acquire``), or the calibration file now on disk
-        (``check``); None when there is nothing to confirm."""
+        (``check``), or the verification's dry run of the calibration now on disk (``verify``);
+        None when there is nothing to confirm."""
+        if motion == "verify":
+            return self.verification.motion_basis() if self.calibration is not None else None
         if motion == "acquire":
             basis = self.dry_run_basis
             if basis is None or not basis.endswith(f"plan {self.plan_sha256()}"):
@@ -200,8 +214,24 @@ class Workspace:
             return None
         return f"calibration {hashlib.sha256(self.calibration_path.read_bytes()).hexdigest()}"
 
-    def motion_words(self, motion: str) -> str:
+    def motion_words(self, motion: str, insertion: str | None = None) -> str:
         """The motion a confirmation names."""
+        if motion == "verify":
+            return self.verification.words()
+        if motion == "standoff":
+            name = self.guide.given_names.get("plan", "the plan")
+            return (
+                f"the guidance to the standoff of {name}: {self.guide.standoff_mm:g} mm before the entry, "
+                "on the planned axis (the needle does not enter)"
+            )
+        if motion == "insert":
+            name = self.guide.given_names.get("plan", "the plan")
+            how = (
+                "along the planned axis from the standoff to the target (the needle enters)"
+                if insertion == "advance"
+                else "to the entry, holding the guide there for a manual insertion"
+            )
+            return f"the insertion of {name} ({INSERTIONS.get(insertion or '', '')}): {how}"
         if motion == "acquire":
             return (
                 f"the calibration motion: {self.moves} moves, about {self.motion_time_s:.0f} s "
@@ -228,6 +258,35 @@ class Workspace:
             str(self.calibration_path),
             devices=self.devices,
             confirm_robot_motion=True,
+            simulated_speed=SIMULATED_SPEED,
+        )
+
+    def verify_dry_run(self, poses: int) -> None:
+        """The verification's dry run (nothing moves): the needle poses through the gate."""
+        if self.calibration is None:
+            raise InvalidInputError("calibrate first: the verification reaches poses through the calibration")
+        self.verification.dry_run(self.devices, poses)
+
+    def verify_settings(self) -> app.VerifySettings:
+        """The verification's settings: its motion was confirmed on the confirmation page."""
+        return self.verification.settings(self.devices, dry_run=False, simulated_speed=SIMULATED_SPEED)
+
+    def guide_dry_run(self) -> None:
+        """The guidance's dry run (nothing moves): where the plan lands, the standoff's motion
+        through the gate."""
+        if self.calibration is None:
+            raise InvalidInputError("calibrate first: the plan reaches the robot through the calibration")
+        self.guide.dry_run(self.devices)
+
+    def guide_settings(self, stage: str, insertion: str = "advance") -> Any:
+        """A guidance stage's settings: its motion confirmed on the station's page (twice for
+        an insertion)."""
+        return self.guide.settings(
+            self.devices,
+            stage,
+            insertion=insertion,
+            confirm_robot_motion=True,
+            confirm_insertion=stage != "standoff",
             simulated_speed=SIMULATED_SPEED,
         )
 

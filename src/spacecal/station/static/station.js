@@ -59,6 +59,9 @@
     text("samples", data.samples);
     text("visible", data.visible);
     text("message", data.message);
+    // a guidance in one session waits at the standoff for the insertion's confirmation
+    var awaiting = document.getElementById("awaiting");
+    if (awaiting) { awaiting.hidden = data.awaiting !== "insert"; }
     var bar = document.getElementById("progress");
     bar.max = Math.max(1, data.moves_total);
     bar.value = data.move;
