@@ -231,14 +231,17 @@ class Run:
             self.request_stop(PAGE_LOST)
 
     def request_stop(self, reason: str) -> None:
-        """Stop the run: SIGINT to its process, the command line's Ctrl-C path."""
+        """Stop the run: SIGINT to its process, the command line's Ctrl-C path, once. STOP comes
+        both as the page's socket message and as its POST; a second SIGINT would interrupt the
+        process's own stop and clean-up (closing the devices) rather than stop anything more."""
         with self._lock:
-            if self.stop_requested_at is None:
+            first = self.stop_requested_at is None
+            if first:
                 self.stop_requested_at = time.monotonic()
                 self.stop_reason = reason
             process = self._process
         self._watched_or_stopped.set()
-        if process is not None and process.poll() is None:
+        if first and process is not None and process.poll() is None:
             try:
                 process.send_signal(signal.SIGINT)
             except OSError:  # it has just ended
