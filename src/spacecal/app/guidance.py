@@ -457,6 +457,7 @@ def _guide(
         simulated=session.simulated,
         interrupted=bool(interruption),
         interruption=interruption,
+        plan_source=str(settings.plan) if link is None else "3D Slicer (OpenIGTLink)",
     )
     files = (write_json(result.to_dict(), settings.output),) if settings.output else ()
     if link is not None:

@@ -151,6 +151,9 @@ class GuidanceResult:
         The guidance stopped before its last stage ended; what was measured before is kept.
     interruption : str
         Why, one line (empty when not interrupted).
+    plan_source : str
+        Where the plan came from: its file as given, or 3D Slicer over OpenIGTLink (empty in
+        records written before it was kept).
     """
 
     plan_name: str
@@ -173,6 +176,7 @@ class GuidanceResult:
     simulated: bool = False
     interrupted: bool = False
     interruption: str = ""
+    plan_source: str = ""
 
     SCHEMA = GUIDANCE_SCHEMA
     SCHEMA_VERSION = GUIDANCE_SCHEMA_VERSION
@@ -220,6 +224,7 @@ class GuidanceResult:
                 "units": {"length": "mm", "angle": "deg"},
                 "plan": {
                     "name": self.plan_name,
+                    "source": self.plan_source,
                     "image_frame": self.image_frame,
                     "entry_in_image_mm": self.entry_in_image,
                     "target_in_image_mm": self.target_in_image,
@@ -284,6 +289,7 @@ class GuidanceResult:
             simulated=bool(data.get("simulated", False)),
             interrupted=bool(data.get("interrupted", False)),
             interruption=get_str(data, "interruption", what, ""),
+            plan_source=get_str(plan, "source", what, ""),
         )
 
 
