@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,10 +37,11 @@ from spacecal.app._common import guard_outputs, open_calibration, scenario_of_ca
 from spacecal.app.acquire_settings import AcquireSettings
 from spacecal.app.acquisition import acquire
 from spacecal.app.calibration import CalibrateSettings, calibrate
-from spacecal.app.devices import SIMULATED, DeviceSettings
+from spacecal.app.devices import DeviceSettings
 from spacecal.app.guidance import GuideSettings, guide
+from spacecal.app.phantom_settings import PhantomCommandSettings, check_devices
 from spacecal.app.touch import TouchCommandSettings, touch
-from spacecal.core.errors import InvalidInputError, SpacecalError
+from spacecal.core.errors import SpacecalError
 from spacecal.experiments.phantom import PhantomSettings, second_ct_errors
 from spacecal.geometry.transforms import invert_transform
 from spacecal.io.results_json import write_json
@@ -49,43 +49,12 @@ from spacecal.io.slicer_markups import write_markups
 from spacecal.records import PhantomResult
 from spacecal.records.guidance import GuidanceResult
 from spacecal.sim.scenario import load_scenario
-from spacecal.sim.world import World, build_world
-
-if TYPE_CHECKING:
-    from spacecal.app.simulation import PhantomCommandSettings
+from spacecal.sim.world import build_world
 
 #: The random stream of the CT's localisation errors (both scans), apart from the world's.
 CT_STREAM = 53
-#: The most cases the simulated phantom has planned paths for (the paper's five).
-MAX_CASES_ON_DEVICES = World.PHANTOM_PATHS
 #: Says where the second CT's needle comes from, in the output and the result.
 SECOND_CT = "the second CT: the simulator's true needle, localised with the CT's error"
-
-
-def check_devices(settings: PhantomCommandSettings) -> None:
-    """Refuse, in one line, devices the phantom experiment cannot run on."""
-    robot, tracker = settings.robot, settings.tracker
-    if robot is None and tracker is None:
-        for name, value in (("--calibration", settings.calibration), ("--work-dir", settings.work_dir)):
-            if value is not None:
-                raise InvalidInputError(f"{name} is for the phantom on the devices (--robot and --tracker)")
-        return
-    if robot is None or tracker is None:
-        raise InvalidInputError(
-            "the phantom on the devices needs both --robot and --tracker (or neither: the "
-            "simulation without devices)"
-        )
-    if robot != SIMULATED or tracker != SIMULATED:
-        raise InvalidInputError(
-            "spacecal phantom runs on the simulated devices only (--robot sim --tracker sim): on real "
-            "devices the second CT is a real scan of the phantom, which spacecal cannot take; run "
-            "acquire, calibrate, touch and guide there yourself (docs/phantom.md)"
-        )
-    if not 1 <= settings.cases <= MAX_CASES_ON_DEVICES:
-        raise InvalidInputError(
-            f"--cases must be 1..{MAX_CASES_ON_DEVICES} on the devices (the simulated phantom's planned "
-            f"paths), got {settings.cases}"
-        )
 
 
 def work_folder(settings: PhantomCommandSettings) -> tuple[Path, bool]:
@@ -285,4 +254,4 @@ def _second_ct(
     )
 
 
-__all__ = ["CT_STREAM", "SECOND_CT", "check_devices", "phantom_on_devices", "work_files", "work_folder"]
+__all__ = ["CT_STREAM", "SECOND_CT", "phantom_on_devices", "work_files", "work_folder"]

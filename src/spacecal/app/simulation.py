@@ -8,16 +8,16 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
 from spacecal.app._common import guard_outputs
 from spacecal.app.gate import default_box_half_mm, gate_plan, plan_workspace, world_visibility
-from spacecal.app.phantom_devices import check_devices, phantom_on_devices
+from spacecal.app.phantom_devices import phantom_on_devices
+from spacecal.app.phantom_settings import PhantomCommandSettings
 from spacecal.app.result import CommandResult, note_lines
 from spacecal.core.errors import InvalidInputError
-from spacecal.core.strict_numbers import integer
 from spacecal.experiments.demo import DemoResult, run_demo
 from spacecal.experiments.phantom import PhantomSettings, phantom_table, run_phantom_experiment
 from spacecal.experiments.simulation import simulate as simulate_run
@@ -266,63 +266,6 @@ def demo(settings: DemoSettings) -> CommandResult[DemoResult]:
     if paths:
         lines += ["", f"wrote {', '.join(p.name for p in paths)} to {settings.out}"]
     return CommandResult(result, tuple(paths), lines=tuple(lines))
-
-
-@dataclass(frozen=True)
-class PhantomCommandSettings:
-    """``spacecal phantom``: the paper's phantom needle biopsy (§5.3): in simulation, or with
-    ``robot`` and ``tracker`` on the (simulated) devices through ``acquire``, ``calibrate``,
-    ``touch`` and ``guide`` (:mod:`spacecal.app.phantom_devices`).
-
-    Attributes
-    ----------
-    scenario : str
-        Preset name or scenario JSON file (on the devices: of the acquisition; a given
-        calibration brings its own).
-    method : str
-        Calibration method.
-    cases : int
-        Needle paths (the paper: five; on the devices at most the simulated phantom's five).
-    output, figure : str or None
-        Results JSON and figure (paper Fig. 9) to write.
-    robot, tracker : str or None
-        ``sim``: run on the simulated devices (both, or neither); other devices are refused.
-    calibration : str or None
-        On the devices: a calibration to use instead of acquiring and calibrating.
-    work_dir : str or None
-        On the devices: the folder each step writes its files to (default ``OUTPUT_STEM.work``
-        beside ``output``, else a new temporary folder, kept and named in the output).
-    force : bool
-    """
-
-    scenario: str = DEFAULT_SCENARIO
-    method: str = "paper"
-    cases: int = PhantomSettings.cases
-    output: str | None = None
-    figure: str | None = None
-    robot: str | None = None
-    tracker: str | None = None
-    calibration: str | None = None
-    work_dir: str | None = None
-    force: bool = False
-
-    #: The command line's flag and argparse options of each field (``--force`` is shared).
-    FLAGS: ClassVar[dict[str, tuple[str, dict[str, Any]]]] = {
-        "scenario": ("--scenario", dict(help=f"scenario JSON file or preset (default {DEFAULT_SCENARIO})")),
-        "method": ("--method", dict(help="calibration method")),
-        "cases": ("--cases", dict(type=integer, help="needle paths (the paper: 5)")),
-        "output": ("-o --output", dict(help="results JSON to write")),
-        "figure": ("--figure", dict(help="PNG of the error curves (paper Fig. 9)")),
-        "robot": ("--robot", dict(help="sim: on the simulated robot (with --tracker sim)")),
-        "tracker": ("--tracker", dict(help="sim: through acquire, calibrate, touch and guide")),
-        "calibration": ("--calibration", dict(help="on the devices: this calibration, not a new one")),
-        "work_dir": ("--work-dir", dict(help="on the devices: folder of each step's files")),
-    }
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.cases, int) and 1 <= self.cases <= 100):
-            raise InvalidInputError(f"--cases must be 1..100, got {self.cases}")
-        check_devices(self)
 
 
 def phantom(settings: PhantomCommandSettings) -> CommandResult[PhantomResult]:
