@@ -175,6 +175,19 @@ def test_a_given_calibration_is_used_and_the_cases_repeat(run, result, tmp_path,
     assert len(err.splitlines()) == 1 and "existing" in err
 
 
+def test_without_a_work_dir_or_output_a_kept_temporary_folder_is_named(run, tmp_path, monkeypatch, capsys):
+    import tempfile
+
+    _, _, _, work, _ = run
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    argv = ["phantom", "--robot", "sim", "--tracker", "sim", "--cases", "1"]
+    assert main([*argv, "--calibration", str(work / "calibration.json")]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    (made,) = tmp_path.iterdir()
+    assert first == f"work folder: {made} (made for this run, kept)"
+    assert (made / "guidance_1.json").is_file() and (made / "plan_1.mrk.json").is_file()
+
+
 @pytest.mark.parametrize(
     "extra, words",
     [
