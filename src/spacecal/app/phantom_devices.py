@@ -127,7 +127,7 @@ def phantom_on_devices(settings: PhantomCommandSettings) -> tuple[PhantomResult,
     else:
         calibration_path = Path(str(settings.calibration))
         lines.append(f"1. calibration: {calibration_path}")
-    calibration, notes = open_calibration(calibration_path, "phantom", False)
+    calibration, notes = open_calibration(calibration_path, "phantom", None)
     lines += [f"   note: {note}" for note in notes]
     scenario = scenario_of_calibration(calibration)[0] or load_scenario(settings.scenario)
     scenario_file = write_json(scenario.to_dict(), work / "scenario.json")
