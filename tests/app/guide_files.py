@@ -15,57 +15,32 @@ import json
 import numpy as np
 
 from spacecal.geometry.transforms import invert_transform
+from spacecal.io import slicer_markups
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.io.touched_points import write_touched_points
 from spacecal.sim.devices import SimulatedRobot, SimulatedTracker
 from spacecal.sim.tools import POINTER
 from spacecal.workflows.pointer_touches import TouchSettings, collect_touches, touched_points
 
-SCHEMA = (
-    "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/Markups/Resources/Schema/"
-    "markups-schema-v1.0.3.json#"
-)
 LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
-def _control_point(index, label, position):
-    return {
-        "id": str(index + 1),
-        "label": label,
-        "description": "",
-        "associatedNodeID": "vtkMRMLScalarVolumeNode1",
-        "position": [float(v) for v in position],
-        "orientation": [-1.0, -0.0, -0.0, -0.0, -1.0, -0.0, 0.0, 0.0, 1.0],
-        "selected": True,
-        "locked": False,
-        "visibility": True,
-        "positionStatus": "defined",
-    }
-
-
 def write_markups(path, points, kind="Line", system="LPS", units="mm", drop_system=False):
-    """A markups file of ``points`` ({label: position in image_lps, mm}) as Slicer saves it: a
-    ``Line`` (labels L-1, L-2: entry, then target) or a point list (``Fiducial``, labelled), its
-    positions in ``system``."""
-    flip = np.array([-1.0, -1.0, 1.0]) if system == "RAS" else np.ones(3)
-    items = list(points.items())
-    labels = [f"L-{k + 1}" for k in range(len(items))] if kind == "Line" else [k for k, _ in items]
-    markup = {
-        "type": kind,
-        "coordinateSystem": system,
-        "coordinateUnits": units,
-        "locked": False,
-        "fixedNumberOfControlPoints": False,
-        "labelFormat": "%N-%d",
-        "lastUsedControlPointNumber": len(items),
-        "controlPoints": [
-            _control_point(k, label, flip * np.asarray(p))
-            for k, (label, (_, p)) in enumerate(zip(labels, items))
-        ],
-    }
+    """A markups file of ``points`` ({label: position in image_lps, mm}) as Slicer saves it
+    (:func:`spacecal.io.slicer_markups.write_markups`: a ``Line`` labelled L-1, L-2, entry then
+    target, or a labelled point list ``Fiducial``), its positions in ``system``; ``system`` and
+    ``units`` are written as given (a bad one for the readers' tests), ``drop_system`` leaves the
+    coordinate system out as other software does."""
+    if system not in ("LPS", "RAS"):
+        slicer_markups.write_markups(path, points, kind, "LPS", units=units)
+        data = json.loads(path.read_text())
+        data["markups"][0]["coordinateSystem"] = system
+    else:
+        slicer_markups.write_markups(path, points, kind, system, units=units)
+        data = json.loads(path.read_text())
     if drop_system:
-        del markup["coordinateSystem"]
-    path.write_text(json.dumps({"@schema": SCHEMA, "markups": [markup]}, indent=4))
+        del data["markups"][0]["coordinateSystem"]
+    path.write_text(json.dumps(data, indent=4))
     return path
 
 

@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 
 from spacecal.core.errors import InvalidInputError
-from spacecal.io.slicer_markups import fiducials_from_markups, plan_from_markups, read_markups
+from spacecal.io.slicer_markups import (
+    fiducials_from_markups,
+    plan_from_markups,
+    read_markups,
+    write_markups,
+)
 
 DATA = Path(__file__).parent / "data"
 SCHEMAS = {v: DATA / f"markups-schema-v1.0.{v}.json" for v in (0, 3)}
@@ -198,3 +203,31 @@ def test_fiducial_labels_must_pair(tmp_path):
         "controlPoints": [{"label": "F-1", "position": [0, 0, 0]}, {"label": "F-1", "position": [1, 0, 0]}],
     }
     _one_line(lambda: fiducials_from_markups(_markups(tmp_path, twice)), "two fiducials are labelled 'F-1'")
+
+
+@pytest.mark.parametrize("kind, system", [("Line", "LPS"), ("Line", "RAS"), ("Fiducial", "LPS")])
+def test_written_markups_meet_slicers_schema_and_read_back(tmp_path, kind, system):
+    points = {"entry": np.array([10.5, -20.25, 30.0]), "target": np.array([12.0, -25.0, -15.5])}
+    if kind == "Fiducial":
+        points["F-3"] = np.array([-40.0, 2.0, 7.0])
+    path = write_markups(tmp_path / "written.mrk.json", points, kind, system, name="T-1")
+    data = json.loads(path.read_text())
+    _required_fields_hold(data, json.loads(SCHEMAS[3].read_text()))
+    (markup,) = read_markups(path)
+    assert markup.kind == kind and markup.name == "T-1" and markup.coordinate_system == system
+    assert np.allclose(markup.points_in_image_lps, np.array(list(points.values())))
+    plan = plan_from_markups(path)
+    assert np.allclose(plan.entry_in_image, points["entry"])
+    assert np.allclose(plan.target_in_image, points["target"])
+    jsonschema = pytest.importorskip("jsonschema", reason="the hand check above stands without it")
+    jsonschema.validate(data, json.loads(SCHEMAS[3].read_text()))
+
+
+def test_a_markup_that_cannot_be_written_is_one_line(tmp_path):
+    with pytest.raises(InvalidInputError, match="two points"):
+        write_markups(tmp_path / "x.mrk.json", {"a": [0, 0, 0]}, "Line")
+    with pytest.raises(InvalidInputError, match="finite"):
+        write_markups(tmp_path / "x.mrk.json", {"a": [0, 0, np.nan], "b": [1, 2, 3]}, "Line")
+    with pytest.raises(InvalidInputError, match="LPS or RAS"):
+        write_markups(tmp_path / "x.mrk.json", {"a": [0, 0, 0]}, "Curve")
+    assert not (tmp_path / "x.mrk.json").exists()

@@ -445,6 +445,8 @@ def _guide(
         )
     session.begin_motion()
     observer = None if link is None else _streamer(link, needle_from_marker)
+    truth = _SimulatorTruth(session, observer) if session.simulated else None
+    observer = truth if truth is not None else observer
     if link is not None:
         link.update_needle(where)  # the needle where it stands, until the first frame
     measured: list[StageMeasurement] = []
@@ -466,7 +468,10 @@ def _guide(
             with contextlib.suppress(SpacecalError):  # the hold stopped it; again, whatever ended it
                 session.robot.stop()
             break
-        measured.append(_measurement(stage, planned[k], held[0], needle_from_marker, axis, settings))
+        true_needle = None if truth is None else truth.take()
+        measured.append(
+            _measurement(stage, planned[k], held[0], needle_from_marker, axis, settings, true_needle)
+        )
     result = GuidanceResult(
         plan_name=plan.name,
         image_frame=plan.image_frame,
@@ -488,6 +493,7 @@ def _guide(
         simulated=session.simulated,
         interrupted=bool(interruption),
         interruption=interruption,
+        plan_source=str(settings.plan) if link is None else "3D Slicer (OpenIGTLink)",
     )
     files = (write_json(result.to_dict(), settings.output),) if settings.output else ()
     if link is not None:
@@ -616,6 +622,36 @@ def _streamer(link: SlicerLink, needle_from_marker: np.ndarray) -> Callable[...,
     return observe
 
 
+class _SimulatorTruth:
+    """On the simulated devices: the frames each hold recorded (chained before ``observer``),
+    to read the simulator's truth of where the needle was while it was measured (the
+    simulated tracker keeps the true marker pose of every frame it delivered). The needle of
+    the simulated world is its TCP. Documented as the simulator's truth, as a verification's
+    simulated laser tracker is; nothing like it exists on real devices."""
+
+    def __init__(self, session: MotionSession, observer: Callable[..., None] | None):
+        self.session, self.observer = session, observer
+        self.times: list[float] = []
+
+    def __call__(
+        self, time_s: float, segment: str, tracker_from_marker: Any, base_from_tcp: Any, recorded: bool
+    ) -> None:
+        if self.observer is not None:
+            self.observer(time_s, segment, tracker_from_marker, base_from_tcp, recorded)
+        if recorded and tracker_from_marker is not None:
+            self.times.append(time_s)
+
+    def take(self) -> np.ndarray | None:
+        """The mean true ``tracker_from_needle`` (4, 4), mm, over the frames recorded since the
+        last call (None without any), and forget them."""
+        world, truth = self.session.world, getattr(self.session.tracker, "truth", {})
+        poses = [truth[t][0] for t in self.times if t in truth]
+        self.times = []
+        if world is None or not poses:
+            return None
+        return mean_transform(np.array(poses)) @ invert_transform(world.tcp_from_marker)
+
+
 def _measurement(
     stage: str,
     planned: np.ndarray,
@@ -623,6 +659,7 @@ def _measurement(
     needle_from_marker: np.ndarray,
     axis: NeedleAxis,
     settings: GuideSettings,
+    true_needle: np.ndarray | None = None,
 ) -> StageMeasurement:
     measured = mean_transform(held.tracker_from_marker_stack) @ invert_transform(needle_from_marker)
     errors = needle_errors(
@@ -637,6 +674,7 @@ def _measurement(
         entry_error_mm=errors.entry_error_mm,
         target_error_mm=errors.target_error_mm,
         direction_error_deg=errors.direction_error_deg,
+        simulated_true_tracker_from_needle=true_needle,
     )
 
 

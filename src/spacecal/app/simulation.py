@@ -14,6 +14,8 @@ import numpy as np
 
 from spacecal.app._common import guard_outputs
 from spacecal.app.gate import default_box_half_mm, gate_plan, plan_workspace, world_visibility
+from spacecal.app.phantom_devices import phantom_on_devices
+from spacecal.app.phantom_settings import PhantomCommandSettings
 from spacecal.app.result import CommandResult, note_lines
 from spacecal.core.errors import InvalidInputError
 from spacecal.experiments.demo import DemoResult, run_demo
@@ -266,32 +268,22 @@ def demo(settings: DemoSettings) -> CommandResult[DemoResult]:
     return CommandResult(result, tuple(paths), lines=tuple(lines))
 
 
-@dataclass(frozen=True)
-class PhantomCommandSettings:
-    """``spacecal phantom``: the paper's phantom needle biopsy (§5.3) in simulation."""
-
-    scenario: str = DEFAULT_SCENARIO
-    method: str = "paper"
-    cases: int = PhantomSettings.cases
-    output: str | None = None
-    figure: str | None = None
-    force: bool = False
-
-
 def phantom(settings: PhantomCommandSettings) -> CommandResult[PhantomResult]:
-    """Run the phantom experiment.
+    """Run the phantom experiment: in simulation, or on the devices (``robot``, ``tracker``).
 
     Returns
     -------
     CommandResult of PhantomResult
         The errors of each needle path; the results JSON and figure written, if asked.
     """
-    if not 1 <= settings.cases <= 100:
-        raise InvalidInputError(f"--cases must be 1..100, got {settings.cases}")
-    guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force, any_file=True)
-    result = run_phantom_experiment(
-        load_scenario(settings.scenario), settings.method, PhantomSettings(cases=settings.cases)
-    )
+    if settings.robot is not None:
+        result, steps = phantom_on_devices(settings)
+    else:
+        guard_outputs([settings.output, settings.figure], [settings.scenario], settings.force, any_file=True)
+        result = run_phantom_experiment(
+            load_scenario(settings.scenario), settings.method, PhantomSettings(cases=settings.cases)
+        )
+        steps = []
     paths = []
     if settings.output:
         paths.append(write_json(result.to_dict(), settings.output))
@@ -302,6 +294,7 @@ def phantom(settings: PhantomCommandSettings) -> CommandResult[PhantomResult]:
             )
         paths.append(Path(settings.figure))
     lines = [
+        *steps,
         *phantom_table(result).split("\n"),
         "(simulated; measured errors include the second CT's localisation error, as in the paper's "
         "experiment)",

@@ -302,12 +302,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     )
     p.add_argument("--dry-run", action="store_true", help="plan the check poses without moving")
 
-    p = command("phantom", "the paper's phantom needle biopsy (section 5.3) in simulation")
-    p.add_argument("--scenario", help=scenario_help)
-    p.add_argument("--method", help="calibration method")
-    p.add_argument("--cases", type=integer, help="needle paths (the paper: 5)")
-    p.add_argument("-o", "--output", help="results JSON to write")
-    p.add_argument("--figure", help="PNG of the error curves (paper Fig. 9)")
+    command("phantom", "the paper's phantom needle biopsy (section 5.3): simulated, or on --robot sim")
 
     p = command("report", "a self-contained HTML report (works offline) and PNG figures")
     p.add_argument("calibration", help="calibration JSON")

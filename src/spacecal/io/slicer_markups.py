@@ -20,10 +20,15 @@ Choices made here (docs/slicer_plans.md):
   itself assumes LPS there and always writes the field, so a file without it came from other
   software, and a wrong guess mirrors the plan left-right and front-back.
 * Units other than millimetres are refused (Slicer refuses a mismatch with its scene too).
+
+:func:`write_markups` writes a point list or a Line as Slicer 5 saves it (schema v1.0.3, each
+control point with its id, orientation and ``positionStatus``), so that what spacecal writes for
+a simulated CT (``spacecal phantom``) is read back as a user's Slicer file would be.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -36,6 +41,7 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import quoted
 from spacecal.geometry.anatomical import flip_lps_ras
+from spacecal.io.atomic import write_text_atomic
 from spacecal.io.results_json import read_json_object
 from spacecal.records.needle_plan import NeedlePlan
 
@@ -46,6 +52,11 @@ COORDINATE_SYSTEMS = ("LPS", "RAS")
 #: Labels tried for the entry and the target of a point-list plan, in order, case-insensitive.
 ENTRY_LABELS = ("entry", "entry point", "entrypoint", "start")
 TARGET_LABELS = ("target", "target point", "targetpoint", "end")
+#: The schema Slicer 5 names in the markups files it writes.
+WRITTEN_SCHEMA = (
+    "https://raw.githubusercontent.com/slicer/slicer/main/Modules/Loadable/Markups/Resources/Schema/"
+    "markups-schema-v1.0.3.json#"
+)
 #: The most a markups file may be (a plan is a few kilobytes; Slicer's curves can be large).
 MAX_MARKUPS_BYTES = 50 * 1024 * 1024
 
@@ -297,3 +308,70 @@ def fiducials_from_markups(
         if markup.defined(index):
             fiducials[key] = markup.points_in_image_lps[index]
     return fiducials
+
+
+def _written_point(index: int, label: str, position: np.ndarray) -> dict[str, Any]:
+    return {
+        "id": str(index + 1),
+        "label": label,
+        "description": "",
+        "associatedNodeID": "",
+        "position": [float(v) for v in position],
+        "orientation": [-1.0, -0.0, -0.0, -0.0, -1.0, -0.0, 0.0, 0.0, 1.0],
+        "selected": True,
+        "locked": False,
+        "visibility": True,
+        "positionStatus": "defined",
+    }
+
+
+def write_markups(
+    path: str | Path,
+    points_in_image_lps: Mapping[str, Any],
+    kind: str = "Line",
+    system: str = "LPS",
+    name: str | None = None,
+    units: str = "mm",
+) -> Path:
+    """Write a markups file as Slicer saves it (atomically); returns its path.
+
+    Parameters
+    ----------
+    path : str or Path
+    points_in_image_lps : mapping of str to array-like, shape (3,)
+        Control points by label, in ``image_lps``, mm, in order (a Line: entry, then target).
+    kind : {"Line", "Fiducial"}
+        A Line (its points labelled ``L-1``, ``L-2`` as Slicer labels them) or a point list
+        (``Fiducial``, labelled with the mapping's labels).
+    system : {"LPS", "RAS"}
+        The system the positions are written in (RAS: x and y negated, as Slicer does).
+    name : str or None
+        The markup's name (default: the file's name without ``.mrk.json``).
+    units : str
+        ``coordinateUnits`` as written (Slicer writes ``mm``).
+    """
+    if kind not in ("Line", "Fiducial") or system not in COORDINATE_SYSTEMS:
+        raise InvalidInputError(
+            f"markups are written as a Line or Fiducial in LPS or RAS, not {kind} {system}"
+        )
+    items = [(str(label), np.asarray(p, dtype=float)) for label, p in points_in_image_lps.items()]
+    if kind == "Line" and len(items) != 2:
+        raise InvalidInputError(f"a Line has two points (entry, target), not {len(items)}")
+    if not all(p.shape == (3,) and np.all(np.isfinite(p)) for _, p in items):
+        raise InvalidInputError("markups points must be 3 finite coordinates each")
+    flip = np.array([-1.0, -1.0, 1.0]) if system == "RAS" else np.ones(3)
+    labels = [f"L-{k + 1}" for k in range(len(items))] if kind == "Line" else [label for label, _ in items]
+    markup = {
+        "type": kind,
+        "name": name if name is not None else Path(path).name.removesuffix(".mrk.json"),
+        "coordinateSystem": system,
+        "coordinateUnits": units,
+        "locked": False,
+        "fixedNumberOfControlPoints": False,
+        "labelFormat": "%N-%d",
+        "lastUsedControlPointNumber": len(items),
+        "controlPoints": [
+            _written_point(k, label, flip * p) for k, (label, (_, p)) in enumerate(zip(labels, items))
+        ],
+    }
+    return write_text_atomic(json.dumps({"@schema": WRITTEN_SCHEMA, "markups": [markup]}, indent=4), path)

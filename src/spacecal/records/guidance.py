@@ -49,6 +49,11 @@ class StageMeasurement:
         Where the robot rested.
     tip_error_mm, entry_error_mm, target_error_mm, direction_error_deg : float
         :class:`spacecal.workflows.guidance.NeedleErrors` of the measured needle.
+    simulated_true_tracker_from_needle : numpy.ndarray, shape (4, 4), or None
+        On the simulated devices only: the simulator's truth of where the needle was during the
+        stage's hold (the mean of its true poses over the hold's frames, tracker frame, mm), as
+        a verification's simulated laser tracker sees the true pose; what a second CT would
+        show. None on real devices (nothing there knows the truth).
     """
 
     stage: str
@@ -59,6 +64,7 @@ class StageMeasurement:
     entry_error_mm: float
     target_error_mm: float
     direction_error_deg: float
+    simulated_true_tracker_from_needle: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         what = f"guidance stage {self.stage}"
@@ -66,6 +72,10 @@ class StageMeasurement:
             raise InvalidInputError(f"{what}: the stage must be standoff or insert")
         for name in ("planned_tracker_from_needle", "measured_tracker_from_needle"):
             object.__setattr__(self, name, as_transform(getattr(self, name), name, what))
+        truth = self.simulated_true_tracker_from_needle
+        if truth is not None:
+            name = "simulated_true_tracker_from_needle"
+            object.__setattr__(self, name, as_transform(truth, name, what))
         object.__setattr__(self, "joints_rad", as_array(self.joints_rad, (6,), "joints_rad", what))
         for name in ("tip_error_mm", "entry_error_mm", "target_error_mm", "direction_error_deg"):
             object.__setattr__(self, name, _finite_number(getattr(self, name), name, what))
@@ -81,6 +91,11 @@ class StageMeasurement:
                 "entry_error_mm": self.entry_error_mm,
                 "target_error_mm": self.target_error_mm,
                 "direction_error_deg": self.direction_error_deg,
+                **(
+                    {}
+                    if self.simulated_true_tracker_from_needle is None
+                    else {"simulated_true_tracker_from_needle": self.simulated_true_tracker_from_needle}
+                ),
             }
         )
 
@@ -95,6 +110,7 @@ class StageMeasurement:
             entry_error_mm=get_number(data, "entry_error_mm", what),
             target_error_mm=get_number(data, "target_error_mm", what),
             direction_error_deg=get_number(data, "direction_error_deg", what),
+            simulated_true_tracker_from_needle=data.get("simulated_true_tracker_from_needle"),
         )
 
 
@@ -135,6 +151,9 @@ class GuidanceResult:
         The guidance stopped before its last stage ended; what was measured before is kept.
     interruption : str
         Why, one line (empty when not interrupted).
+    plan_source : str
+        Where the plan came from: its file as given, or 3D Slicer over OpenIGTLink (empty in
+        records written before it was kept).
     """
 
     plan_name: str
@@ -157,6 +176,7 @@ class GuidanceResult:
     simulated: bool = False
     interrupted: bool = False
     interruption: str = ""
+    plan_source: str = ""
 
     SCHEMA = GUIDANCE_SCHEMA
     SCHEMA_VERSION = GUIDANCE_SCHEMA_VERSION
@@ -204,6 +224,7 @@ class GuidanceResult:
                 "units": {"length": "mm", "angle": "deg"},
                 "plan": {
                     "name": self.plan_name,
+                    "source": self.plan_source,
                     "image_frame": self.image_frame,
                     "entry_in_image_mm": self.entry_in_image,
                     "target_in_image_mm": self.target_in_image,
@@ -268,6 +289,7 @@ class GuidanceResult:
             simulated=bool(data.get("simulated", False)),
             interrupted=bool(data.get("interrupted", False)),
             interruption=get_str(data, "interruption", what, ""),
+            plan_source=get_str(plan, "source", what, ""),
         )
 
 

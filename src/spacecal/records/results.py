@@ -19,6 +19,7 @@ from spacecal.records.fields import (
     as_transform,
     as_transform_stack,
     check_schema,
+    get_mapping,
     get_number,
     get_str,
     plain,
@@ -399,6 +400,13 @@ class PhantomResult:
         Calibration method used.
     paths_refused : int
         Planned paths refused (unreachable or hiding the marker) and replaced.
+    reported : list of dict
+        On the devices (``spacecal phantom --robot sim --tracker sim``): per case, the errors
+        ``guide`` reported (``entry_mm``, ``target_mm``, ``direction_deg``), measured by the
+        calibrated marker; empty for the experiment without devices.
+    devices : dict
+        On the devices: what ran it (the robot and tracker, the work folder with the files each
+        step wrote); empty without devices.
     """
 
     entry_error_mm: np.ndarray
@@ -408,6 +416,8 @@ class PhantomResult:
     registration_fre_rms_mm: float
     method: str
     paths_refused: int = 0
+    reported: list[dict[str, Any]] = field(default_factory=list)
+    devices: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         what = "phantom"
@@ -415,6 +425,8 @@ class PhantomResult:
             object.__setattr__(self, name, _finite(getattr(self, name), name, what))
         if not (len(self.entry_error_mm) == len(self.target_error_mm) == len(self.direction_error_deg)):
             raise InvalidInputError(f"{what}: one entry, target and direction error per case")
+        if self.reported and len(self.reported) != len(self.entry_error_mm):
+            raise InvalidInputError(f"{what}: one reported error per case, or none")
 
     def statistics(self) -> dict[str, dict[str, float]]:
         return {
@@ -433,15 +445,22 @@ class PhantomResult:
                 "statistics": self.statistics(),
                 "registration_fre_rms_mm": self.registration_fre_rms_mm,
                 "paths_refused": self.paths_refused,
+                **({"devices": self.devices} if self.devices else {}),
                 "cases": [
                     {
                         "entry_error_mm": float(e),
                         "target_error_mm": float(t),
                         "direction_error_deg": float(d),
                         "predicted": p,
+                        **({"reported": self.reported[k]} if self.reported else {}),
                     }
-                    for e, t, d, p in zip(
-                        self.entry_error_mm, self.target_error_mm, self.direction_error_deg, self.predicted
+                    for k, (e, t, d, p) in enumerate(
+                        zip(
+                            self.entry_error_mm,
+                            self.target_error_mm,
+                            self.direction_error_deg,
+                            self.predicted,
+                        )
                     )
                 ],
             }
@@ -459,6 +478,8 @@ class PhantomResult:
             registration_fre_rms_mm=get_number(data, "registration_fre_rms_mm", what),
             method=get_str(data, "method", what, default="unknown"),
             paths_refused=int(get_number(data, "paths_refused", what, default=0.0)),
+            reported=[dict(c["reported"]) for c in cases if isinstance(c.get("reported"), Mapping)],
+            devices=dict(get_mapping(data, "devices", what, {})),
         )
 
 

@@ -276,8 +276,9 @@ class World:
 
     #: The frequency (Hz) of a swaying hand (:attr:`pointer_sway_mm`).
     POINTER_SWAY_HZ = 1.0
-    #: Fiducials on the phantom, and needle paths planned in it.
-    PHANTOM_FIDUCIALS, PHANTOM_PATHS = 6, 3
+    #: Fiducials on the phantom, and needle paths planned in it (the paper's five cases, §5.3;
+    #: drawn in order, so the first paths stay those of fewer).
+    PHANTOM_FIDUCIALS, PHANTOM_PATHS = 6, 5
     #: The head's semi-axes (mm) and the paths' depths below their entries (mm), as the
     #: phantom experiment's (:mod:`spacecal.experiments.phantom`).
     HEAD_RADII_MM, PATH_DEPTH_MM = (75.0, 90.0, 65.0), (40.0, 70.0)
