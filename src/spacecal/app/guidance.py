@@ -56,6 +56,7 @@ from spacecal.records.guidance import GuidanceResult, StageMeasurement
 from spacecal.records.needle_plan import ImageRegistration, NeedlePlan
 from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM
 from spacecal.registration.points import predicted_tre
+from spacecal.sim.devices import SimulatedTracker
 from spacecal.sim.scenario import DEFAULT_SCENARIO
 from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.guidance import (
@@ -357,11 +358,8 @@ def guide(
         following = then(first)
         if following is None:
             return first
-        changed = [
-            f.name
-            for f in dataclasses.fields(GuideSettings)
-            if f.name not in SAME_SESSION_FIELDS and getattr(following, f.name) != getattr(settings, f.name)
-        ]
+        asked, started = dataclasses.asdict(following), dataclasses.asdict(settings)
+        changed = [name for name in asked if name not in SAME_SESSION_FIELDS and asked[name] != started[name]]
         if following.stage != "insert" or changed:
             raise InvalidInputError(
                 "the insertion in the standoff's session must be of the same plan, registration, "
@@ -644,7 +642,8 @@ class _SimulatorTruth:
     def take(self) -> np.ndarray | None:
         """The mean true ``tracker_from_needle`` (4, 4), mm, over the frames recorded since the
         last call (None without any), and forget them."""
-        world, truth = self.session.world, getattr(self.session.tracker, "truth", {})
+        tracker = self.session.tracker
+        world, truth = self.session.world, tracker.truth if isinstance(tracker, SimulatedTracker) else {}
         poses = [truth[t][0] for t in self.times if t in truth]
         self.times = []
         if world is None or not poses:

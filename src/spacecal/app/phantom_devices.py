@@ -5,7 +5,7 @@ The steps, each an app function writing its files into the work folder as the co
 would:
 
 1. the calibration: ``--calibration`` if given, else ``acquire`` on the devices
-   (``recording.csv``) and ``calibrate`` (``calibration.json``);
+   (the paired recording) and ``calibrate`` (``calibration.json``);
 2. the CT scan: the simulated phantom (:attr:`spacecal.sim.world.World.phantom`) written as
    3D Slicer writes it: its fiducials as a point list with the CT's localisation error
    (:attr:`spacecal.experiments.phantom.PhantomSettings.ct_error_mm`, ``ct_fiducials.mrk.json``)
@@ -44,6 +44,7 @@ from spacecal.app.touch import TouchCommandSettings, touch
 from spacecal.core.errors import SpacecalError
 from spacecal.experiments.phantom import PhantomSettings, second_ct_errors
 from spacecal.geometry.transforms import invert_transform
+from spacecal.io.recording_files import paired_files, recording_in
 from spacecal.io.results_json import write_json
 from spacecal.io.slicer_markups import write_markups
 from spacecal.records import PhantomResult
@@ -71,7 +72,11 @@ def work_folder(settings: PhantomCommandSettings) -> tuple[Path, bool]:
 def work_files(cases: int, calibrating: bool) -> list[str]:
     """The files the steps write into the work folder."""
     return [
-        *(["recording.csv", "recording.meta.json", "calibration.json"] if calibrating else []),
+        *(
+            [*(path.name for path in paired_files(recording_in("."))), "calibration.json"]
+            if calibrating
+            else []
+        ),
         "scenario.json",
         "ct_fiducials.mrk.json",
         "touched.csv",
@@ -112,7 +117,7 @@ def phantom_on_devices(settings: PhantomCommandSettings) -> tuple[PhantomResult,
 
     # 1. the calibration
     if calibrating:
-        recording = work / "recording.csv"
+        recording = recording_in(work)
         acquired = acquire(
             AcquireSettings(output=str(recording), devices=devices, scenario=settings.scenario)
         )

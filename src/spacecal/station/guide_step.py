@@ -300,22 +300,13 @@ class GuideStep:
         self.standoff_basis = f"standoff-run {run_id} {secrets.token_hex(8)} inputs {self.inputs_sha256()}"
 
 
-def last_stage(output: Any) -> Any:
-    """The guidance's last stage measured (its entry, target and direction errors), or None."""
-    result = getattr(output, "result", None)
-    if result is None:
-        return None
-    stages = getattr(result, "stages", ())
-    return stages[-1] if stages else result
-
-
-def guidance_line(output: Any) -> str:
-    """How a guidance stage that ran to its end ended (``output``: its ``GuideOutput``)."""
-    stage = last_stage(output)
+def guidance_line(output: app.GuideOutput) -> str:
+    """How a guidance stage that ran to its end ended: its last stage's entry, target and
+    direction errors."""
+    stage = None if output.result is None else output.result.last
     if stage is None:
         return "nothing was run"
     return (
-        f"{getattr(stage, 'stage', getattr(output, 'stage', 'guidance'))}: entry error "
-        f"{stage.entry_error_mm:.3f} mm, target error {stage.target_error_mm:.3f} mm, direction error "
-        f"{stage.direction_error_deg:.3f} deg"
+        f"{stage.stage}: entry error {stage.entry_error_mm:.3f} mm, target error "
+        f"{stage.target_error_mm:.3f} mm, direction error {stage.direction_error_deg:.3f} deg"
     )

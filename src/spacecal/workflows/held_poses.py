@@ -19,7 +19,6 @@ from collections import defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -37,8 +36,8 @@ from spacecal.workflows.acquisition import (
 
 
 class _ToolKeepingTracker:
-    """A tracker read through: every call goes to ``tracker``; the further tools of the frame
-    :meth:`next_frame` last delivered are kept (with its time, s) for the sink."""
+    """A tracker read through (the acquisition loop only asks for frames): the further tools of
+    the frame :meth:`next_frame` last delivered are kept (with its time, s) for the sink."""
 
     def __init__(self, tracker: Tracker) -> None:
         self._tracker = tracker
@@ -47,9 +46,6 @@ class _ToolKeepingTracker:
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         self.last = self._tracker.next_frame(timeout_s)
         return self.last
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._tracker, name)
 
 
 class _HoldSink:
