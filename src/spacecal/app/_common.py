@@ -9,12 +9,14 @@ from pathlib import Path
 from typing import Any
 
 from spacecal.adapters import canonical_url
+from spacecal.app.devices import DeviceSettings
+from spacecal.app.motion_settings import MotionSettings, WorkspaceBox
 from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.io.digest import file_sha256, spacecal_schema_of
 from spacecal.io.recordings import is_recording, metadata_path
 from spacecal.io.results_json import read_calibration, read_json_object
 from spacecal.records import CalibrationResult, Provenance, Recording, RecordingSource
-from spacecal.sim.scenario import Scenario, load_scenario, scenario_from_dict
+from spacecal.sim.scenario import DEFAULT_SCENARIO, Scenario, load_scenario, scenario_from_dict
 
 #: What an existing spacecal file is, by its ``schema``, for the line that refuses to replace it.
 RESULT_KINDS = {
@@ -278,3 +280,25 @@ def simulated_scenario(calibration: CalibrationResult, scenario: str | None) -> 
     if found is None:
         raise InvalidInputError("no scenario given and none found with the calibration; pass --scenario")
     return found
+
+
+def calibration_motion(
+    calibration: CalibrationResult,
+    devices: DeviceSettings,
+    scenario: str | None,
+    dry_run: bool,
+    confirm_robot_motion: bool,
+    workspace_box: WorkspaceBox | None,
+    simulated_speed: float | None,
+) -> MotionSettings:
+    """The motion of a command that moves a calibrated robot (``check``, ``verify``, ``guide``):
+    the acquisition's speeds on ``devices``; simulated devices run in the calibration's world
+    (:func:`simulated_scenario`), real ones need none."""
+    return MotionSettings(
+        devices=devices,
+        scenario=simulated_scenario(calibration, scenario) if devices.simulated else DEFAULT_SCENARIO,
+        dry_run=dry_run,
+        confirm_robot_motion=confirm_robot_motion,
+        workspace_box=workspace_box,
+        simulated_speed=simulated_speed,
+    )

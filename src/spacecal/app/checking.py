@@ -10,12 +10,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from spacecal.app._common import open_calibration, simulated_scenario
+from spacecal.app._common import calibration_motion, open_calibration
 from spacecal.app.check_expectations import calibration_misfits, expected_at_check_poses
 from spacecal.app.check_settings import CheckOutput, CheckSettings
 from spacecal.app.gate import plan_workspace
 from spacecal.app.motion_session import motion_session
-from spacecal.app.motion_settings import MotionSettings
 from spacecal.app.record import open_record, record_check
 from spacecal.app.result import CommandResult, Quality, note_lines, paths
 from spacecal.core.errors import InvalidInputError
@@ -24,7 +23,6 @@ from spacecal.io.check_history import append_history
 from spacecal.io.recordings import open_calibrated_recording
 from spacecal.planning.check_poses import check_plan
 from spacecal.records import CheckResult
-from spacecal.sim.scenario import DEFAULT_SCENARIO
 from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.check import (
     check_thresholds,
@@ -97,17 +95,15 @@ def _check(
         )
         history = append_history(settings.calibration, result, calibration.content_sha256)
         return check_result(CheckOutput(result, basis), history, notes)
-    scenario = (
-        simulated_scenario(calibration, settings.scenario) if settings.devices.simulated else DEFAULT_SCENARIO
-    )
     # the check's motion: the acquisition's defaults (speeds), on the check's devices
-    motion = MotionSettings(
-        devices=settings.devices,
-        scenario=scenario,
-        dry_run=settings.dry_run,
-        confirm_robot_motion=settings.confirm_robot_motion,
-        workspace_box=settings.workspace_box,
-        simulated_speed=settings.simulated_speed,
+    motion = calibration_motion(
+        calibration,
+        settings.devices,
+        settings.scenario,
+        settings.dry_run,
+        settings.confirm_robot_motion,
+        settings.workspace_box,
+        settings.simulated_speed,
     )
     with motion_session(motion) as session:
         world = session.world

@@ -35,7 +35,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from spacecal.adapters.slicer_link import SLICER_LINK_DEFAULT_PORT, SlicerLink
-from spacecal.app._common import guard_outputs, open_calibration, simulated_scenario
+from spacecal.app._common import calibration_motion, guard_outputs, open_calibration
 from spacecal.app.devices import DeviceSettings
 from spacecal.app.motion_session import MotionSession, motion_session
 from spacecal.app.motion_settings import MotionSettings, WorkspaceBox
@@ -57,7 +57,6 @@ from spacecal.records.needle_plan import ImageRegistration, NeedlePlan
 from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM
 from spacecal.registration.points import predicted_tre
 from spacecal.sim.devices import SimulatedTracker
-from spacecal.sim.scenario import DEFAULT_SCENARIO
 from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.guidance import (
     AT_STANDOFF_DEG,
@@ -528,16 +527,14 @@ def _link_notes(link: SlicerLink, revision: int) -> list[str]:
 
 
 def _motion(settings: GuideSettings, calibration: CalibrationResult) -> MotionSettings:
-    scenario = (
-        simulated_scenario(calibration, settings.scenario) if settings.devices.simulated else DEFAULT_SCENARIO
-    )
-    return MotionSettings(
-        devices=settings.devices,
-        scenario=scenario,
-        dry_run=settings.dry_run,
-        confirm_robot_motion=settings.confirm_robot_motion,
-        workspace_box=settings.workspace_box,
-        simulated_speed=settings.simulated_speed,
+    return calibration_motion(
+        calibration,
+        settings.devices,
+        settings.scenario,
+        settings.dry_run,
+        settings.confirm_robot_motion,
+        settings.workspace_box,
+        settings.simulated_speed,
     )
 
 

@@ -36,7 +36,7 @@ from typing import Any, ClassVar, NoReturn
 
 import numpy as np
 
-from spacecal.app._common import guard_outputs, open_calibration, scenario_of_calibration, simulated_scenario
+from spacecal.app._common import calibration_motion, guard_outputs, open_calibration, scenario_of_calibration
 from spacecal.app.devices import DeviceSettings
 from spacecal.app.motion_session import MotionSession, motion_session
 from spacecal.app.motion_settings import MotionSettings, WorkspaceBox
@@ -60,7 +60,7 @@ from spacecal.planning.motion_gate import MotionGateReport
 from spacecal.records import CalibrationResult, VerificationResult
 from spacecal.records.fields import as_transform
 from spacecal.report.figures import plot_verification_errors
-from spacecal.sim.scenario import DEFAULT_SCENARIO, Scenario, load_scenario
+from spacecal.sim.scenario import Scenario, load_scenario
 from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.held_poses import HeldPose, HoldsStopped
 
@@ -439,16 +439,14 @@ def write_verification(result: VerificationResult, settings: VerifySettings) -> 
 
 
 def _motion(settings: VerifySettings, calibration: CalibrationResult) -> MotionSettings:
-    scenario = (
-        simulated_scenario(calibration, settings.scenario) if settings.devices.simulated else DEFAULT_SCENARIO
-    )
-    return MotionSettings(
-        devices=reference_devices(settings.devices, settings.reference_tool),
-        scenario=scenario,
-        dry_run=settings.dry_run,
-        confirm_robot_motion=settings.confirm_robot_motion,
-        workspace_box=settings.workspace_box,
-        simulated_speed=settings.simulated_speed,
+    return calibration_motion(
+        calibration,
+        reference_devices(settings.devices, settings.reference_tool),
+        settings.scenario,
+        settings.dry_run,
+        settings.confirm_robot_motion,
+        settings.workspace_box,
+        settings.simulated_speed,
     )
 
 
