@@ -54,23 +54,6 @@ def registration(world, tmp_path_factory):
     )
 
 
-@pytest.fixture
-def robots(monkeypatch):
-    """Every simulated world and robot the sessions open, kept for the truth."""
-    import spacecal.app.motion_session as session
-
-    opened = []
-    original = session.simulated_devices
-
-    def keep(scenario, start_s=0.0, speed=None):
-        world, robot, tracker = original(scenario, start_s, speed)
-        opened.append((world, robot))
-        return world, robot, tracker
-
-    monkeypatch.setattr(session, "simulated_devices", keep)
-    return opened
-
-
 def settings(plan, calibration, **changes):
     return app.GuideSettings(
         plan=str(plan), calibration=str(calibration), devices=app.DeviceSettings("sim", "sim"), **changes

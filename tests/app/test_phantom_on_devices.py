@@ -28,6 +28,7 @@ from spacecal.records import PhantomResult
 from spacecal.records.guidance import GuidanceResult
 from spacecal.records.paper_reference import PAPER_PHANTOM
 from spacecal.sim.scenario import load_scenario
+from tests.app.conftest import keep_simulated_devices
 
 #: Times the predicted RMS error a case's error stays within (module docstring).
 PREDICTED_FACTOR = 2.5
@@ -36,18 +37,7 @@ CASES = 5
 
 def _opened_worlds(monkeypatch):
     """Every simulated world the sessions (acquire, touch, guide) open, in order."""
-    import spacecal.app.motion_session as session
-
-    opened = []
-    original = session.simulated_devices
-
-    def keep(scenario, start_s=0.0, speed=None):
-        world, robot, tracker = original(scenario, start_s, speed)
-        opened.append(world)
-        return world, robot, tracker
-
-    monkeypatch.setattr(session, "simulated_devices", keep)
-    return opened
+    return keep_simulated_devices(monkeypatch, lambda world, robot: world)
 
 
 @pytest.fixture(scope="module")

@@ -17,6 +17,7 @@ from spacecal.sim.scenario import DEFAULT_SCENARIO, load_scenario
 from spacecal.sim.tools import pointer_geometry
 from spacecal.sim.world import build_world
 from spacecal.workflows.pointer_touches import TouchRejectedError
+from tests.app.conftest import keep_simulated_devices
 
 LINE = Path(__file__).parents[1] / "io" / "data" / "slicer_line.mrk.json"
 #: Frames a touch averages (the command's default).
@@ -43,18 +44,7 @@ def phantom_fiducials(tmp_path):
 @pytest.fixture
 def worlds(monkeypatch):
     """The simulated worlds the command opens, kept for the truth."""
-    import spacecal.app.motion_session as session
-
-    opened = []
-    original = session.simulated_devices
-
-    def keep(scenario, start_s=0.0, speed=None):
-        world, robot, tracker = original(scenario, start_s, speed)
-        opened.append(world)
-        return world, robot, tracker
-
-    monkeypatch.setattr(session, "simulated_devices", keep)
-    return opened
+    return keep_simulated_devices(monkeypatch, lambda world, robot: world)
 
 
 def test_touches_register_the_image_as_the_truth_within_the_predicted_tre(

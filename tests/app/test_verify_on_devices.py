@@ -24,23 +24,6 @@ def calibration(tmp_path_factory):
     return path
 
 
-@pytest.fixture
-def robots(monkeypatch):
-    """Every simulated world and robot the sessions open, kept for the truth."""
-    import spacecal.app.motion_session as session
-
-    opened = []
-    original = session.simulated_devices
-
-    def keep(scenario, start_s=0.0, speed=None):
-        world, robot, tracker = original(scenario, start_s, speed)
-        opened.append((world, robot))
-        return world, robot, tracker
-
-    monkeypatch.setattr(session, "simulated_devices", keep)
-    return opened
-
-
 def test_fifteen_needle_poses_reported_as_the_truth_within_the_stated_error(calibration, tmp_path, robots):
     out = tmp_path / "ver.json"
     result = app.verify(
