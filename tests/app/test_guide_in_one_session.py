@@ -10,7 +10,7 @@ import pytest
 from spacecal import app
 from spacecal.core.errors import InvalidInputError
 from tests.app.guide_files import write_plan
-from tests.app.test_guide import calibration, registration, robots, world  # noqa: F401 (fixtures)
+from tests.app.test_guide import calibration, registration, world  # noqa: F401 (fixtures)
 
 
 def standoff_settings(plan, calibration, registration, output):
