@@ -19,7 +19,7 @@ from spacecal.io import slicer_markups
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.io.touched_points import write_touched_points
 from spacecal.sim.devices import SimulatedRobot, SimulatedTracker
-from spacecal.sim.tools import POINTER
+from spacecal.sim.tools import POINTER, POINTER_TIP_ERROR_MM
 from spacecal.workflows.pointer_touches import TouchSettings, collect_touches, touched_points
 
 LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
@@ -71,7 +71,13 @@ def write_pointer_registration(folder, world, robot=None):
         TouchSettings(wait_s=3.0),
     )
     world.put_pointer_away()
-    touched = write_touched_points(folder / "touched.csv", touched_points(touches), comments=["simulated"])
+    # with the simulated pointer's stated tip accuracy, as ``spacecal touch`` writes it
+    touched = write_touched_points(
+        folder / "touched.csv",
+        touched_points(touches),
+        comments=["simulated"],
+        tip_accuracy_mm=POINTER_TIP_ERROR_MM,
+    )
     return fiducials, touched
 
 

@@ -24,6 +24,7 @@ from spacecal.geometry.transforms import apply_transform
 from spacecal.io.results_json import read_calibration
 from spacecal.planning.held_poses import SETTLE_S
 from spacecal.records.guidance import GuidanceResult
+from spacecal.sim.tools import POINTER_TIP_ERROR_MM
 from spacecal.sim.world import build_world
 from tests.app.guide_files import write_markups, write_plan, write_pointer_registration, write_registration
 
@@ -129,15 +130,17 @@ def test_a_pointer_registration_is_reached_within_the_predicted_error(calibratio
     target = apply_transform(world.phantom.tracker_from_image, planned.target_in_image)
     true_error = float(np.linalg.norm(true_tip(truth, guidance.stages[-1]) - target))
     registration_tre = guidance.predicted_contributions["registration_mm"][1]
-    # the pointer's tip calibration is a bias the FRE does not show (test_pointer_touches)
+    # the pointer's tip calibration is a bias the FRE does not show (test_pointer_touches): the
+    # touches state its accuracy, and the registration's predicted error carries it
     tip_bias = float(np.linalg.norm(world.pointer_from_tip[:3, 3] - world.pointer_from_tip_true[:3, 3]))
     print(
         f"pointer registration: true tip error {true_error:.3f} mm, predicted "
         f"{guidance.predicted_target_error_mm:.3f} mm (registration TRE {registration_tre:.3f}), "
-        f"pointer tip bias {tip_bias:.3f} mm, direction {guidance.direction_error_deg:.3f} deg"
+        f"pointer tip {tip_bias:.3f} mm off (stated {POINTER_TIP_ERROR_MM:.3f} mm RMS), "
+        f"direction {guidance.direction_error_deg:.3f} deg"
     )
-    assert registration_tre > 0  # a pointer registration states its TRE
-    assert true_error <= PREDICTED_FACTOR * guidance.predicted_target_error_mm + tip_bias
+    assert registration_tre >= POINTER_TIP_ERROR_MM
+    assert true_error <= PREDICTED_FACTOR * guidance.predicted_target_error_mm
 
 
 def test_a_dry_run_moves_nothing(calibration, world, registration, robots, tmp_path, capsys):

@@ -11,10 +11,10 @@ import pytest
 from spacecal import app
 from spacecal.cli.main import main
 from spacecal.geometry.transforms import apply_transform
-from spacecal.io.touched_points import read_touched_points
+from spacecal.io.touched_points import read_touched_file, read_touched_points
 from spacecal.registration.points import predicted_tre
 from spacecal.sim.scenario import DEFAULT_SCENARIO, load_scenario
-from spacecal.sim.tools import pointer_geometry
+from spacecal.sim.tools import POINTER_TIP_ERROR_MM, pointer_geometry
 from spacecal.sim.world import build_world
 from spacecal.workflows.pointer_touches import TouchRejectedError
 from tests.app.conftest import keep_simulated_devices
@@ -91,8 +91,13 @@ def test_touches_register_the_image_as_the_truth_within_the_predicted_tre(
         f"{tip_error:.3f}); FRE {registration.pointer.fre_rms_mm:.3f} mm; predicted TRE at the centroid "
         f"{expected_tre:.3f} (reported {result.record.predicted_tre_mm:.3f}); true error there {error:.3f} mm"
     )
-    # the TRE is a 3-D RMS: beyond three times it is past the 99.8th percentile of chi with 3
-    assert error < 3 * expected_tre + tip_error
+    # the TRE is a 3-D RMS: beyond three times it is past the 99.8th percentile of chi with 3;
+    # the pivot's error is drawn with the simulated pointer's stated accuracy, which the
+    # reported TRE carries and the touched file states
+    assert error < 3 * np.hypot(expected_tre, POINTER_TIP_ERROR_MM)
+    assert result.record.predicted_tre_mm >= POINTER_TIP_ERROR_MM
+    assert read_touched_file(touched).tip_accuracy_mm == pytest.approx(POINTER_TIP_ERROR_MM)
+    assert any("the simulated pointer's stated accuracy" in line for line in result.lines)
     assert any("FRE" in line and "predicted TRE at the fiducials' centroid" in line for line in result.lines)
     # plan-from-slicer reads the touches, and the Slicer transform, as the same registration
     from spacecal.io.slicer_registration import read_slicer_registration
@@ -118,6 +123,34 @@ def test_the_command_line_touches_and_prompts(phantom_fiducials, tmp_path, world
     ]
     # the touched file is the one plan-from-slicer reads (its plan's points are not the phantom's)
     assert main(plan_argv) == 0, capsys.readouterr().err
+
+
+def test_a_stated_pointer_tip_accuracy_reaches_the_predicted_tre(phantom_fiducials, tmp_path, worlds, capsys):
+    touched = tmp_path / "touched.csv"
+    argv = ["touch", "--fiducials", str(phantom_fiducials), "-o", str(touched)]
+    assert main([*argv, "--pointer-tip-accuracy-mm", "0.75"]) == 0
+    out = capsys.readouterr().out
+    assert "0.750 mm RMS: stated with --pointer-tip-accuracy-mm" in out
+    assert read_touched_file(touched).tip_accuracy_mm == pytest.approx(0.75)
+    plan = tmp_path / "plan.json"
+    argv = ["plan-from-slicer", str(LINE), "--fiducials", str(phantom_fiducials), "--touched", str(touched)]
+    assert main([*argv, "-o", str(plan)]) == 0, capsys.readouterr().err
+    registration = json.loads(plan.read_text())["registration"]
+    assert registration["pointer_tip_accuracy_mm"] == pytest.approx(0.75)
+    assert registration["predicted_tre_at_target_mm"] >= 0.75
+    refused = tmp_path / "u.csv"
+    bad = [
+        "touch",
+        "--fiducials",
+        str(phantom_fiducials),
+        "-o",
+        str(refused),
+        "--pointer-tip-accuracy-mm",
+        "-1",
+    ]
+    assert main(bad) == 1
+    assert "--pointer-tip-accuracy-mm must be 0 to" in capsys.readouterr().err
+    assert not refused.exists()
 
 
 def run_one_line(argv, capsys):

@@ -68,3 +68,40 @@ def test_bad_touches_are_not_written(tmp_path, points, match):
     with pytest.raises(InvalidInputError, match=match):
         write_touched_points(tmp_path / "t.csv", points)
     assert not (tmp_path / "t.csv").exists()
+
+
+def test_the_pointer_tip_accuracy_is_written_and_read_back(tmp_path):
+    from spacecal.io.touched_points import read_touched_file, write_touched_points
+
+    points = {"F-1": np.array([12.5, -40.25, -1510.0]), "F-2": np.array([1.0, 2.0, -1400.0])}
+    path = write_touched_points(tmp_path / "t.csv", points, tip_accuracy_mm=0.35)
+    assert path.read_text().splitlines()[0].endswith(",tip_accuracy_mm")
+    touched = read_touched_file(path)
+    assert touched.frame == "tracker" and list(touched.points) == list(points)
+    assert touched.tip_accuracy_mm == pytest.approx(0.35)
+    # without the column, no accuracy is stated
+    assert read_touched_file(write_touched_points(tmp_path / "u.csv", points)).tip_accuracy_mm is None
+
+
+@pytest.mark.parametrize(
+    "cells, match",
+    [("-0.1", "is not 0 to"), ("11", "is not 0 to"), ("nan", "not a finite number"), ("", "cells")],
+)
+def test_a_bad_tip_accuracy_is_refused_in_one_line(tmp_path, cells, match):
+    from spacecal.io.touched_points import read_touched_file
+
+    path = tmp_path / "t.csv"
+    row = "F-1,1,2,-1500" + ("," + cells if cells else "")
+    path.write_text(f"label,x_in_tracker_mm,y_in_tracker_mm,z_in_tracker_mm,tip_accuracy_mm\n{row}\n")
+    with pytest.raises(InvalidInputError, match=match) as caught:
+        read_touched_file(path)
+    assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("accuracy", [-0.1, float("nan"), 10.5])
+def test_a_bad_tip_accuracy_is_not_written(tmp_path, accuracy):
+    from spacecal.io.touched_points import write_touched_points
+
+    with pytest.raises(InvalidInputError, match="tip's accuracy"):
+        write_touched_points(tmp_path / "t.csv", {"F-1": [1.0, 2.0, -1000.0]}, tip_accuracy_mm=accuracy)
+    assert not (tmp_path / "t.csv").exists()

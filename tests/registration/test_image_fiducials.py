@@ -81,3 +81,48 @@ def test_an_fre_above_the_limit_is_refused_unless_accepted():
     # a looser limit takes it as it is
     loose = register_image_fiducials(FIDUCIALS, touched, image_frame="image_lps", max_fre_mm=10.0)
     assert not loose.pointer.accepted_above_limit
+
+
+def test_a_tip_error_common_to_every_touch_is_carried_by_the_stated_tip_accuracy():
+    """A pointer touched in one orientation moves every touch by its tip error: the FRE does
+    not change, and the registration moves by it in full. Over many pointers whose tip errors
+    are drawn with the stated RMS, the RMS error at a target is the quadrature sum the predicted
+    TRE states."""
+    from spacecal.registration.image_fiducials import pointer_predicted_tre
+
+    fle, tip_rms, trials = 0.25, 0.3, 4000
+    rng = np.random.default_rng(11)
+    target = np.array([20.0, 10.0, 120.0])  # beyond the fiducials, where the TRE grows
+    errors, fres, predicted = [], [], []
+    for _ in range(trials):
+        tip = rng.normal(0.0, tip_rms / np.sqrt(3.0), 3)  # 3-D RMS tip_rms, common to all touches
+        touched = {
+            k: apply_transform(TRACKER_FROM_IMAGE, p) + tip + rng.normal(0.0, fle / np.sqrt(3.0), 3)
+            for k, p in FIDUCIALS.items()
+        }
+        registration = register_image_fiducials(
+            FIDUCIALS, touched, image_frame="image_lps", tip_accuracy_mm=tip_rms
+        )
+        errors.append(
+            np.linalg.norm(
+                apply_transform(registration.tracker_from_image, target)
+                - apply_transform(TRACKER_FROM_IMAGE, target)
+            )
+        )
+        fres.append(registration.pointer.fre_rms_mm)
+        predicted.append(pointer_predicted_tre(registration.pointer, target)[0])
+    measured_rms = float(np.sqrt(np.mean(np.square(errors))))
+    fitzpatrick = float(predicted_tre(np.array(list(FIDUCIALS.values())), target, fle)[0])
+    expected = float(np.hypot(fitzpatrick, tip_rms))
+    # 4000 trials: the RMS of a 3-D error is known to about 1/sqrt(2 * 4000 * 3) ~ 0.7 %
+    assert measured_rms == pytest.approx(expected, rel=0.04)
+    # Fitzpatrick's TRE alone would state too little: the tip term is what closes the gap
+    assert measured_rms > 1.3 * fitzpatrick
+    # the per-registration prediction (FLE from each FRE) agrees on average
+    assert float(np.sqrt(np.mean(np.square(predicted)))) == pytest.approx(expected, rel=0.1)
+
+
+def test_a_stated_tip_accuracy_out_of_range_is_refused_in_one_line():
+    with pytest.raises(InvalidInputError, match="tip's accuracy") as caught:
+        register_image_fiducials(FIDUCIALS, _touched(0.1), image_frame="image_lps", tip_accuracy_mm=-1.0)
+    assert "\n" not in str(caught.value)

@@ -54,8 +54,7 @@ from spacecal.planning.needle import plan_needle
 from spacecal.records import CalibrationResult
 from spacecal.records.guidance import GuidanceResult, StageMeasurement
 from spacecal.records.needle_plan import ImageRegistration, NeedlePlan
-from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM
-from spacecal.registration.points import predicted_tre
+from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM, pointer_predicted_tre
 from spacecal.sim.devices import SimulatedTracker
 from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.guidance import (
@@ -555,7 +554,12 @@ def _predict(
         points = apply_transform(
             image_from_tracker, np.array([located.entry_in_tracker, located.target_in_tracker])
         )
-        tre = tuple(float(v) for v in predicted_tre(pointer.fiducials_in_image, points, pointer.fle_rms_mm))
+        tre = tuple(float(v) for v in pointer_predicted_tre(pointer, points))
+        if pointer.tip_accuracy_mm is None:
+            notes.append(
+                "the touches state no pointer tip accuracy: the predicted error leaves out the tip's "
+                "calibration error (spacecal touch --pointer-tip-accuracy-mm)"
+            )
     else:
         tre = (0.0, 0.0)
         notes.append("the registration file states no error of its own: the predicted error leaves it out")

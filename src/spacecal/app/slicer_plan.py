@@ -22,7 +22,7 @@ from spacecal.core.text import sanitize_for_terminal
 from spacecal.io.results_json import read_json_object, write_json
 from spacecal.io.slicer_markups import fiducials_from_markups, plan_from_markups
 from spacecal.io.slicer_registration import ROLES, read_slicer_registration
-from spacecal.io.touched_points import read_touched_points
+from spacecal.io.touched_points import read_touched_file
 from spacecal.records.fields import plain
 from spacecal.records.needle_plan import NEEDLE_PLAN_SCHEMA, ImageRegistration, NeedlePlan
 from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM, register_image_fiducials
@@ -184,14 +184,15 @@ def read_registration(
     if fiducials is None or touched is None:
         raise InvalidInputError("a pointer registration needs both --fiducials and --touched")
     points = fiducials_from_markups(fiducials, coordinate_system=coordinate_system)
-    frame, touches = read_touched_points(touched)
+    touches = read_touched_file(touched)
     return register_image_fiducials(
         points,
-        touches,
+        touches.points,
         image_frame="image_lps",
-        tracker_frame=frame,
+        tracker_frame=touches.frame,
         max_fre_mm=max_fre_mm,
         accept_high_fre=accept_high_fre,
+        tip_accuracy_mm=touches.tip_accuracy_mm,
     )
 
 
@@ -241,6 +242,7 @@ def located_dict(located: LocatedPlan) -> dict[str, Any]:
             fle_rms_mm=registration.pointer.fle_rms_mm,
             max_fre_mm=registration.pointer.max_fre_mm,
             accepted_above_limit=registration.pointer.accepted_above_limit,
+            pointer_tip_accuracy_mm=registration.pointer.tip_accuracy_mm,
             predicted_tre_at_target_mm=located.predicted_tre_at_target_mm,
         )
     frame = registration.tracker_frame

@@ -42,10 +42,14 @@ from spacecal.io.slicer import write_slicer_transform
 from spacecal.io.slicer_markups import fiducials_from_markups
 from spacecal.io.touched_points import write_touched_points
 from spacecal.records import PivotResult
-from spacecal.records.needle_plan import ImageRegistration
-from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM, register_image_fiducials
-from spacecal.registration.points import predicted_tre
+from spacecal.records.needle_plan import MAX_TIP_ACCURACY_MM, ImageRegistration
+from spacecal.registration.image_fiducials import (
+    DEFAULT_MAX_FRE_MM,
+    pointer_predicted_tre,
+    register_image_fiducials,
+)
 from spacecal.sim.scenario import DEFAULT_SCENARIO
+from spacecal.sim.tools import POINTER_TIP_ERROR_MM
 from spacecal.sim.world import World
 from spacecal.workflows.pointer_touches import (
     TouchRejectedError,
@@ -75,6 +79,11 @@ class TouchCommandSettings:
     pointer_tip : str or None
         Pivot result of the pointer (``spacecal pivot -o``): its tip in its marker frame. Needed
         on a real tracker; with ``sim``, the simulated pointer's pivot calibration by default.
+    pointer_tip_accuracy_mm : float or None
+        The stated RMS 3-D accuracy of the pointer's tip, mm (its maker's, or a pivot checked
+        against a known point): a Type-B term of the registration's predicted error, written in
+        the touched-points file. None: the pivot fit's own uncertainty (a lower bound), or with
+        ``sim`` the simulated pointer's stated accuracy.
     rom : tuple of str
         NDI tool definitions: a first one (the marker's, or any), then the pointer's.
     tracker_rate_hz : float
@@ -99,6 +108,7 @@ class TouchCommandSettings:
     tracker: str = SIMULATED
     pointer_tool: str = "pointer"
     pointer_tip: str | None = None
+    pointer_tip_accuracy_mm: float | None = None
     rom: tuple[str, ...] = ()
     tracker_rate_hz: float = 20.0
     scenario: str | None = None
@@ -120,6 +130,10 @@ class TouchCommandSettings:
         "pointer_tip": (
             "--pointer-tip",
             dict(metavar="PIVOT.json", help="the pointer's pivot (spacecal pivot -o)"),
+        ),
+        "pointer_tip_accuracy_mm": (
+            "--pointer-tip-accuracy-mm",
+            dict(type=decimal, metavar="MM", help="the pointer tip's stated RMS accuracy, mm"),
         ),
         "fiducials": (
             "--fiducials",
@@ -160,6 +174,11 @@ class TouchCommandSettings:
             )
         if self.tracker != SIMULATED and self.scenario is not None:
             raise InvalidInputError("--scenario is for --tracker sim")
+        accuracy = self.pointer_tip_accuracy_mm
+        if accuracy is not None and not (np.isfinite(accuracy) and 0.0 <= accuracy <= MAX_TIP_ACCURACY_MM):
+            raise InvalidInputError(
+                f"--pointer-tip-accuracy-mm must be 0 to {MAX_TIP_ACCURACY_MM:g} mm, got {accuracy:g}"
+            )
         if self.registration_output is not None and Path(self.registration_output).suffix not in (
             ".tfm",
             ".txt",
@@ -233,7 +252,7 @@ def touch(
         )
     world, tracker = _open(settings)
     try:
-        pointer_from_tip = _pointer_from_tip(settings, world)
+        pointer_from_tip, tip_accuracy, accuracy_source = _pointer_tip(settings, world)
 
         def prompt(label: str) -> None:
             if world is not None:
@@ -255,7 +274,12 @@ def touch(
         except TouchRejectedError as error:
             if error.touches:  # recorded data is kept
                 kept = _incomplete_path(settings.output)
-                write_touched_points(kept, touched_points(error.touches), comments=_comments(settings, True))
+                write_touched_points(
+                    kept,
+                    touched_points(error.touches),
+                    comments=_comments(settings, True),
+                    tip_accuracy_mm=tip_accuracy,
+                )
                 raise TouchRejectedError(
                     f"{error}; the {len(error.touches)} touches before it kept in {kept}", error.reason
                 ) from None
@@ -263,18 +287,23 @@ def touch(
     finally:
         close_device(tracker)
     points = touched_points(touches)
-    files = [write_touched_points(settings.output, points, comments=_comments(settings, False))]
+    files = [
+        write_touched_points(
+            settings.output, points, comments=_comments(settings, False), tip_accuracy_mm=tip_accuracy
+        )
+    ]
     registration = register_image_fiducials(
         fiducials,
         points,
         image_frame="image_lps",
         max_fre_mm=settings.max_fre_mm,
         accept_high_fre=settings.accept_high_fre,
+        tip_accuracy_mm=tip_accuracy,
     )
     pointer = registration.pointer
     assert pointer is not None  # a pointer registration
     centroid = pointer.fiducials_in_image.mean(axis=0)
-    tre = float(predicted_tre(pointer.fiducials_in_image, centroid[None], pointer.fle_rms_mm)[0])
+    tre = float(pointer_predicted_tre(pointer, centroid[None])[0])
     if settings.registration_output is not None:
         # Slicer's image-to-tracker transform: to-parent tracker_from_image_ras
         tracker_from_ras = registration.tracker_from_image @ np.linalg.inv(RAS_FROM_LPS)
@@ -290,7 +319,8 @@ def touch(
             for label, residual in zip(pointer.labels, pointer.residuals_mm)
         ),
         f"registration {registration.name}: FRE {pointer.fre_rms_mm:.3f} mm RMS (limit "
-        f"{settings.max_fre_mm:g} mm{above}), predicted TRE at the fiducials' centroid {tre:.3f} mm",
+        f"{settings.max_fre_mm:g} mm{above}), predicted TRE at the fiducials' centroid {tre:.3f} mm "
+        f"(with the pointer tip's accuracy {tip_accuracy:.3f} mm RMS: {accuracy_source})",
         "use it: spacecal plan-from-slicer PLAN.mrk.json --fiducials "
         f"{sanitize_for_terminal(settings.fiducials, 300)} "
         f"--touched {sanitize_for_terminal(settings.output, 300)}",
@@ -324,16 +354,31 @@ def _open(settings: TouchCommandSettings) -> tuple[World | None, Tracker]:
     return None, open_tracker(settings.tracker, settings.rom, settings.tracker_rate_hz, tools)
 
 
-def _pointer_from_tip(settings: TouchCommandSettings, world: World | None) -> np.ndarray:
-    """The pointer's tip (4, 4, in its marker frame, mm) from its pivot result file, or the
-    simulated pointer's own pivot calibration."""
+def _pointer_tip(settings: TouchCommandSettings, world: World | None) -> tuple[np.ndarray, float, str]:
+    """The pointer's tip (4, 4, in its marker frame, mm), its RMS 3-D accuracy (mm) and where
+    that accuracy comes from.
+
+    The tip is the pivot result file's, or the simulated pointer's own pivot calibration. The
+    accuracy is ``--pointer-tip-accuracy-mm`` where given; else, with a pivot file, the fit's
+    own uncertainty (the square root of the trace of its tip covariance: a lower bound, as a
+    pivot's divot and bending errors are not in it; said so); else the simulated pointer's
+    stated accuracy (:data:`spacecal.sim.tools.POINTER_TIP_ERROR_MM`)."""
+    stated = settings.pointer_tip_accuracy_mm
     if settings.pointer_tip is None:
         assert world is not None  # __post_init__: a real tracker needs the file
-        return world.pointer_from_tip
+        if stated is not None:
+            return world.pointer_from_tip, stated, "stated with --pointer-tip-accuracy-mm"
+        return world.pointer_from_tip, POINTER_TIP_ERROR_MM, "the simulated pointer's stated accuracy"
     pivot = PivotResult.from_dict(
         read_json_object(settings.pointer_tip, "pivot result"), settings.pointer_tip
     )
-    return make_transform(np.eye(3), pivot.tip_in_marker)
+    tip = make_transform(np.eye(3), pivot.tip_in_marker)
+    if stated is not None:
+        return tip, stated, "stated with --pointer-tip-accuracy-mm"
+    if pivot.tip_covariance_mm2 is not None:
+        fit = float(np.sqrt(max(np.trace(pivot.tip_covariance_mm2), 0.0)))
+        return tip, fit, "the pivot fit's own, a lower bound: state it with --pointer-tip-accuracy-mm"
+    return tip, 0.0, "none stated and the pivot file has no covariance: --pointer-tip-accuracy-mm"
 
 
 def _incomplete_path(output: str) -> Path:

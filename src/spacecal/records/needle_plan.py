@@ -117,6 +117,10 @@ class NeedlePlan:
         )
 
 
+#: Largest stated pointer tip accuracy taken, mm: beyond it the pointer is not calibrated.
+MAX_TIP_ACCURACY_MM = 10.0
+
+
 @dataclass(frozen=True)
 class PointerFiducials:
     """What a pointer-made registration was computed from, and its errors.
@@ -135,6 +139,11 @@ class PointerFiducials:
         The largest FRE the registration was to be accepted with.
     accepted_above_limit : bool
         The FRE was above ``max_fre_mm`` and the registration was accepted anyway, on request.
+    tip_accuracy_mm : float or None
+        The stated RMS 3-D accuracy of the pointer's calibrated tip, mm (a Type-B term: the
+        tip's pivot-calibration error is common to every touch made in one orientation, so the
+        FRE cannot show it and it moves the whole registration); None where the touches state
+        none.
     """
 
     labels: tuple[str, ...]
@@ -144,9 +153,17 @@ class PointerFiducials:
     fle_rms_mm: float
     max_fre_mm: float
     accepted_above_limit: bool = False
+    tip_accuracy_mm: float | None = None
 
     def __post_init__(self) -> None:
         what = "pointer registration"
+        if self.tip_accuracy_mm is not None and not (
+            np.isfinite(self.tip_accuracy_mm) and 0.0 <= self.tip_accuracy_mm <= MAX_TIP_ACCURACY_MM
+        ):
+            raise InvalidInputError(
+                f"{what}: the pointer tip's accuracy must be 0 to {MAX_TIP_ACCURACY_MM:g} mm, got "
+                f"{self.tip_accuracy_mm}"
+            )
         points = as_array(self.fiducials_in_image, (None, 3), "fiducials_in_image", what)
         residuals = as_array(self.residuals_mm, (len(points),), "residuals_mm", what)
         if len(self.labels) != len(points):

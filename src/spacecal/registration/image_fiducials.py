@@ -9,6 +9,11 @@ target follows (Fitzpatrick, West, Maurer 1998; see :mod:`spacecal.registration.
 A registration whose RMS FRE is above the limit is refused unless accepted on request: a large
 FRE means a fiducial was touched in the wrong place or mislabelled, and every point of the plan
 moves with it.
+
+The FRE shows only the part of the touches' error that differs between fiducials. A pointer's
+tip-calibration error touched in one orientation is common to every touch: it moves the whole
+registration and the FRE cannot see it. Its stated accuracy is a Type-B term (GUM §4.3) that
+:func:`pointer_predicted_tre` adds in quadrature to Fitzpatrick's TRE.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from spacecal.core.errors import DegenerateDataError, InvalidInputError
 from spacecal.core.text import quoted
 from spacecal.geometry.arrays import ArrayLike
 from spacecal.records.needle_plan import ImageRegistration, PointerFiducials
-from spacecal.registration.points import register_points
+from spacecal.registration.points import predicted_tre, register_points
 
 #: Default largest RMS FRE accepted, mm: twice a good optical tracker's pointer FLE (~0.25 to
 #: 0.5 mm on skin-free bone fiducials) with margin; larger is a touch in the wrong divot.
@@ -36,6 +41,7 @@ def register_image_fiducials(
     tracker_frame: str = "tracker",
     max_fre_mm: float = DEFAULT_MAX_FRE_MM,
     accept_high_fre: bool = False,
+    tip_accuracy_mm: float | None = None,
 ) -> ImageRegistration:
     """``tracker_from_image`` from fiducials paired by label.
 
@@ -52,6 +58,9 @@ def register_image_fiducials(
         Largest RMS fiducial registration error accepted.
     accept_high_fre : bool
         Return a registration above ``max_fre_mm`` anyway (it records that it was).
+    tip_accuracy_mm : float, optional
+        The pointer tip's stated RMS 3-D accuracy, mm (kept in
+        :attr:`~spacecal.records.needle_plan.PointerFiducials.tip_accuracy_mm`).
 
     Raises
     ------
@@ -95,5 +104,24 @@ def register_image_fiducials(
             fle_rms_mm=registration.fle_rms_mm,
             max_fre_mm=max_fre_mm,
             accepted_above_limit=fre > max_fre_mm,
+            tip_accuracy_mm=tip_accuracy_mm,
         ),
     )
+
+
+def pointer_predicted_tre(pointer: PointerFiducials, targets_in_image: ArrayLike) -> np.ndarray:
+    """The predicted RMS error (M,) of a pointer-made registration at targets (M, 3), mm.
+
+    Fitzpatrick's TRE (Fitzpatrick, West, Maurer 1998) from the FLE the FRE implies, with the
+    pointer tip's stated accuracy added in quadrature: a tip error common to all touches
+    translates the registration by itself, so at every target it counts in full.
+
+    Parameters
+    ----------
+    pointer : PointerFiducials
+    targets_in_image : array_like, shape (M, 3) or (3,)
+        Targets in the registration's image frame, mm.
+    """
+    tre = predicted_tre(pointer.fiducials_in_image, targets_in_image, pointer.fle_rms_mm)
+    tip = pointer.tip_accuracy_mm or 0.0
+    return np.sqrt(tre**2 + tip**2)

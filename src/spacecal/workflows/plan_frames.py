@@ -23,7 +23,7 @@ from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.anatomical import RAS_FROM_LPS
 from spacecal.geometry.transforms import apply_transform, check_transform, invert_transform
 from spacecal.records.needle_plan import ImageRegistration, NeedlePlan
-from spacecal.registration.points import predicted_tre
+from spacecal.registration.image_fiducials import pointer_predicted_tre
 
 #: The anatomical conventions of one image, and the fixed map between them.
 _CONVERSIONS = {("image_ras", "image_lps"): RAS_FROM_LPS, ("image_lps", "image_ras"): RAS_FROM_LPS}
@@ -117,7 +117,7 @@ def locate_plan(
     if pointer is not None:
         # the fiducials are in the registration's image frame: so must the target be
         target = apply_transform(invert_transform(registration.tracker_from_image), target_in_tracker)
-        tre = float(predicted_tre(pointer.fiducials_in_image, target, pointer.fle_rms_mm)[0])
+        tre = float(pointer_predicted_tre(pointer, target)[0])
     return LocatedPlan(
         plan, registration, entry_in_tracker, target_in_tracker, entry_in_base, target_in_base, tre
     )
