@@ -55,3 +55,45 @@ def test_an_acquisition_after_a_stopped_one_starts_over_and_keeps_the_stopped_fi
     assert second.state == "stopped" and "samples kept in" in second.message, second.message
     robot_stream = work.folder / "recording.robot.csv"
     assert robot_stream.read_bytes() != stopped_files["recording.robot.csv"]  # its own samples
+
+
+def test_an_acquisition_after_a_calibration_retires_it_and_everything_that_followed(simulated_workspace):
+    """A calibrated, reported and exported workspace acquired again: the page stops showing the
+    old verdict, check, report and exports at once (they no longer belong to the files on disk),
+    says what was superseded, and keeps every retired file whole in ``earlier-N/``; no report can
+    pair the old calibration with the new recording."""
+    from spacecal import app
+
+    station, web = simulated_workspace
+    work = station.workspaces[1]
+    web.post("/workspaces/1/step/plan")
+    # a finished recording in the workspace (simulated as acquisition would record it), then the
+    # station's own steps: calibrate, report, export
+    app.simulate(app.SimulateSettings(output=str(work.recording_path)))
+    assert web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).status_code == 200
+    assert work.calibration is not None
+    headline = work.calibration.record.verdict.headline
+    web.post("/workspaces/1/step/report")
+    web.post("/workspaces/1/export", data={"slicer": "on"})
+    page = web.get("/workspaces/1").text
+    assert 'id="verdict"' in page and 'id="report"' in page and 'id="check"' in page
+    retired = {p.name: p.read_bytes() for p in work.folder.iterdir() if p.is_file() and p.name != "plan.json"}
+    assert {"recording.csv", "calibration.json", "report.html", "tracker_from_base.tfm"} <= set(retired)
+
+    web.post("/workspaces/1/step/dry-run")
+    assert work.dry_run_ok
+    run = confirm_and_start(web, station)
+    wait_for_samples(run)
+    page = web.get("/workspaces/1").text
+    # while the new recording is made, nothing of the old one is shown as this workspace's
+    assert 'id="verdict"' not in page and 'id="calibrate-result"' not in page
+    assert 'id="report"' not in page and 'id="check"' not in page and 'id="export-form"' not in page
+    assert f"superseded by run {run.id}" in page and headline in page and "earlier-1/" in page
+    run.request_stop("the test ended")
+    run.thread.join(timeout=STARTS_WITHIN_S)
+    kept = work.folder / "earlier-1"
+    assert {p.name: p.read_bytes() for p in kept.iterdir()} == retired  # kept whole
+    assert not work.calibration_path.exists() and not (work.folder / "report.html").exists()
+    # the report step has no calibration to pair with the new recording: one line, nothing written
+    refused = web.post("/workspaces/1/step/report")
+    assert "calibration.json" in refused.text and not (work.folder / "report.html").exists()

@@ -403,6 +403,11 @@ class Runs:
     def active(self) -> Run | None:
         return next((run for run in self._runs.values() if run.active), None)
 
+    def next_id(self) -> int:
+        """The id the next run started gets (runs are numbered from 1, never reused)."""
+        with self._lock:
+            return len(self._runs) + 1
+
     def latest(self) -> Run | None:
         """The run started last (the robot stands where it left it)."""
         return self._runs[max(self._runs)] if self._runs else None

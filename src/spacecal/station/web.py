@@ -439,7 +439,7 @@ async def start_motion(request: Request) -> Response:
     try:
         if motion == "acquire":
             if station.runs.active() is None:
-                work.set_aside_earlier_recording()
+                work.set_aside_earlier_recording(station.runs.next_id())
             run = station.runs.start(work.id, work.robot["name"], work.acquire_settings(dry_run=False))
             work.run_id = run.id
         elif motion == "verify":

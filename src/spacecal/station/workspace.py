@@ -15,9 +15,10 @@ from spacecal import app
 from spacecal.app.devices import SIMULATED
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
+from spacecal.io.check_history import history_path
 from spacecal.io.recordings import recording_in
 from spacecal.records import CalibrationResult
-from spacecal.station.guide_step import INSERTIONS, GuideStep
+from spacecal.station.guide_step import INSERTIONS, LOCATED_NAME, GuideStep
 from spacecal.station.verify_step import VerifyStep
 
 #: The finding levels in an operator's words.
@@ -30,6 +31,9 @@ LEVEL_WORDS = {
     FINDING_WARNING: "check this before you start",
     FINDING_PROBLEM: "must be fixed before the robot can move",
 }
+
+#: The report's file in a calibration's folder.
+REPORT_NAME = "report.html"
 
 #: The export targets the station offers: label, file name.
 EXPORTS = {
@@ -77,6 +81,8 @@ class Workspace:
     report: Path | None = None
     exported: list[str] = field(default_factory=list)
     errors: list[str] = field(default_factory=list)
+    #: What a new acquisition retired, in the operator's words (shown until the next calibration).
+    superseded: str | None = None
     verification: VerifyStep = field(init=False)
     guide: GuideStep = field(init=False)
 
@@ -156,11 +162,29 @@ class Workspace:
             simulated_speed=None if dry_run else SIMULATED_SPEED,
         )
 
-    def set_aside_earlier_recording(self) -> Path | None:
+    def set_aside_earlier_recording(self, run_id: int | None = None) -> Path | None:
         """Before a new acquisition: the files of an earlier one (a run that was stopped, or one
         acquired before) go to ``earlier-N/`` beside them, kept whole, so the new run starts
-        over on fresh files. Returns that folder, or None when there was nothing to keep."""
-        earlier = sorted(self.folder.glob(self.recording_path.stem + ".*"))
+        over on fresh files. Everything that followed from that recording goes with it (the
+        calibration, its check history, report, exports, verifications, guidance results and
+        the located plan) and the page forgets it: what the page shows belongs to the files on
+        disk, and a report can never pair the old calibration with the new recording. The
+        plan and the guide's uploads stay (they do not follow from the recording).
+
+        Parameters
+        ----------
+        run_id : int or None
+            The new acquisition's run, named in :attr:`superseded`.
+
+        Returns
+        -------
+        Path or None
+            The ``earlier-N`` folder, or None when there was nothing to keep.
+        """
+        earlier = [
+            *sorted(self.folder.glob(self.recording_path.stem + ".*")),
+            *(p for p in self._files_that_follow_the_recording() if p.is_file()),
+        ]
         if not earlier:
             return None
         n = 1
@@ -170,7 +194,37 @@ class Workspace:
         kept.mkdir()
         for path in earlier:
             path.rename(kept / path.name)
+        if self.calibration is not None:
+            verdict = self.calibration.record.verdict
+            grade = f" ({verdict.headline})" if verdict is not None else ""
+            by = f"run {run_id}" if run_id is not None else "a new acquisition"
+            self.superseded = (
+                f"the calibration{grade} of the earlier recording is superseded by {by}; its files are "
+                f"kept in {kept.name}/"
+            )
+        self._forget_what_followed()
         return kept
+
+    def _files_that_follow_the_recording(self) -> list[Path]:
+        """The files in the folder made from the recording, directly or through the calibration."""
+        named = [
+            self.calibration_path,
+            history_path(self.calibration_path),
+            self.folder / REPORT_NAME,
+            self.folder / LOCATED_NAME,
+            *(self.folder / name for _, name in EXPORTS.values()),
+        ]
+        made = [*self.folder.glob("verification-*.json"), *self.folder.glob("verification-*.png")]
+        return [*named, *sorted(made), *sorted(self.folder.glob("guidance-*.json"))]
+
+    def _forget_what_followed(self) -> None:
+        """The page's memory of the calibration and everything after it, gone with its files."""
+        self.acquired = False
+        self.calibration, self.calibration_record_id = None, None
+        self.checks, self.report, self.exported = [], None, []
+        self.verification = VerifyStep(self.calibration_path)
+        self.guide.results, self.guide.located, self.guide.located_lines = [], None, []
+        self.guide.forget_motions()
 
     def dry_run(self) -> None:
         """Check the plan without moving (reach, limits, visibility, workspace). The earlier
@@ -249,7 +303,7 @@ class Workspace:
                 error_thresholds=self.error_thresholds,
             )
         )
-        self.calibration = out
+        self.calibration, self.superseded = out, None
         return out
 
     def check_settings(self) -> app.CheckSettings:
@@ -292,7 +346,7 @@ class Workspace:
 
     def make_report(self) -> Path:
         out = app.report(
-            app.ReportSettings(str(self.calibration_path), str(self.folder / "report.html"), force=True)
+            app.ReportSettings(str(self.calibration_path), str(self.folder / REPORT_NAME), force=True)
         )
         self.report = out.files_written[0]
         return out.files_written[0]
