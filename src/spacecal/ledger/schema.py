@@ -100,14 +100,35 @@ checks = sa.Table(
 )
 
 
+workspaces = sa.Table(
+    "workspaces",
+    metadata,
+    # the station's calibrations in progress, so that they survive a restart with the ids their
+    # links carry (never reused: SQLite's AUTOINCREMENT, PostgreSQL's sequence)
+    sa.Column("id", sa.Integer, primary_key=True, autoincrement=True),
+    sa.Column("robot_id", sa.Integer, sa.ForeignKey("robots.id"), nullable=False),
+    sa.Column("tracker_id", sa.Integer, sa.ForeignKey("trackers.id"), nullable=False),
+    sa.Column("tool_id", sa.Integer, sa.ForeignKey("tools.id")),
+    sa.Column("folder", sa.String(2000), nullable=False, unique=True),
+    sa.Column("rom", sa.String(1000)),
+    sa.Column("created_utc", sa.String(40), nullable=False),
+    sqlite_autoincrement=True,
+)
+
+
 def _create_version_1(connection: sa.Connection) -> None:
     """Version 1: robots, trackers, tools, calibrations, checks."""
     for table in (robots, trackers, tools, calibrations, checks):
         table.create(connection)
 
 
+def _create_version_2(connection: sa.Connection) -> None:
+    """Version 2: the station's workspaces."""
+    workspaces.create(connection)
+
+
 #: The migrations, oldest first: ``MIGRATIONS[k]`` brings the record from version k to k + 1.
-MIGRATIONS: list[Callable[[sa.Connection], None]] = [_create_version_1]
+MIGRATIONS: list[Callable[[sa.Connection], None]] = [_create_version_1, _create_version_2]
 #: The version this code writes.
 CURRENT_VERSION = len(MIGRATIONS)
 

@@ -360,6 +360,52 @@ class Ledger:
             row = connection.execute(sa.select(table).where(table.c.id == row_id)).first()
             return None if row is None else dict(row._mapping)
 
+    # -- the station's workspaces -----------------------------------------------------------
+
+    @_database("written")
+    def add_workspace(
+        self, robot_id: int, tracker_id: int, folder: str, rom: str | None = None, tool_id: int | None = None
+    ) -> int:
+        """A new workspace's id: a calibration in progress at the station, in ``folder``.
+
+        Ids are never reused, so a link to a workspace names it across restarts.
+
+        Raises
+        ------
+        InvalidInputError
+            An unknown robot or tracker, or a folder already recorded (one line).
+        RecordError
+            The database failed the write.
+        """
+        if self._one(schema.robots, robot_id) is None or self._one(schema.trackers, tracker_id) is None:
+            raise InvalidInputError("a workspace needs a robot and a tracker of the record")
+        with self.engine.begin() as connection:
+            taken = connection.execute(
+                sa.select(schema.workspaces.c.id).where(schema.workspaces.c.folder == folder)
+            ).first()
+            if taken is not None:
+                raise InvalidInputError(f"the folder {folder[:200]} is workspace {taken[0]}'s already")
+            result = connection.execute(
+                sa.insert(schema.workspaces).values(
+                    robot_id=robot_id,
+                    tracker_id=tracker_id,
+                    tool_id=tool_id,
+                    folder=folder,
+                    rom=rom,
+                    created_utc=_now(),
+                )
+            )
+            key = result.inserted_primary_key
+            assert key is not None  # an insert of one row
+            return int(key[0])
+
+    @_database("read")
+    def workspaces(self) -> list[dict[str, Any]]:
+        """Every workspace recorded, oldest first."""
+        with self.engine.connect() as connection:
+            table = schema.workspaces
+            return [dict(row._mapping) for row in connection.execute(sa.select(table).order_by(table.c.id))]
+
     # -- calibrations and checks ------------------------------------------------------------
 
     @_database("written")

@@ -81,6 +81,7 @@ def build(options: StationOptions) -> tuple[Station, Any]:
         ledger.add_robot(SIMULATED_ROBOT, "sim")
         ledger.add_tracker(SIMULATED_TRACKER, "sim")
     station = Station(ledger, data, error_thresholds=options.error_thresholds)
+    station.reopen_workspaces()
     return station, create_app(station, token, options.host)
 
 

@@ -44,7 +44,7 @@ from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
 from spacecal.station.verify_step import PAPER_POSITION_MM, PAPER_POSTURE_DEG, poses_from_form
-from spacecal.station.workspace import EXPORTS, Workspace, new_folder
+from spacecal.station.workspace import EXPORTS, Workspace, new_folder, reopened_workspace
 
 HERE = Path(__file__).resolve().parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
@@ -89,6 +89,19 @@ class Station:
     new_workspaces: RateLimit = field(
         default_factory=lambda: RateLimit(NEW_WORKSPACES_PER_WINDOW, NEW_WORKSPACE_WINDOW_S)
     )
+
+    def reopen_workspaces(self) -> None:
+        """The record's workspaces as their folders now stand (at start: a restart loses no
+        work, and each keeps the id its links carry)."""
+        for row in self.ledger.workspaces():
+            robot, tracker = self.ledger.robot(row["robot_id"]), self.ledger.tracker(row["tracker_id"])
+            if robot is None or tracker is None:
+                continue  # the record holds its devices (foreign keys): not reached
+            work = reopened_workspace(row, robot, tracker, self.error_thresholds)
+            if work.calibration is not None:
+                digest = work.calibration.record.content_sha256
+                work.calibration_record_id = self.ledger.calibration_id(digest)
+            self.workspaces[work.id] = work
 
     def workspace(self, workspace_id: int) -> Workspace:
         found = self.workspaces.get(workspace_id)
@@ -217,8 +230,13 @@ async def new_workspace(request: Request) -> Response:
             f"try again in {station.new_workspaces.wait_s():.0f} s",
         )
     with station.lock:
-        workspace_id = len(station.workspaces) + 1
         folder = new_folder(station.data, robot["name"])
+        try:
+            # the record gives the id, so it is never reused, and the workspace survives a restart
+            workspace_id = station.ledger.add_workspace(robot["id"], tracker["id"], str(folder), rom, tool_id)
+        except (SpacecalError, OSError) as exc:
+            folder.rmdir()
+            return back(request, "home", exception_line(exc))
         station.workspaces[workspace_id] = Workspace(
             workspace_id, robot, tracker, folder, rom, tool_id, error_thresholds=station.error_thresholds
         )

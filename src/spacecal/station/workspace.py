@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any
 
 from spacecal import app
+from spacecal.app._common import open_calibration
 from spacecal.app.devices import SIMULATED
-from spacecal.core.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.io.check_history import history_path
 from spacecal.io.recordings import recording_in
@@ -371,6 +372,56 @@ class Workspace:
             )
         self.exported = sorted({*self.exported, *(Path(p).name for p in paths.values())})
         return list(paths.values())
+
+
+def reopened_workspace(
+    row: dict[str, Any],
+    robot: dict[str, Any],
+    tracker: dict[str, Any],
+    error_thresholds: app.ErrorThresholds | None = None,
+) -> Workspace:
+    """A workspace of the record as its folder now stands (the station restarted).
+
+    What is shown comes from the files on disk, never from memory: the plan, whether there is a
+    recording, the calibration (read and its content hash checked, as every command reads it),
+    the report and the exports. A dry run is never carried over a restart (the robot may stand
+    elsewhere; it is run again before any motion), nor are confirmations. A calibration file that
+    is unreadable or edited is not shown as done; the reason is kept in :attr:`Workspace.errors`.
+
+    Parameters
+    ----------
+    row : dict
+        The record's row (:meth:`spacecal.ledger.Ledger.workspaces`).
+    robot, tracker : dict
+        The record's rows of its robot and tracker.
+    """
+    work = Workspace(
+        int(row["id"]),
+        robot,
+        tracker,
+        Path(row["folder"]),
+        row.get("rom"),
+        row.get("tool_id"),
+        error_thresholds=error_thresholds,
+    )
+    if not work.folder.is_dir():
+        work.errors.append(f"its folder {work.folder} is gone: start a new calibration")
+        return work
+    if work.plan_path.is_file():
+        work.plan_summary = "the plan written before the station restarted (plan.json): dry-run it again"
+    work.acquired = work.recording_path.is_file()
+    if work.calibration_path.is_file():
+        try:
+            calibration, notes = open_calibration(work.calibration_path, "station", accept_edited=False)
+        except (SpacecalError, OSError) as exc:
+            work.errors.append(f"{work.calibration_path.name} is not shown: {exc}")
+        else:
+            work.calibration = app.CommandResult(calibration, (work.calibration_path,), tuple(notes))
+    if work.calibration is not None and (work.folder / REPORT_NAME).is_file():
+        work.report = work.folder / REPORT_NAME
+    if work.calibration is not None:
+        work.exported = sorted(name for _, name in EXPORTS.values() if (work.folder / name).is_file())
+    return work
 
 
 def new_folder(data: Path, robot_name: str) -> Path:
