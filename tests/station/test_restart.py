@@ -24,7 +24,8 @@ def calibrated_workspace(station, web):
 
     web.post("/devices", data={"kind": "robot", "name": "UR10 OR-2", "url": "sim"})
     web.post("/devices", data={"kind": "tracker", "name": "Vicra OR-2", "url": "sim"})
-    assert web.post("/workspaces", data={"robot": "1", "tracker": "1"}, follow_redirects=False).status_code == 303
+    made = web.post("/workspaces", data={"robot": "1", "tracker": "1"}, follow_redirects=False)
+    assert made.status_code == 303
     work = station.workspaces[1]
     web.post("/workspaces/1/step/plan")
     app.simulate(app.SimulateSettings(output=str(work.recording_path)))
@@ -42,7 +43,8 @@ def test_a_restart_keeps_every_workspace_under_its_id(tmp_path, record_url):
         headline = calibrated_workspace(station, web)
         web.post("/workspaces", data={"robot": "1", "tracker": "1"})
         before = web.get("/workspaces/1").text
-        ticket = re.search(r'name="ticket" value="([^"]+)"', web.get("/workspaces/1/confirm/check").text).group(1)
+        confirmation = web.get("/workspaces/1/confirm/check").text
+        ticket = re.search(r'name="ticket" value="([^"]+)"', confirmation).group(1)
     finally:
         station.runs.stop_all("the test ended")
         station.ledger.close()
@@ -66,7 +68,8 @@ def test_a_restart_keeps_every_workspace_under_its_id(tmp_path, record_url):
         # a confirmation issued before the restart moves nothing
         started = web.post("/workspaces/1/motion/check", data={"ticket": ticket}, follow_redirects=False)
         assert station.runs.latest() is None
-        assert "the robot did not move" in web.get(started.headers.get("location", "/workspaces/1")).text + started.text
+        shown = web.get(started.headers.get("location", "/workspaces/1")).text + started.text
+        assert "the robot did not move" in shown
         # a tab left open: its buttons work (the calibrate step on the workspace's recording)
         again = web.post("/workspaces/1/step/calibrate", data={"method": "ml"})
         assert again.status_code == 200 and 'id="verdict"' in again.text
