@@ -309,6 +309,47 @@ def test_closing_the_tab_mid_acquisition_stops_the_robot(served, page, disk):
     assert_stilled(run, "the station's page was closed or lost its connection", disk)
 
 
+def test_leaving_mid_acquisition_asks_first_and_then_stops_the_robot(served, page, disk):
+    """Reload, Back or closing the tab stops the robot (nobody could press STOP): while it moves
+    the browser asks first. Staying keeps the run; leaving stops it as a closed tab does."""
+    start_acquisition(page, served.url, "UR10 bay 6")
+    page.mouse.click(5, 5)  # a person's click: browsers ask before leaving only after one
+    asked = []
+
+    def stay(dialog):
+        asked.append(dialog.type)
+        dialog.dismiss()
+
+    page.once("dialog", stay)
+    page.close(run_before_unload=True)
+    wait_js(page, "true")  # the page is still open: the dialog was answered "stay"
+    run = served.station.runs.get(1)
+    assert asked == ["beforeunload"] and run.active and not page.is_closed()
+    samples = run.samples
+    time.sleep(1.0)
+    assert run.samples > samples  # still acquiring
+
+    page.close()  # leaving (the answer "leave" ends the page as a close does)
+    assert_stilled(run, "the station's page was closed or lost its connection", disk)
+
+
+def test_an_ended_run_says_so_in_its_heading_and_stop_is_not_live(served, page, disk):
+    start_acquisition(page, served.url, "UR10 bay 7")
+    page.click("#stop")
+    wait_js(page, "document.getElementById('run-state').textContent === 'stopped'")
+    assert page.inner_text("#run-title").endswith(": stopped")
+    assert page.is_disabled("#stop") and "idle" in (page.get_attribute("#stop", "class") or "")
+    grey = page.evaluate("getComputedStyle(document.getElementById('stop')).backgroundColor")
+    assert grey == "rgb(154, 154, 154)", grey
+    # an ended run asks nothing on leaving: the page goes at once
+    asked = []
+    page.on("dialog", lambda dialog: (asked.append(dialog.type), dialog.dismiss()))
+    page.mouse.click(5, 5)
+    with page.expect_event("close", timeout=5000):
+        page.close(run_before_unload=True)
+    assert page.is_closed() and asked == []
+
+
 #: Kept by the page before its own scripts run: every websocket it opens, so the test can drop one
 #: as a lost network would (the page cannot tell the two apart).
 RECORD_SOCKETS = """

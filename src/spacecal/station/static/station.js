@@ -71,7 +71,15 @@
     }
     if (data.run_state !== "starting" && data.run_state !== "running") {
       ended = true;
-      document.getElementById("stop").disabled = true;
+      var stop = document.getElementById("stop");
+      stop.disabled = true;
+      stop.classList.add("idle");  // STOP is live only while something moves
+      // the heading says what the run became, not what it was doing
+      text("run-title", view.dataset.title + ": " + data.run_state);
+      if (data.run_state === "done") {  // every move made: the counters and the bar agree
+        text("move", data.moves_total);
+        bar.value = bar.max;
+      }
       draw(false);  // the whole run, however the last draws were spaced
       socket.close();
     }
@@ -88,6 +96,12 @@
     };
   }
   connect();
+  // leaving (reload, Back, closing the tab) stops the robot: the browser asks first while it moves
+  window.addEventListener("beforeunload", function (event) {
+    if (ended) { return; }
+    event.preventDefault();
+    event.returnValue = "The robot stops if you leave this page.";
+  });
   document.getElementById("stop").addEventListener("click", function () {
     text("message", "stopping…");
     if (socket.readyState === WebSocket.OPEN) { socket.send("stop"); }
