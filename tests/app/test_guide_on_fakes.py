@@ -129,6 +129,35 @@ def test_guidance_on_the_fake_robot_and_tracker(world, rom_file, tmp_path):  # n
     assert error <= PREDICTED_FACTOR * predicted
     assert result["devices"]["robot"] == f"ur://{host}"
 
+    # the other three forms Slicer writes a plan in (a Line in LPS, a point list in RAS and in
+    # LPS), each guided in one confirmed run from where the last one ended
+    for kind, system in (("Line", "LPS"), ("Fiducial", "RAS"), ("Fiducial", "LPS")):
+        form = tmp_path / f"plan-{kind}-{system}.mrk.json"
+        write_markups(form, {"entry": entry, "target": target}, kind, system)
+        output = tmp_path / f"guided-{kind}-{system}.json"
+        guided = run(
+            [
+                *SPACECAL,
+                "guide",
+                str(form),
+                str(calibration),
+                "--registration",
+                str(registration),
+                *devices,
+                *("--stage", "all", "--confirm-robot-motion", "--confirm-insertion", "-o", str(output)),
+            ]
+        )
+        assert guided.returncode == 0, guided.stdout + guided.stderr
+        result = json.loads(output.read_text())
+        assert result["stages_reached"] == ["standoff", "insert"] and not result["interrupted"]
+        error = true_tip_error(truth, scenario, result, target_in_tracker)
+        predicted = result["predicted"]["target_error_mm"]
+        print(
+            f"fakes, {kind} in {system}: true tip error {error:.3f} mm, predicted {predicted:.3f} mm, "
+            f"direction {result['direction_error_deg']:.3f} deg"
+        )
+        assert error <= PREDICTED_FACTOR * predicted
+
     # a registration the pointer made: touches through NDI of the fake's phantom
     from spacecal.adapters.ndi import NDITracker
 
