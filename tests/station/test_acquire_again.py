@@ -97,3 +97,29 @@ def test_an_acquisition_after_a_calibration_retires_it_and_everything_that_follo
     # the report step has no calibration to pair with the new recording: one line, nothing written
     refused = web.post("/workspaces/1/step/report")
     assert "calibration.json" in refused.text and not (work.folder / "report.html").exists()
+
+
+def test_a_report_is_refused_when_the_recording_changed_after_its_calibration(simulated_workspace):
+    """The recording edited on disk after the station calibrated it: the page stops showing the
+    calibration's verdict as the workspace's, and "Write the report" writes nothing and says
+    which file changed, so no report pairs a calibration with samples it was not made from."""
+    from spacecal import app
+
+    station, web = simulated_workspace
+    work = station.workspaces[1]
+    web.post("/workspaces/1/step/plan")
+    app.simulate(app.SimulateSettings(output=str(work.recording_path)))
+    assert web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).status_code == 200
+    assert work.calibration is not None
+    lines = work.recording_path.read_text().splitlines(keepends=True)
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    work.recording_path.write_text("".join(lines[: header + 1] + lines[header + 40 :]))  # 39 samples fewer
+
+    refused = web.post("/workspaces/1/step/report")
+    assert not (work.folder / "report.html").exists()
+    assert "recording.csv changed on disk" in refused.text, refused.text[-2000:]
+    page = web.get("/workspaces/1").text
+    # the calibration no longer describes the file: its verdict is not shown, the step says why
+    assert 'id="verdict"' not in page and 'id="report-link"' not in page and 'id="export-form"' not in page
+    assert "recording.csv changed on disk after the calibration" in page
+    assert work.calibration_path.is_file()  # the files are left as they are

@@ -107,6 +107,7 @@ class Station:
         found = self.workspaces.get(workspace_id)
         if found is None:
             raise LookupError(f"no calibration {workspace_id} at this station")
+        found.check_files()
         return found
 
 

@@ -17,6 +17,8 @@ from spacecal.app.devices import SIMULATED
 from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.io.check_history import history_path
+from spacecal.io.digest import file_sha256
+from spacecal.io.recording_source import refuse_changed
 from spacecal.io.recordings import recording_in
 from spacecal.records import CalibrationResult
 from spacecal.station.guide_step import INSERTIONS, LOCATED_NAME, GuideStep
@@ -217,6 +219,37 @@ class Workspace:
         ]
         made = [*self.folder.glob("verification-*.json"), *self.folder.glob("verification-*.png")]
         return [*named, *sorted(made), *sorted(self.folder.glob("guidance-*.json"))]
+
+    def check_files(self) -> None:
+        """Stop showing the calibration and what followed it once its recording on disk is no
+        longer the one it was made from (edited, replaced, or gone): the page shows a result
+        only while its files are the ones on disk. The files themselves are left as they are."""
+        if self.calibration is None:
+            return
+        source = self.calibration.record.provenance.source
+        if source is None:
+            return
+        headline = self.calibration.record.verdict.headline if self.calibration.record.verdict else "made"
+        gone = [Path(f.path).name for f in source.files if not Path(f.path).is_file()]
+        try:
+            refuse_changed(source)
+            changed = None
+        except InvalidInputError:
+            changed = next(
+                Path(f.path).name
+                for f in source.files
+                if f.sha256 is not None and Path(f.path).is_file() and file_sha256(f.path) != f.sha256
+            )
+        if changed is None and not gone:
+            return
+        what = f"{changed} changed on disk" if changed else f"{', '.join(gone)} is gone"
+        self._forget_what_followed()
+        self.acquired = self.recording_path.is_file()
+        self.superseded = (
+            f"{what} after the calibration ({headline}) was made from it: that calibration no longer "
+            f"describes the recording, so its verdict, check, report and exports are not shown; "
+            f"calibrate again, or acquire again (the files are left as they are)"
+        )
 
     def _forget_what_followed(self) -> None:
         """The page's memory of the calibration and everything after it, gone with its files."""
