@@ -179,7 +179,7 @@ def other_devices(
 
 
 #: Device identity keys kept from the recording's metadata (``serial_number`` is read as ``serial``).
-DEVICE_KEYS = ("model", "url", "name", "serial", "firmware", "rate_hz")
+DEVICE_KEYS = ("station_name", "model", "url", "name", "serial", "firmware", "rate_hz")
 
 
 def provenance_of(

@@ -214,6 +214,12 @@ def _acquire(
             if world is not None
             else hardware_metadata(settings, _known(session.hardware), session.robot, session.tracker)
         )
+        for role, name in (
+            ("robot", settings.devices.robot_name),
+            ("tracker", settings.devices.tracker_name),
+        ):
+            if name is not None and isinstance(metadata.get(role), dict):
+                metadata[role]["station_name"] = name
         metadata["sampling"] = (
             {
                 "mode": "stop-and-go",

@@ -69,6 +69,10 @@ class DeviceSettings:
         Further tools the tracker is opened with, as :attr:`spacecal.adapters.DeviceOptions.tools`
         takes them: (the name they are reported by, the NDI ROM file or OpenIGTLink device name).
         Further ``rom`` files are tools too, named after their files.
+    robot_name, tracker_name : str or None
+        What the operator calls the devices (a station's "UR10 OR-2"): written into the
+        recording's metadata as ``station_name``, so the calibration, its report and the record
+        name the one robot and tracker of that room.
     """
 
     robot: str | None = SIMULATED
@@ -78,9 +82,14 @@ class DeviceSettings:
     robot_model: str | None = None
     tool: tuple[float, float, float, float, float, float] | None = None
     tools: tuple[tuple[str, str], ...] = ()
+    robot_name: str | None = None
+    tracker_name: str | None = None
 
     def __post_init__(self) -> None:
         check_tracker_rate_hz(self.tracker_rate_hz)
+        for what, name in (("robot", self.robot_name), ("tracker", self.tracker_name)):
+            if name is not None and (not name.strip() or len(name) > 100 or not name.isprintable()):
+                raise InvalidInputError(f"the {what}'s name must be 1 to 100 printable characters")
         # the command line gives None for a field no option fills (its default is ())
         object.__setattr__(self, "tools", tuple(self.tools or ()))
         if self.tool is not None:

@@ -298,15 +298,19 @@ def provenance_facts(
     if isinstance(per_segment, dict) and per_segment:
         facts.append(("samples per sweep", ", ".join(f"{k} {v}" for k, v in per_segment.items())))
 
-    robot = _describe_device(devices.get("robot"), ("model", "name", "url", "serial", "firmware"))
-    robot = robot or _describe_device(metadata.get("robot"), ("model", "name", "url"))
+    robot = _describe_device(
+        devices.get("robot"), ("station_name", "model", "name", "url", "serial", "firmware")
+    )
+    robot = robot or _describe_device(metadata.get("robot"), ("station_name", "model", "name", "url"))
     if calibration.robot_model is not None:
         robot = (
             robot or calibration.robot_model.name
         ) + "; kinematic (DH) parameters identified with this calibration"
     facts.append(("robot", robot or "not recorded"))
-    tracker = _describe_device(devices.get("tracker"), ("name", "model", "url", "serial", "firmware"))
-    tracker = tracker or _describe_device(metadata.get("tracker"), ("name", "model", "url"))
+    tracker = _describe_device(
+        devices.get("tracker"), ("station_name", "name", "model", "url", "serial", "firmware")
+    )
+    tracker = tracker or _describe_device(metadata.get("tracker"), ("station_name", "name", "model", "url"))
     rate = None
     for entry in (devices.get("tracker"), metadata.get("tracker")):
         if isinstance(entry, dict) and _number(entry.get("rate_hz")):

@@ -106,6 +106,8 @@ class Workspace:
             rom=(self.rom,) if self.rom else (),
             tracker_rate_hz=float(rate),
             robot_model=self.robot.get("model") or None,
+            robot_name=self.robot.get("name") or None,
+            tracker_name=self.tracker.get("name") or None,
         )
 
     @property
