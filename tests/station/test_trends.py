@@ -4,6 +4,7 @@ plotly.js as text, never as its markup (links, bold, line breaks, TeX)."""
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -118,3 +119,25 @@ def test_plotly_js_would_draw_the_markup_of_an_unescaped_name(page):
         trace["name"] = '<a href="https://example.invalid/x">bay</a> <b>1</b><br>2'
     shown = _render(page, figure)
     assert shown["links"] >= 2 and shown["styled"] >= 2 and shown["lines"] >= 2
+
+
+def test_the_record_links_each_calibration_to_its_workspace_file_and_report(simulated_workspace):
+    """The trend tables link a calibration still open at the station to its workspace, its file
+    and its report, and the home list shows each workspace's verdict."""
+    from spacecal import app
+
+    station, web = simulated_workspace
+    work = station.workspaces[1]
+    web.post("/workspaces/1/step/plan")
+    app.simulate(app.SimulateSettings(output=str(work.recording_path)))
+    assert web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).status_code == 200
+    web.post("/workspaces/1/step/report")
+    headline = work.calibration.record.verdict.headline
+    trends = web.get("/trends").text
+    calibrations = trends[trends.index('id="calibrations"') : trends.index('id="checks"')]
+    assert re.search(r'class="calibration-link" href="[^"]*/workspaces/1"', calibrations)
+    assert re.search(r'href="[^"]*/workspaces/1/files/calibration.json"', calibrations)
+    assert re.search(r'class="report-link" href="[^"]*/workspaces/1/files/report.html"', calibrations)
+    assert web.get("/workspaces/1/files/report.html").status_code == 200
+    home = web.get("/").text
+    assert f'data-grade="{work.calibration.record.verdict.grade}">{headline}</span>' in home

@@ -637,11 +637,18 @@ def trends(request: Request) -> Response:
     station = _station(request)
     calibrations = station.ledger.calibrations()
     checks = station.ledger.checks()
+    # each recorded calibration still open at this station links to its workspace, file and report
+    workspace_of = {
+        work.calibration.record.content_sha256: work
+        for work in (station.workspace(i) for i in list(station.workspaces))
+        if work.calibration is not None
+    }
     return _page(
         request,
         "trends.html",
         calibrations=calibrations,
         checks=checks,
+        workspace_of=workspace_of,
         figure=script_json(trend_figure(calibrations, checks)),
     )
 
