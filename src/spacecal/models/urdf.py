@@ -35,6 +35,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
 import numpy as np
 
@@ -52,6 +53,9 @@ ON_AXIS_MM = 1e-6
 #: Joint limits of a continuous joint (the model needs finite limits): two full turns.
 CONTINUOUS_LIMIT_RAD = 2 * np.pi
 
+#: Largest URDF file read (an arm's description is tens of kB; meshes are separate files).
+MAX_URDF_BYTES = 20_000_000
+
 _MOVING = ("revolute", "continuous")
 
 
@@ -67,28 +71,44 @@ def _yourdfpy() -> Any:
 
 def _load(source: str | os.PathLike[str] | bytes) -> Any:
     """The parsed URDF (``yourdfpy.URDF``, no meshes, no scene graph) of a file or XML text."""
-    yourdfpy = _yourdfpy()
     if isinstance(source, bytes):
-        stream: Any = io.BytesIO(source)
-        label = "the URDF text"
+        data, label = source, "the URDF text"
     elif isinstance(source, str) and source.lstrip().startswith("<"):
-        stream = io.BytesIO(source.encode("utf-8"))
-        label = "the URDF text"
+        data, label = source.encode("utf-8"), "the URDF text"
     else:
         path = Path(source)
         if not path.is_file():
             raise InvalidInputError(f"URDF file {str(path)!r} does not exist")
-        stream = str(path)
-        label = f"URDF file {path.name!r}"
+        if path.stat().st_size > MAX_URDF_BYTES:
+            raise InvalidInputError(f"URDF file {path.name!r} is larger than {MAX_URDF_BYTES} bytes")
+        data, label = path.read_bytes(), f"URDF file {path.name!r}"
+    # strict XML first: yourdfpy falls back to lxml's recovering parser, which reads a cut-off
+    # or damaged file as whatever part of it parses
+    try:
+        root = ElementTree.fromstring(data)
+    except ElementTree.ParseError as exc:
+        raise InvalidInputError(f"{label} is not a readable URDF: not well-formed XML ({exc})") from exc
+    if root.tag != "robot":
+        raise InvalidInputError(f"{label} is not a URDF: its root element is <{root.tag}>, not <robot>")
+    yourdfpy = _yourdfpy()
     try:
         urdf = yourdfpy.URDF.load(
-            stream, build_scene_graph=False, load_meshes=False, load_collision_meshes=False
+            io.BytesIO(data), build_scene_graph=False, load_meshes=False, load_collision_meshes=False
         )
-    except Exception as exc:  # lxml, KeyError on a missing attribute, ValueError on a number
+    except KeyError as exc:
+        raise InvalidInputError(
+            f"{label} is not a readable URDF: an element lacks its {exc.args[0]!r} attribute"
+        ) from exc
+    except (AttributeError, TypeError, IndexError) as exc:
+        raise InvalidInputError(
+            f"{label} is not a readable URDF: a required element is missing "
+            "(e.g. a <joint> without <parent> or <child>)"
+        ) from exc
+    except Exception as exc:  # ValueError on a malformed number, lxml's own errors
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InvalidInputError(f"{label} is not a readable URDF: {reason}") from exc
     if not urdf.robot.links:
-        raise InvalidInputError(f"{label} is not a URDF: no <robot> with <link> elements")
+        raise InvalidInputError(f"{label} is not a URDF: its <robot> has no <link> elements")
     return urdf
 
 
@@ -106,7 +126,8 @@ class _Axis:
 def _upward(parents: dict[str, list[Any]], link: str) -> tuple[list[str], list[Any], str | None]:
     """The links from ``link`` up to the root (``link`` first) and the joints between them;
     the walk stops at a link with more than one parent joint (a closed loop), named third."""
-    links, joints = [link], []
+    links: list[str] = [link]
+    joints: list[Any] = []
     while True:
         above = parents.get(links[-1], [])
         if len(above) > 1:
