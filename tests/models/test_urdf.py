@@ -342,6 +342,8 @@ def test_what_is_not_a_urdf_is_refused(tmp_path):
     _refused("<robot name='r'><link name='a'>", "a", "b", "not a (readable )?URDF")
     _refused("<scene><thing/></scene>", "a", "b", "not a (readable )?URDF")
     _refused(b"\x00\x01\x02", "a", "b", "not a (readable )?URDF")
+    entities = '<?xml version="1.0"?><!DOCTYPE r [<!ENTITY x "0.1">]><robot name="r"><link name="a"/></robot>'
+    _refused(entities, "a", "a", "DTD")
 
 
 def test_links_that_are_not_there_are_named():

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,6 +58,7 @@ CONTINUOUS_LIMIT_RAD = 2 * np.pi
 MAX_URDF_BYTES = 20_000_000
 
 _MOVING = ("revolute", "continuous")
+_DTD = re.compile(rb"<!\s*(?:DOCTYPE|ENTITY)", re.IGNORECASE)
 
 
 def _yourdfpy() -> Any:
@@ -82,7 +84,11 @@ def _load(source: str | os.PathLike[str] | bytes) -> Any:
         if path.stat().st_size > MAX_URDF_BYTES:
             raise InvalidInputError(f"URDF file {path.name!r} is larger than {MAX_URDF_BYTES} bytes")
         data, label = path.read_bytes(), f"URDF file {path.name!r}"
-    # strict XML first: yourdfpy falls back to lxml's recovering parser, which reads a cut-off
+    # no URDF needs a DTD; refused before any parser sees it (entities expand without bound,
+    # external ones read other files)
+    if _DTD.search(data):
+        raise InvalidInputError(f"{label} declares a DTD or entities (<!DOCTYPE, <!ENTITY): refused")
+    # strict XML next: yourdfpy falls back to lxml's recovering parser, which reads a cut-off
     # or damaged file as whatever part of it parses
     try:
         root = ElementTree.fromstring(data)
