@@ -13,7 +13,7 @@ import pytest
 from spacecal.core.errors import InvalidInputError, MissingExtraError
 from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec
 from spacecal.models.kinematics import UR_ALPHA_RAD, UR_TABLES, forward_kinematics, ur_model
-from spacecal.models.urdf import robot_model_from_urdf
+from spacecal.models.urdf import joint_speed_limits_from_urdf, robot_model_from_urdf
 
 yourdfpy = pytest.importorskip("yourdfpy")
 
@@ -101,6 +101,16 @@ def test_joint_limits_and_name_come_from_the_urdf():
     named = robot_model_from_urdf(IIWA14, "base", "iiwa_link_ee", name="iiwa14 cell 2")
     assert named.name == "iiwa14 cell 2"
     assert np.allclose(named.joint_upper_rad[[0, 6]], [2.96705972839, 3.05432619099])
+
+
+def test_joint_speed_limits_come_from_the_urdf():
+    speeds = joint_speed_limits_from_urdf(UR10, "base", "tool0")
+    assert np.allclose(speeds, [2.16, 2.16, 3.15, 3.2, 3.2, 3.2])
+    assert np.allclose(
+        joint_speed_limits_from_urdf(PANDA, "panda_link0", "panda_link8"), [2.175] * 4 + [2.61] * 3
+    )
+    no_velocity = _two_joints(extra='<limit lower="-1" upper="1" effort="1"/>')
+    _refused(no_velocity, "a", "c", "no positive velocity", read=joint_speed_limits_from_urdf)
 
 
 def test_the_ur10_urdf_gives_the_published_ur10_table():
@@ -315,9 +325,9 @@ def test_mimic_joints_off_the_chain_are_ignored():
 # -- bad input, one line each -----------------------------------------------------------------
 
 
-def _refused(source, base_link, tool_link, match):
+def _refused(source, base_link, tool_link, match, read=robot_model_from_urdf):
     with pytest.raises(InvalidInputError, match=match) as caught:
-        robot_model_from_urdf(source, base_link, tool_link)
+        read(source, base_link, tool_link)
     message = str(caught.value)
     assert "\n" not in message and len(message) < 300
     return message

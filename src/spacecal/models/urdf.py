@@ -371,3 +371,28 @@ def robot_model_from_urdf(
     flange_from_tcp = np.linalg.solve(flange, base_from_tool_mm)
     flange_from_tcp[3] = [0.0, 0.0, 0.0, 1.0]
     return model.with_tcp(flange_from_tcp)
+
+
+def joint_speed_limits_from_urdf(
+    source: str | os.PathLike[str] | bytes, base_link: str, tool_link: str
+) -> FloatArray:
+    """The velocity limits (J,) of the moving joints of the chain, rad/s, in the model's order.
+
+    The ``velocity`` of each joint's ``<limit>`` (what a robot kind's joint speeds are made
+    from); the chain is the one :func:`robot_model_from_urdf` converts, checked the same way.
+
+    Raises
+    ------
+    InvalidInputError
+        As :func:`robot_model_from_urdf`, and when a moving joint states no positive velocity.
+    """
+    chain = _chain(_load(source), base_link, tool_link)
+    speeds = []
+    for joint, _ in chain:
+        if joint.type not in _MOVING:
+            continue
+        velocity = None if joint.limit is None else joint.limit.velocity
+        if velocity is None or not (np.isfinite(velocity) and velocity > 0.0):
+            raise InvalidInputError(f"joint {joint.name!r} states no positive velocity limit")
+        speeds.append(float(velocity))
+    return np.array(speeds)
