@@ -354,6 +354,11 @@ def test_what_is_not_a_urdf_is_refused(tmp_path):
     _refused(b"\x00\x01\x02", "a", "b", "not a (readable )?URDF")
     entities = '<?xml version="1.0"?><!DOCTYPE r [<!ENTITY x "0.1">]><robot name="r"><link name="a"/></robot>'
     _refused(entities, "a", "a", "DTD")
+    xacro = (
+        '<robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="r"><xacro:property name="h" value="1"/>'
+        '<link name="a"/></robot>'
+    )
+    _refused(xacro, "a", "a", "xacro file")
 
 
 def test_links_that_are_not_there_are_named():

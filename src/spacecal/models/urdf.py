@@ -84,6 +84,8 @@ def _load(source: str | os.PathLike[str] | bytes) -> Any:
         if path.stat().st_size > MAX_URDF_BYTES:
             raise InvalidInputError(f"URDF file {path.name!r} is larger than {MAX_URDF_BYTES} bytes")
         data, label = path.read_bytes(), f"URDF file {path.name!r}"
+    if len(data) > MAX_URDF_BYTES:
+        raise InvalidInputError(f"{label} is larger than {MAX_URDF_BYTES} bytes")
     # no URDF needs a DTD; refused before any parser sees it (entities expand without bound,
     # external ones read other files)
     if _DTD.search(data):
@@ -96,6 +98,10 @@ def _load(source: str | os.PathLike[str] | bytes) -> Any:
         raise InvalidInputError(f"{label} is not a readable URDF: not well-formed XML ({exc})") from exc
     if root.tag != "robot":
         raise InvalidInputError(f"{label} is not a URDF: its root element is <{root.tag}>, not <robot>")
+    if any(element.tag.startswith("{") and "xacro" in element.tag for element in root.iter()):
+        raise InvalidInputError(
+            f"{label} is a xacro file: expand it to a plain URDF first (xacro robot.urdf.xacro > robot.urdf)"
+        )
     yourdfpy = _yourdfpy()
     try:
         urdf = yourdfpy.URDF.load(
