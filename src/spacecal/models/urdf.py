@@ -47,7 +47,9 @@ from spacecal.models.kinematics import RobotModel, forward_kinematics
 #: Below this sine of the angle between two joint axes they are taken as parallel: the common
 #: normal of nearly parallel axes lies metres to kilometres away (DH's known singularity), and
 #: a URDF's rounded angles (11 digits) leave parallel axes misaligned by ~1e-11. Taking them as
-#: parallel moves a point 1 m along the chain by at most 1e-6 mm.
+#: parallel moves a point 1 m along the chain by at most 1e-6 mm; between 1e-9 and 1e-8 either
+#: choice is off by a few 1e-6 mm (the d's of the true normal reach 1e10 mm and cancel in double
+#: precision), the limit of any standard DH table of such an arm.
 PARALLEL_SINE = 1e-9
 #: A point closer than this to a line (mm) is on it (URDF lengths are given to ~1e-4 mm).
 ON_AXIS_MM = 1e-6
