@@ -103,3 +103,41 @@ def test_an_edited_calibration_is_not_reopened_as_done(tmp_path):
     finally:
         station.runs.stop_all("the test ended")
         station.ledger.close()
+
+
+def test_run_ids_go_on_across_a_restart_and_an_old_run_address_says_what_it_was(tmp_path):
+    """A run's address of yesterday never names today's run: ids continue from the last one
+    started (kept in the station's folder before the run moves), and an address of a run before
+    the restart is a 404 page that says where its files are."""
+    import pytest
+
+    from spacecal.core.errors import InvalidInputError
+    from spacecal.station.server import RUN_COUNTER_NAME
+
+    data = tmp_path / "station"
+    station, web = station_on(data, None)
+    try:
+        assert station.runs.next_id() == 1
+        calibrated_workspace(station, web)
+        check = web.get("/workspaces/1/confirm/check").text
+        ticket = re.search(r'name="ticket" value="([^"]+)"', check).group(1)
+        started = web.post("/workspaces/1/motion/check", data={"ticket": ticket}, follow_redirects=False)
+        assert started.status_code == 303 and started.headers["location"].endswith("/runs/1")
+        assert (data / RUN_COUNTER_NAME).read_text().strip() == "1"
+    finally:
+        station.runs.stop_all("the test ended")
+        station.ledger.close()
+
+    station, web = station_on(data, None)
+    try:
+        assert station.runs.next_id() == 2
+        old = web.get("/runs/1")
+        assert old.status_code == 404 and "before the station last started" in old.text
+        assert web.get("/runs/2").status_code == 404 and "no such run" in web.get("/runs/2").text
+    finally:
+        station.runs.stop_all("the test ended")
+        station.ledger.close()
+
+    (data / RUN_COUNTER_NAME).write_text("seven\n")
+    with pytest.raises(InvalidInputError, match="not a run number"):
+        station_on(data, None)

@@ -27,10 +27,13 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from spacecal import app
+from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import exception_line
+from spacecal.io.atomic import write_text_atomic
 from spacecal.report.live import LiveView
 from spacecal.station.guide_step import guidance_line
 from spacecal.station.motion_process import LAST_MESSAGES, one_session
@@ -393,9 +396,20 @@ def _finished(motion: str, output: Any) -> str:
 class Runs:
     """The station's acquisitions; at most one moves at a time."""
 
-    def __init__(self) -> None:
+    def __init__(self, counter: Path | None = None) -> None:
+        """``counter``: a file that keeps the last run id across restarts (None: ids start at
+        1 each time), so an address ``/runs/N`` of yesterday never names today's run."""
         self._runs: dict[int, Run] = {}
         self._lock = threading.Lock()
+        self._counter = counter
+        self._next = 1
+        if counter is not None and counter.is_file():
+            text = counter.read_text(encoding="utf-8", errors="replace").strip()
+            if not text.isdigit() or len(text) > 9:
+                raise InvalidInputError(f"{counter}: not a run number ({text[:20]!r}); restore or remove it")
+            self._next = int(text) + 1
+        #: Runs of an earlier start of the station: ids below this one (their pages are gone).
+        self.first_id = self._next
 
     def get(self, run_id: int) -> Run | None:
         return self._runs.get(run_id)
@@ -406,7 +420,7 @@ class Runs:
     def next_id(self) -> int:
         """The id the next run started gets (runs are numbered from 1, never reused)."""
         with self._lock:
-            return len(self._runs) + 1
+            return self._next
 
     def latest(self) -> Run | None:
         """The run started last (the robot stands where it left it)."""
@@ -431,7 +445,10 @@ class Runs:
             running = self.active()
             if running is not None:
                 raise RuntimeError(f"another {running.words} is running: stop it or let it finish first")
-            run = Run(len(self._runs) + 1, workspace, robot, settings, motion, on_done)
+            run = Run(self._next, workspace, robot, settings, motion, on_done)
+            if self._counter is not None:
+                write_text_atomic(f"{run.id}\n", self._counter)  # before it moves: never reused
+            self._next += 1
             self._runs[run.id] = run
         run.thread = threading.Thread(target=run.work, name=f"spacecal-station-run-{run.id}", daemon=True)
         run.thread.start()

@@ -17,6 +17,7 @@ from spacecal.app import ErrorThresholds
 from spacecal.ledger import SIMULATED_ROBOT, SIMULATED_TRACKER, Ledger
 from spacecal.station.access import check_bind, load_token
 from spacecal.station.limits import MAX_CONNECTIONS, HeaderDeadlineProtocol
+from spacecal.station.motions import Runs
 from spacecal.station.web import Station, create_app
 
 #: How often the station pings each page's live view, and how long a page may take to answer,
@@ -76,13 +77,22 @@ def build(options: StationOptions) -> tuple[Station, Any]:
     check_bind(options.host, token)
     data = Path(options.data).expanduser().resolve()
     data.mkdir(parents=True, exist_ok=True)
+    runs = Runs(data / RUN_COUNTER_NAME)
     ledger = Ledger.open(options.record or str(data / "record.db"))
-    if options.simulated:
-        ledger.add_robot(SIMULATED_ROBOT, "sim")
-        ledger.add_tracker(SIMULATED_TRACKER, "sim")
-    station = Station(ledger, data, error_thresholds=options.error_thresholds)
-    station.reopen_workspaces()
+    try:
+        if options.simulated:
+            ledger.add_robot(SIMULATED_ROBOT, "sim")
+            ledger.add_tracker(SIMULATED_TRACKER, "sim")
+        station = Station(ledger, data, error_thresholds=options.error_thresholds, runs=runs)
+        station.reopen_workspaces()
+    except BaseException:
+        ledger.close()  # a station that does not start leaves its record closed
+        raise
     return station, create_app(station, token, options.host)
+
+
+#: The file in the station's folder that keeps the last run id across restarts.
+RUN_COUNTER_NAME = "last-run-id"
 
 
 def server_config(

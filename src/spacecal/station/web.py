@@ -569,7 +569,14 @@ async def guide_upload(request: Request) -> Response:
 
 
 def _run(request: Request | WebSocket) -> Any:
-    run = _station(request).runs.get(int(request.path_params["run_id"]))
+    runs = _station(request).runs
+    run_id = int(request.path_params["run_id"])
+    run = runs.get(run_id)
+    if run is None and run_id < runs.first_id:
+        raise LookupError(
+            f"run {run_id} was before the station last started: its page is gone, its files are in "
+            "its calibration's folder (open the calibration from the home page)"
+        )
     if run is None:
         raise LookupError("no such run at this station")
     return run
