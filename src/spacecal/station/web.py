@@ -262,10 +262,12 @@ async def workspace_page(request: Request) -> Response:
         history = station.ledger.checks(work.calibration_record_id)
     verify_run = station.runs.get(work.verify_run_id) if work.verify_run_id is not None else None
     guide_run = station.runs.get(work.guide_run_id) if work.guide_run_id is not None else None
+    scene = await asyncio.to_thread(work.scene)
     return _page(
         request,
         "workspace.html",
         work=work,
+        scene=None if scene is None else script_json(scene),
         findings=findings,
         run=run,
         verify_run=verify_run,
@@ -675,7 +677,7 @@ def plotly_js(request: Request) -> Response:
 
 
 #: The station's own page scripts and style.
-STATIC_FILES = ("station.js", "station.css", "trends.js")
+STATIC_FILES = ("station.js", "station.css", "trends.js", "scene.js")
 
 
 def static_file(request: Request) -> Response:

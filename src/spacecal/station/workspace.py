@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime
 import hashlib
+import json
 import re
 import secrets
 from dataclasses import dataclass, field
@@ -18,10 +19,11 @@ from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.io.check_history import history_path
 from spacecal.io.digest import file_sha256
-from spacecal.io.recording_source import refuse_changed
-from spacecal.io.recordings import recording_in
+from spacecal.models.tracker_kinds import tracker_kind_of
+from spacecal.io.recordings import open_calibrated_recording, recording_in, refuse_changed
 from spacecal.records import CalibrationResult
 from spacecal.station.guide_step import INSERTIONS, LOCATED_NAME, GuideStep
+from spacecal.station.scene import setup_scene
 from spacecal.station.verify_step import VerifyStep
 
 #: The finding levels in an operator's words.
@@ -221,6 +223,35 @@ class Workspace:
         ]
         made = [*self.folder.glob("verification-*.json"), *self.folder.glob("verification-*.png")]
         return [*named, *sorted(made), *sorted(self.folder.glob("guidance-*.json"))]
+
+    def scene(self) -> dict[str, Any] | None:
+        """The set-up in 3-D (:func:`spacecal.station.scene.setup_scene`) from the files on
+        disk: the plan, and once calibrated the calibration and its recording in the tracker's
+        frame; None before a plan. The volume is the tracker kind's (the simulated tracker is a
+        Polaris Vicra); a kind that states none draws none."""
+        if not self.plan_path.is_file():
+            return None
+        try:
+            plan = json.loads(self.plan_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        calibration = self.calibration.record if self.calibration is not None else None
+        recording = None
+        if calibration is not None:
+            try:
+                opened = open_calibrated_recording(calibration)
+                recording = opened.recording if opened is not None else None
+            except (SpacecalError, OSError):
+                recording = None  # the page says why elsewhere (check_files)
+        model = "Polaris Vicra" if self.tracker["url"] == SIMULATED else self.tracker.get("model")
+        kind = tracker_kind_of(model)
+        return setup_scene(
+            plan if isinstance(plan, dict) else None,
+            calibration,
+            recording,
+            kind.volume if kind is not None else None,
+            str(self.tracker.get("name") or "tracker"),
+        )
 
     def check_files(self) -> None:
         """Stop showing the calibration and what followed it once its recording on disk is no
