@@ -19,8 +19,8 @@ from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.io.check_history import history_path
 from spacecal.io.digest import file_sha256
-from spacecal.models.tracker_kinds import tracker_kind_of
 from spacecal.io.recordings import open_calibrated_recording, recording_in, refuse_changed
+from spacecal.models.tracker_kinds import tracker_kind_of
 from spacecal.records import CalibrationResult
 from spacecal.station.guide_step import INSERTIONS, LOCATED_NAME, GuideStep
 from spacecal.station.scene import setup_scene
