@@ -414,3 +414,21 @@ def test_stop_mid_check_stops_the_robot_and_logs_nothing(served, page, disk):
     assert page.inner_text("#checks") == ""
     assert served.station.ledger.checks() == []
     assert not history_path(str(work.calibration_path)).exists()
+
+
+def test_back_onto_a_used_confirmation_moves_nothing_and_says_so_in_the_stations_page(served, page, disk):
+    """Back after STOP lands on the confirmation page the run started from; its "Yes" is spent,
+    so the station answers with its own page (styled, with the way on), says the robot did not
+    move, and starts nothing."""
+    start_acquisition(page, served.url, "UR10 bay 8")
+    page.click("#stop")
+    run = served.station.runs.get(1)
+    assert_stilled(run, "STOP pressed at the station", disk)
+    page.go_back()  # the confirmation, as the browser kept it
+    page.wait_for_selector("#confirm")
+    page.click("#confirm")
+    page.wait_for_selector("#robot-name")  # the calibration's page, not a bare refusal
+    assert "the robot did not move" in page.inner_text("#error")  # the station's own page, its header
+    assert page.locator("header a").count() == 2 and page.locator("h1").count() == 1
+    assert served.station.runs.latest() is run and served.station.runs.next_id() == 2
+    shot(page, "19-back-onto-a-used-confirmation")
