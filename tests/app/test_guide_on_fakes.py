@@ -62,6 +62,17 @@ def true_tip_error(truth, scenario, result, target_in_tracker):
     return float(np.linalg.norm(tip - target_in_tracker))
 
 
+def reached_within_predicted(case, truth, scenario, result, target_in_tracker):
+    """The true tip error of a guidance within the factor of its predicted error (printed)."""
+    error = true_tip_error(truth, scenario, result, target_in_tracker)
+    predicted = result["predicted"]["target_error_mm"]
+    print(
+        f"fakes, {case}: true tip error {error:.3f} mm, predicted {predicted:.3f} mm, reported "
+        f"target {result['target_error_mm']:.3f} mm, direction {result['direction_error_deg']:.3f} deg"
+    )
+    assert error <= PREDICTED_FACTOR * predicted
+
+
 def test_guidance_on_the_fake_robot_and_tracker(world, rom_file, tmp_path):  # noqa: F811 (the fixtures)
     host = world.info["host"]
     devices = [
@@ -120,13 +131,7 @@ def test_guidance_on_the_fake_robot_and_tracker(world, rom_file, tmp_path):  # n
     assert result["stages_reached"] == ["insert"] and not result["interrupted"]
     scenario = build_world(load_scenario("paper-white"))
     target_in_tracker = apply_transform(tracker_from_image, target)
-    error = true_tip_error(truth, scenario, result, target_in_tracker)
-    predicted = result["predicted"]["target_error_mm"]
-    print(
-        f"fakes, .tfm registration: true tip error {error:.3f} mm, predicted {predicted:.3f} mm, reported "
-        f"target {result['target_error_mm']:.3f} mm, direction {result['direction_error_deg']:.3f} deg"
-    )
-    assert error <= PREDICTED_FACTOR * predicted
+    reached_within_predicted(".tfm registration", truth, scenario, result, target_in_tracker)
     assert result["devices"]["robot"] == f"ur://{host}"
 
     # the other three forms Slicer writes a plan in (a Line in LPS, a point list in RAS and in
@@ -150,13 +155,7 @@ def test_guidance_on_the_fake_robot_and_tracker(world, rom_file, tmp_path):  # n
         assert guided.returncode == 0, guided.stdout + guided.stderr
         result = json.loads(output.read_text())
         assert result["stages_reached"] == ["standoff", "insert"] and not result["interrupted"]
-        error = true_tip_error(truth, scenario, result, target_in_tracker)
-        predicted = result["predicted"]["target_error_mm"]
-        print(
-            f"fakes, {kind} in {system}: true tip error {error:.3f} mm, predicted {predicted:.3f} mm, "
-            f"direction {result['direction_error_deg']:.3f} deg"
-        )
-        assert error <= PREDICTED_FACTOR * predicted
+        reached_within_predicted(f"{kind} in {system}", truth, scenario, result, target_in_tracker)
 
     # a registration the pointer made: touches through NDI of the fake's phantom
     from spacecal.adapters.ndi import NDITracker

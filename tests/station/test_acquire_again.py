@@ -22,6 +22,19 @@ def confirm_and_start(web, station):
     return run
 
 
+def calibrated_at_the_station(station, web):
+    """Workspace 1 planned, a finished recording in its folder (simulated as acquisition would
+    record it), and calibrated by the station's own step: the workspace."""
+    from spacecal import app
+
+    work = station.workspaces[1]
+    web.post("/workspaces/1/step/plan")
+    app.simulate(app.SimulateSettings(output=str(work.recording_path)))
+    assert web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).status_code == 200
+    assert work.calibration is not None
+    return work
+
+
 def wait_for_samples(run) -> None:
     deadline = time.monotonic() + STARTS_WITHIN_S
     while run.samples < 5 and run.active:
@@ -62,16 +75,10 @@ def test_an_acquisition_after_a_calibration_retires_it_and_everything_that_follo
     old verdict, check, report and exports at once (they no longer belong to the files on disk),
     says what was superseded, and keeps every retired file whole in ``earlier-N/``; no report can
     pair the old calibration with the new recording."""
-    from spacecal import app
 
     station, web = simulated_workspace
-    work = station.workspaces[1]
-    web.post("/workspaces/1/step/plan")
-    # a finished recording in the workspace (simulated as acquisition would record it), then the
-    # station's own steps: calibrate, report, export
-    app.simulate(app.SimulateSettings(output=str(work.recording_path)))
-    assert web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).status_code == 200
-    assert work.calibration is not None
+    # a finished recording in the workspace, then the station's own steps: calibrate, report, export
+    work = calibrated_at_the_station(station, web)
     headline = work.calibration.record.verdict.headline
     web.post("/workspaces/1/step/report")
     web.post("/workspaces/1/export", data={"slicer": "on"})
@@ -103,14 +110,9 @@ def test_a_report_is_refused_when_the_recording_changed_after_its_calibration(si
     """The recording edited on disk after the station calibrated it: the page stops showing the
     calibration's verdict as the workspace's, and "Write the report" writes nothing and says
     which file changed, so no report pairs a calibration with samples it was not made from."""
-    from spacecal import app
 
     station, web = simulated_workspace
-    work = station.workspaces[1]
-    web.post("/workspaces/1/step/plan")
-    app.simulate(app.SimulateSettings(output=str(work.recording_path)))
-    assert web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).status_code == 200
-    assert work.calibration is not None
+    work = calibrated_at_the_station(station, web)
     lines = work.recording_path.read_text().splitlines(keepends=True)
     header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
     work.recording_path.write_text("".join(lines[: header + 1] + lines[header + 40 :]))  # 39 samples fewer

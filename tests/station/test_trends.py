@@ -124,13 +124,10 @@ def test_plotly_js_would_draw_the_markup_of_an_unescaped_name(page):
 def test_the_record_links_each_calibration_to_its_workspace_file_and_report(simulated_workspace):
     """The trend tables link a calibration still open at the station to its workspace, its file
     and its report, and the home list shows each workspace's verdict."""
-    from spacecal import app
+    from tests.station.test_acquire_again import calibrated_at_the_station
 
     station, web = simulated_workspace
-    work = station.workspaces[1]
-    web.post("/workspaces/1/step/plan")
-    app.simulate(app.SimulateSettings(output=str(work.recording_path)))
-    assert web.post("/workspaces/1/step/calibrate", data={"method": "ml"}).status_code == 200
+    work = calibrated_at_the_station(station, web)
     web.post("/workspaces/1/step/report")
     headline = work.calibration.record.verdict.headline
     trends = web.get("/trends").text
