@@ -63,7 +63,13 @@ def main() -> None:
                 rows = spacecal_rows(scene, observed, folder) + opencv_rows(scene, observed)
             for row in rows:
                 table.setdefault((row.library, row.method), []).append(
-                    (row.hand_eye_deg, row.hand_eye_mm, row.fixed_deg, row.fixed_mm)
+                    (
+                        row.hand_eye_deg,
+                        row.hand_eye_mm,
+                        row.fixed_deg,
+                        row.fixed_mm,
+                        row.predicted_hand_eye_mm,
+                    )
                 )
         print(
             f"\n{TITLES[mount]}: {args.views} views, noise {args.noise:g} grey, blur {args.blur:g} px, "
@@ -76,11 +82,14 @@ def main() -> None:
         )
         print(
             f"{'library':<34} {'method':<11} {'hand-eye deg':>12} {'hand-eye mm':>11} "
-            f"{'fixed deg':>9} {'fixed mm':>8}"
+            f"{'fixed deg':>9} {'fixed mm':>8} {'predicted hand-eye mm (1 sd)':>28}"
         )
         for (library, method), values in table.items():
             med = np.median(np.array(values), axis=0)
-            print(f"{library:<34} {method:<11} {med[0]:>12.4f} {med[1]:>11.3f} {med[2]:>9.4f} {med[3]:>8.3f}")
+            print(
+                f"{library:<34} {method:<11} {med[0]:>12.4f} {med[1]:>11.3f} {med[2]:>9.4f} {med[3]:>8.3f}"
+                + ("" if np.isnan(med[4]) else f" {med[4]:>28.3f}")
+            )
 
 
 if __name__ == "__main__":

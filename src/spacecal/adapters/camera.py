@@ -39,8 +39,8 @@ Mount (``mount=fixed|flange``), the two hand-eye forms:
 Bad input is one line (:class:`~spacecal.core.errors.InvalidInputError`): a folder that cannot
 be read or holds no image, an unreadable image, an intrinsics or board file that cannot be read
 or is not one, a folder in which no image shows the board, and a board definition that
-contradicts the image (markers whose ids are not the board's, or markers whose corners do not
-reproject where the board's geometry puts them: a wrong marker-to-square ratio or board size).
+contradicts the image (markers whose ids are not the board's, or markers that do not measure
+the stated marker length on the board's plane: a wrong marker or square length).
 """
 
 from __future__ import annotations
@@ -82,11 +82,12 @@ MIN_CORNERS = 6
 #: Fewest views with the board that intrinsics are calibrated from (``cv2.calibrateCamera``
 #: needs three; a handful more keeps the focal length from trading against the distance).
 MIN_CALIBRATION_VIEWS = 5
-#: Markers' corners reprojecting farther than this (RMS, px) from where the fitted board puts
-#: them: the board definition is not the board seen. ArUco marker corners are found to well
-#: under a pixel on a sharp image; a marker 10 % too small on a board 300 px wide is off by
-#: about 3 px.
-MAX_MARKER_REPROJECTION_PX = 2.0
+#: How far the markers' measured side may be from the board definition's: this fraction of it,
+#: plus this many pixels at the board's distance. ArUco's marker corners (the polygon of the
+#: marker's outline, not refined) sit about half a pixel inside the black border, and a blurred
+#: image moves them further: a right board measures within 0.5 px of its side, a marker length
+#: 10 % off is outside.
+MARKER_SIZE_TOLERANCE, MARKER_CORNER_PX = 0.04, 1.5
 #: Image files read from a folder, by suffix.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 #: The sidecar time file looked for in a folder when ``times`` is not given.
@@ -356,7 +357,7 @@ def _read_opencv_intrinsics(path: Path) -> tuple[Any, Any, Any]:
         raise InvalidInputError(f"{path}: no such intrinsics file")
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error:
+    except (cv2.error, SystemError):  # its parser's error surfaces as either
         raise InvalidInputError(f"{path}: not an OpenCV YAML/XML intrinsics file") from None
     try:
         if not storage.isOpened():
@@ -376,10 +377,15 @@ def _read_opencv_intrinsics(path: Path) -> tuple[Any, Any, Any]:
                     return matrix
             return None
 
-        matrix = node("camera_matrix", "K", "cameraMatrix")
-        distortion = node("distortion_coefficients", "dist_coeffs", "D", "distCoeffs")
-        width, height = node("image_width"), node("image_height")
-        size = node("image_size")
+        try:
+            matrix = node("camera_matrix", "K", "cameraMatrix")
+            distortion = node("distortion_coefficients", "dist_coeffs", "D", "distCoeffs")
+            width, height = node("image_width"), node("image_height")
+            size = node("image_size")
+        except (cv2.error, SystemError):
+            raise InvalidInputError(
+                f"{path}: its intrinsics cannot be read (not OpenCV's matrices)"
+            ) from None
         if size is None and width is not None and height is not None:
             size = [width, height]
         return matrix, distortion, size
@@ -529,35 +535,50 @@ class BoardDetector:
     def check_markers(
         self, detection: Detection, camera_from_board: np.ndarray, intrinsics: Intrinsics, where: str
     ) -> float:
-        """The RMS (px) of the board's own markers' corners projected by the fitted pose
-        against where they were found; refused above :data:`MAX_MARKER_REPROJECTION_PX`.
+        """The side of the board's markers (mm, the median over those seen) as the fitted pose
+        measures them: their detected corners carried onto the board's plane. Refused when it
+        is not the definition's ``marker_mm`` within :data:`MARKER_SIZE_TOLERANCE` of it plus
+        :data:`MARKER_CORNER_PX` pixels at the board's distance.
 
         The chessboard corners fit a plane whatever the square length (a larger board farther
-        away looks the same); the markers, placed by the marker length within the squares,
-        do not when the ratio of the two lengths is wrong.
+        away looks the same); the markers, sized by the marker length within the squares, do
+        not measure their stated side when the ratio of the two lengths is wrong.
+
+        Returns
+        -------
+        float
+            The measured side, mm (NaN when none of the board's markers was seen).
 
         Raises
         ------
         InvalidInputError
-            The markers are not where the board definition puts them.
+            The markers are not the size the board definition gives them.
         """
         cv2 = _cv2()
         own = [k for k, i in enumerate(detection.marker_ids) if int(i) in self._marker_points]
         if not own:
             return float("nan")
-        points = np.concatenate([self._marker_points[int(detection.marker_ids[k])] for k in own])
-        found = detection.marker_corners_px[own].reshape(-1, 2)
-        rvec = cv2.Rodrigues(camera_from_board[:3, :3])[0]
-        projected, _ = cv2.projectPoints(
-            points, rvec, camera_from_board[:3, 3], intrinsics.camera_matrix, intrinsics.distortion
+        corners = detection.marker_corners_px[own].reshape(-1, 1, 2)
+        normalised = cv2.undistortPoints(corners, intrinsics.camera_matrix, intrinsics.distortion).reshape(
+            -1, 2
         )
-        rms = float(np.sqrt(np.mean(np.sum((projected.reshape(-1, 2) - found) ** 2, axis=1))))
-        if rms > MAX_MARKER_REPROJECTION_PX:
+        # the plane z = 0 of the board: camera ray (u, v, 1) ~ [r1 r2 t] (x, y, 1)
+        plane = np.column_stack(
+            [camera_from_board[:3, 0], camera_from_board[:3, 1], camera_from_board[:3, 3]]
+        )
+        on_board = np.linalg.solve(plane, np.column_stack([normalised, np.ones(len(normalised))]).T).T
+        on_board = (on_board[:, :2] / on_board[:, 2:]).reshape(-1, 4, 2)
+        sides = np.linalg.norm(on_board - np.roll(on_board, 1, axis=1), axis=2).mean(axis=1)
+        side = float(np.median(sides))
+        mm_per_px = float(camera_from_board[2, 3]) / float(intrinsics.camera_matrix[0, 0])
+        allowed = MARKER_SIZE_TOLERANCE * self.definition.marker_mm + MARKER_CORNER_PX * mm_per_px
+        if abs(side - self.definition.marker_mm) > allowed:
             raise InvalidInputError(
-                f"{where}: the markers' corners are {rms:.1f} px (RMS) from where the board definition puts "
-                f"them ({self.definition.describe()}): check marker_mm and square_mm against the board"
+                f"{where}: the markers measure {side:.1f} mm on the board and the board definition says "
+                f"{self.definition.marker_mm:g} mm ({self.definition.describe()}): check marker_mm and "
+                "square_mm against the board"
             )
-        return rms
+        return side
 
 
 def _collinear(points: np.ndarray) -> bool:
@@ -957,6 +978,14 @@ class CameraTracker:
                     f" and {len(unseen) - 1} more" if len(unseen) > 1 else ""
                 )
             findings.append(DeviceFinding(FINDING_WARNING if unseen else FINDING_OK, "board seen", text))
+            findings.append(
+                DeviceFinding(
+                    FINDING_WARNING,
+                    "source",
+                    "recorded images, read as fast as asked and stamped by the folder's clock: pair them "
+                    "with the robot's poses of the same views (docs/camera.md), not with a live robot",
+                )
+            )
             return findings
         try:
             frame = self.next_frame(2.0)

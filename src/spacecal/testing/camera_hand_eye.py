@@ -152,6 +152,9 @@ class Row:
     hand_eye_mm: float
     fixed_deg: float = float("nan")
     fixed_mm: float = float("nan")
+    #: spacecal's own 1-sd prediction of the hand-eye translation error (the root of the trace
+    #: of its covariance block, mm), where the method states one.
+    predicted_hand_eye_mm: float = float("nan")
 
 
 def pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
@@ -178,12 +181,19 @@ def spacecal_rows(
         result = calibrate(
             CalibrateSettings(str(path), str(output), method=method, tracker_kind="pose", force=True)
         ).record
+        predicted = float("nan")
+        if result.covariance is not None:
+            names = list(result.covariance["parameters"])
+            block = [names.index(f"tcp_from_marker.v_{axis}_mm") for axis in "xyz"]
+            matrix = np.asarray(result.covariance["matrix"], dtype=float)
+            predicted = float(np.sqrt(np.trace(matrix[np.ix_(block, block)])))
         rows.append(
             Row(
                 "spacecal",
                 method,
                 *pose_error(result.tcp_from_marker, scene.flange_from_marker),
                 *pose_error(result.tracker_from_base, scene.tracker_from_base),
+                predicted,
             )
         )
     return rows
