@@ -470,12 +470,14 @@ class BoardDetector:
         return self._corner_points[np.asarray(corner_ids, dtype=int)]
 
     def check_ids(self, detection: Detection, where: str) -> None:
-        """Refuse markers of the board's dictionary whose ids are not on the board.
+        """Refuse markers of the board's dictionary whose ids are not on the board, when they
+        are at least half of the markers seen (a stray marker of another board in the scene
+        is passed over; a board seen through another's definition is not).
 
         Raises
         ------
         InvalidInputError
-            Some markers seen are not the board's: the definition describes another board.
+            The markers seen are not the board's: the definition describes another board.
         """
         foreign = sorted(set(detection.marker_ids.tolist()) - set(self.definition.marker_ids))
         if foreign and len(foreign) * 2 >= len(detection.marker_ids):
