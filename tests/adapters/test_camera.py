@@ -257,6 +257,23 @@ def test_a_wrong_marker_length_contradicts_what_is_seen(tmp_path, views, intrins
     assert abs(side - 22.0) < MARKER_CORNER_PX * pose.camera_from_board[2, 3] / 900.0
 
 
+def test_a_legacy_board_read_as_a_new_one_is_one_line(tmp_path, intrinsics_file):
+    printed = BoardDefinition(6, 6, 25.0, 18.0, "DICT_5X5_100", legacy=True)
+    scene = simulate_scene(MOUNT_FIXED, 3, seed=6, board=printed)
+    folder = tmp_path / "views"
+    write_images(scene, folder, NOISE_GREY, BLUR_PX)
+    right = write_board(printed, tmp_path / "legacy.json")
+    tracker = open_device(url_of(folder, right, intrinsics_file), TRACKER, DeviceOptions())
+    try:
+        assert tracker.next_frame(1.0).status == FRAME_OK
+    finally:
+        tracker.close()
+    wrong = write_board(BoardDefinition(6, 6, 25.0, 18.0, "DICT_5X5_100"), tmp_path / "new.json")
+    with pytest.raises(InvalidInputError) as caught:
+        open_device(url_of(folder, wrong, intrinsics_file), TRACKER, DeviceOptions())
+    assert "no chessboard corners between them" in one_line(caught) and "check legacy" in str(caught.value)
+
+
 def test_a_folder_without_the_board_is_one_line(tmp_path, board_file, intrinsics_file):
     folder = tmp_path / "empty-views"
     folder.mkdir()

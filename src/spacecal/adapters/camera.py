@@ -88,6 +88,9 @@ MIN_CALIBRATION_VIEWS = 5
 #: image moves them further: a right board measures within 0.5 px of its side, a marker length
 #: 10 % off is outside.
 MARKER_SIZE_TOLERANCE, MARKER_CORNER_PX = 0.04, 1.5
+#: Markers of the board seen without a corner between them that tell of a definition of another
+#: layout: four markers of a ChArUco board share corners wherever the layout is the board's.
+MIN_MARKERS_FOR_LAYOUT = 4
 #: Image files read from a folder, by suffix.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 #: The sidecar time file looked for in a folder when ``times`` is not given.
@@ -903,17 +906,31 @@ class CameraTracker:
             self._check_folder_shows_the_board()
 
     def _check_folder_shows_the_board(self) -> None:
-        """A folder in which no image shows the board is not a recording of it (one line)."""
+        """A folder in which no image shows the board is not a recording of it (one line);
+        one whose images show the board's markers but no chessboard corners between them is
+        seen through a definition of another layout (the legacy pattern, the square count)."""
         source = self.source
         assert isinstance(source, FolderSource)
+        most_markers = 0
         for k in range(len(source)):
             detection = self.detector.detect(source.image(k))
             self.detector.check_ids(detection, str(source.files[k]))
             if len(detection.corner_ids) >= self.detector.min_corners:
                 return
+            own = set(detection.marker_ids.tolist()) & set(self.detector.definition.marker_ids)
+            most_markers = max(most_markers, len(own))
+        definition = self.detector.definition
+        if most_markers >= MIN_MARKERS_FOR_LAYOUT:
+            raise InvalidInputError(
+                f"{source.folder}: its images show up to {most_markers} of the board's markers but no "
+                f"chessboard corners between them: the board definition ({definition.describe()}) is not "
+                "the board's layout (check legacy, for boards of OpenCV before 4.6.0 with an even number "
+                "of rows, and squares_x, squares_y)"
+            )
         raise InvalidInputError(
             f"{source.folder}: none of its {len(source)} images shows the board "
-            f"({self.detector.definition.describe()}) with at least {self.detector.min_corners} corners"
+            f"({definition.describe()}) with at least {self.detector.min_corners} corners "
+            "(check the dictionary too)"
         )
 
     def next_frame(self, timeout_s: float) -> TrackerFrame:
