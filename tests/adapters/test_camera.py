@@ -492,3 +492,4 @@ def test_doctor_checks_a_camera_folder_and_refuses_a_wrong_board_in_one_line(
     lines = [line for line in (out + err).splitlines() if line.strip()]
     assert code == 1 and "Traceback" not in out + err
     assert sum("are not on the board" in line for line in lines) == 1
+    assert any(line.startswith("tracker: configuration: PROBLEM:") for line in lines), lines
