@@ -936,6 +936,8 @@ class CameraTracker:
     def next_frame(self, timeout_s: float) -> TrackerFrame:
         """The next image's board pose: ``camera_from_board`` (``mount=fixed``) or
         ``board_from_camera`` (``mount=flange``), mm; ``missing`` when the board is not seen.
+        A capture waits at most ``timeout_s`` for a frame newer than the last one returned; a
+        folder's next image is a local file, read at once (``timeout_s`` is not needed).
 
         Raises
         ------
