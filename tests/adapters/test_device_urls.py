@@ -40,6 +40,14 @@ def test_every_row_names_an_adapter_with_an_opener():
         ("natnet://Motive-PC?body=Marker", TRACKER, "natnet://motive-pc:1510?body=Marker"),
         ("natnet://10.0.0.7:1600", TRACKER, "natnet://10.0.0.7:1600"),
         ("igtl://PlusHost?body=Marker", TRACKER, "igtl://plushost:18944"),
+        # a camera: a device index, or a folder whose path keeps its case; the query its adapter's
+        ("camera://0?board=b.json", TRACKER, "camera://0?board=b.json"),
+        (
+            "camera:///data/Views?mount=flange&board=B.json",
+            TRACKER,
+            "camera:///data/Views?board=B.json&mount=flange",
+        ),
+        ("camera:Views/Run1?board=b.json", TRACKER, "camera:Views/Run1?board=b.json"),
     ],
 )
 def test_urls_take_the_tables_default_ports(url, role, expected):
@@ -55,7 +63,8 @@ def test_urls_take_the_tables_default_ports(url, role, expected):
             "ur://robot",
             TRACKER,
             "expected ndi://SERIAL_PORT_OR_HOST[:PORT], igtl://HOST[:PORT], "
-            "natnet://HOST[:PORT]?body=RIGID_BODY or sim",
+            "natnet://HOST[:PORT]?body=RIGID_BODY, "
+            "camera://DEVICE_OR_FOLDER?board=FILE[&intrinsics=FILE] or sim",
         ),
         ("igtl://", TRACKER, "names no host"),
         ("igtl://host:99999", TRACKER, "invalid port"),

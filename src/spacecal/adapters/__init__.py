@@ -13,6 +13,9 @@ extra it needs. A new device is one module here and one line in the table.
 * ``natnet://HOST[:PORT]?body=NAME`` — OptiTrack Motive's rigid body NAME over NatNet 3.x/4.x
   (command port 1510; ``tools=A,B`` further rigid bodies, ``multicast=GROUP`` for a multicast
   stream), read by our own reader (no extra).
+* ``camera://INDEX?board=FILE`` or ``camera:///FOLDER?board=FILE`` — a camera (an OpenCV capture
+  device, or a folder of images) seeing a ChArUco board, ``intrinsics=FILE`` or calibrated from
+  the images, ``mount=fixed|flange`` (extra ``camera``: opencv-python-headless).
 """
 
 from __future__ import annotations
@@ -55,7 +58,10 @@ NDI_TCP_DEFAULT_PORT, IGTL_DEFAULT_PORT = 8765, 18944
 NATNET_DEFAULT_PORT = 1510
 
 #: The schemes whose URLs carry a query their adapter reads.
-QUERY_SCHEMES = ("natnet",)
+QUERY_SCHEMES = ("natnet", "camera")
+#: The schemes whose device may be a path written without a host (``camera:images``): kept as
+#: written, never lower-cased.
+PATH_SCHEMES = ("camera",)
 
 #: scheme -> its row: every device URL spacecal opens.
 DEVICE_SCHEMES: dict[str, DeviceScheme] = {
@@ -63,6 +69,7 @@ DEVICE_SCHEMES: dict[str, DeviceScheme] = {
     "ndi": DeviceScheme(TRACKER, "ndi", "ndi://SERIAL_PORT_OR_HOST[:PORT]", NDI_TCP_DEFAULT_PORT),
     "igtl": DeviceScheme(TRACKER, "igtl", "igtl://HOST[:PORT]", IGTL_DEFAULT_PORT),
     "natnet": DeviceScheme(TRACKER, "natnet", "natnet://HOST[:PORT]?body=RIGID_BODY", NATNET_DEFAULT_PORT),
+    "camera": DeviceScheme(TRACKER, "camera", "camera://DEVICE_OR_FOLDER?board=FILE[&intrinsics=FILE]"),
 }
 
 
@@ -82,10 +89,11 @@ class DeviceAddress:
     def url(self) -> str:
         """The URL in one canonical form (lower-case host, the default port written out, the
         query's fields in sorted order)."""
+        query = f"?{'&'.join(sorted(self.query.split('&')))}" if self.query else ""
         if self.serial:
-            return f"{self.scheme}://{self.host}"
+            return f"{self.scheme}{'://' if self.host.startswith('/') else ':'}{self.host}{query}"
         url = f"{self.scheme}://{self.host}" + (f":{self.port}" if self.port is not None else "")
-        return url + (f"?{'&'.join(sorted(self.query.split('&')))}" if self.query else "")
+        return url + query
 
 
 @dataclass(frozen=True)
@@ -133,7 +141,7 @@ def device_address(url: str, role: str | None = None) -> DeviceAddress:
         Not a URL of a device of that role, no host, or a bad port.
     """
     scheme, host, port = parse_device_url(url, tuple(DEVICE_SCHEMES) if role is None else schemes_of(role))
-    serial = host.startswith("/")
+    serial = host.startswith("/") or (scheme in PATH_SCHEMES and not urlparse(url).netloc)
     if port is None and not serial:
         port = DEVICE_SCHEMES[scheme].default_port
     query = urlparse(url).query if scheme in QUERY_SCHEMES else ""

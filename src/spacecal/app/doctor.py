@@ -85,9 +85,10 @@ def doctor(settings: DoctorSettings) -> CommandResult[DoctorOutput]:
         except DeviceError as exc:
             output.findings.append(("tracker", _connection_problem(exc)))
         except InvalidInputError as exc:
-            # a missing or unreadable tool definition is the tracker's finding: the robot's
-            # findings, already collected, are still reported beside it
-            output.findings.append(("tracker", DeviceFinding(FINDING_PROBLEM, "tool definition", str(exc))))
+            # a missing or unreadable tool definition (a camera's board or intrinsics) is the
+            # tracker's finding: the robot's findings, already collected, are still reported beside it
+            subject = "configuration" if devices.tracker.startswith("camera:") else "tool definition"
+            output.findings.append(("tracker", DeviceFinding(FINDING_PROBLEM, subject, str(exc))))
         else:
             try:
                 output.findings += [("tracker", f) for f in tracker_findings(tracker)]
