@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime
 import hashlib
+import json
 import re
 import secrets
 from dataclasses import dataclass, field
@@ -136,6 +137,26 @@ class Workspace:
             (device, LEVEL_WORDS[f.level], f"{f.subject}: {f.text}") for device, f in out.record.findings
         ]
         return self.findings
+
+    def devices_sha256(self) -> str:
+        """A digest of the robot's and tracker's record rows as this calibration uses them
+        (name, address, model, frame rate): a confirmation is bound to it."""
+        rows = [
+            {k: row.get(k) for k in ("id", "name", "url", "model", "rate_hz")}
+            for row in (self.robot, self.tracker)
+        ]
+        return hashlib.sha256(json.dumps(rows, sort_keys=True).encode("utf-8")).hexdigest()[:16]
+
+    def device_edited(self, kind: str, row: dict[str, Any]) -> None:
+        """The record's robot or tracker (``kind``) was edited: this calibration uses its new
+        values, and everything checked on the old ones is gone (the findings, the dry runs of
+        the acquisition, the verification and the guidance; the confirmations they allowed).
+        What was recorded stays (the recording, the calibration and its checks)."""
+        setattr(self, kind, dict(row))
+        self.findings = None
+        self.dry_run_ok, self.dry_run_basis, self.dry_run_lines = False, None, []
+        self.verification.basis, self.verification.dry_run_lines = None, []
+        self.guide.forget_motions()
 
     # -- the steps ---------------------------------------------------------------------------
 
