@@ -438,6 +438,14 @@ class Ledger:
             devices.delete(connection, kind, device_id)
 
     @_database("read")
+    def check_name_free(self, kind: str, name: str, other_than: int | None = None) -> None:
+        """Raise :class:`NameTakenError` when another ``kind`` of the record (retired ones too)
+        is named ``name`` (a form says so beside the name even while another field is wrong;
+        :meth:`new_device` and :meth:`edit_device` check again as they write)."""
+        with self.engine.connect() as connection:
+            devices.name_taken(connection, kind, name, other_than)
+
+    @_database("read")
     def device_uses(self, kind: str, device_id: int) -> int:
         """How many calibrations (recorded, or in progress at a station) name the device."""
         with self.engine.connect() as connection:

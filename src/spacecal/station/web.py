@@ -203,6 +203,7 @@ async def add_device(request: Request) -> Response:
     if kind not in FIELDS:
         return back(request, "home", "add a robot or a tracker")
     device_form = read_device_form(form, str(kind))
+    _name_free(station, device_form)
     if not device_form.errors:
         try:
             station.ledger.new_device(
@@ -215,6 +216,15 @@ async def add_device(request: Request) -> Response:
     if device_form.errors:
         return _device_form_back(request, device_form)
     return back(request, "home", fragment=f"{device_form.kind}s")
+
+
+def _name_free(station: Station, device_form: DeviceForm) -> None:
+    """A name another device of its kind has: said beside the name, whatever else is wrong."""
+    if device_form.name and "name" not in device_form.errors:
+        try:
+            station.ledger.check_name_free(device_form.kind, device_form.name, device_form.device_id)
+        except NameTakenError as exc:
+            device_form.refuse("name", exc)
 
 
 def _device_of(request: Request) -> tuple[str, int, dict[str, Any]]:
@@ -252,6 +262,7 @@ async def edit_device(request: Request) -> Response:
     station = _station(request)
     kind, device_id, row = _device_of(request)
     device_form = read_device_form(await request.form(), kind, device_id)
+    _name_free(station, device_form)
     run = _moving_with(station, kind, device_id)
     if run is not None:
         device_form.refuse("device", f"{row['name']} is in use by run {run.id}: edit it once the run ended")
