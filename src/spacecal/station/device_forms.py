@@ -27,7 +27,7 @@ FIELDS = {"robot": ("name", "url", "model"), "tracker": ("name", "url", "rate_hz
 NO_ADDRESS = {
     "robot": "give the robot's address: ur://HOST, or sim for the simulated robot",
     "tracker": "give the tracker's address: ndi://PORT_OR_HOST, igtl://HOST:PORT, "
-    "natnet://HOST?body=RIGID_BODY, or sim for the simulated tracker",
+    "natnet://HOST?body=BODY, or sim for the simulated tracker",
 }
 #: Longest value taken from a field, characters (the body is bounded at 64 kB by the doors; an
 #: address is at most 500 characters, a name 200).
