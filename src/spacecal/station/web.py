@@ -51,7 +51,7 @@ from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
 from spacecal.station.verify_step import PAPER_POSITION_MM, PAPER_POSTURE_DEG, poses_from_form
-from spacecal.station.workspace import EXPORTS, Workspace, new_folder, reopened_workspace
+from spacecal.station.workspace import EXPORTS, ExportOutcome, Workspace, new_folder, reopened_workspace
 
 HERE = Path(__file__).resolve().parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
@@ -373,9 +373,12 @@ async def workspace_page(request: Request) -> Response:
         history = station.ledger.checks(work.calibration_record_id)
     verify_run = station.runs.get(work.verify_run_id) if work.verify_run_id is not None else None
     guide_run = station.runs.get(work.guide_run_id) if work.guide_run_id is not None else None
+    note = station.notes.get(request.query_params.get("note"))
     return _page(
         request,
         "workspace.html",
+        export_outcome=note if isinstance(note, ExportOutcome) else None,
+        ur_export_blocked=work.ur_export_blocked(),
         work=work,
         findings=findings,
         run=run,
@@ -456,17 +459,19 @@ def _step(
 
 
 async def export(request: Request) -> Response:
+    """POST /workspaces/N/export: each target ticked, one at a time; the page shows what was
+    written and, beside the form, what failed and why, with the ticks kept."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     form = await request.form()
     targets = [key for key in EXPORTS if form.get(key)]
     if not targets:
-        return back(request, "workspace", "choose where to export", workspace_id=work.id)
-    try:
-        await asyncio.to_thread(work.export, targets)
-    except (SpacecalError, OSError) as exc:
-        return back(request, "workspace", exception_line(exc), workspace_id=work.id)
-    return back(request, "workspace", workspace_id=work.id)
+        outcome = ExportOutcome(message="tick where to export")
+    elif work.calibration is None:
+        outcome = ExportOutcome(chosen=targets, message="calibrate first")
+    else:
+        outcome = await asyncio.to_thread(work.export, targets)
+    return back(request, "workspace", outcome, fragment="export-form", workspace_id=work.id)
 
 
 def workspace_file(request: Request) -> Response:
