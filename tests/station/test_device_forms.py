@@ -220,3 +220,15 @@ def test_the_lists_start_on_the_device_added_last_whatever_its_name(station_clie
     zeta = next(r["id"] for r in station.ledger.robots() if r["name"] == "Zeta")
     web.post(f"/devices/robot/{zeta}/retire")
     assert selected() == "Beta"
+
+
+def test_no_page_of_another_origin_edits_retires_or_deletes_a_device(station_client):
+    station, web = station_client
+    web.post("/devices", data={"kind": "robot", "name": "UR10 bay 1", "url": "sim"})
+    elsewhere = {"Origin": "http://evil.example", "Sec-Fetch-Site": "cross-site"}
+    for action, data in (("edit", {"name": "x", "url": "ur://10.6.6.6"}), ("retire", {}), ("delete", {})):
+        refused = web.post(f"/devices/robot/1/{action}", data=data, headers=elsewhere)
+        assert refused.status_code == 403, action
+    assert [(r["name"], r["url"], r["retired_utc"]) for r in station.ledger.robots()] == [
+        ("UR10 bay 1", "sim", None)
+    ]
