@@ -516,7 +516,8 @@ def test_a_device_form_with_a_bad_value_adds_nothing_and_says_why(station_client
     form = {"kind": kind, "name": "bay 1", "url": "sim", field: value}
     page = web.post("/devices", data=form, headers=OWN_PAGE)
     assert page.status_code == 200 and page.url.path == "/"
-    error = re.search(r'<p class="error" id="error">(.*?)</p>', page.text, re.S)
+    # beside its field (tests/station/test_device_forms.py holds the words)
+    error = re.search(rf'id="add-{kind}-{field}-error"[^>]*>(.*?)</span>', page.text, re.S)
     assert error is not None and "\n" not in error.group(1) and len(error.group(1)) < 500
     assert "could not convert" not in error.group(1)  # words for a person, not Python's
     assert station.ledger.robots() == [] and station.ledger.trackers() == []

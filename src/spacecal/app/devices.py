@@ -9,7 +9,6 @@ kinematic model spacecal plans with are worked out here, before anything is uplo
 from __future__ import annotations
 
 import contextlib
-import math
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -18,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from spacecal.core import device_fields
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.ports import (
     FINDING_OK,
@@ -36,13 +36,13 @@ from spacecal.core.text import check_printable_token, quoted
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 from spacecal.io.ndi_rom import read_rom_marker
-from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, check_ur_model, forward_kinematics, ur_model
 from spacecal.planning.motion import MotionLimits
 
 #: The simulated robot and tracker (of a scenario), instead of a device URL.
 SIMULATED = "sim"
-#: Accepted tracker frame rates, Hz.
-TRACKER_RATE_RANGE_HZ = (1.0, 1000.0)
+#: Accepted tracker frame rates, Hz (one definition, :mod:`spacecal.core.device_fields`).
+TRACKER_RATE_RANGE_HZ = device_fields.TRACKER_RATE_RANGE_HZ
 
 
 @dataclass(frozen=True)
@@ -90,6 +90,11 @@ class DeviceSettings:
         for what, name in (("robot", self.robot_name), ("tracker", self.tracker_name)):
             if name is not None and (not name.strip() or len(name) > 100 or not name.isprintable()):
                 raise InvalidInputError(f"the {what}'s name must be 1 to 100 printable characters")
+        if self.robot_model is not None:
+            try:
+                check_ur_model(self.robot_model)
+            except InvalidInputError as exc:
+                raise InvalidInputError(f"--robot-model: {exc}") from None
         # the command line gives None for a field no option fills (its default is ())
         object.__setattr__(self, "tools", tuple(self.tools or ()))
         if self.tool is not None:
@@ -113,20 +118,17 @@ class DeviceSettings:
 
 def check_tracker_rate_hz(rate_hz: object, what: str = "--tracker-rate-hz") -> float:
     """``rate_hz`` if it is a tracker frame rate spacecal accepts (a finite number in
-    :data:`TRACKER_RATE_RANGE_HZ`), as a float; else one line naming ``what``.
+    :data:`TRACKER_RATE_RANGE_HZ`), as a float; else one line naming ``what`` before
+    :func:`spacecal.core.device_fields.check_frame_rate`'s words.
 
     Raises
     ------
     InvalidInputError
     """
-    low, high = TRACKER_RATE_RANGE_HZ
-    if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float)):
-        raise InvalidInputError(
-            f"{what} must be a positive number in {low:g}..{high:g}, got {quoted(rate_hz)}"
-        )
-    if not (math.isfinite(rate_hz) and low <= rate_hz <= high):
-        raise InvalidInputError(f"{what} must be a positive number in {low:g}..{high:g}, got {rate_hz}")
-    return float(rate_hz)
+    try:
+        return device_fields.check_frame_rate(rate_hz)
+    except InvalidInputError as exc:  # the check's words, after the option's name
+        raise InvalidInputError(f"{what}: {exc}") from None
 
 
 #: Longest device URL accepted (what the record keeps).

@@ -10,6 +10,7 @@ psycopg for PostgreSQL); importing this package without it raises
 >>> ledger.record_calibration(calibration, "cal.json", source="cli")  # doctest: +SKIP
 """
 
+from spacecal.ledger.devices import DeviceInUseError, NameTakenError
 from spacecal.ledger.store import (
     SIMULATED_ROBOT,
     SIMULATED_TRACKER,
@@ -25,7 +26,9 @@ __all__ = [
     "SIMULATED_TRACKER",
     "CalibrationRow",
     "CheckRow",
+    "DeviceInUseError",
     "Ledger",
+    "NameTakenError",
     "ledger_url",
     "redacted_url",
 ]

@@ -41,6 +41,9 @@ robots = sa.Table(
     sa.Column("url", sa.String(500), nullable=False),
     sa.Column("model", sa.String(100)),
     sa.Column("created_utc", sa.String(40), nullable=False),
+    # when the robot was retired (version 3): kept for the calibrations that name it, offered
+    # for no new one; None while in service
+    sa.Column("retired_utc", sa.String(40)),
 )
 
 trackers = sa.Table(
@@ -51,6 +54,7 @@ trackers = sa.Table(
     sa.Column("url", sa.String(500), nullable=False),
     sa.Column("rate_hz", sa.Float),
     sa.Column("created_utc", sa.String(40), nullable=False),
+    sa.Column("retired_utc", sa.String(40)),  # as the robots' (version 3)
 )
 
 tools = sa.Table(
@@ -127,8 +131,24 @@ def _create_version_2(connection: sa.Connection) -> None:
     workspaces.create(connection)
 
 
+#: Columns added to the devices' tables after version 1: (table, column).
+RETIRED_COLUMNS = (("robots", "retired_utc"), ("trackers", "retired_utc"))
+
+
+def _create_version_3(connection: sa.Connection) -> None:
+    """Version 3: robots and trackers can be retired (``retired_utc``).
+
+    Version 1 creates the tables as this module defines them now, so a record made by this code
+    has the column already; one made by an older spacecal gets it here (``ALTER TABLE ... ADD
+    COLUMN``, which SQLite and PostgreSQL both take for a nullable column)."""
+    inspector = sa.inspect(connection)
+    for table, column in RETIRED_COLUMNS:
+        if column not in {c["name"] for c in inspector.get_columns(table)}:
+            connection.execute(sa.text(f"ALTER TABLE {table} ADD COLUMN {column} VARCHAR(40)"))
+
+
 #: The migrations, oldest first: ``MIGRATIONS[k]`` brings the record from version k to k + 1.
-MIGRATIONS: list[Callable[[sa.Connection], None]] = [_create_version_1, _create_version_2]
+MIGRATIONS: list[Callable[[sa.Connection], None]] = [_create_version_1, _create_version_2, _create_version_3]
 #: The version this code writes.
 CURRENT_VERSION = len(MIGRATIONS)
 

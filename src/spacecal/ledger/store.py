@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar
 
+from spacecal.core import device_fields
 from spacecal.core.errors import InvalidInputError, MissingExtraError, RecordError
 from spacecal.core.text import (
     check_name,
@@ -27,9 +28,9 @@ from spacecal.core.text import (
     quoted,
     sanitize_for_terminal,
 )
-from spacecal.ledger import schema
+from spacecal.ledger import devices, schema
 from spacecal.ledger.schema import sa
-from spacecal.models.kinematics import UR_TABLES
+from spacecal.models.kinematics import UR_TABLES, check_ur_model
 from spacecal.records import CalibrationResult, CheckResult
 
 #: The names under which the record keeps the simulated robot and tracker.
@@ -46,10 +47,8 @@ LOCK_TIMEOUT_MS = 5000
 CONNECT_TIMEOUT_S = 10
 #: The longest names, URLs, model names and texts of each column (the schema's lengths).
 MAX_URL_CHARS, MAX_MODEL_CHARS, MAX_PATH_CHARS, MAX_TCP_TEXT_CHARS = 500, 100, 1000, 200
-#: Tracker frame rates the record keeps, Hz: ``--tracker-rate-hz``'s range
-#: (:data:`spacecal.app.devices.TRACKER_RATE_RANGE_HZ`, which the ledger's layer cannot import;
-#: a test holds the two equal).
-TRACKER_RATE_RANGE_HZ = (1.0, 1000.0)
+#: Tracker frame rates the record keeps, Hz: ``--tracker-rate-hz``'s range, one definition.
+TRACKER_RATE_RANGE_HZ = device_fields.TRACKER_RATE_RANGE_HZ
 #: Longest driver message kept in a :class:`RecordError`.
 REASON_CHARS = 300
 _URL_SCHEME = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://\S+", re.ASCII)
@@ -314,6 +313,144 @@ class Ledger:
         _check_device_url(url, "tracker")
         return self._named(schema.trackers, name, {"url": url, "rate_hz": _check_rate(rate_hz)})
 
+    def _device_values(
+        self, kind: str, name: str, url: str, model: str | None, rate_hz: float | None
+    ) -> dict[str, Any]:
+        """A robot's or tracker's columns, each checked as :meth:`add_robot` and
+        :meth:`add_tracker` check them."""
+        devices.device_table(kind)
+        values = {"name": check_name(name, f"{kind} name"), "url": _check_device_url(url, kind)}
+        if kind == "robot":
+            values["model"] = _check_model(model)
+        else:
+            values["rate_hz"] = _check_rate(rate_hz)
+        return values
+
+    @_database("written")
+    def new_device(
+        self, kind: str, name: str, url: str, model: str | None = None, rate_hz: float | None = None
+    ) -> int:
+        """A new robot's or tracker's id, under a name no other of its kind has (retired ones
+        included), unlike :meth:`add_robot`, which finds a device by its name.
+
+        Parameters
+        ----------
+        kind : {"robot", "tracker"}
+        name, url
+            As :meth:`add_robot` takes them.
+        model : str or None
+            The robot's UR model (robots only).
+        rate_hz : float or None
+            The tracker's frame rate, Hz (trackers only).
+
+        Raises
+        ------
+        NameTakenError
+            The name is taken (also when another station took it at the same moment).
+        InvalidInputError
+            A value refused (one line).
+        RecordError
+            The database failed the write.
+        """
+        values = self._device_values(kind, name, url, model, rate_hz)
+        table = devices.device_table(kind)
+        try:
+            with self.engine.begin() as connection:
+                devices.name_taken(connection, kind, values["name"])
+                key = connection.execute(
+                    sa.insert(table).values(**values, created_utc=_now())
+                ).inserted_primary_key
+        except sa.exc.IntegrityError:  # the unique name, taken meanwhile
+            with self.engine.connect() as connection:
+                devices.name_taken(connection, kind, values["name"])
+            raise
+        assert key is not None  # an insert of one row
+        return int(key[0])
+
+    @_database("written")
+    def edit_device(
+        self,
+        kind: str,
+        device_id: int,
+        name: str,
+        url: str,
+        model: str | None = None,
+        rate_hz: float | None = None,
+    ) -> None:
+        """Change a robot's or tracker's name, URL and model or frame rate (checked as
+        :meth:`new_device` checks them). Calibrations already made keep what their files say
+        of the device; the record's row says what it is now.
+
+        Raises
+        ------
+        NameTakenError
+            Another of its kind has that name.
+        InvalidInputError
+            No such device, or a value refused.
+        RecordError
+            The database failed the write.
+        """
+        values = self._device_values(kind, name, url, model, rate_hz)
+        table = devices.device_table(kind)
+        try:
+            with self.engine.begin() as connection:
+                devices.existing(connection, kind, device_id)
+                devices.name_taken(connection, kind, values["name"], other_than=device_id)
+                connection.execute(sa.update(table).where(table.c.id == device_id).values(**values))
+        except sa.exc.IntegrityError:
+            with self.engine.connect() as connection:
+                devices.name_taken(connection, kind, values["name"], other_than=device_id)
+            raise
+
+    @_database("written")
+    def retire_device(self, kind: str, device_id: int, retired: bool = True) -> None:
+        """Retire a robot or tracker (kept, with the calibrations that name it, offered for no
+        new one), or with ``retired=False`` put it back in service.
+
+        Raises
+        ------
+        InvalidInputError
+            No such device.
+        RecordError
+            The database failed the write.
+        """
+        table = devices.device_table(kind)
+        with self.engine.begin() as connection:
+            row = devices.existing(connection, kind, device_id)
+            if bool(row["retired_utc"]) != retired:
+                stamp = _now() if retired else None
+                connection.execute(sa.update(table).where(table.c.id == device_id).values(retired_utc=stamp))
+
+    @_database("written")
+    def delete_device(self, kind: str, device_id: int) -> None:
+        """Delete a robot or tracker no calibration names (recorded, or in progress).
+
+        Raises
+        ------
+        DeviceInUseError
+            A calibration names it: retire it instead (:meth:`retire_device`).
+        InvalidInputError
+            No such device.
+        RecordError
+            The database failed the write.
+        """
+        with self.engine.begin() as connection:
+            devices.delete(connection, kind, device_id)
+
+    @_database("read")
+    def check_name_free(self, kind: str, name: str, other_than: int | None = None) -> None:
+        """Raise :class:`NameTakenError` when another ``kind`` of the record (retired ones too)
+        is named ``name`` (a form says so beside the name even while another field is wrong;
+        :meth:`new_device` and :meth:`edit_device` check again as they write)."""
+        with self.engine.connect() as connection:
+            devices.name_taken(connection, kind, name, other_than)
+
+    @_database("read")
+    def device_uses(self, kind: str, device_id: int) -> int:
+        """How many calibrations (recorded, or in progress at a station) name the device."""
+        with self.engine.connect() as connection:
+            return devices.uses(connection, kind, device_id)
+
     @_database("written")
     def add_tool(self, name: str, definition: str | None = None, tcp_in_flange: str | None = None) -> int:
         """The tool's id (added when new): ``definition`` is the path of its NDI tool definition,
@@ -335,12 +472,12 @@ class Ledger:
 
     @_database("read")
     def robots(self) -> list[dict[str, Any]]:
-        """Every robot, by name."""
+        """Every robot, by name (retired ones too: ``retired_utc`` is set)."""
         return self._rows(schema.robots)
 
     @_database("read")
     def trackers(self) -> list[dict[str, Any]]:
-        """Every tracker, by name."""
+        """Every tracker, by name (retired ones too)."""
         return self._rows(schema.trackers)
 
     def _rows(self, table: sa.Table) -> list[dict[str, Any]]:
@@ -652,27 +789,12 @@ def _check_device_url(url: object, kind: str) -> str:
 
 def _check_model(model: object) -> str | None:
     """``model`` if it is None or a UR model spacecal has the kinematics of."""
-    if model is None:
-        return None
-    text = check_printable_token(model, "the robot's model", MAX_MODEL_CHARS)
-    if text not in UR_TABLES:
-        known = ", ".join(k for k in UR_TABLES if not k.startswith("_"))
-        raise InvalidInputError(f"unknown robot model {quoted(text)}; known: {known}")
-    return text
+    return None if model is None else check_ur_model(model)
 
 
 def _check_rate(rate_hz: object) -> float | None:
     """``rate_hz`` if it is None or a finite frame rate in :data:`TRACKER_RATE_RANGE_HZ`."""
-    if rate_hz is None:
-        return None
-    low, high = TRACKER_RATE_RANGE_HZ
-    if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float)):
-        raise InvalidInputError(f"the tracker's frame rate must be a number in {low:g}..{high:g} Hz")
-    if not (math.isfinite(rate_hz) and low <= rate_hz <= high):
-        raise InvalidInputError(
-            f"the tracker's frame rate must be a number in {low:g}..{high:g} Hz, got {rate_hz}"
-        )
-    return float(rate_hz)
+    return None if rate_hz is None else device_fields.check_frame_rate(rate_hz)
 
 
 def finite_or_none(value: float | None) -> float | None:

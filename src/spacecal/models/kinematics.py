@@ -20,6 +20,7 @@ from importlib import resources
 import numpy as np
 
 from spacecal.core.errors import InvalidInputError, UnreachableError
+from spacecal.core.text import check_printable_token, quoted
 from spacecal.geometry.arrays import ArrayLike, BoolArray, FloatArray
 from spacecal.geometry.rotations import skew
 from spacecal.geometry.transforms import (
@@ -44,6 +45,23 @@ def _load_ur_tables() -> dict:
 
 
 UR_TABLES = _load_ur_tables()
+#: Longest robot model name accepted (what the record keeps).
+MAX_MODEL_CHARS = 100
+
+
+def check_ur_model(name: object) -> str:
+    """``name`` if it is a UR model spacecal has the kinematics of (:data:`UR_TABLES`), for the
+    command line's ``--robot-model``, the station's form and the record alike.
+
+    Raises
+    ------
+    InvalidInputError
+        One line in an operator's words naming the models known (no option named).
+    """
+    text = check_printable_token(name, "the robot's model", MAX_MODEL_CHARS)
+    if text not in UR_TABLES:
+        raise InvalidInputError(f"unknown robot model {quoted(text)}; known: {', '.join(UR_TABLES)}")
+    return text
 
 
 @dataclass(frozen=True)
@@ -151,9 +169,7 @@ def ur_model(name: str, flange_from_tcp: ArrayLike | None = None) -> RobotModel:
     flange_from_tcp : array_like, shape (4, 4), optional
         Tool offset in the flange frame, mm; identity if omitted.
     """
-    if name not in UR_TABLES:
-        raise InvalidInputError(f"unknown robot model {name!r}; known: {', '.join(UR_TABLES)}")
-    table = UR_TABLES[name]
+    table = UR_TABLES[check_ur_model(name)]
     return RobotModel(
         name=name,
         a_mm=np.array(table["a"], dtype=float),

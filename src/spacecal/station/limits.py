@@ -123,15 +123,17 @@ class HeaderDeadlineProtocol(H11Protocol):
 class Notes:
     """The one-line notes (mostly errors) a step leaves for the page it returns to, kept by the
     station and named in the address by a random key: a page shows only text the station
-    itself wrote. The newest :data:`MAX_NOTES` are kept."""
+    itself wrote. A note may also be a form as it was submitted, with its fields' messages
+    (:class:`~spacecal.station.device_forms.DeviceForm`). The newest :data:`MAX_NOTES` are
+    kept."""
 
     def __init__(self, keep: int | None = None):
         self.keep = keep or MAX_NOTES
-        self._notes: collections.OrderedDict[str, str] = collections.OrderedDict()
+        self._notes: collections.OrderedDict[str, object] = collections.OrderedDict()
         self._lock = threading.Lock()
 
-    def add(self, text: str) -> str:
-        """Keep ``text``; the key that names it."""
+    def add(self, text: object) -> str:
+        """Keep ``text`` (a line, or a form); the key that names it."""
         key = secrets.token_urlsafe(9)
         with self._lock:
             self._notes[key] = text
@@ -139,7 +141,7 @@ class Notes:
                 self._notes.popitem(last=False)
         return key
 
-    def get(self, key: str | None) -> str | None:
+    def get(self, key: str | None) -> object | None:
         """The note ``key`` names, or None."""
         if not key:
             return None

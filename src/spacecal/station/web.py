@@ -26,11 +26,18 @@ from starlette.templating import Jinja2Templates
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from spacecal import app as spacecal_app
-from spacecal.app.devices import validate_device_url
 from spacecal.core.errors import InvalidInputError, RecordError, SpacecalError
 from spacecal.core.text import exception_line
-from spacecal.ledger import Ledger
+from spacecal.ledger import Ledger, NameTakenError
+from spacecal.models.kinematics import UR_TABLES
 from spacecal.station.access import FILE_POLICY, AccessMiddleware, foreign_request, is_loopback
+from spacecal.station.device_forms import (
+    FIELDS,
+    DeviceForm,
+    default_device,
+    entered_from_row,
+    read_device_form,
+)
 from spacecal.station.error_pages import EXCEPTION_HANDLERS, error_page, refuse
 from spacecal.station.guide_step import (
     INSERTIONS,
@@ -44,7 +51,7 @@ from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
 from spacecal.station.verify_step import PAPER_POSITION_MM, PAPER_POSTURE_DEG, poses_from_form
-from spacecal.station.workspace import EXPORTS, Workspace, new_folder, reopened_workspace
+from spacecal.station.workspace import EXPORTS, ExportOutcome, Workspace, new_folder, reopened_workspace
 
 HERE = Path(__file__).resolve().parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
@@ -118,7 +125,8 @@ def _station(request: Request | WebSocket) -> Station:
 
 def _page(request: Request, name: str, status: int = 200, **context: Any) -> Response:
     """A page of the station, with the note a step left for it (``?note=KEY``) as its error."""
-    context.setdefault("error", _station(request).notes.get(request.query_params.get("note")))
+    note = _station(request).notes.get(request.query_params.get("note"))
+    context.setdefault("error", note if isinstance(note, str) else None)
     return templates.TemplateResponse(request, name, context, status_code=status)
 
 
@@ -127,22 +135,41 @@ def _page(request: Request, name: str, status: int = 200, **context: Any) -> Res
 
 def home(request: Request) -> Response:
     station = _station(request)
+    note = station.notes.get(request.query_params.get("note"))
+    robots, trackers = station.ledger.robots(), station.ledger.trackers()
+    devices = {
+        kind: [
+            {
+                **row,
+                "uses": station.ledger.device_uses(kind, row["id"]),
+                "entered": entered_from_row(kind, row),
+            }
+            for row in rows
+        ]
+        for kind, rows in (("robot", robots), ("tracker", trackers))
+    }
     return _page(
         request,
         "home.html",
-        robots=station.ledger.robots(),
-        trackers=station.ledger.trackers(),
+        devices=devices,
+        robots=[r for r in robots if not r.get("retired_utc")],
+        trackers=[t for t in trackers if not t.get("retired_utc")],
+        default_robot=default_device(robots),
+        default_tracker=default_device(trackers),
+        device_form=note if isinstance(note, DeviceForm) else None,
+        robot_models=list(UR_TABLES),
         workspaces=sorted(station.workspaces.values(), key=lambda w: -w.id),
     )
 
 
-def back(request: Request, route: str, error: str | None = None, **params: Any) -> Response:
+def back(request: Request, route: str, error: Any = None, fragment: str = "", **params: Any) -> Response:
     """303 to the page ``route``, carrying ``error`` as a note the station keeps (the address
-    names the note, never its text: a link from elsewhere cannot make a page say anything)."""
+    names the note, never its text: a link from elsewhere cannot make a page say anything):
+    one line, or a :class:`~spacecal.station.device_forms.DeviceForm` with its fields' messages."""
     url = request.url_for(route, **params)
     if error is not None:
         url = url.include_query_params(note=_station(request).notes.add(error))
-    return RedirectResponse(url, 303)
+    return RedirectResponse(f"{url}#{fragment}" if fragment else url, 303)
 
 
 #: Longest device address, model name or tool definition path taken from a form, characters.
@@ -164,42 +191,124 @@ def form_text(form: Any, key: str, default: str = "") -> str:
     return value.strip()
 
 
+def _device_form_back(request: Request, device_form: DeviceForm) -> Response:
+    """Back to the home page at the form, its messages beside its fields, its values kept."""
+    return back(request, "home", device_form, fragment=device_form.form_id)
+
+
 async def add_device(request: Request) -> Response:
+    """POST /devices: a new robot or tracker, under a name no other of its kind has."""
     station = _station(request)
     form = await request.form()
-    try:
-        kind = form_text(form, "kind")
-        name, url = form_text(form, "name"), form_text(form, "url")
-        if not url:
-            raise InvalidInputError("give the device's address (sim for the simulated one)")
-        if kind not in ("robot", "tracker"):
-            raise InvalidInputError("add a robot or a tracker")
-        validate_device_url(kind, url)  # the parser that will open it, so a typo is said now
-        if kind == "robot":
-            station.ledger.add_robot(name, url, form_text(form, "model") or None)
-        else:
-            station.ledger.add_tracker(name, url, tracker_rate(form_text(form, "rate_hz")))
-    except SpacecalError as exc:
-        return back(request, "home", exception_line(exc))
-    return back(request, "home")
+    kind = form.get("kind")
+    if kind not in FIELDS:
+        return back(request, "home", "add a robot or a tracker")
+    device_form = read_device_form(form, str(kind))
+    _name_free(station, device_form)
+    if not device_form.errors:
+        try:
+            station.ledger.new_device(
+                device_form.kind, device_form.name, device_form.url, device_form.model, device_form.rate_hz
+            )
+        except NameTakenError as exc:
+            device_form.refuse("name", exc)
+        except SpacecalError as exc:
+            device_form.refuse("device", exc)
+    if device_form.errors:
+        return _device_form_back(request, device_form)
+    return back(request, "home", fragment=f"{device_form.kind}s")
 
 
-def tracker_rate(text: str) -> float | None:
-    """The tracker's frame rate from the form, Hz, or None when left empty.
+def _name_free(station: Station, device_form: DeviceForm) -> None:
+    """A name another device of its kind has: said beside the name, whatever else is wrong."""
+    if device_form.name and "name" not in device_form.errors:
+        try:
+            station.ledger.check_name_free(device_form.kind, device_form.name, device_form.device_id)
+        except NameTakenError as exc:
+            device_form.refuse("name", exc)
+
+
+def _device_of(request: Request) -> tuple[str, int, dict[str, Any]]:
+    """The kind, id and record row of the device an address names.
 
     Raises
     ------
-    InvalidInputError
-        Not a number (the record then checks its range).
+    LookupError
+        No such device (404).
     """
-    if not text:
+    kind, device_id = request.path_params["kind"], int(request.path_params["device_id"])
+    row = None
+    if kind == "robot":
+        row = _station(request).ledger.robot(device_id)
+    elif kind == "tracker":
+        row = _station(request).ledger.tracker(device_id)
+    if row is None:
+        raise LookupError(f"no {kind[:20]} {device_id} in the record")
+    return kind, device_id, row
+
+
+def _moving_with(station: Station, kind: str, device_id: int) -> Any:
+    """The run that moves now with the device, or None."""
+    run = station.runs.active()
+    if run is None:
         return None
+    work = station.workspaces.get(run.workspace)
+    return run if work is not None and getattr(work, kind)["id"] == device_id else None
+
+
+async def edit_device(request: Request) -> Response:
+    """POST /devices/<robot|tracker>/N/edit: its name, address and model or frame rate, checked
+    as a new device's are; the calibrations in progress with it take the new values and need a
+    new dry run (what they checked was the old device)."""
+    station = _station(request)
+    kind, device_id, row = _device_of(request)
+    device_form = read_device_form(await request.form(), kind, device_id)
+    _name_free(station, device_form)
+    run = _moving_with(station, kind, device_id)
+    if run is not None:
+        device_form.refuse("device", f"{row['name']} is in use by run {run.id}: edit it once the run ended")
+    if not device_form.errors:
+        try:
+            station.ledger.edit_device(
+                kind, device_id, device_form.name, device_form.url, device_form.model, device_form.rate_hz
+            )
+        except NameTakenError as exc:
+            device_form.refuse("name", exc)
+        except SpacecalError as exc:
+            device_form.refuse("device", exc)
+    if device_form.errors:
+        return _device_form_back(request, device_form)
+    edited = station.ledger.robot(device_id) if kind == "robot" else station.ledger.tracker(device_id)
+    with station.lock:
+        for work in station.workspaces.values():
+            if edited is not None and getattr(work, kind)["id"] == device_id:
+                work.device_edited(kind, edited)
+    return back(request, "home", fragment=f"{kind}s")
+
+
+async def retire_device(request: Request) -> Response:
+    """POST /devices/<robot|tracker>/N/retire (``retired=0``: back in service): kept in the
+    record with its calibrations, offered for no new calibration."""
+    station = _station(request)
+    kind, device_id, _ = _device_of(request)
+    form = await request.form()
     try:
-        return float(text)
-    except ValueError:
-        raise InvalidInputError(
-            f"the frame rate must be a number of frames per second, not {text[:40]!r}"
-        ) from None
+        station.ledger.retire_device(kind, device_id, retired=form.get("retired", "1") != "0")
+    except SpacecalError as exc:
+        return _device_form_back(request, DeviceForm(kind, device_id, errors={"device": exception_line(exc)}))
+    return back(request, "home", fragment=f"{kind}s")
+
+
+async def delete_device(request: Request) -> Response:
+    """POST /devices/<robot|tracker>/N/delete: only a device no calibration names (recorded or
+    in progress); one that a calibration names is kept, and the page says to retire it."""
+    station = _station(request)
+    kind, device_id, _ = _device_of(request)
+    try:
+        station.ledger.delete_device(kind, device_id)
+    except SpacecalError as exc:  # DeviceInUseError among them
+        return _device_form_back(request, DeviceForm(kind, device_id, errors={"device": exception_line(exc)}))
+    return back(request, "home", fragment=f"{kind}s")
 
 
 async def new_workspace(request: Request) -> Response:
@@ -213,6 +322,9 @@ async def new_workspace(request: Request) -> Response:
         robot = tracker = rom = None
     if robot is None or tracker is None:
         return back(request, "home", "choose a robot and a tracker")
+    retired = [row["name"] for row in (robot, tracker) if row.get("retired_utc")]
+    if retired:
+        return back(request, "home", f"{retired[0]} is retired: put it back in service to calibrate with it")
     tool_id = None
     if rom is not None:
         try:
@@ -263,9 +375,12 @@ async def workspace_page(request: Request) -> Response:
     verify_run = station.runs.get(work.verify_run_id) if work.verify_run_id is not None else None
     guide_run = station.runs.get(work.guide_run_id) if work.guide_run_id is not None else None
     scene = await asyncio.to_thread(work.scene)
+    note = station.notes.get(request.query_params.get("note"))
     return _page(
         request,
         "workspace.html",
+        export_outcome=note if isinstance(note, ExportOutcome) else None,
+        ur_export_blocked=work.ur_export_blocked(),
         work=work,
         scene=None if scene is None else script_json(scene),
         findings=findings,
@@ -347,17 +462,19 @@ def _step(
 
 
 async def export(request: Request) -> Response:
+    """POST /workspaces/N/export: each target ticked, one at a time; the page shows what was
+    written and, beside the form, what failed and why, with the ticks kept."""
     station = _station(request)
     work = station.workspace(int(request.path_params["workspace_id"]))
     form = await request.form()
     targets = [key for key in EXPORTS if form.get(key)]
     if not targets:
-        return back(request, "workspace", "choose where to export", workspace_id=work.id)
-    try:
-        await asyncio.to_thread(work.export, targets)
-    except (SpacecalError, OSError) as exc:
-        return back(request, "workspace", exception_line(exc), workspace_id=work.id)
-    return back(request, "workspace", workspace_id=work.id)
+        outcome = ExportOutcome(message="tick where to export")
+    elif work.calibration is None:
+        outcome = ExportOutcome(chosen=targets, message="calibrate first")
+    else:
+        outcome = await asyncio.to_thread(work.export, targets)
+    return back(request, "workspace", outcome, fragment="export-form", workspace_id=work.id)
 
 
 def workspace_file(request: Request) -> Response:
@@ -396,7 +513,14 @@ NEEDED_FIRST = {
 
 
 def motion_basis(station: Station, work: Workspace, motion: str, insertion: str | None = None) -> str | None:
-    """What a confirmation of ``motion`` of ``work`` confirms now (None: nothing to confirm)."""
+    """What a confirmation of ``motion`` of ``work`` confirms now (None: nothing to confirm),
+    with the devices it names: a robot or tracker edited between the confirmation and the
+    start leaves the ticket worthless (the page named the old address)."""
+    basis = _step_basis(station, work, motion, insertion)
+    return None if basis is None else f"devices {work.devices_sha256()} {basis}"
+
+
+def _step_basis(station: Station, work: Workspace, motion: str, insertion: str | None) -> str | None:
     if motion not in ("standoff", "insert"):
         return work.motion_basis(motion)
     if work.calibration is None:
@@ -693,6 +817,9 @@ def create_app(station: Station, token: str | None = None, host: str = "127.0.0.
     routes = [
         Route("/", home, name="home"),
         Route("/devices", add_device, methods=["POST"]),
+        Route("/devices/{kind}/{device_id:id}/edit", edit_device, methods=["POST"], name="edit_device"),
+        Route("/devices/{kind}/{device_id:id}/retire", retire_device, methods=["POST"], name="retire_device"),
+        Route("/devices/{kind}/{device_id:id}/delete", delete_device, methods=["POST"], name="delete_device"),
         Route("/workspaces", new_workspace, methods=["POST"]),
         Route("/workspaces/{workspace_id:id}", workspace_page, name="workspace"),
         Route("/workspaces/{workspace_id:id}/step/{step}", step, methods=["POST"]),

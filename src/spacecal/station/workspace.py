@@ -17,10 +17,12 @@ from spacecal.app._common import open_calibration
 from spacecal.app.devices import SIMULATED
 from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
+from spacecal.core.text import exception_line
 from spacecal.io.check_history import history_path
 from spacecal.io.digest import file_sha256
 from spacecal.io.recordings import open_calibrated_recording, recording_in, refuse_changed
 from spacecal.models.tracker_kinds import tracker_kind_of
+from spacecal.models.kinematics import N_JOINTS
 from spacecal.records import CalibrationResult
 from spacecal.station.guide_step import INSERTIONS, LOCATED_NAME, GuideStep
 from spacecal.station.scene import setup_scene
@@ -142,6 +144,26 @@ class Workspace:
             (device, LEVEL_WORDS[f.level], f"{f.subject}: {f.text}") for device, f in out.record.findings
         ]
         return self.findings
+
+    def devices_sha256(self) -> str:
+        """A digest of the robot's and tracker's record rows as this calibration uses them
+        (name, address, model, frame rate): a confirmation is bound to it."""
+        rows = [
+            {k: row.get(k) for k in ("id", "name", "url", "model", "rate_hz")}
+            for row in (self.robot, self.tracker)
+        ]
+        return hashlib.sha256(json.dumps(rows, sort_keys=True).encode("utf-8")).hexdigest()[:16]
+
+    def device_edited(self, kind: str, row: dict[str, Any]) -> None:
+        """The record's robot or tracker (``kind``) was edited: this calibration uses its new
+        values, and everything checked on the old ones is gone (the findings, the dry runs of
+        the acquisition, the verification and the guidance; the confirmations they allowed).
+        What was recorded stays (the recording, the calibration and its checks)."""
+        setattr(self, kind, dict(row))
+        self.findings = None
+        self.dry_run_ok, self.dry_run_basis, self.dry_run_lines = False, None, []
+        self.verification.basis, self.verification.dry_run_lines = None, []
+        self.guide.forget_motions()
 
     # -- the steps ---------------------------------------------------------------------------
 
@@ -418,26 +440,72 @@ class Workspace:
         self.report = out.files_written[0]
         return out.files_written[0]
 
-    def export(self, targets: list[str]) -> list[str]:
-        """Export to the targets chosen (keys of :data:`EXPORTS`); the files written."""
-        paths = {key: str(self.folder / EXPORTS[key][1]) for key in targets if key in EXPORTS}
-        if "slicer" in paths or "plus" in paths:
-            app.export(
-                app.ExportSettings(
-                    str(self.calibration_path), slicer=paths.get("slicer"), plus=paths.get("plus"), force=True
-                )
+    def ur_export_blocked(self) -> str | None:
+        """Why the UR ROS driver's calibration cannot be written from this calibration, in an
+        operator's words; None when it can (a calibration of the kinematic method, of a six-joint
+        UR arm: the driver's file holds the identified joints)."""
+        if self.calibration is None:
+            return "calibrate first"
+        model = self.calibration.record.robot_model
+        if model is None:
+            return (
+                "the UR ROS driver's calibration needs the robot's kinematics: calibrate with the "
+                "method kinematic to write it"
             )
-        if "ros2_launch" in paths or "ur_calibration" in paths:
-            app.export_ros(
-                app.RosExportSettings(
-                    str(self.calibration_path),
-                    ros2_launch=paths.get("ros2_launch"),
-                    ur_calibration=paths.get("ur_calibration"),
-                    force=True,
-                )
+        if model.n_joints != N_JOINTS:
+            return (
+                f"the UR ROS driver's calibration is of a UR arm's six joints; the {model.name} "
+                f"has {model.n_joints}"
             )
-        self.exported = sorted({*self.exported, *(Path(p).name for p in paths.values())})
-        return list(paths.values())
+        return None
+
+    def export(self, targets: list[str]) -> ExportOutcome:
+        """Export to each target chosen (keys of :data:`EXPORTS`), one at a time, so that one
+        that fails leaves the others written; what was written and what failed, and why."""
+        outcome = ExportOutcome(chosen=[key for key in EXPORTS if key in targets])
+        for key in outcome.chosen:
+            name = EXPORTS[key][1]
+            blocked = self.ur_export_blocked() if key == "ur_calibration" else None
+            if blocked is not None:
+                outcome.failed[key] = blocked
+                continue
+            path, calibration = str(self.folder / name), str(self.calibration_path)
+            try:
+                if key in ("slicer", "plus"):
+                    app.export(app.ExportSettings(calibration, force=True, **{key: path}))
+                else:
+                    app.export_ros(app.RosExportSettings(calibration, force=True, **{key: path}))
+            except (SpacecalError, OSError) as exc:
+                # the system's reason without its number and paths (the file is named already)
+                plain = isinstance(exc, OSError) and not isinstance(exc, SpacecalError) and exc.strerror
+                why = exc.strerror if plain else exception_line(exc)
+                outcome.failed[key] = f"{EXPORTS[key][0]} ({name}) was not written: {why}"
+                continue
+            outcome.written.append(name)
+            self.exported = sorted({*self.exported, name})
+        return outcome
+
+
+@dataclass
+class ExportOutcome:
+    """An export as the page shows it: the targets ticked, the files written, and for each
+    target that failed, why (an operator's line).
+
+    Attributes
+    ----------
+    chosen : list of str
+        Keys of :data:`EXPORTS` ticked, kept ticked when the form is shown again.
+    written : list of str
+        File names written, in the calibration's folder.
+    failed : dict of str to str
+    message : str or None
+        A line about the form as a whole (nothing ticked).
+    """
+
+    chosen: list[str] = field(default_factory=list)
+    written: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+    message: str | None = None
 
 
 def reopened_workspace(
