@@ -21,8 +21,8 @@ from spacecal.core.text import exception_line
 from spacecal.io.check_history import history_path
 from spacecal.io.digest import file_sha256
 from spacecal.io.recordings import open_calibrated_recording, recording_in, refuse_changed
-from spacecal.models.tracker_kinds import tracker_kind_of
 from spacecal.models.kinematics import N_JOINTS
+from spacecal.models.tracker_kinds import tracker_kind_of
 from spacecal.records import CalibrationResult
 from spacecal.station.guide_step import INSERTIONS, LOCATED_NAME, GuideStep
 from spacecal.station.scene import setup_scene
