@@ -14,18 +14,9 @@ import numpy as np
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.arrays import ArrayLike, FloatArray
 from spacecal.models.kinematics import RobotModel, _link_transforms
-from spacecal.models.robot_kinds import ROBOT_KINDS, LinkDynamics, robot_kind
+from spacecal.models.robot_kinds import ROBOT_KINDS, LinkDynamics
 
 STANDARD_GRAVITY_M_S2 = 9.80665
-
-#: UR10 link masses (kg) and centres of mass (mm) in each link's DH frame, as Universal Robots
-#: publishes them (the UR10 entry of the robot-kind registry).
-UR10_DYNAMICS: LinkDynamics = robot_kind("UR10").dynamics  # type: ignore[assignment]
-UR10_LINK_MASSES_KG = UR10_DYNAMICS.masses_kg
-UR10_LINK_COM_MM = UR10_DYNAMICS.centres_of_mass_mm
-
-#: The arms whose published link dynamics the package holds, by model name.
-LINK_DYNAMICS = {name: kind.dynamics for name, kind in ROBOT_KINDS.items() if kind.dynamics is not None}
 
 
 def link_dynamics_of(model_name: str) -> LinkDynamics | None:
@@ -39,7 +30,7 @@ def gravity_joint_torques(
     model: RobotModel,
     joints_rad: ArrayLike,
     payload_kg: float = 0.0,
-    dynamics: LinkDynamics = UR10_DYNAMICS,
+    dynamics: LinkDynamics | None = None,
 ) -> FloatArray:
     """Static gravity torques on the joints of an upright arm, N m.
 
@@ -55,14 +46,27 @@ def gravity_joint_torques(
         Joint angles, rad.
     payload_kg : float
         Mass carried on the tool, kg.
-    dynamics : LinkDynamics
-        Link masses and centres of mass (default the UR10's).
+    dynamics : LinkDynamics, optional
+        Link masses and centres of mass; by default those of the robot kind ``model`` is named
+        after (:func:`link_dynamics_of`).
 
     Returns
     -------
     numpy.ndarray, shape (N, J)
         Torque on each joint, N m (positive about the joint's z axis).
+
+    Raises
+    ------
+    InvalidInputError
+        If no dynamics are given and the kind publishes none: such an arm has no gravity model
+        (rather than another arm's).
     """
+    if dynamics is None:
+        dynamics = link_dynamics_of(model.name)
+        if dynamics is None:
+            raise InvalidInputError(
+                f"the {model.name} has no published link dynamics: no gravity model for it"
+            )
     q = np.atleast_2d(np.asarray(joints_rad, float))
     joints = model.n_joints
     if np.shape(dynamics.masses_kg) != (joints,):

@@ -18,9 +18,7 @@ least-squares solve from a seed otherwise. Lengths are in mm, angles in rad.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field, replace
-from importlib import resources
 
 import numpy as np
 
@@ -36,24 +34,15 @@ from spacecal.geometry.transforms import (
     transform_points_by_stack,
 )
 
+#: The twists every UR arm shares (what :func:`uses_ur_closed_form` recognises); the kinds
+#: themselves, UR or not, are :mod:`spacecal.models.robot_kinds`.
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
-#: Joints of the UR arms (the closed-form IK, the gravity model and the UR driver's files).
+#: Joints of the UR arms (the closed-form IK and the UR driver's files).
 N_JOINTS = 6
 #: Most joints a model, a recording or a calibration file may have.
 MAX_JOINTS = 12
 #: The two DH conventions a model may be written in (see the module docstring).
 DH_CONVENTIONS = ("standard", "modified")
-
-
-def _load_ur_tables() -> dict:
-    """The UR entries of the robot-kind data (the registry itself is
-    :mod:`spacecal.models.robot_kinds`; read here as plain data, which it imports this module)."""
-    text = resources.files("spacecal.models").joinpath("data/robot_kinds.json").read_text()
-    kinds = json.loads(text)["kinds"]
-    return {k["name"]: k for k in kinds if k.get("inverse_kinematics") == "ur_closed_form"}
-
-
-UR_TABLES = _load_ur_tables()
 
 
 @dataclass(frozen=True)
@@ -158,24 +147,6 @@ class RobotModel:
             "alpha_rad": self.alpha_rad.tolist(),
             "theta_offset_rad": self.theta_offset_rad.tolist(),
         }
-
-
-def ur_model(name: str, flange_from_tcp: ArrayLike | None = None) -> RobotModel:
-    """The nominal model of a Universal Robots arm: ``robot_kind(name).model(flange_from_tcp)``
-    of :mod:`spacecal.models.robot_kinds`, for a UR kind only.
-
-    Parameters
-    ----------
-    name : str
-        One of ``UR3, UR5, UR10, UR3e, UR5e, UR10e, UR16e``.
-    flange_from_tcp : array_like, shape (4, 4), optional
-        Tool offset in the flange frame, mm; identity if omitted.
-    """
-    from spacecal.models.robot_kinds import robot_kind  # the registry imports this module
-
-    if name not in UR_TABLES:
-        raise InvalidInputError(f"unknown robot model {name!r}; known: {', '.join(UR_TABLES)}")
-    return robot_kind(name).model(flange_from_tcp)
 
 
 def _link_transforms(model: RobotModel, joints_rad: FloatArray) -> FloatArray:

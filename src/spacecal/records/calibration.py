@@ -586,10 +586,10 @@ class CalibrationResult:
         if model_data is not None:
             if not isinstance(model_data, Mapping):
                 raise InvalidInputError(f"{what}: robot_model must be an object")
-            from spacecal.models.kinematics import UR_TABLES, ur_model
+            from spacecal.models.robot_kinds import is_robot_kind, robot_kind
 
             name = model_data.get("name")
-            base = ur_model(name) if isinstance(name, str) and name in UR_TABLES else None
+            base = robot_kind(name).model() if is_robot_kind(name) else None
             robot_model = robot_model_from_dict(model_data, what, base)
         needle_tip = None
         if version >= NEEDLE_TIP_SCHEMA_VERSION and data.get("needle_tip") is not None:
