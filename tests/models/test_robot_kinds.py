@@ -243,3 +243,15 @@ def test_a_kind_made_at_run_time_joins_the_registry_once():
     with pytest.raises(InvalidInputError, match="lower limit must be below"):
         dataclasses.replace(made, joint_lower_rad=made.joint_upper_rad)
     assert isinstance(made, RobotKind)
+
+
+def test_a_ur_controller_takes_only_ur_kinds():
+    from spacecal.adapters.ur import _ur_nominal
+
+    assert _ur_nominal("UR10e").name == "UR10e"
+    with pytest.raises(
+        InvalidInputError, match="FR3 is a Franka Robotics arm; a UR controller drives one of UR3"
+    ):
+        _ur_nominal("FR3")
+    with pytest.raises(InvalidInputError, match="unknown robot kind 'UR11'"):
+        _ur_nominal("UR11")
