@@ -61,7 +61,7 @@ class DeviceSettings:
     tracker_rate_hz : float
         The tracker's frame rate (Vicra 20, Vega 60), Hz.
     robot_model : str or None
-        UR model for planning checks; None: the one the controller names (simulated devices:
+        Robot kind for planning checks; None: the one the controller names (simulated devices:
         the scenario's).
     tool : (x, y, z, rx, ry, rz) or None
         The TCP in the flange frame as the teach pendant shows it: mm and a rotation vector in

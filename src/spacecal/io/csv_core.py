@@ -197,7 +197,7 @@ def check_tcp_against_kinematics(
     The robot model and the TCP in the flange come from the metadata, so the scale is known:
     TCP positions in cm or inches, quaternions in x, y, z, w order or conjugated, or the
     marker's pose in the TCP columns all put the recorded TCP far from where the joints put
-    it. Without joints or a known UR model there is nothing to compare with.
+    it. Without joints or a registered robot kind there is nothing to compare with.
 
     Parameters
     ----------

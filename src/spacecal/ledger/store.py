@@ -282,7 +282,7 @@ class Ledger:
             space). The ledger checks only this form; the station checks that the URL is one a
             robot is opened with (:func:`spacecal.app.devices.validate_device_url`) first.
         model : str or None
-            A UR model spacecal knows (``UR10``, ``UR10e``, ...).
+            A registered robot kind (``UR10e``, ``FR3``, ...; :mod:`spacecal.models.robot_kinds`).
 
         Raises
         ------
