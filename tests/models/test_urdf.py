@@ -12,7 +12,8 @@ import pytest
 
 from spacecal.core.errors import InvalidInputError, MissingExtraError
 from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec
-from spacecal.models.kinematics import UR_ALPHA_RAD, UR_TABLES, forward_kinematics, ur_model
+from spacecal.models.kinematics import UR_ALPHA_RAD, forward_kinematics
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.models.urdf import joint_speed_limits_from_urdf, robot_model_from_urdf
 
 yourdfpy = pytest.importorskip("yourdfpy")
@@ -117,15 +118,15 @@ def test_the_ur10_urdf_gives_the_published_ur10_table():
     # the UR controller's base frame ("base") and all-zero TCP ("tool0"): the DH table of the
     # URDF is Universal Robots' own, joint for joint
     model = robot_model_from_urdf(UR10, "base", "tool0")
-    table = UR_TABLES["UR10"]
-    assert np.allclose(model.a_mm, table["a"], atol=1e-9)
-    assert np.allclose(model.d_mm, table["d"], atol=1e-9)
+    table = robot_kind("UR10")
+    assert np.allclose(model.a_mm, table.a_mm, atol=1e-9)
+    assert np.allclose(model.d_mm, table.d_mm, atol=1e-9)
     assert np.allclose(model.alpha_rad, UR_ALPHA_RAD, atol=1e-10)
     assert np.allclose(model.theta_offset_rad, 0.0, atol=1e-10)
     assert np.allclose(model.flange_from_tcp, np.eye(4), atol=1e-9)
     rng = np.random.default_rng(11)
     joints = rng.uniform(-np.pi, np.pi, (SAMPLES, 6))
-    published = forward_kinematics(ur_model("UR10"), joints)
+    published = forward_kinematics(robot_kind("UR10").model(), joints)
     ours = forward_kinematics(model, joints)
     assert np.max(np.abs(ours[:, :3, 3] - published[:, :3, 3])) < POSITION_TOL_MM
     assert np.max(np.abs(ours[:, :3, :3] - published[:, :3, :3])) < ROTATION_TOL_RAD
@@ -135,14 +136,14 @@ def test_from_the_ros_base_link_the_ur10_differs_from_the_table_by_fixed_offsets
     # ROS's base_link is turned half a turn from the controller's base: another DH table (the
     # standard DH ambiguity: signs of a and alpha, a theta offset of pi), same motion
     model = robot_model_from_urdf(UR10, "base_link", "tool0")
-    table = UR_TABLES["UR10"]
-    assert np.allclose(np.abs(model.a_mm), np.abs(table["a"]), atol=1e-9)
-    assert np.allclose(model.d_mm, table["d"], atol=1e-9)
+    table = robot_kind("UR10")
+    assert np.allclose(np.abs(model.a_mm), np.abs(table.a_mm), atol=1e-9)
+    assert np.allclose(model.d_mm, table.d_mm, atol=1e-9)
     assert np.allclose(np.abs(model.alpha_rad), np.abs(UR_ALPHA_RAD), atol=1e-10)
     urdf = yourdfpy.URDF.load(str(UR10), load_meshes=False)
     base_link_from_base = np.array(urdf.get_transform(frame_to="base", frame_from="base_link"))
     assert np.allclose(base_link_from_base[:3, 3], 0.0)
-    published = ur_model("UR10")
+    published = robot_kind("UR10").model()
     # the flange offset from the zero pose, then the motion everywhere else is a test
     flange = (
         invert_transform(forward_kinematics(published, np.zeros(6)))

@@ -4,7 +4,7 @@ the command line's options, the station's forms and the record.
 The messages are in an operator's words and name no option: the station shows them beside the
 form's field, the record raises them as they are, and the command line puts its option's name
 in front (:func:`spacecal.app.devices.check_tracker_rate_hz`). The robot's model is checked
-beside the kinematic tables it names (:func:`spacecal.models.kinematics.check_ur_model`), the
+beside the kinematic tables it names (:func:`spacecal.models.robot_kinds.check_robot_kind`), the
 device address by the parser that opens the device
 (:func:`spacecal.app.devices.validate_device_url`).
 """

@@ -6,7 +6,7 @@ The checks are spacecal's own, in an operator's words (no option names, no Pytho
 the address by the parser that opens the device
 (:func:`spacecal.app.devices.validate_device_url`), the name by
 :func:`spacecal.core.text.check_name`, the robot's model by
-:func:`spacecal.models.kinematics.check_ur_model` and the frame rate by
+:func:`spacecal.models.robot_kinds.check_robot_kind` and the frame rate by
 :func:`spacecal.core.device_fields.frame_rate_from_text`; the record checks the same again.
 """
 
@@ -19,7 +19,7 @@ from spacecal.app.devices import validate_device_url
 from spacecal.core.device_fields import frame_rate_from_text
 from spacecal.core.errors import InvalidInputError
 from spacecal.core.text import check_name, exception_line
-from spacecal.models.kinematics import check_ur_model
+from spacecal.models.robot_kinds import check_robot_kind
 
 #: The fields of each kind's form, in the order they are shown.
 FIELDS = {"robot": ("name", "url", "model"), "tracker": ("name", "url", "rate_hz")}
@@ -121,7 +121,7 @@ def read_device_form(form: Any, kind: str, device_id: int | None = None) -> Devi
                 out.refuse("url", exc)
     if texts.get("model"):
         try:
-            out.model = check_ur_model(texts["model"])
+            out.model = check_robot_kind(texts["model"])
         except InvalidInputError as exc:
             out.refuse("model", exc)
     if "rate_hz" in texts:

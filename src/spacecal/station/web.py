@@ -29,7 +29,7 @@ from spacecal import app as spacecal_app
 from spacecal.core.errors import InvalidInputError, RecordError, SpacecalError
 from spacecal.core.text import exception_line
 from spacecal.ledger import Ledger, NameTakenError
-from spacecal.models.kinematics import UR_TABLES
+from spacecal.models.robot_kinds import ROBOT_KINDS
 from spacecal.station.access import FILE_POLICY, AccessMiddleware, foreign_request, is_loopback
 from spacecal.station.device_forms import (
     FIELDS,
@@ -157,7 +157,7 @@ def home(request: Request) -> Response:
         default_robot=default_device(robots),
         default_tracker=default_device(trackers),
         device_form=note if isinstance(note, DeviceForm) else None,
-        robot_models=list(UR_TABLES),
+        robot_models=list(ROBOT_KINDS),
         workspaces=sorted(station.workspaces.values(), key=lambda w: -w.id),
     )
 

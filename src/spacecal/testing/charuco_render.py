@@ -28,7 +28,8 @@ import numpy as np
 
 from spacecal.adapters.camera import MOUNT_FIXED, MOUNT_FLANGE, BoardDefinition, Intrinsics
 from spacecal.geometry.transforms import axis_angle_transform, invert_transform, make_transform
-from spacecal.models.kinematics import forward_kinematics, ur_model
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.models.robot_kinds import robot_kind
 
 #: Rendering is done at this many times the image's resolution and averaged down.
 SUPERSAMPLE = 3
@@ -230,7 +231,7 @@ def simulate_scene(
     board = board or default_board()
     intrinsics = intrinsics or default_intrinsics()
     rng = np.random.default_rng(seed)
-    model = ur_model("UR10")
+    model = robot_kind("UR10").model()
     start = forward_kinematics(model, START_JOINTS_RAD, to_tcp=False)
     width_mm, height_mm = board.size_mm
     centre_in_board = np.array([width_mm / 2, height_mm / 2, 0.0])
