@@ -319,7 +319,10 @@ class Ledger:
         """A robot's or tracker's columns, each checked as :meth:`add_robot` and
         :meth:`add_tracker` check them."""
         devices.device_table(kind)
-        values = {"name": check_name(name, f"{kind} name"), "url": _check_device_url(url, kind)}
+        values: dict[str, Any] = {
+            "name": check_name(name, f"{kind} name"),
+            "url": _check_device_url(url, kind),
+        }
         if kind == "robot":
             values["model"] = _check_model(model)
         else:

@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from importlib import resources
 from types import MappingProxyType
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -207,7 +207,7 @@ class RobotKind:
 
 def _angles(
     entry: Mapping[str, Any], stem: str, what: str, default: float | None = None
-) -> tuple[float, ...] | None:
+) -> tuple[float, ...]:
     """``stem_rad`` or ``stem_deg`` of an entry, in rad (the file keeps the vendor's unit)."""
     if f"{stem}_rad" in entry:
         return tuple(float(v) for v in entry[f"{stem}_rad"])
@@ -216,6 +216,14 @@ def _angles(
     if default is not None:
         return (default,) * len(entry["a_mm"])
     raise InvalidInputError(f"{what}: needs {stem}_rad or {stem}_deg")
+
+
+def _stated_pair(values: Any, what: str) -> tuple[float | None, float | None]:
+    """(nominal, after the vendor's calibration) stated accuracy, mm, each None if not published."""
+    if not isinstance(values, (list, tuple)) or len(values) != 2:
+        raise InvalidInputError(f"{what}: kinematic_accuracy_mm takes two numbers or nulls")
+    nominal, calibrated = (None if v is None else float(v) for v in values)
+    return nominal, calibrated
 
 
 def kind_from_dict(entry: Mapping[str, Any]) -> RobotKind:
@@ -262,7 +270,7 @@ def kind_from_dict(entry: Mapping[str, Any]) -> RobotKind:
             joint_speed_deg_s=speeds,
             controller_hz=float(entry["controller_hz"]),
             repeatability_mm=float(entry["repeatability_mm"]),
-            kinematic_accuracy_mm=tuple(None if v is None else float(v) for v in accuracy),
+            kinematic_accuracy_mm=_stated_pair(accuracy, what),
             payload_kg=float(entry["payload_kg"]),
             dynamics=dynamics,
             inverse_kinematics=str(entry.get("inverse_kinematics", "numeric")),
@@ -316,7 +324,7 @@ def check_robot_kind(name: object) -> str:
     return text
 
 
-def is_robot_kind(name: object) -> bool:
+def is_robot_kind(name: object) -> TypeGuard[str]:
     """Whether ``name`` is a registered kind's name."""
     return isinstance(name, str) and name in _KINDS
 
@@ -331,7 +339,7 @@ def register_robot_kind(kind: RobotKind) -> None:
         raise InvalidInputError(f"register_robot_kind takes a RobotKind, got {type(kind).__name__}")
     held = _KINDS.get(kind.name)
     same = held is not None and replace(held, dynamics=None) == replace(kind, dynamics=None)
-    if same and held.dynamics is not None:
+    if same and held is not None and held.dynamics is not None:
         same = held.dynamics.same_as(kind.dynamics)
     elif same:
         same = kind.dynamics is None

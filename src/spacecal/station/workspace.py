@@ -472,13 +472,31 @@ class Workspace:
             path, calibration = str(self.folder / name), str(self.calibration_path)
             try:
                 if key in ("slicer", "plus"):
-                    app.export(app.ExportSettings(calibration, force=True, **{key: path}))
+                    app.export(
+                        app.ExportSettings(
+                            calibration,
+                            slicer=path if key == "slicer" else None,
+                            plus=path if key == "plus" else None,
+                            force=True,
+                        )
+                    )
                 else:
-                    app.export_ros(app.RosExportSettings(calibration, force=True, **{key: path}))
+                    app.export_ros(
+                        app.RosExportSettings(
+                            calibration,
+                            ros2_launch=path if key == "ros2_launch" else None,
+                            ur_calibration=path if key == "ur_calibration" else None,
+                            force=True,
+                        )
+                    )
             except (SpacecalError, OSError) as exc:
                 # the system's reason without its number and paths (the file is named already)
-                plain = isinstance(exc, OSError) and not isinstance(exc, SpacecalError) and exc.strerror
-                why = exc.strerror if plain else exception_line(exc)
+                system = isinstance(exc, OSError) and not isinstance(exc, SpacecalError)
+                why = (
+                    exc.strerror
+                    if system and isinstance(exc, OSError) and exc.strerror
+                    else exception_line(exc)
+                )
                 outcome.failed[key] = f"{EXPORTS[key][0]} ({name}) was not written: {why}"
                 continue
             outcome.written.append(name)

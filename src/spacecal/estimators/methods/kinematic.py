@@ -354,7 +354,7 @@ def compliance_report(
         "sd_rad_per_nm": [sd.get(name) for name in COMPLIANCE_NAMES],
         "reference_torques_nm": compliance.reference_torques_nm.tolist(),
         "payload_kg": compliance.payload_kg,
-        "link_dynamics": compliance.dynamics.name,
+        "link_dynamics": None if compliance.dynamics is None else compliance.dynamics.name,
     }
 
 
