@@ -360,6 +360,10 @@ class Run:
             message=self.message,
             moves_total=self.moves_total,
             move=self.move_index + 1 if self.samples else 0,
+            # the motion's own counts: only an acquisition's frames reach the live view, so the
+            # view's counts stay 0 through a check, a verification or a guidance
+            samples=self.samples,
+            visible=self.visible,
             stop_reason=self.stop_reason,
             awaiting=self.awaiting,
         )

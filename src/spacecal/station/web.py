@@ -44,7 +44,7 @@ from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
 from spacecal.station.verify_step import PAPER_POSITION_MM, PAPER_POSTURE_DEG, poses_from_form
-from spacecal.station.workspace import EXPORTS, Workspace, new_folder, reopened_workspace
+from spacecal.station.workspace import EXPORTS, Workspace, new_folder, reopened_workspace, step_states
 
 HERE = Path(__file__).resolve().parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
@@ -261,10 +261,14 @@ async def workspace_page(request: Request) -> Response:
         history = station.ledger.checks(work.calibration_record_id)
     verify_run = station.runs.get(work.verify_run_id) if work.verify_run_id is not None else None
     guide_run = station.runs.get(work.guide_run_id) if work.guide_run_id is not None else None
+    moving = station.runs.active()
+    steps = step_states(work, moving.motion if moving is not None and moving.workspace == work.id else None)
     return _page(
         request,
         "workspace.html",
         work=work,
+        steps=steps,
+        step={s.key: s for s in steps},
         findings=findings,
         run=run,
         verify_run=verify_run,
