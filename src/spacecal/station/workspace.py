@@ -480,6 +480,8 @@ def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
 
     if work.motion_basis("acquire") is not None:
         states["dry-run"] = (DONE, "passed: nothing moved", "good")
+    elif work.dry_run_ok:
+        states["dry-run"] = (CURRENT, "the plan changed since it passed: run it again", None)
     elif work.dry_run_lines:
         states["dry-run"] = (CURRENT, "did not pass: see its findings", "poor")
     else:
@@ -491,7 +493,10 @@ def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
     elif recorded:
         states["acquire"] = (DONE, "recorded", None)
     elif work.motion_basis("acquire") is None:
-        why = "the dry run did not pass" if work.dry_run_lines else "run the dry run first"
+        if work.dry_run_ok:
+            why = "the plan changed since the dry run: run it again"
+        else:
+            why = "the dry run did not pass" if work.dry_run_lines else "run the dry run first"
         states["acquire"] = (LOCKED, f"{why}: the robot moves only after it passed", None)
     else:
         states["acquire"] = (CURRENT, "", None)
@@ -541,15 +546,14 @@ def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
     else:
         states["report"] = (DONE, "written", None) if work.report else (CURRENT, "", None)
         count = len(work.exported)
-        states["export"] = (DONE, f"{count} file{'s' if count != 1 else ''}", None) if count else (CURRENT, "", None)
+        files = f"{count} file{'s' if count != 1 else ''}"
+        states["export"] = (DONE, files, None) if count else (CURRENT, "", None)
 
     keys = [key for key, _ in STEPS]
     done = [k for k, key in enumerate(keys) if states[key][0] == DONE]
     after = done[-1] + 1 if done else 0
     upcoming = next((k for k in range(after, len(keys)) if states[keys[k]][0] == CURRENT), None)
-    return [
-        StepState(key, title, *states[key], next=k == upcoming) for k, (key, title) in enumerate(STEPS)
-    ]
+    return [StepState(key, title, *states[key], next=k == upcoming) for k, (key, title) in enumerate(STEPS)]
 
 
 def reopened_workspace(
