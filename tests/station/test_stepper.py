@@ -103,6 +103,7 @@ def test_the_steps_follow_a_calibration_from_its_plan_to_its_export(tmp_path):
     work.dry_run()
     shown = states(work)
     assert shown["plan"] == (DONE, None) and shown["dry-run"] == (DONE, "good")
+    assert next_step(work) == "acquire"
     assert shown["acquire"] == (CURRENT, None) and next_step(work) == "acquire"
     assert states(work, running="acquire")["calibrate"][0] == LOCKED  # not while it records
     # an edited plan: the dry run no longer holds, so neither does the acquisition's confirmation
@@ -129,7 +130,7 @@ def test_the_steps_follow_a_calibration_from_its_plan_to_its_export(tmp_path):
 
     # a check's result colours its step: PASS as good, FAIL as poor
     work.checks.append(SimpleNamespace(result=SimpleNamespace(passed=False)))
-    assert states(work)["check"] == (DONE, "poor") and next_step(work) == "verify"
+    assert states(work)["check"] == (DONE, "poor") and next_step(work) == "report"
     work.checks.append(SimpleNamespace(result=SimpleNamespace(passed=True)))
     assert states(work)["check"] == (DONE, "good")
 
@@ -138,7 +139,18 @@ def test_the_steps_follow_a_calibration_from_its_plan_to_its_export(tmp_path):
     shown = {s.key: s for s in step_states(work)}
     assert shown["report"].state == shown["export"].state == DONE
     assert shown["export"].words == "1 file"
-    assert next_step(work) is None  # nothing after the last step done
+    assert next_step(work) == "verify"  # the needle steps come once the rest is done
+
+
+def test_the_next_step_passes_over_what_is_not_needed_yet(tmp_path):
+    work = workspace(tmp_path)
+    work.doctor()
+    work.dry_run()  # without a plan: the dry run plans the paper's sweeps itself
+    assert states(work)["plan"] == (CURRENT, None) and next_step(work) == "acquire"
+    acquire_at_once(work)
+    work.calibrate("ml")
+    work.make_report()
+    assert next_step(work) == "check"  # a report written first does not pass the check over
 
 
 def test_a_new_acquisition_forgets_the_steps_that_followed(tmp_path):

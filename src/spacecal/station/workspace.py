@@ -409,6 +409,8 @@ STEPS = (
     ("report", "Report"),
     ("export", "Export"),
 )
+#: Steps the next step skips until every other one is done (the paper's §5.2 and §5.3).
+OPTIONAL_STEPS = ("verify", "guide")
 #: A step's states: finished, can be done now, or refused by the station until an earlier step.
 DONE, CURRENT, LOCKED = "done", "current", "locked"
 #: The devices' finding words and the grade a display colours them with.
@@ -449,8 +451,9 @@ def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
     """What each step of ``work`` is now, in :data:`STEPS`' order, from the workspace's state
     and its files: a step is locked exactly when the station would refuse it (the motions'
     confirmations, :meth:`Workspace.motion_basis`; the calibration's steps need a recording,
-    the rest a calibration), and the next step is the first one neither done nor locked after
-    the last one done.
+    the rest a calibration). The next step is the first one neither done nor locked, leaving
+    out the plan once a dry run passed (it plans for itself) and :data:`OPTIONAL_STEPS` while
+    any other step is still to do.
 
     Parameters
     ----------
@@ -479,7 +482,7 @@ def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
     states["plan"] = (DONE, "planned", None) if work.plan_summary else (CURRENT, "", None)
 
     if work.motion_basis("acquire") is not None:
-        states["dry-run"] = (DONE, "passed: nothing moved", "good")
+        states["dry-run"] = (DONE, "passed", "good")
     elif work.dry_run_ok:
         states["dry-run"] = (CURRENT, "the plan changed since it passed: run it again", None)
     elif work.dry_run_lines:
@@ -549,11 +552,12 @@ def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
         files = f"{count} file{'s' if count != 1 else ''}"
         states["export"] = (DONE, files, None) if count else (CURRENT, "", None)
 
-    keys = [key for key, _ in STEPS]
-    done = [k for k, key in enumerate(keys) if states[key][0] == DONE]
-    after = done[-1] + 1 if done else 0
-    upcoming = next((k for k in range(after, len(keys)) if states[keys[k]][0] == CURRENT), None)
-    return [StepState(key, title, *states[key], next=k == upcoming) for k, (key, title) in enumerate(STEPS)]
+    # the next step: the first one that can be done, past the plan once a dry run planned for
+    # itself, and the paper's needle steps (verify, guide) only once every other step is done
+    can = [key for key, _ in STEPS if states[key][0] == CURRENT]
+    can = [key for key in can if not (key == "plan" and states["dry-run"][0] == DONE)]
+    upcoming = next((key for key in can if key not in OPTIONAL_STEPS), can[0] if can else None)
+    return [StepState(key, title, *states[key], next=key == upcoming) for key, title in STEPS]
 
 
 def reopened_workspace(
