@@ -26,7 +26,7 @@ from spacecal.station.workspace import (
     step_states,
 )
 from tests.station.conftest import wait_js
-from tests.station.test_browser import RUN_ENDED_JS, new_robot_and_tracker, shot, wait_for_run_end
+from tests.station.test_browser import RUN_ENDED_JS, new_robot_and_tracker, wait_for_run_end
 
 OWN_PAGE = {"Origin": "http://127.0.0.1:8770", "Sec-Fetch-Site": "same-origin"}
 
@@ -215,7 +215,6 @@ def test_the_stepper_and_the_check_counters_in_the_browser(served, page, disk):
     assert page.evaluate("getComputedStyle(document.getElementById('acquire')).backgroundColor") != (
         page.evaluate("getComputedStyle(document.getElementById('dry-run')).backgroundColor")
     )
-    shot(page, "stepper-dry-run")
     acquire_at_once(served.station.workspace(1))
     page.reload()
     page.click("#calibrate")
@@ -239,7 +238,23 @@ def test_the_stepper_and_the_check_counters_in_the_browser(served, page, disk):
     assert int(page.inner_text("#moves")) == named and int(page.inner_text("#move")) == named
     assert int(page.inner_text("#samples")) == run.samples > 0
     assert int(page.inner_text("#visible")) == run.visible
-    shot(page, "stepper-check-finished")
     page.click("#back")
     passed = page.inner_text("#checks").startswith("PASS")
     assert page.get_attribute("#stepper-check", "data-grade") == ("good" if passed else "poor")
+
+
+def test_a_run_counts_the_move_of_its_last_sample_and_every_move_once_finished():
+    from spacecal.station.motions import Run
+
+    run = Run(1, 1, "UR10 bay 1", settings=None, motion="check")
+    run.moves_total = 6
+    assert run.snapshot(0)["move"] == 0  # nothing sampled yet
+    run.samples, run.visible, run.move_index = 30, 28, 4  # sampling the last hold
+    shown = run.snapshot(0)
+    assert (shown["move"], shown["samples"], shown["visible"]) == (5, 30, 28)
+    run.state = "stopped"
+    assert run.snapshot(0)["move"] == 5  # stopped there
+    run.state = "finished"  # the last move, back home, took no samples
+    assert run.snapshot(0)["move"] == 6
+    run.output = SimpleNamespace(record=SimpleNamespace(result=SimpleNamespace(moves_completed=19)))
+    assert run.snapshot(0)["move"] == 19  # an acquisition says how many it completed
