@@ -225,6 +225,7 @@ def operator_prepares_needle_motions(context, station: Station, tmp_path) -> Any
             str(work.recording_path), devices=work.devices, confirm_robot_motion=True, plan=None
         )
     )
+    page.reload()  # the page shows the recording (calibrating is locked until there is one)
     page.click("#calibrate")
     page.fill("#verify-poses", "3")
     page.click("#verify-dry-run")

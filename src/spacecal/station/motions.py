@@ -355,6 +355,16 @@ class Run:
             text = text.replace(RESUME_WORDS, STATION_RESUME_WORDS)
             self.state, self.message = ("stopped" if stopped else "failed"), text
 
+    def moves_shown(self) -> int:
+        """The move the page counts: the one the last sample came from while the run moves; once
+        it finished, the moves it completed (its last move, back home, takes no samples, so the
+        samples alone would leave a finished check at one move short of its total)."""
+        if self.state == "finished":
+            result = getattr(self.output.record, "result", None) if self.output is not None else None
+            completed = getattr(result, "moves_completed", None)
+            return int(completed) if completed is not None else self.moves_total
+        return self.move_index + 1 if self.samples else 0
+
     def snapshot(self, since: int) -> dict[str, Any]:
         """What the page shows: the live view's frames after ``since`` and the run's state."""
         data = self.view.snapshot(since)
@@ -362,7 +372,11 @@ class Run:
             run_state=self.state,
             message=self.message,
             moves_total=self.moves_total,
-            move=self.move_index + 1 if self.samples else 0,
+            move=self.moves_shown(),
+            # the motion's own counts: only an acquisition's frames reach the live view, so the
+            # view's counts stay 0 through a check, a verification or a guidance
+            samples=self.samples,
+            visible=self.visible,
             stop_reason=self.stop_reason,
             awaiting=self.awaiting,
         )

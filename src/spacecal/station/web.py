@@ -51,7 +51,14 @@ from spacecal.station.limits import Notes, RateLimit
 from spacecal.station.motions import Runs, Tickets
 from spacecal.station.trends import trend_figure
 from spacecal.station.verify_step import PAPER_POSITION_MM, PAPER_POSTURE_DEG, poses_from_form
-from spacecal.station.workspace import EXPORTS, ExportOutcome, Workspace, new_folder, reopened_workspace
+from spacecal.station.workspace import (
+    EXPORTS,
+    ExportOutcome,
+    Workspace,
+    new_folder,
+    reopened_workspace,
+    step_states,
+)
 
 HERE = Path(__file__).resolve().parent
 templates = Jinja2Templates(directory=str(HERE / "templates"))
@@ -376,6 +383,8 @@ async def workspace_page(request: Request) -> Response:
     guide_run = station.runs.get(work.guide_run_id) if work.guide_run_id is not None else None
     scene = await asyncio.to_thread(work.scene)
     note = station.notes.get(request.query_params.get("note"))
+    moving = station.runs.active()
+    steps = step_states(work, moving.motion if moving is not None and moving.workspace == work.id else None)
     return _page(
         request,
         "workspace.html",
@@ -383,6 +392,8 @@ async def workspace_page(request: Request) -> Response:
         ur_export_blocked=work.ur_export_blocked(),
         work=work,
         scene=None if scene is None else script_json(scene),
+        steps=steps,
+        step={s.key: s for s in steps},
         findings=findings,
         run=run,
         verify_run=verify_run,

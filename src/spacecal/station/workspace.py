@@ -380,7 +380,11 @@ class Workspace:
                 f"the calibration motion: {self.moves} moves, about {self.motion_time_s:.0f} s "
                 "of motion (the paper's sweeps)"
             )
-        return "the check: two or three short moves to poses near where the robot stands"
+        poses = self.check_settings().poses
+        return (
+            f"the check: {check_moves(poses)} moves, holding the TCP at {poses} poses near where the robot "
+            "stands (the first where it stands, the others 40 mm away and tilted 10 deg) and back"
+        )
 
     def calibrate(self, method: str = "ml") -> app.CommandResult[CalibrationResult]:
         out = app.calibrate(
@@ -524,6 +528,188 @@ class ExportOutcome:
     written: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     message: str | None = None
+
+
+def check_moves(poses: int) -> int:
+    """The moves of a check at ``poses`` poses, as :func:`spacecal.planning.check_poses.check_plan`
+    plans them: a hold at each pose, the first where the robot stands, a transit to each other
+    pose and one back (``tests/station/test_stepper.py`` holds the two together).
+
+    Parameters
+    ----------
+    poses : int
+        Check poses (1 to 3).
+
+    Returns
+    -------
+    int
+        Holds and transits, the run page's move total.
+    """
+    return 1 if poses <= 1 else 2 * poses
+
+
+#: The steps of a calibration's page, in order: key and heading.
+STEPS = (
+    ("devices", "Devices"),
+    ("plan", "Plan"),
+    ("dry-run", "Dry run"),
+    ("acquire", "Acquire"),
+    ("calibrate", "Calibrate"),
+    ("check", "Check"),
+    ("verify", "Verify on the robot"),
+    ("guide", "Guide a needle"),
+    ("report", "Report"),
+    ("export", "Export"),
+)
+#: Steps the next step skips until every other one is done (the paper's §5.2 and §5.3).
+OPTIONAL_STEPS = ("verify", "guide")
+#: A step's states: finished, can be done now, or refused by the station until an earlier step.
+DONE, CURRENT, LOCKED = "done", "current", "locked"
+#: The devices' finding words and the grade a display colours them with.
+FINDING_GRADES = {"fine": "good", "check this before you start": "acceptable"}
+
+
+@dataclass(frozen=True)
+class StepState:
+    """One step of a calibration as its page shows it.
+
+    Attributes
+    ----------
+    key : str
+        The step (a key of :data:`STEPS`).
+    title : str
+    state : str
+        :data:`DONE`, :data:`CURRENT` or :data:`LOCKED`.
+    words : str
+        What it came to (done), what it waits for (current), or why it is locked, in the
+        operator's words.
+    grade : str or None
+        The grade of its result for the display's colour (``good``, ``acceptable``, ``poor``,
+        ``unusable``: a calibration's verdict grades, also for findings, dry runs and checks);
+        None when the step's result has no grade.
+    next : bool
+        The step to do next (at most one step).
+    """
+
+    key: str
+    title: str
+    state: str
+    words: str = ""
+    grade: str | None = None
+    next: bool = False
+
+
+def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
+    """What each step of ``work`` is now, in :data:`STEPS`' order, from the workspace's state
+    and its files: a step is locked exactly when the station would refuse it (the motions'
+    confirmations, :meth:`Workspace.motion_basis`; the calibration's steps need a recording,
+    the rest a calibration). The next step is the first one neither done nor locked, leaving
+    out the plan once a dry run passed (it plans for itself) and :data:`OPTIONAL_STEPS` while
+    any other step is still to do.
+
+    Parameters
+    ----------
+    work : Workspace
+    running : str or None
+        The motion of this workspace's run still moving the robot (``acquire``, ``check``,
+        ``verify``, ``standoff``, ``insert``), if any.
+
+    Returns
+    -------
+    list of StepState
+    """
+    calibrated = work.calibration is not None
+    after_calibration = "calibrate first: it is made from the calibration"
+    states: dict[str, tuple[str, str, str | None]] = {}
+
+    levels = [level for _, level, _ in work.findings or []]
+    if work.findings is None:
+        states["devices"] = (CURRENT, "asking the devices", None)
+    elif LEVEL_WORDS[FINDING_PROBLEM] in levels:
+        states["devices"] = (CURRENT, LEVEL_WORDS[FINDING_PROBLEM], "poor")
+    else:
+        worst = LEVEL_WORDS[FINDING_WARNING] if LEVEL_WORDS[FINDING_WARNING] in levels else "fine"
+        states["devices"] = (DONE, worst, FINDING_GRADES[worst])
+
+    states["plan"] = (DONE, "planned", None) if work.plan_summary else (CURRENT, "", None)
+
+    if work.motion_basis("acquire") is not None:
+        states["dry-run"] = (DONE, "passed", "good")
+    elif work.dry_run_ok:
+        states["dry-run"] = (CURRENT, "the plan changed since it passed: run it again", None)
+    elif work.dry_run_lines:
+        states["dry-run"] = (CURRENT, "did not pass: see its findings", "poor")
+    else:
+        states["dry-run"] = (CURRENT, "", None)
+
+    recorded = work.recording_path.is_file()
+    if running == "acquire":
+        states["acquire"] = (CURRENT, "the robot is moving", None)
+    elif recorded:
+        states["acquire"] = (DONE, "recorded", None)
+    elif work.motion_basis("acquire") is None:
+        if work.dry_run_ok:
+            why = "the plan changed since the dry run: run it again"
+        else:
+            why = "the dry run did not pass" if work.dry_run_lines else "run the dry run first"
+        states["acquire"] = (LOCKED, f"{why}: the robot moves only after it passed", None)
+    else:
+        states["acquire"] = (CURRENT, "", None)
+
+    if calibrated:
+        assert work.calibration is not None
+        verdict = work.calibration.record.verdict
+        grade = verdict.grade if verdict is not None else None
+        states["calibrate"] = (DONE, verdict.headline if verdict is not None else "calibrated", grade)
+    elif recorded and running != "acquire":
+        states["calibrate"] = (CURRENT, "", None)
+    else:
+        states["calibrate"] = (LOCKED, "acquire first: the calibration is computed from the recording", None)
+
+    checked = [c.result for c in work.checks if c.result is not None]
+    if running == "check":
+        states["check"] = (CURRENT, "the robot is moving", None)
+    elif work.motion_basis("check") is None:
+        states["check"] = (LOCKED, "calibrate first: the check compares the robot with it", None)
+    elif checked:
+        passed = checked[-1].passed
+        states["check"] = (DONE, "PASS" if passed else "FAIL", "good" if passed else "poor")
+    else:
+        states["check"] = (CURRENT, "", None)
+
+    if running == "verify":
+        states["verify"] = (CURRENT, "the robot is moving", None)
+    elif not calibrated:
+        states["verify"] = (LOCKED, "calibrate first: the verification reaches its poses through it", None)
+    elif work.verification.done is not None:
+        states["verify"] = (DONE, "verified", None)
+    else:
+        states["verify"] = (CURRENT, "", None)
+
+    if running in ("standoff", "insert"):
+        states["guide"] = (CURRENT, "the robot is moving", None)
+    elif not calibrated:
+        states["guide"] = (LOCKED, "calibrate first: the plan reaches the robot through it", None)
+    elif work.guide.results:
+        states["guide"] = (DONE, "guided", None)
+    else:
+        states["guide"] = (CURRENT, "", None)
+
+    if not calibrated:
+        states["report"] = (LOCKED, after_calibration, None)
+        states["export"] = (LOCKED, after_calibration, None)
+    else:
+        states["report"] = (DONE, "written", None) if work.report else (CURRENT, "", None)
+        count = len(work.exported)
+        files = f"{count} file{'s' if count != 1 else ''}"
+        states["export"] = (DONE, files, None) if count else (CURRENT, "", None)
+
+    # the next step: the first one that can be done, past the plan once a dry run planned for
+    # itself, and the paper's needle steps (verify, guide) only once every other step is done
+    can = [key for key, _ in STEPS if states[key][0] == CURRENT]
+    can = [key for key in can if not (key == "plan" and states["dry-run"][0] == DONE)]
+    upcoming = next((key for key in can if key not in OPTIONAL_STEPS), can[0] if can else None)
+    return [StepState(key, title, *states[key], next=key == upcoming) for key, title in STEPS]
 
 
 def reopened_workspace(
