@@ -1,0 +1,248 @@
+"""The ``franka://`` adapter through real pylibfranka against the Franka protocol simulator
+(``franka-sim``, see :mod:`tests.adapters.franka_sim`): state, joint and straight-line moves,
+a stop mid-move, a robot that vanishes mid-move, and a reflex refused before any motion.
+
+The simulator's position servo tracks a finished minimum-jerk path to about 1e-4 rad (measured);
+the bounds below are the adapter's own arrival tolerance and the CLI's stop times."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pylibfranka")
+
+from spacecal.adapters import DeviceOptions, open_device
+from spacecal.adapters.franka import ARRIVAL_RAD, SETTLE_S, FrankaRobot
+from spacecal.adapters.franka_motion import path_duration
+from spacecal.core.errors import DeviceError
+from spacecal.core.ports import (
+    SAFETY_NORMAL,
+    Closable,
+    ControlledRobot,
+    Identified,
+    ModelledRobot,
+    Preflight,
+    Robot,
+    plausible_tracked_pose,
+)
+
+from .franka_sim import HOST, FrankaSim
+
+#: Real client libraries against a protocol simulator, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
+#: From the stop to the arm standing still, s (as the UR stop tests: STILL_WITHIN_S).
+STILL_WITHIN_S = 1.0
+#: Still: no joint moved more than this over :data:`STILL_WINDOW_S`, rad (the servo settles
+#: to well below 1e-4 rad).
+STILL_RAD, STILL_WINDOW_S = 1e-4, 0.1
+#: From killing the simulator to the one-line error, s: libfranka's UDP receive times out
+#: after 1 s; the rest is margin for a loaded 2-core machine.
+LOST_WITHIN_S = 3.0
+#: Joint speed and acceleration of the test moves, rad/s and rad/s^2.
+SPEED, ACCEL = 1.0, 2.0
+
+
+@pytest.fixture
+def sim(tmp_path):
+    made = []
+
+    def start(*options: str) -> FrankaSim:
+        made.append(FrankaSim(tmp_path, *options))
+        return made[-1]
+
+    yield start
+    for process in made:
+        process.stop()
+
+
+def open_robot(control: bool = True) -> FrankaRobot:
+    return open_device(f"franka://{HOST}", "robot", DeviceOptions(control=control))
+
+
+def still_since(robot: FrankaRobot, since: float, within_s: float) -> float:
+    """Seconds after ``since`` (monotonic) at which the joints stood still for
+    :data:`STILL_WINDOW_S`; fails when not within ``within_s``."""
+    window: list[tuple[float, np.ndarray]] = []
+    while time.monotonic() - since < within_s + STILL_WINDOW_S:
+        now = time.monotonic()
+        window.append((now, robot.state().joints_rad))
+        window = [(t, q) for t, q in window if now - t <= STILL_WINDOW_S]
+        if now - window[0][0] >= 0.9 * STILL_WINDOW_S:
+            spread = np.ptp(np.array([q for _, q in window]), axis=0).max()
+            if spread < STILL_RAD:
+                return window[0][0] - since
+        time.sleep(0.005)
+    raise AssertionError(f"the arm was not still within {within_s} s of the stop")
+
+
+def test_state_identity_and_checks(sim):
+    sim()
+    robot = open_robot(control=False)
+    try:
+        for port in (Robot, ModelledRobot, ControlledRobot, Closable, Preflight, Identified):
+            assert isinstance(robot, port)
+        first, second = robot.state(), robot.state()
+        assert first.joints_rad.shape == (7,) and first.safety == SAFETY_NORMAL and not first.moving
+        assert second.time_s > first.time_s  # the robot's own 1 kHz clock
+        assert plausible_tracked_pose(first.base_from_tcp)
+        # mm, not metres: an FR3 end effector is 0.1 to 1 m from its base
+        assert 100.0 < np.linalg.norm(first.base_from_tcp[:3, 3]) < 1000.0
+        identity = robot.identity()
+        assert identity.model == "FR3" and identity.firmware == "FCI server version 10"
+        findings = {f.subject: f for f in robot.preflight()}
+        assert findings["robot mode"].level == "ok" and findings["robot state"].level == "ok"
+        with pytest.raises(DeviceError, match="read-only"):
+            robot.move_joints(first.joints_rad, SPEED, ACCEL)
+    finally:
+        robot.close()
+
+
+def test_joint_move_reaches_its_target_in_its_time(sim):
+    sim()
+    robot = open_robot()
+    try:
+        start = robot.state().joints_rad
+        target = start + np.array([0.4, -0.2, 0.0, 0.3, 0.0, 0.2, -0.3])
+        began = time.monotonic()
+        robot.move_joints(target, SPEED, ACCEL)
+        took = time.monotonic() - began
+        planned = path_duration(0.4, SPEED, ACCEL)
+        assert planned - 0.05 < took < planned + SETTLE_S + 0.5
+        reached = robot.state()
+        assert np.max(np.abs(reached.joints_rad - target)) < ARRIVAL_RAD
+        assert np.max(np.abs(reached.joints_rad - target)[:6]) < 1e-3  # joint 7 creeps (ARRIVAL_RAD)
+        assert not reached.moving and reached.safety == SAFETY_NORMAL
+        off = np.abs(reached.joints_rad - target)
+        print(f"{off.max():.2e} rad from the target (joint {off.argmax() + 1}), {took:.2f} s")
+    finally:
+        robot.close()
+
+
+def test_straight_line_move_keeps_to_its_line(sim):
+    sim()
+    robot = open_robot()
+    try:
+        here = robot.state().base_from_tcp
+        target = here.copy()
+        target[:3, 3] += [60.0, -40.0, 50.0]
+        robot.move_linear(target, 100.0, 400.0, asynchronous=True)
+        off_line, states = [], 0
+        direction = (target[:3, 3] - here[:3, 3]) / np.linalg.norm(target[:3, 3] - here[:3, 3])
+        while True:
+            state = robot.state()
+            states += 1
+            offset = state.base_from_tcp[:3, 3] - here[:3, 3]
+            off_line.append(np.linalg.norm(offset - direction * (offset @ direction)))
+            if not state.moving:
+                break
+            time.sleep(0.01)
+        time.sleep(0.3)  # the servo settles
+        assert states > 10
+        assert max(off_line) < 2.0  # mm, a position servo tracking a straight path
+        arrived_mm = np.linalg.norm(robot.state().base_from_tcp[:3, 3] - target[:3, 3])
+        assert arrived_mm < 1.0
+        print(f"{max(off_line):.3f} mm off the line, {arrived_mm:.3f} mm from the target")
+    finally:
+        robot.close()
+
+
+def test_a_stop_mid_move_stills_the_arm_for_good(sim):
+    sim()
+    robot = open_robot()
+    try:
+        start = robot.state().joints_rad
+        target = start + np.array([1.0, 0, 0, 0, 0, 0, 0])
+        stopped_at: list[float] = []
+
+        def stop_soon():
+            time.sleep(0.6)
+            stopped_at.append(time.monotonic())
+            robot.stop()
+
+        stopper = threading.Thread(target=stop_soon)
+        stopper.start()
+        robot.move_joints(target, SPEED, ACCEL)  # returns once stopped, short of its target
+        stopper.join()
+        still_after = still_since(robot, stopped_at[0], STILL_WITHIN_S)
+        here = robot.state().joints_rad
+        assert 0.02 < here[0] - start[0] < 0.9  # it moved, and stopped short
+        time.sleep(1.0)
+        assert np.max(np.abs(robot.state().joints_rad - here)) < STILL_RAD  # never moves again
+        with pytest.raises(DeviceError, match="was stopped"):
+            robot.move_joints(target, SPEED, ACCEL)
+        print(f"still {still_after:.3f} s after the stop")
+    finally:
+        robot.close()
+
+
+def test_a_robot_that_vanishes_mid_move_is_one_line_within_a_deadline(sim):
+    process = sim()
+    robot = open_robot()
+    try:
+        target = robot.state().joints_rad + np.array([1.0, 0, 0, 0, 0, 0, 0])
+        killed_at: list[float] = []
+
+        def kill_soon():
+            time.sleep(0.6)
+            killed_at.append(time.monotonic())
+            process.kill()
+
+        killer = threading.Thread(target=kill_soon)
+        killer.start()
+        with pytest.raises(DeviceError) as raised:
+            robot.move_joints(target, SPEED, ACCEL)
+        ended_after = time.monotonic() - killed_at[0]
+        killer.join()
+        line = str(raised.value)
+        assert "\n" not in line and f"lost the connection to the Franka robot on {HOST}" in line
+        assert ended_after < LOST_WITHIN_S
+        print(f"lost {ended_after:.3f} s after the kill")
+        began = time.monotonic()
+        with pytest.raises(DeviceError, match="lost the connection"):
+            robot.state()
+        assert time.monotonic() - began < 0.1  # known lost: not waited for again
+    finally:
+        began = time.monotonic()
+        robot.close()
+        assert time.monotonic() - began < LOST_WITHIN_S
+
+
+def test_a_reflex_is_refused_before_any_motion(sim):
+    sim("--enforce-motion-limits")
+    robot = open_robot()
+    try:
+        start = robot.state().joints_rad
+        target = start + np.array([1.0, 0, 0, 0, 0, 0, 0])
+        # far beyond an FR3's jerk limit: the robot aborts the motion with a reflex
+        with pytest.raises(DeviceError, match="reflex"):
+            robot.move_joints(target, 20.0, 500.0)
+        latched = robot.state()
+        assert latched.safety == "stopped_by_a_reflex"
+        with pytest.raises(DeviceError) as refused:
+            robot.move_joints(target, SPEED, ACCEL)
+        line = str(refused.value)
+        assert line.startswith("the robot is not ready (robot mode): the arm stopped in a reflex (")
+        assert line.endswith("; nothing moved") and "\n" not in line
+        time.sleep(0.3)
+        assert np.max(np.abs(robot.state().joints_rad - latched.joints_rad)) < STILL_RAD
+        problems = [f for f in robot.preflight() if f.level == "problem"]
+        assert [f.subject for f in problems] == ["robot mode"]
+    finally:
+        robot.close()
+
+
+def test_nothing_listening_is_one_line():
+    # no simulator: libfranka's port is closed on this machine
+    from .franka_sim import _answers
+
+    if _answers():
+        pytest.skip("something listens on port 1337 here")
+    began = time.monotonic()
+    with pytest.raises(DeviceError, match=f"no Franka robot answers on {HOST}:1337"):
+        open_robot()
+    assert time.monotonic() - began < 4.0
