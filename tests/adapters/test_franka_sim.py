@@ -30,7 +30,8 @@ from spacecal.core.ports import (
     plausible_tracked_pose,
 )
 
-from .franka_sim import HOST, FrankaSim
+from .franka_sim import HOST, FrankaSim, _answers
+from .ur_runs import SPACECAL, last_line, run
 
 #: Real client libraries against a protocol simulator, on real time: run apart (-m realtime).
 pytestmark = pytest.mark.realtime
@@ -238,11 +239,43 @@ def test_a_reflex_is_refused_before_any_motion(sim):
 
 def test_nothing_listening_is_one_line():
     # no simulator: libfranka's port is closed on this machine
-    from .franka_sim import _answers
-
     if _answers():
         pytest.skip("something listens on port 1337 here")
     began = time.monotonic()
     with pytest.raises(DeviceError, match=f"no Franka robot answers on {HOST}:1337"):
         open_robot()
     assert time.monotonic() - began < 4.0
+
+
+def test_doctor_names_a_robot_that_does_not_answer():
+    if _answers():
+        pytest.skip("something listens on port 1337 here")
+    result = run([*SPACECAL, "doctor", "--robot", f"franka://{HOST}"], timeout_s=60)
+    assert result.returncode == 1 and "Traceback" not in result.stderr
+    assert f"robot: connection: PROBLEM: no Franka robot answers on {HOST}:1337" in result.stdout
+
+
+def test_doctor_checks_the_simulated_robot_and_moves_nothing(sim):
+    pytest.importorskip("spacecal.models.robot_kinds")
+    sim()
+    before = open_robot(control=False)
+    try:
+        joints = before.state().joints_rad
+    finally:
+        before.close()
+    result = run([*SPACECAL, "doctor", "--robot", f"franka://{HOST}"], timeout_s=60)
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = result.stdout.splitlines()
+    for expected in (
+        "robot: controller version: ok: FCI server version 10, libfranka ",
+        "robot: robot mode: ok: Idle (ready for commands)",
+        "robot: robot state: ok: streaming at 1 kHz",
+        "robot: kinematics: ok: the nominal FR3 model (",
+    ):
+        assert any(line.startswith(expected) for line in lines), (expected, result.stdout)
+    assert last_line(result.stdout) == "every check passed: spacecal acquire can start"
+    after = open_robot(control=False)
+    try:
+        assert np.max(np.abs(after.state().joints_rad - joints)) < STILL_RAD
+    finally:
+        after.close()
