@@ -94,9 +94,10 @@ def test_state_identity_and_checks(sim):
         # mm, not metres: an FR3 end effector is 0.1 to 1 m from its base
         assert 100.0 < np.linalg.norm(first.base_from_tcp[:3, 3]) < 1000.0
         identity = robot.identity()
-        assert identity.model == "FR3" and identity.firmware == "FCI server version 10"
+        assert identity.firmware == "FCI server version 10" and identity.serial is None
         findings = {f.subject: f for f in robot.preflight()}
         assert findings["robot mode"].level == "ok" and findings["robot state"].level == "ok"
+        assert findings["end effector"].text.startswith("set in Desk (F_T_EE): X 0.0 Y 0.0 Z 0.0 mm")
         with pytest.raises(DeviceError, match="read-only"):
             robot.move_joints(first.joints_rad, SPEED, ACCEL)
     finally:

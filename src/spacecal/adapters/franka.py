@@ -56,6 +56,7 @@ from spacecal.core.ports import (
 )
 from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.rotations import rotation_angle
+from spacecal.geometry.transforms import matrix_to_rotvec
 from spacecal.planning.motion import MotionLimits
 
 #: libfranka's command port (fixed: libfranka takes a host only).
@@ -136,6 +137,13 @@ def pose_to_franka(pose_mm) -> list[float]:
     pose[:3, 3] = mm_to_metres(pose[:3, 3])
     pose[3] = (0.0, 0.0, 0.0, 1.0)
     return [float(v) for v in pose.reshape(16, order="F")]
+
+
+def ee_text(flange_from_ee) -> str:
+    """An end effector as Desk gives it: X, Y, Z in mm and the rotation vector in rad."""
+    pose = np.asarray(flange_from_ee, dtype=float)
+    values = [*pose[:3, 3], *matrix_to_rotvec(pose[:3, :3])]
+    return "X {:.1f} Y {:.1f} Z {:.1f} mm, RX {:.4f} RY {:.4f} RZ {:.4f} rad".format(*values)
 
 
 def error_names(errors) -> list[str]:
@@ -352,9 +360,10 @@ class FrankaRobot:
 
     # -- checks --------------------------------------------------------------------------------
     def identity(self) -> DeviceIdentity:
-        """The robot kind spacecal opened it as and its command-server version. libfranka
-        reports no serial number: calibrations name this robot by its address."""
-        return DeviceIdentity(model=self.kind_name, firmware=f"FCI server version {self._server_version}")
+        """The robot's command-server version (its answer to ``Connect``). libfranka reports
+        neither the model nor a serial number: the recording names the robot kind it was
+        opened as, and calibrations name this robot by its address."""
+        return DeviceIdentity(firmware=f"FCI server version {self._server_version}")
 
     def preflight(self) -> list[DeviceFinding]:
         """Read-only checks: server version, robot mode and errors, the state stream, the
@@ -385,6 +394,7 @@ class FrankaRobot:
             add(FINDING_PROBLEM, "robot state", "the robot's state time does not advance")
         else:
             add(FINDING_OK, "robot state", "streaming at 1 kHz")
+        add(FINDING_OK, "end effector", f"set in Desk (F_T_EE): {ee_text(pose_from_franka(later.F_T_EE))}")
         joints = np.asarray(later.q, dtype=float)
         from spacecal.models.kinematics import forward_kinematics
 
