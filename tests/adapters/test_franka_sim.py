@@ -29,6 +29,8 @@ from spacecal.core.ports import (
     Robot,
     plausible_tracked_pose,
 )
+from spacecal.geometry.rotations import rotation_angle
+from spacecal.geometry.transforms import rotvec_to_matrix
 
 from .franka_sim import HOST, FrankaSim, _answers
 from .ur_runs import SPACECAL, last_line, run
@@ -132,6 +134,7 @@ def test_straight_line_move_keeps_to_its_line(sim):
         here = robot.state().base_from_tcp
         target = here.copy()
         target[:3, 3] += [60.0, -40.0, 50.0]
+        target[:3, :3] = here[:3, :3] @ rotvec_to_matrix([0.0, 0.0, 0.3])  # about the tool axis
         robot.move_linear(target, 100.0, 400.0, asynchronous=True)
         off_line, states = [], 0
         direction = (target[:3, 3] - here[:3, 3]) / np.linalg.norm(target[:3, 3] - here[:3, 3])
@@ -146,8 +149,10 @@ def test_straight_line_move_keeps_to_its_line(sim):
         time.sleep(0.3)  # the servo settles
         assert states > 10
         assert max(off_line) < 2.0  # mm, a position servo tracking a straight path
-        arrived_mm = np.linalg.norm(robot.state().base_from_tcp[:3, 3] - target[:3, 3])
+        arrived = robot.state().base_from_tcp
+        arrived_mm = np.linalg.norm(arrived[:3, 3] - target[:3, 3])
         assert arrived_mm < 1.0
+        assert rotation_angle(arrived[:3, :3].T @ target[:3, :3]) < np.radians(0.1)
         print(f"{max(off_line):.3f} mm off the line, {arrived_mm:.3f} mm from the target")
     finally:
         robot.close()
@@ -212,6 +217,21 @@ def test_a_robot_that_vanishes_mid_move_is_one_line_within_a_deadline(sim):
         began = time.monotonic()
         robot.close()
         assert time.monotonic() - began < LOST_WITHIN_S
+
+
+def test_a_robot_that_vanishes_at_rest_is_one_line_within_a_deadline(sim):
+    process = sim()
+    robot = open_robot(control=False)
+    try:
+        robot.state()
+        process.kill()
+        began = time.monotonic()
+        with pytest.raises(DeviceError, match=f"lost the connection to the Franka robot on {HOST}"):
+            for _ in range(10_000):  # a packet or two may still be on its way
+                robot.state()
+        assert time.monotonic() - began < LOST_WITHIN_S
+    finally:
+        robot.close()
 
 
 def test_a_reflex_is_refused_before_any_motion(sim):
