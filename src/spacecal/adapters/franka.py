@@ -79,7 +79,8 @@ STOP_DECEL_MM_S2 = 1000.0
 STALE_AFTER_S = 0.5
 #: How often the caller of a move looks at its loop, s.
 WAIT_POLL_S = 0.01
-#: The nominal kinematics must reproduce the reported end-effector pose to this, mm.
+#: Beyond this distance (mm) between the nominal kinematics' end effector and the reported
+#: one, the preflight warns.
 MODEL_CHECK_MM = 1.0
 #: Joint-space arrival, rad. Measured on the simulator once the arm stood still: joints 1-6
 #: within 3e-4 rad of a finished path's end; joint 7 (low gain, friction) then creeps while
@@ -408,8 +409,11 @@ class FrankaRobot:
         predicted = forward_kinematics(self.nominal, joints)
         error_mm = float(np.linalg.norm(predicted[:3, 3] - pose_from_franka(later.O_T_EE)[:3, 3]))
         if error_mm > MODEL_CHECK_MM:
+            # a warning here, as a UR's nominal fallback: whether the run can go on is the
+            # model check of the workflows (spacecal.app.devices.hardware_model), which a
+            # mismatch fails
             add(
-                FINDING_PROBLEM,
+                FINDING_WARNING,
                 "kinematics",
                 f"the nominal {self.kind_name} model puts the end effector {error_mm:.2f} mm from where "
                 "the robot reports it: check --robot-model and the end effector set in Desk",
