@@ -18,7 +18,7 @@ pytest.importorskip("pylibfranka")
 from spacecal.adapters import DeviceOptions, open_device
 from spacecal.adapters.franka import ARRIVAL_RAD, SETTLE_S, FrankaRobot
 from spacecal.adapters.franka_motion import path_duration
-from spacecal.core.errors import DeviceError
+from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import (
     SAFETY_NORMAL,
     Closable,
@@ -307,6 +307,23 @@ def test_the_nominal_fr3_model_is_the_simulators_arm(sim):
         # measured 6e-5 mm (the wire's single precision) and 8e-5 rad (the MuJoCo model's
         # rounded link orientations)
         assert max(errors) < 0.01 and max(turns) < 2e-4, (errors, turns)
+    finally:
+        robot.close()
+
+
+def test_a_target_beyond_the_joint_limits_is_refused_before_any_motion(sim):
+    pytest.importorskip("spacecal.models.robot_kinds")
+    sim()
+    robot = open_robot()
+    try:
+        start = robot.state().joints_rad
+        target = start.copy()
+        target[3] = robot.nominal.joint_upper_rad[3] + 0.01
+        refused = r"^joint 4 target .* outside the FR3's limits .*nothing moved$"
+        with pytest.raises(InvalidInputError, match=refused):
+            robot.move_joints(target, SPEED, ACCEL)
+        time.sleep(0.2)
+        assert np.max(np.abs(robot.state().joints_rad - start)) < STILL_RAD
     finally:
         robot.close()
 

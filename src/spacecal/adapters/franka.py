@@ -508,6 +508,20 @@ class FrankaRobot:
         if motion.error is not None:
             raise motion.error
 
+    def _refuse_beyond_limits(self, target: np.ndarray) -> None:
+        """One line before anything is commanded for a target outside the kind's joint limits
+        (the robot would abort the motion at the limit with a reflex)."""
+        if self.nominal is None:
+            return
+        lower, upper = self.nominal.joint_lower_rad, self.nominal.joint_upper_rad
+        outside = np.flatnonzero((target < lower) | (target > upper))
+        if outside.size:
+            j = int(outside[0])
+            raise InvalidInputError(
+                f"joint {j + 1} target {target[j]:.4f} rad is outside the {self.kind_name}'s limits "
+                f"[{lower[j]:.4f}, {upper[j]:.4f}] rad; nothing moved"
+            )
+
     def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
         """Move to joint angles (7,), rad, along a minimum-jerk path whose fastest joint keeps
         within ``speed_rad_s`` and ``accel_rad_s2``; return when there."""
@@ -518,6 +532,7 @@ class FrankaRobot:
             raise InvalidInputError(
                 f"a Franka joint move needs {start_q.size} finite joint angles, got {target.tolist()}"
             )
+        self._refuse_beyond_limits(target)
         distance = float(np.max(np.abs(target - start_q)))
         duration = path_duration(distance, speed_rad_s, accel_rad_s2)
         peak = PEAK_SPEED * distance / duration if duration > 0 else 0.0
