@@ -53,6 +53,7 @@ from spacecal.core.ports import (
     DeviceFinding,
     DeviceIdentity,
     RobotState,
+    plausible_tracked_pose,
 )
 from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.rotations import rotation_angle
@@ -77,6 +78,9 @@ STOP_DECEL_RAD_S2 = 5.0
 STOP_DECEL_MM_S2 = 1000.0
 #: A state older than this (s) is stale: the robot sends one every millisecond.
 STALE_AFTER_S = 0.5
+#: A robot's last commanded pose farther than this (mm) from its measured one is not the start
+#: of a straight-line path (a robot that has not yet streamed a pose command reports none).
+START_POSE_MM = 5.0
 #: How often the caller of a move looks at its loop, s.
 WAIT_POLL_S = 0.01
 #: Beyond this distance (mm) between the nominal kinematics' end effector and the reported
@@ -275,7 +279,6 @@ class FrankaRobot:
         self._stopped = False
         self._control = False
         self._lost: str | None = None
-        self._arrival: np.ndarray | None = None
         try:
             self.nominal = self._nominal_model()
         except BaseException:
@@ -349,8 +352,6 @@ class FrankaRobot:
         joints = np.asarray(raw.q, dtype=float)
         motion = self._motion
         moving = motion is not None and not motion.done.is_set()
-        if not moving and self._arrival is not None:
-            self._arrival = None
         return RobotState(
             float(raw.time.to_sec()),
             joints,
@@ -591,8 +592,10 @@ class FrankaRobot:
         origin: list[np.ndarray] = []
 
         def command(state, s, first):
-            if first:
-                origin.append(pose_from_franka(state.O_T_EE_c))
+            if first:  # the path starts at the robot's own last commanded pose (libfranka's advice)
+                commanded, measured = pose_from_franka(state.O_T_EE_c), pose_from_franka(state.O_T_EE)
+                near = np.linalg.norm(commanded[:3, 3] - measured[:3, 3]) < START_POSE_MM
+                origin.append(commanded if near and plausible_tracked_pose(commanded) else measured)
             return franka.CartesianPose(pose_to_franka(interpolate_pose(origin[0], target, s)))
 
         self._start(
@@ -601,15 +604,12 @@ class FrankaRobot:
             command,
             wait=not asynchronous,
         )
-        if asynchronous:
-            self._arrival = target
 
     def stop(self) -> None:
         """Slow the running motion to rest and end its motion generator; nothing more is
         commanded on this connection. Returns within the stop's duration plus
         :data:`MOTION_MARGIN_S`; never raises for a robot already gone."""
         self._stopped = True
-        self._arrival = None
         motion = self._motion
         if motion is None or motion.thread is None:
             return
