@@ -35,6 +35,8 @@ LOCK = Path(tempfile.gettempdir()) / "spacecal-franka-sim-1337.lock"
 #: The simulator answers within a second on a quiet machine (MuJoCo model build included).
 STARTED_WITHIN_S = 30.0
 HOST = "127.0.0.1"
+#: What the simulator logs once it accepts a client.
+READY = "Server ready for new client connection"
 
 
 def unavailable(reason: str):
@@ -85,15 +87,15 @@ class FrankaSim:
             stderr=open(self.log, "w"),
             start_new_session=True,
         )
+        # ready when it says so: it takes one client at a time, and a probe connection would be
+        # one it must first see gone (a second or more on a loaded machine)
         deadline = time.monotonic() + STARTED_WITHIN_S
-        while not _answers():
+        while READY not in self.log.read_text():
             if self.process.poll() is not None or time.monotonic() > deadline:
                 text = self.log.read_text()[-2000:]
                 self.stop()
                 raise AssertionError(f"the Franka simulator did not start:\n{text}")
             time.sleep(0.1)
-        # it takes one client at a time and polls for it once a second: the probe above was one
-        time.sleep(1.2)
 
     def kill(self) -> None:
         """End it at once, as a switched-off robot or a pulled cable (no goodbye)."""

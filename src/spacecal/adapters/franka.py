@@ -14,7 +14,7 @@ bindings ``pylibfranka`` (extra ``franka``).
   generator fed one set-point per 1 ms cycle by a loop on a thread of its own
   (``readOnce``/``writeOnce``), along minimum-jerk paths (:mod:`spacecal.adapters.franka_motion`)
   the robot's discontinuity checks accept. The caller waits with a deadline of the path's
-  duration plus :data:`MOTION_MARGIN_S`.
+  duration plus :data:`MOTION_MARGIN_S` on the robot's clock.
 * What stops the arm, from ``robot_mode`` (``kReflex``, ``kUserStopped``, ``kGuiding``,
   ``kAutomaticErrorRecovery``, ``kOther``) and ``current_errors``: a motion is refused before
   it starts, in one line, and a motion the robot aborted ends with libfranka's reason.
@@ -69,9 +69,14 @@ REACH_DEADLINE_S = 3.0
 #: The libfranka protocol's Connect command (research_interface::robot::Command::kConnect) and
 #: the Connect response status meaning success.
 CONNECT_COMMAND, CONNECT_SUCCESS = 0, 0
-#: Extra time a motion may take beyond its path (and stop), s: the robot's own start and the
-#: answer to the finished motion, on a loaded machine.
+#: Extra time a motion may take beyond its path (and stop), s of the robot's clock: the
+#: robot's own start and the answer to the finished motion, on a loaded machine.
 MOTION_MARGIN_S = 3.0
+#: The same deadline in wall time is this many times longer: a real robot's clock is real time,
+#: so the deadline on its clock is the one that binds; a simulator on a loaded computer runs
+#: slower than real time (measured: a third of it at a load of 12 on 2 cores) and its
+#: motions take as much longer. The wall-time bound ends a motion that never starts.
+WALL_DEADLINE_FACTOR = 4.0
 #: Deceleration of a stop, per joint, rad/s^2 (an FR3 joint is allowed 10 rad/s^2 and more).
 STOP_DECEL_RAD_S2 = 5.0
 #: Deceleration of a stop of a straight-line move, mm/s^2.
@@ -494,11 +499,13 @@ class FrankaRobot:
             self._wait(motion)
 
     def _wait(self, motion: _Motion) -> None:
-        """Wait for a motion to end, at most its deadline; a KeyboardInterrupt stops it first."""
-        deadline = time.monotonic() + motion.deadline_s
+        """Wait for a motion to end, at most its deadline on the robot's clock (and
+        :data:`WALL_DEADLINE_FACTOR` times that in wall time); a KeyboardInterrupt stops it
+        first."""
+        wall_deadline = time.monotonic() + WALL_DEADLINE_FACTOR * motion.deadline_s
         try:
             while not motion.done.wait(WAIT_POLL_S):
-                if time.monotonic() > deadline:
+                if motion.clock.elapsed_s > motion.deadline_s or time.monotonic() > wall_deadline:
                     self._stopped = True
                     raise DeviceError(
                         f"the Franka robot did not finish {motion.name} within {motion.deadline_s:.1f} s"
