@@ -132,6 +132,15 @@ def test_state_identity_and_checks(sim):
         robot.close()
 
 
+def test_a_robot_kind_of_another_vendor_is_refused(sim):
+    sim()
+    refused = "^--robot-model UR10e is a Universal Robots arm; a Franka robot is one of FR3, Panda$"
+    with pytest.raises(InvalidInputError, match=refused):
+        open_device(f"franka://{HOST}", "robot", DeviceOptions(robot_model="UR10e"))
+    robot = open_robot(control=False)  # the refused one was closed: the robot takes a client again
+    robot.close()
+
+
 def test_joint_move_reaches_its_target_in_its_time(sim):
     sim()
     robot = open_robot()

@@ -58,12 +58,15 @@ from spacecal.core.ports import (
 from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import matrix_to_rotvec
+from spacecal.models.kinematics import RobotModel, forward_kinematics
+from spacecal.models.robot_kinds import ROBOT_KINDS, robot_kind
 from spacecal.planning.motion import MotionLimits
 
 #: libfranka's command port (fixed: libfranka takes a host only).
 COMMAND_PORT = 1337
-#: The robot kind a ``franka://`` URL opens unless ``--robot-model`` names another.
-DEFAULT_KIND = "FR3"
+#: The robot kind a ``franka://`` URL opens unless ``--robot-model`` names another, and the
+#: vendor of the kinds it may name (:mod:`spacecal.models.robot_kinds`).
+DEFAULT_KIND, FRANKA_VENDOR = "FR3", "Franka Robotics"
 #: Deadline of spacecal's own ``Connect`` exchange on the command port, s.
 REACH_DEADLINE_S = 3.0
 #: The libfranka protocol's Connect command (research_interface::robot::Command::kConnect) and
@@ -297,31 +300,22 @@ class FrankaRobot:
                 raise
 
     # -- model ---------------------------------------------------------------------------------
-    def _nominal_model(self):
-        """The nominal model of the robot kind, with the end effector set in Desk (``F_T_EE``),
-        or None where this installation has no robot-kind registry."""
-        try:
-            from spacecal.models.robot_kinds import robot_kind
-        except ImportError:
-            return None
-        state = self._raw_state()
-        return robot_kind(self.kind_name).model(pose_from_franka(state.F_T_EE))
+    def _nominal_model(self) -> RobotModel:
+        """The nominal model of the robot kind, with the end effector set in Desk (``F_T_EE``);
+        a kind of another vendor is refused in one line."""
+        kind = robot_kind(self.kind_name)
+        if kind.vendor != FRANKA_VENDOR:
+            franka_kinds = sorted(k.name for k in ROBOT_KINDS.values() if k.vendor == FRANKA_VENDOR)
+            raise InvalidInputError(
+                f"--robot-model {self.kind_name} is a {kind.vendor} arm; a Franka robot is one of "
+                f"{', '.join(franka_kinds)}"
+            )
+        return kind.model(pose_from_franka(self._raw_state().F_T_EE))
 
-    def controller_model(self):
+    def controller_model(self) -> tuple[RobotModel, str]:
         """The model the robot computes ``O_T_EE`` with, and where it came from: libfranka
         publishes no calibrated kinematics, so the nominal model of the robot kind with the
-        end effector (``F_T_EE``) set in Desk.
-
-        Raises
-        ------
-        DeviceError
-            spacecal has no kinematic model of this robot kind.
-        """
-        if self.nominal is None:
-            raise DeviceError(
-                f"spacecal has no kinematic model of the {self.kind_name} in this installation "
-                "(no robot-kind registry): a Franka arm can be moved and read, not yet calibrated"
-            )
+        end effector (``F_T_EE``) set in Desk."""
         return self.nominal, f"the nominal {self.kind_name} kinematics, end effector as set in Desk"
 
     # -- reading -------------------------------------------------------------------------------
@@ -403,15 +397,6 @@ class FrankaRobot:
             add(FINDING_OK, "robot state", "streaming at 1 kHz")
         add(FINDING_OK, "end effector", f"set in Desk (F_T_EE): {ee_text(pose_from_franka(later.F_T_EE))}")
         joints = np.asarray(later.q, dtype=float)
-        from spacecal.models.kinematics import forward_kinematics
-
-        if self.nominal is None:
-            add(
-                FINDING_WARNING,
-                "kinematics",
-                f"spacecal has no kinematic model of the {self.kind_name} here",
-            )
-            return findings
         predicted = forward_kinematics(self.nominal, joints)
         error_mm = float(np.linalg.norm(predicted[:3, 3] - pose_from_franka(later.O_T_EE)[:3, 3]))
         if error_mm > MODEL_CHECK_MM:
@@ -519,8 +504,6 @@ class FrankaRobot:
     def _refuse_beyond_limits(self, target: np.ndarray) -> None:
         """One line before anything is commanded for a target outside the kind's joint limits
         (the robot would abort the motion at the limit with a reflex)."""
-        if self.nominal is None:
-            return
         lower, upper = self.nominal.joint_lower_rad, self.nominal.joint_upper_rad
         outside = np.flatnonzero((target < lower) | (target > upper))
         if outside.size:
