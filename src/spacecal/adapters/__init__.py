@@ -5,6 +5,8 @@ opens it (its ``open_device(address, options)``), the device's role, its default
 extra it needs. A new device is one module here and one line in the table.
 
 * ``ur://HOST`` — a Universal Robots controller over RTDE (extra ``ur``: ur-rtde).
+* ``franka://HOST`` — a Franka Robotics arm (FR3) over the Franka Control Interface through
+  libfranka's Python bindings (extra ``franka``: pylibfranka).
 * ``ndi://SERIAL_PORT`` or ``ndi://HOST[:PORT]`` — an NDI tracker over the Combined API,
   serial (Polaris Vicra/Spectra) or TCP (Vega, default port 8765) (extra ``ndi``: ndicapi).
 * ``igtl://HOST:PORT`` — the ``MarkerToTracker`` pose (TRANSFORM, POSITION, TDATA or QTDATA)
@@ -66,6 +68,7 @@ PATH_SCHEMES = ("camera",)
 #: scheme -> its row: every device URL spacecal opens.
 DEVICE_SCHEMES: dict[str, DeviceScheme] = {
     "ur": DeviceScheme(ROBOT, "ur", "ur://HOST"),
+    "franka": DeviceScheme(ROBOT, "franka", "franka://HOST"),
     "ndi": DeviceScheme(TRACKER, "ndi", "ndi://SERIAL_PORT_OR_HOST[:PORT]", NDI_TCP_DEFAULT_PORT),
     "igtl": DeviceScheme(TRACKER, "igtl", "igtl://HOST[:PORT]", IGTL_DEFAULT_PORT),
     "natnet": DeviceScheme(TRACKER, "natnet", "natnet://HOST[:PORT]?body=RIGID_BODY", NATNET_DEFAULT_PORT),

@@ -142,7 +142,8 @@ class RobotState:
     ----------
     time_s : float
         Controller timestamp, s (its own clock).
-    joints_rad : numpy.ndarray, shape (6,)
+    joints_rad : numpy.ndarray, shape (J,)
+        Joint angles, rad: 6 on a UR arm, 7 on a Franka arm.
     base_from_tcp : numpy.ndarray, shape (4, 4)
         TCP pose from the controller's own kinematics, mm.
     safety : str
@@ -165,7 +166,11 @@ class RobotState:
         pose = np.asarray(self.base_from_tcp, dtype=float)
         if not np.isfinite(self.time_s):
             raise DeviceError(f"the robot sent a state time that is not a number ({self.time_s})")
-        if joints.shape != (6,) or not np.all(np.isfinite(joints)) or np.max(np.abs(joints)) > MAX_JOINT_RAD:
+        if (
+            joints.shape not in ((6,), (7,))
+            or not np.all(np.isfinite(joints))
+            or np.max(np.abs(joints)) > MAX_JOINT_RAD
+        ):
             raise DeviceError(
                 f"the robot sent joint angles that are not an arm's: {np.round(joints, 3).tolist()}"
             )
