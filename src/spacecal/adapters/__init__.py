@@ -53,9 +53,11 @@ class DeviceScheme:
 NDI_TCP_DEFAULT_PORT, IGTL_DEFAULT_PORT = 8765, 18944
 #: Motive's NatNet command port.
 NATNET_DEFAULT_PORT = 1510
+#: rosbridge_server's WebSocket port.
+ROSBRIDGE_DEFAULT_PORT = 9090
 
 #: The schemes whose URLs carry a query their adapter reads.
-QUERY_SCHEMES = ("natnet",)
+QUERY_SCHEMES = ("natnet", "ros2")
 
 #: scheme -> its row: every device URL spacecal opens.
 DEVICE_SCHEMES: dict[str, DeviceScheme] = {
@@ -63,6 +65,7 @@ DEVICE_SCHEMES: dict[str, DeviceScheme] = {
     "ndi": DeviceScheme(TRACKER, "ndi", "ndi://SERIAL_PORT_OR_HOST[:PORT]", NDI_TCP_DEFAULT_PORT),
     "igtl": DeviceScheme(TRACKER, "igtl", "igtl://HOST[:PORT]", IGTL_DEFAULT_PORT),
     "natnet": DeviceScheme(TRACKER, "natnet", "natnet://HOST[:PORT]?body=RIGID_BODY", NATNET_DEFAULT_PORT),
+    "ros2": DeviceScheme(ROBOT, "ros2", "ros2://HOST[:PORT]?joints=...", ROSBRIDGE_DEFAULT_PORT),
 }
 
 

@@ -1,0 +1,540 @@
+"""A ROS 2 arm through rosbridge with ``roslibpy`` (extra ``ros2``): ``ros2://HOST[:PORT]``.
+
+* State: ``sensor_msgs/msg/JointState`` on ``/joint_states`` (``topic=``), the joints taken
+  by name in the model's order (``joints=`` lists the names, in the model's order; a UR model
+  defaults to ur_robot_driver's names). A message without every one of those names is not
+  the arm's (a gripper's); the first message must name them all, or the URL is refused in one
+  line naming both lists. The TCP pose is the model's forward kinematics of the joints: a
+  trajectory controller publishes no TCP pose of its own.
+* Motion: one ``control_msgs/action/FollowJointTrajectory`` goal per move, to
+  ``/joint_trajectory_controller/follow_joint_trajectory`` (``action=``): a joint move is a
+  trapezoid on its largest joint distance, a linear move the joints along the straight TCP
+  path, both sampled every :data:`POINT_PERIOD_S` with positions and velocities.
+* STOP: ``cancel_action_goal`` first. ros2_control's joint_trajectory_controller holds the
+  current position when its goal is cancelled, so on it the cancel alone stills the arm. When
+  the arm is not still within :data:`CANCEL_STILL_S` of the cancel (an action server that
+  rejects cancels, a rosbridge whose goals block its message queue), a hold goal follows: one
+  trajectory point at the current joints, which preempts the running goal on every
+  FollowJointTrajectory server. Which of the two stilled it is kept in
+  :attr:`Ros2Robot.stopped_by`.
+* Deadlines: connecting (a probe of the server with spacecal's own socket, then roslibpy's
+  connection), every move (its duration and a margin), the goal's first sign of life, the
+  stop. A connection that drops, or joint states that stop coming for :data:`STALE_AFTER_S`,
+  ends a move at once with one line; roslibpy's reconnecting is switched off then, so nothing
+  sent before the loss is ever sent again after it.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import threading
+import time
+from urllib.parse import parse_qsl
+
+import numpy as np
+
+from spacecal.adapters import DeviceAddress, DeviceOptions, require
+from spacecal.adapters.rosbridge_probe import probe_rosbridge
+from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.core.ports import FINDING_OK, DeviceFinding, DeviceIdentity, RobotState
+from spacecal.models.kinematics import UR_TABLES, RobotModel, forward_kinematics, ur_model
+from spacecal.planning.motion import (
+    MotionLimits,
+    time_move,
+    track_path,
+    trapezoid_duration,
+    trapezoid_progress,
+)
+
+DEFAULT_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
+DEFAULT_TOPIC = "/joint_states"
+ACTION_TYPE = "control_msgs/action/FollowJointTrajectory"
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+#: ur_robot_driver's joint names (without a tf_prefix), in the UR model's order.
+UR_JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
+#: The query fields a ros2:// URL takes.
+QUERY_FIELDS = ("joints", "model", "action", "topic")
+#: Deadline of the first look (WebSocket upgrade and a first joint state), s.
+PROBE_DEADLINE_S = 3.0
+#: Deadline of roslibpy's connection and of its first joint state, s.
+CONNECT_DEADLINE_S = 3.0
+#: Joint states older than this (wall time, s) are stale: the arm's broadcaster publishes at
+#: 100-500 Hz, and a loaded computer has been seen to go 0.1 s without a message.
+STALE_AFTER_S = 0.5
+#: A goal that neither reports feedback, nor ends, nor moves the arm within this is taken as
+#: not taken (rejected, or no action server of that name), s.
+GOAL_TAKEN_WITHIN_S = 1.5
+#: Time a move may take beyond its planned duration, as a fraction of it and a fixed margin.
+MOVE_MARGIN_FRACTION, MOVE_MARGIN_S = 0.5, 2.0
+#: Trajectory points are this far apart in time, s.
+POINT_PERIOD_S = 0.05
+#: After the cancel, the arm must be still within this or a hold goal follows, s.
+CANCEL_STILL_S = 0.3
+#: After a hold goal, the arm must be still within this, s.
+HOLD_STILL_S = 0.7
+#: "Still": no joint moved more than this (rad) over :data:`STILL_WINDOW_S`.
+STILL_RAD, STILL_WINDOW_S = 2e-4, 0.06
+#: The hold goal's one point is due this long after it is sent, s (ros2_control rejects a point
+#: at zero time when the arm moves).
+HOLD_AFTER_S = 0.05
+#: A move ends within these of its target: the controller's own goal tolerance decides success,
+#: this checks that the joint states agree (rad).
+ARRIVAL_RAD = 2e-3
+#: goal states (action_msgs/msg/GoalStatus)
+STATUS_NAMES = {
+    0: "UNKNOWN",
+    1: "ACCEPTED",
+    2: "EXECUTING",
+    3: "CANCELING",
+    4: "SUCCEEDED",
+    5: "CANCELED",
+    6: "ABORTED",
+}
+STATUS_SUCCEEDED = 4
+#: States kept between two drains (a minute at 500 Hz).
+STREAM_CAPACITY = 30_000
+
+
+def parse_query(query: str) -> dict[str, str]:
+    """The fields of a ros2:// URL's query; one line for a field it does not take."""
+    fields = dict(parse_qsl(query, keep_blank_values=True))
+    unknown = sorted(set(fields) - set(QUERY_FIELDS))
+    if unknown:
+        raise InvalidInputError(
+            f"ros2:// takes the query fields {', '.join(QUERY_FIELDS)}; not {', '.join(unknown)}"
+        )
+    return fields
+
+
+def model_of(fields: dict[str, str], robot_model: str | None) -> RobotModel:
+    """The arm's model: ``model=`` of the URL, else ``--robot-model``."""
+    name = fields.get("model") or robot_model
+    if not name:
+        raise InvalidInputError(
+            "a ros2:// robot needs its model: add model=NAME to the URL (e.g. ros2://HOST?model=UR10)"
+        )
+    if name not in UR_TABLES:
+        raise InvalidInputError(f"unknown robot model {name!r}; known: {', '.join(sorted(UR_TABLES))}")
+    return ur_model(name)
+
+
+def joint_names_of(fields: dict[str, str], model: RobotModel) -> tuple[str, ...]:
+    """The joint names in the model's order: ``joints=`` of the URL, or a UR's driver names."""
+    if "joints" in fields:
+        names = tuple(n.strip() for n in fields["joints"].split(","))
+    elif model.name in UR_TABLES:
+        names = UR_JOINT_NAMES
+    else:
+        raise InvalidInputError(f"name the {model.name}'s joints in the URL: joints=NAME1,NAME2,...")
+    if len(names) != model.n_joints or len(set(names)) != len(names) or not all(names):
+        raise InvalidInputError(
+            f"joints= names {len(names)} joint(s); the {model.name} has {model.n_joints}, each named once"
+        )
+    return names
+
+
+def _duration(seconds: float) -> dict[str, int]:
+    """builtin_interfaces/Duration of ``seconds``."""
+    whole = int(np.floor(seconds))
+    return {"sec": whole, "nanosec": int(round((seconds - whole) * 1e9)) % 1_000_000_000}
+
+
+def joint_trajectory(
+    names: tuple[str, ...], times_s: np.ndarray, positions: np.ndarray, velocities: np.ndarray | None = None
+) -> dict:
+    """A trajectory_msgs/JointTrajectory of points at ``times_s`` (P,) from its start, ``positions``
+    (P, N) rad and ``velocities`` (P, N) rad/s."""
+    points = []
+    for k, t in enumerate(times_s):
+        point = {"positions": [float(v) for v in positions[k]], "time_from_start": _duration(float(t))}
+        if velocities is not None:
+            point["velocities"] = [float(v) for v in velocities[k]]
+        points.append(point)
+    return {"joint_names": list(names), "points": points}
+
+
+def joint_move_points(start, target, speed_rad_s: float, accel_rad_s2: float):
+    """Times (P,), positions (P, N) and velocities (P, N) of a rest-to-rest trapezoid on the
+    largest joint distance, every :data:`POINT_PERIOD_S` (the first point after the start)."""
+    start, target = np.asarray(start, dtype=float), np.asarray(target, dtype=float)
+    duration, accel_time = trapezoid_duration(
+        float(np.max(np.abs(target - start))), speed_rad_s, accel_rad_s2
+    )
+    duration = max(duration, POINT_PERIOD_S)
+    steps = max(1, int(np.ceil(duration / POINT_PERIOD_S)))
+    times = np.linspace(duration / steps, duration, steps)
+    s = trapezoid_progress(times, duration, accel_time)
+    ds = np.gradient(
+        trapezoid_progress(np.concatenate([[0.0], times]), duration, accel_time),
+        np.concatenate([[0.0], times]),
+    )[1:]
+    ds[-1] = 0.0
+    return times, start + s[:, None] * (target - start), ds[:, None] * (target - start)
+
+
+class Ros2Robot:
+    """A ROS 2 arm behind the Robot protocol, through rosbridge.
+
+    Parameters
+    ----------
+    host : str
+    port : int
+    model : RobotModel
+        The arm's model; its TCP pose is computed with it.
+    joint_names : tuple of str
+        The names of the model's joints, in its order, as ``/joint_states`` names them.
+    action, topic : str
+        The FollowJointTrajectory action and the JointState topic.
+    control : bool
+        Allow motion now (else only after :meth:`connect_control`).
+    limits : MotionLimits, optional
+        The limits linear moves are timed with (their linear ones set per move).
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        model: RobotModel,
+        joint_names: tuple[str, ...],
+        action: str = DEFAULT_ACTION,
+        topic: str = DEFAULT_TOPIC,
+        control: bool = False,
+        limits: MotionLimits | None = None,
+    ):
+        self.host, self.port, self.action, self.topic = host, port, action, topic
+        self.nominal, self.kinematics = model, None
+        self.joint_names = joint_names
+        self.limits = limits or MotionLimits()
+        self.name = f"rosbridge at ws://{host}:{port}"
+        #: "cancel", "hold" or None: what stilled the arm at the last stop (None: nothing had to)
+        self.stopped_by: str | None = None
+        self._control = control
+        self._stopped = False
+        self._lost: str | None = None
+        self._lock = threading.Lock()
+        self._latest: tuple[float, np.ndarray, float] | None = None  # (stamp s, joints, arrival)
+        self._history: collections.deque = collections.deque(maxlen=64)  # (arrival, joints)
+        self._stream: collections.deque[RobotState] = collections.deque(maxlen=STREAM_CAPACITY)
+        self._skipped = 0
+        self._goal: dict | None = None
+        first = probe_rosbridge(host, port, topic, JOINT_STATE_TYPE, PROBE_DEADLINE_S)
+        self._order = self._joint_order(first)
+        roslibpy = require("roslibpy", "ros2")
+        self._roslibpy = roslibpy
+        self._ros = roslibpy.Ros(host, port)
+        try:
+            try:
+                self._ros.run(timeout=CONNECT_DEADLINE_S)
+            except Exception:  # roslibpy.core.RosTimeoutError
+                raise DeviceError(
+                    f"{self.name} did not accept roslibpy's connection within {CONNECT_DEADLINE_S:g} s"
+                ) from None
+            self._ros.on("close", self._connection_lost)
+            self._topic = roslibpy.Topic(self._ros, topic, JOINT_STATE_TYPE, queue_length=1)
+            self._topic.subscribe(self._joint_state)
+            self._action = roslibpy.ActionClient(self._ros, action, ACTION_TYPE)
+            deadline = time.monotonic() + CONNECT_DEADLINE_S
+            while self._latest is None:
+                if time.monotonic() > deadline:
+                    raise DeviceError(f"{self.name} sent no joint state within {CONNECT_DEADLINE_S:g} s")
+                time.sleep(0.01)
+        except BaseException:
+            self.close()
+            raise
+
+    # -- joint states ----------------------------------------------------------------------
+    def _joint_order(self, message: dict) -> list[int]:
+        names = [str(n) for n in message.get("name", [])]
+        missing = [n for n in self.joint_names if n not in names]
+        if missing:
+            raise DeviceError(
+                f"{self.topic} names the joints {', '.join(names) or 'none'}, not "
+                f"{', '.join(missing)} of the {self.nominal.name}: give joints=NAME1,... in the model's order"
+            )
+        return [names.index(n) for n in self.joint_names]
+
+    def _joint_state(self, message: dict) -> None:
+        """roslibpy's callback (its reactor thread): keep the newest state of the arm's joints."""
+        arrival = time.monotonic()
+        try:
+            names = list(message["name"])
+            positions = message["position"]
+            joints = np.array([float(positions[names.index(n)]) for n in self.joint_names])
+            stamp = message["header"]["stamp"]
+            time_s = float(stamp["sec"]) + float(stamp["nanosec"]) * 1e-9
+        except (KeyError, ValueError, TypeError, IndexError):
+            self._skipped += 1  # another publisher's joints (a gripper), or not a JointState
+            return
+        if not np.all(np.isfinite(joints)):
+            self._skipped += 1
+            return
+        with self._lock:
+            self._latest = (time_s, joints, arrival)
+            self._history.append((arrival, joints))
+        with contextlib.suppress(DeviceError):
+            self._stream.append(RobotState(time_s, joints, forward_kinematics(self.nominal, joints)))
+
+    def _connection_lost(self, *_) -> None:
+        """roslibpy's ``close`` event: the link is gone; never reconnect (a reconnected
+        roslibpy sends what was queued while it was down)."""
+        self._lost = self._lost or f"lost the connection to {self.name}"
+        with contextlib.suppress(Exception):
+            self._ros.factory.stopTrying()
+
+    def _fresh(self) -> tuple[float, np.ndarray]:
+        """(stamp, joints) of the newest joint state, or a DeviceError when it is stale or lost."""
+        if self._lost is not None:
+            raise DeviceError(self._lost)
+        with self._lock:
+            latest = self._latest
+        if latest is None:
+            raise DeviceError(f"{self.name} sent no joint state")
+        age = time.monotonic() - latest[2]
+        if age > STALE_AFTER_S:
+            self._lost = f"no joint state from {self.name} for {age:.1f} s: the connection is lost"
+            self._connection_lost()
+            raise DeviceError(self._lost)
+        return latest[0], latest[1]
+
+    def _still(self) -> bool:
+        """No joint moved more than :data:`STILL_RAD` over the last :data:`STILL_WINDOW_S`."""
+        with self._lock:
+            history = list(self._history)
+        if not history:
+            return False
+        newest = history[-1][0]
+        if time.monotonic() - newest > STALE_AFTER_S:
+            return False
+        window = [q for t, q in history if t >= newest - STILL_WINDOW_S]
+        older = [q for t, q in history if t < newest - STILL_WINDOW_S]
+        if not older:
+            return False
+        reference = older[-1]
+        return all(float(np.max(np.abs(q - reference))) < STILL_RAD for q in window)
+
+    # -- Robot protocol ----------------------------------------------------------------------
+    def state(self) -> RobotState:
+        time_s, joints = self._fresh()
+        goal = self._goal
+        moving = goal is not None and not goal["done"].is_set()
+        return RobotState(time_s, joints, forward_kinematics(self.nominal, joints), moving=moving)
+
+    def drain_states(self) -> list[RobotState]:
+        """Every joint state since the last call, oldest first."""
+        states = []
+        while self._stream:
+            states.append(self._stream.popleft())
+        return states
+
+    def connect_control(self) -> None:
+        """Allow motion (nothing is sent to the arm)."""
+        self._control = True
+
+    def _send(self, times, positions, velocities=None) -> dict:
+        """Send one trajectory goal; the goal's record (its id, events, outcome)."""
+        if self._lost is not None:
+            raise DeviceError(self._lost)
+        if not self._ros.is_connected:
+            raise DeviceError(f"lost the connection to {self.name}")
+        goal = {
+            "done": threading.Event(),
+            "fed": threading.Event(),
+            "outcome": None,
+            "sent": time.monotonic(),
+        }
+
+        def finished(result) -> None:
+            goal["outcome"] = result
+            goal["done"].set()
+
+        def failed(result) -> None:
+            goal["outcome"], goal["failed"] = result, True
+            goal["done"].set()
+
+        message = self._roslibpy.Goal(
+            {"trajectory": joint_trajectory(self.joint_names, times, positions, velocities)}
+        )
+        goal["id"] = self._action.send_goal(message, finished, lambda _: goal["fed"].set(), failed)
+        goal["start"] = self._fresh()[1]
+        self._goal = goal
+        return goal
+
+    def _require_motion(self) -> None:
+        if not self._control:
+            raise DeviceError(f"the robot at {self.name} was opened read-only")
+        if self._stopped:
+            raise DeviceError(f"the robot at {self.name} was stopped: it takes no further motion")
+
+    def _wait(self, goal: dict, duration_s: float, target: np.ndarray, what: str) -> None:
+        """Wait for a goal to end, at most its duration and a margin; a lost link, a goal not
+        taken or a goal that ended short is one DeviceError (the arm stopped first)."""
+        deadline = goal["sent"] + duration_s * (1 + MOVE_MARGIN_FRACTION) + MOVE_MARGIN_S
+        while not goal["done"].wait(0.02):
+            now = time.monotonic()
+            try:
+                _, joints = self._fresh()
+            except DeviceError:
+                self._give_up()
+                raise
+            taken = goal["fed"].is_set() or float(np.max(np.abs(joints - goal["start"]))) > STILL_RAD
+            if not taken and now - goal["sent"] > GOAL_TAKEN_WITHIN_S:
+                self.stop()
+                raise DeviceError(
+                    f"{self.action} did not take the {what} within {GOAL_TAKEN_WITHIN_S:g} s "
+                    f"(no such action server on {self.name}, or it rejected the goal)"
+                )
+            if now > deadline:
+                self.stop()
+                raise DeviceError(f"the {what} did not end within {deadline - goal['sent']:.1f} s; stopped")
+        outcome = goal["outcome"] or {}
+        status = getattr(outcome.get("status"), "value", outcome.get("status"))
+        values = outcome.get("values")
+        code = values.get("error_code", 0) if isinstance(values, dict) else None
+        if goal.get("failed") or status != STATUS_SUCCEEDED or code != 0:
+            text = values.get("error_string", "") if isinstance(values, dict) else str(values)
+            raise DeviceError(
+                f"{self.action} ended the {what} {STATUS_NAMES.get(status, str(status))}"
+                + (f" (error code {code})" if code else "")
+                + (f": {text[:120]}" if text else "")
+            )
+        # the controller's goal tolerance decides success; its joint states must agree
+        settle = time.monotonic() + STALE_AFTER_S
+        while float(np.max(np.abs(self._fresh()[1] - target))) > ARRIVAL_RAD:
+            if time.monotonic() > settle:
+                raise DeviceError(
+                    f"{self.action} reported the {what} done, but the joints are not at its end"
+                )
+            time.sleep(0.01)
+
+    def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
+        self._require_motion()
+        target = np.asarray(joints_rad, dtype=float)
+        if target.shape != (len(self.joint_names),) or not np.all(np.isfinite(target)):
+            raise InvalidInputError(
+                f"a joint move of the {self.nominal.name} takes {len(self.joint_names)} angles"
+            )
+        _, here = self._fresh()
+        times, positions, velocities = joint_move_points(here, target, speed_rad_s, accel_rad_s2)
+        goal = self._send(times, positions, velocities)
+        self._wait(goal, float(times[-1]), target, "joint move")
+
+    def move_linear(
+        self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
+    ) -> None:
+        self._require_motion()
+        _, here = self._fresh()
+        limits = MotionLimits(
+            linear_speed_mm_s=speed_mm_s,
+            linear_accel_mm_s2=accel_mm_s2,
+            angular_speed_rad_s=self.limits.angular_speed_rad_s,
+            angular_accel_rad_s2=self.limits.angular_accel_rad_s2,
+            joint_speed_rad_s=self.limits.joint_speed_rad_s,
+        )
+        start = forward_kinematics(self.nominal, here)
+        move, _ = time_move(
+            self.nominal, "move", start, np.asarray(base_from_tcp, dtype=float), here, limits, 0.0
+        )
+        duration = max(float(move.duration_s), POINT_PERIOD_S)
+        steps = max(1, int(np.ceil(duration / POINT_PERIOD_S)))
+        times = np.linspace(duration / steps, duration, steps)
+        positions = track_path(self.nominal, move.poses_at(np.minimum(times, move.duration_s)), here)
+        goal = self._send(times, positions)
+        if not asynchronous:
+            self._wait(goal, duration, positions[-1], "linear move")
+
+    def stop(self) -> None:
+        """Cancel the goal; when the arm is not still soon after, hold it where it is (see the
+        module's notes); no further motion is taken after it."""
+        self._stopped = True
+        goal = self._goal
+        if goal is None or self._lost is not None or not self._ros.is_connected:
+            return
+        if goal["done"].is_set() and self._still():
+            return
+        with contextlib.suppress(Exception):
+            self._action.cancel_goal(goal["id"])
+        if self._settles(CANCEL_STILL_S):
+            self.stopped_by = "cancel"
+            return
+        try:
+            _, here = self._fresh()
+            self._send(np.array([HOLD_AFTER_S]), here[None], np.zeros((1, len(here))))
+        except DeviceError:
+            return  # the link is gone: nothing more can be sent
+        self.stopped_by = "hold" if self._settles(HOLD_STILL_S) else None
+
+    def _settles(self, within_s: float) -> bool:
+        deadline = time.monotonic() + within_s
+        while time.monotonic() < deadline:
+            if self._still():
+                return True
+            time.sleep(0.01)
+        return False
+
+    def _give_up(self) -> None:
+        """The link is lost in the middle of a move: stop trying; nothing queued is sent later."""
+        self._stopped = True
+        self._connection_lost()
+
+    # -- read-only -----------------------------------------------------------------------
+    def controller_model(self) -> tuple[RobotModel, str]:
+        return self.nominal, f"the nominal {self.nominal.name} model named for {self.name}"
+
+    def identity(self) -> DeviceIdentity:
+        return DeviceIdentity(model=self.nominal.name)
+
+    def preflight(self) -> list[DeviceFinding]:
+        self._fresh()
+        with self._lock:
+            history = list(self._history)
+        span = history[-1][0] - history[0][0] if len(history) > 1 else 0.0
+        rate = (len(history) - 1) / span if span > 0 else 0.0
+        return [
+            DeviceFinding(
+                FINDING_OK,
+                "joint states",
+                f"{self.topic} at {rate:.0f} Hz, joints {', '.join(self.joint_names)}",
+            ),
+            DeviceFinding(FINDING_OK, "motion", f"through {self.action}"),
+        ]
+
+    def close(self) -> None:
+        """Stop listening and close the connection, within a deadline; never raises."""
+        ros = getattr(self, "_ros", None)
+        if ros is None:
+            return
+        with contextlib.suppress(Exception):
+            ros.factory.stopTrying()
+        with contextlib.suppress(Exception):
+            if getattr(self, "_topic", None) is not None and ros.is_connected:
+                self._topic.unsubscribe()
+        with contextlib.suppress(Exception):
+            ros.factory.remove_all_listeners("ready")  # nothing queued is sent on a later connection
+        with contextlib.suppress(Exception):
+            if ros.is_connected:
+                ros.close(timeout=1.0)
+
+
+def open_device(address: DeviceAddress, options: DeviceOptions) -> Ros2Robot:
+    """The ``ros2://`` row of the URL table (:data:`spacecal.adapters.DEVICE_SCHEMES`)."""
+    fields = parse_query(address.query)
+    model = model_of(fields, options.robot_model)
+    return Ros2Robot(
+        address.host,
+        int(address.port or 9090),
+        model,
+        joint_names_of(fields, model),
+        action=fields.get("action") or DEFAULT_ACTION,
+        topic=fields.get("topic") or DEFAULT_TOPIC,
+        control=options.control,
+        limits=options.limits,
+    )

@@ -1,0 +1,304 @@
+"""The ros2:// adapter (real roslibpy) against the fake rosbridge v2 server in its own process:
+joint states by name, joint moves reached, STOP stilling the arm (by the cancel on a
+joint_trajectory_controller, by a hold goal on a server that rejects cancels), a killed
+server and servers that are no rosbridge ending in one line within bounded time."""
+
+import http.server
+import json
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("roslibpy")
+pytest.importorskip("websockets")
+
+from spacecal.adapters import ROBOT, DeviceOptions, device_address, open_device
+from spacecal.adapters.ros2 import UR_JOINT_NAMES
+from spacecal.core.errors import DeviceError, InvalidInputError
+from spacecal.testing.fakes.rosbridge import arm_state
+
+#: Real client library against a protocol fake, on real time: run apart (-m realtime).
+pytestmark = pytest.mark.realtime
+
+#: From STOP to the arm standing still, s: the UR stop tests' bound (test_ur_stops.STILL_WITHIN_S).
+STILL_WITHIN_S = 1.0
+#: From the server's death to the one line, s: the stale bound (0.5 s) and the poll.
+LOST_WITHIN_S = 2.0
+START = [0.0, -1.2, 1.4, -1.8, -1.57, 0.0]
+ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
+
+
+class Bridge:
+    def __init__(self, *options: str, joints=UR_JOINT_NAMES, start=START):
+        self.process = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "spacecal.testing.fakes.rosbridge",
+                "--joints",
+                ",".join(joints),
+                "--start",
+                ",".join(str(v) for v in start),
+                *options,
+            ],
+            stdout=subprocess.PIPE,
+            stdin=subprocess.PIPE,
+            text=True,
+        )
+        line = self.process.stdout.readline()
+        assert line.startswith("READY "), line
+        self.info = json.loads(line[6:])
+
+    def url(self, query="model=UR10") -> str:
+        return f"ros2://{self.info['host']}:{self.info['port']}?{query}"
+
+    def arm(self) -> dict:
+        return arm_state(self.info["host"], self.info["control_port"])
+
+    def kill(self) -> None:
+        self.process.kill()
+        self.process.wait(5)
+
+
+@pytest.fixture
+def bridges():
+    started = []
+
+    def start(*options, **kw) -> Bridge:
+        bridge = Bridge(*options, **kw)
+        started.append(bridge)
+        return bridge
+
+    yield start
+    for bridge in started:
+        if bridge.process.poll() is None:
+            bridge.kill()
+
+
+def open_robot(url: str, control: bool = True):
+    return open_device(url, ROBOT, DeviceOptions(control=control))
+
+
+def still_after(bridge: Bridge, since: float, within_s: float) -> float:
+    """Seconds from ``since`` until the fake arm's joints stopped changing (two looks 0.1 s
+    apart within 1e-6 rad); fails past ``within_s``."""
+    previous = np.array(bridge.arm()["joints"])
+    while True:
+        time.sleep(0.05)
+        now = np.array(bridge.arm()["joints"])
+        if np.max(np.abs(now - previous)) < 1e-6:
+            return time.monotonic() - since
+        assert time.monotonic() - since < within_s + 0.5, "the arm did not stand still"
+        previous = now
+
+
+def test_the_url_takes_the_default_port_and_its_query():
+    address = device_address("ros2://Robot?model=UR10&joints=a,b,c,d,e,f", ROBOT)
+    assert address.port == 9090 and "joints=a,b,c,d,e,f" in address.query
+    with pytest.raises(InvalidInputError, match="not speed"):
+        open_robot("ros2://127.0.0.1:1?model=UR10&speed=3")
+    with pytest.raises(InvalidInputError, match="model=NAME"):
+        open_robot("ros2://127.0.0.1:1")
+    with pytest.raises(InvalidInputError, match="has 6"):
+        open_robot("ros2://127.0.0.1:1?model=UR10&joints=a,b")
+
+
+def test_state_reads_the_joints_by_name_in_the_models_order(bridges):
+    # the broadcaster publishes in its own order (here reversed); the model's order is the URL's
+    bridge = bridges(joints=tuple(reversed(UR_JOINT_NAMES)), start=list(reversed(START)))
+    robot = open_robot(bridge.url())
+    try:
+        state = robot.state()
+        assert np.allclose(state.joints_rad, START, atol=1e-9)
+        assert not state.moving
+        from spacecal.models.kinematics import forward_kinematics, ur_model
+
+        assert np.allclose(state.base_from_tcp, forward_kinematics(ur_model("UR10"), START))
+        # a stream at the broadcaster's rate, stamped by its clock
+        time.sleep(0.3)
+        states = robot.drain_states()
+        assert len(states) > 15 and np.all(np.diff([s.time_s for s in states]) > 0)
+    finally:
+        robot.close()
+
+
+def test_joint_names_that_do_not_match_are_one_line(bridges):
+    bridge = bridges(joints=("j1", "j2", "j3", "j4", "j5", "j6"))
+    with pytest.raises(DeviceError) as caught:
+        open_robot(bridge.url())
+    line = str(caught.value)
+    assert "\n" not in line and "j1" in line and "shoulder_pan_joint" in line and "joints=" in line
+    robot = open_robot(bridge.url("model=UR10&joints=j1,j2,j3,j4,j5,j6"))
+    robot.close()
+
+
+def test_a_joint_move_is_reached(bridges):
+    bridge = bridges()
+    robot = open_robot(bridge.url())
+    try:
+        target = np.array(START) + np.radians([10, -5, 8, 4, -6, 12])
+        started = time.monotonic()
+        robot.move_joints(target, 0.5, 1.0)
+        took = time.monotonic() - started
+        arm = bridge.arm()
+        assert np.max(np.abs(np.array(arm["joints"]) - target)) < 2e-3
+        assert np.max(np.abs(robot.state().joints_rad - target)) < 2e-3
+        assert not arm["moving"] and arm["goals"] == 1
+        # 12 degrees at 0.5 rad/s, 1 rad/s^2: 0.92 s planned
+        assert 0.8 < took < 2.5
+    finally:
+        robot.close()
+
+
+def test_a_read_only_robot_does_not_move(bridges):
+    bridge = bridges()
+    robot = open_robot(bridge.url(), control=False)
+    try:
+        with pytest.raises(DeviceError, match="read-only"):
+            robot.move_joints(START, 0.5, 1.0)
+        assert bridge.arm()["goals"] == 0
+    finally:
+        robot.close()
+
+
+def _stop_mid_move(bridge: Bridge):
+    robot = open_robot(bridge.url())
+    target = np.array(START) + np.radians([40, 0, 0, 0, 0, 0])
+    errors = []
+
+    def move():
+        try:
+            robot.move_joints(target, 0.6, 2.0)
+        except DeviceError as exc:
+            errors.append(str(exc))
+
+    mover = threading.Thread(target=move)
+    mover.start()
+    time.sleep(0.5)
+    assert bridge.arm()["moving"]
+    stopped_at = time.monotonic()
+    robot.stop()
+    stop_took = time.monotonic() - stopped_at
+    mover.join(5)
+    still = still_after(bridge, stopped_at, STILL_WITHIN_S)
+    reached = np.array(bridge.arm()["joints"])
+    return robot, target, stop_took, still, reached, errors
+
+
+@pytest.mark.parametrize(("cancel", "stilled_by"), [("hold", "cancel"), ("ignore", "hold")])
+def test_stop_mid_move_stills_the_arm(bridges, cancel, stilled_by):
+    bridge = bridges("--cancel", cancel)
+    robot, target, stop_took, still, reached, errors = _stop_mid_move(bridge)
+    try:
+        assert robot.stopped_by == stilled_by
+        assert still < STILL_WITHIN_S and stop_took < STILL_WITHIN_S
+        assert np.max(np.abs(reached - target)) > np.radians(10)  # stopped short of the target
+        assert bridge.arm()["cancels"] == 1
+        assert errors and "CANCELED" in errors[0]
+        # nothing moves it again: not by itself, not by a further command
+        time.sleep(0.5)
+        assert np.allclose(bridge.arm()["joints"], reached, atol=1e-6)
+        with pytest.raises(DeviceError, match="stopped"):
+            robot.move_joints(target, 0.5, 1.0)
+    finally:
+        robot.close()
+
+
+def test_a_killed_server_ends_a_move_in_one_line_in_bounded_time(bridges):
+    bridge = bridges()
+    robot = open_robot(bridge.url())
+    try:
+        errors = []
+
+        def move():
+            try:
+                robot.move_joints(np.array(START) + np.radians([40, 0, 0, 0, 0, 0]), 0.4, 1.0)
+            except DeviceError as exc:
+                errors.append((time.monotonic(), str(exc)))
+
+        mover = threading.Thread(target=move)
+        mover.start()
+        time.sleep(0.4)
+        killed_at = time.monotonic()
+        bridge.kill()
+        mover.join(LOST_WITHIN_S + 1)
+        assert not mover.is_alive()
+        ended_at, line = errors[0]
+        assert ended_at - killed_at < LOST_WITHIN_S
+        assert "\n" not in line and ("lost" in line or "no joint state" in line)
+        with pytest.raises(DeviceError):
+            robot.state()
+    finally:
+        started = time.monotonic()
+        robot.close()
+        assert time.monotonic() - started < 2.0
+
+
+def test_a_killed_server_makes_the_state_an_error(bridges):
+    bridge = bridges()
+    robot = open_robot(bridge.url())
+    try:
+        robot.state()
+        bridge.kill()
+        deadline = time.monotonic() + LOST_WITHIN_S
+        while True:
+            try:
+                robot.state()
+            except DeviceError as exc:
+                assert "\n" not in str(exc)
+                break
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    finally:
+        robot.close()
+
+
+class _Page(http.server.BaseHTTPRequestHandler):
+    def do_GET(self):
+        self.send_response(404)
+        self.end_headers()
+
+    def log_message(self, *_):
+        pass
+
+
+def test_a_plain_http_server_is_not_a_rosbridge(bridges):
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="is not a rosbridge server") as caught:
+            open_robot(f"ros2://127.0.0.1:{server.server_address[1]}?model=UR10")
+        assert "\n" not in str(caught.value) and time.monotonic() - started < 4.0
+    finally:
+        server.shutdown()
+
+
+def test_a_websocket_that_answers_nonsense_is_not_a_rosbridge(bridges):
+    bridge = bridges("--mode", "nonsense")
+    started = time.monotonic()
+    with pytest.raises(DeviceError, match="is not a rosbridge server") as caught:
+        open_robot(bridge.url())
+    assert "\n" not in str(caught.value) and time.monotonic() - started < 4.0
+
+
+def test_nothing_listening_is_one_line():
+    with pytest.raises(DeviceError, match="no rosbridge"):
+        open_robot("ros2://127.0.0.1:9?model=UR10")
+
+
+def test_a_wrong_action_name_is_one_line_and_nothing_moves(bridges):
+    bridge = bridges()
+    robot = open_robot(bridge.url(f"model=UR10&action={ACTION}_x"))
+    try:
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="did not take"):
+            robot.move_joints(np.array(START) + 0.1, 0.5, 1.0)
+        assert time.monotonic() - started < 3.0
+        assert bridge.arm()["goals"] == 0
+    finally:
+        robot.close()
