@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import logging
 import threading
 import time
 from urllib.parse import parse_qsl
@@ -66,6 +67,8 @@ QUERY_FIELDS = ("joints", "model", "action", "topic")
 PROBE_DEADLINE_S = 3.0
 #: Deadline of roslibpy's connection and of its first joint state, s.
 CONNECT_DEADLINE_S = 3.0
+#: Deadline of closing the connection (the WebSocket closing handshake), s.
+CLOSE_DEADLINE_S = 1.0
 #: Joint states older than this (wall time, s) are stale: the arm's broadcaster publishes at
 #: 100-500 Hz, and a loaded computer has been seen to go 0.1 s without a message.
 STALE_AFTER_S = 0.5
@@ -101,6 +104,23 @@ STATUS_NAMES = {
 STATUS_SUCCEEDED = 4
 #: States kept between two drains (a minute at 500 Hz).
 STREAM_CAPACITY = 30_000
+
+
+def _quiet_client_logs() -> None:
+    """Keep roslibpy's and Twisted's own log records (tracebacks of a send racing a closing
+    connection, a message roslibpy could not parse) off the terminal: what they mean for a run
+    reaches the user as this adapter's one-line errors."""
+    for name in ("roslibpy", "twisted"):
+        logger = logging.getLogger(name)
+        logger.addHandler(logging.NullHandler())
+        logger.propagate = False
+    # Twisted prints what it logs before its logging begins to stderr; send it to the logger
+    from twisted.logger import STDLibLogObserver, globalLogBeginner
+
+    with contextlib.suppress(Exception):
+        if not getattr(globalLogBeginner, "_spacecal_began", False):
+            globalLogBeginner.beginLoggingTo([STDLibLogObserver(name="twisted")], redirectStandardIO=False)
+            globalLogBeginner._spacecal_began = True
 
 
 def parse_query(query: str) -> dict[str, str]:
@@ -229,6 +249,7 @@ class Ros2Robot:
         first = probe_rosbridge(host, port, topic, JOINT_STATE_TYPE, PROBE_DEADLINE_S)
         self._order = self._joint_order(first)
         roslibpy = require("roslibpy", "ros2")
+        _quiet_client_logs()
         self._roslibpy = roslibpy
         self._ros = roslibpy.Ros(host, port)
         try:
@@ -508,20 +529,23 @@ class Ros2Robot:
         ]
 
     def close(self) -> None:
-        """Stop listening and close the connection, within a deadline; never raises."""
+        """Close the connection, within :data:`CLOSE_DEADLINE_S`; never raises.
+
+        Nothing more is sent but the WebSocket's close (rosbridge ends a closed client's
+        subscriptions itself): a send queued behind the close would reach a closed protocol."""
         ros = getattr(self, "_ros", None)
         if ros is None:
             return
+        closed = threading.Event()
         with contextlib.suppress(Exception):
             ros.factory.stopTrying()
-        with contextlib.suppress(Exception):
-            if getattr(self, "_topic", None) is not None and ros.is_connected:
-                self._topic.unsubscribe()
-        with contextlib.suppress(Exception):
             ros.factory.remove_all_listeners("ready")  # nothing queued is sent on a later connection
+            ros.on("close", lambda *_: closed.set())
         with contextlib.suppress(Exception):
-            if ros.is_connected:
-                ros.close(timeout=1.0)
+            if ros.is_connected and self._lost is None:
+                ros.close(timeout=CLOSE_DEADLINE_S)
+                closed.wait(CLOSE_DEADLINE_S)
+        self._lost = self._lost or f"the connection to {self.name} was closed"
 
 
 def open_device(address: DeviceAddress, options: DeviceOptions) -> Ros2Robot:
