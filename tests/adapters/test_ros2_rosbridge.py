@@ -198,7 +198,7 @@ def test_stop_mid_move_stills_the_arm(bridges, cancel, stilled_by):
         assert still < STILL_WITHIN_S and stop_took < STILL_WITHIN_S
         assert np.max(np.abs(reached - target)) > np.radians(10)  # stopped short of the target
         assert bridge.arm()["cancels"] == 1
-        assert errors and "CANCELED" in errors[0]
+        assert errors and "stopped (CANCELED)" in errors[0]
         # nothing moves it again: not by itself, not by a further command
         time.sleep(0.5)
         assert np.allclose(bridge.arm()["joints"], reached, atol=1e-6)
@@ -300,5 +300,58 @@ def test_a_wrong_action_name_is_one_line_and_nothing_moves(bridges):
             robot.move_joints(np.array(START) + 0.1, 0.5, 1.0)
         assert time.monotonic() - started < 3.0
         assert bridge.arm()["goals"] == 0
+    finally:
+        robot.close()
+
+
+def test_trajectory_times_never_step_back():
+    # a time a hair below a whole second once became sec 2, nanosec 0 (rounded up to 1e9 and
+    # wrapped): a trajectory going back in time, which the controller rejects
+    from spacecal.adapters.ros2 import _duration
+
+    assert _duration(2.9999999999) == {"sec": 3, "nanosec": 0}
+    assert _duration(0.05) == {"sec": 0, "nanosec": 50_000_000}
+    times = np.linspace(0.05, 7.0, 140)
+    stamps = [_duration(t)["sec"] + _duration(t)["nanosec"] * 1e-9 for t in times]
+    assert np.all(np.diff(stamps) > 0)
+
+
+def test_an_asynchronous_move_that_is_not_taken_shows_in_the_state(bridges):
+    # the acquisition commands linear moves asynchronously and reads state() until the arm is
+    # no longer moving: a goal nobody took must be an error there, never an arrival
+    bridge = bridges()
+    robot = open_robot(bridge.url(f"model=UR10&action={ACTION}_x"))
+    try:
+        pose = robot.state().base_from_tcp.copy()
+        pose[2, 3] += 20.0
+        robot.move_linear(pose, 50.0, 200.0, asynchronous=True)
+        assert robot.state().moving
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="did not take the linear move"):
+            while robot.state().moving:
+                assert time.monotonic() - started < 3.0
+                time.sleep(0.05)
+        assert bridge.arm()["goals"] == 0
+    finally:
+        robot.close()
+
+
+def test_an_asynchronous_linear_move_arrives(bridges):
+    bridge = bridges()
+    robot = open_robot(bridge.url())
+    try:
+        start = robot.state().base_from_tcp.copy()
+        pose = start.copy()
+        pose[0, 3] += 30.0
+        robot.move_linear(pose, 50.0, 200.0, asynchronous=True)
+        along = []
+        while robot.state().moving:
+            along.append(robot.state().base_from_tcp[:3, 3])
+            time.sleep(0.02)
+        reached = robot.state().base_from_tcp
+        assert np.linalg.norm(reached[:3, 3] - pose[:3, 3]) < 0.5
+        # along the straight line: y and z stay, to the fake's linear interpolation between points
+        path = np.array(along)
+        assert np.max(np.abs(path[:, 1:] - start[1:3, 3])) < 0.5
     finally:
         robot.close()

@@ -162,9 +162,10 @@ def joint_names_of(fields: dict[str, str], model: RobotModel) -> tuple[str, ...]
 
 
 def _duration(seconds: float) -> dict[str, int]:
-    """builtin_interfaces/Duration of ``seconds``."""
-    whole = int(np.floor(seconds))
-    return {"sec": whole, "nanosec": int(round((seconds - whole) * 1e9)) % 1_000_000_000}
+    """builtin_interfaces/Duration of ``seconds`` (to the nanosecond, never rounded up to a
+    nanosecond field of 1e9)."""
+    sec, nanosec = divmod(int(round(seconds * 1e9)), 1_000_000_000)
+    return {"sec": sec, "nanosec": nanosec}
 
 
 def joint_trajectory(
@@ -346,7 +347,7 @@ class Ros2Robot:
     def state(self) -> RobotState:
         time_s, joints = self._fresh()
         goal = self._goal
-        moving = goal is not None and not goal["done"].is_set()
+        moving = goal is not None and self._check_goal(goal, joints)
         return RobotState(time_s, joints, forward_kinematics(self.nominal, joints), moving=moving)
 
     def drain_states(self) -> list[RobotState]:
@@ -360,8 +361,9 @@ class Ros2Robot:
         """Allow motion (nothing is sent to the arm)."""
         self._control = True
 
-    def _send(self, times, positions, velocities=None) -> dict:
-        """Send one trajectory goal; the goal's record (its id, events, outcome)."""
+    def _send(self, what: str, times, positions, velocities=None) -> dict:
+        """Send one trajectory goal (``what`` names it in messages); the goal's record (its id,
+        events, outcome, deadline)."""
         if self._lost is not None:
             raise DeviceError(self._lost)
         if not self._ros.is_connected:
@@ -386,6 +388,9 @@ class Ros2Robot:
         )
         goal["id"] = self._action.send_goal(message, finished, lambda _: goal["fed"].set(), failed)
         goal["start"] = self._fresh()[1]
+        goal["what"], goal["target"] = what, np.asarray(positions[-1], dtype=float)
+        duration = float(times[-1])
+        goal["deadline"] = goal["sent"] + duration * (1 + MOVE_MARGIN_FRACTION) + MOVE_MARGIN_S
         self._goal = goal
         return goal
 
@@ -395,32 +400,37 @@ class Ros2Robot:
         if self._stopped:
             raise DeviceError(f"the robot at {self.name} was stopped: it takes no further motion")
 
-    def _wait(self, goal: dict, duration_s: float, target: np.ndarray, what: str) -> None:
-        """Wait for a goal to end, at most its duration and a margin; a lost link, a goal not
-        taken or a goal that ended short is one DeviceError (the arm stopped first)."""
-        deadline = goal["sent"] + duration_s * (1 + MOVE_MARGIN_FRACTION) + MOVE_MARGIN_S
-        while not goal["done"].wait(0.02):
-            now = time.monotonic()
-            try:
-                _, joints = self._fresh()
-            except DeviceError:
-                self._give_up()
-                raise
+    def _check_goal(self, goal: dict, joints: np.ndarray) -> bool:
+        """Whether ``goal`` is still running; a DeviceError (the arm stopped first) when it was
+        not taken within :data:`GOAL_TAKEN_WITHIN_S`, overran its deadline, or ended other than
+        SUCCEEDED, or its end is not where the joint states are."""
+        what, now = goal["what"], time.monotonic()
+        if goal.get("checked"):
+            return False
+        if goal.get("stopped"):  # the stop's: cancelled, or preempted by the hold goal
+            return not goal["done"].is_set()
+        if not goal["done"].is_set():
             taken = goal["fed"].is_set() or float(np.max(np.abs(joints - goal["start"]))) > STILL_RAD
             if not taken and now - goal["sent"] > GOAL_TAKEN_WITHIN_S:
+                goal["checked"] = True
                 self.stop()
                 raise DeviceError(
                     f"{self.action} did not take the {what} within {GOAL_TAKEN_WITHIN_S:g} s "
                     f"(no such action server on {self.name}, or it rejected the goal)"
                 )
-            if now > deadline:
+            if now > goal["deadline"]:
+                goal["checked"] = True
                 self.stop()
-                raise DeviceError(f"the {what} did not end within {deadline - goal['sent']:.1f} s; stopped")
+                raise DeviceError(
+                    f"the {what} did not end within {goal['deadline'] - goal['sent']:.1f} s; stopped"
+                )
+            return True
         outcome = goal["outcome"] or {}
         status = getattr(outcome.get("status"), "value", outcome.get("status"))
         values = outcome.get("values")
         code = values.get("error_code", 0) if isinstance(values, dict) else None
         if goal.get("failed") or status != STATUS_SUCCEEDED or code != 0:
+            goal["checked"] = True
             text = values.get("error_string", "") if isinstance(values, dict) else str(values)
             raise DeviceError(
                 f"{self.action} ended the {what} {STATUS_NAMES.get(status, str(status))}"
@@ -428,13 +438,33 @@ class Ros2Robot:
                 + (f": {text[:120]}" if text else "")
             )
         # the controller's goal tolerance decides success; its joint states must agree
-        settle = time.monotonic() + STALE_AFTER_S
-        while float(np.max(np.abs(self._fresh()[1] - target))) > ARRIVAL_RAD:
-            if time.monotonic() > settle:
+        if float(np.max(np.abs(joints - goal["target"]))) > ARRIVAL_RAD:
+            if now - goal.setdefault("ended", now) > STALE_AFTER_S:
+                goal["checked"] = True
                 raise DeviceError(
                     f"{self.action} reported the {what} done, but the joints are not at its end"
                 )
-            time.sleep(0.01)
+            return True
+        goal["checked"] = True
+        return False
+
+    def _wait(self, goal: dict) -> None:
+        """Wait for a goal to end (:meth:`_check_goal`); a lost link ends the wait at once."""
+        while True:
+            try:
+                _, joints = self._fresh()
+            except DeviceError:
+                self._give_up()
+                raise
+            if goal.get("stopped"):
+                goal["done"].wait(CANCEL_STILL_S + HOLD_STILL_S)
+                outcome = goal["outcome"] or {}
+                status = getattr(outcome.get("status"), "value", outcome.get("status"))
+                ended = STATUS_NAMES.get(status, "no result from the controller")
+                raise DeviceError(f"the {goal['what']} was stopped ({ended})")
+            if not self._check_goal(goal, joints):
+                return
+            goal["done"].wait(0.02)
 
     def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
         self._require_motion()
@@ -445,8 +475,7 @@ class Ros2Robot:
             )
         _, here = self._fresh()
         times, positions, velocities = joint_move_points(here, target, speed_rad_s, accel_rad_s2)
-        goal = self._send(times, positions, velocities)
-        self._wait(goal, float(times[-1]), target, "joint move")
+        self._wait(self._send("joint move", times, positions, velocities))
 
     def move_linear(
         self, base_from_tcp, speed_mm_s: float, accel_mm_s2: float, asynchronous: bool = False
@@ -468,9 +497,9 @@ class Ros2Robot:
         steps = max(1, int(np.ceil(duration / POINT_PERIOD_S)))
         times = np.linspace(duration / steps, duration, steps)
         positions = track_path(self.nominal, move.poses_at(np.minimum(times, move.duration_s)), here)
-        goal = self._send(times, positions)
+        goal = self._send("linear move", times, positions)
         if not asynchronous:
-            self._wait(goal, duration, positions[-1], "linear move")
+            self._wait(goal)
 
     def stop(self) -> None:
         """Cancel the goal; when the arm is not still soon after, hold it where it is (see the
@@ -479,6 +508,7 @@ class Ros2Robot:
         goal = self._goal
         if goal is None or self._lost is not None or not self._ros.is_connected:
             return
+        goal["stopped"] = True
         if goal["done"].is_set() and self._still():
             return
         with contextlib.suppress(Exception):
@@ -488,7 +518,8 @@ class Ros2Robot:
             return
         try:
             _, here = self._fresh()
-            self._send(np.array([HOLD_AFTER_S]), here[None], np.zeros((1, len(here))))
+            hold = self._send("hold", np.array([HOLD_AFTER_S]), here[None], np.zeros((1, len(here))))
+            hold["checked"] = True  # the stop's own: what it did is stopped_by
         except DeviceError:
             return  # the link is gone: nothing more can be sent
         self.stopped_by = "hold" if self._settles(HOLD_STILL_S) else None

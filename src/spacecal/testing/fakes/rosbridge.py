@@ -58,10 +58,20 @@ PUBLISH_HZ = 100.0
 CONTROL_HZ = 500.0
 #: Feedback rate of the action server, Hz (joint_trajectory_controller's action_monitor_rate).
 FEEDBACK_HZ = 20.0
+FEEDBACK_S = 1.0 / FEEDBACK_HZ
 #: The arm counts as at a trajectory's last point within this (rad) per joint.
 GOAL_TOLERANCE_RAD = 1e-3
 ACTION_TYPE = "control_msgs/action/FollowJointTrajectory"
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+#: ur_robot_driver's joint names: the world's robot is a UR.
+UR_JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
 #: action_msgs/msg/GoalStatus
 STATUS_UNKNOWN, STATUS_EXECUTING, STATUS_SUCCEEDED, STATUS_CANCELED = 0, 2, 4, 5
 
@@ -90,6 +100,24 @@ class FakeArm:
     goals: int = 0
     lock: threading.Lock = field(default_factory=threading.Lock)
 
+    clock0: float = field(default_factory=time.monotonic)
+
+    def now_s(self) -> float:
+        """The arm's clock (the stamps of its joint states), s."""
+        return time.monotonic() - self.clock0
+
+    def start(self, goal: _Goal) -> None:
+        """Follow ``goal`` from where the arm is (preempting any other)."""
+        self.goal = goal
+
+    def hold(self) -> None:
+        """Hold the current position (a cancelled goal)."""
+        self.goal = None
+
+    def sample(self) -> tuple[float, np.ndarray]:
+        """(stamp s, joints rad) as the joint-state broadcaster publishes them."""
+        return self.now_s(), self.joints.copy()
+
     def desired(self, now_s: float) -> np.ndarray:
         goal = self.goal
         assert goal is not None
@@ -113,6 +141,54 @@ class FakeArm:
         )
 
 
+class WorldArm:
+    """The fake world's robot (:class:`spacecal.sim.devices.SimulatedRobot`) behind the
+    trajectory controller, so the world's tracker sees the arm rosbridge moves: a goal is
+    followed point by point (linearly between them), a cancel stops the arm; joint states are
+    the robot's controller ticks."""
+
+    def __init__(self, fake_world, names: tuple[str, ...]):
+        self.fake, self.names = fake_world, names
+        self.goal: _Goal | None = None
+        self.cancels = self.goals = 0
+        self.lock = threading.Lock()
+
+    @property
+    def robot(self):
+        return self.fake.robot  # the UR configuration may replace the world's robot
+
+    def now_s(self) -> float:
+        return float(self.fake.clock.now_s)
+
+    def start(self, goal: _Goal) -> None:
+        self.goal = goal
+        self.robot.start_trajectory(goal.times_s, goal.positions)
+
+    def hold(self) -> None:
+        self.goal = None
+        self.robot.stop()
+
+    def step(self, now_s: float, dt_s: float) -> None:
+        pass  # the simulated robot moves on the world's clock by itself
+
+    def reached(self, now_s: float) -> bool:
+        return self.goal is not None and not self.robot.state().moving
+
+    def sample(self) -> tuple[float, np.ndarray]:
+        state = self.robot.tick_state()
+        return float(state.time_s), np.asarray(state.joints_rad, dtype=float)
+
+
+def start_world_rosbridge(fake_world, host: str, names: tuple[str, ...] = UR_JOINT_NAMES) -> int:
+    """A fake rosbridge on ``host`` (a free port) driving the world's robot; its port."""
+    bridge = FakeRosbridge(WorldArm(fake_world, names))
+    ready, bound = threading.Event(), []
+    threading.Thread(target=bridge.serve, args=(host, 0, ready, bound), daemon=True).start()
+    if not ready.wait(10):
+        raise RuntimeError("the fake rosbridge did not start")
+    return bound[0]
+
+
 def _duration_s(value) -> float:
     """builtin_interfaces/Duration ``{"sec", "nanosec"}`` in s."""
     return float(value.get("sec", 0)) + float(value.get("nanosec", 0)) * 1e-9
@@ -133,10 +209,9 @@ class FakeRosbridge:
         self.cancel_mode, self.mode = cancel, mode
         self._subscriptions: dict[object, dict[str, str | None]] = {}
         self._loop = asyncio.new_event_loop()
-        self._clock0 = time.monotonic()
 
     def now_s(self) -> float:
-        return time.monotonic() - self._clock0
+        return self.arm.now_s()
 
     # -- wire ---------------------------------------------------------------------------
     async def _send(self, connection, message: dict) -> None:
@@ -196,7 +271,7 @@ class FakeRosbridge:
                 self.arm.cancels += 1
                 if self.cancel_mode != "hold":
                     return  # the server rejects the cancel: the trajectory goes on
-                self.arm.goal = None  # hold the current position
+                self.arm.hold()
             await self._result(goal, STATUS_CANCELED, 0, "cancelled")
         elif op in ("advertise", "unadvertise", "publish", "call_service"):
             await self._status(connection, "error", f"{op} is not offered by this server")
@@ -255,14 +330,16 @@ class FakeRosbridge:
         now = self.now_s()
         with self.arm.lock:
             previous = self.arm.goal
-            self.arm.goal = _Goal(
-                goal_id,
-                connection,
-                bool(message.get("feedback")),
-                times,
-                positions,
-                now,
-                self.arm.joints.copy(),
+            self.arm.start(
+                _Goal(
+                    goal_id,
+                    connection,
+                    bool(message.get("feedback")),
+                    times,
+                    positions,
+                    now,
+                    self.arm.sample()[1],
+                )
             )
             self.arm.goals += 1
         if previous is not None:
@@ -282,10 +359,15 @@ class FakeRosbridge:
                 self.arm.step(now, now - last)
                 goal = self.arm.goal
                 if goal is not None and self.arm.reached(now):
-                    finished, self.arm.goal = goal, None
-                elif goal is not None and goal.feedback and now - goal.last_feedback_s >= 1.0 / FEEDBACK_HZ:
-                    goal.last_feedback_s, feedback = now, (goal, self.arm.joints.tolist())
-                joints = self.arm.joints.tolist()
+                    finished = goal
+                    self.arm.hold()
+                publish = now - last_publish >= 1.0 / PUBLISH_HZ
+                goal = self.arm.goal
+                report = goal is not None and goal.feedback and now - goal.last_feedback_s >= FEEDBACK_S
+                if publish or report:  # the world's arm computes a state per look
+                    stamp, joints = self.arm.sample()
+                if report:
+                    goal.last_feedback_s, feedback = now, (goal, joints.tolist())
             last = now
             if finished is not None:
                 await self._result(finished, STATUS_SUCCEEDED, 0, "")
@@ -299,14 +381,14 @@ class FakeRosbridge:
                         "values": {"joint_names": list(self.arm.names), "actual": {"positions": feedback[1]}},
                     },
                 )
-            if now - last_publish >= 1.0 / PUBLISH_HZ:
+            if publish:
                 last_publish = now
-                await self._publish(now, joints)
+                await self._publish(stamp, joints.tolist())
 
-    async def _publish(self, now: float, joints: list[float]) -> None:
-        sec = int(now)
+    async def _publish(self, stamp: float, joints: list[float]) -> None:
+        sec = int(np.floor(stamp))
         msg = {
-            "header": {"stamp": {"sec": sec, "nanosec": int((now - sec) * 1e9)}, "frame_id": ""},
+            "header": {"stamp": {"sec": sec, "nanosec": int((stamp - sec) * 1e9)}, "frame_id": ""},
             "name": list(self.arm.names),
             "position": joints,
             "velocity": [0.0] * len(joints),
@@ -330,7 +412,7 @@ class FakeRosbridge:
     def state(self) -> dict:
         with self.arm.lock:
             return {
-                "joints": self.arm.joints.tolist(),
+                "joints": self.arm.sample()[1].tolist(),
                 "moving": self.arm.goal is not None,
                 "goals": self.arm.goals,
                 "cancels": self.arm.cancels,
