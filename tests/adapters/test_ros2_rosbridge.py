@@ -17,7 +17,7 @@ pytest.importorskip("roslibpy")
 pytest.importorskip("websockets")
 
 from spacecal.adapters import ROBOT, DeviceOptions, device_address, open_device
-from spacecal.adapters.ros2 import UR_JOINT_NAMES
+from spacecal.adapters.ros2 import UR_JOINT_NAMES, model_of
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.testing.fakes.rosbridge import arm_state
 
@@ -105,6 +105,12 @@ def test_the_url_takes_the_default_port_and_its_query():
         open_robot("ros2://127.0.0.1:1")
     with pytest.raises(InvalidInputError, match="has 6"):
         open_robot("ros2://127.0.0.1:1?model=UR10&joints=a,b")
+    # the TCP on the flange, as a pendant shows it (a trajectory controller knows none)
+    model = model_of({"model": "UR10", "tcp": "0,0,200,0,0,1.5707963267948966"}, None)
+    assert np.allclose(model.flange_from_tcp[:3, 3], [0, 0, 200])
+    assert np.allclose(model.flange_from_tcp[:3, :2], [[0, -1], [1, 0], [0, 0]], atol=1e-12)
+    with pytest.raises(InvalidInputError, match="tcp= takes"):
+        open_robot("ros2://127.0.0.1:1?model=UR10&tcp=0,0,nan,0,0,0")
 
 
 def test_state_reads_the_joints_by_name_in_the_models_order(bridges):

@@ -39,6 +39,7 @@ from spacecal.adapters import DeviceAddress, DeviceOptions, require
 from spacecal.adapters.rosbridge_probe import probe_rosbridge
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import FINDING_OK, DeviceFinding, DeviceIdentity, RobotState
+from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
 from spacecal.models.kinematics import UR_TABLES, RobotModel, forward_kinematics, ur_model
 from spacecal.planning.motion import (
     MotionLimits,
@@ -62,7 +63,7 @@ UR_JOINT_NAMES = (
     "wrist_3_joint",
 )
 #: The query fields a ros2:// URL takes.
-QUERY_FIELDS = ("joints", "model", "action", "topic")
+QUERY_FIELDS = ("joints", "model", "tcp", "action", "topic")
 #: Deadline of the first look (WebSocket upgrade and a first joint state), s.
 PROBE_DEADLINE_S = 3.0
 #: Deadline of roslibpy's connection and of its first joint state, s.
@@ -143,7 +144,23 @@ def model_of(fields: dict[str, str], robot_model: str | None) -> RobotModel:
         )
     if name not in UR_TABLES:
         raise InvalidInputError(f"unknown robot model {name!r}; known: {', '.join(sorted(UR_TABLES))}")
-    return ur_model(name)
+    return with_url_tcp(ur_model(name), fields)
+
+
+def with_url_tcp(model: RobotModel, fields: dict[str, str]) -> RobotModel:
+    """``model`` with the TCP of ``tcp=X,Y,Z,RX,RY,RZ`` (mm, rotation vector in rad, in the
+    flange frame); a trajectory controller knows no TCP, so without it the TCP is the model's."""
+    if "tcp" not in fields:
+        return model
+    try:
+        values = np.array([float(v) for v in fields["tcp"].split(",")])
+    except ValueError:
+        values = np.array([])
+    if values.shape != (6,) or not np.all(np.isfinite(values)) or np.any(np.abs(values[:3]) > 2000):
+        raise InvalidInputError(
+            "tcp= takes X,Y,Z,RX,RY,RZ: mm within +-2000 and a rotation vector in rad (the TCP on the flange)"
+        )
+    return model.with_tcp(make_transform(rotvec_to_matrix(values[3:]), values[:3]))
 
 
 def joint_names_of(fields: dict[str, str], model: RobotModel) -> tuple[str, ...]:
