@@ -38,7 +38,14 @@ import numpy as np
 from spacecal.adapters import DeviceAddress, DeviceOptions, require
 from spacecal.adapters.rosbridge_probe import probe_rosbridge
 from spacecal.core.errors import DeviceError, InvalidInputError
-from spacecal.core.ports import FINDING_OK, DeviceFinding, DeviceIdentity, RobotState
+from spacecal.core.ports import (
+    FINDING_OK,
+    FINDING_PROBLEM,
+    FINDING_WARNING,
+    DeviceFinding,
+    DeviceIdentity,
+    RobotState,
+)
 from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
 from spacecal.models.kinematics import UR_TABLES, RobotModel, forward_kinematics, ur_model
 from spacecal.planning.motion import (
@@ -103,6 +110,8 @@ STATUS_NAMES = {
     6: "ABORTED",
 }
 STATUS_SUCCEEDED = 4
+#: The read-only check counts joint states over this, s; fewer than MIN_STATE_HZ is a problem.
+PREFLIGHT_WINDOW_S, MIN_STATE_HZ = 0.5, 20.0
 #: States kept between two drains (a minute at 500 Hz).
 STREAM_CAPACITY = 30_000
 
@@ -262,7 +271,7 @@ class Ros2Robot:
         self._latest: tuple[float, np.ndarray, float] | None = None  # (stamp s, joints, arrival)
         self._history: collections.deque = collections.deque(maxlen=64)  # (arrival, joints)
         self._stream: collections.deque[RobotState] = collections.deque(maxlen=STREAM_CAPACITY)
-        self._skipped = 0
+        self._skipped = self._received = 0
         self._goal: dict | None = None
         first = probe_rosbridge(host, port, topic, JOINT_STATE_TYPE, PROBE_DEADLINE_S)
         self._order = self._joint_order(first)
@@ -317,6 +326,7 @@ class Ros2Robot:
             self._skipped += 1
             return
         with self._lock:
+            self._received += 1
             self._latest = (time_s, joints, arrival)
             self._history.append((arrival, joints))
         with contextlib.suppress(DeviceError):
@@ -562,19 +572,46 @@ class Ros2Robot:
         return DeviceIdentity(model=self.nominal.name)
 
     def preflight(self) -> list[DeviceFinding]:
-        self._fresh()
-        with self._lock:
-            history = list(self._history)
-        span = history[-1][0] - history[0][0] if len(history) > 1 else 0.0
-        rate = (len(history) - 1) / span if span > 0 else 0.0
-        return [
+        """Read-only: how often joint states come (over :data:`PREFLIGHT_WINDOW_S`), whether
+        their stamps advance, and what moves the arm. Nothing is sent to the action server."""
+        findings = []
+        first_stamp, _ = self._fresh()
+        before = self._received
+        time.sleep(PREFLIGHT_WINDOW_S)
+        stamp, _ = self._fresh()
+        rate = (self._received - before) / PREFLIGHT_WINDOW_S
+        joints = ", ".join(self.joint_names)
+        if rate < MIN_STATE_HZ or stamp <= first_stamp:
+            findings.append(
+                DeviceFinding(
+                    FINDING_PROBLEM,
+                    "joint states",
+                    f"{self.topic} came at {rate:.0f} Hz with stamps that "
+                    f"{'advance' if stamp > first_stamp else 'stand still'}: a run needs at least "
+                    f"{MIN_STATE_HZ:g} Hz of fresh states (the joint_state_broadcaster's publish_rate)",
+                )
+            )
+        else:
+            text = f"{self.topic} at {rate:.0f} Hz ({joints})"
+            findings.append(DeviceFinding(FINDING_OK, "joint states", text))
+        if self._skipped:
+            findings.append(
+                DeviceFinding(
+                    FINDING_WARNING,
+                    "joint states",
+                    f"{self._skipped} message(s) on {self.topic} lacked the arm's joints and were skipped",
+                )
+            )
+        findings.append(
             DeviceFinding(
                 FINDING_OK,
-                "joint states",
-                f"{self.topic} at {rate:.0f} Hz, joints {', '.join(self.joint_names)}",
-            ),
-            DeviceFinding(FINDING_OK, "motion", f"through {self.action}"),
-        ]
+                "motion",
+                f"through {self.action} (not checked read-only: a goal not taken within "
+                f"{GOAL_TAKEN_WITHIN_S:g} s ends the run)",
+            )
+        )
+        findings.append(DeviceFinding(FINDING_OK, "kinematics", f"the nominal {self.nominal.name} model"))
+        return findings
 
     def close(self) -> None:
         """Close the connection, within :data:`CLOSE_DEADLINE_S`; never raises.

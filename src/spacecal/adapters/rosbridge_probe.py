@@ -142,7 +142,13 @@ def probe_rosbridge(host: str, port: int, topic: str, message_type: str, deadlin
                 b"GET / HTTP/1.1\r\nHost: %s:%d\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
                 b"Sec-WebSocket-Key: %s\r\nSec-WebSocket-Version: 13\r\n\r\n" % (host.encode(), port, key)
             )
-            head = reader.until(b"\r\n\r\n", 16 * 1024)
+            try:
+                head = reader.until(b"\r\n\r\n", 16 * 1024)
+            except TimeoutError:
+                raise DeviceError(
+                    f"{name} is not a rosbridge server: it did not answer a WebSocket upgrade "
+                    f"within {deadline_s:g} s"
+                ) from None
             status = head.split(b"\r\n", 1)[0]
             accept = base64.b64encode(hashlib.sha1(key + _WEBSOCKET_GUID).digest())
             headers = {
