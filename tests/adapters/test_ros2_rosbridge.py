@@ -361,3 +361,30 @@ def test_an_asynchronous_linear_move_arrives(bridges):
         assert np.max(np.abs(path[:, 1:] - start[1:3, 3])) < 0.5
     finally:
         robot.close()
+
+
+def test_a_port_that_never_answers_the_upgrade_is_one_line_within_the_deadline():
+    import socket
+
+    server = socket.create_server(("127.0.0.1", 0))
+    try:
+        started = time.monotonic()
+        with pytest.raises(DeviceError, match="did not answer a WebSocket upgrade within 3 s"):
+            open_robot(f"ros2://127.0.0.1:{server.getsockname()[1]}?model=UR10")
+        assert 2.9 < time.monotonic() - started < 4.0
+    finally:
+        server.close()
+
+
+def test_the_read_only_check_measures_the_joint_state_rate(bridges):
+    bridge = bridges()
+    robot = open_robot(bridge.url(), control=False)
+    try:
+        findings = {f.subject: f for f in robot.preflight()}
+        assert findings["joint states"].level == "ok"
+        # the fake's broadcaster publishes at 100 Hz; a loaded machine delays its loop
+        rate = float(findings["joint states"].text.split(" at ")[1].split(" Hz")[0])
+        assert 40 <= rate <= 110
+        assert bridge.arm()["goals"] == 0  # read-only: nothing was sent to the action server
+    finally:
+        robot.close()

@@ -31,6 +31,8 @@ import contextlib
 import logging
 import threading
 import time
+from dataclasses import dataclass, field
+from typing import Any
 from urllib.parse import parse_qsl
 
 import numpy as np
@@ -116,6 +118,10 @@ PREFLIGHT_WINDOW_S, MIN_STATE_HZ = 0.5, 20.0
 STREAM_CAPACITY = 30_000
 
 
+#: Whether Twisted's logging was begun by this module (once per process).
+_LOGGING_BEGUN = False
+
+
 def _quiet_client_logs() -> None:
     """Keep roslibpy's and Twisted's own log records (tracebacks of a send racing a closing
     connection, a message roslibpy could not parse) off the terminal: what they mean for a run
@@ -127,10 +133,23 @@ def _quiet_client_logs() -> None:
     # Twisted prints what it logs before its logging begins to stderr; send it to the logger
     from twisted.logger import STDLibLogObserver, globalLogBeginner
 
+    global _LOGGING_BEGUN
+    if not _LOGGING_BEGUN:
+        _LOGGING_BEGUN = True
+        with contextlib.suppress(Exception):
+            observer: Any = STDLibLogObserver(name="twisted")
+            globalLogBeginner.beginLoggingTo([observer], redirectStandardIO=False)
+
+
+def _stop_reconnecting(ros) -> None:
+    """Switch off roslibpy's reconnecting (Twisted's ``ReconnectingClientFactory.stopTrying``),
+    on the reactor's thread, where the factory's state lives; from any thread."""
     with contextlib.suppress(Exception):
-        if not getattr(globalLogBeginner, "_spacecal_began", False):
-            globalLogBeginner.beginLoggingTo([STDLibLogObserver(name="twisted")], redirectStandardIO=False)
-            globalLogBeginner._spacecal_began = True
+        from twisted.internet import reactor
+
+        factory = ros.factory
+        factory.continueTrying = False  # read by the factory before it schedules a retry
+        reactor.callFromThread(factory.stopTrying)
 
 
 def parse_query(query: str) -> dict[str, str]:
@@ -227,6 +246,39 @@ def joint_move_points(start, target, speed_rad_s: float, accel_rad_s2: float):
     return times, start + s[:, None] * (target - start), ds[:, None] * (target - start)
 
 
+@dataclass
+class _Goal:
+    """One trajectory goal as sent: what it is (in messages), where it ends (rad), the joints
+    when it was sent, when (monotonic s), its deadline, and what came back."""
+
+    what: str
+    target: np.ndarray
+    start: np.ndarray
+    sent: float
+    deadline: float = float("inf")
+    id: str | None = None
+    done: threading.Event = field(default_factory=threading.Event)
+    fed: threading.Event = field(default_factory=threading.Event)
+    outcome: Any = None
+    failed: bool = False
+    #: its end was judged (state() and the waiting move judge it once)
+    checked: bool = False
+    #: the stop cancelled or preempted it
+    stopped: bool = False
+    #: when it was reported done while the joint states were not yet at its end
+    ended: float | None = None
+
+
+def _status(outcome: Any) -> int | None:
+    """The GoalStatus number of a roslibpy result (its enum, or the number rosbridge sent)."""
+    status = (outcome or {}).get("status")
+    return getattr(status, "value", status)
+
+
+def _status_name(status: int | None) -> str:
+    return "without a status" if status is None else STATUS_NAMES.get(status, str(status))
+
+
 class Ros2Robot:
     """A ROS 2 arm behind the Robot protocol, through rosbridge.
 
@@ -272,7 +324,7 @@ class Ros2Robot:
         self._history: collections.deque = collections.deque(maxlen=64)  # (arrival, joints)
         self._stream: collections.deque[RobotState] = collections.deque(maxlen=STREAM_CAPACITY)
         self._skipped = self._received = 0
-        self._goal: dict | None = None
+        self._goal: _Goal | None = None
         first = probe_rosbridge(host, port, topic, JOINT_STATE_TYPE, PROBE_DEADLINE_S)
         self._order = self._joint_order(first)
         roslibpy = require("roslibpy", "ros2")
@@ -336,8 +388,7 @@ class Ros2Robot:
         """roslibpy's ``close`` event: the link is gone; never reconnect (a reconnected
         roslibpy sends what was queued while it was down)."""
         self._lost = self._lost or f"lost the connection to {self.name}"
-        with contextlib.suppress(Exception):
-            self._ros.factory.stopTrying()
+        _stop_reconnecting(self._ros)
 
     def _fresh(self) -> tuple[float, np.ndarray]:
         """(stamp, joints) of the newest joint state, or a DeviceError when it is stale or lost."""
@@ -388,36 +439,28 @@ class Ros2Robot:
         """Allow motion (nothing is sent to the arm)."""
         self._control = True
 
-    def _send(self, what: str, times, positions, velocities=None) -> dict:
+    def _send(self, what: str, times, positions, velocities=None) -> _Goal:
         """Send one trajectory goal (``what`` names it in messages); the goal's record (its id,
         events, outcome, deadline)."""
         if self._lost is not None:
             raise DeviceError(self._lost)
         if not self._ros.is_connected:
             raise DeviceError(f"lost the connection to {self.name}")
-        goal = {
-            "done": threading.Event(),
-            "fed": threading.Event(),
-            "outcome": None,
-            "sent": time.monotonic(),
-        }
+        goal = _Goal(what, np.asarray(positions[-1], dtype=float), self._fresh()[1], time.monotonic())
+        goal.deadline = goal.sent + float(times[-1]) * (1 + MOVE_MARGIN_FRACTION) + MOVE_MARGIN_S
 
         def finished(result) -> None:
-            goal["outcome"] = result
-            goal["done"].set()
+            goal.outcome = result
+            goal.done.set()
 
         def failed(result) -> None:
-            goal["outcome"], goal["failed"] = result, True
-            goal["done"].set()
+            goal.outcome, goal.failed = result, True
+            goal.done.set()
 
         message = self._roslibpy.Goal(
             {"trajectory": joint_trajectory(self.joint_names, times, positions, velocities)}
         )
-        goal["id"] = self._action.send_goal(message, finished, lambda _: goal["fed"].set(), failed)
-        goal["start"] = self._fresh()[1]
-        goal["what"], goal["target"] = what, np.asarray(positions[-1], dtype=float)
-        duration = float(times[-1])
-        goal["deadline"] = goal["sent"] + duration * (1 + MOVE_MARGIN_FRACTION) + MOVE_MARGIN_S
+        goal.id = self._action.send_goal(message, finished, lambda _: goal.fed.set(), failed)
         self._goal = goal
         return goal
 
@@ -427,55 +470,54 @@ class Ros2Robot:
         if self._stopped:
             raise DeviceError(f"the robot at {self.name} was stopped: it takes no further motion")
 
-    def _check_goal(self, goal: dict, joints: np.ndarray) -> bool:
+    def _check_goal(self, goal: _Goal, joints: np.ndarray) -> bool:
         """Whether ``goal`` is still running; a DeviceError (the arm stopped first) when it was
         not taken within :data:`GOAL_TAKEN_WITHIN_S`, overran its deadline, or ended other than
         SUCCEEDED, or its end is not where the joint states are."""
-        what, now = goal["what"], time.monotonic()
-        if goal.get("checked"):
+        what, now = goal.what, time.monotonic()
+        if goal.checked:
             return False
-        if goal.get("stopped"):  # the stop's: cancelled, or preempted by the hold goal
-            return not goal["done"].is_set()
-        if not goal["done"].is_set():
-            taken = goal["fed"].is_set() or float(np.max(np.abs(joints - goal["start"]))) > STILL_RAD
-            if not taken and now - goal["sent"] > GOAL_TAKEN_WITHIN_S:
-                goal["checked"] = True
+        if goal.stopped:  # the stop's: cancelled, or preempted by the hold goal
+            return not goal.done.is_set()
+        if not goal.done.is_set():
+            taken = goal.fed.is_set() or float(np.max(np.abs(joints - goal.start))) > STILL_RAD
+            if not taken and now - goal.sent > GOAL_TAKEN_WITHIN_S:
+                goal.checked = True
                 self.stop()
                 raise DeviceError(
                     f"{self.action} did not take the {what} within {GOAL_TAKEN_WITHIN_S:g} s "
                     f"(no such action server on {self.name}, or it rejected the goal)"
                 )
-            if now > goal["deadline"]:
-                goal["checked"] = True
+            if now > goal.deadline:
+                goal.checked = True
                 self.stop()
-                raise DeviceError(
-                    f"the {what} did not end within {goal['deadline'] - goal['sent']:.1f} s; stopped"
-                )
+                raise DeviceError(f"the {what} did not end within {goal.deadline - goal.sent:.1f} s; stopped")
             return True
-        outcome = goal["outcome"] or {}
-        status = getattr(outcome.get("status"), "value", outcome.get("status"))
+        outcome = goal.outcome or {}
+        status = _status(outcome)
         values = outcome.get("values")
         code = values.get("error_code", 0) if isinstance(values, dict) else None
-        if goal.get("failed") or status != STATUS_SUCCEEDED or code != 0:
-            goal["checked"] = True
+        if goal.failed or status != STATUS_SUCCEEDED or code != 0:
+            goal.checked = True
             text = values.get("error_string", "") if isinstance(values, dict) else str(values)
             raise DeviceError(
-                f"{self.action} ended the {what} {STATUS_NAMES.get(status, str(status))}"
+                f"{self.action} ended the {what} {_status_name(status)}"
                 + (f" (error code {code})" if code else "")
                 + (f": {text[:120]}" if text else "")
             )
         # the controller's goal tolerance decides success; its joint states must agree
-        if float(np.max(np.abs(joints - goal["target"]))) > ARRIVAL_RAD:
-            if now - goal.setdefault("ended", now) > STALE_AFTER_S:
-                goal["checked"] = True
+        if float(np.max(np.abs(joints - goal.target))) > ARRIVAL_RAD:
+            goal.ended = now if goal.ended is None else goal.ended
+            if now - goal.ended > STALE_AFTER_S:
+                goal.checked = True
                 raise DeviceError(
                     f"{self.action} reported the {what} done, but the joints are not at its end"
                 )
             return True
-        goal["checked"] = True
+        goal.checked = True
         return False
 
-    def _wait(self, goal: dict) -> None:
+    def _wait(self, goal: _Goal) -> None:
         """Wait for a goal to end (:meth:`_check_goal`); a lost link ends the wait at once."""
         while True:
             try:
@@ -483,15 +525,14 @@ class Ros2Robot:
             except DeviceError:
                 self._give_up()
                 raise
-            if goal.get("stopped"):
-                goal["done"].wait(CANCEL_STILL_S + HOLD_STILL_S)
-                outcome = goal["outcome"] or {}
-                status = getattr(outcome.get("status"), "value", outcome.get("status"))
-                ended = STATUS_NAMES.get(status, "no result from the controller")
-                raise DeviceError(f"the {goal['what']} was stopped ({ended})")
+            if goal.stopped:
+                goal.done.wait(CANCEL_STILL_S + HOLD_STILL_S)
+                status = _status(goal.outcome)
+                ended = "no result from the controller" if status is None else _status_name(status)
+                raise DeviceError(f"the {goal.what} was stopped ({ended})")
             if not self._check_goal(goal, joints):
                 return
-            goal["done"].wait(0.02)
+            goal.done.wait(0.02)
 
     def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
         self._require_motion()
@@ -535,18 +576,18 @@ class Ros2Robot:
         goal = self._goal
         if goal is None or self._lost is not None or not self._ros.is_connected:
             return
-        goal["stopped"] = True
-        if goal["done"].is_set() and self._still():
+        goal.stopped = True
+        if goal.done.is_set() and self._still():
             return
         with contextlib.suppress(Exception):
-            self._action.cancel_goal(goal["id"])
+            self._action.cancel_goal(goal.id)
         if self._settles(CANCEL_STILL_S):
             self.stopped_by = "cancel"
             return
         try:
             _, here = self._fresh()
             hold = self._send("hold", np.array([HOLD_AFTER_S]), here[None], np.zeros((1, len(here))))
-            hold["checked"] = True  # the stop's own: what it did is stopped_by
+            hold.checked = True  # the stop's own: what it did is stopped_by
         except DeviceError:
             return  # the link is gone: nothing more can be sent
         self.stopped_by = "hold" if self._settles(HOLD_STILL_S) else None
@@ -622,8 +663,8 @@ class Ros2Robot:
         if ros is None:
             return
         closed = threading.Event()
+        _stop_reconnecting(ros)
         with contextlib.suppress(Exception):
-            ros.factory.stopTrying()
             ros.factory.remove_all_listeners("ready")  # nothing queued is sent on a later connection
             ros.on("close", lambda *_: closed.set())
         with contextlib.suppress(Exception):

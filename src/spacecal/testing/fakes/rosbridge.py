@@ -182,7 +182,7 @@ class WorldArm:
 def start_world_rosbridge(fake_world, host: str, names: tuple[str, ...] = UR_JOINT_NAMES) -> int:
     """A fake rosbridge on ``host`` (a free port) driving the world's robot; its port."""
     bridge = FakeRosbridge(WorldArm(fake_world, names))
-    ready, bound = threading.Event(), []
+    ready, bound = threading.Event(), list[int]()
     threading.Thread(target=bridge.serve, args=(host, 0, ready, bound), daemon=True).start()
     if not ready.wait(10):
         raise RuntimeError("the fake rosbridge did not start")
@@ -199,7 +199,7 @@ class FakeRosbridge:
 
     def __init__(
         self,
-        arm: FakeArm,
+        arm: FakeArm | WorldArm,
         action: str = "/joint_trajectory_controller/follow_joint_trajectory",
         topic: str = "/joint_states",
         cancel: str = "hold",
@@ -354,7 +354,8 @@ class FakeRosbridge:
         while True:
             await asyncio.sleep(period)
             now = self.now_s()
-            finished = feedback = None
+            finished: _Goal | None = None
+            feedback: tuple[_Goal, list[float]] | None = None
             with self.arm.lock:
                 self.arm.step(now, now - last)
                 goal = self.arm.goal
@@ -366,7 +367,7 @@ class FakeRosbridge:
                 report = goal is not None and goal.feedback and now - goal.last_feedback_s >= FEEDBACK_S
                 if publish or report:  # the world's arm computes a state per look
                     stamp, joints = self.arm.sample()
-                if report:
+                if report and goal is not None:
                     goal.last_feedback_s, feedback = now, (goal, joints.tolist())
             last = now
             if finished is not None:
@@ -435,7 +436,7 @@ def main() -> None:
     start = np.zeros(len(names)) if not args.start else np.array([float(v) for v in args.start.split(",")])
     arm = FakeArm(names, start, np.radians(args.speed_deg_s))
     bridge = FakeRosbridge(arm, action=args.action, cancel=args.cancel, mode=args.mode)
-    ready, bound = threading.Event(), []
+    ready, bound = threading.Event(), list[int]()
     threading.Thread(target=bridge.serve, args=(args.host, args.port, ready, bound), daemon=True).start()
     if not ready.wait(10):
         sys.exit("the fake rosbridge did not start")
