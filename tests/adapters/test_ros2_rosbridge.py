@@ -388,3 +388,20 @@ def test_the_read_only_check_measures_the_joint_state_rate(bridges):
         assert bridge.arm()["goals"] == 0  # read-only: nothing was sent to the action server
     finally:
         robot.close()
+
+
+@pytest.mark.parametrize("offset_mm", [0.0, 3.0])
+def test_the_read_only_check_compares_the_model_with_tf(bridges, offset_mm):
+    # the driver publishes base_link -> tool0 by its own description; a 3 mm difference (a
+    # calibrated URDF, another tool frame) is named, an agreeing one passes
+    bridge = bridges("--tf-model", "UR10", "--tf-offset-mm", str(offset_mm))
+    robot = open_robot(bridge.url("model=UR10&tf=base_link,tool0"), control=False)
+    try:
+        finding = {f.subject: f for f in robot.preflight()}["tf"]
+        apart = float(finding.text.split("puts the TCP ")[1].split(" mm")[0])
+        assert apart == pytest.approx(offset_mm, abs=0.01)
+        assert finding.level == ("ok" if offset_mm == 0 else "warning")
+    finally:
+        robot.close()
+    with pytest.raises(InvalidInputError, match="tf= takes two"):
+        open_robot(bridge.url("model=UR10&tf=base_link"))

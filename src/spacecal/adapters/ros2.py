@@ -48,7 +48,9 @@ from spacecal.core.ports import (
     DeviceIdentity,
     RobotState,
 )
-from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
+from spacecal.core.units import metres_to_mm
+from spacecal.geometry.rotations import rotation_angle
+from spacecal.geometry.transforms import make_transform, quaternion_wxyz_to_matrix, rotvec_to_matrix
 from spacecal.models.kinematics import UR_TABLES, RobotModel, forward_kinematics, ur_model
 from spacecal.planning.motion import (
     MotionLimits,
@@ -72,7 +74,13 @@ UR_JOINT_NAMES = (
     "wrist_3_joint",
 )
 #: The query fields a ros2:// URL takes.
-QUERY_FIELDS = ("joints", "model", "tcp", "action", "topic")
+QUERY_FIELDS = ("joints", "model", "tcp", "action", "topic", "tf")
+TF_TOPICS, TF_TYPE = ("/tf", "/tf_static"), "tf2_msgs/msg/TFMessage"
+#: The model and /tf agree when the tool frame is within these of each other (mm, rad): a URDF
+#: with a UR's calibrated kinematics differs from the nominal model by 1-2 mm at the flange.
+TF_AGREE_MM, TF_AGREE_RAD = 1.0, 1e-3
+#: How long the read-only check waits for the /tf chain, s.
+TF_WAIT_S = 1.0
 #: Deadline of the first look (WebSocket upgrade and a first joint state), s.
 PROBE_DEADLINE_S = 3.0
 #: Deadline of roslibpy's connection and of its first joint state, s.
@@ -308,8 +316,13 @@ class Ros2Robot:
         topic: str = DEFAULT_TOPIC,
         control: bool = False,
         limits: MotionLimits | None = None,
+        tf_frames: tuple[str, str] | None = None,
     ):
         self.host, self.port, self.action, self.topic = host, port, action, topic
+        #: (base frame, tool frame) of /tf to check the model against, or None
+        self.tf_frames = tf_frames
+        #: child frame -> (parent frame, parent_from_child (4, 4) mm), from /tf and /tf_static
+        self._tf: dict[str, tuple[str, np.ndarray]] = {}
         self.nominal, self.kinematics = model, None
         self.joint_names = joint_names
         self.limits = limits or MotionLimits()
@@ -342,6 +355,12 @@ class Ros2Robot:
             self._topic = roslibpy.Topic(self._ros, topic, JOINT_STATE_TYPE, queue_length=1)
             self._topic.subscribe(self._joint_state)
             self._action = roslibpy.ActionClient(self._ros, action, ACTION_TYPE)
+            self._tf_topics = []
+            if tf_frames is not None:
+                for name in TF_TOPICS:
+                    tf_topic = roslibpy.Topic(self._ros, name, TF_TYPE)
+                    tf_topic.subscribe(self._transforms)
+                    self._tf_topics.append(tf_topic)
             deadline = time.monotonic() + CONNECT_DEADLINE_S
             while self._latest is None:
                 if time.monotonic() > deadline:
@@ -383,6 +402,38 @@ class Ros2Robot:
             self._history.append((arrival, joints))
         with contextlib.suppress(DeviceError):
             self._stream.append(RobotState(time_s, joints, forward_kinematics(self.nominal, joints)))
+
+    def _transforms(self, message: dict) -> None:
+        """roslibpy's callback for /tf and /tf_static: keep each frame's newest transform."""
+        for item in message.get("transforms", []) if isinstance(message, dict) else []:
+            try:
+                t, r = item["transform"]["translation"], item["transform"]["rotation"]
+                rotation = quaternion_wxyz_to_matrix([r["w"], r["x"], r["y"], r["z"]])
+                pose = make_transform(rotation, metres_to_mm(np.array([t["x"], t["y"], t["z"]], dtype=float)))
+                parent, child = (
+                    str(item["header"]["frame_id"]).lstrip("/"),
+                    str(item["child_frame_id"]).lstrip("/"),
+                )
+            except (KeyError, TypeError, ValueError):
+                continue
+            if np.all(np.isfinite(pose)):
+                self._tf[child] = (parent, pose)
+
+    def tf_pose(self) -> np.ndarray | None:
+        """``base_from_tool`` (4, 4), mm, of the ``tf=BASE,TOOL`` frames from /tf, or None when
+        the chain between them is not (yet) known."""
+        if self.tf_frames is None:
+            return None
+        base, frame = self.tf_frames
+        pose = np.eye(4)
+        for _ in range(64):  # a tf tree is a few dozen frames deep at most
+            if frame == base:
+                return pose
+            if frame not in self._tf:
+                return None
+            parent, parent_from_frame = self._tf[frame]
+            pose, frame = parent_from_frame @ pose, parent
+        return None
 
     def _connection_lost(self, *_) -> None:
         """roslibpy's ``close`` event: the link is gone; never reconnect (a reconnected
@@ -652,7 +703,37 @@ class Ros2Robot:
             )
         )
         findings.append(DeviceFinding(FINDING_OK, "kinematics", f"the nominal {self.nominal.name} model"))
+        if self.tf_frames is not None:
+            findings.append(self._tf_finding())
         return findings
+
+    def _tf_finding(self) -> DeviceFinding:
+        """How far the model's TCP is from the ``tf=BASE,TOOL`` chain's tool frame, at rest."""
+        base, tool = self.tf_frames or ("", "")
+        deadline = time.monotonic() + TF_WAIT_S
+        while (pose := self.tf_pose()) is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if pose is None:
+            return DeviceFinding(
+                FINDING_WARNING,
+                "tf",
+                f"no /tf chain from {base} to {tool} within {TF_WAIT_S:g} s: not compared",
+            )
+        model_pose = forward_kinematics(self.nominal, self._fresh()[1])
+        apart_mm = float(np.linalg.norm(model_pose[:3, 3] - pose[:3, 3]))
+        apart_rad = float(rotation_angle(model_pose[:3, :3].T @ pose[:3, :3]))
+        text = (
+            f"the {self.nominal.name} model puts the TCP {apart_mm:.2f} mm and "
+            f"{np.degrees(apart_rad):.3f} deg from {tool} in {base} on /tf"
+        )
+        if apart_mm <= TF_AGREE_MM and apart_rad <= TF_AGREE_RAD:
+            return DeviceFinding(FINDING_OK, "tf", text)
+        return DeviceFinding(
+            FINDING_WARNING,
+            "tf",
+            text + ": the driver's description (perhaps its calibrated kinematics) is not the model, or "
+            "tcp= is not the tool frame; spacecal computes with the model",
+        )
 
     def close(self) -> None:
         """Close the connection, within :data:`CLOSE_DEADLINE_S`; never raises.
@@ -687,4 +768,15 @@ def open_device(address: DeviceAddress, options: DeviceOptions) -> Ros2Robot:
         topic=fields.get("topic") or DEFAULT_TOPIC,
         control=options.control,
         limits=options.limits,
+        tf_frames=tf_frames_of(fields),
     )
+
+
+def tf_frames_of(fields: dict[str, str]) -> tuple[str, str] | None:
+    """``tf=BASE,TOOL``: the /tf frames the model's base and TCP are checked against."""
+    if "tf" not in fields:
+        return None
+    frames = tuple(f.strip().lstrip("/") for f in fields["tf"].split(","))
+    if len(frames) != 2 or not all(frames) or frames[0] == frames[1]:
+        raise InvalidInputError("tf= takes two /tf frames: BASE,TOOL (e.g. tf=base_link,tool0)")
+    return frames[0], frames[1]

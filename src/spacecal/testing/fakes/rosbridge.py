@@ -32,6 +32,10 @@ Run on its own (the tests kill the process to cut the link)::
         --joints shoulder_pan_joint,... [--start 0,-1.57,...] [--cancel hold|ignore] \
         [--mode rosbridge|nonsense] [--speed-deg-s 60]
 
+``--tf-model UR10`` also publishes ``/tf`` (``tf2_msgs/msg/TFMessage``, metres and a
+quaternion): ``base_link`` to ``tool0`` by that model's kinematics of the joints, its tool frame
+shifted by ``--tf-offset-mm`` (a driver whose URDF is not the model spacecal was given).
+
 It prints ``READY {"host", "port", "control_port"}``; the control port takes one line,
 ``state``, and answers JSON of the arm (``joints``, ``moving``, ``goals``, ``cancels``).
 """
@@ -46,10 +50,12 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz
 from spacecal.testing.fakes.net import accept_connections, listen
 
 #: /joint_states rate, Hz (a joint_state_broadcaster's usual 100 Hz).
@@ -63,6 +69,7 @@ FEEDBACK_S = 1.0 / FEEDBACK_HZ
 GOAL_TOLERANCE_RAD = 1e-3
 ACTION_TYPE = "control_msgs/action/FollowJointTrajectory"
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+TF_TOPIC, TF_TYPE = "/tf", "tf2_msgs/msg/TFMessage"
 #: ur_robot_driver's joint names: the world's robot is a UR.
 UR_JOINT_NAMES = (
     "shoulder_pan_joint",
@@ -204,9 +211,12 @@ class FakeRosbridge:
         topic: str = "/joint_states",
         cancel: str = "hold",
         mode: str = "rosbridge",
+        tf: tuple[str, str, Callable[[np.ndarray], np.ndarray]] | None = None,
     ):
         self.arm, self.action, self.topic = arm, action, topic
         self.cancel_mode, self.mode = cancel, mode
+        #: (parent frame, child frame, parent_from_child (4, 4) mm of the joints) for /tf
+        self.tf = tf
         self._subscriptions: dict[object, dict[str, str | None]] = {}
         self._loop = asyncio.new_event_loop()
 
@@ -247,7 +257,12 @@ class FakeRosbridge:
         subscriptions = self._subscriptions.setdefault(connection, {})
         if op == "subscribe":
             topic, kind = message.get("topic"), message.get("type")
-            if topic != self.topic:
+            if topic == TF_TOPIC and self.tf is not None:
+                if kind not in (None, TF_TYPE, "tf2_msgs/TFMessage"):
+                    await self._status(connection, "error", f"{topic} is a {TF_TYPE}, not {kind}")
+                else:
+                    subscriptions[str(message.get("id", topic))] = topic
+            elif topic != self.topic:
                 await self._status(
                     connection, "warning", f"topic {topic} does not exist yet", message.get("id")
                 )
@@ -395,9 +410,31 @@ class FakeRosbridge:
             "velocity": [0.0] * len(joints),
             "effort": [0.0] * len(joints),
         }
+        tf = None
+        if self.tf is not None:
+            parent, child, pose_of = self.tf
+            pose = pose_of(np.asarray(joints))
+            w, x, y, z = matrix_to_quaternion_wxyz(pose[:3, :3])
+            t = pose[:3, 3] / 1000.0  # ROS: metres
+            tf = {
+                "transforms": [
+                    {
+                        "header": {**msg["header"], "frame_id": parent},
+                        "child_frame_id": child,
+                        "transform": {
+                            "translation": {"x": t[0], "y": t[1], "z": t[2]},
+                            "rotation": {"x": x, "y": y, "z": z, "w": w},
+                        },
+                    }
+                ]
+            }
         for connection, subscriptions in list(self._subscriptions.items()):
-            if self.topic in subscriptions.values() and self.mode == "rosbridge":
+            if self.mode != "rosbridge":
+                continue
+            if self.topic in subscriptions.values():
                 await self._send(connection, {"op": "publish", "topic": self.topic, "msg": msg})
+            if tf is not None and TF_TOPIC in subscriptions.values():
+                await self._send(connection, {"op": "publish", "topic": TF_TOPIC, "msg": tf})
 
     def serve(self, host: str, port: int, ready: threading.Event, bound: list) -> None:
         from websockets.asyncio.server import serve
@@ -431,11 +468,24 @@ def main() -> None:
     parser.add_argument("--cancel", choices=["hold", "ignore"], default="hold")
     parser.add_argument("--mode", choices=["rosbridge", "nonsense"], default="rosbridge")
     parser.add_argument("--action", default="/joint_trajectory_controller/follow_joint_trajectory")
+    parser.add_argument(
+        "--tf-model", help="publish /tf base_link -> tool0 by this UR model's kinematics (e.g. UR10)"
+    )
+    parser.add_argument(
+        "--tf-offset-mm", type=float, default=0.0, help="... with the tool frame off by this along its x (mm)"
+    )
     args = parser.parse_args()
     names = tuple(args.joints.split(","))
     start = np.zeros(len(names)) if not args.start else np.array([float(v) for v in args.start.split(",")])
     arm = FakeArm(names, start, np.radians(args.speed_deg_s))
-    bridge = FakeRosbridge(arm, action=args.action, cancel=args.cancel, mode=args.mode)
+    tf = None
+    if args.tf_model:
+        from spacecal.models.kinematics import forward_kinematics, ur_model
+
+        model = ur_model(args.tf_model)
+        offset = make_transform(np.eye(3), [args.tf_offset_mm, 0.0, 0.0])
+        tf = ("base_link", "tool0", lambda q: forward_kinematics(model, q) @ offset)
+    bridge = FakeRosbridge(arm, action=args.action, cancel=args.cancel, mode=args.mode, tf=tf)
     ready, bound = threading.Event(), list[int]()
     threading.Thread(target=bridge.serve, args=(args.host, args.port, ready, bound), daemon=True).start()
     if not ready.wait(10):
