@@ -403,8 +403,9 @@ class FakeRosbridge:
 
     async def _publish(self, stamp: float, joints: list[float]) -> None:
         sec = int(np.floor(stamp))
+        header_stamp = {"sec": sec, "nanosec": int((stamp - sec) * 1e9)}
         msg = {
-            "header": {"stamp": {"sec": sec, "nanosec": int((stamp - sec) * 1e9)}, "frame_id": ""},
+            "header": {"stamp": header_stamp, "frame_id": ""},
             "name": list(self.arm.names),
             "position": joints,
             "velocity": [0.0] * len(joints),
@@ -419,7 +420,7 @@ class FakeRosbridge:
             tf = {
                 "transforms": [
                     {
-                        "header": {**msg["header"], "frame_id": parent},
+                        "header": {"stamp": header_stamp, "frame_id": parent},
                         "child_frame_id": child,
                         "transform": {
                             "translation": {"x": t[0], "y": t[1], "z": t[2]},
