@@ -17,7 +17,7 @@ pytest.importorskip("roslibpy")
 pytest.importorskip("websockets")
 
 from spacecal.adapters import ROBOT, DeviceOptions, device_address, open_device
-from spacecal.adapters.ros2 import UR_JOINT_NAMES, model_of
+from spacecal.adapters.ros2 import CANCEL_STILL_S, HOLD_STILL_S, UR_JOINT_NAMES, model_of
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.testing.fakes.rosbridge import arm_state
 
@@ -405,3 +405,32 @@ def test_the_read_only_check_compares_the_model_with_tf(bridges, offset_mm):
         robot.close()
     with pytest.raises(InvalidInputError, match="tf= takes two"):
         open_robot(bridge.url("model=UR10&tf=base_link"))
+
+
+def test_a_rosbridge_whose_goals_block_its_queue_cannot_be_stopped_and_the_stop_says_so(bridges):
+    # rosbridge with send_action_goals_in_new_thread:=false reads the cancel, and the hold
+    # goal, only once the goal is over: the stop gives up within its deadlines and says nothing
+    # stilled the arm (docs/ros2.md: launch rosbridge with the option true)
+    bridge = bridges("--goals-block")
+    robot = open_robot(bridge.url())
+    try:
+        target = np.array(START) + np.radians([60, 0, 0, 0, 0, 0])  # 2.4 s at 0.5 rad/s
+        errors = []
+
+        def move():
+            try:
+                robot.move_joints(target, 0.5, 2.0)
+            except DeviceError as exc:
+                errors.append(str(exc))
+
+        mover = threading.Thread(target=move)
+        mover.start()
+        time.sleep(0.4)
+        started = time.monotonic()
+        robot.stop()
+        assert time.monotonic() - started < CANCEL_STILL_S + HOLD_STILL_S + 0.3
+        assert robot.stopped_by is None and bridge.arm()["moving"]
+        mover.join(5)
+        assert errors and "was stopped" in errors[0]
+    finally:
+        robot.close()

@@ -327,7 +327,8 @@ class Ros2Robot:
         self.joint_names = joint_names
         self.limits = limits or MotionLimits()
         self.name = f"rosbridge at ws://{host}:{port}"
-        #: "cancel", "hold" or None: what stilled the arm at the last stop (None: nothing had to)
+        #: what stilled the arm at the last stop: "cancel", "hold", "arrived" (the move ended at
+        #: its target before either took effect), or None (nothing did, or nothing had to)
         self.stopped_by: str | None = None
         self._control = control
         self._stopped = False
@@ -633,7 +634,7 @@ class Ros2Robot:
         with contextlib.suppress(Exception):
             self._action.cancel_goal(goal.id)
         if self._settles(CANCEL_STILL_S):
-            self.stopped_by = "cancel"
+            self.stopped_by = self._stilled_by(goal, "cancel")
             return
         try:
             _, here = self._fresh()
@@ -641,7 +642,12 @@ class Ros2Robot:
             hold.checked = True  # the stop's own: what it did is stopped_by
         except DeviceError:
             return  # the link is gone: nothing more can be sent
-        self.stopped_by = "hold" if self._settles(HOLD_STILL_S) else None
+        self.stopped_by = self._stilled_by(goal, "hold") if self._settles(HOLD_STILL_S) else None
+
+    @staticmethod
+    def _stilled_by(goal: _Goal, how: str) -> str:
+        """``how``, unless the goal ran to its end meanwhile (SUCCEEDED): then ``arrived``."""
+        return "arrived" if goal.done.is_set() and _status(goal.outcome) == STATUS_SUCCEEDED else how
 
     def _settles(self, within_s: float) -> bool:
         deadline = time.monotonic() + within_s

@@ -32,6 +32,8 @@ Run on its own (the tests kill the process to cut the link)::
         --joints shoulder_pan_joint,... [--start 0,-1.57,...] [--cancel hold|ignore] \
         [--mode rosbridge|nonsense] [--speed-deg-s 60]
 
+``--goals-block`` is rosbridge launched with ``send_action_goals_in_new_thread:=false``: a
+goal holds its connection's message queue until it ends, so a cancel is read only then.
 ``--tf-model UR10`` also publishes ``/tf`` (``tf2_msgs/msg/TFMessage``, metres and a
 quaternion): ``base_link`` to ``tool0`` by that model's kinematics of the joints, its tool frame
 shifted by ``--tf-offset-mm`` (a driver whose URDF is not the model spacecal was given).
@@ -212,11 +214,15 @@ class FakeRosbridge:
         cancel: str = "hold",
         mode: str = "rosbridge",
         tf: tuple[str, str, Callable[[np.ndarray], np.ndarray]] | None = None,
+        goals_block: bool = False,
     ):
         self.arm, self.action, self.topic = arm, action, topic
         self.cancel_mode, self.mode = cancel, mode
         #: (parent frame, child frame, parent_from_child (4, 4) mm of the joints) for /tf
         self.tf = tf
+        #: rosbridge with ``send_action_goals_in_new_thread`` false: a goal holds the
+        #: connection's message queue until it ends (a cancel is read only afterwards)
+        self.goals_block = goals_block
         self._subscriptions: dict[object, dict[str, str | None]] = {}
         self._loop = asyncio.new_event_loop()
 
@@ -235,6 +241,8 @@ class FakeRosbridge:
                 if self.mode == "nonsense":
                     await connection.send("HELLO " + str(text)[:20][::-1])
                     continue
+                while self.goals_block and self.arm.goal is not None:
+                    await asyncio.sleep(0.005)
                 try:
                     message = json.loads(text)
                     op = message["op"]
@@ -468,6 +476,11 @@ def main() -> None:
     parser.add_argument("--speed-deg-s", type=float, default=60.0)
     parser.add_argument("--cancel", choices=["hold", "ignore"], default="hold")
     parser.add_argument("--mode", choices=["rosbridge", "nonsense"], default="rosbridge")
+    parser.add_argument(
+        "--goals-block",
+        action="store_true",
+        help="as rosbridge with send_action_goals_in_new_thread:=false: a goal holds the message queue",
+    )
     parser.add_argument("--action", default="/joint_trajectory_controller/follow_joint_trajectory")
     parser.add_argument(
         "--tf-model", help="publish /tf base_link -> tool0 by this UR model's kinematics (e.g. UR10)"
@@ -486,7 +499,9 @@ def main() -> None:
         model = ur_model(args.tf_model)
         offset = make_transform(np.eye(3), [args.tf_offset_mm, 0.0, 0.0])
         tf = ("base_link", "tool0", lambda q: forward_kinematics(model, q) @ offset)
-    bridge = FakeRosbridge(arm, action=args.action, cancel=args.cancel, mode=args.mode, tf=tf)
+    bridge = FakeRosbridge(
+        arm, action=args.action, cancel=args.cancel, mode=args.mode, tf=tf, goals_block=args.goals_block
+    )
     ready, bound = threading.Event(), list[int]()
     threading.Thread(target=bridge.serve, args=(args.host, args.port, ready, bound), daemon=True).start()
     if not ready.wait(10):
