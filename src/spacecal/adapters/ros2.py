@@ -48,6 +48,7 @@ from spacecal.core.ports import (
     DeviceIdentity,
     RobotState,
 )
+from spacecal.core.text import sanitize_for_terminal
 from spacecal.core.units import metres_to_mm
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, quaternion_wxyz_to_matrix, rotvec_to_matrix
@@ -376,8 +377,9 @@ class Ros2Robot:
         names = [str(n) for n in message.get("name", [])]
         missing = [n for n in self.joint_names if n not in names]
         if missing:
+            shown = sanitize_for_terminal(", ".join(names) or "none", 300)  # the driver's names
             raise DeviceError(
-                f"{self.topic} names the joints {', '.join(names) or 'none'}, not "
+                f"{self.topic} names the joints {shown}, not "
                 f"{', '.join(missing)} of the {self.nominal.name}: give joints=NAME1,... in the model's order"
             )
         return [names.index(n) for n in self.joint_names]
@@ -551,11 +553,12 @@ class Ros2Robot:
         code = values.get("error_code", 0) if isinstance(values, dict) else None
         if goal.failed or status != STATUS_SUCCEEDED or code != 0:
             goal.checked = True
-            text = values.get("error_string", "") if isinstance(values, dict) else str(values)
+            text = values.get("error_string", "") if isinstance(values, dict) else values
+            text = sanitize_for_terminal(text, 120) if text else ""  # the controller's words
             raise DeviceError(
                 f"{self.action} ended the {what} {_status_name(status)}"
-                + (f" (error code {code})" if code else "")
-                + (f": {text[:120]}" if text else "")
+                + (f" (error code {sanitize_for_terminal(code, 20)})" if code else "")
+                + (f": {text}" if text else "")
             )
         # the controller's goal tolerance decides success; its joint states must agree
         if float(np.max(np.abs(joints - goal.target))) > ARRIVAL_RAD:

@@ -20,6 +20,7 @@ import struct
 import time
 
 from spacecal.core.errors import DeviceError
+from spacecal.core.text import sanitize_for_terminal
 
 _WEBSOCKET_GUID = b"258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
 #: Largest frame the probe reads, bytes (a JointState of a few dozen joints is a few kB).
@@ -177,7 +178,8 @@ def probe_rosbridge(host: str, port: int, topic: str, message_type: str, deadlin
                     return message["msg"]
                 if op == "status" and message.get("level") == "error":
                     raise DeviceError(
-                        f"rosbridge at {name} refused to subscribe to {topic}: {message.get('msg')}"
+                        f"rosbridge at {name} refused to subscribe to {topic}: "
+                        f"{sanitize_for_terminal(message.get('msg'), 120)}"
                     )
             raise DeviceError(f"rosbridge at {name} sent {MAX_MESSAGES} messages, none on {topic}")
         except TimeoutError:
