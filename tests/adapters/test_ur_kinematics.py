@@ -18,7 +18,8 @@ from spacecal.geometry.metrics import cube_grid, target_registration_errors
 from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
 from spacecal.io.raw_streams import read_raw_recording, stream_paths
 from spacecal.io.recording_csv import read_recording
-from spacecal.models.kinematics import forward_kinematics, ur_model
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.models.robot_kinds import robot_kind
 
 from .ur_runs import SPACECAL, acquire_argv, assert_everything_closed, run, stats, ur_world
 
@@ -53,7 +54,7 @@ def test_a_calibrated_arm_with_a_rotated_pendant_tcp_calibrates_within_the_noise
         robot = data.metadata["robot"]
         assert robot["kinematics_source"].startswith("the controller's calibrated kinematics")
         recorded = robot_model_of(data)  # the prior of --method kinematic
-        nominal = ur_model("UR10")
+        nominal = robot_kind("UR10").model()
         # the recorded model is the controller's: calibrated DH (a few mm from nominal) ...
         assert 0.5 < np.max(np.abs(recorded.d_mm - nominal.d_mm)) < 10.0
         values = np.array([float(v) for v in PENDANT_TCP.split(",")])
@@ -121,7 +122,7 @@ def test_without_the_primary_interface_the_model_is_identified_from_the_reported
         reported_in_base = reported.base_from_tcp_stack[:, :3, 3]
         predicted = forward_kinematics(identified, reported.joints_rad)
         misfit = np.linalg.norm(predicted[:, :3, 3] - reported_in_base, axis=1)
-        nominal_model = ur_model("UR10").with_tcp(identified.flange_from_tcp)
+        nominal_model = robot_kind("UR10").model().with_tcp(identified.flange_from_tcp)
         nominal = forward_kinematics(nominal_model, reported.joints_rad)
         print(
             f"identified from the poses: misfit max {misfit.max():.4f} mm (nominal DH: up to "

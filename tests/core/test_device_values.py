@@ -8,7 +8,7 @@ import pytest
 
 from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import FRAME_INVALID, FRAME_OK, RobotState, TrackerFrame
-from spacecal.models.kinematics import ur_model
+from spacecal.models.robot_kinds import robot_kind
 
 
 def _pose(translation=(0.0, 0.0, -1000.0)):
@@ -65,7 +65,7 @@ def test_a_robot_state_that_is_not_an_arms_is_a_device_fault(joints, pose):
 
 @pytest.mark.parametrize("field", ["a_mm", "d_mm", "alpha_rad", "theta_offset_rad"])
 def test_a_controller_model_with_nan_or_infinite_dh_is_refused(field):
-    nominal = ur_model("UR10")
+    nominal = robot_kind("UR10").model()
     values = np.asarray(getattr(nominal, field), dtype=float).copy()
     values[2] = np.nan
     with pytest.raises(InvalidInputError, match=field):

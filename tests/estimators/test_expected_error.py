@@ -22,7 +22,7 @@ from spacecal.estimators.methods.likelihood import fit_ml
 from spacecal.estimators.registry import ESTIMATORS
 from spacecal.experiments.simulation import simulate
 from spacecal.experiments.verification import verify_in_simulation
-from spacecal.models.kinematics import UR_TABLES
+from spacecal.models.robot_kinds import ur_kind_names
 from spacecal.records.assessment import ErrorThresholds
 from spacecal.records.verdict import Verdict
 from spacecal.sim.scenario import PRESETS, load_scenario
@@ -309,7 +309,7 @@ def test_without_joints_or_robot_model_a_ur_arm_stands_in_and_the_error_is_not_s
     )
     paired = calibrate(recording, "ml").expected_error.to_dict()
     expected = calibrate(bare, "ml").expected_error.to_dict()
-    assert expected["components"]["kinematic_geometry"] in UR_TABLES
+    assert expected["components"]["kinematic_geometry"] in ur_kind_names()
     assert "no joint angles or robot model" in expected["basis"]
     # the arm that hides the most of the misfit: within 5 % of the true arm's geometry, or above
     assert expected["position_mm"] >= 0.95 * paired["position_mm"]

@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from spacecal.core.errors import InvalidInputError
 from spacecal.estimators.assessment.report import report_uncertainty
 from spacecal.estimators.methods.kinematic import COMPLIANCE_NAMES, identify_kinematics, joint_compliance_of
 from spacecal.experiments.simulation import simulate
@@ -18,7 +19,7 @@ from spacecal.models.compliance import (
 )
 from spacecal.models.kinematics import forward_kinematics
 from spacecal.records import CalibrationResult
-from spacecal.sim.scenario import PRESETS
+from spacecal.sim.scenario import PRESETS, scenario_from_dict
 from spacecal.sim.world import build_world
 
 STIFFNESS_NM_PER_RAD = 3e4
@@ -145,3 +146,18 @@ def test_compliant_inverse_kinematics_lands_the_deflected_arm_on_the_target():
     # and the rigid solution would have missed by the sag
     rigid = forward_kinematics(world.true_model, encoder)
     assert np.max(np.linalg.norm(rigid[:, :3, 3] - targets[:, :3, 3], axis=1)) > 0.1
+
+
+def test_an_arm_without_published_dynamics_is_identified_rigid_and_says_why():
+    # the UR10e's link masses are not in the registry: no gravity model, not the UR10's
+    scenario = dataclasses.replace(RIGID_WHITE, robot_model="UR10e")
+    recording = simulate(scenario).recording
+    calibration = identified(recording, joint_compliance=True, prior_from_data=False)
+    report = calibration.diagnostics["kinematic_identification"]
+    assert joint_compliance_of(calibration) is None
+    assert report["joint_compliance_skipped"].startswith("the UR10e has no published link dynamics")
+    assert not set(COMPLIANCE_NAMES) & {c["parameter"] for c in report["identified"]}
+    rigid = identified(recording, joint_compliance=False, prior_from_data=False)
+    assert rigid.diagnostics["kinematic_identification"]["joint_compliance_skipped"] is None
+    with pytest.raises(InvalidInputError, match="the UR10e has no published link dynamics"):
+        scenario_from_dict({"robot_model": "UR10e", "joint_stiffness_nm_per_rad": [3e4, 3e4]})

@@ -11,7 +11,8 @@ from spacecal.estimators.assessment.rigid_motion import rigid_coordinates
 from spacecal.estimators.assessment.unseen_kinematics import unit_dh_sd
 from spacecal.estimators.assessment.white_noise import MINIMUM_WHITENING_DOF
 from spacecal.geometry.transforms import axis_angle_transform
-from spacecal.models.kinematics import dh_point_jacobian, forward_kinematics, pose_point_jacobian, ur_model
+from spacecal.models.kinematics import dh_point_jacobian, forward_kinematics, pose_point_jacobian
+from spacecal.models.robot_kinds import robot_kind
 
 #: A camera's noise in a frame's rigid motion (tracker frame: z is the line of sight), s.d.
 #: per coordinate: translation (mm) 0.1 across, 0.6 along the line of sight; rotation (rad)
@@ -24,7 +25,7 @@ FRAMES = 60
 def geometry():
     """A UR10's sphere shapes at 60 poses: predicted spheres, pose and unit DH Jacobians."""
     rng = np.random.default_rng(11)
-    model = ur_model("UR10")
+    model = robot_kind("UR10").model()
     joints = np.radians([0.0, -90.0, 90.0, -90.0, -90.0, 0.0]) + rng.uniform(-0.5, 0.5, (FRAMES, 6))
     tracker_from_base = axis_angle_transform([0, 0, 1], 180.0, [0.0, 0.0, 1800.0])
     tcp_from_marker = np.eye(4)

@@ -47,7 +47,7 @@ from spacecal.io.ros_exports import (
 from spacecal.io.slicer import read_slicer_transform, write_slicer_transform
 from spacecal.io.ur_driver_calibration import read_ur_calibration, write_ur_calibration
 from spacecal.io.yaml_text import parse_yaml, yaml_string
-from spacecal.models.kinematics import ur_model
+from spacecal.models.robot_kinds import robot_kind
 
 PAYLOAD = '"""+__import__("pathlib").Path("OWNED").write_text("x")+"""'
 SPECIALS = [
@@ -201,7 +201,7 @@ def test_yaml_scalars_and_the_ur_calibration(folder, name):
     # the emitter alone: every string, checked or not, reads back exactly (PyYAML and the strict reader)
     assert yaml.safe_load(f"k: {yaml_string(name)}\n") == {"k": name}
     assert parse_yaml(f"k: {yaml_string(name)}\n", "f", "t") == {"k": name}
-    model = dataclasses.replace(ur_model("UR10"), name=name)
+    model = dataclasses.replace(robot_kind("UR10").model(), name=name)
     hash_text = name or "calib_0"
     path = write_ur_calibration(folder / "k.yaml", model, kinematics_hash=hash_text)
     text = path.read_text()

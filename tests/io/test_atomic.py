@@ -17,7 +17,7 @@ from spacecal.io.results_json import write_json
 from spacecal.io.ros_exports import calibration_static_transform, write_ros2_launch, write_urdf_joint
 from spacecal.io.slicer import write_slicer_transform
 from spacecal.io.ur_driver_calibration import write_ur_calibration
-from spacecal.models.kinematics import ur_model
+from spacecal.models.robot_kinds import robot_kind
 
 FRAMES = {
     "robot_base_frame": "base",
@@ -32,7 +32,7 @@ WRITERS = {
     "launch": lambda p: write_ros2_launch(p / "c.launch.py", EDGE),
     "urdf": lambda p: write_urdf_joint(p / "c.urdf", EDGE),
     "easy_handeye2": lambda p: write_easy_handeye2_calibration(p / "c.calib", np.eye(4), **FRAMES),
-    "ur_calibration": lambda p: write_ur_calibration(p / "k.yaml", ur_model("UR10")),
+    "ur_calibration": lambda p: write_ur_calibration(p / "k.yaml", robot_kind("UR10").model()),
     "json": lambda p: write_json({"a": 1}, p / "r.json"),
 }
 

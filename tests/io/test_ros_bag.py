@@ -19,7 +19,8 @@ from spacecal.experiments.simulation import simulate_raw
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec
 from spacecal.io.ros_bag import list_bag_contents, read_ros_bag
 from spacecal.io.ros_common import transform_to_ros
-from spacecal.models.kinematics import forward_kinematics, ur_model
+from spacecal.models.kinematics import forward_kinematics
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.records import RawRecording
 from spacecal.sim.scenario import load_scenario
 
@@ -317,7 +318,7 @@ def test_bags_without_definitions_use_the_standard_type_store(tmp_path):
     rng = np.random.default_rng(2)
     times = np.arange(20) * 0.05
     joints = rng.uniform(-2.0, 2.0, (20, 6))
-    model = ur_model("UR10")
+    model = robot_kind("UR10").model()
     markers = make_transform(Rotation.random(20, random_state=4).as_matrix(), rng.normal(0.0, 500.0, (20, 3)))
     raw = RawRecording(
         times,

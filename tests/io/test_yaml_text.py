@@ -19,7 +19,7 @@ from spacecal.io.easy_handeye import (
 from spacecal.io.ros_bag import BagContents, BagTopic, TfEdge, list_bag_contents
 from spacecal.io.ur_driver_calibration import read_ur_calibration, ur_calibration_text, write_ur_calibration
 from spacecal.io.yaml_text import parse_yaml, yaml_comment, yaml_number, yaml_string
-from spacecal.models.kinematics import ur_model
+from spacecal.models.robot_kinds import robot_kind
 
 FRAMES = {
     "robot_base_frame": "base",
@@ -170,7 +170,7 @@ def test_small_translations_survive_a_yaml_1_1_reader(tmp_path):
 
 
 def test_a_model_name_cannot_add_keys_to_the_ur_file(tmp_path):
-    model = ur_model("UR10")
+    model = robot_kind("UR10").model()
     model = type(model)(**{**model.__dict__, "name": "UR10\nhash: calib_0\nevil: 1\r\x85\u2028x"})
     text = ur_calibration_text(model, kinematics_hash="calib_1\nevil: 2")
     data = yaml.safe_load(text)

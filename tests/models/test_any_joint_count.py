@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from spacecal.core.errors import InvalidInputError
+from spacecal.core.errors import InvalidInputError, UnreachableError
 from spacecal.models.kinematics import (
     RobotModel,
     dh_point_jacobian,
@@ -72,8 +72,12 @@ def test_a_seven_joint_controllers_model_is_identified_from_its_poses():
 
 
 def test_what_seven_joints_cannot_do_is_said_in_one_line():
-    with pytest.raises(InvalidInputError, match="7 joints.*6-joint UR arms only"):
-        inverse_kinematics(IIWA7, np.eye(4))
+    far = np.eye(4)
+    far[0, 3] = 3000.0  # beyond the 1266 mm the arm reaches
+    with pytest.raises(UnreachableError, match="pose 0 cannot be reached by the iiwa7"):
+        inverse_kinematics(IIWA7, far)
+    with pytest.raises(InvalidInputError, match="iiwa7 has 7 joints; got reference joints"):
+        inverse_kinematics(IIWA7, np.eye(4), np.zeros(6))
     with pytest.raises(InvalidInputError, match="iiwa7 has 7 joints"):
         forward_kinematics(IIWA7, np.zeros(6))
     with pytest.raises(InvalidInputError, match="d_mm must be 7 finite numbers"):

@@ -4,7 +4,6 @@ import pytest
 from spacecal.core.errors import InvalidInputError, UnreachableError
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.models.kinematics import (
-    UR_TABLES,
     apply_pose_step,
     chain_points_in_tracker,
     forward_kinematics,
@@ -13,22 +12,22 @@ from spacecal.models.kinematics import (
     inverse_kinematics_gauss_newton,
     pose_point_jacobian,
     pose_step_between,
-    ur_model,
     within_joint_limits,
 )
+from spacecal.models.robot_kinds import robot_kind, ur_kind_names
 
 TOOL = make_transform(np.eye(3), [10.0, -5.0, 200.0])
 
 
 def test_zero_pose_of_ur10_matches_published_geometry():
     # At q = 0 a UR stretches along -x: x = a2 + a3, y = -(d4 + d6), z = d1 - d5.
-    pose = forward_kinematics(ur_model("UR10"), np.zeros(6))
+    pose = forward_kinematics(robot_kind("UR10").model(), np.zeros(6))
     assert np.allclose(pose[:3, 3], [-612.0 - 572.3, -163.941 - 92.2, 127.3 - 115.7])
 
 
-@pytest.mark.parametrize("name", sorted(UR_TABLES))
+@pytest.mark.parametrize("name", sorted(ur_kind_names()))
 def test_inverse_kinematics_round_trip_to_1e_9_mm(name):
-    model = ur_model(name, TOOL)
+    model = robot_kind(name).model(TOOL)
     rng = np.random.default_rng(abs(hash(name)) % 2**32)
     joints = rng.uniform(-np.pi, np.pi, (40, 6))
     poses = forward_kinematics(model, joints)
@@ -42,11 +41,15 @@ def test_inverse_kinematics_round_trip_to_1e_9_mm(name):
 
 def test_inverse_kinematics_on_a_model_with_dh_errors():
     rng = np.random.default_rng(5)
-    model = ur_model("UR10", TOOL).with_dh_errors(
-        rng.normal(scale=0.5, size=6),
-        rng.normal(scale=0.5, size=6),
-        rng.normal(scale=1e-3, size=6),
-        rng.normal(scale=1e-3, size=6),
+    model = (
+        robot_kind("UR10")
+        .model(TOOL)
+        .with_dh_errors(
+            rng.normal(scale=0.5, size=6),
+            rng.normal(scale=0.5, size=6),
+            rng.normal(scale=1e-3, size=6),
+            rng.normal(scale=1e-3, size=6),
+        )
     )
     joints = np.radians([10, -100, 100, -90, -80, 20])
     pose = forward_kinematics(model, joints)
@@ -55,7 +58,7 @@ def test_inverse_kinematics_on_a_model_with_dh_errors():
 
 
 def test_all_eight_branches_reach_the_same_pose():
-    model = ur_model("UR5")
+    model = robot_kind("UR5").model()
     pose = forward_kinematics(model, np.radians([20, -80, 70, -60, 85, 30]))
     references = np.radians([[20, -80, 70, -60, 85, 30], [-160, -100, -70, -120, -85, -150]])
     first, second = (inverse_kinematics(model, pose, r) for r in references)
@@ -66,11 +69,11 @@ def test_all_eight_branches_reach_the_same_pose():
 
 def test_unreachable_pose_raises():
     with pytest.raises(UnreachableError, match="workspace"):
-        inverse_kinematics(ur_model("UR3"), make_transform(np.eye(3), [3000.0, 0, 0]))
+        inverse_kinematics(robot_kind("UR3").model(), make_transform(np.eye(3), [3000.0, 0, 0]))
 
 
 def test_joint_limits_are_respected():
-    model = ur_model("UR10")
+    model = robot_kind("UR10").model()
     narrow = type(model)(
         **{**model.__dict__, "joint_lower_rad": np.full(6, -0.1), "joint_upper_rad": np.full(6, 0.1)}
     )
@@ -81,7 +84,7 @@ def test_joint_limits_are_respected():
 
 
 def test_jacobian_matches_finite_differences():
-    model = ur_model("UR10e", TOOL)
+    model = robot_kind("UR10e").model(TOOL)
     q = np.radians([15, -95, 105, -80, -70, 40])
     jac = geometric_jacobian(model, q)[0]
     eps = 1e-7
@@ -95,11 +98,11 @@ def test_jacobian_matches_finite_differences():
 
 def test_unknown_model_lists_known_ones():
     with pytest.raises(InvalidInputError, match="UR10e"):
-        ur_model("UR11")
+        robot_kind("UR11").model()
 
 
 def test_gauss_newton_ik_converges_from_nearby_and_reports_failure():
-    model = ur_model("UR10", TOOL)
+    model = robot_kind("UR10").model(TOOL)
     joints = np.radians([[15, -95, 105, -80, -70, 40], [-30, -70, 90, -100, -90, 10]])
     poses = forward_kinematics(model, joints)
     solved, converged = inverse_kinematics_gauss_newton(
@@ -120,7 +123,7 @@ def test_pose_step_round_trip_and_analytic_jacobian():
     step = rng.normal(scale=[1, 1, 1, 0.01, 0.01, 0.01, 1, 1, 1, 0.01, 0.01, 0.01])
     moved = apply_pose_step(tracker_from_base, tcp_from_marker, step)
     assert np.allclose(pose_step_between(tracker_from_base, tcp_from_marker, *moved), step, atol=1e-12)
-    base_from_tcp = forward_kinematics(ur_model("UR5"), rng.uniform(-2, 2, (4, 6)))
+    base_from_tcp = forward_kinematics(robot_kind("UR5").model(), rng.uniform(-2, 2, (4, 6)))
     points = rng.normal(size=(3, 3)) * 40
     jac = pose_point_jacobian(base_from_tcp, tracker_from_base, tcp_from_marker, points)
     assert jac.shape == (4, 3, 3, 12)

@@ -6,12 +6,13 @@ import pytest
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import make_transform, rotvec_to_matrix
-from spacecal.models.kinematics import fit_reported_kinematics, forward_kinematics, ur_model
+from spacecal.models.kinematics import fit_reported_kinematics, forward_kinematics
+from spacecal.models.robot_kinds import robot_kind
 
 
 def test_the_fitted_model_reproduces_a_calibrated_arm_with_a_rotated_tcp_everywhere():
     rng = np.random.default_rng(11)
-    nominal = ur_model("UR10e")
+    nominal = robot_kind("UR10e").model()
     tool = make_transform(rotvec_to_matrix([0.02, 0.25, -0.1]), [5.0, -3.0, 195.0])
     controller = nominal.with_dh_errors(
         rng.normal(0, 1.5, 6) * [0, 1, 1, 1, 1, 0],
@@ -35,7 +36,7 @@ def test_the_fitted_model_reproduces_a_calibrated_arm_with_a_rotated_tcp_everywh
 
 
 def test_too_few_pairs_are_refused():
-    model = ur_model("UR10")
+    model = robot_kind("UR10").model()
     joints = np.zeros((3, 6))
     with pytest.raises(InvalidInputError, match="at least 6 pairs"):
         fit_reported_kinematics(model, joints, forward_kinematics(model, joints))

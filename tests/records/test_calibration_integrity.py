@@ -9,7 +9,7 @@ import pytest
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.io.results_json import read_calibration, write_calibration
-from spacecal.models.kinematics import ur_model
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.records import CalibrationResult, Provenance, RecordingSource
 from spacecal.records.assessment import Assessment, ExpectedError
 from spacecal.records.calibration import CALIBRATION_READABLE_VERSIONS, CALIBRATION_SCHEMA_VERSION
@@ -46,7 +46,7 @@ def a_calibration(**changes):
         ),
         covariance={"parameters": ["p"] * 12, "matrix": np.eye(12) * 1e-4},
         predicted_tre_mm={"site": 0.02, "cube_rms": 0.03},
-        robot_model=ur_model("UR10"),
+        robot_model=robot_kind("UR10").model(),
     )
     values.update(changes)
     return CalibrationResult(**values)

@@ -13,13 +13,9 @@ import pytest
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.fitting import fit_rigid
 from spacecal.geometry.transforms import invert_transform, make_transform, rotvec_to_matrix
-from spacecal.models.gravity import (
-    STANDARD_GRAVITY_M_S2,
-    UR10_LINK_COM_MM,
-    UR10_LINK_MASSES_KG,
-    gravity_joint_torques,
-)
+from spacecal.models.gravity import STANDARD_GRAVITY_M_S2, gravity_joint_torques
 from spacecal.models.kinematics import _link_transforms, forward_kinematics, geometric_jacobian
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.sim.scenario import PRESETS, scenario_from_dict
 from spacecal.sim.world import _points_in_volume, build_world
 
@@ -77,12 +73,13 @@ def test_the_measurements_of_a_default_scenario_follow_the_volumetric_and_white_
 # -- joint compliance -------------------------------------------------------------------------
 def potential_energy_j(model, joints, payload_kg):
     """Gravitational potential energy (J) of the point masses gravity_joint_torques uses."""
+    dynamics = robot_kind(model.name).dynamics
     links = _link_transforms(model, np.atleast_2d(joints))
     frame = np.eye(4)
     height = 0.0
     for i in range(6):
         frame = frame @ links[0, i]
-        height += UR10_LINK_MASSES_KG[i] * (frame[:3, :3] @ UR10_LINK_COM_MM[i] + frame[:3, 3])[2]
+        height += dynamics.masses_kg[i] * (frame[:3, :3] @ dynamics.centres_of_mass_mm[i] + frame[:3, 3])[2]
     tool_mid = frame[:3, :3] @ (0.5 * model.flange_from_tcp[:3, 3]) + frame[:3, 3]
     height += payload_kg * tool_mid[2]
     return STANDARD_GRAVITY_M_S2 * height * 1e-3

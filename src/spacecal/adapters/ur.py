@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.adapters import DeviceAddress, DeviceOptions, require
-from spacecal.core.errors import DeviceError
+from spacecal.core.errors import DeviceError, InvalidInputError
 from spacecal.core.ports import (
     FINDING_OK,
     FINDING_PROBLEM,
@@ -72,7 +72,8 @@ from spacecal.core.ports import (
 from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, matrix_to_rotvec, rotvec_to_matrix
-from spacecal.models.kinematics import UR_TABLES, RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, forward_kinematics
+from spacecal.models.robot_kinds import robot_kind, ur_kind_names
 from spacecal.planning.motion import MotionLimits, trapezoid_duration
 
 RECEIVE_VARIABLES = [
@@ -289,12 +290,24 @@ def _native_stderr_held():
 
 
 # -- read-only conversations with the controller ---------------------------------------------
+def _ur_nominal(name: str) -> RobotModel:
+    """The nominal model of the UR kind ``name``; a kind of another vendor is refused in one
+    line (a UR controller drives only UR arms)."""
+    kind = robot_kind(name)
+    if not kind.is_ur:
+        raise InvalidInputError(
+            f"--robot-model {name} is a {kind.vendor} arm; a UR controller drives one of "
+            f"{', '.join(ur_kind_names())}"
+        )
+    return kind.model()
+
+
 def _reported_model(version_text: str, model_text: str) -> str:
     """The model a controller names (``get robot model`` says ``UR10`` on an e-Series too; its
     PolyScope 5 version makes it a ``UR10e``)."""
     reported = model_text.strip()
     version = _version(version_text)
-    if reported and version is not None and reported + "e" in UR_TABLES and version[0] >= 5:
+    if reported and version is not None and reported + "e" in ur_kind_names() and version[0] >= 5:
         reported += "e"
     return reported
 
@@ -694,7 +707,7 @@ class URRobot:
         self.limits = limits or MotionLimits()
         #: whether the model was given (--robot-model) or taken from the controller
         self.model_given = robot_model is not None
-        given = ur_model(robot_model) if robot_model is not None else None
+        given = _ur_nominal(robot_model) if robot_model is not None else None
         self._control = None
         self._program_expected = False
         #: whether the controller answered when the run was stopped (None: not stopped yet)
@@ -716,7 +729,7 @@ class URRobot:
         if not self._receive.isConnected():
             raise DeviceError(f"no UR controller answers RTDE on {host}:30004")
         try:
-            self.nominal = given if given is not None else ur_model(self._controller_model_name())
+            self.nominal = given if given is not None else _ur_nominal(self._controller_model_name())
         except BaseException:
             self.close()
             raise
@@ -744,10 +757,10 @@ class URRobot:
                 f"the UR controller on {self.host} did not say its model ({exc}); pass --robot-model"
             ) from None
         reported = _reported_model(version_text, model_text)
-        if reported not in UR_TABLES:
+        if reported not in ur_kind_names():
             raise DeviceError(
                 f"the UR controller on {self.host} names its model {model_text.strip()[:40]!r}, which "
-                f"spacecal does not know ({', '.join(sorted(UR_TABLES))}); pass --robot-model"
+                f"spacecal does not know ({', '.join(sorted(ur_kind_names()))}); pass --robot-model"
             )
         return reported
 
@@ -876,9 +889,9 @@ class URRobot:
                 elif eseries:
                     add(FINDING_OK, "remote control", "on")
             reported = _reported_model(version_text, model_text)
-            if reported in UR_TABLES and reported == self.nominal.name and not self.model_given:
+            if reported in ur_kind_names() and reported == self.nominal.name and not self.model_given:
                 add(FINDING_OK, "robot model", f"{reported}, as the controller names it")
-            if reported in UR_TABLES and reported != self.nominal.name:
+            if reported in ur_kind_names() and reported != self.nominal.name:
                 add(
                     FINDING_PROBLEM,
                     "robot model",

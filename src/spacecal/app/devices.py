@@ -36,7 +36,8 @@ from spacecal.core.text import check_printable_token, quoted
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, matrix_to_rotvec, rotvec_to_matrix
 from spacecal.io.ndi_rom import read_rom_marker
-from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, forward_kinematics
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.planning.motion import MotionLimits
 
 #: The simulated robot and tracker (of a scenario), instead of a device URL.
@@ -60,7 +61,7 @@ class DeviceSettings:
     tracker_rate_hz : float
         The tracker's frame rate (Vicra 20, Vega 60), Hz.
     robot_model : str or None
-        UR model for planning checks; None: the one the controller names (simulated devices:
+        Robot kind for planning checks; None: the one the controller names (simulated devices:
         the scenario's).
     tool : (x, y, z, rx, ry, rz) or None
         The TCP in the flange frame as the teach pendant shows it: mm and a rotation vector in
@@ -243,7 +244,7 @@ def hardware_model(
     robot names) / ``--tool`` (None: the controller's TCP)."""
     modelled = robot if isinstance(robot, ModelledRobot) else None
     if robot_model is not None:
-        nominal = ur_model(robot_model)
+        nominal = robot_kind(robot_model).model()
     elif modelled is not None and isinstance(modelled.nominal, RobotModel):
         nominal = modelled.nominal
     else:

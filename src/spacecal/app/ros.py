@@ -55,7 +55,7 @@ class ImportBagSettings:
         ``sensor_msgs/JointState`` topic (with ``robot_model``) and a ``PoseStamped`` /
         ``TransformStamped`` topic for the marker.
     robot_model : str
-        UR model whose kinematics turn joint states into TCP poses.
+        Robot kind whose kinematics turn joint states into TCP poses.
     """
 
     bag: str

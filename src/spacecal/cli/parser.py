@@ -260,7 +260,7 @@ def build_parser(commands_impl: dict) -> argparse.ArgumentParser:
     p.add_argument(
         "--marker-topic", metavar="TOPIC", help="PoseStamped / TransformStamped topic of the marker"
     )
-    p.add_argument("--robot-model", help="UR model for --joint-states")
+    p.add_argument("--robot-model", help="robot kind whose kinematics turn --joint-states into poses")
 
     p = command("import-poses", "turn a robot and a tracker TUM trajectory into a raw two-stream recording")
     p.add_argument("--robot", required=True, help="TUM file of base_from_tcp (or flange/gripper) poses")
@@ -389,7 +389,7 @@ def add_devices(p: argparse.ArgumentParser, simulated_by_default: bool = True) -
     p.add_argument("--tracker", help=forms("tracker"))
     p.add_argument("--rom", action="append", help="NDI tool definition of the marker (first) and other tools")
     p.add_argument("--tracker-rate-hz", type=decimal, help="tracker frame rate")
-    p.add_argument("--robot-model", help="UR model (UR10, UR10e, ...)")
+    p.add_argument("--robot-model", help="robot kind (UR10e, FR3, ...; a UR controller takes a UR kind)")
     # --tool-offset-mm is the older, translation-only form of --tool
     p.add_argument(
         "--tool",

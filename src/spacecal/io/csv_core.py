@@ -197,7 +197,7 @@ def check_tcp_against_kinematics(
     The robot model and the TCP in the flange come from the metadata, so the scale is known:
     TCP positions in cm or inches, quaternions in x, y, z, w order or conjugated, or the
     marker's pose in the TCP columns all put the recorded TCP far from where the joints put
-    it. Without joints or a known UR model there is nothing to compare with.
+    it. Without joints or a registered robot kind there is nothing to compare with.
 
     Parameters
     ----------
@@ -206,15 +206,18 @@ def check_tcp_against_kinematics(
     base_from_tcp_stack : numpy.ndarray, shape (N, 4, 4)
         The recorded TCP poses, mm.
     """
-    from spacecal.models.kinematics import UR_TABLES, forward_kinematics, ur_model
+    from spacecal.models.kinematics import forward_kinematics
+    from spacecal.models.robot_kinds import is_robot_kind, robot_kind
 
     robot = metadata.get("robot") or {}
     name = robot.get("model")
     recorded = np.all(np.isfinite(joints_rad), axis=1)
-    if not isinstance(name, str) or name not in UR_TABLES or recorded.sum() == 0:
+    if not is_robot_kind(name) or recorded.sum() == 0:
         return
     flange_from_tcp = robot.get("flange_from_tcp")
-    model = ur_model(name, None if flange_from_tcp is None else np.asarray(flange_from_tcp, dtype=float))
+    model = robot_kind(name).model(
+        None if flange_from_tcp is None else np.asarray(flange_from_tcp, dtype=float)
+    )
     if joints_rad.shape[1] != model.n_joints:
         raise InvalidInputError(
             f"{path}: the recording has {joints_rad.shape[1]} joint columns and its robot, a {name}, "

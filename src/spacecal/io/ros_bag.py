@@ -54,7 +54,8 @@ from spacecal.core.text import quoted, sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.io.ros_common import MAX_TRANSLATION_M, QUATERNION_NORM_TOLERANCE, transform_from_ros
 from spacecal.io.yaml_text import check_yaml_file
-from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, forward_kinematics
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.records import RawRecording
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
@@ -1174,7 +1175,8 @@ def read_ros_bag(
     marker_topic : str, optional
         Marker pose from this PoseStamped or TransformStamped topic.
     robot_model : RobotModel or str, optional
-        For joint states: a model, or a UR name for :func:`ur_model` (tool offset identity).
+        For joint states: a model, or a robot kind's name
+        (:func:`~spacecal.models.robot_kinds.robot_kind`; tool offset identity).
     joint_names : sequence of str
         The six joint names in kinematic order (matched exactly or as a name's suffix).
     typestore : str, optional
@@ -1214,7 +1216,7 @@ def read_ros_bag(
     types = {t.name: t.msgtype for t in contents.topics}
     tf_topics = contents.topics_of(TF_TYPES)
     if isinstance(robot_model, str):
-        robot_model = ur_model(robot_model)
+        robot_model = robot_kind(robot_model).model()
     say = {**PYTHON_NAMES, **(option_names or {})}
 
     # marker stream

@@ -29,7 +29,7 @@ from spacecal.core.text import (
 )
 from spacecal.ledger import schema
 from spacecal.ledger.schema import sa
-from spacecal.models.kinematics import UR_TABLES
+from spacecal.models.robot_kinds import ROBOT_KINDS, is_robot_kind
 from spacecal.records import CalibrationResult, CheckResult
 
 #: The names under which the record keeps the simulated robot and tracker.
@@ -282,7 +282,7 @@ class Ledger:
             space). The ledger checks only this form; the station checks that the URL is one a
             robot is opened with (:func:`spacecal.app.devices.validate_device_url`) first.
         model : str or None
-            A UR model spacecal knows (``UR10``, ``UR10e``, ...).
+            A registered robot kind (``UR10e``, ``FR3``, ...; :mod:`spacecal.models.robot_kinds`).
 
         Raises
         ------
@@ -466,7 +466,7 @@ class Ledger:
         try:
             if kind == "robot":
                 model = device.get("model") if isinstance(device, dict) else None
-                known = model if isinstance(model, str) and model in UR_TABLES else None
+                known = model if is_robot_kind(model) else None
                 return self.add_robot(name, url, known)
             return self.add_tracker(name, url)
         except InvalidInputError:  # a calibration file's provenance is not the record's to trust
@@ -651,12 +651,12 @@ def _check_device_url(url: object, kind: str) -> str:
 
 
 def _check_model(model: object) -> str | None:
-    """``model`` if it is None or a UR model spacecal has the kinematics of."""
+    """``model`` if it is None or a registered robot kind (:mod:`spacecal.models.robot_kinds`)."""
     if model is None:
         return None
     text = check_printable_token(model, "the robot's model", MAX_MODEL_CHARS)
-    if text not in UR_TABLES:
-        known = ", ".join(k for k in UR_TABLES if not k.startswith("_"))
+    if not is_robot_kind(text):
+        known = ", ".join(ROBOT_KINDS)
         raise InvalidInputError(f"unknown robot model {quoted(text)}; known: {known}")
     return text
 

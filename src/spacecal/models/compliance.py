@@ -23,7 +23,7 @@ import numpy as np
 
 from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.arrays import ArrayLike, FloatArray
-from spacecal.models.gravity import UR10_DYNAMICS, LinkDynamics, gravity_joint_torques
+from spacecal.models.gravity import LinkDynamics, gravity_joint_torques
 from spacecal.models.kinematics import N_JOINTS, RobotModel, forward_kinematics, inverse_kinematics
 
 #: The compliant joints, 0-based: the shoulder and elbow carry the arm's weight on the longest
@@ -48,14 +48,16 @@ class JointCompliance:
         Torques on joints 2 and 3 at which the kinematic model holds (no deflection), N m.
     payload_kg : float
         Mass on the tool the torques include, kg (half-way between flange and TCP).
-    dynamics : LinkDynamics
-        Link masses and centres of mass the torques are computed with.
+    dynamics : LinkDynamics, optional
+        Link masses and centres of mass the torques are computed with; None: those of the
+        robot kind the model is named after (an arm without published dynamics has none, and
+        :func:`~spacecal.models.gravity.gravity_joint_torques` says so).
     """
 
     rad_per_nm: FloatArray
     reference_torques_nm: FloatArray = field(default_factory=lambda: np.zeros(len(COMPLIANT_JOINTS)))
     payload_kg: float = 0.0
-    dynamics: LinkDynamics = field(default=UR10_DYNAMICS)
+    dynamics: LinkDynamics | None = None
 
     def __post_init__(self) -> None:
         for name, unit in (("rad_per_nm", "rad/N m"), ("reference_torques_nm", "N m")):

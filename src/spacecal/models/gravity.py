@@ -1,4 +1,4 @@
-"""Static gravity torques on the joints of an upright UR arm.
+"""Static gravity torques on the joints of an upright arm.
 
 The one gravity model of the package: the simulator deflects its compliant arm by it
 (:meth:`spacecal.sim.world.World.joint_deflections_rad`) and kinematic identification fits the
@@ -9,69 +9,28 @@ angles in rad.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from spacecal.core.errors import InvalidInputError
 from spacecal.geometry.arrays import ArrayLike, FloatArray
-from spacecal.models.kinematics import N_JOINTS, RobotModel, _link_transforms
+from spacecal.models.kinematics import RobotModel, _link_transforms
+from spacecal.models.robot_kinds import ROBOT_KINDS, LinkDynamics
 
 STANDARD_GRAVITY_M_S2 = 9.80665
 
 
-@dataclass(frozen=True)
-class LinkDynamics:
-    """Masses and centres of mass of an arm's six links.
-
-    Attributes
-    ----------
-    name : str
-        The arm they belong to, e.g. ``"UR10"``.
-    masses_kg : numpy.ndarray, shape (6,)
-        Link masses, kg.
-    centres_of_mass_mm : numpy.ndarray, shape (6, 3)
-        Each link's centre of mass in its own DH frame (frame i for link i), mm.
-    """
-
-    name: str
-    masses_kg: FloatArray
-    centres_of_mass_mm: FloatArray
-
-
-#: UR10 link masses (kg) and centres of mass (mm) in each link's DH frame, as Universal Robots
-#: publishes them ("DH parameters for calculations of kinematics and dynamics", UR support
-#: article for the CB3 arms).
-UR10_DYNAMICS = LinkDynamics(
-    name="UR10",
-    masses_kg=np.array([7.1, 12.7, 4.27, 2.0, 2.0, 0.365]),
-    centres_of_mass_mm=np.array(
-        [
-            [21.0, 0.0, 27.0],
-            [380.0, 0.0, 158.0],
-            [240.0, 0.0, 68.0],
-            [0.0, 7.0, 18.0],
-            [0.0, 7.0, 18.0],
-            [0.0, 0.0, -26.0],
-        ]
-    ),
-)
-UR10_LINK_MASSES_KG = UR10_DYNAMICS.masses_kg
-UR10_LINK_COM_MM = UR10_DYNAMICS.centres_of_mass_mm
-
-#: The arms whose published link dynamics the package holds, by model name.
-LINK_DYNAMICS = {UR10_DYNAMICS.name: UR10_DYNAMICS}
-
-
 def link_dynamics_of(model_name: str) -> LinkDynamics | None:
-    """The published link dynamics of the arm named ``model_name``, None when not held."""
-    return LINK_DYNAMICS.get(model_name)
+    """The published link dynamics of the kind named ``model_name``; None when the kind
+    publishes none or is not registered (then there is no gravity model for it)."""
+    kind = ROBOT_KINDS.get(model_name) if isinstance(model_name, str) else None
+    return None if kind is None else kind.dynamics
 
 
 def gravity_joint_torques(
     model: RobotModel,
     joints_rad: ArrayLike,
     payload_kg: float = 0.0,
-    dynamics: LinkDynamics = UR10_DYNAMICS,
+    dynamics: LinkDynamics | None = None,
 ) -> FloatArray:
     """Static gravity torques on the joints of an upright arm, N m.
 
@@ -83,38 +42,59 @@ def gravity_joint_torques(
     ----------
     model : RobotModel
         The arm (its DH frames place the masses, its tool the payload).
-    joints_rad : array_like, shape (N, 6) or (6,)
+    joints_rad : array_like, shape (N, J) or (J,)
         Joint angles, rad.
     payload_kg : float
         Mass carried on the tool, kg.
-    dynamics : LinkDynamics
-        Link masses and centres of mass (default the UR10's).
+    dynamics : LinkDynamics, optional
+        Link masses and centres of mass; by default those of the robot kind ``model`` is named
+        after (:func:`link_dynamics_of`).
 
     Returns
     -------
-    numpy.ndarray, shape (N, 6)
+    numpy.ndarray, shape (N, J)
         Torque on each joint, N m (positive about the joint's z axis).
+
+    Raises
+    ------
+    InvalidInputError
+        If no dynamics are given and the kind publishes none: such an arm has no gravity model
+        (rather than another arm's).
     """
+    if dynamics is None:
+        dynamics = link_dynamics_of(model.name)
+        if dynamics is None:
+            raise InvalidInputError(
+                f"the {model.name} has no published link dynamics: no gravity model for it"
+            )
     q = np.atleast_2d(np.asarray(joints_rad, float))
+    joints = model.n_joints
+    if np.shape(dynamics.masses_kg) != (joints,):
+        raise InvalidInputError(
+            f"link dynamics of the {dynamics.name} ({np.size(dynamics.masses_kg)} links) do not fit "
+            f"the {model.name} ({joints} joints)"
+        )
     links = _link_transforms(model, q)
     frames = [np.broadcast_to(np.eye(4), (len(q), 4, 4))]
-    for i in range(N_JOINTS):
+    for i in range(joints):
         frames.append(frames[-1] @ links[:, i])
     masses = list(dynamics.masses_kg)
     centres = [
         frames[i + 1][:, :3, :3] @ dynamics.centres_of_mass_mm[i] + frames[i + 1][:, :3, 3]
-        for i in range(N_JOINTS)
+        for i in range(joints)
     ]
     if payload_kg > 0:
         tool_mid = 0.5 * np.asarray(model.flange_from_tcp, float)[:3, 3]
-        centres.append(frames[N_JOINTS][:, :3, :3] @ tool_mid + frames[N_JOINTS][:, :3, 3])
+        centres.append(frames[joints][:, :3, :3] @ tool_mid + frames[joints][:, :3, 3])
         masses.append(payload_kg)
     weight = np.array([0.0, 0.0, -STANDARD_GRAVITY_M_S2])
-    torques = np.zeros((len(q), N_JOINTS))
-    for j in range(N_JOINTS):
-        axis, origin = frames[j][:, :3, 2], frames[j][:, :3, 3]
+    torques = np.zeros((len(q), joints))
+    # joint j turns about z of frame j (standard DH) or of frame j + 1 (modified DH)
+    shift = 1 if model.dh_convention == "modified" else 0
+    for j in range(joints):
+        axis, origin = frames[j + shift][:, :3, 2], frames[j + shift][:, :3, 3]
         moment = np.zeros((len(q), 3))
-        # link i (0-based) is moved by joints 0..i: joint j carries links j..5 and the payload
+        # link i (0-based) is moved by joints 0..i: joint j carries links j..J-1 and the payload
         for i in range(j, len(masses)):
             moment += np.cross((centres[i] - origin) * 1e-3, masses[i] * weight)
         torques[:, j] = np.sum(moment * axis, axis=1)

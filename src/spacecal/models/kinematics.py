@@ -1,21 +1,24 @@
-"""Forward and inverse kinematics of serial robots in standard DH form.
+"""Forward and inverse kinematics of serial robots in Denavit–Hartenberg form.
 
-Each link i maps frame i-1 to frame i by
-``Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)`` (standard/distal Denavit–Hartenberg),
-the convention Universal Robots publishes its tables in. The chain gives
-``base_from_flange``; the configured tool offset ``flange_from_tcp`` gives
-``base_from_tcp`` (what a UR controller reports as its actual TCP pose).
+Each link i maps frame i-1 to frame i by one of two conventions:
 
-A model has any number of revolute joints (a UR arm six, a KUKA LBR iiwa seven); the
-closed-form inverse kinematics is the UR family's, so only six-joint UR arms are driven to
-poses. Lengths are in mm, angles in rad.
+* ``"standard"`` (distal): ``Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``, the convention
+  Universal Robots and KUKA tables are published in; joint i turns about z of frame i-1.
+* ``"modified"`` (proximal, Craig): ``Rx(alpha_i) Tx(a_i) Rz(theta_i + q_i) Tz(d_i)``, where
+  row i holds Craig's ``a_{i-1}, alpha_{i-1}, d_i, theta_i``; the convention Franka publishes
+  its tables in; joint i turns about z of frame i.
+
+The chain gives ``base_from_flange``; the configured tool offset ``flange_from_tcp`` gives
+``base_from_tcp`` (what a controller reports as its actual TCP pose).
+
+A model has any number of revolute joints (a UR arm six, a Franka or a KUKA LBR iiwa seven).
+Inverse kinematics uses the UR family's closed form on UR-shaped arms and a damped
+least-squares solve from a seed otherwise. Lengths are in mm, angles in rad.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field, replace
-from importlib import resources
 
 import numpy as np
 
@@ -31,24 +34,20 @@ from spacecal.geometry.transforms import (
     transform_points_by_stack,
 )
 
+#: The twists every UR arm shares (what :func:`uses_ur_closed_form` recognises); the kinds
+#: themselves, UR or not, are :mod:`spacecal.models.robot_kinds`.
 UR_ALPHA_RAD = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
-#: Joints of the UR arms (the closed-form IK, the gravity model and the UR driver's files).
+#: Joints of the UR arms (the closed-form IK and the UR driver's files).
 N_JOINTS = 6
 #: Most joints a model, a recording or a calibration file may have.
 MAX_JOINTS = 12
-
-
-def _load_ur_tables() -> dict:
-    text = resources.files("spacecal.models").joinpath("data/ur_dh.json").read_text()
-    return {k: v for k, v in json.loads(text).items() if not k.startswith("_")}
-
-
-UR_TABLES = _load_ur_tables()
+#: The two DH conventions a model may be written in (see the module docstring).
+DH_CONVENTIONS = ("standard", "modified")
 
 
 @dataclass(frozen=True)
 class RobotModel:
-    """A serial robot of revolute joints in standard DH form.
+    """A serial robot of revolute joints in DH form.
 
     Attributes
     ----------
@@ -63,6 +62,9 @@ class RobotModel:
         Joint limits; default +-2 pi.
     controller_hz : float
         Rate at which the controller time-stamps its state.
+    dh_convention : str
+        ``"standard"`` (distal, the default) or ``"modified"`` (proximal, Craig); see the
+        module docstring for the link transform of each.
     """
 
     name: str
@@ -75,12 +77,18 @@ class RobotModel:
     joint_lower_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
     joint_upper_rad: FloatArray = field(default_factory=lambda: np.zeros(0))
     controller_hz: float = 125.0
+    dh_convention: str = "standard"
 
     def __post_init__(self) -> None:
         # a model from a controller or a file is checked here, once: comparisons with NaN are
         # false, so a NaN DH parameter would pass every later range check and yield NaN poses.
         # No bound on the lengths: a UR controller's factory calibration moves d_2 and d_3 by
         # hundreds of metres that cancel along the nearly parallel shoulder and elbow axes
+        if self.dh_convention not in DH_CONVENTIONS:
+            raise InvalidInputError(
+                f"robot model {self.name!r}: DH convention {self.dh_convention!r} "
+                f"(one of {', '.join(DH_CONVENTIONS)})"
+            )
         joints = np.asarray(self.a_mm, dtype=float).size
         if not 1 <= joints <= MAX_JOINTS:
             raise InvalidInputError(f"robot model {self.name!r}: {joints} joints (1 to {MAX_JOINTS})")
@@ -141,35 +149,28 @@ class RobotModel:
         }
 
 
-def ur_model(name: str, flange_from_tcp: ArrayLike | None = None) -> RobotModel:
-    """The nominal model of a Universal Robots arm.
-
-    Parameters
-    ----------
-    name : str
-        One of ``UR3, UR5, UR10, UR3e, UR5e, UR10e, UR16e``.
-    flange_from_tcp : array_like, shape (4, 4), optional
-        Tool offset in the flange frame, mm; identity if omitted.
-    """
-    if name not in UR_TABLES:
-        raise InvalidInputError(f"unknown robot model {name!r}; known: {', '.join(UR_TABLES)}")
-    table = UR_TABLES[name]
-    return RobotModel(
-        name=name,
-        a_mm=np.array(table["a"], dtype=float),
-        d_mm=np.array(table["d"], dtype=float),
-        alpha_rad=UR_ALPHA_RAD.copy(),
-        flange_from_tcp=np.eye(4) if flange_from_tcp is None else np.asarray(flange_from_tcp, float),
-        controller_hz=float(table["controller_hz"]),
-    )
-
-
 def _link_transforms(model: RobotModel, joints_rad: FloatArray) -> FloatArray:
-    """Per-link transforms, shape (N, J, 4, 4), for joint vectors (N, J)."""
+    """Per-link transforms, shape (N, J, 4, 4), for joint vectors (N, J), in the model's
+    DH convention."""
     theta = joints_rad + model.theta_offset_rad
     ct, st = np.cos(theta), np.sin(theta)
     ca, sa = np.cos(model.alpha_rad), np.sin(model.alpha_rad)
     links = np.zeros(joints_rad.shape[:-1] + (model.n_joints, 4, 4))
+    if model.dh_convention == "modified":
+        # Rx(alpha) Tx(a) Rz(theta) Tz(d), written out
+        links[..., 0, 0] = ct
+        links[..., 0, 1] = -st
+        links[..., 0, 3] = model.a_mm
+        links[..., 1, 0] = st * ca
+        links[..., 1, 1] = ct * ca
+        links[..., 1, 2] = -sa
+        links[..., 1, 3] = -sa * model.d_mm
+        links[..., 2, 0] = st * sa
+        links[..., 2, 1] = ct * sa
+        links[..., 2, 2] = ca
+        links[..., 2, 3] = ca * model.d_mm
+        links[..., 3, 3] = 1.0
+        return links
     links[..., 0, 0] = ct
     links[..., 0, 1] = -st * ca
     links[..., 0, 2] = st * sa
@@ -272,9 +273,10 @@ def _tcp_pose_and_jacobian(model: RobotModel, q: FloatArray) -> tuple[FloatArray
     for i in range(joints):
         frames[:, i + 1] = frames[:, i] @ links[:, i]
     tcp = frames[:, -1] @ model.flange_from_tcp
-    # Joint i rotates about the z axis of frame i-1 (standard DH).
-    axes = frames[:, :joints, :3, 2]
-    lever = tcp[:, None, :3, 3] - frames[:, :joints, :3, 3]
+    # Joint i rotates about the z axis of frame i-1 (standard DH) or of frame i (modified DH).
+    joint_frames = frames[:, 1:] if model.dh_convention == "modified" else frames[:, :joints]
+    axes = joint_frames[..., :3, 2]
+    lever = tcp[:, None, :3, 3] - joint_frames[..., :3, 3]
     jac = np.empty((len(q), 6, joints))
     # axes x lever, written out: np.cross costs more than the rest on IK's single poses
     jac[:, 0] = axes[..., 1] * lever[..., 2] - axes[..., 2] * lever[..., 1]
@@ -426,6 +428,17 @@ def _ur_closed_form(model: RobotModel, base_from_flange: FloatArray) -> FloatArr
     return solutions
 
 
+def uses_ur_closed_form(model: RobotModel) -> bool:
+    """Whether :func:`inverse_kinematics` solves ``model`` by the UR closed form: six joints in
+    standard DH with the UR family's twists (to 0.05 rad, so identified corrections keep it).
+    Lengths are not compared: a UR controller's calibration moves d_2 and d_3 by metres."""
+    return (
+        model.n_joints == N_JOINTS
+        and model.dh_convention == "standard"
+        and bool(np.all(np.abs(model.alpha_rad - UR_ALPHA_RAD) < 0.05))
+    )
+
+
 def inverse_kinematics(
     model: RobotModel,
     base_from_tcp: ArrayLike,
@@ -434,71 +447,184 @@ def inverse_kinematics(
 ) -> FloatArray:
     """Joint angles reaching ``base_from_tcp``, nearest to a reference configuration.
 
-    The UR closed form (8 branches) gives candidates from the nominal geometry; each is
-    polished by Gauss–Newton on the model's exact parameters (so a model with identified
-    DH corrections is solved exactly too), checked against the joint limits, and the
-    candidate nearest the reference (after 2 pi wrapping into the limits) is returned.
+    On a UR-shaped arm (:func:`uses_ur_closed_form`) the UR closed form (8 branches) gives
+    candidates from the nominal geometry; each is polished by Gauss–Newton on the model's
+    exact parameters (so a model with identified DH corrections is solved exactly too),
+    checked against the joint limits, and the candidate nearest the reference (after 2 pi
+    wrapping into the limits) is returned. Any other arm (a Franka, a KUKA LBR iiwa, in
+    either DH convention) is solved by damped least squares from the reference
+    (:func:`_numeric_inverse_kinematics`); a redundant arm's self-motion is resolved by
+    staying nearest the reference, inside the joint limits.
 
     Parameters
     ----------
     model : RobotModel
     base_from_tcp : array_like, shape (4, 4) or (N, 4, 4), mm
-    reference_joints_rad : array_like, shape (6,) or (N, 6), optional
-        Configuration to stay near (e.g. the current one); zeros if omitted.
+    reference_joints_rad : array_like, shape (J,) or (N, J), optional
+        Configuration to stay near (e.g. the current one); zeros if omitted (clipped into
+        the joint limits for the numeric solve).
     tol_mm : float
         Required position accuracy; rotation accuracy is tol_mm * 1e-3 rad.
 
     Returns
     -------
-    numpy.ndarray, shape (6,) or (N, 6)
+    numpy.ndarray, shape (J,) or (N, J)
 
     Raises
     ------
     UnreachableError
-        If no branch reaches a pose within the tolerance and the joint limits.
+        If no solution reaches a pose within the tolerance and the joint limits.
     """
-    if model.n_joints != N_JOINTS:
-        raise InvalidInputError(
-            f"the {model.name} has {model.n_joints} joints: spacecal solves inverse kinematics "
-            f"(drives to poses) for {N_JOINTS}-joint UR arms only"
-        )
+    joints = model.n_joints
     targets = np.asarray(base_from_tcp, dtype=float)
     single = targets.ndim == 2
     targets = targets.reshape(-1, 4, 4)
     if reference_joints_rad is None:
-        reference = np.zeros((len(targets), N_JOINTS))
+        reference = np.zeros((len(targets), joints))
     else:
-        reference = np.broadcast_to(np.asarray(reference_joints_rad, float), (len(targets), N_JOINTS))
-    tcp_from_flange = invert_transform(model.flange_from_tcp)
-    result = np.empty((len(targets), N_JOINTS))
-    for n, target in enumerate(targets):
-        candidates = _ur_closed_form(model, target @ tcp_from_flange)
-        candidates = candidates[np.all(np.isfinite(candidates), axis=1)]
-        if len(candidates) == 0:
-            raise UnreachableError(f"pose {n} is outside the {model.name}'s workspace")
-        # polish on the exact model; unconverged candidates fail the tolerance check below
-        candidates, _ = inverse_kinematics_gauss_newton(
-            model,
-            np.broadcast_to(target, (len(candidates), 4, 4)),
-            candidates,
-            max_iterations=20,
-            position_tol_mm=1e-10,
-            rotation_tol_rad=1e-13,
-        )
-        err = _pose_error_vector(target, forward_kinematics(model, candidates))
-        ok = (np.linalg.norm(err[:, :3], axis=1) < tol_mm) & (
-            np.linalg.norm(err[:, 3:], axis=1) < tol_mm * 1e-3
-        )
-        candidates = _wrap_near(candidates[ok], reference[n])
-        within = np.all((candidates >= model.joint_lower_rad) & (candidates <= model.joint_upper_rad), axis=1)
-        candidates = candidates[within]
-        if len(candidates) == 0:
-            raise UnreachableError(
-                f"pose {n} cannot be reached by the {model.name} within tolerance and joint limits"
+        given = np.asarray(reference_joints_rad, float)
+        if given.shape[-1] != joints:
+            raise InvalidInputError(
+                f"the {model.name} has {joints} joints; got reference joints of shape {given.shape}"
             )
-        best = np.argmin(np.max(np.abs(candidates - reference[n]), axis=1))
-        result[n] = candidates[best]
+        reference = np.broadcast_to(given, (len(targets), joints))
+    closed_form = uses_ur_closed_form(model)
+    result = np.empty((len(targets), joints))
+    for n, target in enumerate(targets):
+        if closed_form:
+            result[n] = _ur_inverse_kinematics(model, target, reference[n], tol_mm, n)
+        else:
+            result[n] = _numeric_inverse_kinematics(model, target, reference[n], tol_mm, n)
     return result[0] if single else result
+
+
+def _ur_inverse_kinematics(
+    model: RobotModel, target: FloatArray, reference: FloatArray, tol_mm: float, n: int
+) -> FloatArray:
+    """The UR branch nearest ``reference`` (6,) reaching ``target`` (4, 4); pose number ``n``
+    names it in errors."""
+    candidates = _ur_closed_form(model, target @ invert_transform(model.flange_from_tcp))
+    candidates = candidates[np.all(np.isfinite(candidates), axis=1)]
+    if len(candidates) == 0:
+        raise UnreachableError(f"pose {n} is outside the {model.name}'s workspace")
+    # polish on the exact model; unconverged candidates fail the tolerance check below
+    candidates, _ = inverse_kinematics_gauss_newton(
+        model,
+        np.broadcast_to(target, (len(candidates), 4, 4)),
+        candidates,
+        max_iterations=20,
+        position_tol_mm=1e-10,
+        rotation_tol_rad=1e-13,
+    )
+    ok = _reaches(model, target, candidates, tol_mm)
+    candidates = _wrap_near(candidates[ok], reference)
+    within = np.all((candidates >= model.joint_lower_rad) & (candidates <= model.joint_upper_rad), axis=1)
+    candidates = candidates[within]
+    if len(candidates) == 0:
+        raise UnreachableError(
+            f"pose {n} cannot be reached by the {model.name} within tolerance and joint limits"
+        )
+    return candidates[np.argmin(np.max(np.abs(candidates - reference), axis=1))]
+
+
+def _reaches(model: RobotModel, target: FloatArray, joints_rad: FloatArray, tol_mm: float) -> BoolArray:
+    """Rows of ``joints_rad`` (M, J) whose TCP is within ``tol_mm`` (and tol_mm * 1e-3 rad) of ``target``."""
+    err = _pose_error_vector(target, forward_kinematics(model, joints_rad))
+    return (np.linalg.norm(err[:, :3], axis=1) < tol_mm) & (
+        np.linalg.norm(err[:, 3:], axis=1) < tol_mm * 1e-3
+    )
+
+
+#: Weight of a rotation error (rad) against a position error (mm) in the numeric solve: a
+#: radian at a 100 mm lever, the size of a wrist.
+_IK_LEVER_MM = 100.0
+#: Damping floor of the numeric solve (Sugihara's w-bar, mm^2): keeps a step finite at a
+#: singularity and is negligible against J^T J (lengths of hundreds of mm) elsewhere.
+_IK_DAMPING_FLOOR = 1e-3
+#: Iterations of one numeric start; further starts from spread configurations in the limits.
+_IK_ITERATIONS = 300
+_IK_RESTARTS = 12
+#: A start whose weighted error (mm) stays above 1e-3 and fell by less than 1 % over this many
+#: iterations has stalled.
+_IK_STALL = 20
+
+
+def _limited_step(
+    jac: FloatArray, err: FloatArray, q: FloatArray, seed: FloatArray, lower: FloatArray, upper: FloatArray
+) -> tuple[FloatArray, float]:
+    """One step of the numeric solve inside the joint limits: the next joints (J,) and how far
+    they moved (rad).
+
+    Jacobian ``jac`` (6, J) and pose error ``err`` (6,) at ``q``; the step is the damped
+    least-squares task step plus half the null-space projection of ``seed - q``. A joint the
+    step would carry past a limit is put on the limit and held there while the step is
+    recomputed with the other joints (an active set, so the task is not fought by clipping).
+    """
+    weight = np.array([1.0, 1.0, 1.0, _IK_LEVER_MM, _IK_LEVER_MM, _IK_LEVER_MM])
+    jw, ew = weight[:, None] * jac, weight * err
+    damping = 0.5 * ew @ ew + _IK_DAMPING_FLOOR
+    joints = len(q)
+    free = np.ones(joints, dtype=bool)
+    start = q.copy()
+    for _ in range(joints + 1):
+        held = jw * free  # a held joint's column is zero, so its step is zero
+        step = np.linalg.solve(held.T @ held + damping * np.eye(joints), held.T @ ew)
+        null = (np.eye(joints) - np.linalg.pinv(held, rcond=1e-10) @ held) @ ((seed - q) * free)
+        new = q + step + 0.5 * null
+        over = free & ((new < lower) | (new > upper))
+        if not np.any(over):
+            break
+        q = np.where(over, np.clip(new, lower, upper), q)
+        free &= ~over
+    new = np.clip(new, lower, upper)
+    return new, float(np.max(np.abs(new - start)))
+
+
+def _numeric_inverse_kinematics(
+    model: RobotModel, target: FloatArray, seed: FloatArray, tol_mm: float, n: int
+) -> FloatArray:
+    """Joint angles (J,) reaching ``target`` (4, 4), by damped least squares from ``seed`` (J,).
+
+    Each step is Levenberg–Marquardt with Sugihara's damping ``E + w_bar`` (E half the squared
+    weighted pose error), which is robust far from the solution and converges quadratically
+    near it, plus the projection of ``seed - q`` onto the Jacobian's null space, which on a
+    redundant arm slides along the self-motion towards the seed without moving the TCP (to
+    first order). Joints reaching a limit are held on it (:func:`_limited_step`). A start
+    from the seed that does not converge (a limit or a singularity in the way) is followed by
+    starts spread over the limits (fixed, so the result is repeatable); of the solutions
+    found, the one nearest the seed is returned.
+    """
+    lower, upper = model.joint_lower_rad, model.joint_upper_rad
+    seed = np.clip(seed, lower, upper)
+    rotation_tol = tol_mm * 1e-3
+    spread = np.random.default_rng(0).uniform(lower, upper, (_IK_RESTARTS, model.n_joints))
+    found: list[FloatArray] = []
+    for k in range(_IK_RESTARTS + 1):
+        q = seed.copy() if k == 0 else spread[k - 1]
+        history: list[float] = []
+        for iteration in range(_IK_ITERATIONS):
+            tcp, jac = _tcp_pose_and_jacobian(model, q[None])
+            err = _pose_error_vector(target, tcp)[0]
+            converged = np.linalg.norm(err[:3]) < tol_mm and np.linalg.norm(err[3:]) < rotation_tol
+            history.append(float(np.linalg.norm(err[:3]) + _IK_LEVER_MM * np.linalg.norm(err[3:])))
+            stalled = iteration >= _IK_STALL and history[-1] > max(1e-3, 0.99 * history[-1 - _IK_STALL])
+            if stalled:
+                break  # stalled (out of reach, or held by limits): a fresh start does better
+            q, moved = _limited_step(jac[0], err, q, seed, lower, upper)
+            if converged and moved < 1e-12:
+                break
+        if _reaches(model, target, q[None], tol_mm)[0]:
+            found.append(q)
+            if k == 0:
+                # the seed's own start followed the self-motion to the solution nearest it
+                break
+    if not found:
+        raise UnreachableError(
+            f"pose {n} cannot be reached by the {model.name} within {tol_mm:g} mm and its joint limits "
+            f"(damped least squares from the reference and {_IK_RESTARTS} other starts)"
+        )
+    solutions = np.array(found)
+    return solutions[np.argmin(np.linalg.norm(solutions - seed, axis=1))]
 
 
 def within_joint_limits(model: RobotModel, joints_rad: ArrayLike) -> BoolArray:

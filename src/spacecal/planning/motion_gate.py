@@ -48,6 +48,7 @@ from spacecal.models.kinematics import (
     RobotModel,
     forward_kinematics,
 )
+from spacecal.models.robot_kinds import ROBOT_KINDS
 from spacecal.planning.motion import MotionLimits, follow_path, trapezoid_duration
 from spacecal.planning.visibility import VisibilityModel
 
@@ -120,17 +121,6 @@ SPEED_SLACK = 0.01
 #: Relative rounding allowed against what the robot permits (none to speak of).
 PERMIT_SLACK = 1e-9
 
-#: Largest joint speeds of Universal Robots arms, deg/s, base to wrist 3 (their data sheets).
-UR_JOINT_SPEED_DEG_S: dict[str, tuple[float, ...]] = {
-    "UR3": (180.0, 180.0, 180.0, 360.0, 360.0, 360.0),
-    "UR5": (180.0,) * 6,
-    "UR10": (120.0, 120.0, 180.0, 180.0, 180.0, 180.0),
-    "UR3e": (180.0, 180.0, 180.0, 360.0, 360.0, 360.0),
-    "UR5e": (180.0,) * 6,
-    "UR10e": (120.0, 120.0, 180.0, 180.0, 180.0, 180.0),
-    "UR16e": (120.0, 120.0, 180.0, 180.0, 180.0, 180.0),
-}
-
 #: Names of the checks, in the order the report lists them.
 CHECKS = (
     "plan",
@@ -156,21 +146,31 @@ class RobotPermits:
     tcp_accel_mm_s2 : float
         TCP linear acceleration (UR publishes none; the largest ``acquire`` accepts).
     tcp_angular_speed_rad_s : float
-        TCP rotation speed (the fastest wrist of the UR10, 180 deg/s).
-    joint_speed_rad_s : numpy.ndarray, shape (6,)
-        Each joint's largest speed.
+        TCP rotation speed (180 deg/s, a UR arm's fastest wrist).
+    joint_speed_rad_s : numpy.ndarray, shape (J,)
+        Each joint's largest speed (default: six joints at the slowest speed of any
+        registered kind).
     """
 
     tcp_speed_mm_s: float = 1000.0
     tcp_accel_mm_s2: float = 10_000.0
     tcp_angular_speed_rad_s: float = math.pi
-    joint_speed_rad_s: FloatArray = field(default_factory=lambda: np.radians(UR_JOINT_SPEED_DEG_S["UR10"]))
+    joint_speed_rad_s: FloatArray = field(default_factory=lambda: _slowest_joint_speeds_rad_s(6))
 
 
-def robot_permits(model_name: str) -> RobotPermits:
-    """The permits of a UR model (an unknown name gets the slowest UR's joint speeds)."""
-    speeds = UR_JOINT_SPEED_DEG_S.get(model_name, (120.0,) * 6)
-    return RobotPermits(joint_speed_rad_s=np.radians(np.asarray(speeds, dtype=float)))
+def _slowest_joint_speeds_rad_s(joints: int) -> FloatArray:
+    """``joints`` joint speeds (rad/s), each the slowest joint speed of any registered kind."""
+    slowest = min(min(kind.joint_speed_deg_s) for kind in ROBOT_KINDS.values())
+    return np.radians(np.full(joints, slowest))
+
+
+def robot_permits(model_name: str, joints: int = 6) -> RobotPermits:
+    """The permits of the robot kind ``model_name`` (its datasheet joint speeds); a name not
+    registered gets, on each of its ``joints`` joints, the slowest speed of any kind."""
+    kind = ROBOT_KINDS.get(model_name)
+    if kind is None or kind.n_joints != joints:
+        return RobotPermits(joint_speed_rad_s=_slowest_joint_speeds_rad_s(joints))
+    return RobotPermits(joint_speed_rad_s=kind.joint_speed_rad_s)
 
 
 class GateMove(Protocol):
@@ -506,7 +506,7 @@ def gate_motion(
     MotionGateReport
         ``refusal`` is the first failure in execution order (None: every check passed).
     """
-    permits = permits or robot_permits(model.name)
+    permits = permits or robot_permits(model.name, model.n_joints)
     tally = _Tally()
     count = len(moves)
     joints = np.asarray(start_joints_rad, dtype=float)

@@ -74,8 +74,9 @@ FIRST_HASHED_VERSION = 3
 
 
 def robot_model_to_dict(model: RobotModel) -> dict[str, Any]:
-    """A robot model as plain JSON values (DH table in mm and rad, tool, limits, rate)."""
-    return {
+    """A robot model as plain JSON values (DH table in mm and rad, tool, limits, rate; the DH
+    convention only when it is not the standard one, so files of standard-DH arms are as before)."""
+    values = {
         "name": model.name,
         **model.dh_table(),
         "flange_from_tcp": model.flange_from_tcp.tolist(),
@@ -83,6 +84,9 @@ def robot_model_to_dict(model: RobotModel) -> dict[str, Any]:
         "joint_upper_rad": model.joint_upper_rad.tolist(),
         "controller_hz": model.controller_hz,
     }
+    if model.dh_convention != "standard":
+        values["dh_convention"] = model.dh_convention
+    return values
 
 
 def robot_model_from_dict(data: Mapping[str, Any], what: str, base: RobotModel | None = None) -> RobotModel:
@@ -112,6 +116,10 @@ def robot_model_from_dict(data: Mapping[str, Any], what: str, base: RobotModel |
         values["controller_hz"] = float(data["controller_hz"])
     elif base is not None:
         values["controller_hz"] = base.controller_hz
+    if "dh_convention" in data:
+        values["dh_convention"] = get_str(data, "dh_convention", what)
+    elif base is not None:
+        values["dh_convention"] = base.dh_convention
     return RobotModel(**values)
 
 
@@ -578,10 +586,10 @@ class CalibrationResult:
         if model_data is not None:
             if not isinstance(model_data, Mapping):
                 raise InvalidInputError(f"{what}: robot_model must be an object")
-            from spacecal.models.kinematics import UR_TABLES, ur_model
+            from spacecal.models.robot_kinds import is_robot_kind, robot_kind
 
             name = model_data.get("name")
-            base = ur_model(name) if isinstance(name, str) and name in UR_TABLES else None
+            base = robot_kind(name).model() if is_robot_kind(name) else None
             robot_model = robot_model_from_dict(model_data, what, base)
         needle_tip = None
         if version >= NEEDLE_TIP_SCHEMA_VERSION and data.get("needle_tip") is not None:

@@ -354,13 +354,25 @@ def scenario_from_dict(values: dict) -> Scenario:
             f"got {kinematics!r}"
         )
     model = cleaned.get("robot_model", base.robot_model)
-    from spacecal.models.kinematics import UR_TABLES
+    from spacecal.models.robot_kinds import ROBOT_KINDS, is_robot_kind
 
-    if model not in UR_TABLES:
+    if not is_robot_kind(model):
         raise InvalidInputError(
-            f"scenario key 'robot_model' takes one of {', '.join(UR_TABLES)}, got {model!r}"
+            f"scenario key 'robot_model' takes one of {', '.join(ROBOT_KINDS)}, got {model!r}"
         )
-    return dataclasses.replace(base, **cleaned)
+    scenario = dataclasses.replace(base, **cleaned)
+    kind = ROBOT_KINDS[model]
+    if len(scenario.home_joints_deg) != kind.n_joints:
+        raise InvalidInputError(
+            f"scenario key 'home_joints_deg' has {len(scenario.home_joints_deg)} angles; "
+            f"the {model} has {kind.n_joints} joints"
+        )
+    if kind.dynamics is None and any(v > 0 for v in scenario.joint_stiffness_nm_per_rad):
+        raise InvalidInputError(
+            f"scenario key 'joint_stiffness_nm_per_rad': the {model} has no published link dynamics, "
+            f"so no gravity model to deflect it by; give zeros (a rigid arm)"
+        )
+    return scenario
 
 
 def packaged_scenarios() -> dict[str, Path]:

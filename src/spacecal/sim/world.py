@@ -21,9 +21,10 @@ from spacecal.geometry.transforms import (
     transform_points_by_stack,
 )
 from spacecal.models.compliance import JointCompliance
-from spacecal.models.kinematics import RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, forward_kinematics
 from spacecal.models.marker import MarkerGeometry, ndi_8700339_like
 from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.models.tracker import TrackerModel
 from spacecal.planning.needle import plan_needle
 from spacecal.planning.visibility import VisibilityModel
@@ -307,9 +308,16 @@ class World:
         stiffness = np.asarray(self.scenario.joint_stiffness_nm_per_rad, float)
         if not np.any(stiffness > 0):
             return None
+        dynamics = robot_kind(self.scenario.robot_model).dynamics
+        if dynamics is None:
+            raise InvalidInputError(
+                f"scenario: the {self.scenario.robot_model} has no published link dynamics, so no gravity "
+                f"model: set joint_stiffness_nm_per_rad to zeros (a rigid arm)"
+            )
         return JointCompliance(
             np.divide(1.0, stiffness, out=np.zeros_like(stiffness), where=stiffness > 0),
             payload_kg=self.scenario.payload_kg,
+            dynamics=dynamics,
         )
 
     def joint_deflections_rad(self, joints_rad) -> np.ndarray:
@@ -610,10 +618,10 @@ def controller_model_of(
     """
     residual_angle_sd = np.radians(scenario.calibration_residual_angle_sd_deg)
     residual = (
-        rng.normal(scale=scenario.calibration_residual_length_sd_mm, size=6),
-        rng.normal(scale=scenario.calibration_residual_length_sd_mm, size=6),
-        rng.normal(scale=residual_angle_sd, size=6),
-        rng.normal(scale=residual_angle_sd, size=6),
+        rng.normal(scale=scenario.calibration_residual_length_sd_mm, size=true_model.n_joints),
+        rng.normal(scale=scenario.calibration_residual_length_sd_mm, size=true_model.n_joints),
+        rng.normal(scale=residual_angle_sd, size=true_model.n_joints),
+        rng.normal(scale=residual_angle_sd, size=true_model.n_joints),
     )
     if scenario.controller_kinematics == "nominal":
         return nominal
@@ -625,13 +633,14 @@ def build_world(scenario: Scenario) -> World:
     truth_rng = np.random.default_rng([scenario.seed, 0])
     noise_rng = np.random.default_rng([scenario.seed, 1])
     flange_from_tcp = make_transform(np.eye(3), scenario.tool_offset_mm)
-    nominal = ur_model(scenario.robot_model, flange_from_tcp)
+    nominal = robot_kind(scenario.robot_model).model(flange_from_tcp)
     angle_sd = np.radians(scenario.dh_angle_error_sd_deg)
+    joints = nominal.n_joints
     true_model = nominal.with_dh_errors(
-        delta_a_mm=truth_rng.normal(scale=scenario.dh_length_error_sd_mm, size=6),
-        delta_d_mm=truth_rng.normal(scale=scenario.dh_length_error_sd_mm, size=6),
-        delta_alpha_rad=truth_rng.normal(scale=angle_sd, size=6),
-        delta_theta_rad=truth_rng.normal(scale=angle_sd, size=6),
+        delta_a_mm=truth_rng.normal(scale=scenario.dh_length_error_sd_mm, size=joints),
+        delta_d_mm=truth_rng.normal(scale=scenario.dh_length_error_sd_mm, size=joints),
+        delta_alpha_rad=truth_rng.normal(scale=angle_sd, size=joints),
+        delta_theta_rad=truth_rng.normal(scale=angle_sd, size=joints),
     )
     home_joints = np.radians(np.asarray(scenario.home_joints_deg, float))
     home = forward_kinematics(nominal, home_joints)

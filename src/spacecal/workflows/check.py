@@ -30,7 +30,8 @@ from spacecal.core.ports import Robot, Tracker
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, matrix_to_rotvec, mean_transform
 from spacecal.models.kinematics import forward_kinematics
-from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD, UR_REPEATABILITY_MM
+from spacecal.models.robot_errors import REPEATABILITY_TO_AXIS_SD
+from spacecal.models.robot_kinds import ROBOT_KINDS
 from spacecal.planning.motion import MotionPlan
 from spacecal.records import CalibrationResult, CheckResult, Recording
 from spacecal.workflows.acquisition import AcquisitionSettings, SampleCallback
@@ -463,10 +464,14 @@ def pose_tolerances(
 
 
 def robot_repeatability_sd_mm(robot_model: str) -> float:
-    """Per-axis standard deviation (mm) of where a UR arm comes to rest, from its datasheet
-    repeatability (:data:`spacecal.models.robot_errors.UR_REPEATABILITY_MM`; the worst of the
-    family for a model not listed)."""
-    repeatability = UR_REPEATABILITY_MM.get(robot_model, max(UR_REPEATABILITY_MM.values()))
+    """Per-axis standard deviation (mm) of where an arm comes to rest, from its kind's datasheet
+    repeatability (:attr:`spacecal.models.robot_kinds.RobotKind.repeatability_mm`; the worst
+    of the registered kinds for a model not registered)."""
+    kind = ROBOT_KINDS.get(robot_model)
+    if kind is not None:
+        repeatability = kind.repeatability_mm
+    else:
+        repeatability = max(k.repeatability_mm for k in ROBOT_KINDS.values())
     return repeatability * REPEATABILITY_TO_AXIS_SD
 
 

@@ -14,15 +14,14 @@ from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform
 from spacecal.models.kinematics import (
     N_JOINTS,
-    UR_TABLES,
     RobotModel,
     dh_point_jacobian,
     forward_kinematics,
     inverse_kinematics,
     inverse_kinematics_gauss_newton,
     pose_point_jacobian,
-    ur_model,
 )
+from spacecal.models.robot_kinds import robot_kind, ur_kind_names
 
 
 def unit_dh_sd(joints: int) -> FloatArray:
@@ -116,14 +115,15 @@ def stand_in_arms(robot_model: RobotModel | None, tcp_from_marker: FloatArray) -
     """The arms whose geometry stands in for a recording's missing joint angles.
 
     The recording's own model where it names one; otherwise every UR arm of
-    :data:`~spacecal.models.kinematics.UR_TABLES`, with its flange at the marker (the tool
+    registered UR kind (:func:`~spacecal.models.robot_kinds.ur_kind_names`: six-joint arms,
+    whose joint angles their poses set), with its flange at the marker (the tool
     offset is unknown too: the TCP is placed where the calibration puts it from the marker,
     with the TCP's orientation).
     """
     if robot_model is not None:
         return [robot_model]
     flange_from_tcp = make_transform(np.eye(3), -np.asarray(tcp_from_marker, dtype=float)[:3, 3])
-    return [ur_model(name, flange_from_tcp) for name in UR_TABLES]
+    return [robot_kind(name).model(flange_from_tcp) for name in ur_kind_names()]
 
 
 def unseen_kinematic_error(

@@ -105,9 +105,9 @@ from spacecal.models.kinematics import (
     chain_points_in_tracker,
     dh_point_jacobian,
     pose_point_jacobian,
-    ur_model,
     with_dh_corrections,
 )
+from spacecal.models.robot_kinds import robot_kind
 from spacecal.records import CalibrationResult, NeedleTip, Recording
 
 DH_FIELDS = ("a_mm", "d_mm", "alpha_rad", "theta_offset_rad")
@@ -180,7 +180,7 @@ def robot_model_of(recording: Recording) -> RobotModel:
     robot = recording.metadata.get("robot", {})
     if "model" not in robot:
         raise InvalidInputError("kinematic identification needs the robot model in the recording metadata")
-    return ur_model(robot["model"], np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
+    return robot_kind(robot["model"]).model(np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
 
 
 def identifiable_corrections(
@@ -529,7 +529,8 @@ def identify_kinematics(
     joint_compliance : bool
         Identify the shoulder's and elbow's compliance under gravity with the DH corrections
         (see the module, and why it is off by default); only for an arm whose link dynamics are
-        known (:func:`~spacecal.models.gravity.link_dynamics_of`), else ignored.
+        published (:func:`~spacecal.models.gravity.link_dynamics_of`); for another the
+        identification is rigid and ``joint_compliance_skipped`` in its diagnostics says why.
     payload_kg : float
         Mass on the tool, kg, that the gravity torques include. An unknown small payload may
         stay 0: on the shoulder and elbow its torque varies over the workspace nearly as the
@@ -544,6 +545,13 @@ def identify_kinematics(
     spheres = obs.spheres_in_marker
     tracker_from_base, tcp_from_marker = start.tracker_from_base, start.tcp_from_marker
     dynamics = link_dynamics_of(model.name) if joint_compliance else None
+    # an arm without published link dynamics has no gravity model (not another arm's): say so
+    compliance_skipped = (
+        f"the {model.name} has no published link dynamics, so no gravity model: "
+        "joint compliance not identified"
+        if joint_compliance and dynamics is None
+        else None
+    )
     torques = None if dynamics is None else compliance_torques(model, joints, payload_kg, dynamics)
     reference_torques = None if torques is None else np.mean(torques, axis=0)
     n_dh = 4 * model.n_joints
@@ -615,6 +623,7 @@ def identify_kinematics(
             "held_out_significance": significance,
             "model_selection": None,
             "joint_compliance": None,
+            "joint_compliance_skipped": compliance_skipped,
         }
         return replace(
             ml,
@@ -722,6 +731,7 @@ def identify_kinematics(
             },
             "held_out_significance": significance,
             "joint_compliance": compliance_report(compliance, corrections),
+            "joint_compliance_skipped": compliance_skipped,
         },
     }
     # residuals, site and spread as the identified model places the TCP: what the report

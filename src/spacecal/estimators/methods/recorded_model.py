@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from spacecal.models.kinematics import UR_TABLES, RobotModel, fit_reported_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, fit_reported_kinematics
+from spacecal.models.robot_kinds import is_robot_kind, robot_kind
 from spacecal.records import Recording, robot_model_from_dict
 
 
@@ -17,9 +18,9 @@ def nominal_robot_model(recording: Recording) -> RobotModel | None:
     if recorded is not None:
         return recorded
     name = robot.get("model") if isinstance(robot, dict) else None
-    if not isinstance(name, str) or name not in UR_TABLES:
+    if not is_robot_kind(name):
         return None
-    return ur_model(name, np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
+    return robot_kind(name).model(np.asarray(robot.get("flange_from_tcp", np.eye(4)), dtype=float))
 
 
 #: Pairs of joints and reported poses used to identify a controller's model (evenly spread).
@@ -35,7 +36,7 @@ def recorded_robot_model(recording: Recording) -> RobotModel | None:
     if not isinstance(robot, dict):
         return None
     name = robot.get("model")
-    base = ur_model(name) if isinstance(name, str) and name in UR_TABLES else None
+    base = robot_kind(name).model() if is_robot_kind(name) else None
     data = robot.get("kinematic_model")
     if isinstance(data, dict):
         return robot_model_from_dict(data, "recording metadata robot.kinematic_model", base)
