@@ -101,7 +101,7 @@ def test_the_url_takes_the_default_port_and_its_query():
     assert address.port == 9090 and "joints=a,b,c,d,e,f" in address.query
     with pytest.raises(InvalidInputError, match="not speed"):
         open_robot("ros2://127.0.0.1:1?model=UR10&speed=3")
-    with pytest.raises(InvalidInputError, match="model=NAME"):
+    with pytest.raises(InvalidInputError, match="model=KIND"):
         open_robot("ros2://127.0.0.1:1")
     with pytest.raises(InvalidInputError, match="has 6"):
         open_robot("ros2://127.0.0.1:1?model=UR10&joints=a,b")
@@ -121,9 +121,10 @@ def test_state_reads_the_joints_by_name_in_the_models_order(bridges):
         state = robot.state()
         assert np.allclose(state.joints_rad, START, atol=1e-9)
         assert not state.moving
-        from spacecal.models.kinematics import forward_kinematics, ur_model
+        from spacecal.models.kinematics import forward_kinematics
+        from spacecal.models.robot_kinds import robot_kind
 
-        assert np.allclose(state.base_from_tcp, forward_kinematics(ur_model("UR10"), START))
+        assert np.allclose(state.base_from_tcp, forward_kinematics(robot_kind("UR10").model(), START))
         # a stream at the broadcaster's rate, stamped by its clock
         time.sleep(0.3)
         states = robot.drain_states()
@@ -434,3 +435,43 @@ def test_a_rosbridge_whose_goals_block_its_queue_cannot_be_stopped_and_the_stop_
         assert errors and "was stopped" in errors[0]
     finally:
         robot.close()
+
+
+def test_the_model_comes_from_the_robot_kind_table(bridges):
+    from spacecal.models.kinematics import forward_kinematics
+    from spacecal.models.robot_kinds import robot_kind
+
+    bridge = bridges()
+    robot = open_robot(bridge.url("model=UR5e"))
+    try:
+        model, _ = robot.controller_model()
+        assert model.name == "UR5e"
+        assert np.allclose(robot.state().base_from_tcp, forward_kinematics(robot_kind("UR5e").model(), START))
+    finally:
+        robot.close()
+    with pytest.raises(InvalidInputError, match="unknown robot kind"):
+        open_robot(bridge.url("model=UR99"))
+    # a 7-joint arm is refused in one line until the robot interface carries 7-joint states
+    with pytest.raises(InvalidInputError, match="has 7 joints"):
+        open_robot(bridge.url("model=LBR+iiwa+14+R820&joints=a,b,c,d,e,f,g"))
+
+
+def test_the_model_comes_from_a_urdf_with_its_joint_names(bridges):
+    pytest.importorskip("yourdfpy")
+    from pathlib import Path
+
+    from spacecal.models.kinematics import forward_kinematics
+    from spacecal.models.urdf import robot_model_from_urdf
+
+    urdf = Path(__file__).parents[1] / "models" / "data" / "urdf" / "ur10_robot.urdf"
+    bridge = bridges()
+    robot = open_robot(bridge.url(f"urdf={urdf}&base=base_link&tool=tool0"))
+    try:
+        # the joints are the URDF chain's, by name (here ur_robot_driver's)
+        assert robot.joint_names == UR_JOINT_NAMES
+        expected = forward_kinematics(robot_model_from_urdf(urdf, "base_link", "tool0"), START)
+        assert np.allclose(robot.state().base_from_tcp, expected)
+    finally:
+        robot.close()
+    with pytest.raises(InvalidInputError, match="base=LINK&tool=LINK"):
+        open_robot(bridge.url(f"urdf={urdf}&base=base_link"))

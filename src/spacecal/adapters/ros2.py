@@ -52,7 +52,8 @@ from spacecal.core.text import sanitize_for_terminal
 from spacecal.core.units import metres_to_mm
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, quaternion_wxyz_to_matrix, rotvec_to_matrix
-from spacecal.models.kinematics import UR_TABLES, RobotModel, forward_kinematics, ur_model
+from spacecal.models.kinematics import RobotModel, forward_kinematics
+from spacecal.models.robot_kinds import robot_kind, ur_kind_names
 from spacecal.planning.motion import (
     MotionLimits,
     time_move,
@@ -74,8 +75,10 @@ UR_JOINT_NAMES = (
     "wrist_2_joint",
     "wrist_3_joint",
 )
+#: Joints of a RobotState (spacecal.core.ports): the arms spacecal can run.
+ROBOT_STATE_JOINTS = 6
 #: The query fields a ros2:// URL takes.
-QUERY_FIELDS = ("joints", "model", "tcp", "action", "topic", "tf")
+QUERY_FIELDS = ("joints", "model", "urdf", "base", "tool", "tcp", "action", "topic", "tf")
 TF_TOPICS, TF_TYPE = ("/tf", "/tf_static"), "tf2_msgs/msg/TFMessage"
 #: The model and /tf agree when the tool frame is within these of each other (mm, rad): a URDF
 #: with a UR's calibrated kinematics differs from the nominal model by 1-2 mm at the flange.
@@ -173,15 +176,60 @@ def parse_query(query: str) -> dict[str, str]:
 
 
 def model_of(fields: dict[str, str], robot_model: str | None) -> RobotModel:
-    """The arm's model: ``model=`` of the URL, else ``--robot-model``."""
+    """The arm's model: the robot kind of ``model=`` (else ``--robot-model``), or the chain
+    ``base=`` to ``tool=`` of the URDF ``urdf=PATH`` (its name ``model=`` if given); with the
+    URL's ``tcp=``.
+
+    Raises
+    ------
+    InvalidInputError
+        No model named; an unknown kind; a URDF without both links, or one
+        :func:`spacecal.models.urdf.robot_model_from_urdf` refuses; an arm of other than
+        :data:`ROBOT_STATE_JOINTS` joints.
+    """
     name = fields.get("model") or robot_model
-    if not name:
+    if "urdf" in fields:
+        base, tool = fields.get("base"), fields.get("tool")
+        if not base or not tool:
+            raise InvalidInputError("urdf= needs the chain's links too: urdf=PATH&base=LINK&tool=LINK")
+        from spacecal.models.urdf import robot_model_from_urdf
+
+        model = robot_model_from_urdf(fields["urdf"], base, tool, name=name or None)
+    elif name:
+        model = robot_kind(name).model()
+    else:
         raise InvalidInputError(
-            "a ros2:// robot needs its model: add model=NAME to the URL (e.g. ros2://HOST?model=UR10)"
+            "a ros2:// robot needs its model: add model=KIND (e.g. ros2://HOST?model=UR10) or "
+            "urdf=PATH&base=LINK&tool=LINK to the URL"
         )
-    if name not in UR_TABLES:
-        raise InvalidInputError(f"unknown robot model {name!r}; known: {', '.join(sorted(UR_TABLES))}")
-    return with_url_tcp(ur_model(name), fields)
+    if model.n_joints != ROBOT_STATE_JOINTS:
+        raise InvalidInputError(
+            f"the {model.name} has {model.n_joints} joints: spacecal's robot interface carries "
+            f"{ROBOT_STATE_JOINTS}-joint states (RobotState), so it cannot run this arm yet"
+        )
+    return with_url_tcp(model, fields)
+
+
+def urdf_joint_names(source: str, base: str, tool: str) -> tuple[str, ...]:
+    """The names of the moving joints from ``base`` to ``tool`` of a URDF file, in chain order
+    (the order of :func:`spacecal.models.urdf.robot_model_from_urdf`'s joints)."""
+    import xml.etree.ElementTree as ElementTree
+
+    try:
+        root = ElementTree.parse(source).getroot()
+    except (OSError, ElementTree.ParseError) as exc:
+        raise InvalidInputError(f"urdf= {source!r} could not be read ({exc})") from None
+    up = {}
+    for joint in root.iter("joint"):
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is not None and child is not None:
+            up[child.get("link")] = (parent.get("link"), joint.get("name"), joint.get("type"))
+    names, link = [], tool
+    while link != base and link in up and len(names) < 256:
+        link, joint_name, kind = up[link]
+        if kind in ("revolute", "continuous"):
+            names.append(str(joint_name))
+    return tuple(reversed(names))
 
 
 def with_url_tcp(model: RobotModel, fields: dict[str, str]) -> RobotModel:
@@ -204,7 +252,9 @@ def joint_names_of(fields: dict[str, str], model: RobotModel) -> tuple[str, ...]
     """The joint names in the model's order: ``joints=`` of the URL, or a UR's driver names."""
     if "joints" in fields:
         names = tuple(n.strip() for n in fields["joints"].split(","))
-    elif model.name in UR_TABLES:
+    elif "urdf" in fields:
+        names = urdf_joint_names(fields["urdf"], fields.get("base", ""), fields.get("tool", ""))
+    elif model.name in ur_kind_names():
         names = UR_JOINT_NAMES
     else:
         raise InvalidInputError(f"name the {model.name}'s joints in the URL: joints=NAME1,NAME2,...")

@@ -494,9 +494,10 @@ def main() -> None:
     arm = FakeArm(names, start, np.radians(args.speed_deg_s))
     tf = None
     if args.tf_model:
-        from spacecal.models.kinematics import forward_kinematics, ur_model
+        from spacecal.models.kinematics import forward_kinematics
+        from spacecal.models.robot_kinds import robot_kind
 
-        model = ur_model(args.tf_model)
+        model = robot_kind(args.tf_model).model()
         offset = make_transform(np.eye(3), [args.tf_offset_mm, 0.0, 0.0])
         tf = ("base_link", "tool0", lambda q: forward_kinematics(model, q) @ offset)
     bridge = FakeRosbridge(
