@@ -219,12 +219,17 @@ def urdf_joint_names(source: str, base: str, tool: str) -> tuple[str, ...]:
         root = ElementTree.parse(source).getroot()
     except (OSError, ElementTree.ParseError) as exc:
         raise InvalidInputError(f"urdf= {source!r} could not be read ({exc})") from None
-    up = {}
+    up: dict[str, tuple[str, str, str]] = {}
     for joint in root.iter("joint"):
         parent, child = joint.find("parent"), joint.find("child")
         if parent is not None and child is not None:
-            up[child.get("link")] = (parent.get("link"), joint.get("name"), joint.get("type"))
-    names, link = [], tool
+            up[str(child.get("link"))] = (
+                str(parent.get("link")),
+                str(joint.get("name")),
+                str(joint.get("type")),
+            )
+    names: list[str] = []
+    link = tool
     while link != base and link in up and len(names) < 256:
         link, joint_name, kind = up[link]
         if kind in ("revolute", "continuous"):
