@@ -58,7 +58,7 @@ def test_urls_take_the_tables_default_ports(url, role, expected):
 @pytest.mark.parametrize(
     ("url", "role", "message"),
     [
-        ("ndi://vega", ROBOT, "expected ur://HOST, franka://HOST or sim"),
+        ("ndi://vega", ROBOT, "expected ur://HOST, franka://HOST, ros2://HOST[:PORT]?joints=... or sim"),
         (
             "ur://robot",
             TRACKER,

@@ -58,9 +58,11 @@ class DeviceScheme:
 NDI_TCP_DEFAULT_PORT, IGTL_DEFAULT_PORT = 8765, 18944
 #: Motive's NatNet command port.
 NATNET_DEFAULT_PORT = 1510
+#: rosbridge_server's WebSocket port.
+ROSBRIDGE_DEFAULT_PORT = 9090
 
 #: The schemes whose URLs carry a query their adapter reads.
-QUERY_SCHEMES = ("natnet", "camera")
+QUERY_SCHEMES = ("natnet", "camera", "ros2")
 #: The schemes whose device may be a path written without a host (``camera:images``): kept as
 #: written, never lower-cased.
 PATH_SCHEMES = ("camera",)
@@ -73,6 +75,7 @@ DEVICE_SCHEMES: dict[str, DeviceScheme] = {
     "igtl": DeviceScheme(TRACKER, "igtl", "igtl://HOST[:PORT]", IGTL_DEFAULT_PORT),
     "natnet": DeviceScheme(TRACKER, "natnet", "natnet://HOST[:PORT]?body=RIGID_BODY", NATNET_DEFAULT_PORT),
     "camera": DeviceScheme(TRACKER, "camera", "camera://DEVICE_OR_FOLDER?board=FILE[&intrinsics=FILE]"),
+    "ros2": DeviceScheme(ROBOT, "ros2", "ros2://HOST[:PORT]?joints=...", ROSBRIDGE_DEFAULT_PORT),
 }
 
 

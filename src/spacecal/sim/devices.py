@@ -110,7 +110,8 @@ class SimulatedRobot:
         self.clock = clock or SimClock()
         self.limits = limits or MotionLimits()
         self._joints = np.array(world.home_joints_rad if joints_rad is None else joints_rad, dtype=float)
-        # ("linear", TimedMove, start) or ("joint", (q0, q1, start, duration), start)
+        # ("linear", TimedMove, start), ("joint", (q0, q1, start, duration), start) or
+        # ("points", (times since start (P+1,), joints (P+1, 6)), start)
         self._motion: tuple[Any, ...] | None = None
         self.protective_stop_at_s = protective_stop_at_s
         self._safety = SAFETY_NORMAL
@@ -161,6 +162,10 @@ class SimulatedRobot:
             if not converged:
                 raise UnreachableError("the simulated arm cannot follow its path (a workspace edge)")
             return joints
+        if kind == "points":
+            times, points = move
+            since = times_s - start
+            return np.stack([np.interp(since, times, points[:, k]) for k in range(points.shape[1])], axis=1)
         q0, q1, _, duration = move
         fraction = np.ones_like(times_s) if duration == 0 else np.clip((times_s - start) / duration, 0.0, 1.0)
         return q0 + fraction[:, None] * (q1 - q0)
@@ -168,6 +173,8 @@ class SimulatedRobot:
     @staticmethod
     def _motion_end_s(motion: tuple) -> float:
         kind, move, start = motion
+        if kind == "points":
+            return start + float(move[0][-1])
         return start + (move.duration_s if kind == "linear" else move[3])
 
     def _update(self) -> None:
@@ -291,6 +298,20 @@ class SimulatedRobot:
             self._motion = ("joint", (self._joints.copy(), target, now, duration), now)
             self._updated_at_s = -np.inf
         return duration
+
+    def start_trajectory(self, times_s, joints_rad) -> float:
+        """Start following joint positions (P, 6) due at ``times_s`` (P,) from now, linearly
+        between them from where the arm is (a trajectory controller's goal); its duration, s."""
+        self._update()
+        self._require_normal()
+        self.commands.append("trajectory")
+        times = np.concatenate([[0.0], np.asarray(times_s, dtype=float)])
+        with self._lock:
+            points = np.vstack([self._joints, np.asarray(joints_rad, dtype=float)])
+            now = self.clock.now_s
+            self._motion = ("points", (times, points), now)
+            self._updated_at_s = -np.inf
+        return float(times[-1])
 
     def move_joints(self, joints_rad, speed_rad_s: float, accel_rad_s2: float) -> None:
         duration = self.start_joint_move(joints_rad, speed_rad_s, accel_rad_s2)

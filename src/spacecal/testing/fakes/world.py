@@ -23,6 +23,8 @@ protocol on the control port injects faults and reads the truth::
     protective_stop | emergency_stop | clear
     bump_marker DEG            -> the marker turns on the tool by DEG about its x axis
     move_tracker MM            -> the tracker moves by MM along its x axis
+    (--rosbridge: a rosbridge server on ``rosbridge_port`` moves the same robot through a
+    FollowJointTrajectory action and publishes its /joint_states: rosbridge.py)
     ur COMMAND [ARGS]          -> the UR controller: safety stops (safeguard_stop, safeguard_reset,
                                   fault, violation, ...), program_stop | program_pause, power_off,
                                   mode NAME, drop_rtde, remote_control on|off, registers_taken
@@ -51,7 +53,7 @@ from spacecal.geometry.transforms import axis_angle_transform, make_transform
 from spacecal.sim.devices import RealClock, SimulatedRobot
 from spacecal.sim.scenario import load_scenario
 from spacecal.sim.world import build_world
-from spacecal.testing.fakes import igtl, natnet, ndi, rtde
+from spacecal.testing.fakes import igtl, natnet, ndi, rosbridge, rtde
 from spacecal.testing.fakes.net import accept_connections, listen
 
 
@@ -345,6 +347,9 @@ def main() -> None:
     parser.add_argument("--igtl-sender", default="plus", choices=["plus", "slicer", "old"])
     parser.add_argument("--igtl-marker-name", default="MarkerToTracker")
     parser.add_argument(
+        "--rosbridge", action="store_true", help="a rosbridge server driving the world's robot too"
+    )
+    parser.add_argument(
         "--niceness",
         type=int,
         help="run the world at this scheduling niceness (set before any thread starts, so every "
@@ -391,6 +396,7 @@ def main() -> None:
         thread.start()
     fake.controller = rtde.start_controller(fake, args.host, stop, sys.stderr if args.ur_log else None)
     motive = start_motive(fake, args.host, rate)
+    rosbridge_port = rosbridge.start_world_rosbridge(fake, args.host) if args.rosbridge else None
     time.sleep(0.3)
     print(
         "READY "
@@ -402,6 +408,7 @@ def main() -> None:
                 "ndi_port": ndi_port,
                 "ndi_pty": pty_path,
                 "natnet_port": motive.port,
+                "rosbridge_port": rosbridge_port,
             }
         ),
         flush=True,
