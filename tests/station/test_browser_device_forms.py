@@ -2,7 +2,7 @@
 Playwright): a refused value's message stands beside its field, on the field's line, with the
 value entered still in it; a retired robot is shown as retired and offered for no new
 calibration. With ``SPACECAL_STATION_SHOTS=DIR`` the page is saved there
-(``16-device-forms.png``)."""
+(``20-device-forms.png``)."""
 
 from __future__ import annotations
 
@@ -62,4 +62,4 @@ def test_a_refused_value_is_said_beside_its_field(served, page):
     page.fill("#add-tracker input[name=rate_hz]", "abc")
     page.click("#add-tracker button")
     page.wait_for_selector("#add-tracker-rate_hz-error")
-    shot(page, "16-device-forms")
+    shot(page, "20-device-forms")
