@@ -52,6 +52,7 @@ from spacecal.core.text import sanitize_for_terminal
 from spacecal.core.units import metres_to_mm
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import make_transform, quaternion_wxyz_to_matrix, rotvec_to_matrix
+from spacecal.io.ros_common import UR_JOINT_NAMES
 from spacecal.models.kinematics import RobotModel, forward_kinematics
 from spacecal.models.robot_kinds import robot_kind, ur_kind_names
 from spacecal.planning.motion import (
@@ -66,15 +67,6 @@ DEFAULT_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
 DEFAULT_TOPIC = "/joint_states"
 ACTION_TYPE = "control_msgs/action/FollowJointTrajectory"
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
-#: ur_robot_driver's joint names (without a tf_prefix), in the UR model's order.
-UR_JOINT_NAMES = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
 #: Joints of a RobotState (spacecal.core.ports): the arms spacecal can run.
 ROBOT_STATE_JOINTS = 6
 #: The query fields a ros2:// URL takes.

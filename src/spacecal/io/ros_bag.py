@@ -52,7 +52,12 @@ from scipy.spatial.transform import Rotation, Slerp
 from spacecal.core.errors import InvalidInputError, MissingExtraError, SpacecalError
 from spacecal.core.text import quoted, sanitize_for_terminal
 from spacecal.geometry.transforms import invert_transform, make_transform
-from spacecal.io.ros_common import MAX_TRANSLATION_M, QUATERNION_NORM_TOLERANCE, transform_from_ros
+from spacecal.io.ros_common import (
+    MAX_TRANSLATION_M,
+    QUATERNION_NORM_TOLERANCE,
+    UR_JOINT_NAMES,
+    transform_from_ros,
+)
 from spacecal.io.yaml_text import check_yaml_file
 from spacecal.models.kinematics import RobotModel, forward_kinematics
 from spacecal.models.robot_kinds import robot_kind
@@ -63,15 +68,6 @@ POSE_TYPES = ("geometry_msgs/msg/PoseStamped",)
 TRANSFORM_TYPES = ("geometry_msgs/msg/TransformStamped",)
 MARKER_TYPES = POSE_TYPES + TRANSFORM_TYPES
 JOINT_STATE_TYPES = ("sensor_msgs/msg/JointState",)
-#: Joint names the UR ROS drivers publish, joint 1 to 6 (a prefix such as ``ur_`` is allowed).
-UR_JOINT_NAMES = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
 ROBOT_SEGMENT = "ros_bag"
 #: Longest topic or frame name shown in full by :meth:`BagContents.describe`.
 NAME_DISPLAY_CHARS = 120

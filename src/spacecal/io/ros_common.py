@@ -18,6 +18,15 @@ from spacecal.core.units import metres_to_mm, mm_to_metres
 from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz, quaternion_wxyz_to_matrix
 
 #: Largest deviation of a quaternion's norm from 1 accepted in a file (ROS tools write 1e-9 or better).
+#: Joint names the UR ROS drivers (ur_robot_driver) publish, joint 1 to 6, without a prefix.
+UR_JOINT_NAMES = (
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+)
 QUATERNION_NORM_TOLERANCE = 1e-6
 #: Largest translation of a pose along an axis accepted, m: no robot or optical tracker of a
 #: calibration set-up spans this; a larger value (1e300, a flipped exponent bit, mm written as

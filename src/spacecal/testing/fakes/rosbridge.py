@@ -58,6 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spacecal.geometry.transforms import make_transform, matrix_to_quaternion_wxyz
+from spacecal.io.ros_common import UR_JOINT_NAMES
 from spacecal.testing.fakes.net import accept_connections, listen
 
 #: /joint_states rate, Hz (a joint_state_broadcaster's usual 100 Hz).
@@ -72,15 +73,6 @@ GOAL_TOLERANCE_RAD = 1e-3
 ACTION_TYPE = "control_msgs/action/FollowJointTrajectory"
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 TF_TOPIC, TF_TYPE = "/tf", "tf2_msgs/msg/TFMessage"
-#: ur_robot_driver's joint names: the world's robot is a UR.
-UR_JOINT_NAMES = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
-)
 #: action_msgs/msg/GoalStatus
 STATUS_UNKNOWN, STATUS_EXECUTING, STATUS_SUCCEEDED, STATUS_CANCELED = 0, 2, 4, 5
 
