@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spacecal.geometry.transforms import invert_transform
-from spacecal.models.kinematics import UR_TABLES
+from spacecal.models.robot_kinds import ur_kind_names
 from spacecal.records import RawRecording, Recording
 
 MM_PER_M = 1000.0
@@ -57,7 +57,7 @@ class ConversionError(ValueError):
 
 def spacecal_robot_model(kinhec_robot: str) -> str | None:
     """spacecal's name of a KinHEC UR arm (``ur5e`` -> ``UR5e``), None for other arms."""
-    for name in UR_TABLES:
+    for name in ur_kind_names():
         if name.lower() == kinhec_robot.lower():
             return name
     return None

@@ -256,5 +256,11 @@ def test_a_run_counts_the_move_of_its_last_sample_and_every_move_once_finished()
     assert run.snapshot(0)["move"] == 5  # stopped there
     run.state = "finished"  # the last move, back home, took no samples
     assert run.snapshot(0)["move"] == 6
-    run.output = SimpleNamespace(record=SimpleNamespace(result=SimpleNamespace(moves_completed=19)))
+    from pathlib import Path
+
+    from spacecal import app
+    from spacecal.workflows.acquisition import AcquisitionResult
+
+    result = AcquisitionResult(Path("rec.csv"), 500, 480, moves_completed=19, moves_total=19)
+    run.output = SimpleNamespace(record=app.AcquireOutput(moves=19, motion_time_s=60.0, result=result))
     assert run.snapshot(0)["move"] == 19  # an acquisition says how many it completed

@@ -360,9 +360,9 @@ class Run:
         it finished, the moves it completed (its last move, back home, takes no samples, so the
         samples alone would leave a finished check at one move short of its total)."""
         if self.state == "finished":
-            result = getattr(self.output.record, "result", None) if self.output is not None else None
-            completed = getattr(result, "moves_completed", None)
-            return int(completed) if completed is not None else self.moves_total
+            record = self.output.record if self.output is not None else None
+            result = record.result if isinstance(record, app.AcquireOutput) else None
+            return result.moves_completed if result is not None else self.moves_total
         return self.move_index + 1 if self.samples else 0
 
     def snapshot(self, since: int) -> dict[str, Any]:

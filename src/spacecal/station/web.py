@@ -125,6 +125,11 @@ class Station:
         return found
 
 
+def _row_of(work: Workspace, kind: str) -> dict[str, Any]:
+    """The workspace's robot or tracker row (``kind``: robot or tracker)."""
+    return work.robot if kind == "robot" else work.tracker
+
+
 def _station(request: Request | WebSocket) -> Station:
     station: Station = request.app.state.station
     return station
@@ -260,7 +265,7 @@ def _moving_with(station: Station, kind: str, device_id: int) -> Any:
     if run is None:
         return None
     work = station.workspaces.get(run.workspace)
-    return run if work is not None and getattr(work, kind)["id"] == device_id else None
+    return run if work is not None and _row_of(work, kind)["id"] == device_id else None
 
 
 async def edit_device(request: Request) -> Response:
@@ -288,7 +293,7 @@ async def edit_device(request: Request) -> Response:
     edited = station.ledger.robot(device_id) if kind == "robot" else station.ledger.tracker(device_id)
     with station.lock:
         for work in station.workspaces.values():
-            if edited is not None and getattr(work, kind)["id"] == device_id:
+            if edited is not None and _row_of(work, kind)["id"] == device_id:
                 work.device_edited(kind, edited)
     return back(request, "home", fragment=f"{kind}s")
 

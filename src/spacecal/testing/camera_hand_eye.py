@@ -34,6 +34,8 @@ from spacecal.adapters import TRACKER, DeviceOptions, open_device
 from spacecal.adapters.camera import MOUNT_FIXED, Intrinsics, write_board
 from spacecal.core.errors import DeviceError
 from spacecal.core.ports import FRAME_OK
+from spacecal.estimators import ESTIMATORS
+from spacecal.estimators.registry import Need
 from spacecal.geometry.rotations import rotation_angle
 from spacecal.geometry.transforms import invert_transform, make_transform, mean_transform
 from spacecal.records import Recording
@@ -42,9 +44,12 @@ from spacecal.testing.charuco_render import HandEyeScene, write_images
 #: OpenCV's hand-eye methods by the names its constants carry.
 HAND_EYE_METHODS = ("TSAI", "PARK", "HORAUD", "ANDREFF", "DANIILIDIS")
 ROBOT_WORLD_METHODS = ("SHAH", "LI")
-#: spacecal's methods compared: maximum likelihood and its closed forms (``paper`` needs its
-#: sweeps, ``kinematic`` identifies the arm: neither is a hand-eye solver on free views).
-SPACECAL_METHODS = ("ml", "robust", "shah", "li", "dornaika", "tsai", "park", "daniilidis")
+#: spacecal's methods compared: every registered method that needs only varied rotations, i.e.
+#: maximum likelihood and the closed forms (``paper`` needs its sweeps, ``kinematic`` the arm's
+#: joints and model: neither is a hand-eye solver on free views).
+SPACECAL_METHODS = tuple(
+    name for name, spec in ESTIMATORS.items() if spec.needs <= frozenset({Need.VARIED_ROTATION})
+)
 
 
 def write_intrinsics(intrinsics: Intrinsics, path: str | Path) -> Path:
