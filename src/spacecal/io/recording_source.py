@@ -248,16 +248,27 @@ def refuse_changed(source: RecordingSource, accept_edited: bool = False) -> None
     """
     if accept_edited:
         return
+    changed = changed_file(source)
+    if changed is not None:
+        entry, now = changed
+        raise InvalidInputError(
+            f"{entry.path}: changed since the calibration was made from it "
+            f"(sha256 {(entry.sha256 or '')[:12]}... then, {now[:12]}... now): the calibration does not "
+            f"describe it; {ACCEPT_EDITED} uses it anyway"
+        )
+
+
+def changed_file(source: RecordingSource) -> tuple[SourceFile, str] | None:
+    """The first of ``source``'s files on disk whose sha256 is not the one recorded, with its
+    sha256 now; None when every file there is as recorded (a file not there, or recorded without
+    a sha256, is not compared)."""
     for entry in source.files:
         if entry.sha256 is None or not Path(entry.path).is_file():
             continue
         now = file_sha256(entry.path)
         if now != entry.sha256:
-            raise InvalidInputError(
-                f"{entry.path}: changed since the calibration was made from it "
-                f"(sha256 {entry.sha256[:12]}... then, {now[:12]}... now): the calibration does not "
-                f"describe it; {ACCEPT_EDITED} uses it anyway"
-            )
+            return entry, now
+    return None
 
 
 def open_source(source: RecordingSource, *, accept_edited: bool = False) -> OpenedRecording:
@@ -320,6 +331,7 @@ def open_calibrated_recording(
 __all__ = [
     "ACCEPT_EDITED",
     "OpenedRecording",
+    "changed_file",
     "open_calibrated_recording",
     "open_path",
     "open_source",

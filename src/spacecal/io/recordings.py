@@ -24,6 +24,7 @@ from spacecal.io.recording_files import (
 from spacecal.io.recording_source import (
     ACCEPT_EDITED,
     OpenedRecording,
+    changed_file,
     open_calibrated_recording,
     open_path,
     open_source,
@@ -37,6 +38,7 @@ __all__ = [
     "OpenedRecording",
     "RawStreamWriter",
     "RecordingWriter",
+    "changed_file",
     "is_recording",
     "last_time_s",
     "metadata_path",

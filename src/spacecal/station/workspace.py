@@ -19,8 +19,7 @@ from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.core.text import exception_line
 from spacecal.io.check_history import history_path
-from spacecal.io.digest import file_sha256
-from spacecal.io.recordings import open_calibrated_recording, recording_in, refuse_changed
+from spacecal.io.recordings import changed_file, open_calibrated_recording, recording_in
 from spacecal.models.kinematics import N_JOINTS
 from spacecal.models.tracker_kinds import tracker_kind_of
 from spacecal.records import CalibrationResult
@@ -286,18 +285,10 @@ class Workspace:
             return
         headline = self.calibration.record.verdict.headline if self.calibration.record.verdict else "made"
         gone = [Path(f.path).name for f in source.files if not Path(f.path).is_file()]
-        try:
-            refuse_changed(source)
-            changed = None
-        except InvalidInputError:
-            changed = next(
-                Path(f.path).name
-                for f in source.files
-                if f.sha256 is not None and Path(f.path).is_file() and file_sha256(f.path) != f.sha256
-            )
+        changed = changed_file(source)
         if changed is None and not gone:
             return
-        what = f"{changed} changed on disk" if changed else f"{', '.join(gone)} is gone"
+        what = f"{Path(changed[0].path).name} changed on disk" if changed else f"{', '.join(gone)} is gone"
         self._forget_what_followed()
         self.acquired = self.recording_path.is_file()
         self.superseded = (
