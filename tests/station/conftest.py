@@ -107,31 +107,69 @@ def simulated_workspace(tmp_path) -> Iterator[tuple[Any, Any]]:
         station.ledger.close()
 
 
+class StationServer:
+    """A station served on 127.0.0.1 in a thread, which can be stopped and started again on the
+    same port, data folder and record: a restart, as the operator's tabs see one."""
+
+    def __init__(self, port: int, data: Any, record: str | None = None, pings: dict | None = None) -> None:
+        self.port, self.data, self.record, self.pings = port, data, record, pings or {}
+        self.served: Served | None = None
+        self._server: Any = None
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> Served:
+        uvicorn = need("uvicorn")
+        from spacecal.station.server import StationOptions, build, server_config
+
+        options = StationOptions(port=self.port, data=str(self.data), record=self.record)
+        station, application = build(options)
+        server = uvicorn.Server(server_config(application, "127.0.0.1", self.port, **self.pings))
+        thread = threading.Thread(target=server.run, daemon=True)
+        thread.start()
+        deadline = time.monotonic() + 20
+        while not server.started:
+            if time.monotonic() > deadline or not thread.is_alive():
+                station.ledger.close()
+                raise RuntimeError("the station did not start")
+            time.sleep(0.05)
+        self._server, self._thread = server, thread
+        self.served = Served(f"http://127.0.0.1:{self.port}", station, self.data)
+        return self.served
+
+    def stop(self) -> None:
+        """Stop its runs, the server and the record (nothing, when it is not running)."""
+        if self.served is None:
+            return
+        station, self.served = self.served.station, None
+        try:
+            station.runs.stop_all("the test ended")
+            self._server.should_exit = True
+            assert self._thread is not None
+            self._thread.join(timeout=15)
+        finally:
+            station.ledger.close()
+
+
 @pytest.fixture
 def served(tmp_path, request) -> Iterator[Served]:
     """The station on 127.0.0.1 (a free port) in a thread, stopped on every way out. A test
     may set the pages' ping interval and timeout, s, by parametrizing it indirectly."""
-    uvicorn = need("uvicorn")
-    from spacecal.station.server import StationOptions, build, server_config
-
-    pings = getattr(request, "param", {})
-    port = free_port()
-    station, application = build(StationOptions(port=port, data=str(tmp_path / "station")))
-    server = uvicorn.Server(server_config(application, "127.0.0.1", port, **pings))
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        if time.monotonic() > deadline or not thread.is_alive():
-            raise RuntimeError("the station did not start")
-        time.sleep(0.05)
+    server = StationServer(free_port(), tmp_path / "station", pings=getattr(request, "param", {}))
     try:
-        yield Served(f"http://127.0.0.1:{port}", station, tmp_path / "station")
+        yield server.start()
     finally:
-        station.runs.stop_all("the test ended")
-        server.should_exit = True
-        thread.join(timeout=15)
-        station.ledger.close()
+        server.stop()
+
+
+@pytest.fixture
+def station_server(tmp_path, record_url) -> Iterator[StationServer]:
+    """A station that a test starts, stops and starts again (:class:`StationServer`) on one
+    port, data folder and record (SQLite and PostgreSQL), stopped on every way out."""
+    server = StationServer(free_port(), tmp_path / "station", record=record_url)
+    try:
+        yield server
+    finally:
+        server.stop()
 
 
 def chromium_binary() -> str:

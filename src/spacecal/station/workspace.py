@@ -18,7 +18,7 @@ from spacecal.app.devices import SIMULATED
 from spacecal.core.errors import InvalidInputError, SpacecalError
 from spacecal.core.ports import FINDING_OK, FINDING_PROBLEM, FINDING_WARNING
 from spacecal.core.text import exception_line
-from spacecal.io.check_history import history_path
+from spacecal.io.check_history import history_path, read_history
 from spacecal.io.recordings import changed_file, open_calibrated_recording, recording_in
 from spacecal.models.kinematics import N_JOINTS
 from spacecal.models.tracker_kinds import tracker_kind_of
@@ -713,7 +713,8 @@ def reopened_workspace(
 
     What is shown comes from the files on disk, never from memory: the plan, whether there is a
     recording, the calibration (read and its content hash checked, as every command reads it),
-    the report and the exports. A dry run is never carried over a restart (the robot may stand
+    its checks (its check history, the lines bound to its content hash), the report and the
+    exports. A dry run is never carried over a restart (the robot may stand
     elsewhere; it is run again before any motion), nor are confirmations. A calibration file that
     is unreadable or edited is not shown as done; the reason is kept in :attr:`Workspace.errors`.
 
@@ -746,6 +747,8 @@ def reopened_workspace(
             work.errors.append(f"{work.calibration_path.name} is not shown: {exc}")
         else:
             work.calibration = app.CommandResult(calibration, (work.calibration_path,), tuple(notes))
+            history = read_history(work.calibration_path).checks
+            work.checks = [app.CheckOutput(check, "the calibration's check history") for check in history]
     if work.calibration is not None and (work.folder / REPORT_NAME).is_file():
         work.report = work.folder / REPORT_NAME
     if work.calibration is not None:
