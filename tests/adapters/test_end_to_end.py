@@ -222,7 +222,7 @@ def test_ctrl_c_stops_the_robot_and_keeps_the_data(world, rom_file, tmp_path):
     )
     # interrupted once frames are being recorded (a fixed sleep interrupted a loaded machine's
     # run before it had opened the devices)
-    wait_for_rows(recording, 40, process, pairable=PAIRABLE_BEFORE_STOP)
+    wait_for_rows(recording, 40, process, pairable=PAIRABLE_BEFORE_STOP, world=world)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 1

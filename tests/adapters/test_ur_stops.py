@@ -22,10 +22,12 @@ from spacecal.io.raw_streams import read_raw_recording, stream_paths
 from .ur_runs import (
     WhenRecorded,
     acquire_argv,
+    assert_every_pairable_frame_kept,
     assert_everything_closed,
+    dropped_by_the_pairing_rule,
     last_line,
-    outside_the_robot_stream,
     pairable_rows,
+    paired_times,
     recorded_rows,
     run,
     stats,
@@ -55,32 +57,6 @@ STOP_AFTER_ROWS = 40
 #: Of them, frames inside the robot stream so far (``ur_runs.pairable_rows``): on a busy
 #: machine the poller of a 500 Hz stream misses stretches, and 40 rows once held 5 such frames.
 PAIRABLE_BEFORE_STOP = 10
-
-
-def assert_every_pairable_frame_kept(recording, kept):
-    """The stopped run's paired recording holds every frame the pairing rule admits at the
-    offset it was paired with, and only frames of the raw stream: nothing recorded that could
-    be paired is lost. How many that is depends on how much of the robot's stream a loaded
-    machine kept (its poller misses stretches), not on spacecal; at least one."""
-    robot_stream, tracker_stream, _ = stream_paths(recording.with_suffix(""))
-    raw = read_raw_recording(robot_stream, tracker_stream)
-    offset_s = json.loads(metadata_path(recording).read_text())["pairing"]["offset_s"]
-    assert len(kept) >= 1 and np.all(np.isin(kept, raw.tracker_time_s))
-    left_out = raw.tracker_time_s[~np.isin(raw.tracker_time_s, kept)]
-    assert np.all(dropped_by_the_pairing_rule(raw, offset_s, left_out)), left_out
-
-
-def paired_times(recording):
-    """``time_s`` of the paired recording a stopped run wrote, without the reader's floor of
-    samples worth calibrating from: the fake e-Series's 500 Hz stream falls behind in motion on
-    a busy machine, the pairing leaves out frames in its gaps, and a run stopped after 40 frames
-    may keep fewer than ten pairs. What is kept must be intact; how much is the raw streams'
-    (every frame, checked below)."""
-    lines = recording.read_text().splitlines()
-    column = lines[0].split(",").index("time_s")
-    times = np.array([float(line.split(",")[column]) for line in lines[1:]])
-    assert np.all(np.isfinite(times)) and np.all(np.diff(times) > 0)
-    return times
 
 
 #: name -> (generation, fault command, the line's cause, the operator's release command)
@@ -129,18 +105,6 @@ def check_stopped_run(world, run_result, fault_at, recording, cause, disk, count
     assert ended_after - stalled < ENDED_WITHIN_S
     assert not after["program_running"]  # ended: nothing can resume a move
     return kept, after
-
-
-def dropped_by_the_pairing_rule(raw, offset_s, frame_time_s):
-    """Whether each frame, moved onto the robot's clock by ``offset_s``, falls outside the robot
-    stream or into a gap of it (the frames :func:`pair_streams` may not pair).
-
-    A stopped run is paired at the offset its few frames show; the resumed run at the offset
-    the whole run shows, which may differ by tens of milliseconds on a loaded machine. A kept
-    frame may then land before the robot's first state, in the stretch the stop left, or in a
-    few ticks a loaded poller missed: it is still in the raw stream, but not paired.
-    """
-    return outside_the_robot_stream(raw.robot_time_s, frame_time_s + offset_s)
 
 
 def resume_and_check(world, generation, recording, rom, kept):
@@ -213,7 +177,7 @@ def test_signals_stop_the_robot_at_once_and_keep_the_recording_resumable(
             stderr=subprocess.PIPE,
             text=True,
         )
-        wait_for_rows(recording, STOP_AFTER_ROWS, process, pairable=PAIRABLE_BEFORE_STOP)
+        wait_for_rows(recording, STOP_AFTER_ROWS, process, pairable=PAIRABLE_BEFORE_STOP, world=world)
         world.control("ur mark")
         sent_at = time.monotonic()
         process.send_signal(getattr(signal, signal_name))

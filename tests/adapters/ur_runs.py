@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from spacecal.estimators.time_offset import LARGEST_GAP_PERIODS, LARGEST_GAP_S
-from spacecal.io.raw_streams import ARRIVAL_COLUMN
+from spacecal.io.csv_core import metadata_path
+from spacecal.io.raw_streams import ARRIVAL_COLUMN, read_raw_recording, stream_paths
 from spacecal.testing.fakes.client import WorldProcess
 
 from .loopback import NETWORK as _NETWORK
@@ -142,6 +143,44 @@ def outside_the_robot_stream(robot_time_s: np.ndarray, time_s: np.ndarray) -> np
     return outside | (robot_time_s[inside] - robot_time_s[inside - 1] > largest)
 
 
+def dropped_by_the_pairing_rule(raw, offset_s, frame_time_s):
+    """Whether each frame, moved onto the robot's clock by ``offset_s``, falls outside the robot
+    stream or into a gap of it (the frames :func:`pair_streams` may not pair).
+
+    A stopped run is paired at the offset its few frames show; the resumed run at the offset
+    the whole run shows, which may differ by tens of milliseconds on a loaded machine. A kept
+    frame may then land before the robot's first state, in the stretch the stop left, or in a
+    few ticks a loaded poller missed: it is still in the raw stream, but not paired.
+    """
+    return outside_the_robot_stream(raw.robot_time_s, frame_time_s + offset_s)
+
+
+def assert_every_pairable_frame_kept(recording, kept):
+    """The stopped run's paired recording holds every frame the pairing rule admits at the
+    offset it was paired with, and only frames of the raw stream: nothing recorded that could
+    be paired is lost. How many that is depends on how much of the robot's stream a loaded
+    machine kept (its poller misses stretches), not on spacecal; at least one."""
+    robot_stream, tracker_stream, _ = stream_paths(recording.with_suffix(""))
+    raw = read_raw_recording(robot_stream, tracker_stream)
+    offset_s = json.loads(metadata_path(recording).read_text())["pairing"]["offset_s"]
+    assert len(kept) >= 1 and np.all(np.isin(kept, raw.tracker_time_s))
+    left_out = raw.tracker_time_s[~np.isin(raw.tracker_time_s, kept)]
+    assert np.all(dropped_by_the_pairing_rule(raw, offset_s, left_out)), left_out
+
+
+def paired_times(recording):
+    """``time_s`` of the paired recording a stopped run wrote, without the reader's floor of
+    samples worth calibrating from: the fake e-Series's 500 Hz stream falls behind in motion on
+    a busy machine, the pairing leaves out frames in its gaps, and a run stopped after 40 frames
+    may keep fewer than ten pairs. What is kept must be intact; how much is the raw streams'
+    (every frame, checked below)."""
+    lines = recording.read_text().splitlines()
+    column = lines[0].split(",").index("time_s")
+    times = np.array([float(line.split(",")[column]) for line in lines[1:]])
+    assert np.all(np.isfinite(times)) and np.all(np.diff(times) > 0)
+    return times
+
+
 def pairable_rows(recording: Path) -> int:
     """Tracker frames written so far that arrived inside the robot stream written so far, not in
     a gap of it (the pairing's rule, ``estimators.time_offset.pair_streams``, at the offset the
@@ -162,16 +201,44 @@ def pairable_rows(recording: Path) -> int:
     return int(np.sum(~outside_the_robot_stream(robot_t, arrival)))
 
 
+#: The move (1-based, of the fake controller's commands) from which a stop test stops the run
+#: with whatever it has recorded: the brisk plan has 18 moves, so this is its second half.
+LATE_MOVE = 10
+
+
+def moves_started(world) -> int:
+    """Moves the fake controller has been commanded so far."""
+    return len(stats(world)["commands"])
+
+
 def wait_for_rows(
-    recording: Path, rows: int, process=None, timeout_s: float = 90.0, pairable: int = 0
+    recording: Path,
+    rows: int,
+    process=None,
+    timeout_s: float = 90.0,
+    pairable: int = 0,
+    world=None,
+    late_move: int = LATE_MOVE,
 ) -> None:
     """Wait until the run has written more than ``rows`` tracker frames, ``pairable`` of them
     inside the robot stream (see :func:`pairable_rows`), or ``process`` ended, or ``timeout_s``
-    passed."""
+    passed.
+
+    Given the fake ``world``, also stop waiting once the robot has begun move ``late_move``
+    with at least one pairable frame written: a starved machine polls the tracker at a
+    fraction of its rate (a whole brisk run once wrote 33 frames), and a stop test must still
+    stop the run in the middle, with something recorded to keep.
+    """
     deadline = time.monotonic() + timeout_s
+    next_look = 0.0
     while time.monotonic() < deadline:
-        if recorded_rows(recording) > rows and (not pairable or pairable_rows(recording) >= pairable):
+        written = recorded_rows(recording)
+        if written > rows and (not pairable or pairable_rows(recording) >= pairable):
             return
+        if world is not None and written > 1 and time.monotonic() >= next_look:
+            next_look = time.monotonic() + 0.1
+            if moves_started(world) >= late_move and pairable_rows(recording) >= 1:
+                return
         if process is not None and process.poll() is not None:
             return
         time.sleep(0.02)
@@ -179,7 +246,9 @@ def wait_for_rows(
 
 class WhenRecorded(threading.Thread):
     """Send a world command once the run has written ``rows`` samples, ``pairable`` of them
-    inside the robot stream; ``sent_at`` is when the world acknowledged it (``time.monotonic``)."""
+    inside the robot stream, or (``late_move``) once the robot has begun that move with
+    something pairable written (:func:`wait_for_rows`); ``sent_at`` is when the world
+    acknowledged it (``time.monotonic``)."""
 
     def __init__(
         self,
@@ -189,16 +258,25 @@ class WhenRecorded(threading.Thread):
         rows: int = 20,
         timeout_s: float = 90.0,
         pairable: int = 0,
+        late_move: int | None = LATE_MOVE,
     ):
         super().__init__(daemon=True)
         self.world, self.command, self.recording = world, command, recording
         self.rows, self.timeout_s, self.pairable = rows, timeout_s, pairable
+        self.late_move = late_move
         self.sent_at: float | None = None
         self.reply = ""
         self.start()
 
     def run(self) -> None:
-        wait_for_rows(self.recording, self.rows, timeout_s=self.timeout_s, pairable=self.pairable)
+        wait_for_rows(
+            self.recording,
+            self.rows,
+            timeout_s=self.timeout_s,
+            pairable=self.pairable,
+            world=self.world if self.late_move is not None else None,
+            late_move=self.late_move or LATE_MOVE,
+        )
         self.reply = self.world.control(self.command)
         self.sent_at = time.monotonic()
 
