@@ -213,9 +213,13 @@ def test_from_a_new_robot_to_an_exported_calibration(served, page, disk):
 
     def acquiring() -> None:
         wait_js(page, f"Number(document.getElementById('samples').textContent) >= 100 || {RUN_ENDED_JS}")
-        # the live view draws the marker's sweeps
+        # the live view draws the sweeps where the TCP was, in the plan's set-up
         # the view redraws at most every five times its last draw took (a busy machine: seconds)
-        wait_js(page, "(document.getElementById('view').data || []).some(t => t.x.length > 10)")
+        wait_js(
+            page,
+            "(document.getElementById('view').data || [])"
+            ".some(t => t.name.startsWith('TCP, marker seen') && t.x.length > 10)",
+        )
         shot(page, "3-acquiring")
 
     def acquire_again() -> None:

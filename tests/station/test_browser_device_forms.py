@@ -63,3 +63,51 @@ def test_a_refused_value_is_said_beside_its_field(served, page):
     page.click("#add-tracker button")
     page.wait_for_selector("#add-tracker-rate_hz-error")
     shot(page, "20-device-forms")
+
+
+#: Every kind of bad value the forms refuse, typed into the page: (form, field, value, what
+#: the message beside the field says). The command line's own words for each are checked
+#: through the app's client (test_device_forms.py); here, that the operator sees them there.
+BAD_VALUES = (
+    ("add-tracker", "rate_hz", "-20", "the frame rate must be"),
+    ("add-tracker", "rate_hz", "0", "the frame rate must be"),
+    ("add-tracker", "rate_hz", "1e9", "the frame rate must be"),
+    ("add-tracker", "rate_hz", "abc", "the frame rate must be a number from 1 to 1000"),
+    ("add-tracker", "url", "", "give the tracker's address"),
+    ("add-robot", "url", "", "give the robot's address"),
+    ("add-robot", "url", "ur//host", "ur//host"),
+    ("add-robot", "url", "ur://", "ur://"),
+    ("add-robot", "url", "ndi://x", "ndi://x"),
+    ("add-robot", "model", "UR99", "unknown robot model 'UR99'"),
+    ("add-robot", "name", "bay\u202e1", "holds U+202E"),
+    ("add-robot", "name", "", "give"),
+)
+
+
+def test_every_bad_value_is_said_beside_its_field_in_the_page(served, page):
+    page.goto(served.url + "/")
+    for form, field, typed, said in BAD_VALUES:
+        kind = form.removeprefix("add-")
+        good = {"name": f"{kind} OR-2", "url": "sim"} | (
+            {"rate_hz": "20"} if kind == "tracker" else {"model": ""}
+        )
+        for name, value in (good | {field: typed}).items():
+            page.fill(f"#{form} input[name={name}]", value)
+        page.click(f"#{form} button")
+        message = f"#{form}-{field}-error"
+        page.wait_for_selector(message)
+        assert said in page.inner_text(message), (field, typed, page.inner_text(message))
+        beside(page, f"#{form}-{field}", message)
+        assert page.input_value(f"#{form}-{field}") == typed  # the value entered is kept
+        assert page.get_attribute(f"#{form}-{field}", "aria-invalid") == "true"
+        assert page.locator(".field-error").count() == 1, (field, typed)  # beside that field only
+    assert served.station.ledger.robots() == [] and served.station.ledger.trackers() == []
+    # a taken name: refused beside the name, the first device kept
+    for _ in range(2):
+        for name, value in (("name", "UR10 bay 1"), ("url", "sim"), ("model", "")):
+            page.fill(f"#add-robot input[name={name}]", value)
+        page.click("#add-robot button")
+    page.wait_for_selector("#add-robot-name-error")
+    assert "UR10 bay 1" in page.inner_text("#add-robot-name-error")
+    beside(page, "#add-robot-name", "#add-robot-name-error")
+    assert [r["name"] for r in served.station.ledger.robots()] == ["UR10 bay 1"]

@@ -244,9 +244,12 @@ class MotionSession:
         run_settings: AcquisitionSettings | None = None,
         on_sample: SampleCallback | None = None,
         what: str = "check",
+        observer: FrameObserver | None = None,
     ) -> list[HeldPose]:
         """Run a plan of holds (:func:`~spacecal.planning.held_poses.hold_plan`) and keep what the
-        tracker saw at each (:func:`~spacecal.workflows.held_poses.hold_poses`)."""
+        tracker saw at each (:func:`~spacecal.workflows.held_poses.hold_poses`); ``observer`` is
+        called at every tracker frame, moving and holding (the station's live view; guidance
+        streams the needle's pose to 3D Slicer from it)."""
         self._require_started()
         return hold_poses(
             self.robot,
@@ -256,6 +259,7 @@ class MotionSession:
             frames_per_pose,
             on_sample,
             what=what,
+            observer=observer,
         )
 
     def record(
@@ -285,28 +289,6 @@ class MotionSession:
     def _require_started(self) -> None:
         if not self.started:
             raise InvalidInputError("the motion was not confirmed (begin_motion) before it ran")
-
-    def hold_observed(
-        self,
-        plan: MotionPlan,
-        frames_per_pose: int,
-        observer: FrameObserver,
-        on_sample: SampleCallback | None = None,
-        what: str = "guidance",
-    ) -> list[HeldPose]:
-        """:meth:`hold`, with ``observer`` called at every tracker frame, moving and holding
-        (guidance streams the needle's pose to 3D Slicer from it)."""
-        self._require_started()
-        return hold_poses(
-            self.robot,
-            self.tracker,
-            plan,
-            self.run_settings(),
-            frames_per_pose,
-            on_sample,
-            what=what,
-            observer=observer,
-        )
 
 
 @contextlib.contextmanager

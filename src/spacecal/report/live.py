@@ -92,7 +92,9 @@ class LiveView:
         self._samples = 0
         self._visible = 0
         self._per_segment: dict[str, int] = {}
-        self._latest: tuple[float, str, tuple[float, float, float] | None] | None = None
+        self._latest: (
+            tuple[float, str, tuple[float, float, float] | None, tuple[float, float, float]] | None
+        ) = None
         self._status = "waiting for the first frame"
         self._server: ThreadingHTTPServer | None = None
         self._thread: threading.Thread | None = None
@@ -119,14 +121,16 @@ class LiveView:
                 float(tracker_from_marker[1, 3]),
                 float(tracker_from_marker[2, 3]),
             )
+        # the TCP in the robot base frame: drawn with the plan before any calibration exists
+        tcp = (float(base_from_tcp[0, 3]), float(base_from_tcp[1, 3]), float(base_from_tcp[2, 3]))
         self._sequence += 1
         if recorded:
             self._samples += 1
             self._visible += position is not None
             self._per_segment[segment] = self._per_segment.get(segment, 0) + 1
-        self._latest = (float(time_s), segment, position)
+        self._latest = (float(time_s), segment, position, tcp)
         self._status = "running"
-        self._frames.append((self._sequence, float(time_s), segment, position, bool(recorded)))
+        self._frames.append((self._sequence, float(time_s), segment, position, bool(recorded), tcp))
 
     def finish(self, status: str = "finished") -> None:
         """Say on the page that the run is over (or why it stopped)."""
@@ -151,14 +155,20 @@ class LiveView:
             "latest_sequence": self._sequence,
             "dropped": max(0, oldest - since - 1),  # frames the ring buffer let go unseen
             "frames": [
-                {"n": n, "t": t, "segment": s, "marker_mm": p, "recorded": r} for n, t, s, p, r in new
+                {"n": n, "t": t, "segment": s, "marker_mm": p, "recorded": r, "tcp_mm": q}
+                for n, t, s, p, r, q in new
             ],
             "samples": self._samples,
             "visible": self._visible,
             "per_segment": dict(self._per_segment),
             "latest": None
             if self._latest is None
-            else {"t": self._latest[0], "segment": self._latest[1], "marker_mm": self._latest[2]},
+            else {
+                "t": self._latest[0],
+                "segment": self._latest[1],
+                "marker_mm": self._latest[2],
+                "tcp_mm": self._latest[3],
+            },
             "status": self._status,
         }
 

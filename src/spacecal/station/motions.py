@@ -18,6 +18,7 @@ crashes takes only its motion's process with it.
 
 from __future__ import annotations
 
+import json
 import pickle
 import secrets
 import signal
@@ -29,6 +30,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from spacecal import app
 from spacecal.core.errors import InvalidInputError
@@ -184,6 +187,11 @@ class Run:
     awaiting: str | None = None
     #: Its stages so far, as its process reported them (``(stage, payload)``).
     stages: list[tuple[str, Any]] = field(default_factory=list)
+    #: Each move's planned duration (s, at the run's pace), when it runs a plan file whose
+    #: moves are the run's: what the page counts its time left from.
+    move_durations_s: list[float] | None = None
+    #: When the move of ``move_index`` was first seen (``time.monotonic``).
+    move_seen_at: float | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     @property
@@ -304,12 +312,18 @@ class Run:
             self.started = True
             self.message = f"connecting to {self.robot} and the tracker"
             if self.motion != "acquire":
-                self.state = "running"  # only an acquisition shows frames: the others run from here
+                # an acquisition runs from its first frame; the others run from here (their
+                # frames begin only once the robot moves to its first hold)
+                self.state = "running"
         elif kind == "plan":
             self.moves_total = int(payload)
+            self.move_durations_s = planned_durations(self.settings, self.moves_total)
             self.message = ""
         elif kind == "sample":
+            move = self.move_index
             self.samples, self.visible, self.move_index, _ = payload
+            if self.move_seen_at is None or self.move_index != move:
+                self.move_seen_at = time.monotonic()
         elif kind == "stage":
             self.stages.append(payload)
         elif kind == "await":
@@ -373,14 +387,43 @@ class Run:
             message=self.message,
             moves_total=self.moves_total,
             move=self.moves_shown(),
-            # the motion's own counts: only an acquisition's frames reach the live view, so the
-            # view's counts stay 0 through a check, a verification or a guidance
+            # the motion's own counts (a hold's samples are what the motion counts, not every
+            # frame the live view draws)
             samples=self.samples,
             visible=self.visible,
             stop_reason=self.stop_reason,
             awaiting=self.awaiting,
+            remaining_s=self.remaining_s(),
         )
         return data
+
+    def remaining_s(self) -> float | None:
+        """About how long the run still moves, s: the rest of the current move and the planned
+        durations of those after it; None without a plan's durations or once it ended."""
+        if not self.active or self.move_durations_s is None or self.move_seen_at is None:
+            return None
+        durations = self.move_durations_s
+        current = min(self.move_index, len(durations) - 1)
+        into = time.monotonic() - self.move_seen_at
+        return round(max(durations[current] - into, 0.0) + sum(durations[current + 1 :]), 1)
+
+
+def planned_durations(settings: Any, moves_total: int) -> list[float] | None:
+    """The planned duration of each move of the plan file ``settings.plan`` (s), at the pace
+    ``settings.simulated_speed`` runs it; None when there is no plan file, it cannot be read,
+    or its moves are not the run's ``moves_total``."""
+    path = getattr(settings, "plan", None)
+    if not path:
+        return None
+    try:
+        moves = json.loads(Path(path).read_text(encoding="utf-8")).get("moves") or []
+        durations = [float(move["duration_s"]) for move in moves]
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return None
+    if len(durations) != moves_total or not all(np.isfinite(d) and d >= 0 for d in durations):
+        return None
+    speed = getattr(settings, "simulated_speed", None) or 1.0
+    return [d / speed for d in durations]
 
 
 def _finished(motion: str, output: Any) -> str:

@@ -127,7 +127,10 @@ def setup_scene(
     Returns
     -------
     dict
-        ``{"data": [...], "layout": {...}, "frame": "tracker" | "robot base"}``.
+        ``{"data": [...], "layout": {...}, "frame": "tracker" | "robot base", "scene_from_base":
+        4x4}``: ``scene_from_base`` (mm) takes a robot base point into the scene's frame, for
+        the live samples a run's page adds (the identity before a calibration,
+        ``tracker_from_base`` after it).
     """
     tracker_name = plotly_text(tracker_name)  # an operator's text: plotly reads <a>, <b>, $..$
     in_tracker = calibration is not None
@@ -167,4 +170,4 @@ def setup_scene(
         "scene": {"aspectmode": "data", **axis},
         "legend": {"itemsizing": "constant"},
     }
-    return {"data": data, "layout": layout, "frame": frame}
+    return {"data": data, "layout": layout, "frame": frame, "scene_from_base": to_scene.tolist()}

@@ -395,6 +395,7 @@ async def workspace_page(request: Request) -> Response:
         "workspace.html",
         export_outcome=note if isinstance(note, ExportOutcome) else None,
         ur_export_blocked=work.ur_export_blocked(),
+        located=work.located(),
         work=work,
         scene=None if scene is None else script_json(scene),
         steps=steps,
@@ -724,10 +725,19 @@ def _run(request: Request | WebSocket) -> Any:
     return run
 
 
-def run_page(request: Request) -> Response:
+async def run_page(request: Request) -> Response:
     run = _run(request)
+    work = _station(request).workspace(run.workspace)
+    # the set-up the live samples are drawn into: the plan in the robot base frame during an
+    # acquisition, the tracker frame through the calibration during the motions that use one
+    scene = await asyncio.to_thread(work.scene, run.motion if run.motion == "acquire" else "after")
     return _page(
-        request, "run.html", run=run, work=_station(request).workspace(run.workspace), insertions=INSERTIONS
+        request,
+        "run.html",
+        run=run,
+        work=work,
+        insertions=INSERTIONS,
+        scene=None if scene is None else script_json(scene),
     )
 
 

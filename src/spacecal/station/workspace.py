@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from spacecal import app
 from spacecal.app._common import open_calibration
 from spacecal.app.devices import SIMULATED
@@ -245,11 +247,16 @@ class Workspace:
         made = [*self.folder.glob("verification-*.json"), *self.folder.glob("verification-*.png")]
         return [*named, *sorted(made), *sorted(self.folder.glob("guidance-*.json"))]
 
-    def scene(self) -> dict[str, Any] | None:
+    def scene(self, motion: str | None = None) -> dict[str, Any] | None:
         """The set-up in 3-D (:func:`spacecal.station.scene.setup_scene`) from the files on
         disk: the plan, and once calibrated the calibration and its recording in the tracker's
         frame; None before a plan. The volume is the tracker kind's (the simulated tracker is a
-        Polaris Vicra); a kind that states none draws none."""
+        Polaris Vicra); a kind that states none draws none.
+
+        For a run's page (``motion``): an acquisition's scene is the robot base frame (its
+        samples are drawn live, where the TCP was, coloured by whether the marker was seen);
+        a check, verification or guidance is drawn in the tracker frame through the
+        calibration, without the recording's samples."""
         if not self.plan_path.is_file():
             return None
         try:
@@ -257,8 +264,10 @@ class Workspace:
         except (OSError, ValueError):
             return None
         calibration = self.calibration.record if self.calibration is not None else None
+        if motion == "acquire":
+            calibration = None  # a new recording: nothing links it to the tracker yet
         recording = None
-        if calibration is not None:
+        if calibration is not None and motion is None:
             try:
                 opened = open_calibrated_recording(calibration)
                 recording = opened.recording if opened is not None else None
@@ -434,6 +443,27 @@ class Workspace:
         )
         self.report = out.files_written[0]
         return out.files_written[0]
+
+    def located(self) -> dict[str, Any] | None:
+        """Where the calibration puts the robot, for its page: ``tracker_from_base`` (4x4, mm),
+        the robot base's distance from the tracker (mm) and, with a plan, the home TCP's (the
+        working distance the measurement volume must hold); None before a calibration."""
+        if self.calibration is None:
+            return None
+        tracker_from_base = np.asarray(self.calibration.record.tracker_from_base, dtype=float)
+        home_mm = None
+        try:
+            plan = json.loads(self.plan_path.read_text(encoding="utf-8")) if self.plan_path.is_file() else {}
+            home = np.asarray(plan.get("home_base_from_tcp"), dtype=float)
+            if home.shape == (4, 4) and np.all(np.isfinite(home)):
+                home_mm = float(np.linalg.norm((tracker_from_base @ home)[:3, 3]))
+        except (OSError, ValueError, TypeError, AttributeError):
+            home_mm = None  # no plan to say where home is: the base's distance alone
+        return {
+            "tracker_from_base": tracker_from_base.tolist(),
+            "base_mm": float(np.linalg.norm(tracker_from_base[:3, 3])),
+            "home_mm": home_mm,
+        }
 
     def ur_export_blocked(self) -> str | None:
         """Why the UR ROS driver's calibration cannot be written from this calibration, in an

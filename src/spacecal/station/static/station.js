@@ -1,24 +1,37 @@
-// The acquisition's page: the live view over a websocket, progress, and STOP.
+// A run's page: the live 3-D view of the set-up over a websocket, progress, time left, and STOP.
 (function () {
   var view = document.getElementById("view");
   var stopUrl = view.dataset.stop;
-  var bySegment = {}, order = [], latest = null, ended = false;
-  var colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
+  // the set-up the station drew from the files (spacecal.station.scene): the plan, the site and,
+  // through a calibration, the tracker and its volume; the samples are added as they come
+  var source = document.getElementById("scene-figure");
+  var figure = source ? JSON.parse(source.textContent) : null;
+  var sceneFromBase = figure ? figure.scene_from_base : [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0]];
+  var frameName = figure ? figure.frame : "robot base";
+  view.dataset.frame = frameName;
+  var seen = [], unseen = [], latest = null, ended = false;
   function column(points, k) { return points.map(function (p) { return p === null ? null : p[k]; }); }
+  function inScene(p) {  // a robot base point (mm) in the scene's frame
+    var m = sceneFromBase;
+    return [0, 1, 2].map(function (r) { return m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3]; });
+  }
+  function points(p, name, colour, size, symbol) {
+    return {type: "scatter3d", mode: "markers", name: name, x: column(p, 0), y: column(p, 1), z: column(p, 2),
+            marker: {size: size, color: colour, symbol: symbol || "circle"}};
+  }
   function traces() {
-    var data = order.map(function (label, k) {
-      var p = bySegment[label];
-      return {type: "scatter3d", mode: "markers", name: label + " (" + p.length + ")",
-              x: column(p, 0), y: column(p, 1), z: column(p, 2), marker: {size: 2, color: colours[k % colours.length]}};
-    });
-    var now = latest && latest.marker_mm ? [latest.marker_mm] : [];
-    data.push({type: "scatter3d", mode: "markers", name: "marker now", x: column(now, 0), y: column(now, 1),
-               z: column(now, 2), marker: {size: 7, color: "#c8102e", symbol: "diamond"}});
+    var data = figure ? figure.data.slice() : [];
+    data.push(points(seen, "TCP, marker seen (" + seen.length + ")", "#2ca02c", 2));
+    data.push(points(unseen, "TCP, marker not seen (" + unseen.length + ")", "#d62728", 2));
+    var now = latest && latest.tcp_mm ? [inScene(latest.tcp_mm)] : [];
+    data.push(points(now, "TCP now", "#222222", 7, "diamond"));
     return data;
   }
-  var layout = {margin: {l: 0, r: 0, t: 10, b: 0}, uirevision: "keep",
-                scene: {aspectmode: "data", xaxis: {title: {text: "x (mm)"}}, yaxis: {title: {text: "y (mm)"}},
-                        zaxis: {title: {text: "z (mm)"}}}};
+  var axes = {};
+  ["x", "y", "z"].forEach(function (k) { axes[k + "axis"] = {title: {text: frameName + " " + k + " (mm)"}}; });
+  var layout = {margin: {l: 0, r: 0, t: 30, b: 0}, uirevision: "keep", legend: {itemsizing: "constant"},
+                title: {text: figure ? figure.layout.title.text : "in the robot base frame", font: {size: 13}},
+                scene: {aspectmode: "data", xaxis: axes.xaxis, yaxis: axes.yaxis, zaxis: axes.zaxis}};
   // the view is a help, never a condition: without WebGL the numbers and STOP still work
   var drawing = true;
   // drawing shares the page's one thread with STOP's click: a draw that took d ms waits
@@ -48,9 +61,8 @@
   draw(true);
   function show(data) {
     data.frames.forEach(function (f) {
-      if (!f.recorded || f.marker_mm === null) { return; }
-      if (!(f.segment in bySegment)) { bySegment[f.segment] = []; order.push(f.segment); }
-      bySegment[f.segment].push(f.marker_mm);
+      if (!f.recorded || !f.tcp_mm) { return; }
+      (f.marker_mm === null ? unseen : seen).push(inScene(f.tcp_mm));
     });
     latest = data.latest;
     text("run-state", data.run_state);
@@ -59,6 +71,7 @@
     text("samples", data.samples);
     text("visible", data.visible);
     text("message", data.message);
+    text("time-left", typeof data.remaining_s === "number" ? "; about " + Math.round(data.remaining_s) + " s left" : "");
     // a guidance in one session waits at the standoff for the insertion's confirmation
     var awaiting = document.getElementById("awaiting");
     if (awaiting) { awaiting.hidden = data.awaiting !== "insert"; }
@@ -86,7 +99,7 @@
   }
   function connect() {
     // each connection is sent the run's frames from its first: the view starts over
-    bySegment = {}; order = [];
+    seen = []; unseen = [];
     socket = new WebSocket(address);
     socket.onmessage = function (event) { show(JSON.parse(event.data)); };
     socket.onclose = function () {
