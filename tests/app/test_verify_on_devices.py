@@ -176,12 +176,14 @@ def test_an_interrupted_verification_exits_1_in_one_line(calibration, tmp_path, 
     out = tmp_path / "ver.json"
     original = verification.MotionSession.hold
 
-    def hold_then_fault(self, plan, frames_per_pose, run_settings=None, on_sample=None, what="check"):
+    def hold_then_fault(
+        self, plan, frames_per_pose, run_settings=None, on_sample=None, what="check", observer=None
+    ):
         def fault_at_pose_3(samples, visible, move, label):
             if label == "pose-3":
                 raise KeyboardInterrupt
 
-        return original(self, plan, frames_per_pose, run_settings, fault_at_pose_3, what)
+        return original(self, plan, frames_per_pose, run_settings, fault_at_pose_3, what, observer)
 
     monkeypatch.setattr(verification.MotionSession, "hold", hold_then_fault)
     code = main(["verify", str(calibration), "--robot", "sim", "--tracker", "sim", "-o", str(out)])

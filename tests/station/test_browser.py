@@ -96,6 +96,30 @@ def shown_run(page, served):
     return served.station.runs.get(int(page.url.rsplit("/", 1)[1]))
 
 
+def acquisition_confirmed(page, served):
+    """From the calibration's page: the dry run (it must pass), the acquisition confirmed; the
+    run, its page shown."""
+    page.click("#dry-run")
+    assert "motion gate: passed" in page.inner_text("#dry-run-result")
+    page.click("#acquire")
+    page.click("#confirm")
+    page.wait_for_url(re.compile(r"/runs/\d+$"))
+    return shown_run(page, served)
+
+
+def calibrated_from_a_simulation(page, served, robot: str):
+    """A new calibration of ``robot`` whose recording is simulated as an acquisition records
+    it, calibrated from its page; its workspace."""
+    from spacecal import app as spacecal_app
+
+    new_robot_and_tracker(page, served.url, robot)
+    work = served.station.workspace(1)
+    spacecal_app.simulate(spacecal_app.SimulateSettings(output=str(work.recording_path)))
+    page.reload()
+    page.click("#calibrate")
+    return work
+
+
 def stopped_for_a_stalled_page(run, disk) -> bool:
     """Whether the station stopped ``run`` because its page went silent, with a single disk
     stall at least the page's ping timeout long beside it (see :func:`confirm_and_finish`)."""

@@ -9,11 +9,15 @@ and says why. With ``SPACECAL_STATION_SHOTS=DIR`` the pages are saved there
 from __future__ import annotations
 
 import hashlib
-import re
 from urllib.parse import urljoin
 
-from spacecal import app as spacecal_app
-from tests.station.test_browser import RUN_ENDED_JS, new_robot_and_tracker, shot, shown_run, wait_for_run_end
+from tests.station.test_browser import (
+    RUN_ENDED_JS,
+    acquisition_confirmed,
+    calibrated_from_a_simulation,
+    shot,
+    wait_for_run_end,
+)
 
 #: The new acquisition's sweeps at this many times real time (the station runs them in real
 #: time, about a minute): what is asserted here is what the pages show around the acquisition,
@@ -39,12 +43,8 @@ def test_acquiring_again_after_a_calibration_retires_it_on_the_page(
     served, page, disk, browser_context, monkeypatch
 ):
     monkeypatch.setattr("spacecal.station.workspace.SIMULATED_SPEED", FAST)
-    new_robot_and_tracker(page, served.url, "UR10 bay 9")
-    work = served.station.workspace(1)
     # calibrated, reported and exported from a recording simulated as an acquisition records it
-    spacecal_app.simulate(spacecal_app.SimulateSettings(output=str(work.recording_path)))
-    page.reload()
-    page.click("#calibrate")
+    work = calibrated_from_a_simulation(page, served, "UR10 bay 9")
     old_headline = page.inner_text("#verdict-headline")
     page.click("#report")
     page.check("#export-form input[name=slicer]")
@@ -54,12 +54,7 @@ def test_acquiring_again_after_a_calibration_retires_it_on_the_page(
     assert stepper(page)["report"] == "done" and stepper(page)["calibrate"] == "done"
 
     # a new acquisition, confirmed from the page; the workspace's page watched in a second tab
-    page.click("#dry-run")
-    assert "motion gate: passed" in page.inner_text("#dry-run-result")
-    page.click("#acquire")
-    page.click("#confirm")
-    page.wait_for_url(re.compile(r"/runs/\d+$"))
-    run = shown_run(page, served)
+    run = acquisition_confirmed(page, served)
     other = browser_context.new_page()
     other.goto(f"{served.url}/workspaces/1")
     said = other.inner_text("#superseded")
@@ -102,11 +97,7 @@ def test_acquiring_again_after_a_calibration_retires_it_on_the_page(
 
 
 def test_a_recording_changed_after_its_calibration_hides_the_result_and_says_why(served, page):
-    new_robot_and_tracker(page, served.url, "UR10 bay 10")
-    work = served.station.workspace(1)
-    spacecal_app.simulate(spacecal_app.SimulateSettings(output=str(work.recording_path)))
-    page.reload()
-    page.click("#calibrate")
+    work = calibrated_from_a_simulation(page, served, "UR10 bay 10")
     page.click("#report")
     assert page.locator("#verdict").count() == 1 and page.locator("#report-link").count() == 1
     # 39 samples fewer in the recording, after its calibration

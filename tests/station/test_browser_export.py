@@ -6,17 +6,12 @@ operator left them. With ``SPACECAL_STATION_SHOTS=DIR`` the page is saved there
 
 from __future__ import annotations
 
-from spacecal import app as spacecal_app
-from tests.station.test_browser import new_robot_and_tracker, shot
+from tests.station.test_browser import calibrated_from_a_simulation, shot
 from tests.station.test_browser_device_forms import beside
 
 
 def test_a_partial_export_lists_what_was_written_and_says_why_beside_the_rest(served, page):
-    new_robot_and_tracker(page, served.url, "UR10 bay 12")
-    work = served.station.workspace(1)
-    spacecal_app.simulate(spacecal_app.SimulateSettings(output=str(work.recording_path)))
-    page.reload()
-    page.click("#calibrate")
+    work = calibrated_from_a_simulation(page, served, "UR10 bay 12")
     (work.folder / "plus_config.xml").mkdir()  # where the PLUS file goes: it cannot be written
     for box in ("slicer", "plus", "ros2_launch"):
         page.check(f"#export-form input[name={box}]")

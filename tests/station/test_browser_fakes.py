@@ -123,9 +123,13 @@ def test_from_a_new_robot_to_an_exported_calibration_on_the_protocol_fakes(serve
 
         message = confirm_and_finish(page, served, disk, ROBOT, lambda: plan_and_acquire(page))
         assert re.search(r"(\d+)/\1 moves", message), message
-        # the live view drew the marker's sweeps
+        # the live view drew the sweeps where the TCP was, the marker seen
         # the view redraws at most every five times its last draw took (a busy machine: seconds)
-        wait_js(page, "(document.getElementById('view').data || []).some(t => t.x.length > 10)")
+        wait_js(
+            page,
+            "(document.getElementById('view').data || [])"
+            ".some(t => t.name.startsWith('TCP, marker seen') && t.x.length > 10)",
+        )
         shot(page, "8-fakes-acquired")
         steps.done("acquire")
 

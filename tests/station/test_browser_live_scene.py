@@ -19,6 +19,7 @@ import numpy as np
 from tests.station.conftest import wait_js
 from tests.station.test_browser import (
     RUN_ENDED_JS,
+    acquisition_confirmed,
     new_robot_and_tracker,
     shot,
     shown_run,
@@ -61,12 +62,7 @@ def test_the_live_view_draws_the_samples_into_the_set_up(served, page, disk, mon
     monkeypatch.setattr("spacecal.station.workspace.SIMULATED_SPEED", FAST)
     new_robot_and_tracker(page, served.url, "UR10 bay 11")
     page.click("#plan")
-    page.click("#dry-run")
-    assert "motion gate: passed" in page.inner_text("#dry-run-result")
-    page.click("#acquire")
-    page.click("#confirm")
-    page.wait_for_url(re.compile(r"/runs/\d+$"))
-    run = shown_run(page, served)
+    run = acquisition_confirmed(page, served)
     assert page.get_attribute("#view", "data-frame") == "robot base"
 
     # the robot moves: samples drawn where the TCP was, the time left counting down
@@ -127,6 +123,7 @@ def test_the_live_view_draws_the_samples_into_the_set_up(served, page, disk, mon
     page.click("#back")
     page.select_option("#method", "ml")
     page.click("#calibrate")
+    page.wait_for_selector("#tracker-from-base")
     # where the calibration puts the robot, on the calibration's page: not in the report alone
     calibration = served.station.workspace(1).calibration.record
     tracker_from_base = np.asarray(calibration.tracker_from_base)

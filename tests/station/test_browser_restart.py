@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import re
 
-from spacecal import app as spacecal_app
-from tests.station.test_browser import RUN_ENDED_JS, new_robot_and_tracker, shot, wait_for_run_end
+from tests.station.test_browser import RUN_ENDED_JS, calibrated_from_a_simulation, shot, wait_for_run_end
 
 #: The check's moves at this many times real time (a check takes about 8 s in real time): the
 #: run only has to have been made before the restart.
@@ -24,11 +23,7 @@ def test_a_tab_open_across_a_restart_shows_the_same_calibration(
     monkeypatch.setattr("spacecal.station.workspace.SIMULATED_SPEED", FAST)
     served = station_server.start()
     page = browser_context.new_page()
-    new_robot_and_tracker(page, served.url, "UR10 OR-3")
-    work = served.station.workspace(1)
-    spacecal_app.simulate(spacecal_app.SimulateSettings(output=str(work.recording_path)))
-    page.reload()
-    page.click("#calibrate")
+    calibrated_from_a_simulation(page, served, "UR10 OR-3")
     headline = page.inner_text("#verdict-headline")
     page.click("#report")
     # a check, so that the station has a run before the restart
