@@ -114,6 +114,8 @@ def test_the_steps_follow_a_calibration_from_its_plan_to_its_export(tmp_path):
     work.dry_run()
     assert states(work)["acquire"] == (CURRENT, None)
     assert states(work, running="acquire")["acquire"] == (CURRENT, None)
+    # while the robot moves nothing is next: the operator watches it, or presses STOP
+    assert not any(s.next for s in step_states(work, "acquire"))
 
     acquire_at_once(work)
     shown = states(work)

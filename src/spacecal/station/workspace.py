@@ -730,6 +730,8 @@ def step_states(work: Workspace, running: str | None = None) -> list[StepState]:
     can = [key for key, _ in STEPS if states[key][0] == CURRENT]
     can = [key for key in can if not (key == "plan" and states["dry-run"][0] == DONE)]
     upcoming = next((key for key in can if key not in OPTIONAL_STEPS), can[0] if can else None)
+    if running is not None:
+        upcoming = None  # while the robot moves there is nothing to do next but watch it (or STOP)
     return [StepState(key, title, *states[key], next=key == upcoming) for key, title in STEPS]
 
 
