@@ -17,7 +17,7 @@ The protocol on the child's pipes (trusted: the station starts this child itself
 - stdout: pickled messages ``(kind, payload)``, flushed one by one: ``("started", None)``
   once SIGINT takes the command line's stop path, ``("plan", moves)``,
   ``("sample", (samples, visible, move_index, label))``, ``("frame", (time_s, segment,
-  tracker_from_marker, base_from_tcp, recorded))`` (every tracker frame, of every motion), and
+  tracker_from_marker, base_from_tcp, recorded))`` (an acquisition's every tracker frame), and
   one last message: ``("done", CommandResult)``, ``("interrupted", reason)`` (the stop came
   before the app function could catch it) or ``("failed", one line)``. Anything the robot and
   tracker libraries print on the process's standard output goes to its standard error
@@ -89,7 +89,7 @@ def one_session(motion: str, settings: Any) -> bool:
     return motion == "standoff" and bool(settings.devices.simulated)
 
 
-def guide(motion: str, settings: Any, on_sample: Any, observer: Any, send: Any) -> Any:
+def guide(motion: str, settings: Any, on_sample: Any, send: Any) -> Any:
     """A guidance stage (``standoff`` or ``insert``); on simulated devices (:func:`one_session`)
     the standoff's session then waits for the insertion's confirmation
     (:func:`wait_for_proceed`) and runs it."""
@@ -99,7 +99,7 @@ def guide(motion: str, settings: Any, on_sample: Any, observer: Any, send: Any) 
     from spacecal.station.guide_step import stage_output
 
     if not one_session(motion, settings):
-        return app.guide(settings, on_sample=on_sample, observer=observer)
+        return app.guide(settings, on_sample=on_sample)
 
     def then(standoff: Any) -> Any:
         send("stage", ("standoff", standoff.record))
@@ -114,7 +114,7 @@ def guide(motion: str, settings: Any, on_sample: Any, observer: Any, send: Any) 
             output=stage_output(settings.output, "insert"),
         )
 
-    return app.guide(settings, on_sample=on_sample, then=then, observer=observer)
+    return app.guide(settings, on_sample=on_sample, then=then)
 
 
 def run_motion(motion: str, settings: Any, send: Any) -> None:
@@ -129,6 +129,9 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
     def on_sample(samples: int, visible: int, move_index: int, label: str) -> None:
         send("sample", (samples, visible, move_index, label))
 
+    # only an acquisition streams its frames to the page: drawing them shares the page's one
+    # thread with STOP's click, and during a short insertion a loaded machine's draw delayed the
+    # click past the insertion's end (the other motions' pages draw their set-up, not samples)
     def observer(time_s, segment, tracker_from_marker, base_from_tcp, recorded) -> None:
         send("frame", (time_s, segment, tracker_from_marker, base_from_tcp, recorded))
 
@@ -142,17 +145,13 @@ def run_motion(motion: str, settings: Any, send: Any) -> None:
                     settings, on_sample=on_sample, observer=observer, on_plan=lambda n: send("plan", n)
                 )
             elif motion == "check":
-                out = app.check(
-                    settings, on_sample=on_sample, on_plan=lambda n: send("plan", n), observer=observer
-                )
+                out = app.check(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
             elif motion == "verify":
                 from spacecal.app.verification import verify_on_devices
 
-                out = verify_on_devices(
-                    settings, on_sample=on_sample, on_plan=lambda n: send("plan", n), observer=observer
-                )
+                out = verify_on_devices(settings, on_sample=on_sample, on_plan=lambda n: send("plan", n))
             elif motion in ("standoff", "insert"):
-                out = guide(motion, settings, on_sample, observer, send)
+                out = guide(motion, settings, on_sample, send)
             else:
                 raise ValueError(f"no motion {motion!r}")
         send("done", out)

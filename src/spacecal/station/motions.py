@@ -312,9 +312,7 @@ class Run:
             self.started = True
             self.message = f"connecting to {self.robot} and the tracker"
             if self.motion != "acquire":
-                # an acquisition runs from its first frame; the others run from here (their
-                # frames begin only once the robot moves to its first hold)
-                self.state = "running"
+                self.state = "running"  # only an acquisition shows frames: the others run from here
         elif kind == "plan":
             self.moves_total = int(payload)
             self.move_durations_s = planned_durations(self.settings, self.moves_total)
@@ -387,8 +385,8 @@ class Run:
             message=self.message,
             moves_total=self.moves_total,
             move=self.moves_shown(),
-            # the motion's own counts (a hold's samples are what the motion counts, not every
-            # frame the live view draws)
+            # the motion's own counts: only an acquisition's frames reach the live view, so the
+            # view's counts stay 0 through a check, a verification or a guidance
             samples=self.samples,
             visible=self.visible,
             stop_reason=self.stop_reason,
@@ -409,12 +407,12 @@ class Run:
 
 
 def planned_durations(settings: Any, moves_total: int) -> list[float] | None:
-    """The planned duration of each move of the plan file ``settings.plan`` (s), at the pace
-    ``settings.simulated_speed`` runs it; None when there is no plan file, it cannot be read,
-    or its moves are not the run's ``moves_total``."""
-    path = getattr(settings, "plan", None)
-    if not path:
+    """The planned duration of each move of an acquisition's plan file ``settings.plan`` (s),
+    at the pace ``settings.simulated_speed`` runs it; None for another motion, without a plan
+    file, when it cannot be read, or when its moves are not the run's ``moves_total``."""
+    if not isinstance(settings, app.AcquireSettings) or not settings.plan:
         return None
+    path = settings.plan
     try:
         moves = json.loads(Path(path).read_text(encoding="utf-8")).get("moves") or []
         durations = [float(move["duration_s"]) for move in moves]
@@ -422,7 +420,7 @@ def planned_durations(settings: Any, moves_total: int) -> list[float] | None:
         return None
     if len(durations) != moves_total or not all(np.isfinite(d) and d >= 0 for d in durations):
         return None
-    speed = getattr(settings, "simulated_speed", None) or 1.0
+    speed = settings.simulated_speed or 1.0
     return [d / speed for d in durations]
 
 
