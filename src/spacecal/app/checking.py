@@ -23,7 +23,7 @@ from spacecal.io.check_history import append_history
 from spacecal.io.recordings import open_calibrated_recording
 from spacecal.planning.check_poses import check_plan
 from spacecal.records import CheckResult
-from spacecal.workflows.acquisition import FrameObserver, SampleCallback
+from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.check import (
     check_thresholds,
     check_with_recording,
@@ -38,7 +38,6 @@ def check(
     settings: CheckSettings,
     on_sample: SampleCallback | None = None,
     on_plan: Callable[[int], None] | None = None,
-    observer: FrameObserver | None = None,
 ) -> CommandResult[CheckOutput]:
     """Check a calibration at two or three poses near where the robot stands (simulated or real
     devices, with the same safety as ``acquire``) or against a recording; the result, whether
@@ -46,8 +45,7 @@ def check(
 
     ``on_plan(moves)`` and ``on_sample(samples, visible, move_index, label)`` follow the robot's
     check as they follow an acquisition (:func:`spacecal.app.acquire`): the plan's length once
-    it has passed its gate, then every sample; ``observer`` is called at every tracker frame,
-    as an acquisition's (the station's live view).
+    it has passed its gate, then every sample.
 
     Returns
     -------
@@ -57,7 +55,7 @@ def check(
     """
     ledger = open_record(settings.record) if settings.record else None
     try:
-        out = _check(settings, on_sample, on_plan, observer)
+        out = _check(settings, on_sample, on_plan)
         if ledger is not None:
             record_check(ledger, settings.calibration, out, source="cli")
     finally:
@@ -70,7 +68,6 @@ def _check(
     settings: CheckSettings,
     on_sample: SampleCallback | None = None,
     on_plan: Callable[[int], None] | None = None,
-    observer: FrameObserver | None = None,
 ) -> CommandResult[CheckOutput]:
     calibration, notes = open_calibration(settings.calibration, "check", settings.accept_edited)
     averaged = 1 if settings.recording else settings.frames_per_pose
@@ -145,11 +142,7 @@ def _check(
         if on_plan is not None:
             on_plan(len(plan.moves))
         held = session.hold(
-            plan,
-            settings.frames_per_pose,
-            session.run_settings(scenario_speeds=True),
-            on_sample,
-            observer=observer,
+            plan, settings.frames_per_pose, session.run_settings(scenario_speeds=True), on_sample
         )
         result = judge_check(
             calibration,

@@ -56,7 +56,7 @@ from spacecal.records.guidance import GuidanceResult, StageMeasurement
 from spacecal.records.needle_plan import ImageRegistration, NeedlePlan
 from spacecal.registration.image_fiducials import DEFAULT_MAX_FRE_MM, pointer_predicted_tre
 from spacecal.sim.devices import SimulatedTracker
-from spacecal.workflows.acquisition import FrameObserver, SampleCallback
+from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.guidance import (
     AT_STANDOFF_DEG,
     AT_STANDOFF_MM,
@@ -281,10 +281,7 @@ ThenInsert = Callable[[CommandResult["GuideOutput"]], "GuideSettings | None"]
 
 
 def guide(
-    settings: GuideSettings,
-    on_sample: SampleCallback | None = None,
-    then: ThenInsert | None = None,
-    observer: FrameObserver | None = None,
+    settings: GuideSettings, on_sample: SampleCallback | None = None, then: ThenInsert | None = None
 ) -> CommandResult[GuideOutput]:
     """Place the needle on the plan in stages and measure it (module docstring).
 
@@ -351,9 +348,7 @@ def guide(
             received = link.wait_for_plan(settings.slicer_timeout_s)
             plan, revision = received.plan, received.revision
         assert plan is not None  # the file's or Slicer's
-        first = _guide(
-            settings, session, calibration, plan, registration, (link, revision), notes, on_sample, observer
-        )
+        first = _guide(settings, session, calibration, plan, registration, (link, revision), notes, on_sample)
         if then is None or settings.dry_run:
             return first
         if settings.stage != "standoff":
@@ -369,9 +364,7 @@ def guide(
                 f"calibration and devices (it differs in {', '.join(changed) or 'its stage'}); "
                 "the robot stays at the standoff"
             )
-        return _guide(
-            following, session, calibration, plan, registration, (link, revision), notes, on_sample, observer
-        )
+        return _guide(following, session, calibration, plan, registration, (link, revision), notes, on_sample)
     raise AssertionError("unreachable")  # pragma: no cover (the with block returns or raises)
 
 
@@ -393,7 +386,6 @@ def _guide(
     slicer: tuple[SlicerLink | None, int],
     notes: list[str],
     on_sample: SampleCallback | None,
-    observer: FrameObserver | None = None,
 ) -> CommandResult[GuideOutput]:
     link, revision = slicer
     located = locate_plan(plan, registration, calibration.tracker_from_base)
@@ -448,8 +440,7 @@ def _guide(
             "(check the path is clear); nothing moved"
         )
     session.begin_motion()
-    # every frame to the caller's observer (the station's live view) and to Slicer's link
-    observer = _both(observer, None if link is None else _streamer(link, needle_from_marker))
+    observer = None if link is None else _streamer(link, needle_from_marker)
     truth = _SimulatorTruth(session, observer) if session.simulated else None
     observer = truth if truth is not None else observer
     if link is not None:
@@ -614,18 +605,6 @@ def _one_stage(motion: MotionPlan, stage: str) -> MotionPlan:
             start = index + 1
     home = part[0].start
     return MotionPlan(motion.home_joints_rad, home, part, motion.extents, [])
-
-
-def _both(first: FrameObserver | None, second: FrameObserver | None) -> FrameObserver | None:
-    """One frame observer calling ``first`` then ``second`` (either may be None)."""
-    if first is None or second is None:
-        return first or second
-
-    def observe(*frame: Any) -> None:
-        first(*frame)
-        second(*frame)
-
-    return observe
 
 
 def _streamer(link: SlicerLink, needle_from_marker: np.ndarray) -> Callable[..., None]:

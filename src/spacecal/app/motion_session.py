@@ -248,8 +248,8 @@ class MotionSession:
     ) -> list[HeldPose]:
         """Run a plan of holds (:func:`~spacecal.planning.held_poses.hold_plan`) and keep what the
         tracker saw at each (:func:`~spacecal.workflows.held_poses.hold_poses`); ``observer`` is
-        called at every tracker frame, moving and holding (the station's live view; guidance
-        streams the needle's pose to 3D Slicer from it)."""
+        called at every tracker frame, moving and holding (guidance streams the needle's pose to
+        3D Slicer from it)."""
         self._require_started()
         return hold_poses(
             self.robot,

@@ -61,7 +61,7 @@ from spacecal.records import CalibrationResult, VerificationResult
 from spacecal.records.fields import as_transform
 from spacecal.report.figures import plot_verification_errors
 from spacecal.sim.scenario import Scenario, load_scenario
-from spacecal.workflows.acquisition import FrameObserver, SampleCallback
+from spacecal.workflows.acquisition import SampleCallback
 from spacecal.workflows.held_poses import HeldPose, HoldsStopped
 
 #: What the calibrated marker's measurement is, in every figure that shows it.
@@ -274,7 +274,6 @@ def verify_on_devices(
     settings: VerifySettings,
     on_sample: SampleCallback | None = None,
     on_plan: Callable[[int], None] | None = None,
-    observer: FrameObserver | None = None,
 ) -> CommandResult[RobotVerifyOutput]:
     """Reach the needle poses on the robot through the calibration and measure them.
 
@@ -335,9 +334,7 @@ def verify_on_devices(
         if on_plan is not None:
             on_plan(len(plan.moves))
         try:
-            held = session.hold(
-                plan, settings.frames_per_pose, on_sample=on_sample, what="verification", observer=observer
-            )
+            held = session.hold(plan, settings.frames_per_pose, on_sample=on_sample, what="verification")
         except HoldsStopped as stopped:
             # the robot was stopped (hold_poses); what was measured is kept, and nothing moves again
             keep_interrupted(

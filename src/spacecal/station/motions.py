@@ -19,6 +19,7 @@ crashes takes only its motion's process with it.
 from __future__ import annotations
 
 import json
+import math
 import pickle
 import secrets
 import signal
@@ -30,8 +31,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from spacecal import app
 from spacecal.core.errors import InvalidInputError
@@ -418,7 +417,7 @@ def planned_durations(settings: Any, moves_total: int) -> list[float] | None:
         durations = [float(move["duration_s"]) for move in moves]
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return None
-    if len(durations) != moves_total or not all(np.isfinite(d) and d >= 0 for d in durations):
+    if len(durations) != moves_total or not all(math.isfinite(d) and d >= 0 for d in durations):
         return None
     speed = settings.simulated_speed or 1.0
     return [d / speed for d in durations]

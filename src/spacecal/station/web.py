@@ -730,7 +730,7 @@ async def run_page(request: Request) -> Response:
     work = _station(request).workspace(run.workspace)
     # the set-up the live samples are drawn into: the plan in the robot base frame during an
     # acquisition, the tracker frame through the calibration during the motions that use one
-    scene = await asyncio.to_thread(work.scene, run.motion if run.motion == "acquire" else "after")
+    scene = await asyncio.to_thread(work.scene, run.motion)
     return _page(
         request,
         "run.html",

@@ -247,6 +247,17 @@ class Workspace:
         made = [*self.folder.glob("verification-*.json"), *self.folder.glob("verification-*.png")]
         return [*named, *sorted(made), *sorted(self.folder.glob("guidance-*.json"))]
 
+    def plan_contents(self) -> dict[str, Any] | None:
+        """The plan file's contents as on disk; None without one, or one that is not a JSON
+        object (the dry run says why; the pages that draw from it draw nothing)."""
+        if not self.plan_path.is_file():
+            return None
+        try:
+            plan = json.loads(self.plan_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        return plan if isinstance(plan, dict) else None
+
     def scene(self, motion: str | None = None) -> dict[str, Any] | None:
         """The set-up in 3-D (:func:`spacecal.station.scene.setup_scene`) from the files on
         disk: the plan, and once calibrated the calibration and its recording in the tracker's
@@ -257,11 +268,8 @@ class Workspace:
         samples are drawn live, where the TCP was, coloured by whether the marker was seen);
         a check, verification or guidance is drawn in the tracker frame through the
         calibration, without the recording's samples."""
-        if not self.plan_path.is_file():
-            return None
-        try:
-            plan = json.loads(self.plan_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+        plan = self.plan_contents()
+        if plan is None:
             return None
         calibration = self.calibration.record if self.calibration is not None else None
         if motion == "acquire":
@@ -276,7 +284,7 @@ class Workspace:
         model = "Polaris Vicra" if self.tracker["url"] == SIMULATED else self.tracker.get("model")
         kind = tracker_kind_of(model)
         return setup_scene(
-            plan if isinstance(plan, dict) else None,
+            plan,
             calibration,
             recording,
             kind.volume if kind is not None else None,
@@ -451,14 +459,13 @@ class Workspace:
         if self.calibration is None:
             return None
         tracker_from_base = np.asarray(self.calibration.record.tracker_from_base, dtype=float)
-        home_mm = None
+        home_mm = None  # without a plan that says where home is: the base's distance alone
         try:
-            plan = json.loads(self.plan_path.read_text(encoding="utf-8")) if self.plan_path.is_file() else {}
-            home = np.asarray(plan.get("home_base_from_tcp"), dtype=float)
-            if home.shape == (4, 4) and np.all(np.isfinite(home)):
-                home_mm = float(np.linalg.norm((tracker_from_base @ home)[:3, 3]))
-        except (OSError, ValueError, TypeError, AttributeError):
-            home_mm = None  # no plan to say where home is: the base's distance alone
+            home = np.asarray((self.plan_contents() or {}).get("home_base_from_tcp"), dtype=float)
+        except (ValueError, TypeError):
+            home = np.empty(0)
+        if home.shape == (4, 4) and np.all(np.isfinite(home)):
+            home_mm = float(np.linalg.norm((tracker_from_base @ home)[:3, 3]))
         return {
             "tracker_from_base": tracker_from_base.tolist(),
             "base_mm": float(np.linalg.norm(tracker_from_base[:3, 3])),
